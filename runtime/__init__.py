@@ -1,0 +1,1 @@
+"""softplc runtime: language, compiler, engine, plant, scheduler, console, CLI."""
