@@ -1,0 +1,213 @@
+"""Instances: a compiled program with its own state, scanned on an injected clock.
+
+An Instance is what a Siemens DB is to an FB: the grafcet's code is shared, the state list
+is the instance's own. ``scan(now, up)`` runs one scan (semantics.md) at monotonic time
+``now`` (ns), ``up`` ns after the controller started.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from runtime import ast as A
+from runtime.compiler import Program
+from runtime.model import VarKind
+from runtime.parser import format_time
+
+T = A.Type
+
+
+@dataclass
+class TermWhy:
+    text: str
+    depth: int
+    value: Any
+
+
+@dataclass
+class TransitionWhy:
+    """Why an outgoing transition of an active step does or does not fire."""
+
+    index: int
+    text: str  # "gsAbrir -> gsCerrar when iAbierto"
+    condition: bool
+    blocked: list[str]  # reasons besides the condition
+    terms: list[TermWhy] = field(default_factory=list)
+
+
+@dataclass
+class StepWhy:
+    step: str
+    time_ns: int
+    transitions: list[TransitionWhy]
+
+
+class Instance:
+    """One running instance of a compiled grafcet."""
+
+    def __init__(self, name: str, program: Program) -> None:
+        self.name = name
+        self.program = program
+        self.grafcet = program.grafcet
+        self.m: list[Any] = program.new_state()
+        self._scan = program.scan
+        self.index = program.index
+        self.last_up = 0
+        g = self.grafcet
+        self._leaf = [s.name for s in g.leaf_steps()]
+        self._x = [self.index[f"{s}.X"] for s in self._leaf]
+        self._retained = [v.name for v in g.variables.values() if v.retain]
+
+    def scan(self, now: int, up: int) -> None:
+        """One scan at monotonic time ``now`` (ns); ``up`` ns since the controller started."""
+        self.last_up = up
+        self._scan(self.m, now, up)
+
+    # -- reading and writing -------------------------------------------------------
+    def step_time(self, step: str) -> int:
+        """``step.T`` in ns as the chart sees it now (kept after deactivation)."""
+        m, ix = self.m, self.index
+        if m[ix[f"{step}.X"]]:
+            return int(m[ix["#ct"]] - m[ix[f"{step}.T0"]])
+        return int(m[ix[f"{step}.TK"]])
+
+    def active_steps(self) -> list[str]:
+        m = self.m
+        return [s for s, i in zip(self._leaf, self._x, strict=True) if m[i]]
+
+    def current_step(self) -> str:
+        """SFCCurrentStep: the last active step in file order, or ''."""
+        act = self.active_steps()
+        return act[-1] if act else ""
+
+    def get(self, key: str) -> Any:
+        """Value of ``var``, ``step.X``, ``step.T`` (ns) or a chart flag."""
+        if key.endswith(".T") and key[:-2] in self.grafcet.steps:
+            return self.step_time(key[:-2])
+        if key == "SFCCurrentStep":
+            return self.current_step()
+        if key in self.grafcet.timers or key in self.grafcet.blocks or key.startswith("#"):
+            raise KeyError(key)
+        return self.m[self.index[key]]
+
+    def set(self, key: str, value: Any) -> None:
+        """Write a variable or chart flag (between scans)."""
+        v = self.grafcet.variables.get(key)
+        if v is None or v.kind is VarKind.SYSTEM or v.type is T.STRING:
+            raise KeyError(key)
+        self.m[self.index[key]] = coerce(v.type, value)
+
+    def names(self) -> list[str]:
+        """Every readable name: variables, flags, step.X and step.T."""
+        g = self.grafcet
+        out = [v.name for v in g.variables.values() if v.kind is not VarKind.SYSTEM]
+        for s in g.steps:
+            out += [f"{s}.X", f"{s}.T"]
+        return out
+
+    # -- retain and restart --------------------------------------------------------
+    def retain_snapshot(self) -> dict[str, Any]:
+        m, ix = self.m, self.index
+        return {name: m[ix[name]] for name in self._retained}
+
+    def restore_retain(self, data: dict[str, Any]) -> list[str]:
+        """Restore retained memory; returns the names that were ignored (unknown, bad type)."""
+        ignored = []
+        for name, value in data.items():
+            v = self.grafcet.variables.get(name)
+            if v is None or not v.retain:
+                ignored.append(name)
+                continue
+            try:
+                self.m[self.index[name]] = coerce(v.type, value)
+            except (TypeError, ValueError):
+                ignored.append(name)
+        return ignored
+
+    def restart(self) -> None:
+        """Back to the initial situation, as at power-up; retained memory is kept."""
+        kept = self.retain_snapshot()
+        self.m[:] = self.program.new_state()
+        self.restore_retain(kept)
+
+    # -- explain ---------------------------------------------------------------------
+    def explain(self) -> list[StepWhy]:
+        """For each active step, each outgoing transition and why it does (not) fire.
+
+        Values are those of the last scan (edges as they were sampled in it)."""
+        g, m, ix = self.grafcet, self.m, self.index
+        now = m[ix["#last"]]
+        up = self.last_up
+        paused = bool(m[ix["#paused"]])
+        tipmode = bool(m[ix["SFCTipMode"]])
+        out = []
+        values: dict[int, bool] = {}
+        for t in g.transitions:
+            probes = self.program.probes[t.index]
+            values[t.index] = bool(probes[0].fn(m, now, up))
+        for step in self.active_steps():
+            whys = []
+            for t in g.transitions:
+                if step not in t.src_steps:
+                    continue
+                blocked = []
+                if paused:
+                    blocked.append("chart paused (SFCPause/SFCQuitError)")
+                if tipmode:
+                    blocked.append("SFCTipMode: fires only on ↑SFCTip")
+                for s in t.src_steps:
+                    if not m[ix[f"{s}.X"]]:
+                        blocked.append(f"source step {s} not active")
+                    st = g.steps[s]
+                    if st.min_ns and self.step_time(s) < st.min_ns:
+                        blocked.append(f"min time of {s}: {format_time(self.step_time(s))} of "
+                                       f"{format_time(st.min_ns)}")
+                for e in g.transitions[:t.index]:
+                    if set(e.src_steps) & set(t.src_steps) and values[e.index] and all(
+                            m[ix[f"{s}.X"]] for s in e.src_steps):
+                        blocked.append(f"earlier transition has priority: "
+                                       f"{','.join(e.sources)} -> {','.join(e.targets)} "
+                                       f"when {e.text}")
+                terms = [TermWhy(p.text, p.depth, _plain(p.fn(m, now, up)))
+                         for p in self.program.probes[t.index]]
+                src = ",".join(t.sources) or "(source)"
+                dst = ",".join(t.targets) or "(sink)"
+                whys.append(TransitionWhy(t.index, f"{src} -> {dst} when {t.text}",
+                                          values[t.index], blocked, terms))
+            out.append(StepWhy(step, self.step_time(step), whys))
+        return out
+
+
+def _plain(v: Any) -> Any:
+    return int(v) if isinstance(v, bool) else v
+
+
+def coerce(t: A.Type, value: Any) -> Any:
+    """Convert an external value (script, console, retain file) to a variable's type."""
+    if t is T.BOOL:
+        if isinstance(value, str):
+            if value.strip().lower() in ("1", "true", "on"):
+                return True
+            if value.strip().lower() in ("0", "false", "off"):
+                return False
+            raise ValueError(f"expected a bool (0/1/true/false), found '{value}'")
+        if value not in (0, 1, True, False):
+            raise ValueError(f"expected a bool (0/1), found {value!r}")
+        return bool(value)
+    if t is T.INT:
+        if isinstance(value, float) and not value.is_integer():
+            raise ValueError(f"expected an int, found {value!r}")
+        return int(value)
+    if t is T.REAL:
+        return float(value)
+    if t is T.TIME:
+        if isinstance(value, str):
+            from runtime.parser import parse_time
+            text = value.split("#", 1)[-1]
+            ns = parse_time(text)
+            if ns is None:
+                raise ValueError(f"expected a time like 10s, found '{value}'")
+            return ns
+        return int(value)
+    return value

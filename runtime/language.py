@@ -1,0 +1,476 @@
+"""Loading grafcet files into the typed model, with errors as FILE:LINE:COL.
+
+Plant files are loaded by runtime.plantfile, which uses this module for their charts.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from typing import Any
+
+from runtime import ast as A
+from runtime.errors import Loc, SourceError, suggest
+from runtime.model import (
+    Action, Block, Grafcet, Macro, Qualifier, ScanModel, Statement, Step, Transition, Variable,
+    VarKind,
+)
+from runtime.parser import parse_action, parse_expression, parse_statements, parse_time
+from runtime.typecheck import (
+    FB_MEMBERS, FLAGS_BOOL, FLAGS_STRING, SYSTEM_BOOL, Checker, looks_temporary,
+)
+from runtime.yamlsrc import YList, YMap, YStr, load_yaml
+
+T = A.Type
+GRAFCET_KEYS = ("grafcet", "description", "scan", "inputs", "outputs", "memory", "timers",
+                "blocks", "pre", "steps", "transitions", "post")
+STEP_KEYS = ("initial", "actions", "min", "max", "macro", "entry", "exit", "description")
+TRANSITION_KEYS = ("from", "to", "when", "name", "description")
+TYPE_NAMES = {"bool": T.BOOL, "int": T.INT, "real": T.REAL, "time": T.TIME}
+
+
+def check_keys(m: YMap, allowed: tuple[str, ...], what: str) -> None:
+    """Raise on the first key of ``m`` not in ``allowed``, suggesting the closest one."""
+    for k in m:
+        if k not in allowed:
+            raise SourceError(m.key_locs[k], f"unknown key '{k}' in {what}: expected one of "
+                                             f"{', '.join(allowed)}{suggest(k, allowed)}")
+
+
+def expect_type(value: Any, loc: Loc, types: type | tuple[type, ...], what: str) -> Any:
+    if isinstance(value, bool) and bool not in (types if isinstance(types, tuple) else (types,)):
+        raise SourceError(loc, f"expected {what}, found {str(value).lower()}")
+    if not isinstance(value, types):
+        found = "nothing" if value is None else f"{type(value).__name__} {value!r}"
+        if isinstance(value, YMap):
+            found = "a mapping"
+        elif isinstance(value, YList):
+            found = "a list"
+        raise SourceError(loc, f"expected {what}, found {found}")
+    return value
+
+
+def time_value(value: Any, loc: Loc, what: str) -> int:
+    """A time given in YAML: ``10s``, ``T#10s``, or 0."""
+    if value == 0 and not isinstance(value, bool):
+        return 0
+    if isinstance(value, str):
+        text = value.strip()
+        if text.upper().startswith(("T#", "TIME#")):
+            text = text.split("#", 1)[1]
+        ns = parse_time(text)
+        if ns is not None:
+            return ns
+    raise SourceError(loc, f"bad time literal '{value}' for {what}: expected e.g. 10s, 250ms, "
+                           "1m30s or T#10s")
+
+
+def _locator(text: Any, fallback: Loc) -> Callable[[int], Loc]:
+    if isinstance(text, YStr):
+        return text.pos
+    return lambda off: Loc(fallback.file, fallback.line, fallback.col + off)
+
+
+def _identifier(name: str, loc: Loc, what: str) -> str:
+    if not isinstance(name, str) or not name.isidentifier():
+        raise SourceError(loc, f"expected a name for {what} (letters, digits, '_'), found "
+                               f"'{name}'")
+    return name
+
+
+class GrafcetLoader:
+    """Builds one Grafcet from a YAML mapping."""
+
+    def __init__(self, path: str, doc: YMap) -> None:
+        self.path = path
+        self.doc = doc
+        self.g = Grafcet(name="", path=path, loc=doc.loc)
+        self.units: list[tuple[str, str, Callable[[int], Loc], object]] = []
+        self.stmt_index = 0
+
+    def load(self) -> Grafcet:
+        d, g = self.doc, self.g
+        check_keys(d, GRAFCET_KEYS, "a grafcet file")
+        if "grafcet" not in d:
+            raise SourceError(d.loc, "missing key 'grafcet': expected the chart's name")
+        g.name = _identifier(d["grafcet"], d.val_locs["grafcet"], "the grafcet")
+        g.description = str(d.get("description", "") or "")
+        if "scan" in d:
+            try:
+                g.scan = ScanModel(d["scan"])
+            except ValueError:
+                raise SourceError(d.val_locs["scan"], f"unknown scan model '{d['scan']}': "
+                                  "expected immediate, codesys or stable") from None
+        self._signals("inputs", VarKind.INPUT)
+        self._signals("outputs", VarKind.OUTPUT)
+        self._memory()
+        for name in FLAGS_BOOL:
+            g.variables[name] = Variable(name, VarKind.FLAG, T.BOOL, name == "SFCEnableLimit",
+                                         d.loc)
+        for name in FLAGS_STRING:
+            g.variables[name] = Variable(name, VarKind.FLAG, T.STRING, "", d.loc)
+        for name in SYSTEM_BOOL:
+            g.variables[name] = Variable(name, VarKind.SYSTEM, T.BOOL, False, d.loc)
+        self._timers_blocks()
+        if "steps" not in d:
+            raise SourceError(d.loc, "missing key 'steps': a chart needs at least one step")
+        steps = expect_type(d["steps"], d.val_locs["steps"], YMap, "a mapping of steps")
+        top = self._steps(steps, parent=None)
+        transitions: list[Transition] = []
+        if "transitions" in d:
+            transitions += self._transitions(d["transitions"], d.val_locs["transitions"])
+        for s in g.steps.values():
+            if s.macro is not None:
+                transitions += s.macro.transitions
+        transitions.sort(key=lambda t: (t.loc.line, t.loc.col))
+        for i, t in enumerate(transitions):
+            t.index = i
+        g.transitions = transitions
+        if not any(g.steps[n].initial for n in g.steps):
+            raise SourceError(d.key_locs["steps"], "the chart has no initial step: mark one "
+                              "with 'initial: true'")
+        del top
+        self.pre_post()
+        self._resolve_macros()
+        self._typecheck_temps()
+        return g
+
+    # -- declarations ------------------------------------------------------------
+    def _declare(self, name: Any, loc: Loc, what: str) -> str:
+        name = _identifier(name, loc, what)
+        if name in self.g.variables or name in self.g.timers or name in self.g.blocks or (
+                name in self.g.steps):
+            raise SourceError(loc, f"'{name}' is declared twice")
+        if name in FLAGS_BOOL + FLAGS_STRING + SYSTEM_BOOL:
+            raise SourceError(loc, f"'{name}' is a built-in name")
+        return name
+
+    def _signals(self, key: str, kind: VarKind) -> None:
+        d = self.doc
+        if key not in d:
+            return
+        items = d[key]
+        if items is None:
+            return
+        items = expect_type(items, d.val_locs[key], YList, f"a list of {key}")
+        for item, loc in zip(items, items.locs, strict=True):
+            typ = T.BOOL
+            if isinstance(item, YMap):
+                if len(item) != 1:
+                    raise SourceError(loc, f"expected one '{{name: type}}' per typed signal, "
+                                           f"found {len(item)} keys")
+                (name, tname), = item.items()
+                if tname not in TYPE_NAMES:
+                    raise SourceError(item.val_locs[name], f"unknown type '{tname}': expected "
+                                                           "bool, int, real or time")
+                typ = TYPE_NAMES[tname]
+                loc = item.key_locs[name]
+            else:
+                name = item
+            name = self._declare(name, loc, f"an {key[:-1]}")
+            self.g.variables[name] = Variable(name, kind, typ, _zero(typ), loc)
+
+    def _memory(self) -> None:
+        d = self.doc
+        if "memory" not in d or d["memory"] is None:
+            return
+        mem = expect_type(d["memory"], d.val_locs["memory"], YMap, "a mapping of memory")
+        for name, spec in mem.items():
+            loc = mem.key_locs[name]
+            self._declare(name, loc, "a memory variable")
+            retain = False
+            vloc = mem.val_locs[name]
+            if isinstance(spec, YMap):
+                check_keys(spec, ("init", "retain"), f"memory '{name}'")
+                retain = bool(spec.get("retain", False))
+                vloc = spec.val_locs.get("init", vloc)
+                spec = spec.get("init", False)
+            typ, init = _initial(spec, vloc, name)
+            self.g.variables[name] = Variable(name, VarKind.MEMORY, typ, init, loc, retain)
+
+    def _timers_blocks(self) -> None:
+        d = self.doc
+        if d.get("timers"):
+            lst = expect_type(d["timers"], d.val_locs["timers"], YList, "a list of timer names")
+            for name, loc in zip(lst, lst.locs, strict=True):
+                self.g.timers[self._declare(name, loc, "a timer")] = loc
+        if d.get("blocks"):
+            blocks = expect_type(d["blocks"], d.val_locs["blocks"], YMap,
+                                 "a mapping name: TON|TOF|TP|CTU|CTD|CTUD|R_TRIG|F_TRIG|SR|RS")
+            for name, kind in blocks.items():
+                loc = blocks.key_locs[name]
+                self._declare(name, loc, "a function block")
+                if kind not in FB_MEMBERS:
+                    raise SourceError(blocks.val_locs[name], f"unknown function block type "
+                                      f"'{kind}': expected one of {' '.join(FB_MEMBERS)}"
+                                      f"{suggest(str(kind), FB_MEMBERS)}")
+                self.g.blocks[name] = Block(name, kind, loc)
+
+    # -- steps and transitions ------------------------------------------------------
+    def _steps(self, steps: YMap, parent: str | None) -> list[str]:
+        names = []
+        for name, spec in steps.items():
+            loc = steps.key_locs[name]
+            self._declare(name, loc, "a step")
+            if spec is None:
+                spec = YMap()
+                spec.loc, spec.key_locs, spec.val_locs = loc, {}, {}
+            spec = expect_type(spec, steps.val_locs[name], YMap, f"the definition of step "
+                               f"'{name}' (a mapping)")
+            check_keys(spec, STEP_KEYS, f"step '{name}'")
+            st = Step(name, loc, parent=parent, description=str(spec.get("description", "")))
+            for flag in ("initial", "entry", "exit"):
+                if flag in spec:
+                    val = expect_type(spec[flag], spec.val_locs[flag], bool, "true or false")
+                    setattr(st, flag, val)
+            if (st.entry or st.exit) and parent is None:
+                key = "entry" if st.entry else "exit"
+                raise SourceError(spec.key_locs[key], f"'{key}' is for steps inside a macro-step "
+                                  "expansion")
+            for key in ("min", "max"):
+                if key in spec:
+                    setattr(st, f"{key}_ns", time_value(spec[key], spec.val_locs[key],
+                                                        f"{key} of step '{name}'"))
+            self.g.steps[name] = st
+            names.append(name)
+            if "macro" in spec:
+                if "actions" in spec:
+                    raise SourceError(spec.key_locs["actions"], f"macro-step '{name}' carries no "
+                                      "actions of its own: put them on its inner steps")
+                self._macro(st, spec["macro"], spec.val_locs["macro"])
+            if "actions" in spec and spec["actions"] is not None:
+                acts = spec["actions"]
+                if isinstance(acts, str):
+                    single = YList([acts])
+                    single.loc, single.locs = spec.val_locs["actions"], [acts.loc]
+                    acts = single
+                acts = expect_type(acts, spec.val_locs["actions"], YList, "a list of actions")
+                for text, aloc in zip(acts, acts.locs, strict=True):
+                    st.actions.append(self._action(st, text, aloc))
+        return names
+
+    def _macro(self, st: Step, spec: Any, loc: Loc) -> None:
+        spec = expect_type(spec, loc, YMap, f"the expansion of macro-step '{st.name}'")
+        check_keys(spec, ("steps", "transitions"), f"macro-step '{st.name}'")
+        if "steps" not in spec:
+            raise SourceError(spec.loc, f"macro-step '{st.name}' needs 'steps'")
+        inner = expect_type(spec["steps"], spec.val_locs["steps"], YMap, "a mapping of steps")
+        names = self._steps(inner, parent=st.name)
+        entries = [n for n in names if self.g.steps[n].entry]
+        exits = [n for n in names if self.g.steps[n].exit]
+        if len(entries) != 1 or len(exits) != 1:
+            which = "entry" if len(entries) != 1 else "exit"
+            count = len(entries) if which == "entry" else len(exits)
+            raise SourceError(spec.key_locs["steps"], f"macro-step '{st.name}' needs exactly one "
+                              f"{which} step ('{which}: true'), found {count}")
+        all_inner = []
+        for n in names:
+            all_inner.append(n)
+            sub = self.g.steps[n].macro
+            if sub is not None:
+                all_inner += sub.steps
+        trans = []
+        if "transitions" in spec:
+            trans = self._transitions(spec["transitions"], spec.val_locs["transitions"])
+        st.macro = Macro(all_inner, trans, entries[0], exits[0])
+        if st.initial:
+            self.g.steps[entries[0]].initial = True
+
+    def _transitions(self, items: Any, loc: Loc) -> list[Transition]:
+        items = expect_type(items, loc, YList, "a list of transitions")
+        out = []
+        for spec, tloc in zip(items, items.locs, strict=True):
+            spec = expect_type(spec, tloc, YMap, "a transition {from, to, when}")
+            check_keys(spec, TRANSITION_KEYS, "a transition")
+            for key in ("from", "to", "when"):
+                if key not in spec:
+                    raise SourceError(spec.loc, f"transition without '{key}'")
+            srcs = self._step_refs(spec["from"], spec.val_locs["from"], "from")
+            dsts = self._step_refs(spec["to"], spec.val_locs["to"], "to")
+            when = spec["when"]
+            wloc = spec.val_locs["when"]
+            if isinstance(when, bool):
+                when = YStr("TRUE" if when else "FALSE")
+                when.loc, when._lines = wloc, [(0, wloc.line, wloc.col)]
+            elif isinstance(when, int):
+                s = YStr(str(when))
+                s.loc, s._lines = wloc, [(0, wloc.line, wloc.col)]
+                when = s
+            when = expect_type(when, wloc, str, "a condition")
+            locate = _locator(when, wloc)
+            cond = parse_expression(when, locate)
+            t = Transition(srcs, dsts, cond, str(when), spec.loc,
+                           name=str(spec.get("name", "")))
+            self.units.append(("bool", str(when), locate, cond))
+            out.append(t)
+        return out
+
+    def _step_refs(self, value: Any, loc: Loc, key: str) -> list[str]:
+        if isinstance(value, str):
+            return [value]
+        lst = expect_type(value, loc, YList, f"a step name or a list of steps in '{key}'")
+        for v, vloc in zip(lst, lst.locs, strict=True):
+            expect_type(v, vloc, str, "a step name")
+        return [str(v) for v in lst]
+
+    def _action(self, st: Step, text: Any, loc: Loc) -> Action:
+        text = expect_type(text, loc, str, "an action string")
+        locate = _locator(text, loc)
+        pa = parse_action(text, locate)
+        q = Qualifier(pa.qualifier)
+        act = Action(q, st.name, str(text), loc, pa.time_ns)
+        if pa.target is not None:
+            if q in (Qualifier.P1, Qualifier.P0):
+                raise SourceError(locate(pa.target.start), f"{q.value} needs statements (e.g. "
+                                  f"'{q.value} {pa.target.name} := 1'), found the bare variable "
+                                  f"'{pa.target.name}': a continuous action cannot be tied to "
+                                  "activation or deactivation (seed-000 rule I.6)")
+            if pa.cond is not None and q is not Qualifier.N:
+                raise SourceError(locate(pa.cond.start), f"'if CONDITION' is for N actions, "
+                                  f"found it with {q.value}")
+            act.target = pa.target.name
+            act.cond = pa.cond
+            self._check_target(pa.target, locate)
+            if pa.cond is not None:
+                self.units.append(("bool", str(text), locate, pa.cond))
+        else:
+            if q in (Qualifier.S, Qualifier.R, Qualifier.DS, Qualifier.SD, Qualifier.SL):
+                raise SourceError(locate(pa.qualifier_start), f"qualifier {q.value} needs a bool "
+                                  "variable (e.g. 'S oLamp'), found statements")
+            if q is Qualifier.EVENT:
+                act.event = pa.event
+                self.units.append(("bool", str(text), locate, pa.event))
+                if not any(isinstance(n, A.Unary) and n.op in ("RE", "FE")
+                           for n in A.walk(pa.event)):  # type: ignore[arg-type]
+                    raise SourceError(locate(pa.event.start), "the event of 'on EVENT do' must "  # type: ignore[union-attr]
+                                      "contain an edge (↑x, ↓x, RE x, FE x)")
+            act.body = pa.body
+            act.index = self.stmt_index
+            self.stmt_index += 1
+            self.units.append(("stmts", str(text), locate, pa.body))
+        return act
+
+    def _check_target(self, name: A.Name, locate: Callable[[int], Loc]) -> None:
+        v = self.g.variables.get(name.name)
+        if v is None:
+            if looks_temporary(name.name):
+                raise SourceError(locate(name.start), f"action target '{name.name}' must be "
+                                  "declared as an output or memory")
+            allv = [*self.g.variables, *self.g.steps]
+            raise SourceError(locate(name.start), f"unknown variable '{name.name}'"
+                              f"{suggest(name.name, allv)}")
+        if v.kind not in (VarKind.OUTPUT, VarKind.MEMORY):
+            raise SourceError(locate(name.start), f"an action drives an output or a memory "
+                              f"variable, found {v.kind.value} '{name.name}'")
+        if v.type is not T.BOOL:
+            raise SourceError(locate(name.start), f"type error: an action on a variable needs "
+                              f"a bool, found {v.type} '{name.name}' (use a statement: "
+                              f"'{name.name} := ...')")
+
+    def pre_post(self) -> None:
+        d = self.doc
+        for key in ("pre", "post"):
+            if key not in d or d[key] is None:
+                continue
+            items = d[key]
+            if isinstance(items, str):
+                lst = YList([items])
+                lst.loc, lst.locs = d.val_locs[key], [d.val_locs[key]]
+                items = lst
+            items = expect_type(items, d.val_locs[key], YList, f"a list of {key} statements")
+            out = getattr(self.g, key)
+            for text, loc in zip(items, items.locs, strict=True):
+                text = expect_type(text, loc, str, "a statement")
+                locate = _locator(text, loc)
+                body = parse_statements(text, locate)
+                for s in body:
+                    out.append(Statement(s, str(text)[s.start:s.end], locate(s.start)))
+                self.units.append(("stmts", str(text), locate, body))
+
+    def _resolve_macros(self) -> None:
+        g = self.g
+
+        def entry(name: str) -> str:
+            st = g.steps[name]
+            return entry(st.macro.entry) if st.macro else name
+
+        def exit_(name: str) -> str:
+            st = g.steps[name]
+            return exit_(st.macro.exit) if st.macro else name
+
+        for t in g.transitions:
+            for key, names in (("from", t.sources), ("to", t.targets)):
+                for n in names:
+                    if n not in g.steps:
+                        raise SourceError(t.loc, f"transition '{key}' names unknown step '{n}'"
+                                                 f"{suggest(n, g.steps)}")
+            t.src_steps = [exit_(n) for n in t.sources]
+            t.dst_steps = [entry(n) for n in t.targets]
+
+    def _typecheck_temps(self) -> None:
+        # every undeclared name assigned anywhere that looks like a temporary
+        checker = Checker(self.g)
+        for _, src, locate, parsed in self.units:
+            nodes = parsed if isinstance(parsed, list) else [parsed]
+            for top in nodes:
+                for n in A.walk(top):  # type: ignore[arg-type]
+                    target = None
+                    if isinstance(n, A.Assign):
+                        target = n.target
+                    elif isinstance(n, A.For):
+                        target = n.var
+                    elif isinstance(n, A.MethodCall) and n.method == "Set":
+                        target = A.Name(n.start, n.start + len(n.obj), n.obj)
+                    if target is None or target.name in self.g.variables:
+                        continue
+                    if target.name in self.g.steps or target.name in self.g.timers or (
+                            target.name in self.g.blocks):
+                        continue
+                    if not looks_temporary(target.name):
+                        allv = [*self.g.variables, *self.g.steps]
+                        raise SourceError(locate(target.start), f"unknown variable "
+                                          f"'{target.name}'{suggest(target.name, allv)} (an "
+                                          "undeclared name assigned in the program must start "
+                                          "with 't': a temporary)")
+                    checker.temps_pending.setdefault(target.name, locate(target.start))
+        checker.run(self.units)
+
+
+def _zero(t: A.Type) -> object:
+    return {T.BOOL: False, T.INT: 0, T.REAL: 0.0, T.TIME: 0, T.STRING: ""}[t]
+
+
+def _initial(spec: Any, loc: Loc, name: str) -> tuple[A.Type, object]:
+    if isinstance(spec, bool):
+        return T.BOOL, spec
+    if isinstance(spec, int):
+        return T.INT, spec
+    if isinstance(spec, float):
+        return T.REAL, spec
+    if isinstance(spec, str):
+        text = spec.strip()
+        if text.upper() in ("TRUE", "FALSE"):
+            return T.BOOL, text.upper() == "TRUE"
+        return T.TIME, time_value(text, loc, f"the initial value of '{name}'")
+    raise SourceError(loc, f"expected an initial value for '{name}' (false, 0, 0.0 or a time "
+                           f"like 10s), found {spec!r}")
+
+
+_CACHE: dict[tuple[str, float], Grafcet] = {}
+
+
+def load_grafcet(path: str) -> Grafcet:
+    """Load and type-check one grafcet file (cached by path and modification time)."""
+    real = os.path.realpath(path)
+    try:
+        key = (real, os.path.getmtime(real))
+    except OSError:
+        key = (real, -1.0)
+    if key in _CACHE:
+        return _CACHE[key]
+    doc = load_yaml(path)
+    if not isinstance(doc, YMap):
+        raise SourceError(Loc(path, 1, 1), "expected a YAML mapping with 'grafcet:' and 'steps:'")
+    g = GrafcetLoader(path, doc).load()
+    _CACHE[key] = g
+    return g

@@ -1,0 +1,207 @@
+"""Typed model of grafcet files and plant files, as the loader builds it."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from typing import Any
+
+from runtime import ast as A
+from runtime.errors import Loc
+
+
+class VarKind(enum.Enum):
+    INPUT = "input"
+    OUTPUT = "output"
+    MEMORY = "memory"
+    TEMP = "temporary"  # "t" variables: assigned in the program, typed by use
+    FLAG = "chart flag"
+    SYSTEM = "system value"  # FirstScan, clock bits: read-only
+
+
+class ScanModel(enum.Enum):
+    IMMEDIATE = "immediate"
+    CODESYS = "codesys"
+    STABLE = "stable"
+
+
+class Qualifier(enum.Enum):
+    N = "N"
+    S = "S"
+    R = "R"
+    L = "L"
+    D = "D"
+    P = "P"
+    P1 = "P1"
+    P0 = "P0"
+    DS = "DS"
+    SD = "SD"
+    SL = "SL"
+    EVENT = "EVENT"  # on EVENT do ...
+
+
+@dataclass(slots=True)
+class Variable:
+    name: str
+    kind: VarKind
+    type: A.Type
+    init: Any
+    loc: Loc
+    retain: bool = False
+
+
+@dataclass(slots=True)
+class Action:
+    qualifier: Qualifier
+    step: str
+    text: str
+    loc: Loc
+    time_ns: int | None = None
+    target: str | None = None  # bool variable target
+    cond: A.Node | None = None  # `N x if C`
+    event: A.Node | None = None  # `on E do`
+    body: list[A.Node] | None = None  # statements
+    index: int = 0  # order of the statement action in the chart (file order)
+
+
+@dataclass(slots=True)
+class Step:
+    name: str
+    loc: Loc
+    initial: bool = False
+    actions: list[Action] = field(default_factory=list)
+    min_ns: int | None = None
+    max_ns: int | None = None
+    macro: Macro | None = None
+    entry: bool = False
+    exit: bool = False
+    parent: str | None = None  # enclosing macro-step
+    description: str = ""
+
+
+@dataclass(slots=True)
+class Macro:
+    steps: list[str]  # names, in file order (nested expansions in place)
+    transitions: list[Transition]
+    entry: str
+    exit: str
+
+
+@dataclass(slots=True)
+class Transition:
+    sources: list[str]  # as written (may name macro-steps)
+    targets: list[str]
+    cond: A.Node
+    text: str
+    loc: Loc
+    index: int = 0  # priority: file order
+    name: str = ""
+    # resolved by the loader: macro-steps replaced by their exit/entry steps
+    src_steps: list[str] = field(default_factory=list)
+    dst_steps: list[str] = field(default_factory=list)
+
+
+@dataclass(slots=True)
+class Block:
+    name: str
+    kind: str  # TON TOF TP CTU CTD CTUD R_TRIG F_TRIG SR RS
+    loc: Loc
+
+
+@dataclass(slots=True)
+class Statement:
+    """A top-level statement of pre/post with its source text."""
+
+    node: A.Node
+    text: str
+    loc: Loc
+
+
+@dataclass(slots=True)
+class Grafcet:
+    name: str
+    path: str
+    loc: Loc
+    description: str = ""
+    scan: ScanModel = ScanModel.IMMEDIATE
+    variables: dict[str, Variable] = field(default_factory=dict)
+    steps: dict[str, Step] = field(default_factory=dict)  # every step, file order
+    transitions: list[Transition] = field(default_factory=list)  # all, priority order
+    timers: dict[str, Loc] = field(default_factory=dict)
+    blocks: dict[str, Block] = field(default_factory=dict)
+    pre: list[Statement] = field(default_factory=list)
+    post: list[Statement] = field(default_factory=list)
+
+    @property
+    def inputs(self) -> list[Variable]:
+        return [v for v in self.variables.values() if v.kind is VarKind.INPUT]
+
+    @property
+    def outputs(self) -> list[Variable]:
+        return [v for v in self.variables.values() if v.kind is VarKind.OUTPUT]
+
+    @property
+    def memory(self) -> list[Variable]:
+        return [v for v in self.variables.values() if v.kind is VarKind.MEMORY]
+
+    def leaf_steps(self) -> list[Step]:
+        """Steps that can be active themselves (not macro-steps), file order."""
+        return [s for s in self.steps.values() if s.macro is None]
+
+    def actions(self) -> list[Action]:
+        return [a for s in self.steps.values() for a in s.actions]
+
+
+@dataclass(slots=True)
+class Binding:
+    """One instance signal bound to a driver point, another instance's signal, or a flag."""
+
+    signal: str  # the instance's input/output/flag name
+    source: str  # as written: "driver.point" or "instance.name[.X]"
+    loc: Loc
+    invert: bool = False
+    driver: str | None = None  # set for a driver point
+    point: str | None = None
+    instance: str | None = None  # set for a link to another instance
+    ref: str | None = None  # that instance's name: "oX", "gsA.X", "SFCError"
+
+
+@dataclass(slots=True)
+class InstanceDef:
+    name: str
+    grafcet: Grafcet
+    loc: Loc
+    inputs: dict[str, Binding] = field(default_factory=dict)  # inputs and chart flags
+    outputs: dict[str, Binding] = field(default_factory=dict)
+
+
+@dataclass(slots=True)
+class DriverDef:
+    name: str
+    type: str
+    config: dict[str, Any]
+    loc: Loc
+
+
+@dataclass(slots=True)
+class ConsoleEntry:
+    kind: str  # serial | socket | tcp
+    address: str  # port path, socket path, or "127.0.0.1:PORT"
+    baudrate: int = 115200
+    trusted: bool = False
+
+
+@dataclass(slots=True)
+class PlantDef:
+    path: str
+    cycle_ns: int = 10_000_000
+    watchdog_ns: int = 100_000_000
+    retain_path: str | None = None
+    retain_interval_ns: int = 1_000_000_000
+    realtime_priority: int | None = None
+    lock_memory: bool = False
+    drivers: dict[str, DriverDef] = field(default_factory=dict)
+    instances: dict[str, InstanceDef] = field(default_factory=dict)
+    consoles: list[ConsoleEntry] = field(default_factory=list)
+    pin_hash: str | None = None
+    release_forces_on_disconnect: bool = False

@@ -1,0 +1,600 @@
+"""Lexer and parser of expressions, statements and action strings (both notations).
+
+A hand-written Pratt parser: it gives the exact column of every fault and says what it
+expected and what it found, and has no dependency. Precedence (language.md, tightest first):
+1 ``.X .T`` calls, postfix ``'``, prefix ``↑ ↓ RE FE NOT ! -``; 2 ``· * / MOD``;
+3 ``+ -``; 4 comparisons; 5 ``AND &``; 6 ``XOR``; 7 ``OR``.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from runtime import ast as A
+from runtime.errors import Loc, SourceError
+
+KEYWORDS = {
+    "AND", "OR", "XOR", "NOT", "MOD", "RE", "FE", "TRUE", "FALSE", "IF", "THEN", "ELSIF",
+    "ELSE", "END_IF", "CASE", "OF", "END_CASE", "FOR", "TO", "BY", "DO", "END_FOR",
+    "WHILE", "REPEAT", "END_WHILE", "UNTIL", "END_REPEAT",
+}
+QUALIFIERS = ("N", "S", "R", "L", "D", "P", "P1", "P0", "DS", "SD", "SL")
+TIMED_QUALIFIERS = ("L", "D", "DS", "SD", "SL")
+
+_UNITS_NS = {"d": 86_400_000_000_000, "h": 3_600_000_000_000, "m": 60_000_000_000,
+             "s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
+_UNIT_ORDER = ["d", "h", "m", "s", "ms", "us", "ns"]
+_TIME_PART = re.compile(r"(\d+(?:\.\d+)?)(ms|us|ns|d|h|m|s)")
+
+_OPS = [":=", "..", "<=", ">=", "<>", "!=", "==", "≤", "≥", "≠", "(", ")", ",", ";", ":",
+        ".", "+", "-", "*", "/", "·", "∙", "⋅", "&", "!", "'", "↑", "↓", "=", "<", ">"]
+
+
+@dataclass(slots=True)
+class Tok:
+    kind: str  # NAME KW INT REAL TIME OP NL EOF
+    text: str
+    start: int
+    end: int
+    value: object = None
+
+
+def parse_time(text: str) -> int | None:
+    """``1d23h30m20s700ms`` -> nanoseconds, or None if not a time literal. Units in order."""
+    pos, total, last = 0, 0, -1
+    t = text.replace("_", "")
+    while pos < len(t):
+        m = _TIME_PART.match(t, pos)
+        if not m:
+            return None
+        unit = m.group(2)
+        idx = _UNIT_ORDER.index(unit)
+        if idx <= last:
+            return None
+        last = idx
+        total += round(float(m.group(1)) * _UNITS_NS[unit])
+        pos = m.end()
+    return total if pos > 0 else None
+
+
+def format_time(ns: int) -> str:
+    """Nanoseconds -> the shortest seed-notation literal (``1m30s``)."""
+    if ns == 0:
+        return "0s"
+    out, rest = [], abs(ns)
+    for unit in _UNIT_ORDER:
+        q, rest = divmod(rest, _UNITS_NS[unit])
+        if q:
+            out.append(f"{q}{unit}")
+    return ("-" if ns < 0 else "") + "".join(out)
+
+
+class Lexer:
+    """Turns a source string into tokens; ``locate(offset)`` maps an offset to a file place."""
+
+    def __init__(self, text: str, locate: Callable[[int], Loc]) -> None:
+        self.text = text
+        self.locate = locate
+
+    def error(self, offset: int, msg: str) -> SourceError:
+        return SourceError(self.locate(offset), msg)
+
+    def tokens(self) -> list[Tok]:
+        text, i, out = self.text, 0, []
+        n = len(text)
+        while i < n:
+            c = text[i]
+            if c == "\n":
+                out.append(Tok("NL", "\n", i, i + 1))
+                i += 1
+                continue
+            if c.isspace():
+                i += 1
+                continue
+            if text.startswith("(*", i):  # ST comment
+                j = text.find("*)", i + 2)
+                if j < 0:
+                    raise self.error(i, "unterminated comment: expected '*)'")
+                i = j + 2
+                continue
+            if text.startswith("//", i):
+                j = text.find("\n", i)
+                i = n if j < 0 else j
+                continue
+            if c.isdigit():
+                out.append(self._number(i))
+                i = out[-1].end
+                continue
+            if c.isalpha() or c == "_":
+                j = i + 1
+                while j < n and (text[j].isalnum() or text[j] == "_"):
+                    j += 1
+                word = text[i:j]
+                if j < n and text[j] == "#" and word.upper() in ("T", "TIME"):
+                    k = j + 1
+                    while k < n and (text[k].isalnum() or text[k] in "._"):
+                        k += 1
+                    lit = text[j + 1:k]
+                    ns = parse_time(lit)
+                    if ns is None:
+                        raise self.error(i, f"bad time literal '{text[i:k]}': expected units "
+                                            "in order d h m s ms (e.g. T#1h30m)")
+                    out.append(Tok("TIME", text[i:k], i, k, ns))
+                    i = k
+                    continue
+                if j < n and text[j] == "#" and word.isdigit():  # pragma: no cover
+                    pass
+                kind = "KW" if word.upper() in KEYWORDS else "NAME"
+                out.append(Tok(kind, word.upper() if kind == "KW" else word, i, j))
+                i = j
+                continue
+            for op in _OPS:
+                if text.startswith(op, i):
+                    out.append(Tok("OP", op, i, i + len(op)))
+                    i += len(op)
+                    break
+            else:
+                raise self.error(i, f"unexpected character '{c}'")
+        out.append(Tok("EOF", "", n, n))
+        return out
+
+    def _number(self, i: int) -> Tok:
+        text, n = self.text, len(self.text)
+        j = i
+        while j < n and (text[j].isdigit() or text[j] == "_"):
+            j += 1
+        if j < n and text[j] == "#":  # based integer 16#FF, 2#1010
+            base = int(text[i:j].replace("_", ""))
+            k = j + 1
+            while k < n and (text[k].isalnum() or text[k] == "_"):
+                k += 1
+            try:
+                return Tok("INT", text[i:k], i, k, int(text[j + 1:k].replace("_", ""), base))
+            except ValueError:
+                raise self.error(i, f"bad based integer '{text[i:k]}'") from None
+        is_real = False
+        if j + 1 < n and text[j] == "." and text[j + 1].isdigit():
+            is_real = True
+            j += 1
+            while j < n and text[j].isdigit():
+                j += 1
+        if j < n and text[j] in "eE" and (j + 1 < n and (text[j + 1].isdigit() or
+                                                      text[j + 1] in "+-")):
+            k = j + 1 + (text[j + 1] in "+-")
+            if k < n and text[k].isdigit():
+                is_real = True
+                j = k
+                while j < n and text[j].isdigit():
+                    j += 1
+        if j < n and (text[j].isalpha() or text[j] == "_"):
+            k = j
+            while k < n and (text[k].isalnum() or text[k] in "._"):
+                k += 1
+            lit = text[i:k]
+            ns = parse_time(lit)
+            if ns is None:
+                raise self.error(i, f"bad time literal '{lit}': expected a number followed by "
+                                    "units in order d h m s ms (e.g. 1m30s, 250ms)")
+            return Tok("TIME", lit, i, k, ns)
+        raw = text[i:j].replace("_", "")
+        if is_real:
+            return Tok("REAL", text[i:j], i, j, float(raw))
+        return Tok("INT", text[i:j], i, j, int(raw))
+
+
+_BINARY = {
+    "OR": (7, "OR"), "XOR": (6, "XOR"), "AND": (5, "AND"), "&": (5, "AND"),
+    "=": (4, "EQ"), "==": (4, "EQ"), "<>": (4, "NE"), "!=": (4, "NE"), "≠": (4, "NE"),
+    "<": (4, "LT"), "<=": (4, "LE"), "≤": (4, "LE"), ">": (4, "GT"), ">=": (4, "GE"),
+    "≥": (4, "GE"), "+": (3, "ADD"), "-": (3, "SUB"), "*": (2, "MUL"), "·": (2, "MUL"),
+    "∙": (2, "MUL"), "⋅": (2, "MUL"), "/": (2, "DIV"), "MOD": (2, "MOD"),
+}
+_PREFIX = {"↑": "RE", "RE": "RE", "↓": "FE", "FE": "FE", "NOT": "NOT", "!": "NOT", "-": "NEG"}
+METHODS = ("Ini", "End", "Reset", "Val", "Set")
+
+
+def _describe(t: Tok) -> str:
+    if t.kind == "EOF":
+        return "end of text"
+    if t.kind == "NL":
+        return "end of line"
+    return f"'{t.text}'"
+
+
+class Parser:
+    """Parses one source string (an expression, statements, or an action)."""
+
+    def __init__(self, text: str, locate: Callable[[int], Loc]) -> None:
+        self.lexer = Lexer(text, locate)
+        self.toks = self.lexer.tokens()
+        self.i = 0
+        self.depth = 0  # parenthesis depth: newlines inside parentheses are spaces
+        self.text = text
+
+    # -- token helpers -----------------------------------------------------------------
+    def peek(self, skip_nl: bool = False) -> Tok:
+        i = self.i
+        if skip_nl or self.depth:
+            while self.toks[i].kind == "NL":
+                i += 1
+        return self.toks[i]
+
+    def next(self, skip_nl: bool = False) -> Tok:
+        if skip_nl or self.depth:
+            self.skip_nl()
+        t = self.toks[self.i]
+        self.i += 1
+        return t
+
+    def skip_nl(self) -> None:
+        while self.toks[self.i].kind == "NL":
+            self.i += 1
+
+    def at(self, kind: str, text: str | None = None, skip_nl: bool = False) -> bool:
+        t = self.peek(skip_nl)
+        return t.kind == kind and (text is None or t.text == text)
+
+    def error(self, tok: Tok, expected: str) -> SourceError:
+        if tok.kind == "KW" and tok.text in ("WHILE", "REPEAT"):
+            return SourceError(self.lexer.locate(tok.start),
+                               f"{tok.text} loops are not allowed (a scan must always end): "
+                               "use a bounded FOR loop")
+        return SourceError(self.lexer.locate(tok.start),
+                           f"expected {expected}, found {_describe(tok)}")
+
+    def expect(self, kind: str, text: str | None, what: str, skip_nl: bool = False) -> Tok:
+        t = self.peek(skip_nl)
+        if t.kind != kind or (text is not None and t.text != text):
+            raise self.error(t, what)
+        return self.next(skip_nl)
+
+    # -- expressions -------------------------------------------------------------------
+    def expression(self, min_level: int = 7) -> A.Node:
+        return self._binary(min_level)
+
+    def _binary(self, level: int) -> A.Node:
+        if level == 1:
+            return self._unary()
+        left = self._binary(level - 1)
+        while True:
+            t = self.peek()
+            key = t.text if t.kind in ("OP", "KW") else None
+            if key is None or key not in _BINARY or _BINARY[key][0] != level:
+                return left
+            self.next()
+            self.skip_nl()  # an operator at the end of a line continues the expression
+            right = self._binary(level - 1)
+            left = A.Binary(left.start, right.end, _BINARY[key][1], left, right, t.text)
+
+    def _unary(self) -> A.Node:
+        t = self.peek()
+        key = t.text if t.kind in ("OP", "KW") else None
+        if key in _PREFIX:
+            self.next()
+            operand = self._unary()
+            return A.Unary(t.start, operand.end, _PREFIX[key], operand, t.text)
+        node = self._postfix(self._primary())
+        return node
+
+    def _postfix(self, node: A.Node) -> A.Node:
+        while self.at("OP", "'"):
+            t = self.next()
+            node = A.Unary(node.start, t.end, "NOT", node, "'")
+        return node
+
+    def _primary(self) -> A.Node:
+        t = self.next()
+        if t.kind == "OP" and t.text == "(":
+            self.depth += 1
+            inner = self.expression()
+            self.depth -= 1
+            close = self.peek()
+            if not (close.kind == "OP" and close.text == ")"):
+                raise SourceError(self.lexer.locate(close.start),
+                                  f"unbalanced parentheses: expected ')' to close the '(' at "
+                                  f"column {self.lexer.locate(t.start).col}, found "
+                                  f"{_describe(close)}")
+            self.next()
+            inner.start, inner.end = t.start, close.end  # keep parentheses in the span
+            return inner
+        if t.kind == "INT":
+            v = int(t.value)  # type: ignore[call-overload]
+            return A.Lit(t.start, t.end, v, A.Type.INT, v in (0, 1))
+        if t.kind == "REAL":
+            return A.Lit(t.start, t.end, t.value, A.Type.REAL)  # type: ignore[arg-type]
+        if t.kind == "TIME":
+            return A.Lit(t.start, t.end, t.value, A.Type.TIME)  # type: ignore[arg-type]
+        if t.kind == "KW" and t.text in ("TRUE", "FALSE"):
+            return A.Lit(t.start, t.end, t.text == "TRUE", A.Type.BOOL)
+        if t.kind == "NAME":
+            if self.at("OP", "."):
+                self.next()
+                m = self.expect("NAME", None, "a member name after '.' (X, T, Q, ET, End...)")
+                if self.at("OP", "("):
+                    args = self._call_args(positional=True)
+                    end = self.toks[self.i - 1].end
+                    return A.MethodCall(t.start, end, t.text, m.text, args)  # type: ignore
+                if m.text in ("X", "T", "x", "t"):
+                    return A.StepFlag(t.start, m.end, t.text, m.text.upper())
+                return A.Member(t.start, m.end, t.text, m.text)
+            return A.Name(t.start, t.end, t.text)
+        if t.kind == "OP" and t.text == ")":
+            raise SourceError(self.lexer.locate(t.start),
+                              "unbalanced parentheses: found ')' without a matching '('")
+        raise self.error(t, "an operand (a name, a number, a time, '(' or an operator like "
+                            "NOT ↑)")
+
+    def _call_args(self, positional: bool) -> list:  # type: ignore[type-arg]
+        self.expect("OP", "(", "'('")
+        self.depth += 1
+        args: list = []  # type: ignore[type-arg]
+        if not self.at("OP", ")"):
+            while True:
+                if positional:
+                    args.append(self.expression())
+                else:
+                    name = self.expect("NAME", None, "an argument name (e.g. IN := x)")
+                    self.expect("OP", ":=", f"':=' after argument '{name.text}'")
+                    args.append((name.text, self.expression(), name.start))
+                if self.at("OP", ","):
+                    self.next()
+                    continue
+                break
+        t = self.peek()
+        if not (t.kind == "OP" and t.text == ")"):
+            self.depth -= 1
+            raise SourceError(self.lexer.locate(t.start),
+                              f"unbalanced parentheses: expected ',' or ')' in the argument "
+                              f"list, found {_describe(t)}")
+        self.next()
+        self.depth -= 1
+        return args
+
+    # -- statements --------------------------------------------------------------------
+    def statements(self, until: tuple[str, ...] = ()) -> list[A.Node]:
+        """Statements separated by ';' or new lines, up to EOF or a keyword in ``until``."""
+        out: list[A.Node] = []
+        while True:
+            while self.at("NL") or self.at("OP", ";"):
+                self.next()
+            t = self.peek()
+            if t.kind == "EOF" or (t.kind == "KW" and t.text in until):
+                return out
+            out.append(self.statement())
+            t = self.peek()
+            if t.kind == "NL" or (t.kind == "OP" and t.text == ";"):
+                continue
+            if t.kind == "EOF" or (t.kind == "KW" and t.text in until):
+                return out
+            raise self.error(t, "';' or a new line between statements")
+
+    def statement(self) -> A.Node:
+        t = self.peek()
+        if t.kind == "KW":
+            if t.text == "IF":
+                return self._if()
+            if t.text == "CASE":
+                return self._case()
+            if t.text == "FOR":
+                return self._for()
+            raise self.error(t, "a statement (x := expr, a call, IF, CASE or FOR)")
+        if t.kind != "NAME":
+            raise self.error(t, "a statement (x := expr, a call, IF, CASE or FOR)")
+        self.next()
+        if self.at("OP", ":="):
+            self.next()
+            self.skip_nl()
+            value = self.expression()
+            return A.Assign(t.start, value.end, A.Name(t.start, t.end, t.text), value)
+        if self.at("OP", "."):
+            self.next()
+            m = self.expect("NAME", None, "a method name after '.' (Ini, Reset, Set ...)")
+            if not self.at("OP", "("):
+                raise self.error(self.peek(), f"'(' to call {t.text}.{m.text}")
+            args = self._call_args(positional=True)
+            end = self.toks[self.i - 1].end
+            call = A.MethodCall(t.start, end, t.text, m.text, args)
+            return A.CallStmt(t.start, end, call)
+        if self.at("OP", "("):
+            raw = self._call_args(positional=False)
+            end = self.toks[self.i - 1].end
+            return A.FbCall(t.start, end, t.text, [(n, e) for n, e, _ in raw])
+        raise self.error(self.peek(), f"':=' or a call after '{t.text}'")
+
+    def _if(self) -> A.Node:
+        start = self.next().start
+        branches = []
+        cond = self.expression()
+        self.expect("KW", "THEN", "THEN", skip_nl=True)
+        body = self.statements(("ELSIF", "ELSE", "END_IF"))
+        branches.append((cond, body))
+        orelse: list[A.Node] = []
+        while True:
+            t = self.next(skip_nl=True)
+            if t.kind == "KW" and t.text == "ELSIF":
+                cond = self.expression()
+                self.expect("KW", "THEN", "THEN", skip_nl=True)
+                branches.append((cond, self.statements(("ELSIF", "ELSE", "END_IF"))))
+            elif t.kind == "KW" and t.text == "ELSE":
+                orelse = self.statements(("END_IF",))
+            elif t.kind == "KW" and t.text == "END_IF":
+                return A.If(start, t.end, branches, orelse)
+            else:
+                raise self.error(t, "ELSIF, ELSE or END_IF")
+
+    def _case_label(self) -> int:
+        neg = False
+        if self.at("OP", "-"):
+            self.next()
+            neg = True
+        t = self.expect("INT", None, "an integer CASE label")
+        return -int(t.value) if neg else int(t.value)  # type: ignore[call-overload]
+
+    def _case(self) -> A.Node:
+        start = self.next().start
+        sel = self.expression()
+        self.expect("KW", "OF", "OF", skip_nl=True)
+        arms = []
+        orelse: list[A.Node] = []
+        while True:
+            self.skip_nl()
+            t = self.peek()
+            if t.kind == "KW" and t.text == "END_CASE":
+                self.next()
+                return A.Case(start, t.end, sel, arms, orelse)
+            if t.kind == "KW" and t.text == "ELSE":
+                self.next()
+                orelse = self.statements(("END_CASE",))
+                continue
+            labels = []
+            while True:
+                lo = self._case_label()
+                hi = lo
+                if self.at("OP", ".."):
+                    self.next()
+                    hi = self._case_label()
+                labels.append((lo, hi))
+                if self.at("OP", ","):
+                    self.next()
+                    continue
+                break
+            self.expect("OP", ":", "':' after the CASE labels")
+            body = self._case_body()
+            arms.append((labels, body))
+
+    def _case_body(self) -> list[A.Node]:
+        """Statements of one CASE arm: up to the next label, ELSE or END_CASE."""
+        out: list[A.Node] = []
+        while True:
+            while self.at("NL") or self.at("OP", ";"):
+                self.next()
+            t = self.peek()
+            if t.kind == "KW" and t.text in ("ELSE", "END_CASE"):
+                return out
+            if t.kind == "EOF":
+                raise self.error(t, "END_CASE")
+            if t.kind == "INT" or (t.kind == "OP" and t.text == "-"):
+                # a new label if followed by ':' '..' or ','
+                nxt = self.toks[self.i + 1 + (t.text == "-")]
+                if nxt.kind == "OP" and nxt.text in (":", "..", ","):
+                    return out
+            out.append(self.statement())
+
+    def _for(self) -> A.Node:
+        start = self.next().start
+        v = self.expect("NAME", None, "the FOR loop variable")
+        self.expect("OP", ":=", "':=' after the FOR variable")
+        first = self.expression()
+        self.expect("KW", "TO", "TO", skip_nl=True)
+        last = self.expression()
+        step = None
+        if self.at("KW", "BY", skip_nl=True):
+            self.next(skip_nl=True)
+            step = self.expression()
+        self.expect("KW", "DO", "DO", skip_nl=True)
+        body = self.statements(("END_FOR",))
+        t = self.expect("KW", "END_FOR", "END_FOR", skip_nl=True)
+        return A.For(start, t.end, A.Name(v.start, v.end, v.text), first, last, step, body)
+
+    def finish(self, what: str) -> None:
+        while self.at("NL"):
+            self.next()
+        t = self.peek()
+        if t.kind != "EOF":
+            if t.kind == "OP" and t.text == ")":
+                raise SourceError(self.lexer.locate(t.start),
+                                  "unbalanced parentheses: found ')' without a matching '('")
+            raise self.error(t, what)
+
+
+def parse_expression(text: str, locate: Callable[[int], Loc]) -> A.Node:
+    """Parse one expression (a transition condition, an action condition)."""
+    p = Parser(text, locate)
+    p.skip_nl()
+    if p.at("EOF"):
+        raise p.error(p.peek(), "an expression")
+    e = p.expression()
+    p.finish("an operator or the end of the expression")
+    return e
+
+
+def parse_statements(text: str, locate: Callable[[int], Loc]) -> list[A.Node]:
+    """Parse statements separated by ';' or new lines."""
+    p = Parser(text, locate)
+    body = p.statements()
+    p.finish("';' or a new line between statements")
+    return body
+
+
+@dataclass(slots=True)
+class ParsedAction:
+    """An action string split into its parts; ``target`` xor ``body`` is set."""
+
+    qualifier: str
+    time_ns: int | None
+    target: A.Name | None
+    cond: A.Node | None  # `N x if C`
+    event: A.Node | None  # `on E do ...`
+    body: list[A.Node] | None
+    qualifier_start: int
+
+
+def parse_action(text: str, locate: Callable[[int], Loc]) -> ParsedAction:
+    """``[QUALIFIER [TIME]] BODY [if CONDITION]`` or ``on EVENT do STATEMENTS``."""
+    p = Parser(text, locate)
+    p.skip_nl()
+    t0 = p.peek()
+    if t0.kind == "EOF":
+        raise p.error(t0, "an action (a variable, or a qualifier and a body)")
+    if t0.kind == "NAME" and t0.text.lower() == "on":
+        p.next()
+        ev = p.expression()
+        t = p.peek()
+        if not (t.kind == "KW" and t.text == "DO"):
+            raise p.error(t, "'do' after the event of an 'on EVENT do' action")
+        p.next()
+        body = p.statements()
+        p.finish("';' or a new line between statements")
+        if not body:
+            raise p.error(p.peek(), "statements after 'do'")
+        return ParsedAction("EVENT", None, None, None, ev, body, t0.start)
+    qual, qstart, time_ns = "N", t0.start, None
+    t1 = p.toks[p.i + 1]
+    if t0.kind == "NAME" and t1.kind in ("NAME", "TIME", "KW") and not (
+            t1.kind == "KW" and t1.text in ("AND", "OR", "XOR", "MOD")):
+        if t0.text.upper() not in QUALIFIERS:
+            raise SourceError(locate(t0.start),
+                              f"unknown qualifier '{t0.text}': expected one of "
+                              f"{' '.join(QUALIFIERS)} (or 'on EVENT do')")
+        qual = t0.text.upper()
+        p.next()
+        if p.at("TIME"):
+            tt = p.next()
+            if qual not in TIMED_QUALIFIERS:
+                raise SourceError(locate(tt.start),
+                                  f"qualifier {qual} takes no time, found '{tt.text}'")
+            time_ns = int(tt.value)  # type: ignore[call-overload]
+        elif qual in TIMED_QUALIFIERS:
+            raise SourceError(locate(p.peek().start),
+                              f"qualifier {qual} needs a time (e.g. '{qual} 2s oX'), found "
+                              f"{_describe(p.peek())}")
+    # a bare variable, maybe with `if COND`?
+    t = p.peek()
+    after = p.toks[p.i + 1]
+    if t.kind == "NAME" and (after.kind in ("EOF", "NL") or (
+            after.kind == "KW" and after.text == "IF")):
+        p.next()
+        target = A.Name(t.start, t.end, t.text)
+        cond = None
+        if p.at("KW", "IF"):
+            p.next()
+            cond = p.expression()
+        p.finish("the end of the action or 'if CONDITION'")
+        return ParsedAction(qual, time_ns, target, cond, None, None, qstart)
+    body = p.statements()
+    p.finish("';' or a new line between statements")
+    if not body:
+        raise p.error(p.peek(), "an action body (a variable or statements)")
+    return ParsedAction(qual, time_ns, None, None, None, body, qstart)

@@ -1,0 +1,351 @@
+"""Name resolution and implicit typing of expressions and statements (seed 000 rules).
+
+``+`` and ``*``/``·`` are logical between two bools and arithmetic otherwise (the node's
+``op`` is rewritten to OR/AND for the compiler); bools count as 0/1 in arithmetic; the
+literals 0 and 1 are bool constants where a bool is expected. Temporaries are names that
+start with ``t``, assigned somewhere in the program and typed by their first assignment.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from runtime import ast as A
+from runtime.errors import Loc, SourceError, suggest
+from runtime.model import Grafcet, Variable, VarKind
+
+T = A.Type
+NUMERIC = (T.INT, T.REAL)
+
+FLAGS_BOOL = ("SFCInit", "SFCReset", "SFCPause", "SFCError", "SFCEnableLimit",
+              "SFCQuitError", "SFCTipMode", "SFCTip")
+FLAGS_STRING = ("SFCErrorStep", "SFCCurrentStep")
+SYSTEM_BOOL = ("FirstScan", "Clock_10Hz", "Clock_5Hz", "Clock_2Hz", "Clock_1Hz", "Clock_0_5Hz")
+#: clock bit -> period in nanoseconds (50 % duty, from the controller's start)
+CLOCK_PERIOD_NS = {"Clock_10Hz": 100_000_000, "Clock_5Hz": 200_000_000,
+                   "Clock_2Hz": 500_000_000, "Clock_1Hz": 1_000_000_000,
+                   "Clock_0_5Hz": 2_000_000_000}
+
+#: function block kind -> member -> (type, is_input)
+FB_MEMBERS: dict[str, dict[str, tuple[A.Type, bool]]] = {
+    "TON": {"IN": (T.BOOL, True), "PT": (T.TIME, True), "Q": (T.BOOL, False),
+            "ET": (T.TIME, False)},
+    "CTU": {"CU": (T.BOOL, True), "R": (T.BOOL, True), "PV": (T.INT, True),
+            "Q": (T.BOOL, False), "CV": (T.INT, False)},
+    "CTD": {"CD": (T.BOOL, True), "LD": (T.BOOL, True), "PV": (T.INT, True),
+            "Q": (T.BOOL, False), "CV": (T.INT, False)},
+    "CTUD": {"CU": (T.BOOL, True), "CD": (T.BOOL, True), "R": (T.BOOL, True),
+             "LD": (T.BOOL, True), "PV": (T.INT, True), "QU": (T.BOOL, False),
+             "QD": (T.BOOL, False), "CV": (T.INT, False)},
+    "R_TRIG": {"CLK": (T.BOOL, True), "Q": (T.BOOL, False)},
+    "SR": {"S1": (T.BOOL, True), "R": (T.BOOL, True), "Q1": (T.BOOL, False)},
+    "RS": {"S": (T.BOOL, True), "R1": (T.BOOL, True), "Q1": (T.BOOL, False)},
+}
+FB_MEMBERS["TOF"] = FB_MEMBERS["TP"] = FB_MEMBERS["TON"]
+FB_MEMBERS["F_TRIG"] = FB_MEMBERS["R_TRIG"]
+
+WRITABLE_FLAGS = ("SFCInit", "SFCReset", "SFCPause", "SFCEnableLimit", "SFCQuitError",
+                  "SFCTipMode", "SFCTip", "SFCError")
+
+
+class TempUnknown(Exception):
+    """A temporary read before its type is known (first inference pass only)."""
+
+
+def looks_temporary(name: str) -> bool:
+    """Seed 000: temporaries are named with a 't' prefix (tParo, tAveriaAbrir)."""
+    return len(name) > 1 and name[0] == "t" and (name[1].isupper() or name[1] in "_0123456789")
+
+
+class Checker:
+    """Types the expressions and statements of one grafcet, creating its temporaries."""
+
+    def __init__(self, g: Grafcet) -> None:
+        self.g = g
+        self.temps_pending: dict[str, Loc] = {}  # temporaries assigned, type not yet known
+        self.strict = False
+        self.locate: Callable[[int], Loc] = lambda o: g.loc
+
+    def err(self, node: A.Node | int, msg: str) -> SourceError:
+        off = node if isinstance(node, int) else node.start
+        return SourceError(self.locate(off), msg)
+
+    def names(self) -> list[str]:
+        return [*self.g.variables, *self.g.steps, *self.g.timers, *self.g.blocks]
+
+    # -- expressions ---------------------------------------------------------------
+    def expr(self, n: A.Node) -> A.Type:
+        t = self._expr(n)
+        n.type = t
+        return t
+
+    def want_bool(self, n: A.Node, what: str = "a bool") -> None:
+        t = self.expr(n)
+        if t is T.BOOL:
+            return
+        if isinstance(n, A.Lit) and n.bool_like:
+            n.type = T.BOOL
+            n.value = bool(n.value)
+            return
+        raise self.err(n, f"type error: expected {what}, found {t} "
+                          f"'{self._text(n)}'")
+
+    def _text(self, n: A.Node) -> str:
+        return self.src[n.start:n.end]
+
+    def _expr(self, n: A.Node) -> A.Type:
+        if isinstance(n, A.Lit):
+            return n.lit_type
+        if isinstance(n, A.Name):
+            return self._name(n)
+        if isinstance(n, A.StepFlag):
+            if n.step not in self.g.steps:
+                what = ""
+                if n.step in self.g.variables:
+                    what = f" ('{n.step}' is a variable, not a step)"
+                raise self.err(n, f"unknown step '{n.step}'{what}"
+                                  f"{suggest(n.step, self.g.steps)}")
+            return T.BOOL if n.flag == "X" else T.TIME
+        if isinstance(n, A.Member):
+            blk = self.g.blocks.get(n.obj)
+            if blk is None:
+                if n.obj in self.g.steps:
+                    raise self.err(n, f"step '{n.obj}' has only .X and .T, found "
+                                      f"'.{n.member}'")
+                raise self.err(n, f"unknown function block '{n.obj}'"
+                                  f"{suggest(n.obj, self.g.blocks)}")
+            members = FB_MEMBERS[blk.kind]
+            if n.member not in members:
+                raise self.err(n, f"{blk.kind} '{n.obj}' has no member '{n.member}': expected "
+                                  f"one of {' '.join(members)}")
+            return members[n.member][0]
+        if isinstance(n, A.MethodCall):
+            return self._method(n, as_statement=False)
+        if isinstance(n, A.Unary):
+            if n.op in ("NOT", "RE", "FE"):
+                self.want_bool(n.operand, f"a bool operand of '{n.text}'")
+                return T.BOOL
+            t = self.expr(n.operand)  # NEG
+            if t is T.BOOL:
+                return T.INT
+            if t in (*NUMERIC, T.TIME):
+                return t
+            raise self.err(n, f"type error: cannot negate {t}")
+        if isinstance(n, A.Binary):
+            return self._binary(n)
+        raise self.err(n, "expected an expression")  # pragma: no cover
+
+    def _name(self, n: A.Name) -> A.Type:
+        v = self.g.variables.get(n.name)
+        if v is not None:
+            if v.type is T.STRING:
+                raise self.err(n, f"'{n.name}' is a string flag: it can be read by the console "
+                                  "and the trace only")
+            return v.type
+        if n.name in self.temps_pending:
+            if self.strict:
+                raise self.err(n, f"cannot decide the type of temporary '{n.name}': assign it "
+                                  "from an expression of known type")
+            raise TempUnknown(n.name)
+        if n.name in self.g.steps:
+            raise self.err(n, f"step '{n.name}' is not a variable: write {n.name}.X (active) or "
+                              f"{n.name}.T (time active)")
+        if n.name in self.g.timers:
+            raise self.err(n, f"timer '{n.name}' is read with {n.name}.End() or {n.name}.Val()")
+        if n.name in self.g.blocks:
+            raise self.err(n, f"function block '{n.name}' is read through its outputs, e.g. "
+                              f"{n.name}.Q")
+        raise self.err(n, f"unknown variable '{n.name}'{suggest(n.name, self.names())}")
+
+    def _binary(self, n: A.Binary) -> A.Type:
+        op = n.op
+        if op in ("OR", "XOR", "AND"):
+            self.want_bool(n.left, f"a bool operand of {n.text}")
+            self.want_bool(n.right, f"a bool operand of {n.text}")
+            return T.BOOL
+        lt, rt = self.expr(n.left), self.expr(n.right)
+        lb = lt is T.BOOL or (isinstance(n.left, A.Lit) and n.left.bool_like)
+        rb = rt is T.BOOL or (isinstance(n.right, A.Lit) and n.right.bool_like)
+        if op in ("ADD", "MUL") and lb and rb and T.BOOL in (lt, rt):
+            for side in (n.left, n.right):
+                if isinstance(side, A.Lit):
+                    side.type, side.value = T.BOOL, bool(side.value)
+            n.op = "OR" if op == "ADD" else "AND"
+            return T.BOOL
+        if op in ("EQ", "NE", "LT", "LE", "GT", "GE"):
+            if lt is T.TIME or rt is T.TIME:
+                if lt is not rt:
+                    raise self.err(n, f"type error: cannot compare {lt} '{self._text(n.left)}' "
+                                      f"with {rt} '{self._text(n.right)}'")
+                return T.BOOL
+            return T.BOOL
+        # arithmetic
+        a = T.INT if lt is T.BOOL else lt
+        b = T.INT if rt is T.BOOL else rt
+        if a is T.TIME or b is T.TIME:
+            if op in ("ADD", "SUB") and a is b:
+                return T.TIME
+            if op == "MUL" and {a, b} <= {T.TIME, T.INT, T.REAL} and (a is T.TIME) != (
+                    b is T.TIME):
+                return T.TIME
+            if op == "DIV" and a is T.TIME and b in NUMERIC:
+                return T.TIME
+            raise self.err(n, f"type error: '{n.text}' between {lt} '{self._text(n.left)}' "
+                              f"and {rt} '{self._text(n.right)}'")
+        if op == "MOD" and (a is T.REAL or b is T.REAL):
+            raise self.err(n, "type error: MOD needs integers")
+        return T.REAL if T.REAL in (a, b) else T.INT
+
+    def _method(self, n: A.MethodCall, as_statement: bool) -> A.Type:
+        m = n.method
+        if m == "Set":
+            if not as_statement:
+                raise self.err(n, f"{n.obj}.Set(value, condition) is a statement, not a value")
+            target = A.Name(n.start, n.start + len(n.obj), n.obj)
+            vt = self._target_type(target)
+            if len(n.args) != 2:
+                raise self.err(n, f"{n.obj}.Set needs 2 arguments (value, condition), found "
+                                  f"{len(n.args)}")
+            self._assignable(vt, n.args[0], n.obj)
+            self.want_bool(n.args[1], "a bool condition in Set")
+            return vt
+        if n.obj not in self.g.timers:
+            if m in ("Ini", "End", "Reset", "Val"):
+                raise self.err(n, f"unknown timer '{n.obj}'{suggest(n.obj, self.g.timers)}")
+            raise self.err(n, f"unknown method '{m}': expected Ini End Reset Val (timers) or "
+                              "Set (variables)")
+        if m not in ("Ini", "End", "Reset", "Val"):
+            raise self.err(n, f"timer '{n.obj}' has no method '{m}': expected Ini End Reset Val")
+        want = {"Ini": 1, "End": 0, "Reset": 0, "Val": 0}[m]
+        if len(n.args) != want:
+            raise self.err(n, f"{n.obj}.{m} takes {want} argument(s), found {len(n.args)}")
+        if m in ("Ini", "Reset") and not as_statement:
+            raise self.err(n, f"{n.obj}.{m}() is a statement, not a value")
+        if m in ("End", "Val") and as_statement:
+            raise self.err(n, f"{n.obj}.{m}() is a value, not a statement")
+        if m == "Ini":
+            t = self.expr(n.args[0])
+            if t is not T.TIME:
+                raise self.err(n.args[0], f"type error: {n.obj}.Ini needs a time, found {t}")
+        return T.BOOL if m == "End" else T.TIME
+
+    # -- statements ----------------------------------------------------------------
+    def _target_type(self, target: A.Name) -> A.Type:
+        v = self.g.variables.get(target.name)
+        if v is None:
+            if target.name in self.temps_pending:
+                raise TempUnknown(target.name)
+            return self._name(target)
+        if v.kind is VarKind.INPUT:
+            raise self.err(target, f"cannot assign input '{v.name}': inputs are read-only")
+        if v.kind is VarKind.SYSTEM or (v.kind is VarKind.FLAG and v.name not in
+                                         WRITABLE_FLAGS):
+            raise self.err(target, f"cannot assign {v.kind.value} '{v.name}'")
+        return v.type
+
+    def _assignable(self, vt: A.Type, value: A.Node, name: str) -> None:
+        if vt is T.BOOL:
+            self.want_bool(value, f"a bool value for '{name}'")
+            return
+        t = self.expr(value)
+        ok = t is vt or (vt is T.INT and t is T.BOOL) or (vt is T.REAL and t in (T.INT,
+                                                                                T.BOOL))
+        if not ok:
+            raise self.err(value, f"type error: cannot assign {t} '{self._text(value)}' to "
+                                  f"{vt} variable '{name}'")
+
+    def stmts(self, body: list[A.Node], loop_vars: tuple[str, ...] = ()) -> None:
+        for s in body:
+            self.stmt(s, loop_vars)
+
+    def stmt(self, s: A.Node, loop_vars: tuple[str, ...] = ()) -> None:
+        if isinstance(s, A.Assign):
+            name = s.target.name
+            if name in loop_vars:
+                raise self.err(s.target, f"the FOR loop must not write its variable '{name}'")
+            if name not in self.g.variables and name in self.temps_pending:
+                t = self.expr(s.value)  # may raise TempUnknown in the first pass
+                if isinstance(s.value, A.Lit) and s.value.bool_like and t is T.INT:
+                    t = T.INT
+                self._new_temp(name, t)
+            vt = self._target_type(s.target)
+            s.target.type = vt
+            self._assignable(vt, s.value, name)
+        elif isinstance(s, A.CallStmt):
+            if s.call.obj in loop_vars and s.call.method == "Set":
+                raise self.err(s, f"the FOR loop must not write its variable '{s.call.obj}'")
+            self._method(s.call, as_statement=True)
+        elif isinstance(s, A.FbCall):
+            blk = self.g.blocks.get(s.block)
+            if blk is None:
+                raise self.err(s, f"unknown function block '{s.block}'"
+                                  f"{suggest(s.block, self.g.blocks)}")
+            members = FB_MEMBERS[blk.kind]
+            for arg, val in s.args:
+                if arg not in members or not members[arg][1]:
+                    ins = [k for k, (_, i) in members.items() if i]
+                    raise self.err(val, f"{blk.kind} '{s.block}' has no input '{arg}': expected "
+                                        f"one of {' '.join(ins)}")
+                self._assignable(members[arg][0], val, f"{s.block}.{arg}")
+        elif isinstance(s, A.If):
+            for cond, body in s.branches:
+                self.want_bool(cond, "a bool IF condition")
+                self.stmts(body, loop_vars)
+            self.stmts(s.orelse, loop_vars)
+        elif isinstance(s, A.Case):
+            t = self.expr(s.selector)
+            if t not in (T.INT, T.BOOL):
+                raise self.err(s.selector, f"type error: CASE needs an integer, found {t}")
+            for _, body in s.arms:
+                self.stmts(body, loop_vars)
+            self.stmts(s.orelse, loop_vars)
+        elif isinstance(s, A.For):
+            name = s.var.name
+            if name not in self.g.variables and name in self.temps_pending:
+                self._new_temp(name, T.INT)
+            vt = self._target_type(s.var)
+            if vt is not T.INT:
+                raise self.err(s.var, f"type error: the FOR variable '{name}' must be int, "
+                                      f"found {vt}")
+            s.var.type = T.INT
+            for part in (s.first, s.last, s.step):
+                if part is not None:
+                    t = self.expr(part)
+                    if t not in (T.INT, T.BOOL):
+                        raise self.err(part, f"type error: FOR bounds must be int, found {t}")
+            self.stmts(s.body, (*loop_vars, name))
+        else:  # pragma: no cover
+            raise self.err(s, "expected a statement")
+
+    def _new_temp(self, name: str, t: A.Type) -> None:
+        loc = self.temps_pending.pop(name)
+        self.g.variables[name] = Variable(name, VarKind.TEMP, t, _zero(t), loc)
+
+    # -- driving -------------------------------------------------------------------
+    def run(self, units: list[tuple[str, str, Callable[[int], Loc], object]]) -> None:
+        """Type every unit: (kind, source text, locate, parsed) with kind expr|bool|stmts.
+
+        Two passes: the first infers temporaries' types where their first assignment can be
+        typed; the second checks everything strictly.
+        """
+        for strict in (False, True):
+            self.strict = strict
+            for _ in range(3 if not strict else 1):
+                for kind, src, locate, parsed in units:
+                    self.src, self.locate = src, locate
+                    try:
+                        if kind == "bool":
+                            self.want_bool(parsed)  # type: ignore[arg-type]
+                        elif kind == "stmts":
+                            self.stmts(parsed)  # type: ignore[arg-type]
+                        else:
+                            self.expr(parsed)  # type: ignore[arg-type]
+                    except TempUnknown:
+                        if strict:  # pragma: no cover - strict mode raises SourceError
+                            raise
+                if not self.temps_pending:
+                    break
+
+
+def _zero(t: A.Type) -> object:
+    return {T.BOOL: False, T.INT: 0, T.REAL: 0.0, T.TIME: 0, T.STRING: ""}[t]
