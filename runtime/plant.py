@@ -1,0 +1,274 @@
+"""The plant: instances + drivers + bindings, forming the process image of each cycle.
+
+One cycle (semantics.md, "The cycle of the controller"): every driver's ``read()``; for
+each instance in plant order, copy its inputs through the bindings (``invert`` applied
+here and only here), scan it; copy every output through the bindings into the drivers'
+output images; every driver's ``write()``. The copy is generated as Python code once, so
+a cycle is one function call with no interpretation of the bindings.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from typing import Any
+
+from drivers.base import Direction, Driver, FaultPolicy, Health
+from drivers.registry import driver_class
+from drivers.sim import SimDriver
+from runtime import ast as A
+from runtime.compiler import Program, compile_grafcet
+from runtime.engine import Instance, coerce
+from runtime.model import Binding, PlantDef, VarKind
+
+log = logging.getLogger(__name__)
+
+
+class BindingError(ValueError):
+    """A name given to force/set does not exist in the plant."""
+
+
+class Plant:
+    """Runs a PlantDef: ``open()``, ``cycle(now)`` every period, ``safe_state()``, ``close()``."""
+
+    def __init__(self, pdef: PlantDef, *, sim: bool = False,
+                 drivers: dict[str, Driver] | None = None) -> None:
+        self.pdef = pdef
+        self.cycle_ns = pdef.cycle_ns
+        self.watchdog_ns = pdef.watchdog_ns
+        self.retain_interval_ns = pdef.retain_interval_ns
+        self.start: int | None = None
+        self.last_up = 0
+        self.programs: dict[int, Program] = {}
+        self.instances: dict[str, Instance] = {}
+        for name, idef in pdef.instances.items():
+            key = id(idef.grafcet)
+            if key not in self.programs:
+                self.programs[key] = compile_grafcet(idef.grafcet)
+            self.instances[name] = Instance(name, self.programs[key])
+        self.drivers: dict[str, Driver] = {}
+        for name, ddef in pdef.drivers.items():
+            if drivers and name in drivers:
+                self.drivers[name] = drivers[name]
+            elif sim:
+                cfg = {"on_fault": ddef.config.get("on_fault", "stop")}
+                self.drivers[name] = SimDriver(name, cfg)
+            else:
+                self.drivers[name] = driver_class(ddef.type)(name, ddef.config)
+        #: forced values: "instance.var" -> (instance, slot index, value)
+        self.forced: dict[str, tuple[str, int, Any]] = {}
+        #: forced physical points: "driver.point" -> (driver, point, is_output, value)
+        self.forced_points: dict[str, tuple[Driver, str, bool, Any]] = {}
+        self._forced_by_inst: dict[str, list[tuple[int, Any]]] = {}
+        self._declare_points()
+        self.source = self._generate()
+        env: dict[str, Any] = {}
+        self._env = env
+        self._bind_env(env)
+        exec(compile(self.source, "<plant cycle>", "exec"), env)  # noqa: S102 - generated
+        self._cycle: Callable[[int, int], None] = env["cycle"]
+
+    # -- construction ----------------------------------------------------------------
+    def _declare_points(self) -> None:
+        for idef in self.pdef.instances.values():
+            for direction, section in ((Direction.IN, idef.inputs), (Direction.OUT,
+                                                                     idef.outputs)):
+                for b in section.values():
+                    if b.driver is None or b.point == "ok":
+                        continue
+                    d = self.drivers[b.driver]
+                    d.add_point(b.point or "", direction)
+
+    def _input_expr(self, b: Binding, vtype: A.Type) -> str:
+        if b.driver is not None:
+            if b.point == "ok":
+                val = f"D[{b.driver!r}].health is OK"
+                return f"not ({val})" if b.invert else f"({val})"
+            ref = f"I_{b.driver}[{b.point!r}]"
+            if vtype is A.Type.BOOL:
+                return f"({ref} == 0)" if b.invert else f"({ref} != 0)"
+            return ref
+        other = self.instances[b.instance or ""]
+        ref_name = b.ref or ""
+        if ref_name.endswith(".T") and ref_name[:-2] in other.grafcet.steps:
+            val = f"ST_{other.name}({ref_name[:-2]!r})"
+        else:
+            val = f"M_{other.name}[{other.index[ref_name]}]"
+        return f"(not {val})" if b.invert else val
+
+    def _generate(self) -> str:
+        lines = ["def cycle(now, up):"]
+        add = lines.append
+        for name in self.drivers:
+            add(f"    R_{name}()")
+        add("    if FP: force_points(False)")
+        for name, inst in self.instances.items():
+            idef = self.pdef.instances[name]
+            g = inst.grafcet
+            add(f"    # instance {name} ({g.name})")
+            add(f"    m = M_{name}")
+            for sig, b in idef.inputs.items():
+                v = g.variables[sig]
+                add(f"    m[{inst.index[sig]}] = {self._input_expr(b, v.type)}  # {sig} <- "
+                    f"{b.source}{' inverted' if b.invert else ''}")
+            add(f"    if FI: force_instance({name!r}, m)")
+            add(f"    S_{name}(m, now, up)")
+            add(f"    if FI: force_instance({name!r}, m)")
+        for name, inst in self.instances.items():
+            idef = self.pdef.instances[name]
+            for sig, b in idef.outputs.items():
+                val = f"M_{name}[{inst.index[sig]}]"
+                if b.invert:
+                    val = f"not {val}"
+                add(f"    O_{b.driver}[{b.point!r}] = {val}  # {name}.{sig}")
+        add("    if FP: force_points(True)")
+        for name in self.drivers:
+            add(f"    W_{name}()")
+        return "\n".join(lines) + "\n"
+
+    def _bind_env(self, env: dict[str, Any]) -> None:
+        env["OK"] = Health.OK
+        env["D"] = self.drivers
+        env["FP"] = self.forced_points
+        env["FI"] = self._forced_by_inst
+        env["force_points"] = self._apply_point_forces
+        env["force_instance"] = self._apply_instance_forces
+        for name, d in self.drivers.items():
+            env[f"R_{name}"] = d.read
+            env[f"W_{name}"] = d.write
+            env[f"I_{name}"] = d.inputs
+            env[f"O_{name}"] = d.outputs
+        for name, inst in self.instances.items():
+            env[f"M_{name}"] = inst.m
+            env[f"S_{name}"] = inst.program.scan
+            env[f"ST_{name}"] = inst.step_time
+
+    # -- the cycle -----------------------------------------------------------------
+    def open(self) -> None:
+        """Open every driver and write every output off before the first scan."""
+        for d in self.drivers.values():
+            d.open()
+        self.safe_state()
+
+    def cycle(self, now: int) -> None:
+        """One controller cycle at monotonic time ``now`` (ns)."""
+        if self.start is None:
+            self.start = now
+        up = now - self.start
+        self.last_up = up
+        self._cycle(now, up)
+
+    def safe_state(self) -> None:
+        """Every output of every driver off (de-energised)."""
+        for d in self.drivers.values():
+            d.safe_state()
+
+    def close(self) -> None:
+        for d in reversed(list(self.drivers.values())):
+            d.close()
+
+    def faulted(self) -> str | None:
+        """Reason of the first driver fault the plant does not tolerate (on_fault: stop)."""
+        for name, d in self.drivers.items():
+            if d.on_fault is FaultPolicy.STOP and d.health is Health.FAULT:
+                return f"driver {name}: {d.fault_reason}"
+        return None
+
+    def retain_snapshot(self) -> dict[str, dict[str, Any]]:
+        return {name: inst.retain_snapshot() for name, inst in self.instances.items()
+                if inst.retain_snapshot()}
+
+    def restore_retain(self, data: dict[str, Any]) -> None:
+        for name, values in data.items():
+            inst = self.instances.get(name)
+            if inst is None or not isinstance(values, dict):
+                log.warning("retained data for unknown instance '%s' ignored", name)
+                continue
+            ignored = inst.restore_retain(values)
+            if ignored:
+                log.warning("retained values ignored for %s: %s", name, ", ".join(ignored))
+
+    def restart(self) -> None:
+        """Every chart back to its initial situation (retained memory kept)."""
+        for inst in self.instances.values():
+            inst.restart()
+
+    # -- names, set and force --------------------------------------------------------
+    def resolve(self, name: str) -> tuple[str, Any]:
+        """``instance.var`` -> ("instance", Instance) or ``driver.point`` -> ("point", Driver)."""
+        head, _, rest = name.partition(".")
+        if head in self.instances and rest:
+            return "instance", self.instances[head]
+        if head in self.drivers and rest:
+            d = self.drivers[head]
+            if rest in d.inputs or rest in d.outputs or rest == "ok":
+                return "point", d
+        raise BindingError(f"unknown name '{name}'")
+
+    def get(self, name: str) -> Any:
+        kind, obj = self.resolve(name)
+        rest = name.split(".", 1)[1]
+        if kind == "instance":
+            try:
+                return obj.get(rest)
+            except KeyError:
+                raise BindingError(f"unknown name '{name}'") from None
+        if rest == "ok":
+            return obj.ok
+        return obj.inputs[rest] if rest in obj.inputs else obj.outputs[rest]
+
+    def set(self, name: str, value: Any) -> None:
+        """Write once (between cycles): a variable, or a physical input of a sim driver."""
+        kind, obj = self.resolve(name)
+        rest = name.split(".", 1)[1]
+        if kind == "instance":
+            try:
+                obj.set(rest, value)
+            except KeyError:
+                raise BindingError(f"'{name}' cannot be written") from None
+        elif rest in obj.inputs:
+            obj.inputs[rest] = int(coerce(A.Type.INT, value))
+        else:
+            obj.outputs[rest] = int(coerce(A.Type.INT, value))
+
+    def force(self, name: str, value: Any) -> None:
+        """Hold a variable or a physical point at ``value`` until unforced."""
+        kind, obj = self.resolve(name)
+        rest = name.split(".", 1)[1]
+        if kind == "instance":
+            v = obj.grafcet.variables.get(rest)
+            if v is None or v.kind in (VarKind.SYSTEM,) or v.type is A.Type.STRING:
+                raise BindingError(f"'{name}' cannot be forced")
+            self.forced[name] = (obj.name, obj.index[rest], coerce(v.type, value))
+            self._rebuild_instance_forces()
+        else:
+            if rest == "ok":
+                raise BindingError(f"'{name}' cannot be forced")
+            self.forced_points[name] = (obj, rest, rest in obj.outputs,
+                                        int(coerce(A.Type.INT, value)))
+
+    def unforce(self, name: str | None = None) -> None:
+        """Release one forced name, or every force when ``name`` is None."""
+        if name is None:
+            self.forced.clear()
+            self.forced_points.clear()
+        else:
+            if name not in self.forced and name not in self.forced_points:
+                raise BindingError(f"'{name}' is not forced")
+            self.forced.pop(name, None)
+            self.forced_points.pop(name, None)
+        self._rebuild_instance_forces()
+
+    def _rebuild_instance_forces(self) -> None:
+        self._forced_by_inst.clear()
+        for inst, idx, value in self.forced.values():
+            self._forced_by_inst.setdefault(inst, []).append((idx, value))
+
+    def _apply_instance_forces(self, inst: str, m: list[Any]) -> None:
+        for idx, value in self._forced_by_inst.get(inst, ()):
+            m[idx] = value
+
+    def _apply_point_forces(self, outputs: bool) -> None:
+        for d, point, is_out, value in self.forced_points.values():
+            if is_out == outputs:
+                (d.outputs if is_out else d.inputs)[point] = value

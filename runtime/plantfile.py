@@ -1,0 +1,208 @@
+"""Loading plant files: cycle, drivers, instances and their bindings (language.md)."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+from runtime import ast as A
+from runtime.errors import Loc, SourceError, suggest
+from runtime.language import check_keys, expect_type, load_grafcet, time_value
+from runtime.model import Binding, ConsoleEntry, DriverDef, InstanceDef, PlantDef, VarKind
+from runtime.typecheck import FLAGS_BOOL
+from runtime.yamlsrc import YMap, load_yaml
+
+PLANT_KEYS = ("plc", "drivers", "instances", "monitor")
+PLC_KEYS = ("cycle", "watchdog", "retain", "retain_interval", "realtime")
+INSTANCE_KEYS = ("grafcet", "inputs", "outputs", "description")
+DRIVER_KEYS: dict[str, tuple[str, ...]] = {
+    "sim": (),
+    "gpio": ("chip", "bias", "debounce"),
+    "mcp23017": ("bus", "address", "pull_up"),
+    "pcf8574": ("bus", "address"),
+    "canopen": ("interface", "channel", "bitrate", "node", "heartbeat", "eds", "sync",
+                "pdo"),
+    "modbus_rtu": ("port", "baudrate", "parity", "unit", "timeout", "retries", "stopbits"),
+}
+MONITOR_KEYS = ("serial", "socket", "tcp", "pin_hash", "release_forces_on_disconnect")
+
+
+def _resolve(base: str, path: str) -> str:
+    return path if os.path.isabs(path) else os.path.normpath(
+        os.path.join(os.path.dirname(os.path.abspath(base)), path))
+
+
+def _binding(signal: str, spec: Any, loc: Loc) -> Binding:
+    invert = False
+    if isinstance(spec, YMap):
+        check_keys(spec, ("from", "invert"), f"the binding of '{signal}'")
+        if "from" not in spec:
+            raise SourceError(spec.loc, f"binding of '{signal}' needs 'from: driver.point'")
+        invert = expect_type(spec.get("invert", False), spec.val_locs.get("invert", loc), bool,
+                             "true or false for invert")
+        loc = spec.val_locs["from"]
+        spec = spec["from"]
+    source = expect_type(spec, loc, str, f"'driver.point' or {{from: ..., invert: true}} for "
+                                         f"'{signal}'")
+    if "." not in source:
+        raise SourceError(loc, f"expected 'driver.point' or 'instance.signal' for '{signal}', "
+                               f"found '{source}'")
+    return Binding(signal, str(source), loc, invert)
+
+
+def load_plant(path: str) -> PlantDef:
+    """Load a plant file and every grafcet it names; bindings fully checked."""
+    doc = load_yaml(path)
+    if not isinstance(doc, YMap):
+        raise SourceError(Loc(path, 1, 1), "expected a YAML mapping with 'instances:'")
+    check_keys(doc, PLANT_KEYS, "a plant file")
+    p = PlantDef(path=path)
+    if "plc" in doc:
+        plc = expect_type(doc["plc"], doc.val_locs["plc"], YMap, "a mapping")
+        check_keys(plc, PLC_KEYS, "plc")
+        for key, attr in (("cycle", "cycle_ns"), ("watchdog", "watchdog_ns"),
+                          ("retain_interval", "retain_interval_ns")):
+            if key in plc:
+                ns = time_value(plc[key], plc.val_locs[key], f"plc {key}")
+                if ns <= 0:
+                    raise SourceError(plc.val_locs[key], f"plc {key} must be positive")
+                setattr(p, attr, ns)
+        if "retain" in plc and plc["retain"] is not None:
+            p.retain_path = _resolve(path, str(plc["retain"]))
+        if "realtime" in plc:
+            rt = expect_type(plc["realtime"], plc.val_locs["realtime"], YMap, "a mapping")
+            check_keys(rt, ("priority", "lock_memory"), "plc realtime")
+            if "priority" in rt:
+                p.realtime_priority = expect_type(rt["priority"], rt.val_locs["priority"], int,
+                                                  "a SCHED_FIFO priority 1-99")
+            p.lock_memory = bool(rt.get("lock_memory", False))
+    drivers = doc.get("drivers") or YMap()
+    if drivers:
+        expect_type(drivers, doc.val_locs["drivers"], YMap, "a mapping of drivers")
+    for name, spec in drivers.items():
+        loc = drivers.key_locs[name]
+        spec = expect_type(spec, drivers.val_locs[name], YMap, f"the driver '{name}' "
+                                                                "({type: ...})")
+        if "type" not in spec:
+            raise SourceError(spec.loc, f"driver '{name}' needs 'type'")
+        typ = spec["type"]
+        if typ not in DRIVER_KEYS:
+            raise SourceError(spec.val_locs["type"], f"unknown driver type '{typ}': expected one "
+                              f"of {', '.join(DRIVER_KEYS)}{suggest(str(typ), DRIVER_KEYS)}")
+        check_keys(spec, ("type", "on_fault", *DRIVER_KEYS[typ]), f"driver '{name}' ({typ})")
+        if spec.get("on_fault", "stop") not in ("stop", "hold", "zero"):
+            raise SourceError(spec.val_locs["on_fault"], f"unknown on_fault '{spec['on_fault']}'"
+                                                         ": expected stop, hold or zero")
+        config = {k: (str(v) if isinstance(v, str) else v) for k, v in spec.items()
+                  if k != "type"}
+        p.drivers[name] = DriverDef(name, typ, config, loc)
+    if "instances" not in doc:
+        raise SourceError(doc.loc, "missing key 'instances': a plant runs at least one instance")
+    instances = expect_type(doc["instances"], doc.val_locs["instances"], YMap,
+                            "a mapping of instances")
+    for name, spec in instances.items():
+        loc = instances.key_locs[name]
+        if not str(name).isidentifier():
+            raise SourceError(loc, f"expected an instance name, found '{name}'")
+        spec = expect_type(spec, instances.val_locs[name], YMap, f"instance '{name}'")
+        check_keys(spec, INSTANCE_KEYS, f"instance '{name}'")
+        if "grafcet" not in spec:
+            raise SourceError(spec.loc, f"instance '{name}' needs 'grafcet: FILE'")
+        gpath = _resolve(path, str(spec["grafcet"]))
+        if not os.path.exists(gpath):
+            raise SourceError(spec.val_locs["grafcet"], f"grafcet file not found: {gpath}")
+        g = load_grafcet(gpath)
+        inst = InstanceDef(name, g, loc)
+        for key in ("inputs", "outputs"):
+            section = spec.get(key) or YMap()
+            if section:
+                expect_type(section, spec.val_locs[key], YMap, f"a mapping of {key}")
+            for sig, bspec in section.items():
+                b = _binding(sig, bspec, section.val_locs[sig])
+                v = g.variables.get(sig)
+                if key == "inputs":
+                    ok = v is not None and (v.kind is VarKind.INPUT or sig in FLAGS_BOOL)
+                    wanted = [x.name for x in g.inputs] + list(FLAGS_BOOL)
+                else:
+                    ok = v is not None and v.kind is VarKind.OUTPUT
+                    wanted = [x.name for x in g.outputs]
+                if not ok:
+                    raise SourceError(section.key_locs[sig], f"'{sig}' is not an "
+                                      f"{key[:-1]} of grafcet {g.name}{suggest(sig, wanted)}")
+                if b.invert and v is not None and v.type is not A.Type.BOOL:
+                    raise SourceError(b.loc, f"invert applies to bools only; '{sig}' is {v.type}")
+                getattr(inst, key)[sig] = b
+        for var in g.inputs:
+            if var.name not in inst.inputs:
+                raise SourceError(spec.key_locs.get("inputs", loc), f"instance '{name}' leaves "
+                                  f"input '{var.name}' of grafcet {g.name} unbound")
+        for var in g.outputs:
+            if var.name not in inst.outputs:
+                raise SourceError(spec.key_locs.get("outputs", loc), f"instance '{name}' leaves "
+                                  f"output '{var.name}' of grafcet {g.name} unbound")
+        p.instances[name] = inst
+    _resolve_bindings(p)
+    if "monitor" in doc and doc["monitor"] is not None:
+        _monitor(p, doc["monitor"], doc.val_locs["monitor"])
+    return p
+
+
+def _resolve_bindings(p: PlantDef) -> None:
+    driven: dict[str, Binding] = {}
+    for inst in p.instances.values():
+        for key in ("inputs", "outputs"):
+            for b in getattr(inst, key).values():
+                head, rest = b.source.split(".", 1)
+                if head in p.drivers:
+                    b.driver, b.point = head, rest
+                    if key == "outputs":
+                        if b.source in driven:
+                            other = driven[b.source]
+                            raise SourceError(b.loc, f"physical output '{b.source}' is bound "
+                                              f"twice: already driven by '{other.signal}' at "
+                                              f"line {other.loc.line}")
+                        driven[b.source] = b
+                elif head in p.instances and key == "inputs":
+                    other = p.instances[head].grafcet
+                    ok = rest in other.variables and other.variables[rest].kind is not (
+                        VarKind.SYSTEM)
+                    if rest.endswith((".X", ".T")) and rest[:-2] in other.steps:
+                        ok = True
+                    if not ok:
+                        names = [*other.variables, *(f"{s}.X" for s in other.steps)]
+                        raise SourceError(b.loc, f"instance '{head}' has no signal '{rest}'"
+                                                 f"{suggest(rest, names)}")
+                    b.instance, b.ref = head, rest
+                else:
+                    where = list(p.drivers) + (list(p.instances) if key == "inputs" else [])
+                    raise SourceError(b.loc, f"unknown driver or instance '{head}' in "
+                                             f"'{b.source}'{suggest(head, where)}")
+
+
+def _monitor(p: PlantDef, mon: Any, loc: Loc) -> None:
+    mon = expect_type(mon, loc, YMap, "a mapping")
+    check_keys(mon, MONITOR_KEYS, "monitor")
+    if "serial" in mon:
+        s = expect_type(mon["serial"], mon.val_locs["serial"], YMap, "{port, baudrate}")
+        check_keys(s, ("port", "baudrate", "trusted"), "monitor serial")
+        p.consoles.append(ConsoleEntry("serial", str(s["port"]), int(s.get("baudrate", 115200)),
+                                       bool(s.get("trusted", False))))
+    if "socket" in mon:
+        s = mon["socket"]
+        if isinstance(s, YMap):
+            check_keys(s, ("path", "trusted"), "monitor socket")
+            p.consoles.append(ConsoleEntry("socket", str(s["path"]),
+                                           trusted=bool(s.get("trusted", False))))
+        else:
+            p.consoles.append(ConsoleEntry("socket", str(s)))
+    if "tcp" in mon:
+        s = mon["tcp"]
+        if isinstance(s, YMap):
+            check_keys(s, ("port", "trusted"), "monitor tcp")
+            p.consoles.append(ConsoleEntry("tcp", f"127.0.0.1:{int(s['port'])}",
+                                           trusted=bool(s.get("trusted", False))))
+        else:
+            p.consoles.append(ConsoleEntry("tcp", f"127.0.0.1:{int(s)}"))
+    if "pin_hash" in mon:
+        p.pin_hash = str(mon["pin_hash"])
+    p.release_forces_on_disconnect = bool(mon.get("release_forces_on_disconnect", False))
