@@ -9,6 +9,7 @@ code and own their state list. The order of one scan is semantics.md's, per scan
 from __future__ import annotations
 
 import hashlib
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -507,11 +508,13 @@ class Compiler:
             cond = left
         else:  # EVENT
             cond = f"{self.active(st)} and {self.ex(a.event)}"  # type: ignore[arg-type]
+        note = ""
         if final_scan and q in (Qualifier.N, Qualifier.L, Qualifier.D, Qualifier.P):
-            cond = f"({cond}) or {left}  # + CODESYS final scan"
+            cond = f"({cond}) or {left}"
+            note = "  # + CODESYS final scan"
         text = a.text.replace("\n", " ")
         out(f"# {q.value if q is not Qualifier.EVENT else 'on'} in {st}: {text[:60]}")
-        out(f"if {cond}:")
+        out(f"if {cond}:{note}")
         self.block(out, a.body or [])
 
     def actions(self, out: _Emitter) -> None:
@@ -720,10 +723,37 @@ class Compiler:
         return out
 
 
+def write_through(source: str, slots: list[Slot]) -> str:
+    """Store every state local into the state list where it is assigned (``x = m[i] = v``)
+    instead of packing all of them back at the end: a scan then writes only what it
+    changes (measured on the drawer tester: 0.91 us instead of 1.51 us a scan)."""
+    idx = {s.local: i for i, s in enumerate(slots)}
+    names = "|".join(sorted(map(re.escape, idx), key=len, reverse=True))
+    assign = re.compile(rf"(?<![\w.])({names})\s*=(?!=)")
+    augmented = re.compile(rf"(?<![\w.])({names}) \+= ([^;\n]+)")
+    out = []
+    for n, line in enumerate(source.split("\n")):
+        stripped = line.lstrip()
+        if stripped.startswith("m[:] = ("):
+            continue
+        if n < 4 and stripped.endswith(", = m"):  # the unpacking line
+            out.append(line)
+            continue
+        code, sep, comment = line.partition("  #")
+        if stripped.startswith("#"):
+            out.append(line)
+            continue
+        code = assign.sub(lambda m: f"{m.group(1)} = m[{idx[m.group(1)]}] =", code)
+        code = augmented.sub(lambda m: f"{m.group(1)} = m[{idx[m.group(1)]}] = "
+                                       f"{m.group(1)} + ({m.group(2)})", code)
+        out.append(code + sep + comment)
+    return "\n".join(out)
+
+
 def compile_grafcet(g: Grafcet) -> Program:
     """Compile ``g`` into a Program (source, scan function, state layout)."""
     c = Compiler(g)
-    source = c.generate()
+    source = write_through(c.generate(), c.slots)
     digest = hashlib.sha1(source.encode()).hexdigest()[:8]
     env: dict[str, Any] = {"_idiv": _idiv, "_imod": _imod, "_Unstable": UnstableChart}
     code = compile(source, f"<grafcet {g.name} {digest}>", "exec")
