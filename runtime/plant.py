@@ -60,6 +60,7 @@ class Plant:
         #: forced physical points: "driver.point" -> (driver, point, is_output, value)
         self.forced_points: dict[str, tuple[Driver, str, bool, Any]] = {}
         self._forced_by_inst: dict[str, list[tuple[int, Any]]] = {}
+        self._stash: list[tuple[Driver, str, Any]] = []
         self._declare_points()
         self.source = self._generate()
         env: dict[str, Any] = {}
@@ -124,6 +125,7 @@ class Plant:
         add("    if FP: force_points(True)")
         for name in self.drivers:
             add(f"    W_{name}()")
+        add("    if FP: force_points(None)")
         return "\n".join(lines) + "\n"
 
     def _bind_env(self, env: dict[str, Any]) -> None:
@@ -268,7 +270,20 @@ class Plant:
         for idx, value in self._forced_by_inst.get(inst, ()):
             m[idx] = value
 
-    def _apply_point_forces(self, outputs: bool) -> None:
+    def _apply_point_forces(self, outputs: bool | None) -> None:
+        """Forced inputs mask the driver's values during the cycle only (``outputs`` False),
+        and are restored after it (None), so a driver or a script keeps its own value;
+        forced outputs are written to the driver (True)."""
+        if outputs is None:
+            for d, point, value in self._stash:
+                d.inputs[point] = value
+            self._stash.clear()
+            return
         for d, point, is_out, value in self.forced_points.values():
-            if is_out == outputs:
-                (d.outputs if is_out else d.inputs)[point] = value
+            if is_out != outputs:
+                continue
+            if is_out:
+                d.outputs[point] = value
+            else:
+                self._stash.append((d, point, d.inputs[point]))
+                d.inputs[point] = value

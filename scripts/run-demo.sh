@@ -1,9 +1,8 @@
 #!/usr/bin/env bash
-# Set up a virtual environment and run the drawer-tester plant on simulated I/O with the console.
+# Set up a virtual environment and run the two-drawer-tester plant on simulated I/O,
+# with its console on a local socket (connect with: .venv/bin/softplc monitor out/console.sock).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-PY=${PYTHON:-python3}
-[ -x .venv/bin/python ] || "$PY" -m venv .venv
-.venv/bin/python -m pip install -q --upgrade pip
-.venv/bin/python -m pip install -q -e .
+scripts/setup.sh
+mkdir -p out
 exec .venv/bin/softplc run configs/drawer_tester/plant_sim.yaml --sim "$@"

@@ -1,0 +1,150 @@
+"""The plant: bindings, inversion at the binding, links between instances, forces."""
+
+from __future__ import annotations
+
+from runtime.plant import BindingError, Plant
+from runtime.plantfile import load_plant
+
+MS = 1_000_000
+
+TWO = """\
+plc: {cycle: 10ms}
+drivers:
+  sim: {type: sim}
+instances:
+  first:
+    grafcet: drawer.yaml
+    inputs:
+      iParo: {from: sim.I0, invert: true}
+      iMarcha: sim.I1
+      iAbierto: sim.I2
+      iCerrado: sim.I3
+    outputs: {oAbrir: sim.Q0, oCerrar: sim.Q1, oParado: sim.Q2, oTest: sim.Q3}
+  second:
+    grafcet: drawer.yaml
+    inputs:
+      iParo: {from: first.gsAbrir.X, invert: true}
+      iMarcha: first.oAbrir
+      iAbierto: third.oTest
+      iCerrado: sim.I13
+      SFCPause: sim.I14
+    outputs: {oAbrir: sim.Q10, oCerrar: sim.Q11, oParado: sim.Q12, oTest: sim.Q13}
+  third:
+    grafcet: drawer.yaml
+    inputs:
+      iParo: {from: sim.I20, invert: true}
+      iMarcha: first.oAbrir
+      iAbierto: sim.I22
+      iCerrado: sim.I23
+    outputs: {oAbrir: sim.Q20, oCerrar: sim.Q21, oParado: sim.Q22, oTest: sim.Q23}
+"""
+
+
+def make(write, drawer):  # type: ignore[no-untyped-def]
+    plant = Plant(load_plant(write("plant.yaml", TWO)), sim=True)
+    plant.open()
+    sim = plant.drivers["sim"]
+    sim.inputs.update({"I0": 1, "I20": 1})  # NC stop buttons closed: no stop order
+    return plant, sim
+
+
+def test_invert_happens_at_the_binding(write, drawer):  # type: ignore[no-untyped-def]
+    plant, sim = make(write, drawer)
+    plant.cycle(0)
+    assert plant.get("first.iParo") is False  # NC contact closed (1) -> no stop order
+    sim.inputs["I0"] = 0  # pressed: the NC contact opens
+    plant.cycle(10 * MS)
+    assert plant.get("first.iParo") is True
+    assert plant.get("first.sParo") is True
+
+
+def test_links_read_this_cycle_from_earlier_instances_and_last_cycle_from_later(
+        write, drawer):  # type: ignore[no-untyped-def]
+    plant, sim = make(write, drawer)
+    plant.cycle(0)
+    sim.inputs["I1"] = 1  # start 'first'
+    plant.cycle(10 * MS)
+    assert plant.get("first.oAbrir") is True
+    # 'second' and 'third' are scanned after 'first': they see this cycle's oAbrir
+    assert plant.get("second.iMarcha") is True
+    assert plant.get("third.iMarcha") is True
+    assert plant.instances["second"].active_steps() == ["gsAbrir"]
+    assert plant.get("third.oTest") is True
+    # 'second' reads third.oTest, scanned later: the previous cycle's value (false)
+    assert plant.get("second.iAbierto") is False
+    plant.cycle(20 * MS)
+    assert plant.get("second.iAbierto") is True
+    assert plant.instances["second"].active_steps() == ["gsCerrar"]
+
+
+def test_before_its_first_scan_an_instance_shows_its_initial_situation(
+        write, drawer):  # type: ignore[no-untyped-def]
+    plant, sim = make(write, drawer)
+    # 'second' reads first.gsAbrir.X before any scan: initial situation, step inactive
+    assert plant.get("first.gsParado.X") is True
+    assert plant.get("first.oAbrir") is False
+    plant.cycle(0)
+    assert plant.get("second.iParo") is True  # inverted gsAbrir.X = 0
+
+
+def test_chart_flag_bound_to_a_point(write, drawer):  # type: ignore[no-untyped-def]
+    plant, sim = make(write, drawer)
+    plant.cycle(0)
+    sim.inputs["I14"] = 1
+    sim.inputs["I1"] = 1
+    plant.cycle(10 * MS)
+    assert plant.get("second.SFCPause") is True
+    assert plant.instances["second"].active_steps() == ["gsParado"]  # paused: no evolution
+
+
+def test_outputs_reach_the_driver_image(write, drawer):  # type: ignore[no-untyped-def]
+    plant, sim = make(write, drawer)
+    plant.cycle(0)
+    assert sim.outputs["Q2"] is True  # oParado
+    sim.inputs["I1"] = 1
+    plant.cycle(10 * MS)
+    assert (sim.outputs["Q0"], sim.outputs["Q2"], sim.outputs["Q3"]) == (True, False, True)
+    plant.safe_state()
+    assert not any(sim.outputs.values())
+
+
+def test_forces_win_over_drivers_and_program(write, drawer):  # type: ignore[no-untyped-def]
+    plant, sim = make(write, drawer)
+    plant.cycle(0)
+    plant.force("first.oParado", 0)  # the program drives it true in gsParado
+    plant.force("sim.I2", 1)  # physical input
+    plant.cycle(10 * MS)
+    assert sim.outputs["Q2"] is False
+    assert plant.get("first.iAbierto") is True
+    sim.inputs["I2"] = 0  # the driver says 0: the force still wins
+    plant.cycle(20 * MS)
+    assert plant.get("first.iAbierto") is True
+    plant.unforce()
+    plant.cycle(30 * MS)
+    assert sim.outputs["Q2"] is True
+    assert plant.get("first.iAbierto") is False
+
+
+def test_unknown_names_are_refused(write, drawer):  # type: ignore[no-untyped-def]
+    plant, _ = make(write, drawer)
+    for bad in ("nobody.x", "first.nothing", "sim.Q99"):
+        try:
+            plant.force(bad, 1)
+        except BindingError:
+            continue
+        raise AssertionError(f"{bad} accepted")
+
+
+def test_retain_snapshot_and_restart(write, drawer):  # type: ignore[no-untyped-def]
+    plant, sim = make(write, drawer)
+    plant.instances["first"].set("sCierres", 41)
+    snap = plant.retain_snapshot()
+    assert snap["first"] == {"sCierres": 41}
+    plant.cycle(0)
+    sim.inputs["I1"] = 1
+    plant.cycle(10 * MS)
+    plant.restart()
+    assert plant.instances["first"].active_steps() == ["gsParado"]
+    assert plant.get("first.sCierres") == 41
+    plant.restore_retain({"first": {"sCierres": 7, "unknown": 1}})
+    assert plant.get("first.sCierres") == 7

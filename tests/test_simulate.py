@@ -1,0 +1,113 @@
+"""The ``simulate`` contract of language.md: virtual clock, script timing, trace keys."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from runtime.errors import SourceError
+from runtime.simulate import Simulation
+
+PLANT = """\
+plc: {cycle: 10ms}
+drivers:
+  sim: {type: sim}
+instances:
+  t1:
+    grafcet: drawer.yaml
+    inputs:
+      iParo: {from: sim.I0, invert: true}
+      iMarcha: sim.I1
+      iAbierto: sim.I2
+      iCerrado: sim.I3
+    outputs: {oAbrir: sim.Q0, oCerrar: sim.Q1, oParado: sim.Q2, oTest: sim.Q3}
+"""
+
+SCRIPT = """\
+duration: 200ms
+set:
+  - {at: 0ms, sim.I0: 1}
+  - {at: 25ms, t1.iMarcha: 1}
+  - {at: 60ms, t1.iMarcha: 0, t1.iAbierto: 1}
+  - {at: 100ms, t1.iParo: 1}
+  - {at: 150ms, t1.SFCPause: 1}
+"""
+
+
+@pytest.fixture
+def sim(write, drawer):  # type: ignore[no-untyped-def]
+    return Simulation(write("plant.yaml", PLANT), write("script.yaml", SCRIPT))
+
+
+def test_scans_at_k_cycle_while_t_below_duration(sim):  # type: ignore[no-untyped-def]
+    rows = list(sim.run())
+    assert [r["t_ms"] for r in rows] == list(range(0, 200, 10))
+    assert [r["cycle"] for r in rows] == list(range(20))
+
+
+def test_a_change_is_seen_by_the_first_scan_at_or_after_its_time(sim):  # type: ignore
+    rows = list(sim.run())
+    marcha = [r["t1.iMarcha"] for r in rows]
+    assert marcha[:3] == [0, 0, 0] and marcha[3] == 1  # set at 25 ms -> scan at 30 ms
+    assert rows[3]["t1.gsAbrir.X"] == 1  # the edge fires in that very scan (immediate)
+    assert rows[6]["t1.iAbierto"] == 1 and rows[5]["t1.iAbierto"] == 0
+
+
+def test_logical_keys_write_the_physical_point_through_the_inversion(sim):  # type: ignore
+    rows = list(sim.run())
+    assert rows[9]["t1.iParo"] == 0 and rows[9]["sim.I0"] == 1
+    assert rows[10]["t1.iParo"] == 1 and rows[10]["sim.I0"] == 0  # NC: stop = contact open
+
+
+def test_cycle_zero_activates_initial_steps_and_fires_nothing(write, drawer):  # type: ignore
+    script = write("s.yaml", "cycles: 2\nset:\n  - {at: 0ms, t1.iMarcha: 1, sim.I0: 1}\n")
+    rows = list(Simulation(write("plant.yaml", PLANT), script).run())
+    assert rows[0]["t1.gsParado.X"] == 1 and rows[0]["t1.gsAbrir.X"] == 0
+    # start held at power-up: no edge on the first scan, and none later either
+    assert rows[1]["t1.gsAbrir.X"] == 0
+
+
+def test_trace_holds_every_kind_of_value(sim):  # type: ignore[no-untyped-def]
+    row = list(sim.run())[12]
+    for key in ("t1.iMarcha", "t1.oAbrir", "t1.gsAbrir.X", "t1.gsAbrir.T_ms", "t1.sCierres",
+                "t1.SFCPause", "t1.SFCCurrentStep", "sim.I0", "sim.Q0", "sim.ok"):
+        assert key in row, key
+    assert row["t1.SFCCurrentStep"] == "gsCerrar"
+    assert isinstance(row["t1.gsCerrar.T_ms"], int)
+    assert all(v in (0, 1) for k, v in row.items() if k.endswith(".X"))
+
+
+def test_chart_flags_can_be_driven(sim):  # type: ignore[no-untyped-def]
+    rows = list(sim.run())
+    assert rows[15]["t1.SFCPause"] == 1
+    assert rows[14]["t1.SFCPause"] == 0
+
+
+def test_cycles_override_and_determinism(write, drawer):  # type: ignore[no-untyped-def]
+    p, s = write("plant.yaml", PLANT), write("script.yaml", SCRIPT)
+    a = list(Simulation(p, s, cycles=7).run())
+    b = list(Simulation(p, s, cycles=7).run())
+    assert len(a) == 7 and a == b
+
+
+def test_bad_script_key_names_the_place(write, drawer):  # type: ignore[no-untyped-def]
+    s = write("bad.yaml", "cycles: 3\nset:\n  - {at: 0ms, t1.iMarch: 1}\n")
+    with pytest.raises(SourceError) as e:
+        Simulation(write("plant.yaml", PLANT), s)
+    assert e.value.loc.line == 3 and "iMarcha" in e.value.message
+
+
+def test_cli_writes_trace_and_vcd(write, drawer, tmp_path):  # type: ignore[no-untyped-def]
+    p, s = write("plant.yaml", PLANT), write("script.yaml", SCRIPT)
+    trace, vcd = tmp_path / "t.jsonl", tmp_path / "t.vcd"
+    r = subprocess.run([sys.executable, "-m", "runtime.cli", "simulate", p, "--script", s,
+                        "--trace", str(trace), "--vcd", str(vcd)], capture_output=True,
+                       text=True, check=False)
+    assert r.returncode == 0, r.stderr
+    lines = trace.read_text().splitlines()
+    assert len(lines) == 20 and json.loads(lines[0])["cycle"] == 0
+    text = vcd.read_text()
+    assert "$enddefinitions" in text and "t1.gsAbrir.X" in text and "#30" in text
