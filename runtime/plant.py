@@ -61,6 +61,11 @@ class Plant:
         self.forced_points: dict[str, tuple[Driver, str, bool, Any]] = {}
         self._forced_by_inst: dict[str, list[tuple[int, Any]]] = {}
         self._stash: list[tuple[Driver, str, Any]] = []
+        self._pulses: list[tuple[str, int]] = []
+        self.hold = False  # console pause: charts not scanned, I/O still exchanged
+        self.steps_left = 0
+        self.iocheck = False
+        self.scans = 0
         self._declare_points()
         self.source = self._generate()
         env: dict[str, Any] = {}
@@ -153,12 +158,54 @@ class Plant:
         self.safe_state()
 
     def cycle(self, now: int) -> None:
-        """One controller cycle at monotonic time ``now`` (ns)."""
+        """One controller cycle at monotonic time ``now`` (ns).
+
+        While ``hold`` is set (console ``pause``) the charts are not scanned but the I/O
+        is: inputs are read and the held outputs written; ``step(n)`` lets exactly n full
+        cycles through. In ``iocheck`` mode the charts are stopped and the drivers'
+        output images are left to the technician (every output off on entry)."""
         if self.start is None:
             self.start = now
         up = now - self.start
         self.last_up = up
+        if self.iocheck or (self.hold and self.steps_left <= 0):
+            for d in self.drivers.values():
+                d.read()
+            if self.forced_points:
+                self._apply_point_forces(False)
+                self._apply_point_forces(True)
+            for d in self.drivers.values():
+                d.write()
+            if self.forced_points:
+                self._apply_point_forces(None)
+            return
+        if self.hold:
+            self.steps_left -= 1
+        if self._pulses:
+            self._rebuild_instance_forces()
+            for inst, idx in self._pulses:
+                self._forced_by_inst.setdefault(inst, []).append((idx, True))
+            self._cycle(now, up)
+            self._pulses.clear()
+            self._rebuild_instance_forces()
+            return
         self._cycle(now, up)
+        self.scans += 1
+
+    def step(self, n: int) -> None:
+        """While held: let exactly ``n`` full cycles through."""
+        self.steps_left = n
+
+    def pulse(self, instance: str, flag: str) -> None:
+        """Hold a chart flag (SFCInit/SFCReset) true for the next scan only."""
+        inst = self.instances[instance]
+        self._pulses.append((instance, inst.index[flag]))
+
+    def set_iocheck(self, on: bool) -> None:
+        """Commissioning mode: charts stopped, every output off; leaving it turns every
+        output off again (the caller restarts the charts after an acknowledge)."""
+        self.iocheck = on
+        self.safe_state()
 
     def safe_state(self) -> None:
         """Every output of every driver off (de-energised)."""

@@ -148,3 +148,45 @@ def test_retain_snapshot_and_restart(write, drawer):  # type: ignore[no-untyped-
     assert plant.get("first.sCierres") == 41
     plant.restore_retain({"first": {"sCierres": 7, "unknown": 1}})
     assert plant.get("first.sCierres") == 7
+
+
+def test_hold_scans_io_but_not_charts_and_step_lets_n_cycles_through(write, drawer):  # type: ignore
+    plant, sim = make(write, drawer)
+    plant.cycle(0)
+    plant.hold = True
+    sim.inputs["I1"] = 1
+    plant.cycle(10 * MS)
+    assert plant.get("first.gsParado.X") is True  # not scanned
+    plant.step(1)
+    plant.cycle(20 * MS)
+    assert plant.get("first.gsAbrir.X") is True
+    sim.inputs["I2"] = 1
+    plant.cycle(30 * MS)
+    assert plant.get("first.gsAbrir.X") is True  # held again after one cycle
+
+
+def test_pulse_init_for_one_scan(write, drawer):  # type: ignore[no-untyped-def]
+    plant, sim = make(write, drawer)
+    plant.cycle(0)
+    sim.inputs["I1"] = 1
+    plant.cycle(10 * MS)
+    assert plant.get("first.gsAbrir.X") is True
+    plant.pulse("first", "SFCInit")
+    plant.cycle(20 * MS)
+    assert plant.get("first.gsParado.X") is True and plant.get("first.SFCInit") is True
+    plant.cycle(30 * MS)
+    assert plant.get("first.SFCInit") is False
+
+
+def test_iocheck_stops_charts_and_leaves_outputs_to_the_technician(write, drawer):  # type: ignore
+    plant, sim = make(write, drawer)
+    plant.cycle(0)
+    assert sim.outputs["Q2"] is True
+    plant.set_iocheck(True)
+    assert not any(sim.outputs.values())
+    plant.set("sim.Q1", 1)
+    sim.inputs["I1"] = 1
+    plant.cycle(10 * MS)
+    assert sim.outputs["Q1"] == 1 and plant.get("first.gsParado.X") is True
+    plant.set_iocheck(False)
+    assert not any(sim.outputs.values())
