@@ -186,6 +186,8 @@ class Plant:
             for inst, idx in self._pulses:
                 self._forced_by_inst.setdefault(inst, []).append((idx, True))
             self._cycle(now, up)
+            for inst, idx in self._pulses:
+                self.instances[inst].m[idx] = False
             self._pulses.clear()
             self._rebuild_instance_forces()
             return

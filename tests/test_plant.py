@@ -173,9 +173,10 @@ def test_pulse_init_for_one_scan(write, drawer):  # type: ignore[no-untyped-def]
     assert plant.get("first.gsAbrir.X") is True
     plant.pulse("first", "SFCInit")
     plant.cycle(20 * MS)
-    assert plant.get("first.gsParado.X") is True and plant.get("first.SFCInit") is True
-    plant.cycle(30 * MS)
-    assert plant.get("first.SFCInit") is False
+    assert plant.get("first.gsParado.X") is True  # SFCInit held true for that scan
+    assert plant.get("first.oAbrir") is False and plant.get("first.SFCInit") is False
+    plant.cycle(30 * MS)  # SFCInit fell: initial steps activated, start still held: no edge
+    assert plant.instances["first"].active_steps() == ["gsParado"]
 
 
 def test_iocheck_stops_charts_and_leaves_outputs_to_the_technician(write, drawer):  # type: ignore
