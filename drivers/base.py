@@ -18,6 +18,10 @@ A back-end **must** override:
   ``_write()`` (send ``self.outputs``), ``_close()``.
 It **may** override ``_safe_state()`` (default: every output 0, then ``_write()``) and
 ``_reopen()`` (default: ``_close()`` then ``_open()``), used for recovery with back-off.
+
+A back-end whose bus is too slow to be served inside the scan builds on ``PolledDriver``:
+its own thread (or a bus library's receive thread) does the I/O and exchanges buffers with
+the scan; inputs that are too old show as ``Health.STALE``.
 """
 
 from __future__ import annotations
@@ -25,6 +29,8 @@ from __future__ import annotations
 import abc
 import enum
 import logging
+import re
+import threading
 import time
 from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
@@ -68,7 +74,56 @@ class DriverError(Exception):
 
 
 class PointError(ValueError):
-    """A binding names a point the driver does not have, or uses it in the wrong direction."""
+    """A binding names a point the driver does not have, or uses it in the wrong direction.
+
+    Examples: ``exp1.C0`` on an MCP23017 (ports are A and B), ``mb.I3`` bound as an output
+    (discrete inputs are read-only), ``gpio.17`` bound both as an input and as an output.
+    """
+
+
+class ConfigError(ValueError):
+    """A driver's configuration has a bad value: ``parity: X``, ``address: 300``, ``bias: up``.
+
+    Raised when the driver is constructed, before anything touches the bus.
+    """
+
+
+_DURATION_PART = re.compile(r"(\d+(?:\.\d*)?|\.\d+)\s*(us|µs|ms|s|m|h)", re.IGNORECASE)
+_DURATION_SCALE = {"us": 1e-6, "µs": 1e-6, "ms": 1e-3, "s": 1.0, "m": 60.0, "h": 3600.0}
+
+
+def parse_duration(value: Any, what: str) -> float:
+    """A duration from a driver config, in seconds.
+
+    Accepts a number of seconds (``0.005``) or a time string (``5ms``, ``1s500ms``,
+    ``250us``, ``T#20ms``). Raises ConfigError naming ``what`` otherwise.
+    """
+    if isinstance(value, bool):
+        raise ConfigError(f"{what}: expected a time such as 5ms or 0.005, found {value!r}")
+    if isinstance(value, (int, float)):
+        if value < 0:
+            raise ConfigError(f"{what}: expected a positive time, found {value!r}")
+        return float(value)
+    if isinstance(value, str):
+        text = value.strip()
+        if text.upper().startswith(("T#", "TIME#")):
+            text = text.split("#", 1)[1]
+        text = text.replace("_", "")
+        pos, total = 0, 0.0
+        for m in _DURATION_PART.finditer(text):
+            if m.start() != pos:
+                break
+            total += float(m.group(1)) * _DURATION_SCALE[m.group(2).lower()]
+            pos = m.end()
+        else:
+            if pos == len(text) and pos > 0:
+                return total
+    raise ConfigError(f"{what}: expected a time such as 5ms or 0.005, found {value!r}")
+
+
+def as_bit(value: Any) -> int:
+    """A physical bit from whatever the plant stored (bool, int): 0 or 1."""
+    return 1 if value else 0
 
 
 class Driver(abc.ABC):
@@ -82,6 +137,8 @@ class Driver(abc.ABC):
     RECONNECT_MIN_S: ClassVar[float] = 0.1
     #: longest delay between reconnect attempts, seconds
     RECONNECT_MAX_S: ClassVar[float] = 5.0
+    #: True for a hardware back-end where a point is either an input or an output
+    ONE_DIRECTION_PER_POINT: ClassVar[bool] = False
 
     def __init__(
         self,
@@ -112,6 +169,14 @@ class Driver(abc.ABC):
 
     def add_point(self, point: str, direction: Direction) -> PointKind:
         """Declare a point used by a binding; returns its kind. Raises PointError."""
+        if self.ONE_DIRECTION_PER_POINT:
+            other = self.outputs if direction is Direction.IN else self.inputs
+            if point in other:
+                was = "an output" if direction is Direction.IN else "an input"
+                raise PointError(f"{self.name}.{point} is already bound as {was}: a point of a "
+                                 f"{self.type_name} driver is either an input or an output")
+            if direction is Direction.OUT and point in self.outputs:
+                raise PointError(f"{self.name}.{point} is bound as an output twice")
         kind = self._check_point(point, direction)
         self.kinds[point] = kind
         if direction is Direction.IN:
@@ -237,3 +302,229 @@ class Driver(abc.ABC):
             return False
         self._set_ok()
         return True
+
+
+class PolledDriver(Driver):
+    """A driver whose bus is served off the scan thread; the scan only exchanges buffers.
+
+    The I/O side is the back-end's own poll thread, or a bus library's receive thread
+    (python-can's notifier). It talks to the scan through these thread-safe calls:
+    ``publish_inputs()`` (a fresh input image), ``report_fault()`` (an I/O fault, e.g. a
+    timeout after retries), ``report_error()`` (an unexpected exception: re-raised by the
+    next ``read()`` in the scan thread, so a bug never hides in a background thread),
+    ``take_outputs()`` (the outputs the scan wrote since the last take) and
+    ``mark_outputs_dirty()`` (send them again, e.g. after the device came back).
+
+    On the scan side ``read()`` copies the latest image and reports ``Health.STALE`` when it
+    is older than ``stale_after_s``; ``write()`` copies the outputs and calls ``_wake()``.
+    While faulted, the I/O side is asked to try again (``_retry()``) at back-off times of
+    the injected clock, and recovery is seen as soon as the I/O side reports success.
+
+    A back-end **must** override ``_check_point``, ``_start()`` (connect and begin I/O,
+    quickly: it runs in ``open()``, which then waits up to ``first_data_timeout_s`` for the
+    I/O side's first report, and in the scan thread at recovery until it has once
+    succeeded) and ``_stop()`` (end I/O, release the bus; idempotent).
+    It **may** override ``_wake()`` (new outputs are waiting), ``_retry()`` (ask the I/O
+    side for one more attempt; must not block), ``_check()`` (extra health checks in the
+    scan thread, raise DriverError) and ``_write()``.
+    """
+
+    #: inputs older than this are STALE, seconds; None: never stale by age
+    STALE_AFTER_S: ClassVar[float | None] = 0.5
+    #: longest wait in open() for the first input image, seconds
+    FIRST_DATA_TIMEOUT_S: ClassVar[float] = 2.0
+
+    def __init__(
+        self,
+        name: str,
+        config: Mapping[str, Any] | None = None,
+        *,
+        clock: Callable[[], int] = time.monotonic_ns,
+    ) -> None:
+        super().__init__(name, config, clock=clock)
+        #: inputs older than this are STALE, seconds (None: never)
+        self.stale_after_s: float | None = self.STALE_AFTER_S
+        #: longest wait in open() for the I/O side's first report, seconds
+        self.first_data_timeout_s = self.FIRST_DATA_TIMEOUT_S
+        self._lock = threading.Lock()
+        self._updated = threading.Condition(self._lock)
+        self._in_buf: dict[str, int] = {}
+        self._in_seq = 0  # every report of the I/O side
+        self._status_seq = 0  # reports that say whether the device works
+        self._in_seen = 0
+        self._fresh_ns: int | None = None
+        self._io_fault: str | None = None
+        self._io_error: BaseException | None = None
+        self._out_buf: dict[str, int] = {}
+        self._out_seq = 0
+        self._out_taken = 0
+        self._started = False
+
+    # -- I/O side (any thread) ------------------------------------------------------------
+    def publish_inputs(self, values: Mapping[str, int], ok: bool = True) -> None:
+        """A fresh input image (physical values). With ``ok`` (an exchange that proves the
+        device works) it also clears any I/O fault; a receive callback passes False."""
+        with self._lock:
+            self._in_buf.update(values)
+            self._in_seq += 1
+            self._fresh_ns = self.clock()
+            if ok:
+                self._io_fault = None
+                self._status_seq += 1
+            self._updated.notify_all()
+
+    def report_ok(self) -> None:
+        """The bus works again, with no new input values (e.g. a driver without inputs)."""
+        self.publish_inputs({})
+
+    def report_fault(self, reason: str) -> None:
+        """An I/O fault seen by the I/O side; the scan turns it into Health.FAULT."""
+        with self._lock:
+            self._io_fault = reason
+            self._in_seq += 1
+            self._status_seq += 1
+            self._updated.notify_all()
+
+    def report_error(self, exc: BaseException) -> None:
+        """An unexpected exception of the I/O side, re-raised by the next read()."""
+        with self._lock:
+            self._io_error = exc
+            self._in_seq += 1
+            self._status_seq += 1
+            self._updated.notify_all()
+
+    def take_outputs(self) -> dict[str, int] | None:
+        """The output image if the scan changed it since the last take, else None."""
+        with self._lock:
+            if self._out_taken == self._out_seq:
+                return None
+            self._out_taken = self._out_seq
+            return dict(self._out_buf)
+
+    def mark_outputs_dirty(self) -> None:
+        """Make the next take_outputs() return the image even if unchanged."""
+        with self._lock:
+            self._out_seq += 1
+
+    @property
+    def io_faulted(self) -> bool:
+        """True while the I/O side reports a fault (thread-safe)."""
+        with self._lock:
+            return self._io_fault is not None
+
+    @property
+    def updates(self) -> int:
+        """How many reports (inputs or faults) the I/O side made so far."""
+        with self._lock:
+            return self._in_seq
+
+    def wait_for_update(self, timeout: float, since: int | None = None) -> bool:
+        """Wait up to ``timeout`` seconds for a report of the I/O side after ``since``
+        (a value of ``updates``; default: now). For tests and benches; the scan never
+        waits."""
+        with self._lock:
+            seq = self._in_seq if since is None else since
+            return self._updated.wait_for(lambda: self._in_seq != seq, timeout)
+
+    # -- back-end hooks ---------------------------------------------------------------
+    @abc.abstractmethod
+    def _start(self) -> None:
+        """Connect and begin I/O (may block). Raise DriverError/OSError on failure."""
+
+    @abc.abstractmethod
+    def _stop(self) -> None:
+        """End I/O and release the bus. Idempotent."""
+
+    def _wake(self) -> None:
+        """New outputs are waiting for the I/O side."""
+
+    def _retry(self) -> None:
+        """While faulted, at back-off times: ask the I/O side for one more attempt."""
+
+    def _check(self) -> None:
+        """Extra checks in the scan thread, every read(); raise DriverError on a fault."""
+
+    # -- Driver hooks -----------------------------------------------------------------
+    def _open(self) -> None:
+        with self._lock:
+            self._io_fault = None
+            self._io_error = None
+            self._fresh_ns = None
+            seq = self._status_seq
+            self._out_seq += 1  # the first exchange writes the whole output image
+        self._start()
+        self._started = True
+        with self._lock:
+            self._updated.wait_for(lambda: self._status_seq != seq, self.first_data_timeout_s)
+        self._check_io()
+        self._check()
+
+    def _read(self) -> None:
+        self._check_io()
+        self._check()
+        with self._lock:
+            if self._in_seen != self._in_seq:
+                self._in_seen = self._in_seq
+                for p, v in self._in_buf.items():
+                    if p in self.inputs:
+                        self.inputs[p] = v
+            fresh = self._fresh_ns
+        stale = fresh is None or (
+            self.stale_after_s is not None
+            and self.clock() - fresh > self.stale_after_s * 1e9
+        )
+        if stale and self.health is Health.OK:
+            log.warning("driver %s: inputs stale", self.name)
+            self.health = Health.STALE
+        elif not stale and self.health is Health.STALE:
+            log.info("driver %s: inputs fresh again", self.name)
+            self.health = Health.OK
+
+    def _write(self) -> None:
+        with self._lock:
+            changed = False
+            for p, v in self.outputs.items():
+                bit = int(v)
+                if self._out_buf.get(p) != bit:
+                    self._out_buf[p] = bit
+                    changed = True
+            if changed:
+                self._out_seq += 1
+        self._wake()
+
+    def _close(self) -> None:
+        self._started = False
+        self._stop()
+
+    def _check_io(self) -> None:
+        with self._lock:
+            error, fault = self._io_error, self._io_fault
+        if error is not None:
+            raise error
+        if fault is not None:
+            raise DriverError(fault)
+
+    def _try_recover(self) -> bool:
+        if self._started:
+            try:
+                self._check_io()
+                self._check()
+            except DriverError as exc:
+                self.fault_reason = str(exc)
+            else:
+                self._set_ok()
+                return True
+        now = self.clock()
+        if now < self._next_retry_ns:
+            return False
+        try:
+            if self._started:
+                self._retry()
+            else:
+                self._start()
+                self._started = True
+        except (DriverError, OSError) as exc:
+            self.fault_reason = str(exc)
+        self._retry_delay_s = min(self._retry_delay_s * 2, self.RECONNECT_MAX_S)
+        self._next_retry_ns = now + int(self._retry_delay_s * 1e9)
+        return False

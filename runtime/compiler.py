@@ -28,11 +28,21 @@ STABLE_MAX_ROUNDS = 100
 class UnstableChart(RuntimeError):
     """``scan: stable`` found no stable situation within STABLE_MAX_ROUNDS rounds."""
 
-    def __init__(self, chart: str, cycle: list[str]) -> None:
+    def __init__(self, chart: str, cycle: list[str], steps: list[str] | None = None) -> None:
+        steps = steps or []
         super().__init__(f"unstable chart {chart}: the search for a stable situation did not "
-                         f"end after {STABLE_MAX_ROUNDS} rounds; transitions still firing: "
-                         f"{', '.join(cycle)}")
-        self.cycle = cycle
+                         f"end after {STABLE_MAX_ROUNDS} rounds; cycle of steps "
+                         f"{', '.join(steps)}; transitions still firing: {'; '.join(cycle)}")
+        self.cycle = cycle  # the transitions fired in the last round, "src -> dst when c"
+        self.steps = steps  # their source and target steps, file order
+
+
+def _unstable(chart: str, names: list[str], steps: list[list[str]], order: list[str],
+              fired: tuple[bool, ...]) -> UnstableChart:
+    """Builds UnstableChart from the transitions fired in the last round (cold path)."""
+    involved = {s for ss, f in zip(steps, fired, strict=True) if f for s in ss}
+    return UnstableChart(chart, [n for n, f in zip(names, fired, strict=True) if f],
+                         [s for s in order if s in involved])
 
 
 def _idiv(a: int, b: int) -> int:
@@ -86,6 +96,21 @@ class Program:
             else:
                 state.append(s.init)
         return state
+
+
+def min_timed(g: Grafcet, t: Transition) -> list[Step]:
+    """The steps with a ``min`` time that ``t`` leaves: each source as written, and for a
+    macro-step its exit step, down to a plain step (a macro-step's min counts too)."""
+    out = []
+    for name in t.sources:
+        st = g.steps[name]
+        while True:
+            if st.min_ns:
+                out.append(st)
+            if st.macro is None:
+                break
+            st = g.steps[st.macro.exit]
+    return out
 
 
 def _ident(prefix: str, name: str) -> str:
@@ -149,6 +174,9 @@ class Compiler:
         if self.codesys:
             for t in g.transitions:
                 self.slot(f"#pending{t.index}", f"pf{t.index}", False)
+            for a in g.actions():  # Q of the last scan, for the final scan of L/D actions
+                if a.body is not None and a.qualifier in (Qualifier.L, Qualifier.D):
+                    self.slot(f"#cq{a.index}.F", f"cq{a.index}", False)
         for target, assocs in self.bool_targets().items():
             quals = {a.qualifier for a in assocs}
             if Qualifier.S in quals:
@@ -289,19 +317,24 @@ class Compiler:
                 out(f"e{k} = ep{k} and not _c; ep{k} = _c")
 
     # -- statements --------------------------------------------------------------------
+    def converted(self, vt: A.Type | None, value: A.Node) -> str:
+        """``value`` as stored into a variable of type ``vt`` (bool -> 0/1, int -> real)."""
+        code, et = self.ex(value), value.type
+        if vt is T.INT and et is T.BOOL:
+            return f"int({code})"
+        if vt is T.REAL and et in (T.INT, T.BOOL):
+            return f"float({code})"
+        return code
+
     def stmt(self, out: _Emitter, s: A.Node) -> None:
         if isinstance(s, A.Assign):
-            value = self.ex(s.value)
-            vt, et = s.target.type, s.value.type
-            if vt is T.INT and et is T.BOOL:
-                value = f"int({value})"
-            elif vt is T.REAL and et in (T.INT, T.BOOL):
-                value = f"float({value})"
+            value = self.converted(s.target.type, s.value)
             out(f"{_ident('v', s.target.name)} = {value}")
         elif isinstance(s, A.CallStmt):
             c = s.call
             if c.method == "Set":
-                value = self.ex(c.args[0])
+                var = self.g.variables.get(c.obj)
+                value = self.converted(var.type if var else None, c.args[0])
                 out(f"if {self.ex(c.args[1])}: {_ident('v', c.obj)} = {value}")
             elif c.method == "Ini":
                 out(f"{_ident('b', c.obj)}.ini(now, {self.ex(c.args[0])})")
@@ -368,10 +401,8 @@ class Compiler:
         for t in g.transitions:
             f = self.fired_name(t)
             terms = [_ident("x", s) for s in t.src_steps]
-            for s in t.src_steps:
-                st = g.steps[s]
-                if st.min_ns:
-                    terms.append(f"(ct - {_ident('t0', s)}) >= {st.min_ns}")
+            for st in min_timed(g, t):
+                terms.append(f"(ct - {_ident('t0', st.name)}) >= {st.min_ns}")
             earlier = sorted({e for s in t.src_steps for e in taken.get(s, [])})
             terms += [f"not {e}" for e in earlier]
             terms.append(self.ex(t.cond))
@@ -408,9 +439,13 @@ class Compiler:
             inner = [_ident("x", s) for s in m.macro.steps if g.steps[s].macro is None]
             entering = [self.fired_name(t) for t in g.transitions
                         if m.name in self._entered_macros(t)]
+            leaving = [self.fired_name(t) for t in g.transitions
+                       if m.name in self._left_macros(t)]
             out(f"_nx = {' or '.join(inner)}")
             if entering:
-                out(f"if {' or '.join(entering)}:")
+                # entered: its .T restarts if it was inactive, or left and re-entered now
+                again = f" or {' or '.join(leaving)}" if leaving else ""
+                out(f"if ({' or '.join(entering)}) and (not {x}{again}):")
                 out.indent()
                 out(f"{t0} = ct")
                 out(f"if not {x}: {a} = True")
@@ -418,6 +453,16 @@ class Compiler:
             out(f"if {x} and not _nx: {tk} = ct - {t0}; {lft} = True")
             out(f"{x} = _nx")
         del accumulate
+
+    def _left_macros(self, t: Transition) -> set[str]:
+        """The macro-steps that ``t`` leaves: its sources' exit chains."""
+        out: set[str] = set()
+        for name in t.sources:
+            st = self.g.steps[name]
+            while st.macro is not None:
+                out.add(st.name)
+                st = self.g.steps[st.macro.exit]
+        return out
 
     def _entered_macros(self, t: Transition) -> set[str]:
         out: set[str] = set()
@@ -492,10 +537,21 @@ class Compiler:
             value = f"not _r and ({value})"
         out(f"{_ident('v', target)} = {value}")
 
-    def statement_action(self, out: _Emitter, a: Action, final_scan: bool) -> None:
+    def statement_action(self, out: _Emitter, a: Action, final_scan: bool = False) -> None:
+        """``if <the action's Q>: body``; with ``final_scan``, CODESYS's extra run of an IEC
+        action whose step was left in the previous scan (Q = false)."""
         q, st = a.qualifier, a.step
         x, t0 = _ident("x", st), _ident("t0", st)
         ent, left = _ident("a", st), _ident("l", st)
+        text = a.text.replace("\n", " ")
+        label = f"{q.value if q is not Qualifier.EVENT else 'on'} in {st}: {text[:60]}"
+        held = f"cq{a.index}" if self.codesys and q in (Qualifier.L, Qualifier.D) else None
+        if final_scan:
+            out(f"# final scan of {label}")
+            # an L/D action runs once more only if it was running in the previous scan
+            out(f"if {left} and {held}:" if held else f"if {left}:")
+            self.block(out, a.body or [])
+            return
         if q is Qualifier.N:
             cond = x
         elif q is Qualifier.L:
@@ -508,13 +564,11 @@ class Compiler:
             cond = left
         else:  # EVENT
             cond = f"{self.active(st)} and {self.ex(a.event)}"  # type: ignore[arg-type]
-        note = ""
-        if final_scan and q in (Qualifier.N, Qualifier.L, Qualifier.D, Qualifier.P):
-            cond = f"({cond}) or {left}"
-            note = "  # + CODESYS final scan"
-        text = a.text.replace("\n", " ")
-        out(f"# {q.value if q is not Qualifier.EVENT else 'on'} in {st}: {text[:60]}")
-        out(f"if {cond}:{note}")
+        out(f"# {label}")
+        if held:
+            out(f"{held} = {cond}")
+            cond = held
+        out(f"if {cond}:")
         self.block(out, a.body or [])
 
     def actions(self, out: _Emitter) -> None:
@@ -525,18 +579,21 @@ class Compiler:
             for q in (Qualifier.P0, Qualifier.P1):
                 for a in stmt_actions:
                     if a.qualifier is q:
-                        self.statement_action(out, a, final_scan=False)
+                        self.statement_action(out, a)
             for target, assocs in targets.items():
                 self.bool_action(out, target, assocs)
             for a in stmt_actions:
-                if a.qualifier not in (Qualifier.P0, Qualifier.P1):
+                if a.qualifier in (Qualifier.N, Qualifier.L, Qualifier.D, Qualifier.P):
                     self.statement_action(out, a, final_scan=True)
+            for a in stmt_actions:
+                if a.qualifier not in (Qualifier.P0, Qualifier.P1):
+                    self.statement_action(out, a)
         else:
             for target, assocs in targets.items():
                 self.bool_action(out, target, assocs)
             for a in stmt_actions:
-                self.statement_action(out, a, final_scan=False)
-        supervised = [s for s in self.leaf if s.max_ns is not None]
+                self.statement_action(out, a)
+        supervised = [s for s in g.steps.values() if s.max_ns is not None]  # macro-steps too
         if supervised:
             out("if v_SFCEnableLimit and not v_SFCError:")
             out.indent()
@@ -586,6 +643,7 @@ class Compiler:
         out("elif v_SFCReset:")
         out.indent()
         self.reset_stored(out)
+        out("v_SFCError = False; v_SFCErrorStep = ''  # SFCReset acknowledges an error")
         self.to_initial(out, mark_entered=False)
         out("if not resetprev:")
         out.indent()
@@ -607,12 +665,14 @@ class Compiler:
         out("resetprev = v_SFCReset; quitprev = v_SFCQuitError")
         out("tip = v_SFCTip and not tipprev; tipprev = v_SFCTip")
         if self.codesys:
-            out("# 3. CODESYS: the situation decided by the last scan becomes current")
-            pending = " or ".join(f"pf{t.index}" for t in g.transitions) or "False"
-            out(f"if (not frozen or paused) and ({pending}):")
-            out.indent()
-            self.apply_fired(out, accumulate=False)
-            out.dedent()
+            if g.transitions:
+                out("# 3. CODESYS: the situation decided by the last scan becomes current "
+                    "(held while paused)")
+                pending = " or ".join(f"pf{t.index}" for t in g.transitions)
+                out(f"if not frozen and ({pending}):")
+                out.indent()
+                self.apply_fired(out, accumulate=False)
+                out.dedent()
             self.actions_section(out)
             self.evolution_section(out)
         else:
@@ -629,7 +689,10 @@ class Compiler:
 
     def evolution_section(self, out: _Emitter) -> None:
         g = self.g
-        out("# 3. evolution")
+        if self.codesys:
+            out("# 5b. CODESYS: the transitions decide the next scan's situation")
+        else:
+            out("# 3. evolution")
         self.sample_edges(out, [t.cond for t in g.transitions])
         if not g.transitions:
             return
@@ -638,7 +701,7 @@ class Compiler:
             out.indent()
             self.evaluate_transitions(out)
             out.dedent()
-            out("else:")
+            out("elif not paused:  # a pending evolution waits for the end of a pause")
             out.indent()
             out(" = ".join(f"pf{t.index}" for t in g.transitions) + " = False")
             out.dedent()
@@ -665,7 +728,10 @@ class Compiler:
             out(f"if rounds > {STABLE_MAX_ROUNDS}:")
             out.indent()
             names = [self.describe(t) for t in g.transitions]
-            out(f"raise _Unstable({g.name!r}, [n for n, f in zip({names!r}, ({fired},)) if f])")
+            steps = [[*t.src_steps, *t.dst_steps] for t in g.transitions]
+            flags = ", ".join(f"f{t.index}" for t in g.transitions)
+            out(f"raise _Unstable({g.name!r}, {names!r}, {steps!r}, "
+                f"{[s.name for s in self.leaf]!r}, ({flags},))")
             out.dedent()
             out.dedent()
         else:
@@ -702,18 +768,18 @@ class Compiler:
         """Sub-terms of every transition condition, compiled against the state list."""
         out: dict[int, list[Probe]] = {}
         env = {"_idiv": _idiv, "_imod": _imod}
+
+        def visit(n: A.Node, depth: int, terms: list[tuple[A.Node, int]]) -> None:
+            terms.append((n, depth))
+            if isinstance(n, A.Binary) and n.op in ("AND", "OR", "XOR"):
+                visit(n.left, depth + 1, terms)
+                visit(n.right, depth + 1, terms)
+            elif isinstance(n, A.Unary) and n.op == "NOT":
+                visit(n.operand, depth + 1, terms)
+
         for t in self.g.transitions:
             terms: list[tuple[A.Node, int]] = []
-
-            def visit(n: A.Node, depth: int) -> None:
-                terms.append((n, depth))
-                if isinstance(n, A.Binary) and n.op in ("AND", "OR", "XOR"):
-                    visit(n.left, depth + 1)
-                    visit(n.right, depth + 1)
-                elif isinstance(n, A.Unary) and n.op == "NOT":
-                    visit(n.operand, depth + 1)
-
-            visit(t.cond, 0)
+            visit(t.cond, 0, terms)
             lst = []
             for n, depth in terms:
                 code = self.ex(n, self.ref_state)
@@ -755,7 +821,7 @@ def compile_grafcet(g: Grafcet) -> Program:
     c = Compiler(g)
     source = write_through(c.generate(), c.slots)
     digest = hashlib.sha1(source.encode()).hexdigest()[:8]
-    env: dict[str, Any] = {"_idiv": _idiv, "_imod": _imod, "_Unstable": UnstableChart}
+    env: dict[str, Any] = {"_idiv": _idiv, "_imod": _imod, "_Unstable": _unstable}
     code = compile(source, f"<grafcet {g.name} {digest}>", "exec")
     exec(code, env)  # noqa: S102 - generated from the checked model
     return Program(g, source, env["scan"], c.slots, c.index, c.probes())

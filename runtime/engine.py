@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from runtime import ast as A
-from runtime.compiler import Program
-from runtime.model import VarKind
+from runtime.compiler import Program, min_timed
+from runtime.model import Step, Transition, VarKind
 from runtime.parser import format_time
 
 T = A.Type
@@ -141,17 +141,32 @@ class Instance:
         up = self.last_up
         paused = bool(m[ix["#paused"]])
         tipmode = bool(m[ix["SFCTipMode"]])
+        held = [f for f in ("SFCInit", "SFCReset") if m[ix[f]]]
         out = []
         values: dict[int, bool] = {}
         for t in g.transitions:
             probes = self.program.probes[t.index]
             values[t.index] = bool(probes[0].fn(m, now, up))
+
+        def early(t: Transition) -> list[Step]:
+            """The steps left by ``t`` whose min time is not reached."""
+            return [st for st in min_timed(g, t) if self.step_time(st.name) < (st.min_ns or 0)]
+
+        # the firing rule of semantics.md, on the situation and values of the last scan
+        fires: dict[int, bool] = {}
+        taken: set[str] = set()
+        for t in g.transitions:
+            src = set(t.src_steps)
+            fires[t.index] = (all(m[ix[f"{s}.X"]] for s in src) and not (src & taken)
+                              and not early(t) and values[t.index])
+            if fires[t.index]:
+                taken |= src
         for step in self.active_steps():
             whys = []
             for t in g.transitions:
                 if step not in t.src_steps:
                     continue
-                blocked = []
+                blocked = [f"{f}: the chart is held in its initial situation" for f in held]
                 if paused:
                     blocked.append("chart paused (SFCPause/SFCQuitError)")
                 if tipmode:
@@ -159,13 +174,12 @@ class Instance:
                 for s in t.src_steps:
                     if not m[ix[f"{s}.X"]]:
                         blocked.append(f"source step {s} not active")
-                    st = g.steps[s]
-                    if st.min_ns and self.step_time(s) < st.min_ns:
-                        blocked.append(f"min time of {s}: {format_time(self.step_time(s))} of "
-                                       f"{format_time(st.min_ns)}")
+                for st in early(t):
+                    blocked.append(f"min time of {st.name}: "
+                                   f"{format_time(self.step_time(st.name))} of "
+                                   f"{format_time(st.min_ns or 0)}")
                 for e in g.transitions[:t.index]:
-                    if set(e.src_steps) & set(t.src_steps) and values[e.index] and all(
-                            m[ix[f"{s}.X"]] for s in e.src_steps):
+                    if set(e.src_steps) & set(t.src_steps) and fires[e.index]:
                         blocked.append(f"earlier transition has priority: "
                                        f"{','.join(e.sources)} -> {','.join(e.targets)} "
                                        f"when {e.text}")

@@ -15,11 +15,13 @@ from runtime.model import (
     Action, Block, Grafcet, Macro, Qualifier, ScanModel, Statement, Step, Transition, Variable,
     VarKind,
 )
-from runtime.parser import parse_action, parse_expression, parse_statements, parse_time
+from runtime.parser import (
+    KEYWORDS, is_name, parse_action, parse_expression, parse_statements, parse_time,
+)
 from runtime.typecheck import (
     FB_MEMBERS, FLAGS_BOOL, FLAGS_STRING, SYSTEM_BOOL, Checker, looks_temporary,
 )
-from runtime.yamlsrc import YList, YMap, YStr, load_yaml
+from runtime.yamlsrc import YList, YMap, YStr, load_yaml, synthetic_str
 
 T = A.Type
 GRAFCET_KEYS = ("grafcet", "description", "scan", "inputs", "outputs", "memory", "timers",
@@ -44,6 +46,9 @@ def expect_type(value: Any, loc: Loc, types: type | tuple[type, ...], what: str)
         found = "nothing" if value is None else f"{type(value).__name__} {value!r}"
         if isinstance(value, YMap):
             found = "a mapping"
+            if types is str or (isinstance(types, tuple) and str in types):
+                found += (" (YAML reads 'text: more' as a key and a value: quote the text or "
+                          "use a block scalar '|')")
         elif isinstance(value, YList):
             found = "a list"
         raise SourceError(loc, f"expected {what}, found {found}")
@@ -72,9 +77,14 @@ def _locator(text: Any, fallback: Loc) -> Callable[[int], Loc]:
 
 
 def _identifier(name: str, loc: Loc, what: str) -> str:
-    if not isinstance(name, str) or not name.isidentifier():
+    """A name as the lexer reads it: a letter or '_', then letters, digits and '_' (any
+    alphabet: gsAvería); not a keyword of the expressions (AND, RE, TO ...)."""
+    if not (isinstance(name, str) and is_name(name) and all(c.isalnum() or c == "_"
+                                                            for c in name)):
         raise SourceError(loc, f"expected a name for {what} (letters, digits, '_'), found "
                                f"'{name}'")
+    if name.upper() in KEYWORDS:
+        raise SourceError(loc, f"expected a name for {what}, found the keyword '{name}'")
     return name
 
 
@@ -86,6 +96,7 @@ class GrafcetLoader:
         self.doc = doc
         self.g = Grafcet(name="", path=path, loc=doc.loc)
         self.units: list[tuple[str, str, Callable[[int], Loc], object]] = []
+        self.ref_locs: dict[int, dict[str, list[Loc]]] = {}  # transition -> step name places
         self.stmt_index = 0
 
     def load(self) -> Grafcet:
@@ -160,7 +171,7 @@ class GrafcetLoader:
                     raise SourceError(loc, f"expected one '{{name: type}}' per typed signal, "
                                            f"found {len(item)} keys")
                 (name, tname), = item.items()
-                if tname not in TYPE_NAMES:
+                if not isinstance(tname, str) or tname not in TYPE_NAMES:
                     raise SourceError(item.val_locs[name], f"unknown type '{tname}': expected "
                                                            "bool, int, real or time")
                 typ = TYPE_NAMES[tname]
@@ -182,7 +193,8 @@ class GrafcetLoader:
             vloc = mem.val_locs[name]
             if isinstance(spec, YMap):
                 check_keys(spec, ("init", "retain"), f"memory '{name}'")
-                retain = bool(spec.get("retain", False))
+                retain = expect_type(spec.get("retain", False), spec.val_locs.get("retain", loc),
+                                     bool, "true or false for retain")
                 vloc = spec.val_locs.get("init", vloc)
                 spec = spec.get("init", False)
             typ, init = _initial(spec, vloc, name)
@@ -200,7 +212,7 @@ class GrafcetLoader:
             for name, kind in blocks.items():
                 loc = blocks.key_locs[name]
                 self._declare(name, loc, "a function block")
-                if kind not in FB_MEMBERS:
+                if not isinstance(kind, str) or kind not in FB_MEMBERS:
                     raise SourceError(blocks.val_locs[name], f"unknown function block type "
                                       f"'{kind}': expected one of {' '.join(FB_MEMBERS)}"
                                       f"{suggest(str(kind), FB_MEMBERS)}")
@@ -285,33 +297,31 @@ class GrafcetLoader:
             for key in ("from", "to", "when"):
                 if key not in spec:
                     raise SourceError(spec.loc, f"transition without '{key}'")
-            srcs = self._step_refs(spec["from"], spec.val_locs["from"], "from")
-            dsts = self._step_refs(spec["to"], spec.val_locs["to"], "to")
+            srcs, src_locs = self._step_refs(spec["from"], spec.val_locs["from"], "from")
+            dsts, dst_locs = self._step_refs(spec["to"], spec.val_locs["to"], "to")
             when = spec["when"]
             wloc = spec.val_locs["when"]
             if isinstance(when, bool):
-                when = YStr("TRUE" if when else "FALSE")
-                when.loc, when._lines = wloc, [(0, wloc.line, wloc.col)]
+                when = synthetic_str("TRUE" if when else "FALSE", wloc)
             elif isinstance(when, int):
-                s = YStr(str(when))
-                s.loc, s._lines = wloc, [(0, wloc.line, wloc.col)]
-                when = s
+                when = synthetic_str(str(when), wloc)
             when = expect_type(when, wloc, str, "a condition")
             locate = _locator(when, wloc)
             cond = parse_expression(when, locate)
             t = Transition(srcs, dsts, cond, str(when), spec.loc,
                            name=str(spec.get("name", "")))
             self.units.append(("bool", str(when), locate, cond))
+            self.ref_locs[id(t)] = {"from": src_locs, "to": dst_locs}
             out.append(t)
         return out
 
-    def _step_refs(self, value: Any, loc: Loc, key: str) -> list[str]:
+    def _step_refs(self, value: Any, loc: Loc, key: str) -> tuple[list[str], list[Loc]]:
         if isinstance(value, str):
-            return [value]
+            return [str(value)], [loc]
         lst = expect_type(value, loc, YList, f"a step name or a list of steps in '{key}'")
         for v, vloc in zip(lst, lst.locs, strict=True):
             expect_type(v, vloc, str, "a step name")
-        return [str(v) for v in lst]
+        return [str(v) for v in lst], list(lst.locs)
 
     def _action(self, st: Step, text: Any, loc: Loc) -> Action:
         text = expect_type(text, loc, str, "an action string")
@@ -321,13 +331,21 @@ class GrafcetLoader:
         act = Action(q, st.name, str(text), loc, pa.time_ns)
         if pa.target is not None:
             if q in (Qualifier.P1, Qualifier.P0):
-                raise SourceError(locate(pa.target.start), f"{q.value} needs statements (e.g. "
-                                  f"'{q.value} {pa.target.name} := 1'), found the bare variable "
-                                  f"'{pa.target.name}': a continuous action cannot be tied to "
-                                  "activation or deactivation (seed-000 rule I.6)")
+                raise SourceError(locate(pa.target.start), f"expected statements after "
+                                  f"{q.value} (e.g. '{q.value} {pa.target.name} := 1'), found "
+                                  f"the bare variable '{pa.target.name}': a continuous action "
+                                  "cannot be tied to activation or deactivation (seed-000 rule "
+                                  "I.6)")
             if pa.cond is not None and q is not Qualifier.N:
-                raise SourceError(locate(pa.cond.start), f"'if CONDITION' is for N actions, "
-                                  f"found it with {q.value}")
+                raise SourceError(locate(pa.cond.start), f"expected 'if CONDITION' on an N "
+                                  f"action only, found it with {q.value}")
+            if pa.cond is not None:
+                for n in A.walk(pa.cond):
+                    if isinstance(n, A.Unary) and n.op in ("RE", "FE"):
+                        raise SourceError(locate(n.start), "expected a condition without "
+                                          "edges in a conditional action (seed 000: the "
+                                          f"condition has no event), found "
+                                          f"'{text[n.start:n.end]}': use 'on EVENT do'")
             act.target = pa.target.name
             act.cond = pa.cond
             self._check_target(pa.target, locate)
@@ -335,15 +353,17 @@ class GrafcetLoader:
                 self.units.append(("bool", str(text), locate, pa.cond))
         else:
             if q in (Qualifier.S, Qualifier.R, Qualifier.DS, Qualifier.SD, Qualifier.SL):
-                raise SourceError(locate(pa.qualifier_start), f"qualifier {q.value} needs a bool "
-                                  "variable (e.g. 'S oLamp'), found statements")
+                raise SourceError(locate(pa.qualifier_start), f"expected a bool variable "
+                                  f"after {q.value} (e.g. '{q.value} oLamp'), found statements")
             if q is Qualifier.EVENT:
                 act.event = pa.event
                 self.units.append(("bool", str(text), locate, pa.event))
-                if not any(isinstance(n, A.Unary) and n.op in ("RE", "FE")
-                           for n in A.walk(pa.event)):  # type: ignore[arg-type]
-                    raise SourceError(locate(pa.event.start), "the event of 'on EVENT do' must "  # type: ignore[union-attr]
-                                      "contain an edge (↑x, ↓x, RE x, FE x)")
+                ev = pa.event
+                assert ev is not None
+                if not any(isinstance(n, A.Unary) and n.op in ("RE", "FE") for n in A.walk(ev)):
+                    raise SourceError(locate(ev.start), "expected an edge (↑x, ↓x, RE x, FE x) "
+                                      "in the event of 'on EVENT do', found "
+                                      f"'{text[ev.start:ev.end]}'")
             act.body = pa.body
             act.index = self.stmt_index
             self.stmt_index += 1
@@ -354,17 +374,18 @@ class GrafcetLoader:
         v = self.g.variables.get(name.name)
         if v is None:
             if looks_temporary(name.name):
-                raise SourceError(locate(name.start), f"action target '{name.name}' must be "
-                                  "declared as an output or memory")
+                raise SourceError(locate(name.start), f"expected an output or memory variable "
+                                  f"as the action's target, found '{name.name}' (a temporary "
+                                  "cannot be driven by a step: declare it)")
             allv = [*self.g.variables, *self.g.steps]
             raise SourceError(locate(name.start), f"unknown variable '{name.name}'"
                               f"{suggest(name.name, allv)}")
         if v.kind not in (VarKind.OUTPUT, VarKind.MEMORY):
-            raise SourceError(locate(name.start), f"an action drives an output or a memory "
-                              f"variable, found {v.kind.value} '{name.name}'")
+            raise SourceError(locate(name.start), f"expected an output or memory variable "
+                              f"as the action's target, found {v.kind.value} '{name.name}'")
         if v.type is not T.BOOL:
-            raise SourceError(locate(name.start), f"type error: an action on a variable needs "
-                              f"a bool, found {v.type} '{name.name}' (use a statement: "
+            raise SourceError(locate(name.start), f"type error: expected a bool variable as the "
+                              f"action's target, found {v.type} '{name.name}' (use a statement: "
                               f"'{name.name} := ...')")
 
     def pre_post(self) -> None:
@@ -399,11 +420,15 @@ class GrafcetLoader:
             return exit_(st.macro.exit) if st.macro else name
 
         for t in g.transitions:
+            locs = self.ref_locs.get(id(t), {})
             for key, names in (("from", t.sources), ("to", t.targets)):
-                for n in names:
+                for i, n in enumerate(names):
                     if n not in g.steps:
-                        raise SourceError(t.loc, f"transition '{key}' names unknown step '{n}'"
-                                                 f"{suggest(n, g.steps)}")
+                        where = locs.get(key, [])
+                        loc = where[i] if i < len(where) else t.loc
+                        raise SourceError(loc, f"unknown step '{n}' in the transition's "
+                                               f"'{key}'{suggest(n, g.steps)}: expected a step "
+                                               "of this chart")
             t.src_steps = [exit_(n) for n in t.sources]
             t.dst_steps = [entry(n) for n in t.targets]
 
@@ -429,10 +454,12 @@ class GrafcetLoader:
                     if not looks_temporary(target.name):
                         allv = [*self.g.variables, *self.g.steps]
                         raise SourceError(locate(target.start), f"unknown variable "
-                                          f"'{target.name}'{suggest(target.name, allv)} (an "
-                                          "undeclared name assigned in the program must start "
-                                          "with 't': a temporary)")
+                                          f"'{target.name}'{suggest(target.name, allv)}: "
+                                          "expected a declared output or memory variable, or a "
+                                          "temporary named 't' and a capital letter (tParo)")
                     checker.temps_pending.setdefault(target.name, locate(target.start))
+        # temporaries are typed by their first assignment in file order
+        self.units.sort(key=lambda u: (u[2](0).line, u[2](0).col))
         checker.run(self.units)
 
 

@@ -9,6 +9,7 @@ expected and what it found, and has no dependency. Precedence (language.md, tigh
 from __future__ import annotations
 
 import re
+import unicodedata
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -39,6 +40,13 @@ class Tok:
     start: int
     end: int
     value: object = None
+
+
+def is_name(word: str) -> bool:
+    """A name of the language: letters (any alphabet: gsAvería), digits and '_', not starting
+    with a digit, and written in its canonical form (no '²', no ligatures: they would
+    collide with other names once compiled)."""
+    return word.isidentifier() and unicodedata.normalize("NFKC", word) == word
 
 
 def parse_time(text: str) -> int | None:
@@ -127,6 +135,9 @@ class Lexer:
                 if j < n and text[j] == "#" and word.isdigit():  # pragma: no cover
                     pass
                 kind = "KW" if word.upper() in KEYWORDS else "NAME"
+                if kind == "NAME" and not is_name(word):
+                    raise self.error(i, f"expected a name of letters, digits and '_', found "
+                                        f"'{word}'")
                 out.append(Tok(kind, word.upper() if kind == "KW" else word, i, j))
                 i = j
                 continue
@@ -136,7 +147,12 @@ class Lexer:
                     i += len(op)
                     break
             else:
-                raise self.error(i, f"unexpected character '{c}'")
+                if unicodedata.category(c).startswith("M"):
+                    raise self.error(i, f"expected a letter, found the combining mark "
+                                        f"U+{ord(c):04X}: write accented letters precomposed "
+                                        "(save the file in Unicode NFC form)")
+                raise self.error(i, f"expected an operand or an operator, found the "
+                                    f"unexpected character '{c}'")
         out.append(Tok("EOF", "", n, n))
         return out
 
@@ -193,6 +209,10 @@ _BINARY = {
 }
 _PREFIX = {"↑": "RE", "RE": "RE", "↓": "FE", "FE": "FE", "NOT": "NOT", "!": "NOT", "-": "NEG"}
 METHODS = ("Ini", "End", "Reset", "Val", "Set")
+#: limits that keep the checker, the compiler and Python's own parser within their bounds
+MAX_NESTING = 50  # parentheses and prefix operators inside one another
+MAX_DEPTH = 100  # operators in a chain (a + b + c ...: depth = number of operators)
+MAX_BLOCKS = 16  # IF / CASE / FOR inside one another
 
 
 def _describe(t: Tok) -> str:
@@ -211,6 +231,8 @@ class Parser:
         self.toks = self.lexer.tokens()
         self.i = 0
         self.depth = 0  # parenthesis depth: newlines inside parentheses are spaces
+        self.nesting = 0  # parentheses and prefix operators being parsed
+        self.blocks = 0  # IF / CASE / FOR statements being parsed
         self.text = text
 
     # -- token helpers -----------------------------------------------------------------
@@ -225,8 +247,13 @@ class Parser:
         if skip_nl or self.depth:
             self.skip_nl()
         t = self.toks[self.i]
-        self.i += 1
+        if t.kind != "EOF":  # EOF is never passed
+            self.i += 1
         return t
+
+    def tok(self, k: int) -> Tok:
+        """Token number ``k`` (EOF past the end)."""
+        return self.toks[min(k, len(self.toks) - 1)]
 
     def skip_nl(self) -> None:
         while self.toks[self.i].kind == "NL":
@@ -239,8 +266,9 @@ class Parser:
     def error(self, tok: Tok, expected: str) -> SourceError:
         if tok.kind == "KW" and tok.text in ("WHILE", "REPEAT"):
             return SourceError(self.lexer.locate(tok.start),
-                               f"{tok.text} loops are not allowed (a scan must always end): "
-                               "use a bounded FOR loop")
+                               f"expected {expected}, found {tok.text}: WHILE and REPEAT loops "
+                               "are not allowed (a scan must always end): use a bounded FOR "
+                               "loop")
         return SourceError(self.lexer.locate(tok.start),
                            f"expected {expected}, found {_describe(tok)}")
 
@@ -251,29 +279,50 @@ class Parser:
         return self.next(skip_nl)
 
     # -- expressions -------------------------------------------------------------------
-    def expression(self, min_level: int = 7) -> A.Node:
-        return self._binary(min_level)
+    def expression(self, max_level: int = 7) -> A.Node:
+        """An expression with binary operators up to ``max_level`` (7: all of them)."""
+        return self._binary(max_level)
 
-    def _binary(self, level: int) -> A.Node:
-        if level == 1:
-            return self._unary()
-        left = self._binary(level - 1)
+    def keyword_delimited(self) -> A.Node:
+        """An expression ended by a keyword (IF ... THEN, FOR ... TO ... DO, CASE ... OF):
+        new lines inside it are spaces, as in IEC 61131-3 ST."""
+        self.depth += 1
+        try:
+            return self.expression()
+        finally:
+            self.depth -= 1
+
+    def _binary(self, max_level: int) -> A.Node:
+        """Operators of level <= max_level (1 tightest), left-associative (Pratt loop)."""
+        left = self._unary()
         while True:
             t = self.peek()
             key = t.text if t.kind in ("OP", "KW") else None
-            if key is None or key not in _BINARY or _BINARY[key][0] != level:
+            if key is None or key not in _BINARY or _BINARY[key][0] > max_level:
                 return left
+            level, op = _BINARY[key]
             self.next()
             self.skip_nl()  # an operator at the end of a line continues the expression
-            right = self._binary(level - 1)
-            left = A.Binary(left.start, right.end, _BINARY[key][1], left, right, t.text)
+            right = self._binary(level - 1)  # only tighter operators on the right
+            left = A.Binary(left.start, right.end, op, left, right, t.text)
+
+    def nest(self, tok: Tok) -> None:
+        """Enter a parenthesis, an argument list or a prefix operator (bounded depth)."""
+        self.nesting += 1
+        if self.nesting > MAX_NESTING:
+            raise SourceError(self.lexer.locate(tok.start),
+                              f"expected at most {MAX_NESTING} nested parentheses or prefix "
+                              f"operators, found more: split the expression with temporaries")
 
     def _unary(self) -> A.Node:
         t = self.peek()
         key = t.text if t.kind in ("OP", "KW") else None
         if key in _PREFIX:
             self.next()
+            self.skip_nl()  # an operator at the end of a line continues the expression
+            self.nest(t)
             operand = self._unary()
+            self.nesting -= 1
             return A.Unary(t.start, operand.end, _PREFIX[key], operand, t.text)
         node = self._postfix(self._primary())
         return node
@@ -288,13 +337,16 @@ class Parser:
         t = self.next()
         if t.kind == "OP" and t.text == "(":
             self.depth += 1
+            self.nest(t)
             inner = self.expression()
+            self.nesting -= 1
             self.depth -= 1
             close = self.peek()
             if not (close.kind == "OP" and close.text == ")"):
+                opened = self.lexer.locate(t.start)
                 raise SourceError(self.lexer.locate(close.start),
-                                  f"unbalanced parentheses: expected ')' to close the '(' at "
-                                  f"column {self.lexer.locate(t.start).col}, found "
+                                  f"unbalanced parentheses: expected ')' to close the '(' "
+                                  f"opened at line {opened.line}, column {opened.col}, found "
                                   f"{_describe(close)}")
             self.next()
             inner.start, inner.end = t.start, close.end  # keep parentheses in the span
@@ -322,12 +374,13 @@ class Parser:
             return A.Name(t.start, t.end, t.text)
         if t.kind == "OP" and t.text == ")":
             raise SourceError(self.lexer.locate(t.start),
-                              "unbalanced parentheses: found ')' without a matching '('")
+                              "unbalanced parentheses: expected an operand, found ')' without "
+                              "a matching '('")
         raise self.error(t, "an operand (a name, a number, a time, '(' or an operator like "
                             "NOT ↑)")
 
     def _call_args(self, positional: bool) -> list:  # type: ignore[type-arg]
-        self.expect("OP", "(", "'('")
+        self.nest(self.expect("OP", "(", "'('"))
         self.depth += 1
         args: list = []  # type: ignore[type-arg]
         if not self.at("OP", ")"):
@@ -350,6 +403,7 @@ class Parser:
                               f"list, found {_describe(t)}")
         self.next()
         self.depth -= 1
+        self.nesting -= 1
         return args
 
     # -- statements --------------------------------------------------------------------
@@ -372,13 +426,16 @@ class Parser:
 
     def statement(self) -> A.Node:
         t = self.peek()
+        if t.kind == "KW" and t.text in ("IF", "CASE", "FOR"):
+            self.blocks += 1
+            if self.blocks > MAX_BLOCKS:
+                raise SourceError(self.lexer.locate(t.start),
+                                  f"expected at most {MAX_BLOCKS} IF, CASE or FOR statements "
+                                  f"inside one another, found more: simplify the logic")
+            node = {"IF": self._if, "CASE": self._case, "FOR": self._for}[t.text]()
+            self.blocks -= 1
+            return node
         if t.kind == "KW":
-            if t.text == "IF":
-                return self._if()
-            if t.text == "CASE":
-                return self._case()
-            if t.text == "FOR":
-                return self._for()
             raise self.error(t, "a statement (x := expr, a call, IF, CASE or FOR)")
         if t.kind != "NAME":
             raise self.error(t, "a statement (x := expr, a call, IF, CASE or FOR)")
@@ -406,7 +463,7 @@ class Parser:
     def _if(self) -> A.Node:
         start = self.next().start
         branches = []
-        cond = self.expression()
+        cond = self.keyword_delimited()
         self.expect("KW", "THEN", "THEN", skip_nl=True)
         body = self.statements(("ELSIF", "ELSE", "END_IF"))
         branches.append((cond, body))
@@ -414,7 +471,7 @@ class Parser:
         while True:
             t = self.next(skip_nl=True)
             if t.kind == "KW" and t.text == "ELSIF":
-                cond = self.expression()
+                cond = self.keyword_delimited()
                 self.expect("KW", "THEN", "THEN", skip_nl=True)
                 branches.append((cond, self.statements(("ELSIF", "ELSE", "END_IF"))))
             elif t.kind == "KW" and t.text == "ELSE":
@@ -434,7 +491,7 @@ class Parser:
 
     def _case(self) -> A.Node:
         start = self.next().start
-        sel = self.expression()
+        sel = self.keyword_delimited()
         self.expect("KW", "OF", "OF", skip_nl=True)
         arms = []
         orelse: list[A.Node] = []
@@ -450,14 +507,27 @@ class Parser:
                 continue
             labels = []
             while True:
+                first = self.peek()
                 lo = self._case_label()
                 hi = lo
                 if self.at("OP", ".."):
                     self.next()
                     hi = self._case_label()
+                    if hi < lo:
+                        raise SourceError(self.lexer.locate(first.start),
+                                          f"expected a CASE range low..high, found {lo}..{hi}")
+                written = self.text[first.start:self.toks[self.i - 1].end]
+                for seen_lo, seen_hi in [x for arm in arms for x in arm[0]] + labels:
+                    if lo <= seen_hi and seen_lo <= hi:
+                        before = (str(seen_lo) if seen_lo == seen_hi
+                                  else f"{seen_lo}..{seen_hi}")
+                        raise SourceError(self.lexer.locate(first.start),
+                                          f"expected each CASE value in one label only, found "
+                                          f"{written} overlapping the earlier label {before}")
                 labels.append((lo, hi))
                 if self.at("OP", ","):
                     self.next()
+                    self.skip_nl()
                     continue
                 break
             self.expect("OP", ":", "':' after the CASE labels")
@@ -476,23 +546,20 @@ class Parser:
             if t.kind == "EOF":
                 raise self.error(t, "END_CASE")
             if t.kind == "INT" or (t.kind == "OP" and t.text == "-"):
-                # a new label if followed by ':' '..' or ','
-                nxt = self.toks[self.i + 1 + (t.text == "-")]
-                if nxt.kind == "OP" and nxt.text in (":", "..", ","):
-                    return out
+                return out  # no statement starts with a number: the next arm's labels
             out.append(self.statement())
 
     def _for(self) -> A.Node:
         start = self.next().start
         v = self.expect("NAME", None, "the FOR loop variable")
         self.expect("OP", ":=", "':=' after the FOR variable")
-        first = self.expression()
+        first = self.keyword_delimited()
         self.expect("KW", "TO", "TO", skip_nl=True)
-        last = self.expression()
+        last = self.keyword_delimited()
         step = None
         if self.at("KW", "BY", skip_nl=True):
             self.next(skip_nl=True)
-            step = self.expression()
+            step = self.keyword_delimited()
         self.expect("KW", "DO", "DO", skip_nl=True)
         body = self.statements(("END_FOR",))
         t = self.expect("KW", "END_FOR", "END_FOR", skip_nl=True)
@@ -505,8 +572,48 @@ class Parser:
         if t.kind != "EOF":
             if t.kind == "OP" and t.text == ")":
                 raise SourceError(self.lexer.locate(t.start),
-                                  "unbalanced parentheses: found ')' without a matching '('")
+                                  f"unbalanced parentheses: expected {what}, found ')' without "
+                                  "a matching '('")
             raise self.error(t, what)
+
+
+def _children(n: A.Node) -> list[A.Node]:
+    if isinstance(n, A.Unary):
+        return [n.operand]
+    if isinstance(n, A.Binary):
+        return [n.left, n.right]
+    if isinstance(n, A.MethodCall):
+        return list(n.args)
+    if isinstance(n, A.Assign):
+        return [n.value]
+    if isinstance(n, A.CallStmt):
+        return [n.call]
+    if isinstance(n, A.FbCall):
+        return [a for _, a in n.args]
+    if isinstance(n, A.If):
+        return [x for c, body in n.branches for x in (c, *body)] + list(n.orelse)
+    if isinstance(n, A.Case):
+        return [n.selector, *(x for _, body in n.arms for x in body), *n.orelse]
+    if isinstance(n, A.For):
+        return [x for x in (n.first, n.last, n.step, *n.body) if x is not None]
+    return []
+
+
+def check_depth(roots: list[A.Node], locate: Callable[[int], Loc]) -> None:
+    """Refuse expressions nested deeper than MAX_DEPTH operators (without recursion: the
+    checker and the compiler recurse on the tree, and Python limits nested parentheses)."""
+    stack = [(r, 0) for r in roots]
+    while stack:
+        n, d = stack.pop()
+        if isinstance(n, (A.Unary, A.Binary, A.MethodCall)):
+            d += 1
+            if d > MAX_DEPTH:
+                raise SourceError(locate(n.start), f"expected at most {MAX_DEPTH} operators "
+                                  "in a chain, found more: split the expression with "
+                                  "temporaries")
+        else:
+            d = 0  # a statement: its expressions start afresh
+        stack.extend((c, d) for c in _children(n))
 
 
 def parse_expression(text: str, locate: Callable[[int], Loc]) -> A.Node:
@@ -517,6 +624,7 @@ def parse_expression(text: str, locate: Callable[[int], Loc]) -> A.Node:
         raise p.error(p.peek(), "an expression")
     e = p.expression()
     p.finish("an operator or the end of the expression")
+    check_depth([e], locate)
     return e
 
 
@@ -525,6 +633,7 @@ def parse_statements(text: str, locate: Callable[[int], Loc]) -> list[A.Node]:
     p = Parser(text, locate)
     body = p.statements()
     p.finish("';' or a new line between statements")
+    check_depth(body, locate)
     return body
 
 
@@ -555,34 +664,52 @@ def parse_action(text: str, locate: Callable[[int], Loc]) -> ParsedAction:
         if not (t.kind == "KW" and t.text == "DO"):
             raise p.error(t, "'do' after the event of an 'on EVENT do' action")
         p.next()
+        p.skip_nl()
+        t, after = p.peek(), p.tok(p.i + 1)
+        if t.kind == "NAME" and after.kind in ("EOF", "NL"):
+            raise SourceError(locate(t.start), f"expected statements after 'do' (e.g. "
+                              f"'{t.text} := 1'), found the bare variable '{t.text}': a "
+                              "continuous action cannot be tied to an event (seed-000 rule I.6)")
         body = p.statements()
         p.finish("';' or a new line between statements")
         if not body:
             raise p.error(p.peek(), "statements after 'do'")
+        check_depth([ev, *body], locate)
         return ParsedAction("EVENT", None, None, None, ev, body, t0.start)
     qual, qstart, time_ns = "N", t0.start, None
-    t1 = p.toks[p.i + 1]
-    if t0.kind == "NAME" and t1.kind in ("NAME", "TIME", "KW") and not (
-            t1.kind == "KW" and t1.text in ("AND", "OR", "XOR", "MOD")):
-        if t0.text.upper() not in QUALIFIERS:
+    known = t0.kind == "NAME" and t0.text.upper() in QUALIFIERS
+    k = p.i + 1
+    while known and p.tok(k).kind == "NL":  # a qualifier may end its line (block scalars)
+        k += 1
+    t1 = p.tok(k)
+    if t0.kind == "NAME" and (t1.kind in ("NAME", "TIME") or (
+            known and t1.kind in ("INT", "REAL")) or (
+            t1.kind == "KW" and t1.text in ("IF", "CASE", "FOR", "WHILE", "REPEAT") and (
+                known or t1.text != "IF"))):
+        # `QUALIFIER [TIME] BODY`; but `oX if C` is a bare variable with a condition
+        if not known:
             raise SourceError(locate(t0.start),
                               f"unknown qualifier '{t0.text}': expected one of "
                               f"{' '.join(QUALIFIERS)} (or 'on EVENT do')")
         qual = t0.text.upper()
         p.next()
+        p.skip_nl()
         if p.at("TIME"):
             tt = p.next()
             if qual not in TIMED_QUALIFIERS:
                 raise SourceError(locate(tt.start),
-                                  f"qualifier {qual} takes no time, found '{tt.text}'")
+                                  f"expected a variable or statements after {qual} (only "
+                                  f"{' '.join(TIMED_QUALIFIERS)} take a time), found the time "
+                                  f"'{tt.text}'")
             time_ns = int(tt.value)  # type: ignore[call-overload]
+            p.skip_nl()
         elif qual in TIMED_QUALIFIERS:
             raise SourceError(locate(p.peek().start),
-                              f"qualifier {qual} needs a time (e.g. '{qual} 2s oX'), found "
-                              f"{_describe(p.peek())}")
+                              f"expected a time after qualifier {qual} (e.g. '{qual} 2s oX'), "
+                              f"found {_describe(p.peek())}")
     # a bare variable, maybe with `if COND`?
     t = p.peek()
-    after = p.toks[p.i + 1]
+    after = p.tok(p.i + 1)
     if t.kind == "NAME" and (after.kind in ("EOF", "NL") or (
             after.kind == "KW" and after.text == "IF")):
         p.next()
@@ -592,9 +719,11 @@ def parse_action(text: str, locate: Callable[[int], Loc]) -> ParsedAction:
             p.next()
             cond = p.expression()
         p.finish("the end of the action or 'if CONDITION'")
+        check_depth([cond] if cond is not None else [], locate)
         return ParsedAction(qual, time_ns, target, cond, None, None, qstart)
     body = p.statements()
     p.finish("';' or a new line between statements")
     if not body:
         raise p.error(p.peek(), "an action body (a variable or statements)")
+    check_depth(body, locate)
     return ParsedAction(qual, time_ns, None, None, None, body, qstart)

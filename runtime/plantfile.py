@@ -86,7 +86,7 @@ def load_plant(path: str) -> PlantDef:
         if "type" not in spec:
             raise SourceError(spec.loc, f"driver '{name}' needs 'type'")
         typ = spec["type"]
-        if typ not in DRIVER_KEYS:
+        if not isinstance(typ, str) or typ not in DRIVER_KEYS:
             raise SourceError(spec.val_locs["type"], f"unknown driver type '{typ}': expected one "
                               f"of {', '.join(DRIVER_KEYS)}{suggest(str(typ), DRIVER_KEYS)}")
         check_keys(spec, ("type", "on_fault", *DRIVER_KEYS[typ]), f"driver '{name}' ({typ})")
@@ -132,14 +132,14 @@ def load_plant(path: str) -> PlantDef:
                 if b.invert and v is not None and v.type is not A.Type.BOOL:
                     raise SourceError(b.loc, f"invert applies to bools only; '{sig}' is {v.type}")
                 getattr(inst, key)[sig] = b
-        for var in g.inputs:
-            if var.name not in inst.inputs:
-                raise SourceError(spec.key_locs.get("inputs", loc), f"instance '{name}' leaves "
-                                  f"input '{var.name}' of grafcet {g.name} unbound")
-        for var in g.outputs:
-            if var.name not in inst.outputs:
-                raise SourceError(spec.key_locs.get("outputs", loc), f"instance '{name}' leaves "
-                                  f"output '{var.name}' of grafcet {g.name} unbound")
+        for key, signals in (("inputs", g.inputs), ("outputs", g.outputs)):
+            bound = getattr(inst, key)
+            for var in signals:
+                if var.name not in bound:
+                    raise SourceError(spec.key_locs.get(key, loc), f"instance '{name}' leaves "
+                                      f"{key[:-1]} '{var.name}' of grafcet {g.name} unbound: "
+                                      f"expected a binding '{var.name}: driver.point' in "
+                                      f"'{key}', found none")
         p.instances[name] = inst
     _resolve_bindings(p)
     if "monitor" in doc and doc["monitor"] is not None:
@@ -148,7 +148,7 @@ def load_plant(path: str) -> PlantDef:
 
 
 def _resolve_bindings(p: PlantDef) -> None:
-    driven: dict[str, Binding] = {}
+    driven: dict[str, tuple[str, Binding]] = {}
     for inst in p.instances.values():
         for key in ("inputs", "outputs"):
             for b in getattr(inst, key).values():
@@ -157,11 +157,13 @@ def _resolve_bindings(p: PlantDef) -> None:
                     b.driver, b.point = head, rest
                     if key == "outputs":
                         if b.source in driven:
-                            other = driven[b.source]
+                            other_inst, other = driven[b.source]
                             raise SourceError(b.loc, f"physical output '{b.source}' is bound "
-                                              f"twice: already driven by '{other.signal}' at "
-                                              f"line {other.loc.line}")
-                        driven[b.source] = b
+                                              f"twice: expected one output per point, found "
+                                              f"'{inst.name}.{b.signal}' and "
+                                              f"'{other_inst}.{other.signal}' (line "
+                                              f"{other.loc.line})")
+                        driven[b.source] = (inst.name, b)
                 elif head in p.instances and key == "inputs":
                     other = p.instances[head].grafcet
                     ok = rest in other.variables and other.variables[rest].kind is not (
@@ -173,10 +175,29 @@ def _resolve_bindings(p: PlantDef) -> None:
                         raise SourceError(b.loc, f"instance '{head}' has no signal '{rest}'"
                                                  f"{suggest(rest, names)}")
                     b.instance, b.ref = head, rest
+                elif head in p.instances:
+                    raise SourceError(b.loc, f"expected a driver point for output "
+                                             f"'{b.signal}', found instance '{head}' (an "
+                                             "instance's signal can feed an input only)")
                 else:
                     where = list(p.drivers) + (list(p.instances) if key == "inputs" else [])
                     raise SourceError(b.loc, f"unknown driver or instance '{head}' in "
                                              f"'{b.source}'{suggest(head, where)}")
+
+
+def _need(m: YMap, key: str, what: str) -> Any:
+    if key not in m:
+        raise SourceError(m.loc, f"missing key '{key}': expected {what}")
+    return m[key]
+
+
+def _int(value: Any, loc: Loc, what: str) -> int:
+    return int(expect_type(value, loc, int, what))
+
+
+def _flag(m: YMap, key: str) -> bool:
+    return bool(expect_type(m.get(key, False), m.val_locs.get(key, m.loc), bool,
+                            f"true or false for {key}"))
 
 
 def _monitor(p: PlantDef, mon: Any, loc: Loc) -> None:
@@ -185,24 +206,33 @@ def _monitor(p: PlantDef, mon: Any, loc: Loc) -> None:
     if "serial" in mon:
         s = expect_type(mon["serial"], mon.val_locs["serial"], YMap, "{port, baudrate}")
         check_keys(s, ("port", "baudrate", "trusted"), "monitor serial")
-        p.consoles.append(ConsoleEntry("serial", str(s["port"]), int(s.get("baudrate", 115200)),
-                                       bool(s.get("trusted", False))))
+        port = expect_type(_need(s, "port", "the serial port (e.g. /dev/ttyGS0)"),
+                           s.val_locs.get("port", s.loc), str, "a serial port path")
+        baud = _int(s.get("baudrate", 115200), s.val_locs.get("baudrate", s.loc),
+                    "a baud rate (e.g. 115200)")
+        p.consoles.append(ConsoleEntry("serial", str(port), baud, _flag(s, "trusted")))
     if "socket" in mon:
         s = mon["socket"]
         if isinstance(s, YMap):
             check_keys(s, ("path", "trusted"), "monitor socket")
-            p.consoles.append(ConsoleEntry("socket", str(s["path"]),
-                                           trusted=bool(s.get("trusted", False))))
+            path = expect_type(_need(s, "path", "the socket's path"),
+                               s.val_locs.get("path", s.loc), str, "a socket path")
+            p.consoles.append(ConsoleEntry("socket", str(path), trusted=_flag(s, "trusted")))
         else:
-            p.consoles.append(ConsoleEntry("socket", str(s)))
+            path = expect_type(s, mon.val_locs["socket"], str, "a socket path")
+            p.consoles.append(ConsoleEntry("socket", str(path)))
     if "tcp" in mon:
         s = mon["tcp"]
         if isinstance(s, YMap):
             check_keys(s, ("port", "trusted"), "monitor tcp")
-            p.consoles.append(ConsoleEntry("tcp", f"127.0.0.1:{int(s['port'])}",
-                                           trusted=bool(s.get("trusted", False))))
+            port = _int(_need(s, "port", "a TCP port number"), s.val_locs.get("port", s.loc),
+                        "a TCP port number")
+            p.consoles.append(ConsoleEntry("tcp", f"127.0.0.1:{port}",
+                                           trusted=_flag(s, "trusted")))
         else:
-            p.consoles.append(ConsoleEntry("tcp", f"127.0.0.1:{int(s)}"))
+            port = _int(s, mon.val_locs["tcp"], "a TCP port number")
+            p.consoles.append(ConsoleEntry("tcp", f"127.0.0.1:{port}"))
     if "pin_hash" in mon:
         p.pin_hash = str(mon["pin_hash"])
-    p.release_forces_on_disconnect = bool(mon.get("release_forces_on_disconnect", False))
+    if "release_forces_on_disconnect" in mon:
+        p.release_forces_on_disconnect = _flag(mon, "release_forces_on_disconnect")

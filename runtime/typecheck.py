@@ -2,8 +2,11 @@
 
 ``+`` and ``*``/``·`` are logical between two bools and arithmetic otherwise (the node's
 ``op`` is rewritten to OR/AND for the compiler); bools count as 0/1 in arithmetic; the
-literals 0 and 1 are bool constants where a bool is expected. Temporaries are names that
-start with ``t``, assigned somewhere in the program and typed by their first assignment.
+literals 0 and 1 are bool constants where a bool is expected. Between a bool and a 0/1
+literal (``iA + 1``) ``+``/``*`` take the type the context wants: arithmetic where a number
+is wanted (an operand of arithmetic or of a comparison, a value for a numeric variable),
+logical otherwise. Temporaries are names that start with ``t`` and a capital letter,
+assigned somewhere in the program and typed by their first assignment in file order.
 """
 
 from __future__ import annotations
@@ -16,6 +19,8 @@ from runtime.model import Grafcet, Variable, VarKind
 
 T = A.Type
 NUMERIC = (T.INT, T.REAL)
+#: operators written with the seed's + and · (and *): logical or arithmetic by type
+_PLUS, _TIMES = ("+",), ("*", "·", "∙", "⋅")
 
 FLAGS_BOOL = ("SFCInit", "SFCReset", "SFCPause", "SFCError", "SFCEnableLimit",
               "SFCQuitError", "SFCTipMode", "SFCTip")
@@ -57,6 +62,24 @@ def looks_temporary(name: str) -> bool:
     return len(name) > 1 and name[0] == "t" and (name[1].isupper() or name[1] in "_0123456789")
 
 
+def _seed_op(n: A.Binary) -> str | None:
+    """ADD or MUL for a node written with the seed's ``+`` or ``·``/``*``, else None."""
+    if n.text in _PLUS:
+        return "ADD"
+    if n.text in _TIMES:
+        return "MUL"
+    return None
+
+
+def ambiguous(n: A.Node) -> bool:
+    """A seed ``+``/``·`` typed logical only because of a 0/1 literal (``iA + 1``): it turns
+    arithmetic where a number is wanted."""
+    if not (isinstance(n, A.Binary) and n.op in ("OR", "AND") and _seed_op(n)):
+        return False
+    return any((isinstance(x, A.Lit) and x.bool_like) or ambiguous(x)
+               for x in (n.left, n.right))
+
+
 class Checker:
     """Types the expressions and statements of one grafcet, creating its temporaries."""
 
@@ -79,6 +102,20 @@ class Checker:
         n.type = t
         return t
 
+    def numeric(self, n: A.Node) -> A.Type:
+        """``n`` is wanted as a number: an ambiguous ``iA + 1`` becomes arithmetic."""
+        if ambiguous(n):
+            assert isinstance(n, A.Binary)
+            n.op = _seed_op(n)  # type: ignore[assignment]
+            for side in (n.left, n.right):
+                if isinstance(side, A.Lit) and side.bool_like:
+                    side.type, side.value = T.INT, int(side.value)
+                else:
+                    self.numeric(side)
+            n.type = T.INT
+        assert n.type is not None
+        return n.type
+
     def want_bool(self, n: A.Node, what: str = "a bool") -> None:
         t = self.expr(n)
         if t is T.BOOL:
@@ -95,6 +132,8 @@ class Checker:
 
     def _expr(self, n: A.Node) -> A.Type:
         if isinstance(n, A.Lit):
+            if n.bool_like:  # typed afresh: a bool constant only where a bool is wanted
+                n.value = int(n.value)
             return n.lit_type
         if isinstance(n, A.Name):
             return self._name(n)
@@ -109,6 +148,9 @@ class Checker:
         if isinstance(n, A.Member):
             blk = self.g.blocks.get(n.obj)
             if blk is None:
+                if n.obj in self.g.timers:
+                    raise self.err(n, f"expected a call {n.obj}.{n.member}() of timer "
+                                      f"'{n.obj}', found {n.obj}.{n.member}")
                 if n.obj in self.g.steps:
                     raise self.err(n, f"step '{n.obj}' has only .X and .T, found "
                                       f"'.{n.member}'")
@@ -123,14 +165,16 @@ class Checker:
             return self._method(n, as_statement=False)
         if isinstance(n, A.Unary):
             if n.op in ("NOT", "RE", "FE"):
-                self.want_bool(n.operand, f"a bool operand of '{n.text}'")
+                what = "postfix '" if n.text == "'" else n.text
+                self.want_bool(n.operand, f"a bool operand of {what}")
                 return T.BOOL
-            t = self.expr(n.operand)  # NEG
+            self.expr(n.operand)  # NEG
+            t = self.numeric(n.operand)
             if t is T.BOOL:
                 return T.INT
             if t in (*NUMERIC, T.TIME):
                 return t
-            raise self.err(n, f"type error: cannot negate {t}")
+            raise self.err(n, f"type error: expected a number or a time after '-', found {t}")
         if isinstance(n, A.Binary):
             return self._binary(n)
         raise self.err(n, "expected an expression")  # pragma: no cover
@@ -158,7 +202,7 @@ class Checker:
         raise self.err(n, f"unknown variable '{n.name}'{suggest(n.name, self.names())}")
 
     def _binary(self, n: A.Binary) -> A.Type:
-        op = n.op
+        op = n.op = _seed_op(n) or n.op  # typed afresh on every pass
         if op in ("OR", "XOR", "AND"):
             self.want_bool(n.left, f"a bool operand of {n.text}")
             self.want_bool(n.right, f"a bool operand of {n.text}")
@@ -173,13 +217,15 @@ class Checker:
             n.op = "OR" if op == "ADD" else "AND"
             return T.BOOL
         if op in ("EQ", "NE", "LT", "LE", "GT", "GE"):
-            if lt is T.TIME or rt is T.TIME:
-                if lt is not rt:
-                    raise self.err(n, f"type error: cannot compare {lt} '{self._text(n.left)}' "
-                                      f"with {rt} '{self._text(n.right)}'")
-                return T.BOOL
+            lt, rt = self.numeric(n.left), self.numeric(n.right)
+            if (lt is T.TIME) != (rt is T.TIME):
+                bad, good = (n.left, n.right) if rt is T.TIME else (n.right, n.left)
+                raise self.err(bad, f"type error: expected a time to compare with time "
+                                    f"'{self._text(good)}', found {bad.type} "
+                                    f"'{self._text(bad)}'")
             return T.BOOL
         # arithmetic
+        lt, rt = self.numeric(n.left), self.numeric(n.right)
         a = T.INT if lt is T.BOOL else lt
         b = T.INT if rt is T.BOOL else rt
         if a is T.TIME or b is T.TIME:
@@ -190,22 +236,30 @@ class Checker:
                 return T.TIME
             if op == "DIV" and a is T.TIME and b in NUMERIC:
                 return T.TIME
-            raise self.err(n, f"type error: '{n.text}' between {lt} '{self._text(n.left)}' "
-                              f"and {rt} '{self._text(n.right)}'")
+            raise self.err(n, f"type error: expected numbers, or times (+ -) or a time and a "
+                              f"number (* /) for '{n.text}', found {lt} "
+                              f"'{self._text(n.left)}' and {rt} '{self._text(n.right)}'")
         if op == "MOD" and (a is T.REAL or b is T.REAL):
-            raise self.err(n, "type error: MOD needs integers")
+            bad = n.left if a is T.REAL else n.right
+            raise self.err(bad, f"type error: expected integers for MOD, found real "
+                                f"'{self._text(bad)}'")
         return T.REAL if T.REAL in (a, b) else T.INT
 
     def _method(self, n: A.MethodCall, as_statement: bool) -> A.Type:
         m = n.method
         if m == "Set":
             if not as_statement:
-                raise self.err(n, f"{n.obj}.Set(value, condition) is a statement, not a value")
+                raise self.err(n, f"expected a value, found the statement "
+                              f"{n.obj}.Set(value, condition)")
             target = A.Name(n.start, n.start + len(n.obj), n.obj)
-            vt = self._target_type(target)
             if len(n.args) != 2:
-                raise self.err(n, f"{n.obj}.Set needs 2 arguments (value, condition), found "
-                                  f"{len(n.args)}")
+                raise self.err(n, f"expected 2 arguments (value, condition) for {n.obj}.Set, "
+                                  f"found {len(n.args)}")
+            if n.obj not in self.g.variables and n.obj in self.temps_pending:
+                value = n.args[0]  # a temporary typed here: Set(1, c) latches a bool
+                t = T.BOOL if isinstance(value, A.Lit) and value.bool_like else self.expr(value)
+                self._new_temp(n.obj, t)
+            vt = self._target_type(target)
             self._assignable(vt, n.args[0], n.obj)
             self.want_bool(n.args[1], "a bool condition in Set")
             return vt
@@ -218,41 +272,50 @@ class Checker:
             raise self.err(n, f"timer '{n.obj}' has no method '{m}': expected Ini End Reset Val")
         want = {"Ini": 1, "End": 0, "Reset": 0, "Val": 0}[m]
         if len(n.args) != want:
-            raise self.err(n, f"{n.obj}.{m} takes {want} argument(s), found {len(n.args)}")
+            raise self.err(n, f"expected {want} argument(s) for {n.obj}.{m}, found "
+                              f"{len(n.args)}")
         if m in ("Ini", "Reset") and not as_statement:
-            raise self.err(n, f"{n.obj}.{m}() is a statement, not a value")
+            raise self.err(n, f"expected a value, found the statement {n.obj}.{m}(): "
+                              "call it on its own")
         if m in ("End", "Val") and as_statement:
-            raise self.err(n, f"{n.obj}.{m}() is a value, not a statement")
+            raise self.err(n, f"expected a statement, found the value {n.obj}.{m}(): use it "
+                              "in an expression")
         if m == "Ini":
             t = self.expr(n.args[0])
             if t is not T.TIME:
-                raise self.err(n.args[0], f"type error: {n.obj}.Ini needs a time, found {t}")
+                raise self.err(n.args[0], f"type error: expected a time for {n.obj}.Ini, found "
+                                          f"{t} '{self._text(n.args[0])}'")
         return T.BOOL if m == "End" else T.TIME
 
     # -- statements ----------------------------------------------------------------
     def _target_type(self, target: A.Name) -> A.Type:
         v = self.g.variables.get(target.name)
         if v is None:
-            if target.name in self.temps_pending:
+            if target.name in self.temps_pending and not self.strict:
                 raise TempUnknown(target.name)
             return self._name(target)
         if v.kind is VarKind.INPUT:
-            raise self.err(target, f"cannot assign input '{v.name}': inputs are read-only")
+            raise self.err(target, f"expected an output, memory or temporary to assign, found "
+                                   f"input '{v.name}' (inputs are read-only)")
         if v.kind is VarKind.SYSTEM or (v.kind is VarKind.FLAG and v.name not in
                                          WRITABLE_FLAGS):
-            raise self.err(target, f"cannot assign {v.kind.value} '{v.name}'")
+            raise self.err(target, f"expected an output, memory or temporary to assign, found "
+                                   f"{v.kind.value} '{v.name}' (read-only)")
         return v.type
 
     def _assignable(self, vt: A.Type, value: A.Node, name: str) -> None:
         if vt is T.BOOL:
             self.want_bool(value, f"a bool value for '{name}'")
             return
-        t = self.expr(value)
+        self.expr(value)
+        t = self.numeric(value) if vt in NUMERIC else value.type
+        assert t is not None
         ok = t is vt or (vt is T.INT and t is T.BOOL) or (vt is T.REAL and t in (T.INT,
                                                                                 T.BOOL))
         if not ok:
-            raise self.err(value, f"type error: cannot assign {t} '{self._text(value)}' to "
-                                  f"{vt} variable '{name}'")
+            article = "an" if vt is T.INT else "a"
+            raise self.err(value, f"type error: expected {article} {vt} value for '{name}', "
+                                  f"found {t} '{self._text(value)}'")
 
     def stmts(self, body: list[A.Node], loop_vars: tuple[str, ...] = ()) -> None:
         for s in body:
@@ -265,8 +328,6 @@ class Checker:
                 raise self.err(s.target, f"the FOR loop must not write its variable '{name}'")
             if name not in self.g.variables and name in self.temps_pending:
                 t = self.expr(s.value)  # may raise TempUnknown in the first pass
-                if isinstance(s.value, A.Lit) and s.value.bool_like and t is T.INT:
-                    t = T.INT
                 self._new_temp(name, t)
             vt = self._target_type(s.target)
             s.target.type = vt
@@ -293,9 +354,11 @@ class Checker:
                 self.stmts(body, loop_vars)
             self.stmts(s.orelse, loop_vars)
         elif isinstance(s, A.Case):
-            t = self.expr(s.selector)
+            self.expr(s.selector)
+            t = self.numeric(s.selector)
             if t not in (T.INT, T.BOOL):
-                raise self.err(s.selector, f"type error: CASE needs an integer, found {t}")
+                raise self.err(s.selector, f"type error: expected an int CASE selector, found "
+                                           f"{t} '{self._text(s.selector)}'")
             for _, body in s.arms:
                 self.stmts(body, loop_vars)
             self.stmts(s.orelse, loop_vars)
@@ -305,14 +368,22 @@ class Checker:
                 self._new_temp(name, T.INT)
             vt = self._target_type(s.var)
             if vt is not T.INT:
-                raise self.err(s.var, f"type error: the FOR variable '{name}' must be int, "
-                                      f"found {vt}")
+                raise self.err(s.var, f"type error: expected an int FOR variable, found {vt} "
+                                      f"'{name}'")
             s.var.type = T.INT
             for part in (s.first, s.last, s.step):
                 if part is not None:
-                    t = self.expr(part)
+                    self.expr(part)
+                    t = self.numeric(part)
                     if t not in (T.INT, T.BOOL):
-                        raise self.err(part, f"type error: FOR bounds must be int, found {t}")
+                        raise self.err(part, f"type error: expected int FOR bounds, found {t} "
+                                             f"'{self._text(part)}'")
+            by = s.step
+            while isinstance(by, A.Unary) and by.op == "NEG":
+                by = by.operand
+            if isinstance(by, A.Lit) and not by.value:
+                raise self.err(s.step, "expected a non-zero BY step (a scan must always end), "
+                                       f"found '{self._text(s.step)}'")
             self.stmts(s.body, (*loop_vars, name))
         else:  # pragma: no cover
             raise self.err(s, "expected a statement")

@@ -25,49 +25,124 @@ class YList(list[Any]):
 
 
 class YStr(str):
-    """A YAML string that can map an offset inside it back to a file line and column."""
+    """A YAML string that can map an offset inside it back to a file line and column.
+
+    ``_pos[i]`` is the file (line, col) of character i of the value, for every scalar style:
+    plain, single- and double-quoted (``''`` and escapes such as ``\\u2191`` count as the
+    characters they stand for), and block scalars (``|``, ``>``), including folded lines.
+    """
 
     loc: Loc
-    _lines: list[tuple[int, int, int]]  # (offset in value, file line, file col) per value line
+    _pos: list[tuple[int, int]]
 
     def pos(self, offset: int) -> Loc:
-        """File place of character ``offset`` of this string."""
-        line, col, start = self.loc.line, self.loc.col, 0
-        for start_off, fline, fcol in self._lines:
-            if start_off <= offset:
-                start, line, col = start_off, fline, fcol
-        return Loc(self.loc.file, line, col + offset - start)
+        """File place of character ``offset`` of this string (past the end: after the last
+        visible character, where 'found end of text' points)."""
+        p = self._pos
+        if 0 <= offset < len(p):
+            line, col = p[offset]
+            return Loc(self.loc.file, line, col)
+        k = min(len(p), len(self)) - 1
+        while k >= 0 and self[k].isspace():
+            k -= 1
+        if k < 0:
+            return self.loc
+        line, col = p[k]
+        return Loc(self.loc.file, line, col + 1)
+
+
+def synthetic_str(value: str, loc: Loc) -> YStr:
+    """A YStr for text that is not in the file as such (a YAML number or bool used as a
+    condition): its characters are placed one after the other from ``loc``."""
+    s = YStr(value)
+    s.loc = loc
+    s._pos = [(loc.line, loc.col + i) for i in range(len(value))]
+    return s
 
 
 def _mark(path: str, mark: Any) -> Loc:
     return Loc(path, mark.line + 1, mark.column + 1)
 
 
-def _make_str(value: str, node: yaml.ScalarNode, path: str, text_lines: list[str]) -> YStr:
-    s = YStr(value)
-    s.loc = _mark(path, node.start_mark)
-    style = node.style
+_BREAKS = "\n\x85\u2028\u2029"
+_ESC_LEN = {"x": 2, "u": 4, "U": 8}
+
+
+def _raw_units(raw: str, style: str | None) -> tuple[int, list[tuple[int, str | None]]]:
+    """Split a scalar's source text into units that each stand for at most one character of
+    its value: (raw index, the character, or None for an escape that matches any)."""
     if style in ("|", ">"):
-        # block scalar: content starts on the line after the indicator, at its indentation
-        first = node.start_mark.line + 1
-        lines: list[tuple[int, int, int]] = []
-        off = 0
-        indent = None
-        for i, part in enumerate(value.split("\n")):
-            fl = first + i
-            src = text_lines[fl] if fl < len(text_lines) else ""
-            if indent is None and src.strip():
-                indent = len(src) - len(src.lstrip(" "))
-            lines.append((off, fl + 1, (indent or 0) + 1))
-            off += len(part) + 1
-        s._lines = lines
-        if lines:
-            s.loc = Loc(path, lines[0][1], lines[0][2])
+        first = raw.find("\n")
+        start = len(raw) if first < 0 else first + 1
+    elif style in ("'", '"'):
+        start = 1
     else:
-        col = node.start_mark.column + (1 if style in ("'", '"') else 0) + 1
-        s._lines = [(0, node.start_mark.line + 1, col)]
-        if "\n" not in value:
-            s.loc = Loc(path, node.start_mark.line + 1, col)
+        start = 0
+    units: list[tuple[int, str | None]] = []
+    i, n = start, len(raw)
+    while i < n:
+        c = raw[i]
+        if style == "'" and c == "'":
+            if i + 1 < n and raw[i + 1] == "'":
+                units.append((i, "'"))
+                i += 2
+                continue
+            break  # closing quote
+        if style == '"' and c == '"':
+            break
+        if style == '"' and c == "\\" and i + 1 < n:
+            e = raw[i + 1]
+            if e in _BREAKS or e == "\r":  # line continuation: stands for nothing
+                i += 2
+                continue
+            units.append((i, None))
+            i += 2 + _ESC_LEN.get(e, 0)
+            continue
+        units.append((i, c))
+        i += 1
+    return start, units
+
+
+def _value_positions(value: str, node: yaml.ScalarNode, text: str) -> list[tuple[int, int]]:
+    """File (line, col) of each character of a scalar's value, by aligning the value with
+    its source text (folded line breaks and indentation are skipped)."""
+    sm, em = node.start_mark, node.end_mark
+    raw = text[sm.index:em.index]
+    # file place of every raw character
+    places: list[tuple[int, int]] = []
+    line, col = sm.line + 1, sm.column + 1
+    for ch in raw:
+        places.append((line, col))
+        if ch in _BREAKS:
+            line, col = line + 1, 1
+        elif ch != "\r":
+            col += 1
+    places.append((line, col))
+    _, units = _raw_units(raw, node.style)
+    out: list[tuple[int, int]] = []
+    u = 0
+    for ch in value:
+        k = u
+        while k < len(units):
+            rc = units[k][1]
+            if rc is None or rc == ch or (ch.isspace() and rc.isspace()):
+                break
+            k += 1
+        if k < len(units):
+            out.append(places[units[k][0]])
+            u = k + 1
+        else:  # not found (should not happen): keep the current place
+            out.append(places[units[u][0]] if u < len(units) else places[-1])
+    return out
+
+
+def _make_str(value: str, node: yaml.ScalarNode, path: str, text: str) -> YStr:
+    s = YStr(value)
+    s._pos = _value_positions(value, node, text)
+    if s._pos:
+        s.loc = Loc(path, *s._pos[0])
+    else:
+        s.loc = _mark(path, node.start_mark)
     return s
 
 
@@ -87,12 +162,13 @@ def load_yaml(path: str, text: str | None = None) -> Any:
         mark = exc.problem_mark or exc.context_mark
         loc = _mark(path, mark) if mark else Loc(path, 1, 1)
         what = exc.problem or "invalid YAML"
+        if what == "mapping values are not allowed here":
+            what = "found ':' where no mapping value is allowed (quote a text holding ': ')"
         ctx = f" ({exc.context})" if exc.context else ""
         raise SourceError(loc, f"YAML syntax: {what}{ctx}") from None
     if node is None:
         raise SourceError(Loc(path, 1, 1), "empty file: expected a YAML mapping")
     constructor = yaml.SafeLoader(text)
-    text_lines = text.split("\n")
 
     def convert(n: yaml.Node) -> Any:
         if isinstance(n, yaml.MappingNode):
@@ -104,7 +180,9 @@ def load_yaml(path: str, text: str | None = None) -> Any:
                     raise SourceError(_mark(path, kn.start_mark), "expected a plain key")
                 key = str(constructor.construct_object(kn))
                 if key in m:
-                    raise SourceError(_mark(path, kn.start_mark), f"duplicate key '{key}'")
+                    raise SourceError(_mark(path, kn.start_mark),
+                                      f"duplicate key: expected each key once, found "
+                                      f"'{key}' again")
                 m[key] = convert(vn)
                 m.key_locs[key] = _mark(path, kn.start_mark)
                 m.val_locs[key] = (
@@ -122,7 +200,7 @@ def load_yaml(path: str, text: str | None = None) -> Any:
             return lst
         value = constructor.construct_object(n)
         if isinstance(value, str):
-            return _make_str(value, n, path, text_lines)
+            return _make_str(value, n, path, text)
         return value
 
     try:
