@@ -1,0 +1,144 @@
+"""Linux GPIO lines through the character device (libgpiod v2 Python bindings, ``gpiod``).
+
+One line request holds every bound line of the chip: inputs with the configured bias and
+debounce, outputs initialised inactive. ``active_low`` is never set: the driver moves
+physical levels only, and any inversion is the binding's (``invert: true``).
+
+Points are line offsets on the chip: ``gpio.17``. Config::
+
+    gpio: {type: gpio, chip: /dev/gpiochip0, bias: pull_up, debounce: 5ms}
+"""
+
+from __future__ import annotations
+
+import datetime
+import logging
+import time
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any
+
+import gpiod
+from gpiod.line import Bias, Value
+from gpiod.line import Direction as LineDirection
+
+from drivers.base import (
+    ConfigError,
+    Direction,
+    Driver,
+    DriverError,
+    PointError,
+    PointKind,
+    as_bit,
+    parse_duration,
+)
+
+log = logging.getLogger(__name__)
+
+BIASES = {"pull_up": Bias.PULL_UP, "pull_down": Bias.PULL_DOWN, "none": Bias.DISABLED}
+
+
+class GpioDriver(Driver):
+    """GPIO lines of one chip. Reads and writes are one ioctl each, done in the scan."""
+
+    type_name = "gpio"
+    config_keys = frozenset({"chip", "bias", "debounce"})
+    ONE_DIRECTION_PER_POINT = True
+    #: highest line offset accepted in a point name (the chip may have fewer lines)
+    MAX_OFFSET = 1023
+    #: consumer label shown by ``gpioinfo``
+    CONSUMER_PREFIX = "softplc"
+
+    def __init__(
+        self,
+        name: str,
+        config: Mapping[str, Any] | None = None,
+        *,
+        clock: Callable[[], int] = time.monotonic_ns,
+    ) -> None:
+        super().__init__(name, config, clock=clock)
+        cfg = self.config
+        unknown = set(cfg) - self.config_keys
+        if unknown:
+            raise ConfigError(f"driver {name} (gpio): unknown keys {sorted(unknown)}")
+        self.chip = str(cfg.get("chip", "/dev/gpiochip0"))
+        bias = str(cfg.get("bias", "none"))
+        if bias not in BIASES:
+            raise ConfigError(f"driver {name} (gpio): bias '{bias}': expected one of "
+                              f"{', '.join(BIASES)}")
+        self.bias: Bias = BIASES[bias]
+        #: debounce period of the inputs, seconds (0: none)
+        self.debounce_s = parse_duration(cfg.get("debounce", 0), f"driver {name} debounce")
+        self._request: Any = None
+        self._in_offsets: list[int] = []
+        self._in_points: list[str] = []
+        self._last_written: dict[int, int] | None = None
+
+    def _check_point(self, point: str, direction: Direction) -> PointKind:
+        if not point.isdigit() or int(point) > self.MAX_OFFSET or str(int(point)) != point:
+            raise PointError(f"{self.name}.{point}: a gpio point is a line offset such as "
+                             f"{self.name}.17")
+        return PointKind.BOOL
+
+    def _open(self) -> None:
+        self._in_points = sorted(self.inputs, key=int)
+        self._in_offsets = [int(p) for p in self._in_points]
+        out_offsets = sorted(int(p) for p in self.outputs)
+        config: dict[Iterable[int | str] | int | str, gpiod.LineSettings | None] = {}
+        if self._in_offsets:
+            config[tuple(self._in_offsets)] = gpiod.LineSettings(
+                direction=LineDirection.INPUT,
+                bias=self.bias,
+                active_low=False,
+                debounce_period=datetime.timedelta(seconds=self.debounce_s),
+            )
+        if out_offsets:
+            config[tuple(out_offsets)] = gpiod.LineSettings(
+                direction=LineDirection.OUTPUT,
+                active_low=False,
+                output_value=Value.INACTIVE,
+            )
+        if not config:
+            return
+        try:
+            self._request = gpiod.request_lines(
+                self.chip, config=config, consumer=f"{self.CONSUMER_PREFIX}:{self.name}"
+            )
+        except ValueError as exc:  # gpiod: bad offset or setting
+            raise DriverError(f"{self.chip}: {exc}") from exc
+        except OSError as exc:
+            raise DriverError(f"{self.chip}: cannot request lines "
+                              f"{self._in_offsets + out_offsets}: {exc}") from exc
+        self._last_written = {o: 0 for o in out_offsets}
+
+    def _read(self) -> None:
+        if not self._in_offsets:
+            return
+        values = self._request.get_values(self._in_offsets)
+        for point, v in zip(self._in_points, values, strict=True):
+            self.inputs[point] = 1 if v is Value.ACTIVE else 0
+
+    def _write(self) -> None:
+        last = self._last_written
+        if last is None:
+            return
+        changed = {}
+        for point, v in self.outputs.items():
+            bit = as_bit(v)
+            off = int(point)
+            if last.get(off) != bit:
+                changed[off] = Value.ACTIVE if bit else Value.INACTIVE
+        if changed:
+            self._request.set_values(changed)
+            for off, val in changed.items():
+                last[off] = 1 if val is Value.ACTIVE else 0
+
+    def _safe_state(self) -> None:
+        if self._last_written is not None:
+            self._last_written = {o: -1 for o in self._last_written}  # force a full write
+        self._write()
+
+    def _close(self) -> None:
+        req, self._request = self._request, None
+        self._last_written = None
+        if req is not None:
+            req.release()

@@ -1,0 +1,136 @@
+"""The driver contract (drivers.base), run over every driver type on its peer or emulator."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import pytest
+from drvkit import FakeClock, wait_until
+from rigs import RIGS, Rig
+
+from drivers.base import Direction, Driver, Health, PointError, PointKind, PolledDriver
+from drivers.registry import DRIVERS, driver_class
+
+
+@pytest.fixture(params=sorted(RIGS))
+def rig(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch,
+        clock: FakeClock) -> Iterator[Rig]:
+    r = RIGS[request.param](monkeypatch, clock)
+    yield r
+    r.close()
+
+
+@pytest.fixture
+def driver(rig: Rig) -> Iterator[Driver]:
+    d = rig.make()
+    yield d
+    d.close()
+
+
+def opened(rig: Rig, d: Driver) -> Driver:
+    d.open()
+    assert d.health is not Health.FAULT, d.fault_reason
+    assert rig.until(d, lambda: d.health is Health.OK), (d.health, d.fault_reason)
+    return d
+
+
+def test_every_registered_type_has_a_rig() -> None:
+    assert set(RIGS) == set(DRIVERS)
+    for type_name in DRIVERS:
+        assert driver_class(type_name).type_name == type_name
+
+
+def test_add_point(rig: Rig) -> None:
+    d = rig._make({})
+    for p in rig.inputs:
+        assert d.add_point(p, Direction.IN) is PointKind.BOOL
+    for p in rig.outputs:
+        assert d.add_point(p, Direction.OUT) is PointKind.BOOL
+    assert set(d.inputs) == set(rig.inputs) and set(d.outputs) == set(rig.outputs)
+    for point, direction in rig.bad_points:
+        with pytest.raises(PointError, match=point):
+            d.add_point(point, direction)
+    if d.ONE_DIRECTION_PER_POINT:
+        with pytest.raises(PointError):
+            d.add_point(rig.outputs[0], Direction.IN)
+
+
+def test_open_read_write_round_trip(rig: Rig, driver: Driver) -> None:
+    d = opened(rig, driver)
+    assert d.ok
+    a, b = rig.inputs
+    rig.set_input(a, 1)
+    rig.set_input(b, 0)
+    assert rig.until(d, lambda: d.inputs == {a: 1, b: 0}), d.inputs
+    rig.set_input(a, 0)
+    rig.set_input(b, 1)
+    assert rig.until(d, lambda: d.inputs == {a: 0, b: 1}), d.inputs
+    q0, q1 = rig.outputs
+    d.outputs[q0] = True
+    assert rig.until(d, lambda: rig.output(q0) == 1 and rig.output(q1) == 0)
+    d.outputs[q0], d.outputs[q1] = 0, 1
+    assert rig.until(d, lambda: rig.output(q0) == 0 and rig.output(q1) == 1)
+
+
+def test_safe_state_writes_zeros(rig: Rig, driver: Driver) -> None:
+    d = opened(rig, driver)
+    for q in rig.outputs:
+        d.outputs[q] = 1
+    assert rig.until(d, lambda: all(rig.output(q) == 1 for q in rig.outputs))
+    d.safe_state()
+    assert all(v == 0 for v in d.outputs.values())
+    assert rig.until(d, lambda: all(rig.output(q) == 0 for q in rig.outputs))
+
+
+def test_close_is_idempotent_and_leaves_outputs_off(rig: Rig, driver: Driver) -> None:
+    d = opened(rig, driver)
+    d.outputs[rig.outputs[0]] = 1
+    assert rig.until(d, lambda: rig.output(rig.outputs[0]) == 1)
+    d.close()
+    assert d.health is Health.CLOSED and not d.ok
+    assert wait_until(lambda: rig.output(rig.outputs[0]) == 0)  # the peer may lag
+    d.close()
+    assert d.health is Health.CLOSED
+
+
+def test_fault_has_a_reason(rig: Rig, driver: Driver) -> None:
+    d = opened(rig, driver)
+    rig.fault(d)
+    assert d.health is Health.FAULT and not d.ok
+    assert d.fault_reason
+
+
+@pytest.mark.parametrize("policy", ["zero", "hold"])
+def test_on_fault_policy(rig: Rig, policy: str) -> None:
+    d = opened(rig, rig.make(on_fault=policy))
+    try:
+        rig.set_input(rig.inputs[0], 1)
+        assert rig.until(d, lambda: d.inputs[rig.inputs[0]] == 1)
+        rig.fault(d)
+        d.read()
+        assert d.inputs[rig.inputs[0]] == (0 if policy == "zero" else 1)
+    finally:
+        d.close()
+
+
+def test_recovery_with_back_off(rig: Rig, clock: FakeClock, driver: Driver) -> None:
+    d = opened(rig, driver)
+    step = d.RECONNECT_MIN_S
+    rig.fault(d)  # at t0; first retry due at t0 + step
+    clock.advance(step)
+    since = d.updates if isinstance(d, PolledDriver) else 0
+    d.read()  # retry 1, on a bus still broken: the delay doubles
+    rig.settle_retry(d, since)
+    d.read()
+    assert d.health is Health.FAULT
+    rig.heal_bus(d)
+    clock.advance(step)  # t0 + 2 step: the next retry is due at t0 + 3 step
+    for _ in range(3):
+        rig.scan(d)
+    assert d.health is Health.FAULT
+    clock.advance(step)
+    assert rig.until(d, lambda: d.health is Health.OK), d.fault_reason
+    rig.set_input(rig.inputs[0], 1)
+    assert rig.until(d, lambda: d.inputs[rig.inputs[0]] == 1)
+    d.outputs[rig.outputs[0]] = 1
+    assert rig.until(d, lambda: rig.output(rig.outputs[0]) == 1)

@@ -1,0 +1,177 @@
+"""GPIO driver against the fake character device, plus an opt-in test on a real chip."""
+
+from __future__ import annotations
+
+import glob
+import os
+
+import gpiod
+import pytest
+from drvkit import FakeClock
+from fake_gpiod import FakeGpio, debounce_of
+from gpiod.line import Bias
+from gpiod.line import Direction as LineDirection
+
+from drivers.base import ConfigError, Direction, Health, PointError
+from drivers.gpio import GpioDriver
+
+
+@pytest.fixture
+def kernel(monkeypatch: pytest.MonkeyPatch, clock: FakeClock) -> FakeGpio:
+    k = FakeGpio(clock)
+    k.add_chip("/dev/gpiochip0", 54)
+    monkeypatch.setattr(gpiod, "request_lines", k.request_lines)
+    return k
+
+
+def make(clock: FakeClock, **cfg: object) -> GpioDriver:
+    d = GpioDriver("gpio", {"chip": "/dev/gpiochip0", **cfg}, clock=clock)
+    d.add_point("17", Direction.IN)
+    d.add_point("27", Direction.IN)
+    d.add_point("22", Direction.OUT)
+    d.add_point("23", Direction.OUT)
+    return d
+
+
+def test_one_request_physical_levels_no_active_low(kernel: FakeGpio, clock: FakeClock) -> None:
+    d = make(clock, bias="pull_up", debounce="5ms")
+    d.open()
+    assert d.health is Health.OK
+    assert len(kernel.requests) == 1
+    path, settings, consumer = kernel.requests[0]
+    assert path == "/dev/gpiochip0" and consumer == "softplc:gpio"
+    assert sorted(settings) == [17, 22, 23, 27]
+    for off in (17, 27):
+        s = settings[off]
+        assert s.direction is LineDirection.INPUT and s.bias is Bias.PULL_UP
+        assert s.active_low is False and debounce_of(s) == pytest.approx(0.005)
+    for off in (22, 23):
+        assert settings[off].direction is LineDirection.OUTPUT
+        assert settings[off].active_low is False
+    chip = kernel.chips["/dev/gpiochip0"]
+    # outputs start inactive, before any write
+    assert chip.level(22) == 0 and chip.level(23) == 0
+    # a floating input with pull-up reads 1; an NC contact pulling to ground reads 0
+    chip.drive(27, 0)
+    d.read()
+    assert d.inputs == {"17": 1, "27": 1}  # not yet stable for the 5 ms debounce
+    clock.advance(0.006)
+    d.read()
+    assert d.inputs == {"17": 1, "27": 0}
+    d.close()
+
+
+def test_debounce_given_in_seconds_and_glitch_filtered(kernel: FakeGpio, clock: FakeClock) -> None:
+    d = make(clock, debounce=0.01)
+    d.open()
+    chip = kernel.chips["/dev/gpiochip0"]
+    chip.drive(17, 1)
+    clock.advance(0.02)
+    d.read()
+    assert d.inputs["17"] == 1
+    chip.drive(17, 0)  # a 2 ms bounce
+    clock.advance(0.002)
+    chip.drive(17, 1)
+    clock.advance(0.02)
+    d.read()
+    assert d.inputs["17"] == 1
+    d.close()
+
+
+def test_writes_only_changed_lines_and_safe_state(kernel: FakeGpio, clock: FakeClock) -> None:
+    d = make(clock)
+    d.open()
+    chip = kernel.chips["/dev/gpiochip0"]
+    chip.writes.clear()
+    d.outputs["22"] = True
+    d.write()
+    d.write()  # nothing changed: no ioctl
+    assert chip.writes == [{22: 1}]
+    assert chip.level(22) == 1
+    d.outputs["23"] = 1
+    d.write()
+    assert chip.writes[-1] == {23: 1}
+    d.safe_state()
+    assert chip.level(22) == 0 and chip.level(23) == 0
+    d.close()
+    d.close()  # idempotent
+    assert d.health is Health.CLOSED
+
+
+def test_busy_line_faults_with_reason(kernel: FakeGpio, clock: FakeClock) -> None:
+    other = GpioDriver("other", {}, clock=clock)
+    other.add_point("17", Direction.OUT)
+    other.open()
+    d = make(clock)
+    d.open()
+    assert d.health is Health.FAULT
+    assert "busy" in (d.fault_reason or "").lower()
+    other.close()
+    clock.advance(d.RECONNECT_MIN_S)
+    d.read()
+    assert d.health is Health.OK
+    d.close()
+
+
+def test_chip_removed_then_back(kernel: FakeGpio, clock: FakeClock) -> None:
+    d = make(clock, on_fault="zero")
+    d.open()
+    chip = kernel.chips["/dev/gpiochip0"]
+    chip.drive(17, 1)
+    d.read()
+    assert d.inputs["17"] == 1
+    chip.removed = True
+    d.read()
+    assert d.health is Health.FAULT and "No such device" in (d.fault_reason or "")
+    assert d.inputs["17"] == 0  # on_fault: zero
+    chip.removed = False
+    d.read()
+    assert d.health is Health.FAULT  # no retry before the back-off delay
+    clock.advance(d.RECONNECT_MIN_S)
+    d.read()
+    assert d.health is Health.OK and d.inputs["17"] == 1
+    d.close()
+
+
+@pytest.mark.parametrize("point", ["gpio17", "-1", "1024", "017", "A0", ""])
+def test_bad_points(point: str, clock: FakeClock) -> None:
+    d = GpioDriver("gpio", {}, clock=clock)
+    with pytest.raises(PointError):
+        d.add_point(point, Direction.IN)
+
+
+def test_point_in_both_directions_rejected(clock: FakeClock) -> None:
+    d = GpioDriver("gpio", {}, clock=clock)
+    d.add_point("4", Direction.OUT)
+    with pytest.raises(PointError, match="already bound as an output"):
+        d.add_point("4", Direction.IN)
+
+
+@pytest.mark.parametrize("cfg", [{"bias": "up"}, {"debounce": "5 parsecs"}, {"speed": 1}])
+def test_bad_config(cfg: dict[str, object]) -> None:
+    with pytest.raises(ConfigError):
+        GpioDriver("gpio", cfg)
+
+
+# -- opt-in: a real chip, with one output wired to one input ----------------------------
+REAL = os.environ.get("SOFTPLC_TEST_GPIO", "")
+
+
+@pytest.mark.skipif(not glob.glob("/dev/gpiochip*"), reason="no /dev/gpiochip* on this machine")
+@pytest.mark.skipif(not REAL, reason="set SOFTPLC_TEST_GPIO=/dev/gpiochipN:OUT:IN (line OUT "
+                    "wired to line IN) to run on real hardware")
+def test_real_chip_loopback() -> None:
+    chip, out, inp = REAL.rsplit(":", 2)
+    d = GpioDriver("gpio", {"chip": chip, "bias": "pull_down"})
+    d.add_point(out, Direction.OUT)
+    d.add_point(inp, Direction.IN)
+    d.open()
+    try:
+        assert d.health is Health.OK, d.fault_reason
+        for level in (1, 0, 1, 0):
+            d.outputs[out] = level
+            d.write()
+            d.read()
+            assert d.inputs[inp] == level
+    finally:
+        d.close()
