@@ -1,0 +1,194 @@
+"""``softplc check`` on plant files: bindings (G301, G302) and driver points (G303-G305)."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+
+import pytest
+
+from runtime.check import check_files, exit_status, register
+
+CHART = """\
+grafcet: Small
+inputs: [iA, iB]
+outputs: [oX, oY]
+steps:
+  gsA: {initial: true}
+  gsB: {actions: [oX, oY]}
+transitions:
+  - {from: gsA, to: gsB, when: iA}
+  - {from: gsB, to: gsA, when: "iA'·iB"}
+"""
+
+
+@pytest.fixture
+def chart(write: Callable[[str, str], str]) -> str:
+    return write("small.yaml", CHART)
+
+
+def diags_of(write: Callable[[str, str], str], text: str) -> tuple[list[str], int]:
+    path = write("plant.yaml", text)
+    res = check_files([path])
+    assert not any(r.failure for r in res), [r.failure for r in res]
+    return [f"{d.severity} {d.code} {d.line}" for r in res for d in r.diags], exit_status(res)
+
+
+def test_clean_plant(write: Callable[[str, str], str], chart: str) -> None:
+    found, status = diags_of(write, """\
+        drivers:
+          sim: {type: sim}
+          exp1: {type: mcp23017, bus: 1, address: 0x20}
+        instances:
+          a:
+            grafcet: small.yaml
+            inputs: {iA: exp1.A0, iB: {from: exp1.A1, invert: true}}
+            outputs: {oX: exp1.B0, oY: sim.Q0}
+        """)
+    assert status == 0 and not [f for f in found if f.startswith("error")], found
+
+
+def test_g301_every_unbound_signal(write: Callable[[str, str], str], chart: str) -> None:
+    found, status = diags_of(write, """\
+        drivers:
+          sim: {type: sim}
+        instances:
+          a:
+            grafcet: small.yaml
+            inputs: {iA: sim.I0}
+            outputs: {oX: sim.Q0}
+          b:
+            grafcet: small.yaml
+            outputs: {oX: sim.Q1, oY: sim.Q2}
+        """)
+    assert status == 1
+    g301 = [f for f in found if " G301 " in f]
+    assert len(g301) == 4, found  # a.iB, a.oY, b.iA, b.iB
+
+
+def test_g302_output_bound_twice(write: Callable[[str, str], str], chart: str) -> None:
+    found, status = diags_of(write, """\
+        drivers:
+          sim: {type: sim}
+        instances:
+          a:
+            grafcet: small.yaml
+            inputs: {iA: sim.I0, iB: sim.I1}
+            outputs: {oX: sim.Q0, oY: sim.Q1}
+          b:
+            grafcet: small.yaml
+            inputs: {iA: sim.I0, iB: sim.I1}
+            outputs: {oX: sim.Q2, oY: {from: sim.Q1}}
+        """)
+    assert status == 1
+    assert "error G302 11" in found, found
+
+
+def test_g303_points_that_do_not_exist(write: Callable[[str, str], str], chart: str) -> None:
+    found, status = diags_of(write, """\
+        drivers:
+          exp1: {type: mcp23017, bus: 1, address: 0x20}
+          mb: {type: modbus_rtu, port: /dev/null, unit: 1}
+        instances:
+          a:
+            grafcet: small.yaml
+            inputs: {iA: exp1.C0, iB: mb.I0}
+            outputs: {oX: mb.I3, oY: exp1.ok}
+        """)
+    assert status == 1
+    assert found.count("error G303 7") == 1, found  # exp1.C0
+    assert found.count("error G303 8") == 2, found  # mb.I3 read-only, exp1.ok as output
+
+
+def test_g304_bad_driver_config(write: Callable[[str, str], str], chart: str) -> None:
+    found, status = diags_of(write, """\
+        drivers:
+          exp1: {type: mcp23017, bus: 1, address: 300}
+        instances:
+          a:
+            grafcet: small.yaml
+            inputs: {iA: exp1.A0, iB: exp1.A1}
+            outputs: {oX: exp1.B0, oY: exp1.B1}
+        """)
+    assert status == 1
+    assert "error G304 2" in found, found
+
+
+def test_g305_missing_driver_library(write: Callable[[str, str], str], chart: str,
+                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    import drivers.registry as reg
+
+    real = reg.driver_class
+
+    def fake(type_name: str):  # type: ignore[no-untyped-def]
+        if type_name == "mcp23017":
+            raise reg.DriverImportError("driver type 'mcp23017' needs the Python package "
+                                        "'smbus2': pip install smbus2")
+        return real(type_name)
+
+    monkeypatch.setattr(reg, "driver_class", fake)
+    found, status = diags_of(write, """\
+        drivers:
+          exp1: {type: mcp23017, bus: 1, address: 0x20}
+        instances:
+          a:
+            grafcet: small.yaml
+            inputs: {iA: exp1.Z9, iB: exp1.A1}
+            outputs: {oX: exp1.B0, oY: exp1.B1}
+        """)
+    assert status == 0
+    assert found == ["note G305 6"], found
+
+
+def test_plant_checks_its_charts_once(write: Callable[[str, str], str]) -> None:
+    write("bad.yaml", CHART.replace("to: gsA, when", "to: gsB, when"))
+    path = write("plant.yaml", """\
+        drivers: {sim: {type: sim}}
+        instances:
+          a:
+            grafcet: bad.yaml
+            inputs: {iA: sim.I0, iB: sim.I1}
+            outputs: {oX: sim.Q0, oY: sim.Q1}
+          b:
+            grafcet: bad.yaml
+            inputs: {iA: sim.I2, iB: sim.I3}
+            outputs: {oX: sim.Q2, oY: sim.Q3}
+        """)
+    res = check_files([path])
+    assert [r.path.rsplit("/", 1)[-1] for r in res] == ["plant.yaml", "bad.yaml"]
+    assert [d.code for d in res[1].diags].count("G103") == 1
+    assert exit_status(res) == 1
+
+
+def test_register_and_cli(write: Callable[[str, str], str], chart: str,
+                          capsys: pytest.CaptureFixture[str]) -> None:
+    p = argparse.ArgumentParser(prog="softplc")
+    sub = p.add_subparsers(dest="command", required=True)
+    register(sub)
+    bad = write("bad.yaml", CHART.replace("to: gsA, when", "to: gsB, when"))
+    args = p.parse_args(["check", chart, bad])
+    assert args.func(args) == 1
+    out = capsys.readouterr()
+    lines = out.out.splitlines()
+    assert len(lines) == 1 and ": error G103: " in lines[0] and lines[0].startswith(bad)
+    assert "1 error(s)" in out.err
+    missing = write("none.yaml", "grafcet: X\nsteps: {gsA: {initial: true}}\ntransitions:\n"
+                                 "  - {from: gsA, to: gsB, when: 1}\n")
+    args = p.parse_args(["check", "-q", missing])
+    assert args.func(args) == 2
+    assert "unknown step 'gsB'" in capsys.readouterr().out
+
+
+def test_plant_whose_chart_breaks_a_rule(write: Callable[[str, str], str]) -> None:
+    write("bad.yaml", CHART.replace("actions: [oX, oY]", 'actions: ["P1 oX", oY]'))
+    path = write("plant.yaml", """\
+        drivers: {sim: {type: sim}}
+        instances:
+          a:
+            grafcet: bad.yaml
+            inputs: {iA: sim.I0, iB: sim.I1}
+            outputs: {oX: sim.Q0, oY: sim.Q1}
+        """)
+    res = check_files([path])
+    assert exit_status(res) == 1  # the chart's rule error, not a loading failure
+    assert [d.code for r in res for d in r.diags] == ["G300", "G105"]
