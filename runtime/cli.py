@@ -98,8 +98,16 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-#: functions adding further subcommands (run, check, draw, monitor ...), registered below
-EXTRA_COMMANDS: list = []  # type: ignore[type-arg]
+def _register_modules(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    """Subcommands that live with their own module (each has a ``register(sub)``)."""
+    from runtime import check, chronogram, draw
+
+    for module in (check, draw, chronogram):
+        module.register(sub)
+
+
+#: functions adding further subcommands, each called with the subparsers object
+EXTRA_COMMANDS = [_register_modules]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
