@@ -160,6 +160,11 @@ class Driver(abc.ABC):
         self.fault_reason: str | None = None
         self._next_retry_ns = 0
         self._retry_delay_s = self.RECONNECT_MIN_S
+        #: set by inhibit(): write() sends nothing, the safe state stays on the bus
+        self.inhibited = False
+        # write() and safe_state() may race when the scan watchdog (another thread) puts
+        # the outputs off while the scan thread is stuck: this lock orders them
+        self._out_lock = threading.Lock()
 
     # -- plant-facing API -------------------------------------------------------------
     @property
@@ -211,23 +216,36 @@ class Driver(abc.ABC):
 
     def write(self) -> None:
         """Send ``outputs`` (one non-blocking update). Never raises for I/O faults."""
-        if self.health is Health.FAULT:
-            return
-        try:
-            self._write()
-        except (DriverError, OSError) as exc:
-            self._fault(str(exc))
+        with self._out_lock:
+            if self.health is Health.FAULT or self.inhibited:
+                return
+            try:
+                self._write()
+            except (DriverError, OSError) as exc:
+                self._fault(str(exc))
 
     def safe_state(self) -> None:
-        """Put every output of this driver off, as far as the bus allows."""
-        for p in self.outputs:
-            self.outputs[p] = 0
-        if self.health in (Health.CLOSED,):
-            return
-        try:
-            self._safe_state()
-        except (DriverError, OSError) as exc:
-            self._fault(f"safe state not written: {exc}")
+        """Put every output of this driver off, as far as the bus allows. Thread-safe with
+        respect to write()."""
+        with self._out_lock:
+            for p in self.outputs:
+                self.outputs[p] = 0
+            if self.health in (Health.CLOSED,):
+                return
+            try:
+                self._safe_state()
+            except (DriverError, OSError) as exc:
+                self._fault(f"safe state not written: {exc}")
+
+    def inhibit(self, on: bool) -> None:
+        """Block (True) or allow (False) write(); inhibiting also writes the safe state.
+
+        The scan watchdog calls this from its own thread when a scan hangs: whatever the
+        stuck scan thread does afterwards, no output of this driver is energised again
+        until the fault is acknowledged."""
+        self.inhibited = on
+        if on:
+            self.safe_state()
 
     def close(self) -> None:
         """Outputs to the safe state, then release the bus. Idempotent."""
