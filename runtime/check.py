@@ -16,6 +16,11 @@ plant not checked further because a chart of it breaks a rule above, G301 unboun
 signal, G302 physical output bound twice, G303 driver point that does not exist (or wrong
 direction or type), G304 bad driver configuration, G305 (note) point not checked because the
 driver's library is missing.
+
+A simulation script (``duration:``/``cycles:``, ``set:``) is checked against its plant
+(``--plant``, or the one plant file of its directory), so that ``softplc check
+configs/*/*.yaml`` checks everything: an error in it is a loading error (exit status 2),
+and G400 (note) says when no plant could be found for it.
 """
 
 from __future__ import annotations
@@ -754,14 +759,20 @@ def _plant_bindings_scan(path: str) -> list[Diag]:
 
 
 # -- files ----------------------------------------------------------------------------------
+SCRIPT_KEYS = frozenset({"duration", "cycles", "set", "description"})
+
+
 def file_kind(path: str) -> str:
-    """'grafcet', 'plant', or 'other' from the top-level keys (SourceError if no YAML)."""
+    """'grafcet', 'plant', 'script' (a simulation script) or 'other', from the top-level
+    keys (SourceError if the file is not YAML)."""
     doc = load_yaml(path)
     if isinstance(doc, YMap):
         if "grafcet" in doc or "steps" in doc:
             return "grafcet"
         if "instances" in doc or "drivers" in doc or "plc" in doc:
             return "plant"
+        if set(doc) <= SCRIPT_KEYS and set(doc) & {"duration", "cycles", "set"}:
+            return "script"
     return "other"
 
 
@@ -774,28 +785,102 @@ class FileResult:
 
 
 class Session:
-    """Checks files, each chart once (a plant's charts are checked with it)."""
+    """Checks files, each chart once (a plant's charts are checked with it).
 
-    def __init__(self, limit: int = LIMIT) -> None:
+    ``plant``: the plant that simulation scripts are checked against (``--plant``); without
+    it, a script is checked against the one plant file of its directory (the layout of
+    ``configs/``: ``plant_sim.yaml`` beside ``story.yaml``)."""
+
+    def __init__(self, limit: int = LIMIT, plant: str | None = None,
+                 paths: Iterable[str] = ()) -> None:
         self.limit = limit
+        self.plant = plant
+        self.paths = list(paths)  # every file of the command line (plants for scripts)
         self.charts_done: set[str] = set()
+        self._kinds: dict[str, str] = {}
+
+    def kind(self, path: str) -> str:
+        real = os.path.realpath(path)
+        if real not in self._kinds:
+            self._kinds[real] = file_kind(path)
+        return self._kinds[real]
 
     def check_path(self, path: str) -> list[FileResult]:
         t0 = time.perf_counter()
         try:
-            kind = file_kind(path)
+            kind = self.kind(path)
         except SourceError as exc:
             return [FileResult(path, [], str(exc))]
         if kind == "grafcet":
+            if os.path.realpath(path) in self.charts_done:
+                return []  # already checked with a plant of this command line
             res = [self._grafcet(path)]
         elif kind == "plant":
             res = self._plant(path)
+        elif kind == "script":
+            res = [self._script(path)]
         else:
             res = [FileResult(path, [], f"{path}:1:1: error: expected a grafcet file "
-                                        "('grafcet:' and 'steps:') or a plant file "
-                                        "('instances:')")]
+                                        "('grafcet:' and 'steps:'), a plant file "
+                                        "('instances:') or a simulation script "
+                                        "('duration:' or 'cycles:', 'set:')")]
         res[0].ms = (time.perf_counter() - t0) * 1000
         return res
+
+    # -- simulation scripts -----------------------------------------------------------------
+    def _plant_of_script(self, path: str) -> tuple[str | None, str]:
+        """(plant file, how it was found) or (None, why none)."""
+        if self.plant is not None:
+            return self.plant, "--plant"
+        folder = os.path.dirname(os.path.abspath(path))
+
+        def plants(paths: Iterable[str]) -> list[str]:
+            out = []
+            for p in paths:
+                try:
+                    if self.kind(p) == "plant" and p not in out:
+                        out.append(p)
+                except (SourceError, OSError):
+                    continue
+            return out
+
+        here = [p for p in self.paths if os.path.dirname(os.path.abspath(p)) == folder]
+        found = plants(here)
+        if not found:
+            disk = sorted(os.path.join(folder, n) for n in os.listdir(folder)
+                          if n.endswith((".yaml", ".yml")))
+            found = plants(disk)
+        if len(found) == 1:
+            return found[0], "the plant file of its directory"
+        if not found:
+            return None, "no plant file in its directory"
+        names = ", ".join(os.path.basename(p) for p in found)
+        return None, f"several plant files in its directory ({names})"
+
+    def _script(self, path: str) -> FileResult:
+        """A simulation script is checked against its plant: every name it sets must be an
+        input (or chart flag) of an instance, or an input point of a driver, with a value
+        of the right type; the times must be times."""
+        from runtime.plant import Plant
+        from runtime.plantfile import load_plant
+        from runtime.simulate import load_script
+
+        plant, how = self._plant_of_script(path)
+        if plant is None:
+            return FileResult(path, [diag(Loc(path, 1, 1), "note", "G400", "simulation "
+                                          f"script not checked: {how}; name its plant with "
+                                          "--plant PLANT.yaml")])
+        try:
+            p = Plant(load_plant(plant), sim=True)
+        except SourceError:
+            return FileResult(path, [diag(Loc(path, 1, 1), "note", "G400", "simulation "
+                                          f"script not checked: its plant "
+                                          f"{_show_path(plant)} ({how}) does not load")])
+        try:
+            load_script(path, p)
+        except SourceError as exc:
+            return FileResult(path, [], f"{exc} (checked against {_show_path(plant)})")
+        return FileResult(path, [])
 
     def _grafcet(self, path: str) -> FileResult:
         self.charts_done.add(os.path.realpath(path))
@@ -870,8 +955,10 @@ def _sorted(diags: list[Diag]) -> list[Diag]:
                                          d.code))
 
 
-def check_files(paths: Iterable[str], limit: int = LIMIT) -> list[FileResult]:
-    session = Session(limit)
+def check_files(paths: Iterable[str], limit: int = LIMIT,
+                plant: str | None = None) -> list[FileResult]:
+    paths = list(paths)
+    session = Session(limit, plant, paths)
     out: list[FileResult] = []
     for p in paths:
         out += session.check_path(p)
@@ -890,7 +977,7 @@ def exit_status(results: Iterable[FileResult]) -> int:
 # -- command line ---------------------------------------------------------------------------
 def cmd_check(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
-    results = check_files(args.files, args.limit)
+    results = check_files(args.files, args.limit, args.plant)
     errors = warnings = 0
     for r in results:
         for d in r.diags:
@@ -912,12 +999,15 @@ def cmd_check(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     c = sub.add_parser("check", help="static checks of seed 000's rules (G1xx errors, G2xx "
                                      "warnings, G3xx plant bindings)",
-                       description="Check grafcet and plant files: FILE:LINE:COL: "
-                                   "error|warning|note GCODE: message. Exit 1 on errors, 2 if "
-                                   "a file does not load.")
+                       description="Check grafcet files, plant files and simulation "
+                                   "scripts: FILE:LINE:COL: error|warning|note GCODE: "
+                                   "message. Exit 1 on errors, 2 if a file does not load.")
     c.add_argument("files", nargs="+", metavar="FILE")
     c.add_argument("--limit", type=int, default=LIMIT,
                    help=f"most reachable situations to explore (default {LIMIT})")
+    c.add_argument("--plant", metavar="PLANT.yaml",
+                   help="plant that simulation scripts among FILE are checked against "
+                        "(default: the one plant file in each script's directory)")
     c.add_argument("--errors-only", action="store_true", help="print errors only")
     c.add_argument("-q", "--quiet", action="store_true", help="no summary line on stderr")
     c.set_defaults(func=cmd_check)

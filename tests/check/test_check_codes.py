@@ -532,3 +532,48 @@ def test_exit_status(write: Callable[[str, str], str]) -> None:
     res = check_files([bad, broken])
     assert exit_status(res) == 2
     assert "unknown step 'gsZ'" in (res[1].failure or "")
+
+
+def _parallel_loops(n: int, unreachable: bool = False) -> str:
+    """An AND divergence into ``n`` two-step loops: 2**n reachable situations."""
+    lines = ["steps:", "  gsA: {initial: true}"]
+    for i in range(n):
+        lines += [f"  gsB{i}: {{}}", f"  gsC{i}: {{}}"]
+    if unreachable:
+        lines.append("  gsZ: {}")
+    lines.append("transitions:")
+    lines.append("  - {from: gsA, to: [" + ", ".join(f"gsB{i}" for i in range(n))
+                 + "], when: iA}")
+    for i in range(n):
+        lines.append(f"  - {{from: gsB{i}, to: gsC{i}, when: \"iB·iC'\"}}")
+        lines.append(f"  - {{from: gsC{i}, to: gsB{i}, when: \"iC·iB'\"}}")
+    lines.append("  - {from: [" + ", ".join(f"gsC{i}" for i in range(n))
+                 + "], to: gsA, when: iD}")
+    if unreachable:
+        lines.append("  - {from: gsZ, to: gsA, when: iD}")
+    return "\n".join(lines) + "\n"
+
+
+def test_g209_bounded_exploration(write: Callable[[str, str], str],
+                                  capsys: pytest.CaptureFixture[str]) -> None:
+    path = write("big.yaml", HEAD + _parallel_loops(8, unreachable=True))
+    full = check_files([path])[0].diags  # 2**8 + 1 situations: under the default bound
+    assert "G209" not in codes(full), [str(d) for d in full]
+    assert [d.message.split("'")[1] for d in full if d.code == "G102"] == ["gsZ"]
+    cut = check_files([path], limit=50)[0].diags
+    (g209,) = [d for d in cut if d.code == "G209"]
+    assert g209.severity == "warning" and (g209.line, g209.col) == (1, 1)
+    assert "stopped (more than 50 reachable situations; raise it with --limit)" in g209.message
+    # what the links alone decide is still reported; nothing else is claimed
+    assert [d.message.split("'")[1] for d in cut if d.code == "G102"] == ["gsZ"]
+    assert "G206" not in codes(cut)
+    # the command line takes --limit
+    import argparse
+
+    from runtime.check import register
+
+    p = argparse.ArgumentParser(prog="softplc")
+    register(p.add_subparsers(dest="command", required=True))
+    args = p.parse_args(["check", "--limit", "50", "-q", path])
+    assert args.func(args) == 1  # G102 is an error
+    assert "G209" in capsys.readouterr().out
