@@ -7,6 +7,7 @@ import logging
 import sys
 import time
 from collections.abc import Sequence
+from typing import Any
 
 from runtime.errors import Loc, SourceError
 from runtime.yamlsrc import YMap, load_yaml
@@ -75,6 +76,60 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_run(args: argparse.Namespace) -> int:
+    """The controller: the plant in real time on its drivers (or simulated I/O)."""
+    from runtime.daemon import Daemon, serve
+    from runtime.language import time_value
+    from runtime.plantfile import load_plant
+
+    for_ns = None
+    if args.for_ is not None:
+        for_ns = time_value(args.for_, Loc("--for", 1, 1), "--for")
+    pdef = load_plant(args.plant)
+    trace = open(args.trace, "w", encoding="utf-8") if args.trace else None  # noqa: SIM115
+    try:
+        daemon = Daemon(pdef, sim=args.sim, trace=trace)
+        server = _console_server(daemon) if pdef.consoles else None
+        if server is not None:
+            server.start()
+        try:
+            return serve(daemon, for_ns)
+        finally:
+            if server is not None:
+                server.stop()
+    finally:
+        if trace is not None:
+            trace.close()
+
+
+def _console_server(daemon: Any) -> Any:
+    from runtime.console import ConsoleService
+    from runtime.console_server import ConsoleServer
+
+    pdef = daemon.pdef
+    service = ConsoleService(daemon, pdef.pin_hash, pdef.release_forces_on_disconnect)
+    return ConsoleServer(service, pdef.consoles)
+
+
+def cmd_hash_pin(args: argparse.Namespace) -> int:
+    """Print the hash of a console PIN for the plant file's ``monitor: pin_hash:``."""
+    import getpass
+
+    from runtime.pin import hash_pin
+
+    pin = args.pin
+    if pin is None:
+        pin = getpass.getpass("PIN: ")
+        if getpass.getpass("again: ") != pin:
+            sys.stderr.write("softplc hash-pin: error: the two PINs differ\n")
+            return 2
+    if len(pin) < 4:
+        sys.stderr.write("softplc hash-pin: error: a PIN needs at least 4 characters\n")
+        return 2
+    sys.stdout.write(hash_pin(pin) + "\n")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="softplc", description="GRAFCET/SFC soft-PLC runtime")
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
@@ -92,6 +147,22 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--vcd", help="write a Value Change Dump to this file")
     s.add_argument("--cycles", type=int, help="number of scans (overrides the script)")
     s.set_defaults(func=cmd_simulate)
+
+    r = sub.add_parser("run", help="run a plant in real time (the controller)",
+                       description="Run the plant on its drivers in real time until "
+                                   "SIGTERM/SIGINT; every output off before the first scan "
+                                   "and at the end.")
+    r.add_argument("plant")
+    r.add_argument("--sim", action="store_true",
+                   help="replace every driver by simulated I/O (runs on any machine)")
+    r.add_argument("--for", dest="for_", metavar="DURATION",
+                   help="stop after this long (e.g. 10s), an orderly stop")
+    r.add_argument("--trace", metavar="FILE", help="write one JSON line per cycle")
+    r.set_defaults(func=cmd_run)
+
+    h = sub.add_parser("hash-pin", help="print the hash of a console PIN for the plant file")
+    h.add_argument("pin", nargs="?", help="the PIN (asked without echo if omitted)")
+    h.set_defaults(func=cmd_hash_pin)
 
     for extra in EXTRA_COMMANDS:
         extra(sub)
@@ -113,9 +184,9 @@ EXTRA_COMMANDS = [_register_modules]
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if not logging.getLogger().handlers:
-        logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
-                            format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    from runtime.logsetup import setup_logging
+
+    setup_logging(args.verbose)
     try:
         return int(args.func(args) or 0)
     except SourceError as exc:

@@ -17,6 +17,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any, Protocol, TypeVar
 
+from runtime.daemon import CommandRefused
 from runtime.parser import format_time
 from runtime.pin import check_pin
 from runtime.plant import BindingError, Plant
@@ -194,7 +195,7 @@ class Session:
             return self._reply_error("locked: unlock PIN first")
         try:
             result = getattr(self, f"cmd_{cmd}")(args)
-        except CommandError as exc:
+        except (CommandError, CommandRefused) as exc:
             return self._reply_error(str(exc))
         except BindingError as exc:
             return self._reply_error(str(exc))

@@ -107,6 +107,9 @@ class Plant:
         add = lines.append
         for name in self.drivers:
             add(f"    R_{name}()")
+        for name, d in self.drivers.items():
+            if d.on_fault is FaultPolicy.STOP:  # a fault here: no scan, no write
+                add(f"    if DV_{name}.health is FAULT: return DV_{name}")
         add("    if FP: force_points(False)")
         for name, inst in self.instances.items():
             idef = self.pdef.instances[name]
@@ -131,10 +134,12 @@ class Plant:
         for name in self.drivers:
             add(f"    W_{name}()")
         add("    if FP: force_points(None)")
+        add("    return None")
         return "\n".join(lines) + "\n"
 
     def _bind_env(self, env: dict[str, Any]) -> None:
         env["OK"] = Health.OK
+        env["FAULT"] = Health.FAULT
         env["D"] = self.drivers
         env["FP"] = self.forced_points
         env["FI"] = self._forced_by_inst
@@ -145,6 +150,7 @@ class Plant:
             env[f"W_{name}"] = d.write
             env[f"I_{name}"] = d.inputs
             env[f"O_{name}"] = d.outputs
+            env[f"DV_{name}"] = d
         for name, inst in self.instances.items():
             env[f"M_{name}"] = inst.m
             env[f"S_{name}"] = inst.program.scan
@@ -157,8 +163,12 @@ class Plant:
             d.open()
         self.safe_state()
 
-    def cycle(self, now: int) -> None:
+    def cycle(self, now: int) -> str | None:
         """One controller cycle at monotonic time ``now`` (ns).
+
+        Returns None, or the reason why the cycle stopped short: a driver whose policy is
+        ``on_fault: stop`` is faulted after the reads; then no chart is scanned and no
+        output written (the caller puts the plant in its safe state).
 
         While ``hold`` is set (console ``pause``) the charts are not scanned but the I/O
         is: inputs are read and the held outputs written; ``step(n)`` lets exactly n full
@@ -169,30 +179,46 @@ class Plant:
         up = now - self.start
         self.last_up = up
         if self.iocheck or (self.hold and self.steps_left <= 0):
-            for d in self.drivers.values():
-                d.read()
-            if self.forced_points:
-                self._apply_point_forces(False)
-                self._apply_point_forces(True)
-            for d in self.drivers.values():
-                d.write()
-            if self.forced_points:
-                self._apply_point_forces(None)
-            return
+            self.exchange(zero_outputs=False)
+            return self.faulted()
         if self.hold:
             self.steps_left -= 1
         if self._pulses:
             self._rebuild_instance_forces()
             for inst, idx in self._pulses:
                 self._forced_by_inst.setdefault(inst, []).append((idx, True))
-            self._cycle(now, up)
+            stopped = self._cycle(now, up)
             for inst, idx in self._pulses:
                 self.instances[inst].m[idx] = False
             self._pulses.clear()
             self._rebuild_instance_forces()
-            return
-        self._cycle(now, up)
+        else:
+            stopped = self._cycle(now, up)
+        if stopped is not None:
+            return f"driver {stopped.name}: {stopped.fault_reason}"
         self.scans += 1
+        return None
+
+    def exchange(self, zero_outputs: bool) -> None:
+        """A cycle without scans: read every driver (so inputs stay visible and a lost
+        driver can recover) and write the output images, all zero if ``zero_outputs``
+        (a faulted controller), else as they are with forced points applied (pause,
+        iocheck)."""
+        for d in self.drivers.values():
+            d.read()
+        if zero_outputs:
+            for d in self.drivers.values():
+                for p in d.outputs:
+                    d.outputs[p] = 0
+                d.write()
+            return
+        if self.forced_points:
+            self._apply_point_forces(False)
+            self._apply_point_forces(True)
+        for d in self.drivers.values():
+            d.write()
+        if self.forced_points:
+            self._apply_point_forces(None)
 
     def step(self, n: int) -> None:
         """While held: let exactly ``n`` full cycles through."""

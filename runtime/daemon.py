@@ -1,0 +1,516 @@
+"""The controller process: a plant run in real time, failing safe, keeping its data.
+
+``Daemon`` owns the scan thread (``Scheduler``), the scan watchdog, the retain writer and
+the systemd notifications, and offers the console what it needs (``call``, ``status``,
+``stats``, ``ack``...): every console request runs in the scan thread, between two scans.
+
+States: starting -> running <-> paused/stepping (console), iocheck (bench wiring),
+fault (outputs off, charts stopped: an exception in a scan, a watchdog overrun, a driver
+with ``on_fault: stop`` that failed), halted (outputs off after iocheck, waiting for
+``ack``), stopped. A fault is left only by ``ack`` once its cause is gone, or by a
+restart; the charts then begin again from their initial situation, retained memory kept.
+"""
+
+from __future__ import annotations
+
+import collections
+import enum
+import json
+import logging
+import os
+import signal
+import threading
+import time
+from collections.abc import Callable
+from types import FrameType
+from typing import IO, Any, TypeVar
+
+from runtime.model import PlantDef
+from runtime.notify import Notifier
+from runtime.plant import Plant
+from runtime.realtime import lock_memory, reduce_timer_slack, set_fifo_priority
+from runtime.retain import RetainStore, RetainWriter
+from runtime.scanstats import ScanStats
+from runtime.scheduler import Scheduler, Watchdog
+
+log = logging.getLogger(__name__)
+R = TypeVar("R")
+
+#: how often STATUS= is refreshed for systemd, ns
+STATUS_EVERY_NS = 5_000_000_000
+#: faults remembered for ``status`` and the monitor
+FAULT_HISTORY = 20
+
+
+class State(enum.Enum):
+    STARTING = "starting"
+    RUNNING = "running"
+    PAUSED = "paused"
+    STEPPING = "stepping"
+    IOCHECK = "iocheck"
+    FAULT = "fault"
+    HALTED = "halted"
+    STOPPED = "stopped"
+
+
+class CommandRefused(Exception):
+    """A request the controller will not carry out now; the message says why.
+
+    Examples: ``ack`` while the lost I/O node is still missing; ``ack`` with nothing to
+    acknowledge."""
+
+
+class _Call:
+    """A function to run in the scan thread at the next scan boundary."""
+
+    __slots__ = ("fn", "done", "result", "error", "abandoned")
+
+    def __init__(self, fn: Callable[[], Any]) -> None:
+        self.fn = fn
+        self.done = threading.Event()
+        self.result: Any = None
+        self.error: BaseException | None = None
+        self.abandoned = False
+
+    def run(self) -> None:
+        if self.abandoned:
+            return
+        try:
+            self.result = self.fn()
+        except BaseException as exc:  # handed to the caller's thread
+            self.error = exc
+        self.done.set()
+
+
+class Daemon:
+    """A plant run by a scan thread paced to its cycle; see the module docstring."""
+
+    def __init__(self, pdef: PlantDef, *, plant: Plant | None = None, sim: bool = False,
+                 clock: Callable[[], int] = time.monotonic_ns,
+                 notifier: Notifier | None = None, trace: IO[str] | None = None,
+                 manage_gc: bool = True) -> None:
+        self.pdef = pdef
+        self.plant = plant or Plant(pdef, sim=sim)
+        self.clock = clock
+        self.notifier = notifier or Notifier()
+        self.scan_stats = ScanStats()
+        self.scheduler = Scheduler(self._cycle, self.plant.cycle_ns, self.plant.watchdog_ns,
+                                   idle=self._idle, on_watchdog=self._slow_scan, clock=clock,
+                                   stats=self.scan_stats, manage_gc=manage_gc)
+        self.watchdog = Watchdog(self.scheduler, self.plant.watchdog_ns, self._trip, clock)
+        self.fault: str | None = None
+        self.halted: str | None = None
+        #: (wall-clock time, reason) of the last faults, oldest first
+        self.faults: collections.deque[tuple[float, str]] = collections.deque(
+            maxlen=FAULT_HISTORY)
+        self.stopped = False
+        self.started_ns: int | None = None
+        self._calls: collections.deque[_Call] = collections.deque()
+        self._listeners: tuple[Callable[[int], None], ...] = ()
+        self._listeners_lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+        self._loop_alive = False
+        self._ready_sent = False
+        self._next_ping = 0
+        self._next_status = 0
+        self._last_state: State | None = None
+        self._trip_reason: str | None = None
+        self.retain: RetainStore | None = None
+        self._retain_writer: RetainWriter | None = None
+        self._retain_next = 0
+        self._retain_last: dict[str, Any] | None = None
+        self._latch_path = (pdef.retain_path + ".fault") if pdef.retain_path else None
+        self._trace = _TraceWriter(self.plant, trace) if trace is not None else None
+
+    # -- life cycle ------------------------------------------------------------------
+    def start(self) -> None:
+        """Restore retained data, open the drivers (outputs written off), start the scan."""
+        if self.pdef.lock_memory:
+            done, why = lock_memory()
+            if done:
+                log.info("memory locked (mlockall)")
+            else:
+                log.warning("memory not locked: %s", why)
+        self._restore()
+        self.plant.open()  # every output off before the first scan
+        self.scheduler.stop_event.clear()
+        self._loop_alive = True
+        self._thread = threading.Thread(target=self._scan_thread, name="softplc-scan",
+                                        daemon=True)
+        if self._trace is not None:
+            self.add_listener(self._trace)
+        self._thread.start()
+        self.watchdog.start()
+        log.info("running %s: %d instance(s), cycle %s ms, watchdog %s ms", self.pdef.path,
+                 len(self.plant.instances), self.plant.cycle_ns / 1e6,
+                 self.plant.watchdog_ns / 1e6)
+
+    def stop(self, why: str = "stop requested") -> None:
+        """Orderly stop: finish the current scan, every output off, save retained data,
+        close the drivers. Idempotent."""
+        if self.stopped:
+            return
+        self.stopped = True
+        self.notifier.stopping(f"stopping: {why}")
+        log.info("stopping: %s", why)
+        self.scheduler.stop_event.set()
+        if self._thread is not None:
+            self._thread.join(timeout=max(5.0, 3 * self.plant.watchdog_ns / 1e9))
+            if self._thread.is_alive():
+                log.error("the scan thread did not stop: outputs forced off from here")
+                for d in self.plant.drivers.values():
+                    d.inhibit(True)
+        self.watchdog.stop()
+        self.plant.safe_state()
+        if self._retain_writer is not None:
+            self._retain_writer.submit(self.plant.retain_snapshot())
+            self._retain_writer.close()
+        if self._trace is not None:
+            self._trace.close()
+        self.plant.close()
+        self.notifier.close()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Wait for the scan thread to end (after stop); True if it did."""
+        if self._thread is None:
+            return True
+        self._thread.join(timeout)
+        return not self._thread.is_alive()
+
+    def _scan_thread(self) -> None:
+        done, why = reduce_timer_slack()
+        if not done:
+            log.debug("timer slack not reduced: %s", why)
+        prio = self.pdef.realtime_priority
+        if prio:
+            done, why = set_fifo_priority(prio)
+            if done:
+                log.info("scan thread at SCHED_FIFO priority %d", prio)
+            else:
+                log.warning("scan thread not made real-time: %s", why)
+        try:
+            self.scheduler.run()
+        except BaseException:  # noqa: BLE001 - the loop itself failed: fail safe, say why
+            log.exception("scan loop failed")
+            for d in self.plant.drivers.values():
+                d.inhibit(True)
+            raise
+        finally:
+            self._loop_alive = False
+            while self._calls:  # nobody else will serve them now
+                self._calls.popleft().run()
+
+    # -- the cycle (scan thread) -----------------------------------------------------
+    def _cycle(self, now: int) -> None:
+        if self.started_ns is None:
+            self.started_ns = now
+        if self.fault is not None or self.halted is not None:
+            self.plant.exchange(zero_outputs=True)
+            return
+        try:
+            stopped = self.plant.cycle(now)
+        except Exception as exc:  # a bug in a chart or a driver: fail safe
+            log.exception("exception in a scan")
+            self._enter_fault(f"exception in scan: {type(exc).__name__}: {exc}")
+            return
+        if stopped is not None:
+            self._enter_fault(stopped)
+        elif self._trip_reason is not None:
+            self._enter_fault(self._trip_reason)
+
+    def _enter_fault(self, reason: str) -> None:
+        if self.fault is None:
+            log.error("FAULT: %s: every output off, charts stopped until ack", reason)
+            self.faults.append((time.time(), reason))
+            self._latch(reason)
+        self.fault = reason
+        self.plant.safe_state()
+
+    def _slow_scan(self, scan_ns: int) -> None:
+        """The scheduler saw a scan longer than the watchdog (it returned, late)."""
+        if self.fault is None:
+            self._enter_fault(self._trip_reason or
+                              f"watchdog: a scan took {scan_ns / 1e6:.1f} ms (watchdog "
+                              f"{self.plant.watchdog_ns / 1e6:g} ms)")
+
+    def _trip(self, running_ns: int) -> None:
+        """Watchdog thread: a scan has been running too long; outputs off from here."""
+        reason = (f"watchdog: a scan has been running for {running_ns / 1e6:.0f} ms "
+                  f"(watchdog {self.plant.watchdog_ns / 1e6:g} ms)")
+        self._trip_reason = reason
+        for d in self.plant.drivers.values():
+            d.inhibit(True)
+        log.error("FAULT: %s: outputs forced off by the watchdog thread", reason)
+        self._latch(reason)
+
+    def _idle(self, until: int) -> None:
+        """What the scan thread does between cycles, before ``until`` (monotonic ns)."""
+        listeners = self._listeners
+        if listeners:
+            n = self.scan_stats.count
+            for fn in listeners:
+                fn(n)
+        calls = self._calls
+        while calls:
+            calls.popleft().run()
+            if self.clock() >= until:
+                break
+        now = self.clock()
+        state = self.state
+        if not self._ready_sent and self.scan_stats.count > 0:
+            self._ready_sent = True
+            self.notifier.ready(self.summary())
+            self._next_status = now + STATUS_EVERY_NS
+        if self.notifier.watchdog_interval_ns and now >= self._next_ping:
+            self.notifier.watchdog()
+            self._next_ping = now + self.notifier.watchdog_interval_ns
+        if state is not self._last_state or now >= self._next_status:
+            if self._ready_sent:
+                self.notifier.status(self.summary())
+            self._next_status = now + STATUS_EVERY_NS
+            if self._last_state is not None and state is not self._last_state:
+                log.info("state: %s", self.summary())
+            self._last_state = state
+        if self._retain_writer is not None and now >= self._retain_next:
+            self._retain_next = now + self.plant.retain_interval_ns
+            snap = self.plant.retain_snapshot()
+            if snap != self._retain_last:
+                self._retain_writer.submit(snap)
+                self._retain_last = snap
+
+    # -- retain and the fault latch ----------------------------------------------------
+    def _restore(self) -> None:
+        path = self.pdef.retain_path
+        if path is None:
+            return
+        self.retain = RetainStore(path)
+        loaded = self.retain.load()
+        for problem in loaded.problems:
+            log.warning("retain: %s", problem)
+        if loaded.source is not None:
+            self.plant.restore_retain(loaded.data)
+            log.info("retained data restored from %s (generation %d)", loaded.source,
+                     loaded.generation)
+        self._retain_last = self.plant.retain_snapshot()
+        self._retain_writer = RetainWriter(self.retain)
+        if self._latch_path and os.path.exists(self._latch_path):
+            try:
+                with open(self._latch_path, encoding="utf-8") as f:
+                    reason = str(json.load(f).get("reason", "unknown"))
+            except (OSError, ValueError, AttributeError):
+                reason = "unreadable fault record"
+            self.fault = f"before the restart: {reason}"
+            self.faults.append((time.time(), self.fault))
+            log.error("FAULT carried over from the previous run (%s): outputs off until ack",
+                      reason)
+
+    def _latch(self, reason: str) -> None:
+        """Record a fault on disk: if the process dies or is restarted by systemd's
+        watchdog before an ack, it starts again in fault instead of resuming by itself."""
+        if self._latch_path is None:
+            return
+        try:
+            tmp = self._latch_path + ".tmp"
+            with open(tmp, "w", encoding="utf-8") as f:
+                json.dump({"reason": reason, "time": time.time()}, f)
+            os.replace(tmp, self._latch_path)
+        except OSError as exc:
+            log.warning("fault record not written: %s", exc)
+
+    def _unlatch(self) -> None:
+        if self._latch_path and os.path.exists(self._latch_path):
+            try:
+                os.unlink(self._latch_path)
+            except OSError as exc:
+                log.warning("fault record not removed: %s", exc)
+
+    # -- what the console uses ------------------------------------------------------
+    def call(self, fn: Callable[[], R], timeout: float = 2.0) -> R:
+        """Run ``fn`` in the scan thread at the next scan boundary and return its result
+        (its exception is raised here). TimeoutError if the scan does not get to it."""
+        if not self._loop_alive or threading.current_thread() is self._thread:
+            return fn()
+        c = _Call(fn)
+        self._calls.append(c)
+        if not c.done.wait(timeout):
+            c.abandoned = True
+            raise TimeoutError("the scan did not answer in time")
+        if c.error is not None:
+            raise c.error
+        result: R = c.result
+        return result
+
+    @property
+    def state(self) -> State:
+        plant = self.plant
+        if self.stopped:
+            return State.STOPPED
+        if self.fault is not None:
+            return State.FAULT
+        if self.halted is not None:
+            return State.HALTED
+        if self.started_ns is None:
+            return State.STARTING
+        if plant.iocheck:
+            return State.IOCHECK
+        if plant.hold:
+            return State.STEPPING if plant.steps_left > 0 else State.PAUSED
+        return State.RUNNING
+
+    def uptime_s(self) -> float:
+        return 0.0 if self.started_ns is None else (self.clock() - self.started_ns) / 1e9
+
+    def summary(self) -> str:
+        """One line: state, reason, cycle figures (systemd's STATUS=, logs)."""
+        state = self.state
+        lat = self.scan_stats.lateness()
+        scan = self.scan_stats.scan()
+        text = f"{state.value}"
+        if self.fault or self.halted:
+            text += f" ({self.fault or self.halted})"
+        return (f"{text}; {len(self.plant.instances)} instance(s); {self.scan_stats.count} cycles; "
+                f"scan p99 {scan.p99 / 1e3:.0f} us; lateness p99 {lat.p99 / 1e3:.0f} us; "
+                f"{self.scan_stats.overruns} overruns")
+
+    def status(self) -> dict[str, Any]:
+        return {"state": self.state.value, "fault": self.fault or self.halted,
+                "scans": self.scan_stats.count, "uptime_s": round(self.uptime_s(), 3),
+                "cycle_ms": self.plant.cycle_ns / 1e6,
+                "faults": [{"time": t, "reason": r} for t, r in self.faults]}
+
+    def stats(self) -> dict[str, Any]:
+        out = self.scan_stats.as_dict()
+        out["cycle_us"] = self.plant.cycle_ns / 1e3
+        out["drivers"] = {name: {"health": d.health.value, "on_fault": d.on_fault.value,
+                                 "reason": d.fault_reason}
+                          for name, d in self.plant.drivers.items()}
+        return out
+
+    def ack(self) -> str:
+        """Acknowledge a fault, a halt or SFCError; raises CommandRefused if the cause of
+        the fault is still there or there is nothing to acknowledge."""
+        return self.call(self._ack)
+
+    def _ack(self) -> str:
+        plant = self.plant
+        done = []
+        if self.fault is not None:
+            cause = plant.faulted()
+            if cause is not None:
+                raise CommandRefused(f"the fault is still there: {cause}")
+            for d in plant.drivers.values():
+                d.inhibit(False)
+            log.warning("fault acknowledged (%s): charts restart from their initial "
+                        "situation", self.fault)
+            self.fault = None
+            self._trip_reason = None
+            self._unlatch()
+            plant.restart()
+            done.append("fault acknowledged: charts restarted from their initial situation")
+        if self.halted is not None:
+            log.info("acknowledged: %s", self.halted)
+            self.halted = None
+            plant.restart()
+            done.append("charts restarted from their initial situation")
+        for name, inst in plant.instances.items():
+            if inst.get("SFCError"):
+                plant.pulse(name, "SFCQuitError")
+                done.append(f"SFCError of {name} ({inst.get('SFCErrorStep')}) acknowledged")
+        if not done:
+            raise CommandRefused("nothing to acknowledge")
+        return "; ".join(done)
+
+    def require_ack(self, reason: str) -> None:
+        """Hold every output off and the charts stopped until ``ack`` (after iocheck)."""
+        def halt() -> None:
+            self.halted = reason
+            self.plant.safe_state()
+        self.call(halt)
+
+    def add_listener(self, fn: Callable[[int], None]) -> None:
+        """Call ``fn(cycle_number)`` in the scan thread after every cycle (keep it tiny)."""
+        with self._listeners_lock:
+            self._listeners = (*self._listeners, fn)
+
+    def remove_listener(self, fn: Callable[[int], None]) -> None:
+        with self._listeners_lock:
+            self._listeners = tuple(f for f in self._listeners if f != fn)
+
+
+class _TraceWriter:
+    """``run --trace FILE``: one JSON line per cycle, built in the scan thread (an opt-in
+    cost of a few µs per instance) and written by a thread of its own."""
+
+    def __init__(self, plant: Plant, out: IO[str]) -> None:
+        from runtime.simulate import trace_columns
+
+        self.columns = trace_columns(plant)
+        self.out = out
+        self.plant = plant
+        self._rows: collections.deque[dict[str, Any]] = collections.deque(maxlen=100_000)
+        self._wake = threading.Event()
+        self._stop = False
+        self.dropped = 0
+        self._thread = threading.Thread(target=self._run, name="softplc-trace", daemon=True)
+        self._thread.start()
+
+    def __call__(self, n: int) -> None:
+        row: dict[str, Any] = {"cycle": n - 1, "t_ms": self.plant.last_up // 1_000_000}
+        for key, get in self.columns:
+            row[key] = get()
+        if len(self._rows) == self._rows.maxlen:
+            self.dropped += 1
+        self._rows.append(row)
+        self._wake.set()
+
+    def _run(self) -> None:
+        while True:
+            self._wake.wait(0.2)
+            self._wake.clear()
+            while self._rows:
+                self.out.write(json.dumps(self._rows.popleft(), ensure_ascii=False,
+                                          separators=(",", ":")) + "\n")
+            if self._stop:
+                self.out.flush()
+                return
+
+    def close(self) -> None:
+        self._stop = True
+        self._wake.set()
+        self._thread.join(timeout=5.0)
+        if self.dropped:
+            log.warning("trace: %d rows dropped (the disk was too slow)", self.dropped)
+
+
+def serve(daemon: Daemon, for_ns: int | None = None) -> int:
+    """Run ``daemon`` in the foreground until SIGTERM/SIGINT (or ``for_ns``).
+
+    Returns the exit status: 0 after an orderly stop, 1 if the scan loop itself died
+    (systemd's ``Restart=on-failure`` then restarts the service, which comes up in fault
+    if a fault was recorded)."""
+    stop = threading.Event()
+    why = ["end of --for"]
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        why[0] = signal.Signals(signum).name
+        stop.set()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
+    status = 0
+    try:
+        daemon.start()
+        end = None if for_ns is None else time.monotonic() + for_ns / 1e9
+        while not stop.is_set():
+            left = 0.5 if end is None else min(0.5, end - time.monotonic())
+            if left <= 0:
+                break
+            stop.wait(left)
+            if not daemon.wait(0):
+                continue
+            why[0], status = "the scan loop ended", 1
+            break
+    finally:
+        daemon.stop(why[0])
+        for s, h in old.items():
+            signal.signal(s, h)
+    return status
