@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import enum
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 
@@ -111,7 +112,7 @@ class For(Node):
     body: list[Node]
 
 
-def walk(node: Node):  # type: ignore[no-untyped-def]
+def walk(node: Node) -> Iterator[Node]:
     """Yield ``node`` and every node below it, parents first."""
     yield node
     if isinstance(node, Unary):

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -198,7 +198,7 @@ class Compiler:
     def _macro_initial(self, s: Step) -> bool:
         return s.macro is not None and self.g.steps[s.macro.entry].initial
 
-    def _all_nodes(self):  # type: ignore[no-untyped-def]
+    def _all_nodes(self) -> Iterator[A.Node]:
         g = self.g
         roots: list[A.Node] = [st.node for st in g.pre]
         roots += [t.cond for t in g.transitions]
@@ -657,8 +657,8 @@ class Compiler:
         out("if v_SFCQuitError: v_SFCError = False; v_SFCErrorStep = ''; frozen = paused = True")
         out("elif quitprev:  # SFCQuitError fell: the active steps' times restart")
         out.indent()
-        for s in steps:
-            out(f"if {_ident('x', s.name)}: {_ident('t0', s.name)} = ct")
+        for st in steps:
+            out(f"if {_ident('x', st.name)}: {_ident('t0', st.name)} = ct")
         out.dedent()
         out("if v_SFCPause: frozen = paused = True")
         out.dedent()

@@ -185,9 +185,9 @@ class Instance:
                                        f"when {e.text}")
                 terms = [TermWhy(p.text, p.depth, _plain(p.fn(m, now, up)))
                          for p in self.program.probes[t.index]]
-                src = ",".join(t.sources) or "(source)"
-                dst = ",".join(t.targets) or "(sink)"
-                whys.append(TransitionWhy(t.index, f"{src} -> {dst} when {t.text}",
+                src_text = ",".join(t.sources) or "(source)"
+                dst_text = ",".join(t.targets) or "(sink)"
+                whys.append(TransitionWhy(t.index, f"{src_text} -> {dst_text} when {t.text}",
                                           values[t.index], blocked, terms))
             out.append(StepWhy(step, self.step_time(step), whys))
         return out

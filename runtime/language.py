@@ -12,14 +12,33 @@ from typing import Any
 from runtime import ast as A
 from runtime.errors import Loc, SourceError, suggest
 from runtime.model import (
-    Action, Block, Grafcet, Macro, Qualifier, ScanModel, Statement, Step, Transition, Variable,
+    Action,
+    Block,
+    Grafcet,
+    Macro,
+    Qualifier,
+    ScanModel,
+    Statement,
+    Step,
+    Transition,
+    Variable,
     VarKind,
 )
 from runtime.parser import (
-    KEYWORDS, is_name, parse_action, parse_expression, parse_statements, parse_time,
+    KEYWORDS,
+    is_name,
+    parse_action,
+    parse_expression,
+    parse_statements,
+    parse_time,
 )
 from runtime.typecheck import (
-    FB_MEMBERS, FLAGS_BOOL, FLAGS_STRING, SYSTEM_BOOL, Checker, looks_temporary,
+    FB_MEMBERS,
+    FLAGS_BOOL,
+    FLAGS_STRING,
+    SYSTEM_BOOL,
+    Checker,
+    looks_temporary,
 )
 from runtime.yamlsrc import YList, YMap, YStr, load_yaml, synthetic_str
 
@@ -138,8 +157,9 @@ class GrafcetLoader:
             t.index = i
         g.transitions = transitions
         if not any(g.steps[n].initial for n in g.steps):
-            raise SourceError(d.key_locs["steps"], "the chart has no initial step: mark one "
-                              "with 'initial: true'")
+            raise SourceError(d.key_locs["steps"], "the chart has no initial step: expected a "
+                              "step with 'initial: true', found none among "
+                              f"{', '.join(g.steps)}")
         del top
         self.pre_post()
         self._resolve_macros()
@@ -147,8 +167,8 @@ class GrafcetLoader:
         return g
 
     # -- declarations ------------------------------------------------------------
-    def _declare(self, name: Any, loc: Loc, what: str) -> str:
-        name = _identifier(name, loc, what)
+    def _declare(self, raw: Any, loc: Loc, what: str) -> str:
+        name = _identifier(raw, loc, what)
         if name in self.g.variables or name in self.g.timers or name in self.g.blocks or (
                 name in self.g.steps):
             raise SourceError(loc, f"'{name}' is declared twice")
@@ -254,7 +274,8 @@ class GrafcetLoader:
                 acts = spec["actions"]
                 if isinstance(acts, str):
                     single = YList([acts])
-                    single.loc, single.locs = spec.val_locs["actions"], [acts.loc]
+                    single.loc = single_loc = spec.val_locs["actions"]
+                    single.locs = [single_loc]
                     acts = single
                 acts = expect_type(acts, spec.val_locs["actions"], YList, "a list of actions")
                 for text, aloc in zip(acts, acts.locs, strict=True):
@@ -435,7 +456,7 @@ class GrafcetLoader:
     def _typecheck_temps(self) -> None:
         # every undeclared name assigned anywhere that looks like a temporary
         checker = Checker(self.g)
-        for _, src, locate, parsed in self.units:
+        for _, _src, locate, parsed in self.units:
             nodes = parsed if isinstance(parsed, list) else [parsed]
             for top in nodes:
                 for n in A.walk(top):  # type: ignore[arg-type]

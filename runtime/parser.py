@@ -367,7 +367,7 @@ class Parser:
                 if self.at("OP", "("):
                     args = self._call_args(positional=True)
                     end = self.toks[self.i - 1].end
-                    return A.MethodCall(t.start, end, t.text, m.text, args)  # type: ignore
+                    return A.MethodCall(t.start, end, t.text, m.text, args)
                 if m.text in ("X", "T", "x", "t"):
                     return A.StepFlag(t.start, m.end, t.text, m.text.upper())
                 return A.Member(t.start, m.end, t.text, m.text)
@@ -487,13 +487,14 @@ class Parser:
             self.next()
             neg = True
         t = self.expect("INT", None, "an integer CASE label")
-        return -int(t.value) if neg else int(t.value)  # type: ignore[call-overload]
+        assert isinstance(t.value, int)
+        return -t.value if neg else t.value
 
     def _case(self) -> A.Node:
         start = self.next().start
         sel = self.keyword_delimited()
         self.expect("KW", "OF", "OF", skip_nl=True)
-        arms = []
+        arms: list[tuple[list[tuple[int, int]], list[A.Node]]] = []
         orelse: list[A.Node] = []
         while True:
             self.skip_nl()
@@ -505,7 +506,7 @@ class Parser:
                 self.next()
                 orelse = self.statements(("END_CASE",))
                 continue
-            labels = []
+            labels: list[tuple[int, int]] = []
             while True:
                 first = self.peek()
                 lo = self._case_label()
@@ -650,6 +651,34 @@ class ParsedAction:
     qualifier_start: int
 
 
+def _starts_event(p: Parser) -> bool:
+    """Is the word ``on`` at the parser's position the start of ``on EVENT do ...``?
+
+    ``on`` is not reserved (an output may be named ``On``/``oN``): it starts an event action
+    only when an event expression follows it. A bare variable (``oN``, ``oN if C``), an
+    assignment (``oN := 1``) or a method call (``oN.Set(...)``) cannot be an event; ``oN(...)``
+    is a block call unless a ``do`` follows the parentheses."""
+    nxt = p.tok(p.i + 1)
+    if nxt.kind in ("EOF", "NL") or (nxt.kind == "KW" and nxt.text == "IF") or (
+            nxt.kind == "OP" and nxt.text in (":=", ";", ".", "=")):
+        return False
+    if nxt.kind == "OP" and nxt.text == "(":
+        depth, k = 0, p.i + 1
+        while p.tok(k).kind != "EOF":
+            t = p.tok(k)
+            if t.kind == "OP" and t.text == "(":
+                depth += 1
+            elif t.kind == "OP" and t.text == ")":
+                depth -= 1
+            elif depth == 0 and t.kind == "KW" and t.text == "DO":
+                return True
+            elif depth == 0 and (t.kind == "NL" or (t.kind == "OP" and t.text in (":=", ";"))):
+                return False
+            k += 1
+        return False
+    return True
+
+
 def parse_action(text: str, locate: Callable[[int], Loc]) -> ParsedAction:
     """``[QUALIFIER [TIME]] BODY [if CONDITION]`` or ``on EVENT do STATEMENTS``."""
     p = Parser(text, locate)
@@ -657,7 +686,7 @@ def parse_action(text: str, locate: Callable[[int], Loc]) -> ParsedAction:
     t0 = p.peek()
     if t0.kind == "EOF":
         raise p.error(t0, "an action (a variable, or a qualifier and a body)")
-    if t0.kind == "NAME" and t0.text.lower() == "on":
+    if t0.kind == "NAME" and t0.text.lower() == "on" and _starts_event(p):
         p.next()
         ev = p.expression()
         t = p.peek()

@@ -153,8 +153,13 @@ def _resolve_bindings(p: PlantDef) -> None:
         for key in ("inputs", "outputs"):
             for b in getattr(inst, key).values():
                 head, rest = b.source.split(".", 1)
+                want = inst.grafcet.variables[b.signal].type
                 if head in p.drivers:
                     b.driver, b.point = head, rest
+                    if rest == "ok" and want is not A.Type.BOOL:
+                        raise SourceError(b.loc, f"type error: expected a {want} source for "
+                                          f"'{inst.name}.{b.signal}', found the bool "
+                                          f"'{b.source}' (driver health)")
                     if key == "outputs":
                         if b.source in driven:
                             other_inst, other = driven[b.source]
@@ -165,15 +170,21 @@ def _resolve_bindings(p: PlantDef) -> None:
                                               f"{other.loc.line})")
                         driven[b.source] = (inst.name, b)
                 elif head in p.instances and key == "inputs":
-                    other = p.instances[head].grafcet
-                    ok = rest in other.variables and other.variables[rest].kind is not (
-                        VarKind.SYSTEM)
-                    if rest.endswith((".X", ".T")) and rest[:-2] in other.steps:
-                        ok = True
-                    if not ok:
-                        names = [*other.variables, *(f"{s}.X" for s in other.steps)]
+                    chart = p.instances[head].grafcet
+                    found: A.Type | None = None
+                    if rest in chart.variables and chart.variables[rest].kind is not (
+                            VarKind.SYSTEM):
+                        found = chart.variables[rest].type
+                    elif rest.endswith((".X", ".T")) and rest[:-2] in chart.steps:
+                        found = A.Type.BOOL if rest.endswith(".X") else A.Type.TIME
+                    if found is None:
+                        names = [*chart.variables, *(f"{s}.X" for s in chart.steps)]
                         raise SourceError(b.loc, f"instance '{head}' has no signal '{rest}'"
                                                  f"{suggest(rest, names)}")
+                    if found is not want:
+                        raise SourceError(b.loc, f"type error: expected a {want} signal for "
+                                          f"'{inst.name}.{b.signal}', found {found} "
+                                          f"'{b.source}'")
                     b.instance, b.ref = head, rest
                 elif head in p.instances:
                     raise SourceError(b.loc, f"expected a driver point for output "

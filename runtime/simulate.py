@@ -11,9 +11,10 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import IO, Any
 
+from drivers.base import Driver
 from drivers.sim import SimDriver
 from runtime import ast as A
-from runtime.engine import coerce
+from runtime.engine import Instance, coerce
 from runtime.errors import Loc, SourceError, suggest
 from runtime.language import check_keys, expect_type, time_value
 from runtime.model import VarKind
@@ -123,24 +124,39 @@ def trace_columns(plant: Plant) -> list[tuple[str, Callable[[], Any]]]:
                 cols.append((f"{name}.SFCCurrentStep", inst.current_step))
                 continue
             i = ix[v.name]
-            if v.type is T.BOOL:
-                cols.append((f"{name}.{v.name}", lambda m=m, i=i: 1 if m[i] else 0))
-            elif v.type is T.TIME:
-                cols.append((f"{name}.{v.name}", lambda m=m, i=i: m[i] // 1_000_000))
-            else:
-                cols.append((f"{name}.{v.name}", lambda m=m, i=i: m[i]))
+            kind = "bool" if v.type is T.BOOL else "ms" if v.type is T.TIME else "raw"
+            cols.append((f"{name}.{v.name}", _slot(m, i, kind)))
         for s in g.steps:
-            i = ix[f"{s}.X"]
-            cols.append((f"{name}.{s}.X", lambda m=m, i=i: 1 if m[i] else 0))
-            cols.append((f"{name}.{s}.T_ms", lambda inst=inst, s=s: inst.step_time(s)
-                         // 1_000_000))
+            cols.append((f"{name}.{s}.X", _slot(m, ix[f"{s}.X"], "bool")))
+            cols.append((f"{name}.{s}.T_ms", _step_ms(inst, s)))
     for dname, d in plant.drivers.items():
         for p in d.inputs:
-            cols.append((f"{dname}.{p}", lambda d=d, p=p: _num(d.inputs[p])))
+            cols.append((f"{dname}.{p}", _point(d.inputs, p)))
         for p in d.outputs:
-            cols.append((f"{dname}.{p}", lambda d=d, p=p: _num(d.outputs[p])))
-        cols.append((f"{dname}.ok", lambda d=d: 1 if d.ok else 0))
+            cols.append((f"{dname}.{p}", _point(d.outputs, p)))
+        cols.append((f"{dname}.ok", _driver_ok(d)))
     return cols
+
+
+def _slot(m: list[Any], i: int, kind: str) -> Callable[[], Any]:
+    """Getter of state slot ``i``: a bool as 0/1, a time (ns) as whole ms, else as is."""
+    if kind == "bool":
+        return lambda: 1 if m[i] else 0
+    if kind == "ms":
+        return lambda: m[i] // 1_000_000
+    return lambda: m[i]
+
+
+def _step_ms(inst: Instance, step: str) -> Callable[[], int]:
+    return lambda: inst.step_time(step) // 1_000_000
+
+
+def _point(image: dict[str, Any], point: str) -> Callable[[], Any]:
+    return lambda: _num(image[point])
+
+
+def _driver_ok(d: Driver) -> Callable[[], int]:
+    return lambda: 1 if d.ok else 0
 
 
 def _num(v: Any) -> Any:
@@ -156,7 +172,9 @@ class Simulation:
         self.plant = Plant(self.pdef, sim=True)
         for d in self.plant.drivers.values():
             assert isinstance(d, SimDriver)
-        duration, script_cycles, self.events = (None, None, [])
+        duration: int | None = None
+        script_cycles: int | None = None
+        self.events: list[Event] = []
         if script_path is not None:
             duration, script_cycles, self.events = load_script(script_path, self.plant)
         cyc = self.plant.cycle_ns

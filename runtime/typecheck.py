@@ -381,7 +381,7 @@ class Checker:
             by = s.step
             while isinstance(by, A.Unary) and by.op == "NEG":
                 by = by.operand
-            if isinstance(by, A.Lit) and not by.value:
+            if isinstance(by, A.Lit) and not by.value and s.step is not None:
                 raise self.err(s.step, "expected a non-zero BY step (a scan must always end), "
                                        f"found '{self._text(s.step)}'")
             self.stmts(s.body, (*loop_vars, name))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from typing import Any
 
 import yaml
@@ -58,6 +59,23 @@ def synthetic_str(value: str, loc: Loc) -> YStr:
     s.loc = loc
     s._pos = [(loc.line, loc.col + i) for i in range(len(value))]
     return s
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader with YAML 1.2 booleans: only true/false (any of True, TRUE ...) are bools.
+
+    YAML 1.1 also reads yes/no/on/off as bools, so an output named ``On`` or a step named
+    ``No`` would silently become ``True``/``False``; editors' YAML language servers use 1.2.
+    """
+
+
+_Loader.yaml_implicit_resolvers = {
+    first: [(tag, rx) for tag, rx in resolvers if tag != "tag:yaml.org,2002:bool"]
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+_Loader.add_implicit_resolver("tag:yaml.org,2002:bool",
+                              re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"),
+                              list("tTfF"))
 
 
 def _mark(path: str, mark: Any) -> Loc:
@@ -157,7 +175,7 @@ def load_yaml(path: str, text: str | None = None) -> Any:
         except UnicodeDecodeError as exc:
             raise SourceError(Loc(path, 1, 1), f"file is not UTF-8: {exc.reason}") from None
     try:
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        node = yaml.compose(text, Loader=_Loader)
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         loc = _mark(path, mark) if mark else Loc(path, 1, 1)
@@ -168,7 +186,7 @@ def load_yaml(path: str, text: str | None = None) -> Any:
         raise SourceError(loc, f"YAML syntax: {what}{ctx}") from None
     if node is None:
         raise SourceError(Loc(path, 1, 1), "empty file: expected a YAML mapping")
-    constructor = yaml.SafeLoader(text)
+    constructor = _Loader(text)
 
     def convert(n: yaml.Node) -> Any:
         if isinstance(n, yaml.MappingNode):
@@ -199,7 +217,7 @@ def load_yaml(path: str, text: str | None = None) -> Any:
                 lst.locs.append(v.loc if isinstance(v, YStr) else _mark(path, item.start_mark))
             return lst
         value = constructor.construct_object(n)
-        if isinstance(value, str):
+        if isinstance(value, str) and isinstance(n, yaml.ScalarNode):
             return _make_str(value, n, path, text)
         return value
 
@@ -207,4 +225,5 @@ def load_yaml(path: str, text: str | None = None) -> Any:
         return convert(node)
     except yaml.constructor.ConstructorError as exc:
         mark = exc.problem_mark
-        raise SourceError(_mark(path, mark) if mark else Loc(path, 1, 1), str(exc.problem))
+        raise SourceError(_mark(path, mark) if mark else Loc(path, 1, 1),
+                          str(exc.problem)) from None

@@ -15,7 +15,11 @@ from runtime.errors import Loc, SourceError
 from runtime.language import GrafcetLoader, load_grafcet
 from runtime.model import Grafcet
 from runtime.parser import (
-    ParsedAction, format_time, parse_action, parse_expression, parse_statements,
+    ParsedAction,
+    format_time,
+    parse_action,
+    parse_expression,
+    parse_statements,
 )
 from runtime.yamlsrc import load_yaml
 

@@ -350,9 +350,9 @@ def test_instance_leaves_an_output_unbound(tmp_path: Path) -> None:
 
 
 def test_physical_output_bound_twice(tmp_path: Path) -> None:
-    plant_check(tmp_path, PLANT.replace("oTest: sim.Q3", "oTest: sim.Q1"), "sim.Q1", nth=1,
-                *["physical output 'sim.Q1' is bound twice", "tester1.oTest",
-                  "tester1.oCerrar"])
+    plant_check(tmp_path, PLANT.replace("oTest: sim.Q3", "oTest: sim.Q1"), "sim.Q1",
+                "physical output 'sim.Q1' is bound twice", "tester1.oTest", "tester1.oCerrar",
+                nth=1)
 
 
 def test_physical_output_bound_twice_by_two_instances(tmp_path: Path) -> None:

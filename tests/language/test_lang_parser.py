@@ -5,7 +5,15 @@ from __future__ import annotations
 
 import pytest
 from langkit import (
-    MS, S, action, assert_round_trip_expr, assert_round_trip_stmts, expr, stmts, tree, unparse,
+    MS,
+    S,
+    action,
+    assert_round_trip_expr,
+    assert_round_trip_stmts,
+    expr,
+    stmts,
+    tree,
+    unparse,
 )
 
 from runtime import ast as A
