@@ -404,7 +404,12 @@ class PolledDriver(Driver):
             self._updated.notify_all()
 
     def report_error(self, exc: BaseException) -> None:
-        """An unexpected exception of the I/O side, re-raised by the next read()."""
+        """An unexpected exception of the I/O side (a bug), re-raised by the next read() in
+        the scan thread. An I/O error (DriverError, OSError) passed here is a fault like
+        ``report_fault``: read() never raises for I/O faults."""
+        if isinstance(exc, (DriverError, OSError)):
+            self.report_fault(str(exc))
+            return
         with self._lock:
             self._io_error = exc
             self._in_seq += 1

@@ -11,13 +11,17 @@ The driver is the node's NMT master and heartbeat consumer:
   and the RPDOs (outputs, 0x6200) sent by the scan's ``write()``: every cycle, or, when
   ``sync`` is configured, on change only, while a SYNC producer runs at that period (the
   node's PDO transmission types decide what it does on SYNC);
+* after NMT start, the bound input bytes (0x6000) are read once by SDO, so the input image
+  is right at once whether or not the node sends its TPDOs on entering OPERATIONAL (a
+  TPDO that comes meanwhile is newer and wins);
 * our own heartbeat consumer: the age of the node's last heartbeat on the monotonic
-  clock; older than ``heartbeat`` means the node is lost (fault). A node that comes back
-  (boot-up, pre-operational) is started again at the next back-off time, by a background
-  configuration thread, so the scan never waits for an SDO.
+  clock; older than ``heartbeat``, a boot-up, or any state but OPERATIONAL means the node
+  is lost (fault). Recovery is always a restart by the background configuration thread at
+  the next back-off time (NMT start, inputs read again: TPDOs may have been lost with the
+  heartbeats), so the scan never waits for an SDO.
 
-Inputs read STALE until the node's first TPDO after start. Points ``I0``-``I63`` (0x6000
-sub 1 bit 0 is I0, sub 2 bit 0 is I8, ...), ``Q0``-``Q63`` (0x6200 likewise). Config::
+Points ``I0``-``I63`` (0x6000 sub 1 bit 0 is I0, sub 2 bit 0 is I8, ...), ``Q0``-``Q63``
+(0x6200 likewise). Config::
 
     rio: {type: canopen, interface: socketcan, channel: can0, bitrate: 250000, node: 5,
           heartbeat: 500ms, sync: 10ms}
@@ -66,7 +70,7 @@ NMT_STATE_NAMES = {BOOTUP: "boot-up", STOPPED: "STOPPED", OPERATIONAL: "OPERATIO
                    PRE_OPERATIONAL: "PRE-OPERATIONAL"}
 NMT_START = 0x01
 
-_POINT = re.compile(r"^([IQ])(\d{1,2})$")
+_POINT = re.compile(r"^([IQ])([0-9]{1,2})$")
 _ENTRY = re.compile(r"^(?:0x)?([0-9A-Fa-f]{1,4})(?:sub|:|\.)([0-9A-Fa-f]{1,2})(?:/(\d{1,2}))?$")
 
 
@@ -204,7 +208,12 @@ class CanopenDriver(PolledDriver):
         self._hb_lock = threading.Condition()
         self._hb_ns: int | None = None  # clock() at the last heartbeat
         self._hb_state: int | None = None
+        #: True from a successful (re)start until the node is seen lost
         self._configured = False
+        #: orders TPDO decoding against the SDO read of the inputs after a start
+        self._tpdo_lock = threading.Lock()
+        #: points set by TPDOs since the SDO read of the inputs began (None: not reading)
+        self._tpdo_touched: set[str] | None = None
         self._configurator: threading.Thread | None = None
         self._sent: dict[int, bytes] = {}
         self._send_all = True
@@ -292,18 +301,17 @@ class CanopenDriver(PolledDriver):
 
     # -- configuration thread ---------------------------------------------------------
     def _configure(self) -> None:
-        """Mapping (once), heartbeat producer, NMT start, wait for OPERATIONAL.
+        """Mapping (once), heartbeat producer, NMT start, wait for OPERATIONAL, inputs read.
 
-        Until it has once succeeded its failure is the driver's fault; afterwards the
-        heartbeat decides (``_check``), and a failed restart is only logged, so a node
-        whose heartbeat comes back in OPERATIONAL is OK again at once."""
-        first = not self._configured
+        A failure is reported as the driver's fault reason (the scan logs it once, on the
+        change to FAULT); the scan asks for another attempt at its back-off times."""
         try:
             if self._tpdos is None:
                 self._tpdos, self._rpdos = self._read_layout()
             self._subscribe()
             self._set_producer_heartbeat()
             self._nmt_start()
+            self._read_inputs()
             self._send_all = True
             self._configured = True
             self.report_ok()
@@ -316,10 +324,7 @@ class CanopenDriver(PolledDriver):
             log.exception("driver %s: configuration failed", self.name)
             self.report_error(exc)
             return
-        if first:
-            self.report_fault(reason)
-        else:
-            log.warning("driver %s: restart failed: %s", self.name, reason)
+        self.report_fault(reason)
 
     def _read_layout(self) -> tuple[list[Pdo], list[Pdo]]:
         cfg = self.cfg
@@ -442,6 +447,36 @@ class CanopenDriver(PolledDriver):
             network.sync.stop()
             network.sync.start(self.cfg.sync_s)
 
+    def _read_inputs(self) -> None:
+        """Read the bound input bytes (0x6000) by SDO and publish them, except points a TPDO
+        set meanwhile (newer). An object the node refuses leaves its points to the TPDOs."""
+        node = self._node
+        assert node is not None
+        by_sub: dict[int, list[str]] = {}
+        for point in self.inputs:
+            by_sub.setdefault(int(point[1:]) // 8 + 1, []).append(point)
+        if not by_sub:
+            return
+        with self._tpdo_lock:
+            self._tpdo_touched = set()
+        values: dict[str, int] = {}
+        try:
+            for sub, points in sorted(by_sub.items()):
+                try:
+                    byte = _u(node.sdo.upload(DIGITAL_INPUTS, sub))
+                except SdoAbortedError as exc:
+                    log.warning("driver %s: inputs %s not read by SDO (%s): known at the "
+                                "next TPDO", self.name, ", ".join(points), exc)
+                    continue
+                for point in points:
+                    values[point] = (byte >> int(point[1:]) % 8) & 1
+        finally:
+            with self._tpdo_lock:
+                touched, self._tpdo_touched = self._tpdo_touched or set(), None
+                fresh = {p: v for p, v in values.items() if p not in touched}
+                if fresh:
+                    self.publish_inputs(fresh, ok=False)
+
     # -- receive thread -----------------------------------------------------------------
     # canopen logs and swallows a callback's exception: ours hand it to the scan thread
     def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
@@ -468,8 +503,11 @@ class CanopenDriver(PolledDriver):
                     log.warning("driver %s: %s of %d bytes, expected %d", self.name, pdo.name,
                                 len(data), pdo.length)
                     return
-                self.publish_inputs({point: (data[byte] >> bit) & 1
-                                     for byte, bit, point in pdo.bits}, ok=False)
+                values = {point: (data[byte] >> bit) & 1 for byte, bit, point in pdo.bits}
+                with self._tpdo_lock:
+                    if self._tpdo_touched is not None:
+                        self._tpdo_touched.update(values)
+                    self.publish_inputs(values, ok=False)
 
     # -- scan thread ------------------------------------------------------------------------
     def _check(self) -> None:
@@ -480,20 +518,25 @@ class CanopenDriver(PolledDriver):
                 self._bus_dead = True
                 raise DriverError(f"{self._where()}: receiving stopped: {error}")
             raise error  # a bug in the receive thread
-        if not self._configured:
-            raise DriverError(f"{self._where()}: not configured yet")
         with self._hb_lock:
             hb_ns, state = self._hb_ns, self._hb_state
         timeout_ns = self.cfg.heartbeat_s * 1e9
+        lost: str | None = None
         if hb_ns is None or self.clock() - hb_ns > timeout_ns:
             age = "none" if hb_ns is None else f"none for {(self.clock() - hb_ns) / 1e6:.0f} ms"
-            raise DriverError(f"{self._where()}: heartbeat lost ({age}, timeout "
-                              f"{timeout_ns / 1e6:.0f} ms)")
-        if state != OPERATIONAL:
-            if state is None:
-                raise DriverError(f"{self._where()}: node being started")
+            lost = f"heartbeat lost ({age}, timeout {timeout_ns / 1e6:.0f} ms)"
+        elif state is None:
+            lost = "node being started"
+        elif state != OPERATIONAL:
             name = NMT_STATE_NAMES.get(state) or f"in NMT state 0x{state:02X}"
-            raise DriverError(f"{self._where()}: node is {name}, not OPERATIONAL")
+            lost = f"node is {name}, not OPERATIONAL"
+        if self._configured:
+            if lost is None:
+                return
+            # lost: only a restart (NMT start, inputs read again) makes it OK again
+            self._configured = False
+            raise DriverError(f"{self._where()}: {lost}")
+        raise DriverError(f"{self._where()}: {lost or 'node back, being started again'}")
 
     def _write(self) -> None:
         network = self._network

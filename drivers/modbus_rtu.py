@@ -287,8 +287,11 @@ class RtuMaster:
             time.sleep(gap)
         self._send(request)
         self.stats.requests += 1
-        # the reply cannot start before our request has left the UART
-        deadline = time.monotonic() + len(request) * self.settings.char_s + timeout
+        # ``timeout`` is the unit's time to answer: the wire time of our request and of its
+        # full reply come on top (a 125-register reply is 255 bytes: 290 ms at 9600 baud)
+        expected = response_length(request)
+        deadline = (time.monotonic() + (len(request) + expected) * self.settings.char_s
+                    + timeout)
         what = f"unit {unit}: FC {function} {describe(request)}"
         reply = self._read_exact(5, deadline, what)
         if reply[0] != unit or reply[1] & 0x7F != function:
@@ -298,7 +301,6 @@ class RtuMaster:
                 raise ModbusCrcError(f"{what}: CRC error in exception reply")
             self.stats.exceptions += 1
             raise ModbusExceptionReply(unit, function, reply[2], describe(request))
-        expected = response_length(request)
         if function <= READ_INPUT_REGISTERS and reply[2] != expected - 5:
             raise ModbusFrameError(f"{what}: byte count {reply[2]}, expected {expected - 5}")
         reply += self._read_exact(expected - 5, deadline, what)
@@ -386,6 +388,13 @@ class SerialLine:
         settings = driver.settings
         with cls._registry_lock:
             line = cls._lines.get(settings.port)
+            if line is None:  # another name of the same device (/dev/serial/by-id/...)?
+                real = os.path.realpath(settings.port)
+                for other in cls._lines.values():
+                    if os.path.realpath(other.settings.port) == real:
+                        raise DriverError(f"{settings.port} is {real}, already opened as "
+                                          f"{other.settings.port}: name a shared port the "
+                                          "same way in every driver")
             if line is None:
                 line = cls(settings)
                 try:
@@ -461,7 +470,8 @@ class SerialLine:
         for d in units:
             if self._stopping:
                 return
-            if d.io_faulted and not d._take_retry():
+            probing = d.io_faulted
+            if probing and not d._take_retry():
                 d._exchanged.set()
                 continue
             if not self.master.is_open:
@@ -472,7 +482,7 @@ class SerialLine:
                     self._line_fault(units, f"{self.settings.port}: cannot open: {exc}")
                     return
             try:
-                d._exchange(self.master)
+                d._exchange(self.master, probing)
             except ModbusError as exc:
                 d.mark_outputs_dirty()
                 d.report_fault(str(exc))
@@ -492,7 +502,7 @@ class SerialLine:
 
 # -- the driver ----------------------------------------------------------------------------
 
-_POINT = re.compile(r"^(I|Q|IR|HR)(\d{1,5})$")
+_POINT = re.compile(r"^(I|Q|IR|HR)([0-9]{1,5})$")
 PARITIES = {"N": serial.PARITY_NONE, "E": serial.PARITY_EVEN, "O": serial.PARITY_ODD,
             "NONE": serial.PARITY_NONE, "EVEN": serial.PARITY_EVEN, "ODD": serial.PARITY_ODD}
 
@@ -636,9 +646,12 @@ class ModbusRtuDriver(PolledDriver):
             return True
         return False
 
-    def _exchange(self, master: RtuMaster) -> None:
-        """One exchange with this unit: changed outputs, then every input."""
+    def _exchange(self, master: RtuMaster, probing: bool = False) -> None:
+        """One exchange with this unit: changed outputs, then every input. ``probing``: the
+        unit is faulted and this is its back-off attempt: one try per request, no retries,
+        so a dead unit costs its neighbours one timeout per attempt."""
         cfg = self.cfg
+        retries = 0 if probing else cfg.retries
         outputs = self.take_outputs()
         seq = self._out_taken
         now = time.monotonic()
@@ -655,7 +668,7 @@ class ModbusRtuDriver(PolledDriver):
                         request = write_coils_request(cfg.unit, w.address, values)
                     else:
                         request = write_registers_request(cfg.unit, w.address, values)
-                    master.transact(request, cfg.timeout_s, cfg.retries)
+                    master.transact(request, cfg.timeout_s, retries)
             except BaseException:
                 self.mark_outputs_dirty()
                 raise
@@ -665,7 +678,7 @@ class ModbusRtuDriver(PolledDriver):
         values_in: dict[str, int] = {}
         for r in self._reads:
             items = decode_reply(r.request, master.transact(r.request, cfg.timeout_s,
-                                                            cfg.retries))
+                                                            retries))
             for address, point in r.points.items():
                 values_in[point] = items[address - r.address]
         self.publish_inputs(values_in)

@@ -30,8 +30,9 @@ def driver_class(type_name: str) -> type[Driver]:
     except ModuleNotFoundError as exc:
         if exc.name and exc.name.startswith(("drivers.", "runtime.")):
             raise
+        missing = "" if exc.name in (None, package) else f" (module '{exc.name}' not found)"
         raise DriverImportError(
-            f"driver type '{type_name}' needs the Python package '{package}': "
+            f"driver type '{type_name}' needs the Python package '{package}'{missing}: "
             f"pip install {package}"
         ) from exc
     cls: type[Driver] = getattr(module, class_name)

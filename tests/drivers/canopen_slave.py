@@ -10,7 +10,11 @@ does, and so does this simulator:
 * boot-up: the boot-up message, then PRE-OPERATIONAL, and the first heartbeat only one
   period later, so a master waiting for the boot-up does not race with a heartbeat;
 * its own heartbeat producer (0x1017, changeable by SDO), which can be paused;
-* power off/on: silence (no SDO, no NMT, no heartbeat), then a cold boot with outputs off.
+* power off/on: silence (no SDO, no NMT, no heartbeat), then a cold boot with outputs off;
+* a cut cable: the node runs on (state, outputs, inputs that change) but no frame passes
+  either way until the cable is mended;
+* ``tpdo_on_start=False``: a node that does not send its event-driven TPDOs on entering
+  OPERATIONAL (CiA 301 leaves that to the device), so only an SDO read shows its inputs.
 
 ``echo`` copies every output byte to the input byte of the same sub-index (a loop-back
 for round-trip measurements). Run as a process (for the udp_multicast test)::
@@ -90,13 +94,17 @@ class Cia401Slave:
     def __init__(self, node_id: int = 5, *, interface: str = "virtual", channel: str = "test",
                  tpdos: list[list[Entry]] | None = None, rpdos: list[list[Entry]] | None = None,
                  transmission: int = 255, heartbeat_ms: int = 0, echo: bool = False,
-                 extra: tuple[int, ...] = (), **bus_kwargs: Any) -> None:
+                 extra: tuple[int, ...] = (), tpdo_on_start: bool = True,
+                 **bus_kwargs: Any) -> None:
         self.node_id = node_id
         self.tpdos = tpdos if tpdos is not None else [[(0x6000, 1, 8), (0x6000, 2, 8)]]
         self.rpdos = rpdos if rpdos is not None else [[(0x6200, 1, 8), (0x6200, 2, 8)]]
         self.od = cia401_od(node_id, self.tpdos, self.rpdos, transmission=transmission,
                             heartbeat_ms=heartbeat_ms, extra=extra)
         self.echo = echo
+        self.tpdo_on_start = tpdo_on_start
+        #: the cable is cut: nothing sent, nothing received (see cut_cable)
+        self.cut = False
         self.bus_kwargs = {"interface": interface, "channel": channel, **bus_kwargs}
         self.powered = False
         #: stop sending heartbeats while otherwise alive (a heartbeat-only loss)
@@ -150,22 +158,44 @@ class Cia401Slave:
             if not self.powered:
                 return
             self.powered = False
-            self.network.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
+            if not self.cut:
+                self.network.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
 
     def power_on(self) -> None:
         """Cold boot: outputs off, boot-up message, PRE-OPERATIONAL."""
         with self._lock:
-            if not self.powered:
+            if not self.powered and not self.cut:
                 self.network.subscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
             self.powered = True
             self.node.data_store.pop(0x6200, None)
             self.node.data_store.pop(0x1017, None)
             self._boot()
 
+    def cut_cable(self) -> None:
+        """The node runs on, but no frame reaches it or leaves it."""
+        with self._lock:
+            self.cut = True
+            self.network.unsubscribe(0, self.node.nmt.on_command)
+            if self.powered:
+                self.network.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
+
+    def mend_cable(self) -> None:
+        with self._lock:
+            self.cut = False
+            self.network.unsubscribe(0, self._on_nmt)  # keep NmtSlave's callback first
+            self.network.subscribe(0, self.node.nmt.on_command)
+            self.network.subscribe(0, self._on_nmt)
+            if self.powered:
+                self.network.subscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
+
+    def _send(self, can_id: int, data: bytes) -> None:
+        if not self.cut:
+            self.network.send_message(can_id, data)
+
     def _boot(self) -> None:
         self._pending_rpdo.clear()
         self.node.nmt._state = BOOTUP
-        self.network.send_message(0x700 + self.node_id, bytes([BOOTUP]))
+        self._send(0x700 + self.node_id, bytes([BOOTUP]))
         self.node.nmt._state = PRE_OPERATIONAL
         self._hb_kick.set()  # restart the period: first heartbeat one period after boot-up
 
@@ -215,7 +245,7 @@ class Cia401Slave:
             if only_sub is not None and (0x6000, only_sub, 8) not in entries:
                 continue
             data = b"".join(self.node.get_data(i, s)[: b // 8] for i, s, b in entries)
-            self.network.send_message(self._cob(0x1800 + n), data)
+            self._send(self._cob(0x1800 + n), data)
 
     def _apply_rpdo(self, n: int, data: bytes) -> None:
         offset = 0
@@ -230,7 +260,7 @@ class Cia401Slave:
 
     def _on_rpdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self._lock:
-            if not self.powered or self.state != OPERATIONAL:
+            if self.cut or not self.powered or self.state != OPERATIONAL:
                 return
             for n in range(len(self.rpdos)):
                 if self._cob(0x1400 + n) == can_id:
@@ -241,7 +271,7 @@ class Cia401Slave:
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self._lock:
-            if not self.powered or self.state != OPERATIONAL:
+            if self.cut or not self.powered or self.state != OPERATIONAL:
                 return
             self.syncs += 1
             pending, self._pending_rpdo = self._pending_rpdo, {}
@@ -252,14 +282,14 @@ class Cia401Slave:
     def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
         command, node = data[0], data[1]
         with self._lock:
-            if not self.powered or node not in (0, self.node_id):
+            if self.cut or not self.powered or node not in (0, self.node_id):
                 return
             self.nmt_log.append(command)
             if command in (0x81, 0x82):  # reset node / reset communication
                 if command == 0x81:
                     self.node.data_store.pop(0x6200, None)
                 self._boot()
-            elif command == 0x01:
+            elif command == 0x01 and self.tpdo_on_start:
                 self._send_tpdos(event=True)  # event-driven TPDOs on entering OPERATIONAL
             self._hb_kick.set()
 
@@ -279,7 +309,7 @@ class Cia401Slave:
                 if kicked or ms == 0 or not self.powered or self.heartbeat_paused:
                     continue
                 try:
-                    self.network.send_message(0x700 + self.node_id, bytes([self.state]))
+                    self._send(0x700 + self.node_id, bytes([self.state]))
                 except Exception:  # the bus went away while stopping
                     if not self._hb_stop.is_set():
                         raise

@@ -13,7 +13,12 @@ What is modelled, as the kernel does it:
   clock, so tests step time instead of sleeping);
 * a line can be requested once (EBUSY), offsets beyond the chip fail (EINVAL), a missing
   chip fails (ENOENT), a removed chip fails every call (ENODEV), a released request raises
-  ``gpiod.RequestReleasedError``.
+  ``gpiod.RequestReleasedError`` (releasing it again too);
+* ``output_values`` of ``request_lines``, when given, override every output line's
+  ``LineSettings.output_value`` (a line it omits starts INACTIVE), as libgpiod does.
+
+The signatures are those of the installed ``gpiod`` 2.x package (test_gpio.py compares
+them), so a driver that runs here calls the real bindings the same way.
 """
 
 from __future__ import annotations
@@ -115,17 +120,20 @@ class FakeLineRequest:
         self.consumer = consumer
         self.released = False
 
-    def _alive(self) -> None:
+    def _check_released(self) -> None:
         if self.released:
             raise gpiod.RequestReleasedError()
+
+    def _alive(self) -> None:
+        self._check_released()
         self.chip._check()
 
     def get_values(self, lines: Iterable[int | str] | None = None) -> list[Value]:
         self._alive()
         out = []
-        for off in _offsets(lines if lines is not None else self.offsets):
+        for off in _offsets(lines or self.offsets):  # as libgpiod: [] or None reads all
             if off not in self.offsets:
-                raise ValueError(f"line {off} not requested")
+                raise OSError(errno.EINVAL, "Invalid argument: line not requested")
             line = self.chip.lines[off]
             s = line.settings
             assert s is not None
@@ -145,7 +153,7 @@ class FakeLineRequest:
         for key, value in values.items():
             off = int(key)
             if off not in self.offsets:
-                raise ValueError(f"line {off} not requested")
+                raise OSError(errno.EINVAL, "Invalid argument: line not requested")
             line = self.chip.lines[off]
             s = line.settings
             assert s is not None
@@ -159,8 +167,7 @@ class FakeLineRequest:
         self.set_values({line: value})
 
     def release(self) -> None:
-        if self.released:
-            return
+        self._check_released()  # libgpiod: releasing twice raises RequestReleasedError
         self.released = True
         for off in self.offsets:
             line = self.chip.lines[off]
@@ -173,6 +180,9 @@ class FakeLineRequest:
 
     def __exit__(self, *exc: object) -> None:
         self.release()
+
+    def __bool__(self) -> bool:
+        return not self.released
 
 
 class FakeGpio:
@@ -217,7 +227,10 @@ class FakeGpio:
             line.settings = s
             line.consumer = consumer
             if s.direction is Direction.OUTPUT:
-                value = (output_values or {}).get(off, s.output_value)
+                # as Chip.request_lines: global output_values, when given, override every
+                # line's LineSettings.output_value, and a line they omit starts INACTIVE
+                value = (output_values.get(off, Value.INACTIVE) if output_values
+                         else s.output_value)
                 line.logical_out = 1 if value is Value.ACTIVE else 0
             else:
                 line.changes.append((self.clock(), chip._raw_input(line)))

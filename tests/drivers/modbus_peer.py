@@ -57,6 +57,14 @@ class ModbusPeer:
         self.served.append((unit, function_code, address, count))
         return self.fail.get(unit)
 
+    def _trace(self, sending: bool, packet: bytes) -> bytes:
+        # A unit that is not on the line stays silent, as on a real RS-485 multi-drop line
+        # (pymodbus' SimDevice server answers it with exception 4; ignore_missing_devices
+        # only works with the old datastore).
+        if sending and packet and packet[0] not in self.units:
+            return b""
+        return packet
+
     def _devices(self) -> list[SimDevice]:
         def bits() -> list[SimData]:
             return [SimData(0, count=SIZE, values=False, datatype=DataType.BITS)]
@@ -72,7 +80,8 @@ class ModbusPeer:
         try:
             self._server = ModbusSerialServer(self._devices(), framer=FramerType.RTU,
                                               port=self.port, baudrate=self.baudrate,
-                                              parity=self.parity, reconnect_delay=0.1)
+                                              parity=self.parity, reconnect_delay=0.1,
+                                              trace_packet=self._trace)
             await self._server.serve_forever(background=True)
         except BaseException as exc:  # reported by start()
             self._error = exc

@@ -11,6 +11,7 @@ import os
 import select
 import termios
 import threading
+import time
 import tty
 
 
@@ -32,6 +33,8 @@ class PtyBridge:
         self.garble_replies = 0
         #: every request chunk seen (driver -> peer)
         self.requests: list[bytes] = []
+        #: deliver replies slowly, as a slow line does: (bytes per chunk, seconds between)
+        self.slow_replies: tuple[int, float] | None = None
         self._inject = b""
         self._lock = threading.Lock()
         self._stop_r, self._stop_w = os.pipe()
@@ -71,10 +74,23 @@ class PtyBridge:
                         i = min(3, len(data) - 1)
                         data = data[:i] + bytes([data[i] ^ 0x10]) + data[i + 1:]
                     data = inject + data
+                    if self.slow_replies is not None:
+                        self._trickle(dst, data, *self.slow_replies)
+                        continue
                 try:
                     os.write(dst, data)
                 except (BlockingIOError, OSError):
                     pass  # nobody reading: the bytes are lost, as on a real line
+
+    def _trickle(self, dst: int, data: bytes, size: int, pause: float) -> None:
+        while data:
+            try:
+                os.write(dst, data[:size])
+            except (BlockingIOError, OSError):
+                return
+            data = data[size:]
+            if data:
+                time.sleep(pause)
 
     def close(self) -> None:
         if self._thread.is_alive():

@@ -125,9 +125,79 @@ def test_heartbeat_loss_and_return(slave: Cia401Slave, channel: str, clock: Fake
     assert slave.nmt_log == [0x01, 0x01]
     d.read()
     assert d.health is Health.FAULT
-    slave.heartbeat_paused = False  # the node never left OPERATIONAL: OK at the next scan
+    assert "no heartbeat in OPERATIONAL" in (d.fault_reason or "")
+    slave.heartbeat_paused = False  # the node never left OPERATIONAL ...
+    drain(d, slave)
+    assert wait_until(lambda: d._hb_state == OPERATIONAL)
+    d.read()
+    assert d.health is Health.FAULT  # ... yet only a restart makes the driver OK again
+    clock.advance(d.RECONNECT_MAX_S)
     settle(d)
-    assert slave.nmt_log == [0x01, 0x01]
+    assert slave.nmt_log == [0x01, 0x01, 0x01]
+    d.close()
+
+
+def test_cable_cut_inputs_changed_meanwhile_are_read_again(channel: str,
+                                                           clock: FakeClock) -> None:
+    # the node keeps running while its cable is cut; the input that changed meanwhile had
+    # its TPDO lost, and this node sends no TPDO on (re)entering OPERATIONAL
+    with Cia401Slave(5, channel=channel, tpdo_on_start=False) as slave:
+        d = make(channel, clock, on_fault="hold")
+        d.open()
+        d.outputs["Q1"] = 1
+        d.write()
+        assert wait_until(lambda: slave.output(1) == 1)
+        slave.cut_cable()
+        slave.set_input(9, 1)
+        drain(d, slave)
+        clock.advance(0.21)
+        d.read()
+        assert d.health is Health.FAULT and "heartbeat lost" in (d.fault_reason or "")
+        slave.mend_cable()
+        assert slave.state == OPERATIONAL
+        clock.advance(d.RECONNECT_MIN_S)
+        settle(d)
+        assert d.inputs["I9"] == 1  # read by SDO at the restart
+        d.write()
+        assert slave.output(1) == 1
+        d.close()
+
+
+def test_inputs_known_at_open_without_tpdo_on_start(channel: str, clock: FakeClock) -> None:
+    with Cia401Slave(5, channel=channel, tpdo_on_start=False) as slave:
+        slave.set_input(3, 1)
+        slave.set_input(9, 1)
+        d = make(channel, clock)
+        d.open()
+        assert d.health is Health.OK, d.fault_reason
+        d.read()
+        assert d.inputs == {"I0": 0, "I3": 1, "I9": 1}
+        slave.set_input(3, 0)  # and TPDOs keep them from then on
+        assert wait_until(lambda: (d.read(), d.inputs["I3"])[1] == 0)
+        d.close()
+
+
+def test_tpdo_during_the_sdo_read_of_inputs_wins(slave: Cia401Slave, channel: str,
+                                                 clock: FakeClock) -> None:
+    d = make(channel, clock)
+    d.open()
+    assert d._node is not None
+    node = d._node
+    real_upload = node.sdo.upload
+
+    def upload_then_input_changes(index: int, subindex: int) -> bytes:
+        data = real_upload(index, subindex)
+        if index == 0x6000 and subindex == 1:
+            slave.set_input(3, 0)  # a TPDO after the SDO answer, before it is published
+            drain(d, slave)
+        return data
+
+    slave.set_input(3, 1)
+    assert wait_until(lambda: (d.read(), d.inputs["I3"])[1] == 1)
+    node.sdo.upload = upload_then_input_changes  # type: ignore[method-assign]
+    d._read_inputs()
+    d.read()
+    assert d.inputs["I3"] == 0
     d.close()
 
 

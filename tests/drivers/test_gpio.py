@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import errno
 import glob
+import inspect
 import os
 
 import gpiod
 import pytest
 from drvkit import FakeClock
 from fake_gpiod import FakeGpio, debounce_of
-from gpiod.line import Bias
+from gpiod.line import Bias, Value
 from gpiod.line import Direction as LineDirection
 
 from drivers.base import ConfigError, Direction, Health, PointError
@@ -151,6 +153,71 @@ def test_point_in_both_directions_rejected(clock: FakeClock) -> None:
 def test_bad_config(cfg: dict[str, object]) -> None:
     with pytest.raises(ConfigError):
         GpioDriver("gpio", cfg)
+
+
+# -- the fake is the kernel as libgpiod v2 shows it ----------------------------------------
+def test_fake_has_the_signatures_of_the_real_bindings() -> None:
+    from fake_gpiod import FakeLineRequest
+
+    def params(fn: object) -> list[tuple[str, object]]:
+        return [(p.name, p.default) for p in inspect.signature(fn).parameters.values()
+                if p.name != "self"]
+
+    assert params(FakeGpio.request_lines) == params(gpiod.request_lines)
+    for name in ("get_values", "get_value", "set_values", "set_value", "release"):
+        assert params(getattr(FakeLineRequest, name)) == params(
+            getattr(gpiod.LineRequest, name)), name
+
+
+def test_fake_applies_active_low_as_the_kernel(kernel: FakeGpio) -> None:
+    chip = kernel.chips["/dev/gpiochip0"]
+    req = gpiod.request_lines("/dev/gpiochip0", config={
+        5: gpiod.LineSettings(direction=LineDirection.INPUT, active_low=True,
+                              bias=Bias.PULL_UP),
+        6: gpiod.LineSettings(direction=LineDirection.OUTPUT, active_low=True,
+                              output_value=Value.INACTIVE)})
+    assert chip.level(6) == 1  # inactive on an active-low line: the pin is high
+    assert req.get_values([5, 6]) == [Value.INACTIVE, Value.INACTIVE]  # pulled up: inactive
+    chip.drive(5, 0)
+    assert req.get_value(5) is Value.ACTIVE
+    req.set_values({6: Value.ACTIVE})
+    assert chip.level(6) == 0 and chip.writes[-1] == {6: 0}
+    assert req.get_values() == [Value.ACTIVE, Value.ACTIVE]  # no list: every line
+    req.release()
+    with pytest.raises(gpiod.RequestReleasedError):
+        req.get_values()
+    with pytest.raises(gpiod.RequestReleasedError):
+        req.release()
+
+
+def test_fake_global_output_values_override_settings(kernel: FakeGpio) -> None:
+    chip = kernel.chips["/dev/gpiochip0"]
+    on = gpiod.LineSettings(direction=LineDirection.OUTPUT, output_value=Value.ACTIVE)
+    req = gpiod.request_lines("/dev/gpiochip0", config={(7, 8): on},
+                              output_values={8: Value.ACTIVE})
+    assert chip.level(7) == 0 and chip.level(8) == 1  # 7 not in output_values: inactive
+    with pytest.raises(OSError, match="Device or resource busy"):
+        gpiod.request_lines("/dev/gpiochip0", config={7: None})
+    with pytest.raises(OSError) as exc:
+        req.set_values({9: Value.ACTIVE})
+    assert exc.value.errno == errno.EINVAL
+    req.release()
+
+
+def test_driver_never_passes_active_low_nor_global_values(kernel: FakeGpio,
+                                                         clock: FakeClock) -> None:
+    """The driver moves physical levels: inversion is the binding's job."""
+    d = make(clock, bias="pull_down")
+    d.open()
+    chip = kernel.chips["/dev/gpiochip0"]
+    chip.drive(17, 1)
+    d.outputs["22"] = 1
+    d.read()
+    d.write()
+    assert d.inputs["17"] == 1 and chip.level(22) == 1
+    assert all(not s.active_low for s in kernel.requests[0][1].values())
+    d.close()
+    assert chip.level(22) == 0  # close: safe state before the lines are released
 
 
 # -- opt-in: a real chip, with one output wired to one input ----------------------------

@@ -12,7 +12,7 @@ from drvkit import FakeClock
 from i2c_emulator import I2CWorld, Mcp23017Model, Pcf8574Model
 
 from drivers.base import ConfigError, Direction, Health, PointError
-from drivers.mcp23017 import GPIOA, OLATA, Mcp23017Driver
+from drivers.mcp23017 import GPIOA, IODIRA, OLATA, Mcp23017Driver
 from drivers.pcf8574 import Pcf8574Driver
 
 
@@ -53,6 +53,42 @@ def test_mcp_setup_from_bank1(world: I2CWorld, mcp: Mcp23017Model, clock: FakeCl
     assert all(mcp.pin(p) == 0 for p in ("A7", "B0", "B1"))
     d.close()
     assert world.open_handles == 0
+
+
+@pytest.mark.parametrize("bank", [0, 1])
+@pytest.mark.parametrize("others", [0x00, 0x20, 0x7E])  # SEQOP=1 (byte mode); every bit set
+def test_mcp_iocon_set_explicitly_from_any_state(bank: int, others: int,
+                                                 mcp: Mcp23017Model, clock: FakeClock) -> None:
+    mcp.iocon = others & 0x7E
+    mcp.set_bank(bank)
+    mcp.regs["GPPU"] = [0xFF, 0xFF]
+    mcp.regs["OLAT"] = [0xFF, 0xFF]  # a previous program left every latch on
+    d = make_mcp(clock)
+    d.open()
+    assert d.health is Health.OK, d.fault_reason
+    assert mcp.iocon == Mcp23017Driver.IOCON_VALUE == 0x00  # BANK=0, SEQOP=0, MIRROR/ODR off
+    assert mcp.regs["IODIR"] == [0x7F, 0xFC] and mcp.regs["GPPU"] == [0x03, 0x80]
+    assert mcp.regs["OLAT"] == [0, 0] and all(mcp.pin(p) == 0 for p in ("A7", "B0", "B1"))
+    mcp.drive("B7", 1)
+    mcp.drive("A1", 0)
+    d.read()
+    assert d.inputs == {"A0": 1, "A1": 0, "B7": 1}
+    d.close()
+
+
+def test_mcp_outputs_never_glitch_on_at_open(world: I2CWorld, mcp: Mcp23017Model,
+                                            clock: FakeClock) -> None:
+    mcp.regs["OLAT"] = [0xFF, 0xFF]  # left on by someone; pins are inputs (power-on IODIR)
+    d = make_mcp(clock)
+    d.open()
+    olat_at = iodir_at = None
+    for i, t in enumerate(world.bus(1).log):
+        if t.written[:1] == bytes([OLATA]) and olat_at is None:
+            olat_at = i
+        if t.written[:1] == bytes([IODIRA]) and len(t.written) > 1 and iodir_at is None:
+            iodir_at = i
+    assert olat_at is not None and iodir_at is not None and olat_at < iodir_at
+    d.close()
 
 
 def test_mcp_pull_up_off(mcp: Mcp23017Model, clock: FakeClock) -> None:

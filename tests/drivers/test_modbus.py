@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 from drvkit import FakeClock
@@ -228,6 +229,62 @@ def test_cut_line_goes_stale_then_faults(bridge: PtyBridge, peer: ModbusPeer,
     d.close()
 
 
+def test_long_reply_on_a_slow_line_is_not_a_timeout(bridge: PtyBridge, peer: ModbusPeer,
+                                                    clock: FakeClock) -> None:
+    """``timeout`` is the unit's time to answer; the reply's own wire time comes on top."""
+    registers = tuple(f"HR{n}" for n in range(60))  # one FC 3 request, a 125-byte reply
+    peer.set(1, 3, 0, list(range(100, 160)))
+    d = make(bridge, clock, inputs=registers, outputs=(), baudrate=9600, timeout="30ms",
+             retries=0)
+    # 125 bytes take 143 ms at 9600 baud; the bridge delivers them in about 100 ms,
+    # three times the 30 ms timeout
+    bridge.slow_replies = (13, 0.01)
+    d.open()
+    assert d.health is Health.OK, d.fault_reason
+    d.read()
+    assert [d.inputs[r] for r in registers] == list(range(100, 160))
+    assert d.line is not None and d.line.master.stats.timeouts == 0
+    d.close()
+
+
+def test_dead_unit_does_not_hold_up_its_neighbour(bridge: PtyBridge, peer: ModbusPeer,
+                                                  clock: FakeClock) -> None:
+    alive = make(bridge, clock, unit=1, name="alive")
+    dead = make(bridge, clock, unit=9, name="dead", inputs=("I0",), outputs=())
+    alive.open()
+    dead.open()
+    assert alive.ok and dead.health is Health.FAULT  # 1 + retries timeouts at open
+    to_dead = lambda: sum(1 for r in bridge.requests if r[0] == 9)  # noqa: E731
+    asked = to_dead()
+    assert asked == 1 + FAST["retries"]
+    peer.set(1, 2, 0, [1])
+    for _ in range(5):  # no retry due: unit 9 is left out of the rounds
+        dead.read()
+        dead.write()
+        scan(alive)
+    assert to_dead() == asked and alive.inputs["I0"] == 1
+    clock.advance(dead.RECONNECT_MIN_S)
+    scan(alive, dead)  # the back-off attempt: one request, no retries
+    assert to_dead() == asked + 1
+    assert alive.health is Health.OK and dead.health is Health.FAULT
+    alive.close()
+    dead.close()
+
+
+def test_same_port_under_two_names_is_refused(bridge: PtyBridge, peer: ModbusPeer,
+                                              clock: FakeClock, tmp_path: Path) -> None:
+    alias = tmp_path / "ttyRS485"
+    alias.symlink_to(bridge.driver_port)
+    a = make(bridge, clock, name="a")
+    b = make(bridge, clock, name="b", unit=2, port=str(alias))
+    a.open()
+    b.open()
+    assert a.ok and b.health is Health.FAULT
+    assert "already opened as" in (b.fault_reason or "")
+    a.close()
+    b.close()
+
+
 PEER_CMD = [sys.executable, os.path.join(HERE, "modbus_peer.py"), "--units", "1",
             "--set", "1:2:0:1,0,1"]
 
@@ -277,7 +334,7 @@ def test_poll_thread_bug_is_raised_in_the_scan(bridge: PtyBridge, peer: ModbusPe
     d = make(bridge, clock)
     d.open()
 
-    def broken(master: object) -> None:
+    def broken(master: object, probing: bool = False) -> None:
         raise ZeroDivisionError("bug in the poll thread")
 
     d._exchange = broken  # type: ignore[method-assign]
