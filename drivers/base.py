@@ -474,7 +474,9 @@ class PolledDriver(Driver):
             self._io_error = None
             self._fresh_ns = None
             seq = self._status_seq
-            self._out_seq += 1  # the first exchange writes the whole output image
+            # the first exchange writes the whole output image, as the plant holds it now
+            self._out_buf.update({p: int(v) for p, v in self.outputs.items()})
+            self._out_seq += 1
         self._start()
         self._started = True
         with self._lock:

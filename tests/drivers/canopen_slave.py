@@ -199,6 +199,18 @@ class Cia401Slave:
         self.node.nmt._state = PRE_OPERATIONAL
         self._hb_kick.set()  # restart the period: first heartbeat one period after boot-up
 
+    def drain(self, network: canopen.Network, timeout: float = 3.0) -> None:
+        """Wait until ``network`` (the master's) has handled every frame sent so far: a
+        marker frame goes out behind them on the same bus."""
+        seen = threading.Event()
+        network.subscribe(0x7F0, lambda *_: seen.set())
+        self.network.send_message(0x7F0, b"")
+        try:
+            if not seen.wait(timeout):
+                raise TimeoutError("the master's receive thread did not keep up")
+        finally:
+            network.unsubscribe(0x7F0)
+
     @property
     def state(self) -> int:
         return int(self.node.nmt._state)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterator
 
 import pytest
@@ -134,3 +135,35 @@ def test_recovery_with_back_off(rig: Rig, clock: FakeClock, driver: Driver) -> N
     assert rig.until(d, lambda: d.inputs[rig.inputs[0]] == 1)
     d.outputs[rig.outputs[0]] = 1
     assert rig.until(d, lambda: rig.output(rig.outputs[0]) == 1)
+
+
+def _lines(caplog: pytest.LogCaptureFixture, level: int) -> list[str]:
+    return [f"{r.levelname} {r.getMessage()}" for r in caplog.records
+            if r.name.startswith("drivers") and r.levelno >= level]
+
+
+def test_one_log_line_per_state_change(rig: Rig, clock: FakeClock, driver: Driver,
+                                       caplog: pytest.LogCaptureFixture) -> None:
+    d = opened(rig, driver)
+    caplog.set_level(logging.DEBUG)
+    caplog.clear()
+    rig.fault(d)
+    for _ in range(3):  # scans and failed reconnects while the bus stays broken
+        clock.advance(d.RECONNECT_MAX_S)
+        since = d.updates if isinstance(d, PolledDriver) else 0
+        d.read()
+        rig.settle_retry(d, since)
+        for _ in range(5):
+            rig.scan(d)
+    assert d.health is Health.FAULT
+    logged = _lines(caplog, logging.INFO)
+    assert len(logged) == 1 and logged[0].startswith("ERROR") and "fault" in logged[0], logged
+    caplog.clear()
+    rig.heal_bus(d)
+    clock.advance(d.RECONNECT_MAX_S)
+    assert rig.until(d, lambda: d.health is Health.OK), d.fault_reason
+    for _ in range(20):
+        rig.scan(d)
+    logged = _lines(caplog, logging.WARNING)
+    assert len(logged) == 1 and "recovered" in logged[0], logged
+    assert len(set(_lines(caplog, logging.INFO))) == len(_lines(caplog, logging.INFO))

@@ -3,6 +3,7 @@ drawer tester end to end on their driver's emulator or peer: start pressed -> va
 
 from __future__ import annotations
 
+import re
 import shutil
 import time
 import uuid
@@ -145,3 +146,22 @@ def test_modbus_module(tmp_path: Path) -> None:
         finally:
             plant.close()
         assert peer.get(1, 1, 0, 4) == [0, 0, 0, 0]
+
+
+@pytest.mark.parametrize("name", ["pi_mcp23017", "canopen_node", "modbus_module"])
+def test_wiring_is_documented(tmp_path: Path, name: str) -> None:
+    """The header of each example plant has one wiring line per bound point, naming the
+    variable; inputs say their contact (NC inverted by the binding, NO not)."""
+    text = (CONFIGS / name / "plant.yaml").read_text(encoding="utf-8")
+    header = [line[1:] for line in text.splitlines() if line.startswith("#")]
+    pdef = load_plant(layout(tmp_path, name))
+    for idef in pdef.instances.values():
+        for section, is_input in ((idef.inputs, True), (idef.outputs, False)):
+            for var, b in section.items():
+                rows = [h for h in header if re.search(rf"\b{re.escape(b.point or '')}\b", h)
+                        and re.search(rf"\b{var}\b", h)]
+                assert len(rows) == 1, f"{name}: no wiring line for {var} on {b.source}"
+                words = rows[0].split()
+                if is_input:
+                    assert ("NC" in words and "invert" in words) == b.invert, rows[0]
+                    assert ("NO" in words) == (not b.invert), rows[0]
