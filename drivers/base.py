@@ -18,6 +18,8 @@ A back-end **must** override:
   ``_write()`` (send ``self.outputs``), ``_close()``.
 It **may** override ``_safe_state()`` (default: every output 0, then ``_write()``) and
 ``_reopen()`` (default: ``_close()`` then ``_open()``), used for recovery with back-off.
+A back-end that writes outputs outside ``_write()`` (a device set up again after a
+reconnect or a power glitch) must write them all 0 while ``inhibited`` is set.
 
 A back-end whose bus is too slow to be served inside the scan builds on ``PolledDriver``:
 its own thread (or a bus library's receive thread) does the I/O and exchanges buffers with
@@ -475,7 +477,8 @@ class PolledDriver(Driver):
             self._fresh_ns = None
             seq = self._status_seq
             # the first exchange writes the whole output image, as the plant holds it now
-            self._out_buf.update({p: int(v) for p, v in self.outputs.items()})
+            self._out_buf.update({p: 0 if self.inhibited else int(v)
+                                  for p, v in self.outputs.items()})
             self._out_seq += 1
         self._start()
         self._started = True

@@ -156,6 +156,8 @@ class Mcp23017Driver(Driver):
 
     def _olat_image(self) -> list[int]:
         olat = [0, 0]
+        if self.inhibited:  # a set-up again (power glitch, reconnect) must not energise
+            return olat
         for point, value in self.outputs.items():
             if value:
                 port, bit = self._bit(point)

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable, Mapping
+from typing import Any
+
 from drivers.base import Direction, Driver, PointKind
 
 
@@ -9,9 +13,22 @@ class SimDriver(Driver):
     """Points of any name; inputs are set by a simulation script or a test, outputs recorded.
 
     A point used by a typed signal (``int``/``real``) holds numbers; otherwise bits.
+    ``written`` is the output image as last sent by ``write()`` (what a real bus would
+    show: nothing is sent while the driver is inhibited).
     """
 
     type_name = "sim"
+
+    def __init__(
+        self,
+        name: str,
+        config: Mapping[str, Any] | None = None,
+        *,
+        clock: Callable[[], int] = time.monotonic_ns,
+    ) -> None:
+        super().__init__(name, config, clock=clock)
+        #: the outputs as last written, point -> value
+        self.written: dict[str, Any] = {}
 
     def _check_point(self, point: str, direction: Direction) -> PointKind:
         return PointKind.INT if point.upper().startswith(("IR", "HR")) else PointKind.BOOL
@@ -23,7 +40,7 @@ class SimDriver(Driver):
         pass
 
     def _write(self) -> None:
-        pass
+        self.written.update(self.outputs)
 
     def _close(self) -> None:
         pass

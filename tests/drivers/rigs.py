@@ -113,7 +113,7 @@ class SimRig(Rig):
         self.d.set_input(point, value)
 
     def output(self, point: str) -> int:
-        return int(self.d.outputs[point])
+        return int(self.d.written.get(point, 0))
 
     def break_bus(self, d: Driver) -> None:
         def broken() -> None:

@@ -167,3 +167,25 @@ def test_one_log_line_per_state_change(rig: Rig, clock: FakeClock, driver: Drive
     logged = _lines(caplog, logging.WARNING)
     assert len(logged) == 1 and "recovered" in logged[0], logged
     assert len(set(_lines(caplog, logging.INFO))) == len(_lines(caplog, logging.INFO))
+
+
+def test_inhibited_driver_never_energises(rig: Rig, clock: FakeClock, driver: Driver) -> None:
+    """``inhibit(True)`` (the daemon's watchdog, a latched fault): outputs off, and nothing
+    turns them on again, not a stuck scan's image, not a set-up after a reconnect."""
+    d = opened(rig, driver)
+    for q in rig.outputs:
+        d.outputs[q] = 1
+    assert rig.until(d, lambda: all(rig.output(q) == 1 for q in rig.outputs))
+    d.inhibit(True)
+    assert wait_until(lambda: all(rig.output(q) == 0 for q in rig.outputs))
+    for q in rig.outputs:  # what a stuck scan thread writes afterwards
+        d.outputs[q] = 1
+    rig.fault(d)
+    rig.heal_bus(d)
+    clock.advance(d.RECONNECT_MAX_S)
+    assert rig.until(d, lambda: d.health is Health.OK), d.fault_reason
+    for _ in range(5):
+        rig.scan(d)
+    assert all(rig.output(q) == 0 for q in rig.outputs)
+    d.inhibit(False)  # acknowledged: the plant's image goes out again
+    assert rig.until(d, lambda: all(rig.output(q) == 1 for q in rig.outputs))
