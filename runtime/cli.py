@@ -90,13 +90,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     try:
         daemon = Daemon(pdef, sim=args.sim, trace=trace)
         server = _console_server(daemon) if pdef.consoles else None
-        if server is not None:
-            server.start()
-        try:
+        if server is None:
             return serve(daemon, for_ns)
-        finally:
-            if server is not None:
-                server.stop()
+        return serve(daemon, for_ns, server.start, server.stop)
     finally:
         if trace is not None:
             trace.close()
@@ -171,9 +167,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _register_modules(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Subcommands that live with their own module (each has a ``register(sub)``)."""
-    from runtime import check, chronogram, draw
+    from runtime import check, chronogram, draw, install, monitor
 
-    for module in (check, draw, chronogram):
+    for module in (check, draw, chronogram, install, monitor):
         module.register(sub)
 
 

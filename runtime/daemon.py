@@ -104,6 +104,7 @@ class Daemon:
         self.faults: collections.deque[tuple[float, str]] = collections.deque(
             maxlen=FAULT_HISTORY)
         self.stopped = False
+        self._stopping = False
         self.started_ns: int | None = None
         self._calls: collections.deque[_Call] = collections.deque()
         self._listeners: tuple[Callable[[int], None], ...] = ()
@@ -148,9 +149,9 @@ class Daemon:
     def stop(self, why: str = "stop requested") -> None:
         """Orderly stop: finish the current scan, every output off, save retained data,
         close the drivers. Idempotent."""
-        if self.stopped:
+        if self._stopping:
             return
-        self.stopped = True
+        self._stopping = True
         self.notifier.stopping(f"stopping: {why}")
         log.info("stopping: %s", why)
         self.scheduler.stop_event.set()
@@ -160,6 +161,7 @@ class Daemon:
                 log.error("the scan thread did not stop: outputs forced off from here")
                 for d in self.plant.drivers.values():
                     d.inhibit(True)
+        self.stopped = True
         self.watchdog.stop()
         self.plant.safe_state()
         if self._retain_writer is not None:
@@ -204,13 +206,14 @@ class Daemon:
     def _cycle(self, now: int) -> None:
         if self.started_ns is None:
             self.started_ns = now
-        if self.fault is not None or self.halted is not None:
-            self.plant.exchange(zero_outputs=True)
-            return
         try:
+            if self.fault is not None or self.halted is not None:
+                self.plant.exchange(zero_outputs=True)
+                return
             stopped = self.plant.cycle(now)
-        except Exception as exc:  # a bug in a chart or a driver: fail safe
-            log.exception("exception in a scan")
+        except Exception as exc:  # a bug in a chart or a driver: fail safe, keep looping
+            if self.fault is None:
+                log.exception("exception in a scan")
             self._enter_fault(f"exception in scan: {type(exc).__name__}: {exc}")
             return
         if stopped is not None:
@@ -223,8 +226,17 @@ class Daemon:
             log.error("FAULT: %s: every output off, charts stopped until ack", reason)
             self.faults.append((time.time(), reason))
             self._latch(reason)
-        self.fault = reason
-        self.plant.safe_state()
+            self.fault = reason
+        self._safe_state()
+
+    def _safe_state(self) -> None:
+        """Every output off, driver by driver: one driver's bug must not keep another's
+        outputs on."""
+        for d in self.plant.drivers.values():
+            try:
+                d.safe_state()
+            except Exception:  # noqa: BLE001 - logged; the others still go off
+                log.exception("driver %s: safe state failed", d.name)
 
     def _slow_scan(self, scan_ns: int) -> None:
         """The scheduler saw a scan longer than the watchdog (it returned, late)."""
@@ -283,6 +295,10 @@ class Daemon:
         path = self.pdef.retain_path
         if path is None:
             return
+        try:
+            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+        except OSError as exc:
+            log.error("retain directory of %s not usable: %s", path, exc)
         self.retain = RetainStore(path)
         loaded = self.retain.load()
         for problem in loaded.problems:
@@ -415,7 +431,8 @@ class Daemon:
         for name, inst in plant.instances.items():
             if inst.get("SFCError"):
                 plant.pulse(name, "SFCQuitError")
-                done.append(f"SFCError of {name} ({inst.get('SFCErrorStep')}) acknowledged")
+                step = inst.get("SFCErrorStep")
+                done.append(f"SFCError of {name}{f' ({step})' if step else ''} acknowledged")
         if not done:
             raise CommandRefused("nothing to acknowledge")
         return "; ".join(done)
@@ -482,8 +499,14 @@ class _TraceWriter:
             log.warning("trace: %d rows dropped (the disk was too slow)", self.dropped)
 
 
-def serve(daemon: Daemon, for_ns: int | None = None) -> int:
+def serve(daemon: Daemon, for_ns: int | None = None,
+          started: Callable[[], None] | None = None,
+          stopping: Callable[[], None] | None = None) -> int:
     """Run ``daemon`` in the foreground until SIGTERM/SIGINT (or ``for_ns``).
+
+    ``started`` is called once the scan runs and ``stopping`` before the orderly stop:
+    the console lives between the two, so it never sees a plant that has not restored
+    its retained data nor one whose drivers are closed.
 
     Returns the exit status: 0 after an orderly stop, 1 if the scan loop itself died
     (systemd's ``Restart=on-failure`` then restarts the service, which comes up in fault
@@ -499,6 +522,8 @@ def serve(daemon: Daemon, for_ns: int | None = None) -> int:
     status = 0
     try:
         daemon.start()
+        if started is not None:
+            started()
         end = None if for_ns is None else time.monotonic() + for_ns / 1e9
         while not stop.is_set():
             left = 0.5 if end is None else min(0.5, end - time.monotonic())
@@ -510,6 +535,11 @@ def serve(daemon: Daemon, for_ns: int | None = None) -> int:
             why[0], status = "the scan loop ended", 1
             break
     finally:
+        if stopping is not None:
+            try:
+                stopping()
+            except Exception:  # noqa: BLE001 - the plant must still stop safely
+                log.exception("while stopping")
         daemon.stop(why[0])
         for s, h in old.items():
             signal.signal(s, h)

@@ -1,0 +1,59 @@
+"""Fixtures of the daemon tests: a plant on a recording driver, daemons that are always
+stopped, and a check that no test leaves a softplc thread running."""
+
+from __future__ import annotations
+
+import sys
+import threading
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+from daemonkit import CHART, RecordingDriver, plant_yaml
+
+from runtime.daemon import Daemon
+from runtime.plant import Plant
+from runtime.plantfile import load_plant
+
+# the Modbus peer and the pty null-modem of the driver tests serve here too
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "drivers"))
+
+MakeDaemon = Callable[..., tuple[Daemon, RecordingDriver]]
+
+
+@pytest.fixture(autouse=True)
+def no_leaked_threads() -> Iterator[None]:
+    before = set(threading.enumerate())
+    yield
+    import time
+
+    end = time.monotonic() + 3.0
+    while True:
+        left = [t for t in threading.enumerate() if t not in before and t.is_alive()
+                and t.name.startswith(("softplc-", "console"))]
+        if not left or time.monotonic() > end:
+            break
+        time.sleep(0.01)
+    assert not left, f"threads left running: {[t.name for t in left]}"
+
+
+@pytest.fixture
+def make_daemon(tmp_path: Path) -> Iterator[MakeDaemon]:
+    """make_daemon(**plant_yaml options) -> (started daemon, its recording driver)."""
+    made: list[Daemon] = []
+    (tmp_path / "runner.yaml").write_text(CHART, encoding="utf-8")
+
+    def make(start: bool = True, **options: str) -> tuple[Daemon, RecordingDriver]:
+        path = tmp_path / f"plant{len(made)}.yaml"
+        path.write_text(plant_yaml(**options), encoding="utf-8")
+        pdef = load_plant(str(path))
+        drv = RecordingDriver("io", {"on_fault": options.get("on_fault", "stop")})
+        daemon = Daemon(pdef, plant=Plant(pdef, drivers={"io": drv}), manage_gc=False)
+        made.append(daemon)
+        if start:
+            daemon.start()
+        return daemon, drv
+
+    yield make
+    for d in made:
+        d.stop("end of test")

@@ -1,0 +1,194 @@
+"""The scan loop on a virtual clock: absolute deadlines, lateness, the overrun policy, the
+watchdog callback, idle work bounded by the guard band, cycle statistics."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+
+from runtime.scanstats import ScanStats, Summary
+from runtime.scheduler import Scheduler, Watchdog
+
+MS = 1_000_000
+
+
+class VirtualTime:
+    """A monotonic clock that only moves when the loop sleeps or a scan 'takes' time."""
+
+    def __init__(self, start: int = 5 * MS) -> None:
+        self.now = start
+        self.sleeps: list[int] = []
+
+    def clock(self) -> int:
+        return self.now
+
+    def sleep_until(self, deadline: int) -> None:
+        self.sleeps.append(deadline)
+        self.now = max(self.now, deadline)
+
+
+def run(durations: list[int], cycle: int = 10 * MS, watchdog: int = 100 * MS,
+        late: list[int] | None = None,
+        idle: list[int] | None = None) -> tuple[VirtualTime, list[int], Scheduler, list[int]]:
+    """Run len(durations) cycles; scan k takes durations[k] ns and wakes late[k] ns late."""
+    vt = VirtualTime()
+    wakes: list[int] = []
+    slow: list[int] = []
+    lateness = iter(late or [0] * len(durations))
+
+    def sleep_until(deadline: int) -> None:
+        vt.sleep_until(deadline)
+        vt.now += next(lateness)
+
+    def body(now: int) -> None:
+        wakes.append(now)
+        vt.now += durations[len(wakes) - 1]
+
+    def idle_fn(until: int) -> None:
+        if idle is not None:
+            idle.append(until)
+
+    s = Scheduler(body, cycle, watchdog, idle=idle_fn, on_watchdog=slow.append,
+                  clock=vt.clock, sleep_until=sleep_until, manage_gc=False)
+    s.run(cycles=len(durations))
+    return vt, wakes, s, slow
+
+
+def test_cycles_start_on_absolute_deadlines_whatever_the_scan_time() -> None:
+    vt, wakes, s, _ = run([1 * MS, 3 * MS, 7 * MS, 2 * MS, 9 * MS])
+    t0 = wakes[0]
+    assert [w - t0 for w in wakes] == [0, 10 * MS, 20 * MS, 30 * MS, 40 * MS]
+    assert s.stats.overruns == 0
+    assert s.stats.scan_max == 9 * MS and s.stats.scan_min == 1 * MS
+
+
+def test_lateness_is_measured_and_does_not_shift_the_schedule() -> None:
+    late = [0, 300_000, 0, 1_200_000, 50_000]
+    vt, wakes, s, _ = run([1 * MS] * 5, late=late)
+    t0 = wakes[0]
+    assert [w - t0 for w in wakes] == [0, 10 * MS + 300_000, 20 * MS, 30 * MS + 1_200_000,
+                                       40 * MS + 50_000]
+    assert s.stats.late_max == 1_200_000 and s.stats.late_last == 50_000
+    assert s.stats.lateness().max == 1_200_000
+
+
+def test_an_overrun_is_counted_and_the_schedule_re_anchored_without_catch_up() -> None:
+    # scan 1 takes 25 ms of a 10 ms cycle: it ends 15 ms after the next deadline
+    vt, wakes, s, _ = run([1 * MS, 25 * MS, 1 * MS, 1 * MS, 1 * MS])
+    t0 = wakes[0]
+    rel = [w - t0 for w in wakes]
+    assert rel[:2] == [0, 10 * MS]
+    end_of_late_scan = 10 * MS + 25 * MS
+    # one full period of rest after the late scan, then the normal period again: no burst
+    assert rel[2:] == [end_of_late_scan + 10 * MS, end_of_late_scan + 20 * MS,
+                       end_of_late_scan + 30 * MS]
+    assert s.stats.overruns == 1
+    assert s.stats.skipped == 1  # the deadline at 30 ms was passed over
+    assert min(b - a for a, b in zip(rel, rel[1:], strict=False)) == 10 * MS
+
+
+def test_a_scan_ending_exactly_on_the_next_deadline_is_an_overrun() -> None:
+    vt, wakes, s, _ = run([10 * MS, 1 * MS])
+    assert s.stats.overruns == 1 and s.stats.skipped == 0
+    assert wakes[1] - wakes[0] == 20 * MS
+
+
+def test_a_scan_longer_than_the_watchdog_is_reported() -> None:
+    vt, wakes, s, slow = run([1 * MS, 30 * MS, 1 * MS], watchdog=20 * MS)
+    assert slow == [30 * MS]
+
+
+def test_idle_work_ends_a_guard_band_before_the_next_deadline() -> None:
+    idle: list[int] = []
+    vt, wakes, s, _ = run([1 * MS, 1 * MS], idle=idle)
+    assert s.guard_ns == 2 * MS  # a fifth of a 10 ms cycle (and never below 300 µs)
+    assert idle == [wakes[0] + 8 * MS, wakes[0] + 18 * MS]
+
+
+def test_stop_event_ends_the_loop() -> None:
+    vt = VirtualTime()
+    s: Scheduler
+
+    def body(now: int) -> None:
+        if now - vt.sleeps[0] >= 30 * MS:
+            s.stop_event.set()
+
+    s = Scheduler(body, 10 * MS, 100 * MS, clock=vt.clock, sleep_until=vt.sleep_until,
+                  manage_gc=False)
+    s.run()
+    assert s.stats.count == 4
+    assert s.scanning_since == 0 and s.last_wake == 0
+
+
+def test_watchdog_thread_trips_on_a_hung_scan() -> None:
+    release = threading.Event()
+    tripped: list[int] = []
+    trip_seen = threading.Event()
+
+    def body(now: int) -> None:
+        release.wait(10)  # hangs until the test releases it
+
+    s = Scheduler(body, 5 * MS, 40 * MS, manage_gc=False)
+
+    def trip(running_ns: int) -> None:
+        tripped.append(running_ns)
+        trip_seen.set()
+
+    wd = Watchdog(s, 40 * MS, trip)
+    wd.start()
+    t = threading.Thread(target=s.run, kwargs={"cycles": 1}, name="softplc-test-scan")
+    t.start()
+    try:
+        assert trip_seen.wait(10), "the watchdog did not trip"
+        assert tripped[0] > 40 * MS
+    finally:
+        release.set()
+        t.join()
+        wd.stop()
+    assert len(tripped) == 1  # once per stuck scan
+
+
+def test_watchdog_thread_trips_when_the_loop_is_stuck_between_scans() -> None:
+    release = threading.Event()
+    trip_seen = threading.Event()
+
+    def idle(until: int) -> None:
+        release.wait(10)  # e.g. a console request that never returns
+
+    s = Scheduler(lambda now: None, 5 * MS, 40 * MS, idle=idle, manage_gc=False)
+    wd = Watchdog(s, 40 * MS, lambda ns: trip_seen.set())
+    wd.start()
+    t = threading.Thread(target=s.run, kwargs={"cycles": 1}, name="softplc-test-scan")
+    t.start()
+    try:
+        assert trip_seen.wait(10)
+    finally:
+        release.set()
+        t.join()
+        wd.stop()
+
+
+def test_stats_percentiles_over_the_window_and_totals_over_the_run() -> None:
+    st = ScanStats(window=100)
+    for i in range(1, 201):  # 1..200 µs; the window keeps 101..200
+        st.record(i * 1000, 0)
+    scan = st.scan()
+    assert isinstance(scan, Summary)
+    assert scan.min == 1000 and scan.max == 200_000  # whole run
+    assert scan.mean == pytest.approx(100_500)
+    assert scan.p50 in (150_000, 151_000)
+    assert scan.p99 == 199_000
+    assert scan.p999 == 200_000
+    d = st.as_dict()
+    assert d["cycles"] == 200 and d["scan_us"]["max"] == 200.0
+    st.reset()
+    assert st.scan().max == 0 and st.count == 0
+
+
+def test_stats_storage_does_not_grow() -> None:
+    st = ScanStats(window=64)
+    before = (len(st._scan), len(st._late))
+    for i in range(10_000):
+        st.record(i, i)
+    assert (len(st._scan), len(st._late)) == before
