@@ -170,8 +170,8 @@ def apply(p: Plan, root: str | None = None, force: bool = False) -> list[str]:
     for path, data in p.files.items():
         t = target(path)
         if os.path.exists(t):
-            with open(t, "rb") as f:
-                if f.read() != data:
+            with open(t, "rb") as old:
+                if old.read() != data:
                     clashes.append(t)
     if clashes and not force:
         raise InstallError("these files exist with other contents and are left alone: "
@@ -184,8 +184,8 @@ def apply(p: Plan, root: str | None = None, force: bool = False) -> list[str]:
         if t in clashes:
             shutil.copy2(t, f"{t}.bak-{stamp}")
             done.append(f"kept the old {t} as {t}.bak-{stamp}")
-        with open(t, "wb") as f:
-            f.write(data)
+        with open(t, "wb") as out:
+            out.write(data)
         os.chmod(t, 0o644)
         done.append(f"wrote {t}")
     for cmd in p.commands:
