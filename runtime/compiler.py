@@ -626,8 +626,11 @@ class Compiler:
             for s in g.pre:
                 self.sample_edges(out, [s.node])
                 self.stmt(out, s.node)
-        out("# 2. chart flags")
-        out("frozen = paused = False; run = True")
+        out("# 2. chart flags (one test when none is set: the usual scan)")
+        out("frozen = paused = tip = False; run = True")
+        out("if v_SFCInit or initpend or v_SFCReset or resetprev or v_SFCQuitError or "
+            "quitprev or v_SFCPause or v_SFCTip or tipprev:")
+        out.indent()
         out("if v_SFCInit:")
         out.indent()
         self.to_initial(out, mark_entered=False)
@@ -664,6 +667,7 @@ class Compiler:
         out.dedent()
         out("resetprev = v_SFCReset; quitprev = v_SFCQuitError")
         out("tip = v_SFCTip and not tipprev; tipprev = v_SFCTip")
+        out.dedent()
         if self.codesys:
             if g.transitions:
                 out("# 3. CODESYS: the situation decided by the last scan becomes current "
