@@ -85,10 +85,17 @@ def cmd_run(args: argparse.Namespace) -> int:
     for_ns = None
     if args.for_ is not None:
         for_ns = time_value(args.for_, Loc("--for", 1, 1), "--for")
+    if args.script is not None and not args.sim:
+        sys.stderr.write("softplc run: error: --script plays simulated inputs: add --sim\n")
+        return 2
     pdef = load_plant(args.plant)
     trace = open(args.trace, "w", encoding="utf-8") if args.trace else None  # noqa: SIM115
     try:
         daemon = Daemon(pdef, sim=args.sim, trace=trace)
+        if args.script is not None:
+            from runtime.replay import ScriptPlayer
+
+            daemon.add_listener(ScriptPlayer(daemon.plant, args.script))
         server = _console_server(daemon) if pdef.consoles else None
         if server is None:
             return serve(daemon, for_ns)
@@ -154,6 +161,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--for", dest="for_", metavar="DURATION",
                    help="stop after this long (e.g. 10s), an orderly stop")
     r.add_argument("--trace", metavar="FILE", help="write one JSON line per cycle")
+    r.add_argument("--script", metavar="S.yaml",
+                   help="with --sim: play this simulation script's input changes in real time")
     r.set_defaults(func=cmd_run)
 
     h = sub.add_parser("hash-pin", help="print the hash of a console PIN for the plant file")

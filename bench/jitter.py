@@ -1,0 +1,139 @@
+"""Benchmark: how steadily ``softplc run`` holds its cycle (not a test: prints a table).
+
+Runs the daemon in this process on simulated I/O (the same Daemon, Scheduler and generated
+plant cycle as ``softplc run --sim``) for each combination of
+
+- plant: the two drawer testers of configs/drawer_tester/plant_sim.yaml, or 100 testers;
+- cycle: 1 ms and 10 ms;
+- load: the other core idle, or loaded by a busy process;
+
+and reports the wake-up lateness (p50, p99, p99.9, max), the scan time (p50, p99, max)
+and the overruns. The drawers move: between cycles a model closes each tester's limit
+switches after its contactor (open -> iAbierto, close -> iCerrado) and presses MARCHA now
+and then, so the charts keep evolving (gsAbrir <-> gsCerrar) rather than idling.
+Extra rows: Python's own garbage collector instead of the scheduler's idle-time collection
+(``gc: python``), and SCHED_FIFO (needs root or CAP_SYS_NICE).
+
+    python bench/jitter.py [--seconds 60] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from typing import Any
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+
+from runtime.daemon import Daemon  # noqa: E402
+from runtime.plantfile import load_plant  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+CHART = os.path.join(ROOT, "configs", "drawer_tester", "drawer_tester.yaml")
+
+
+def plant_file(directory: str, n: int, cycle_ms: int, fifo: bool) -> str:
+    lines = [f"plc: {{cycle: {cycle_ms}ms, watchdog: {max(50, 10 * cycle_ms)}ms"
+             + (", realtime: {priority: 50}" if fifo else "") + "}",
+             "drivers: {sim: {type: sim}}", "instances:"]
+    for i in range(n):
+        b = 8 * i
+        lines += [f"  t{i}:", f"    grafcet: {CHART}",
+                  f"    inputs: {{iParo: {{from: sim.I{b}, invert: true}}, iMarcha: "
+                  f"sim.I{b + 1}, iAbierto: sim.I{b + 2}, iCerrado: sim.I{b + 3}}}",
+                  f"    outputs: {{oAbrir: sim.Q{b}, oCerrar: sim.Q{b + 1}, oParado: "
+                  f"sim.Q{b + 2}, oTest: sim.Q{b + 3}}}"]
+    path = os.path.join(directory, f"plant_{n}_{cycle_ms}{'_fifo' if fifo else ''}.yaml")
+    with open(path, "w", encoding="utf-8") as f:
+        f.write("\n".join(lines) + "\n")
+    return path
+
+
+class DrawerModel:
+    """The testers' drawers, moved between cycles in the scan thread (a daemon listener):
+    the limit switches follow the contactors one cycle later; MARCHA is pressed every
+    200 cycles; the NC stop buttons are released (physical 1)."""
+
+    def __init__(self, daemon: Daemon, n: int) -> None:
+        sim = daemon.plant.drivers["sim"]
+        self.inp, self.out, self.n = sim.inputs, sim.outputs, n
+        for i in range(n):
+            self.inp[f"I{8 * i}"] = 1
+            self.inp[f"I{8 * i + 3}"] = 1
+
+    def __call__(self, cycle: int) -> None:
+        inp, out = self.inp, self.out
+        press = 1 if cycle % 200 < 5 else 0
+        for i in range(self.n):
+            b = 8 * i
+            inp[f"I{b + 1}"] = press
+            if out[f"Q{b}"]:
+                inp[f"I{b + 2}"], inp[f"I{b + 3}"] = 1, 0
+            elif out[f"Q{b + 1}"]:
+                inp[f"I{b + 2}"], inp[f"I{b + 3}"] = 0, 1
+
+
+def run_one(path: str, n: int, seconds: float, manage_gc: bool) -> dict[str, Any]:
+    daemon = Daemon(load_plant(path), sim=True, manage_gc=manage_gc)
+    daemon.add_listener(DrawerModel(daemon, n))
+    daemon.start()
+    time.sleep(1.0)  # warm-up, not counted
+    daemon.call(daemon.scan_stats.reset)
+    time.sleep(seconds)
+    stats = daemon.call(lambda: (daemon.scan_stats.lateness(), daemon.scan_stats.scan(),
+                                 daemon.scan_stats.overruns, daemon.scan_stats.count,
+                                 daemon.scan_stats.gc_runs))
+    steps = {name: inst.active_steps() for name, inst in
+             list(daemon.plant.instances.items())[:1]}
+    daemon.stop("bench")
+    late, scan, overruns, count, gc_runs = stats
+    return {"late": late, "scan": scan, "overruns": overruns, "cycles": count,
+            "gc_runs": gc_runs, "steps": steps}
+
+
+def busy_core() -> subprocess.Popen[bytes]:
+    return subprocess.Popen([sys.executable, "-c", "while True: pass"])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seconds", type=float, default=60.0, help="measured time per row")
+    ap.add_argument("--quick", action="store_true", help="5 s per row")
+    args = ap.parse_args()
+    seconds = 5.0 if args.quick else args.seconds
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        combos: list[tuple[int, int, bool, bool, bool]] = []
+        for n in (2, 100):
+            for cycle_ms in (10, 1):
+                for loaded in (False, True):
+                    combos.append((n, cycle_ms, loaded, True, False))
+        combos += [(2, 10, True, False, False), (100, 10, True, False, False),
+                   (2, 1, True, True, True), (100, 1, True, True, True)]
+        for n, cycle_ms, loaded, managed, fifo in combos:
+            path = plant_file(tmp, n, cycle_ms, fifo)
+            load = busy_core() if loaded else None
+            try:
+                r = run_one(path, n, seconds, managed)
+            finally:
+                if load is not None:
+                    load.kill()
+                    load.wait()
+            label = (f"{n:>3} inst {cycle_ms:>2} ms {'loaded' if loaded else 'idle  '} "
+                     f"{'gc:idle  ' if managed else 'gc:python'} {'FIFO' if fifo else '    '}")
+            late, scan = r["late"], r["scan"]
+            rows.append(label)
+            sys.stdout.write(
+                f"{label} | late p50 {late.p50 / 1e3:7.1f} p99 {late.p99 / 1e3:7.1f} "
+                f"p99.9 {late.p999 / 1e3:7.1f} max {late.max / 1e3:8.1f} us | scan p50 "
+                f"{scan.p50 / 1e3:7.1f} p99 {scan.p99 / 1e3:7.1f} max {scan.max / 1e3:8.1f}"
+                f" us | overruns {r['overruns']:>4} / {r['cycles']} | gc {r['gc_runs']}\n")
+            sys.stdout.flush()
+
+
+if __name__ == "__main__":
+    main()
