@@ -229,11 +229,11 @@ class Logic:
         if isinstance(n, A.Lit):
             return bool(n.value)
         if isinstance(n, A.Name):
-            return env.get(n.name, age)
+            return env.truth(n.name, age)
         if isinstance(n, A.StepFlag):
             if n.flag == "X" and age == 0 and n.step in env.true_steps:
                 return True
-            return env.get(f"{n.step}.X", age)
+            return env.truth(f"{n.step}.X", age)
         if isinstance(n, A.Unary):
             if n.op == "NOT":
                 return _not(self.ev(n.operand, age, env))
@@ -253,7 +253,7 @@ class Logic:
                 return None if a is None or b is None else a != b
             if n.op in COMPARE:
                 return self._compare(n, age, env)
-        return env.get(unparse(n), age)
+        return env.truth(unparse(n), age)
 
     def _compare(self, n: A.Binary, age: int, env: Env) -> bool | None:
         simple = self._simple(n)
@@ -264,7 +264,7 @@ class Logic:
         if self.is_bool(n.left) and self.is_bool(n.right):
             a, b = self.ev(n.left, age, env), self.ev(n.right, age, env)
             return None if a is None or b is None else _cmp(n.op, int(a), int(b))
-        return env.get(unparse(n), age)
+        return env.truth(unparse(n), age)
 
     def _simple(self, n: A.Binary) -> tuple[str, str, Any] | None:
         """``term OP constant`` (either way round) as (key, op, constant)."""
@@ -399,6 +399,11 @@ class Env:
 
     def get(self, key: str, age: int) -> Any:
         return self.values.get((key, age))
+
+    def truth(self, key: str, age: int) -> bool | None:
+        """A bool atom's value (None: not assigned yet)."""
+        v = self.values.get((key, age))
+        return None if v is None else bool(v)
 
 
 @dataclass

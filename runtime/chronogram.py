@@ -179,7 +179,7 @@ def _nice_step(span: float, target: int = 10) -> float:
     raw = span / max(1, target)
     if raw <= 0:
         return 1.0
-    mag = 10 ** math.floor(math.log10(raw))
+    mag = 10.0 ** math.floor(math.log10(raw))
     for m in (1, 2, 5, 10):
         if raw <= m * mag:
             return m * mag

@@ -1,0 +1,197 @@
+"""``softplc draw`` is readable: for every chart in configs/ and in both layouts, no text or
+box overlaps another, no line runs through a text or a box, the main line of a simple
+sequence is straight, links back up have arrows; conditions are in the seed notation and
+mean what the file says."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import re
+import shutil
+import xml.etree.ElementTree as ET
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from runtime import draw
+from runtime.check import file_kind
+from runtime.check_logic import unparse
+from runtime.language import load_grafcet
+
+ROOT = Path(__file__).resolve().parents[2]
+SVG = "{http://www.w3.org/2000/svg}"
+LAYOUTS = ["python"] + (["dot"] if shutil.which("dot") else [])
+CHARTS = sorted(p for p in (ROOT / "configs").glob("*/*.yaml") if file_kind(str(p)) == "grafcet")
+
+Box = tuple[float, float, float, float]  # x0 y0 x1 y1
+
+
+def text_box(t: ET.Element) -> Box:
+    size = float(t.get("font-size", "12"))
+    x, y = float(t.get("x", "0")), float(t.get("y", "0"))
+    w = draw.text_w("".join(t.itertext()), size)
+    x0 = {"start": x, "middle": x - w / 2, "end": x - w}[t.get("text-anchor", "start")]
+    return (x0, y - 0.75 * size, x0 + w, y + 0.2 * size)
+
+
+def rect_box(r: ET.Element) -> Box:
+    x, y = float(r.get("x", "0")), float(r.get("y", "0"))
+    return (x, y, x + float(r.get("width", "0")), y + float(r.get("height", "0")))
+
+
+def overlap(a: Box, b: Box, margin: float = 0.5) -> bool:
+    return (a[0] + margin < b[2] and b[0] + margin < a[2] and a[1] + margin < b[3]
+            and b[1] + margin < a[3])
+
+
+def segment_hits(p: tuple[float, float], q: tuple[float, float], b: Box,
+                 shrink: float = 1.5) -> bool:
+    """Does the horizontal or vertical segment pq pass through the inside of b?"""
+    x0, y0, x1, y1 = b[0] + shrink, b[1] + shrink, b[2] - shrink, b[3] - shrink
+    if x0 >= x1 or y0 >= y1:
+        return False
+    if abs(p[1] - q[1]) < 0.01:  # horizontal
+        return y0 < p[1] < y1 and min(p[0], q[0]) < x1 and max(p[0], q[0]) > x0
+    return x0 < p[0] < x1 and min(p[1], q[1]) < y1 and max(p[1], q[1]) > y0
+
+
+def parse(svg_path: str) -> tuple[list[tuple[str, Box]], list[list[tuple[float, float]]]]:
+    """Boxes (what, box) and link polylines of a drawing."""
+    root = ET.parse(svg_path).getroot()
+    boxes: list[tuple[str, Box]] = []
+    for t in root.iter(f"{SVG}text"):
+        if t.get("class") != "title":
+            boxes.append((f"text {''.join(t.itertext())!r}", text_box(t)))
+    for r in root.iter(f"{SVG}rect"):
+        if r.get("class") == "step":
+            boxes.append((f"step at {r.get('x')},{r.get('y')}", rect_box(r)))
+    for g in root.iter(f"{SVG}g"):
+        if g.get("class") == "actions":
+            cells = [rect_box(r) for r in g.iter(f"{SVG}rect")]
+            boxes.append((f"actions of {g.get('data-step')}", (
+                min(b[0] for b in cells), min(b[1] for b in cells),
+                max(b[2] for b in cells), max(b[3] for b in cells))))
+    lines = []
+    for pl in root.iter(f"{SVG}polyline"):
+        if pl.get("class") == "transition":
+            continue
+        pts = [tuple(float(v) for v in xy.split(",")) for xy in pl.get("points", "").split()]
+        lines.append([(p[0], p[1]) for p in pts])
+    return boxes, lines
+
+
+def inside(a: Box, b: Box) -> bool:
+    return b[0] - 0.5 <= a[0] and a[2] <= b[2] + 0.5 and b[1] - 0.5 <= a[1] and a[3] <= b[3] + 0.5
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+@pytest.mark.parametrize("chart", CHARTS, ids=[p.parent.name for p in CHARTS])
+def test_nothing_overlaps_and_no_line_crosses_a_text(chart: Path, layout: str,
+                                                     tmp_path: Path) -> None:
+    out = str(tmp_path / "c.svg")
+    draw.draw(str(chart), out, layout=layout)
+    boxes, lines = parse(out)
+    for (wa, a), (wb, b) in itertools.combinations(boxes, 2):
+        if inside(a, b) or inside(b, a):  # a name in its step, a text in its action cell
+            continue
+        assert not overlap(a, b), f"{wa} overlaps {wb}"
+    for what, b in boxes:
+        for pts in lines:
+            for p, q in itertools.pairwise(pts):
+                assert not segment_hits(p, q, b), f"a line {p}-{q} crosses {what}"
+
+
+def _main_line_x(svg_path: str, names: list[str]) -> list[float]:
+    root = ET.parse(svg_path).getroot()
+    xs = {}
+    for t in root.iter(f"{SVG}text"):
+        if t.get("class") == "step-name":
+            xs["".join(t.itertext())] = float(t.get("x", "0"))
+    return [xs[n] for n in names]
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_main_line_is_straight_and_back_links_have_arrows(layout: str, tmp_path: Path) -> None:
+    out = str(tmp_path / "d.svg")
+    draw.draw(str(ROOT / "configs/drawer_tester/drawer_tester.yaml"), out, layout=layout)
+    xs = _main_line_x(out, ["gsParado", "gsAbrir", "gsCerrar"])
+    assert max(xs) - min(xs) < 0.5, xs
+    root = ET.parse(out).getroot()
+    arrows = [p for p in root.iter(f"{SVG}polygon") if p.get("class") == "arrow"]
+    assert len(arrows) == 2  # back to gsParado (from tParo and iParo) and to gsAbrir
+    backs = [p for p in root.iter(f"{SVG}polyline") if p.get("class") == "back"]
+    assert len(backs) == 3 + 2  # one per link leaving, one per lane
+    out = str(tmp_path / "r.svg")
+    draw.draw(str(ROOT / "configs/reactor/reactor.yaml"), out, layout=layout)
+    xs = _main_line_x(out, ["gsAbrirVA", "gsLlenarA", "gsCerrarVA", "gsAbrirVB", "gsLlenarB",
+                            "gsCerrarVB", "eDerecha", "eIzquierda"])
+    assert max(xs) - min(xs) < 0.5, xs
+
+
+# -- the seed notation ------------------------------------------------------------------
+@pytest.mark.parametrize(("written", "seed"), [
+    ("RE iA", "↑iA"),
+    ("iA AND NOT iB OR iC XOR iD", "iA·iB' + (iC XOR iD)"),
+    ("NOT (iA OR iB)", "(iA + iB)'"),
+    ("NOT RE iA", "(↑iA)'"),
+    ("↑iA'", "↑iA'"),
+    ("FE iA AND gsA.T >= T#5s", "↓iA·(gsA.T >= 5s)"),
+    ("iA + sN > 3", "iA + sN > 3"),
+    ("iA + (sN > 3)", "iA + (sN > 3)"),
+    ("(iA + iB)·iC", "(iA + iB)·iC"),
+    ("iA·(iB·iC)", "iA·iB·iC"),
+    ("sN - (sN - 1) = 1", "sN - (sN - 1) = 1"),
+    ("TRUE", "1"),
+])
+def test_seed_notation(write: Callable[[str, str], str], written: str, seed: str) -> None:
+    path = write("c.yaml", f"""\
+        grafcet: T
+        inputs: [iA, iB, iC, iD]
+        memory: {{sN: 0}}
+        steps:
+          gsA: {{initial: true, actions: ["P1 sN := sN + 1"]}}
+          gsB: {{}}
+        transitions:
+          - {{from: gsA, to: gsB, when: "{written}"}}
+          - {{from: gsB, to: gsA, when: iA}}
+        """)
+    g = load_grafcet(path)
+    assert draw.seed_text(g.transitions[0].cond) == seed
+
+
+def _round_trip(path: Path, tmp: Path) -> None:
+    """Every condition drawn, read back, is the same expression."""
+    g = load_grafcet(str(path))
+    text = path.read_text(encoding="utf-8")
+    for k, t in enumerate(g.transitions):
+        seed = draw.seed_text(t.cond)
+        lines = text.splitlines()
+        line = lines[t.loc.line - 1]
+        new, n = re.subn(r"when:\s*(\"[^\"]*\"|'[^']*'|[^,}]+)",
+                         "when: " + json.dumps(seed, ensure_ascii=False).replace("\\", "\\\\"),
+                         line, count=1)
+        assert n == 1, line
+        lines[t.loc.line - 1] = new
+        copy = tmp / f"{k}_{path.name}"
+        copy.write_text("\n".join(lines) + "\n", encoding="utf-8")
+        again = load_grafcet(str(copy)).transitions[k]
+        assert unparse(again.cond) == unparse(t.cond), (t.text, seed)
+
+
+@pytest.mark.parametrize("chart", CHARTS, ids=[p.parent.name for p in CHARTS])
+def test_conditions_drawn_mean_what_the_file_says(chart: Path, tmp_path: Path) -> None:
+    (tmp_path / chart.parent.name).mkdir()
+    _round_trip(chart, tmp_path / chart.parent.name)
+
+
+def test_action_boxes_drop_comments_and_keep_lines(tmp_path: Path) -> None:
+    out = str(tmp_path / "d.svg")
+    draw.draw(str(ROOT / "configs/drawer_tester/drawer_tester.yaml"), out, layout="python")
+    root = ET.parse(out).getroot()
+    actions = {"".join(t.itertext()): float(t.get("x", "0")) for t in root.iter(f"{SVG}text")
+               if t.get("class") == "action"}
+    assert "IF sCierres >= 1000 THEN" in actions and "END_IF" in actions
+    assert actions["sCierres := 0"] > actions["END_IF"]  # indented
+    assert not any("//" in a or "stop pressed" in a for a in actions)
