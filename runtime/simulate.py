@@ -20,6 +20,7 @@ from runtime.language import check_keys, expect_type, time_value
 from runtime.model import VarKind
 from runtime.plant import Plant
 from runtime.plantfile import load_plant
+from runtime.typecheck import FB_MEMBERS
 from runtime.yamlsrc import YList, YMap, load_yaml
 
 T = A.Type
@@ -129,6 +130,11 @@ def trace_columns(plant: Plant) -> list[tuple[str, Callable[[], Any]]]:
         for s in g.steps:
             cols.append((f"{name}.{s}.X", _slot(m, ix[f"{s}.X"], "bool")))
             cols.append((f"{name}.{s}.T_ms", _step_ms(inst, s)))
+        for b in g.blocks.values():  # extra keys: function-block outputs (ET in ms)
+            for member, (mtype, is_input) in FB_MEMBERS[b.kind].items():
+                if not is_input:
+                    cols.append((f"{name}.{b.name}.{member}",
+                                 _member(m, ix[b.name], member, mtype)))
     for dname, d in plant.drivers.items():
         for p in d.inputs:
             cols.append((f"{dname}.{p}", _point(d.inputs, p)))
@@ -145,6 +151,15 @@ def _slot(m: list[Any], i: int, kind: str) -> Callable[[], Any]:
     if kind == "ms":
         return lambda: m[i] // 1_000_000
     return lambda: m[i]
+
+
+def _member(m: list[Any], i: int, member: str, mtype: A.Type) -> Callable[[], Any]:
+    """Getter of a function block's output: bools as 0/1, times in whole ms."""
+    if mtype is T.BOOL:
+        return lambda: 1 if getattr(m[i], member) else 0
+    if mtype is T.TIME:
+        return lambda: getattr(m[i], member) // 1_000_000
+    return lambda: getattr(m[i], member)
 
 
 def _step_ms(inst: Instance, step: str) -> Callable[[], int]:

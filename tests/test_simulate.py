@@ -111,3 +111,117 @@ def test_cli_writes_trace_and_vcd(write, drawer, tmp_path):  # type: ignore[no-u
     assert len(lines) == 20 and json.loads(lines[0])["cycle"] == 0
     text = vcd.read_text()
     assert "$enddefinitions" in text and "t1.gsAbrir.X" in text and "#30" in text
+
+
+TYPED = """\
+grafcet: Typed
+inputs: [iGo, {iN: int}]
+outputs: [oRun, {oN: int}]
+memory: {sWait: 1500ms, sK: 0, sR: 0.5}
+blocks: {ton: TON}
+pre:
+  - ton(IN := iGo, PT := 50ms)
+steps:
+  s0: {initial: true}
+  s1: {actions: [oRun, "N oN := iN * 2", "P1 sK := sK + 1"]}
+transitions:
+  - {from: s0, to: s1, when: ton.Q}
+"""
+
+TYPED_PLANT = """\
+plc: {cycle: 10ms}
+drivers: {sim: {type: sim}, io: {type: sim}}
+instances:
+  a:
+    grafcet: typed.yaml
+    inputs: {iGo: sim.I0, iN: sim.IR0}
+    outputs: {oRun: sim.Q0, oN: io.HR0}
+  b:
+    grafcet: typed.yaml
+    inputs: {iGo: a.oRun, iN: a.oN}
+    outputs: {oRun: io.Q0, oN: io.HR1}
+"""
+
+
+def test_trace_keys_are_exactly_the_contracts(write):  # type: ignore[no-untyped-def]
+    write("typed.yaml", TYPED)
+    sim = Simulation(write("plant.yaml", TYPED_PLANT), write("s.yaml", "cycles: 1\n"))
+    row = next(iter(sim.run()))
+    flags = ["SFCInit", "SFCReset", "SFCPause", "SFCError", "SFCEnableLimit",
+             "SFCQuitError", "SFCTipMode", "SFCTip", "SFCErrorStep", "SFCCurrentStep"]
+    want = {"cycle", "t_ms"}
+    for i in ("a", "b"):
+        want |= {f"{i}.{n}" for n in ("iGo", "iN", "oRun", "oN", "sWait", "sK", "sR", *flags)}
+        want |= {f"{i}.{s}.{k}" for s in ("s0", "s1") for k in ("X", "T_ms")}
+        want |= {f"{i}.ton.Q", f"{i}.ton.ET"}  # extra keys: function-block outputs
+    want |= {"sim.I0", "sim.IR0", "sim.Q0", "sim.ok", "io.HR0", "io.Q0", "io.HR1", "io.ok"}
+    assert set(row) == want
+
+
+def test_trace_values_bools_as_0_1_times_as_whole_ms_numbers_as_they_are(
+        write):  # type: ignore[no-untyped-def]
+    write("typed.yaml", TYPED)
+    script = write("s.yaml", "cycles: 12\nset:\n  - {at: 0ms, sim.I0: 1, a.iN: 21}\n")
+    rows = list(Simulation(write("plant.yaml", TYPED_PLANT), script).run())
+    r = rows[5]  # a: ton.Q at 50 ms (pre) -> s1 in that very scan (immediate)
+    assert (r["a.s1.X"], r["a.oRun"], r["sim.Q0"], r["a.oN"], r["io.HR0"]) == (1, 1, 1, 42, 42)
+    assert r["a.sWait"] == 1500 and r["a.sR"] == 0.5 and r["a.sK"] == 1
+    assert r["a.ton.ET"] == 50 and r["a.ton.Q"] == 1
+    assert r["a.SFCCurrentStep"] == "s1" and r["a.SFCErrorStep"] == ""
+    assert rows[4]["a.ton.ET"] == 40 and rows[4]["a.s1.X"] == 0
+    # b reads a's outputs of this cycle (a is scanned first): its TON starts at 50 ms
+    assert r["b.iGo"] == 1 and r["b.iN"] == 42 and r["b.ton.ET"] == 0
+    assert rows[9]["b.s1.X"] == 0 and rows[10]["b.s1.X"] == 1 and rows[10]["b.ton.ET"] == 50
+    for row in rows:
+        for k, v in row.items():
+            assert isinstance(v, int | float | str) and not isinstance(v, bool), (k, v)
+
+
+def test_cli_cycles_overrides_the_script_and_no_trace_writes_nothing(
+        write, drawer, tmp_path):  # type: ignore[no-untyped-def]
+    p, s = write("plant.yaml", PLANT), write("script.yaml", SCRIPT)
+    trace = tmp_path / "t.jsonl"
+    r = subprocess.run([sys.executable, "-m", "runtime.cli", "simulate", p, "--script", s,
+                        "--cycles", "5", "--trace", str(trace)], capture_output=True,
+                       text=True, check=False)
+    assert r.returncode == 0, r.stderr
+    assert [json.loads(x)["cycle"] for x in trace.read_text().splitlines()] == [0, 1, 2, 3, 4]
+    before = sorted(tmp_path.iterdir())
+    r = subprocess.run([sys.executable, "-m", "runtime.cli", "simulate", p, "--script", s],
+                       capture_output=True, text=True, check=False)
+    assert r.returncode == 0 and "simulated 20 scans" in r.stderr
+    assert sorted(tmp_path.iterdir()) == before
+
+
+def test_vcd_holds_the_trace_values_at_their_times(write, drawer):  # type: ignore
+    import io
+
+    from runtime.simulate import write_vcd
+
+    rows = list(Simulation(write("plant.yaml", PLANT), write("script.yaml", SCRIPT)).run())
+    buf = io.StringIO()
+    write_vcd(rows, buf)
+    ids: dict[str, str] = {}
+    values: dict[str, dict[int, str]] = {}
+    t = -1
+    for line in buf.getvalue().splitlines():
+        parts = line.split()
+        if parts[0] == "$var":
+            ids[parts[4]] = parts[3]
+        elif line.startswith("#"):
+            t = int(line[1:])
+        elif t >= 0:
+            if line[0] in "bsr":
+                value, code = parts[0][1:], parts[1]
+            else:
+                value, code = line[0], line[1:]
+            values.setdefault(code, {})[t] = value
+    for key in ("t1.gsAbrir.X", "t1.sCierres", "sim.Q0", "t1.SFCCurrentStep"):
+        code, last = ids[key], None
+        for row in rows:
+            if row["t_ms"] in values[code]:
+                last = values[code][row["t_ms"]]
+            v = row[key]
+            want = format(v, "b") if key == "t1.sCierres" else str(v) if not isinstance(
+                v, str) else (v or "-")
+            assert last == want, (key, row["t_ms"], last, want)
