@@ -19,12 +19,14 @@ import fnmatch
 import html
 import json
 import math
+import os
 import re
 import sys
 from dataclasses import dataclass
 from typing import Any
 
 from runtime.errors import Loc, SourceError
+from runtime.parser import parse_time
 
 FONT = "DejaVu Sans, Helvetica, Arial, sans-serif"
 ROW_H = 18.0
@@ -175,6 +177,14 @@ def series(rows: list[dict[str, Any]], key: str, kind: str | None = None) -> Ser
     return Series(key, kind, changes)
 
 
+def _label(group: str, key: str) -> str:
+    """A key as written beside its row: without the instance when the heading names it."""
+    inst = group.split(":", 1)[0] if ":" in group else ""
+    if inst and key.startswith(inst + "."):
+        return key[len(inst) + 1:]
+    return key
+
+
 def _nice_step(span: float, target: int = 10) -> float:
     raw = span / max(1, target)
     if raw <= 0:
@@ -211,8 +221,8 @@ def chronogram_svg(rows: list[dict[str, Any]], groups: list[tuple[str, list[str]
     t_last = float(rows[-1]["t_ms"])
     dt = (t_last - float(rows[-2]["t_ms"])) if len(rows) > 1 else 1.0
     t_end = t_last + (dt if dt > 0 else 1.0)
-    all_names = [k for _, ks in groups for k in ks]
-    label_w = max([len(k) * CHAR_W for k in all_names] + [80.0]) + 16
+    shown = {k: _label(gtitle, k) for gtitle, ks in groups for k in ks}
+    label_w = max([len(v) * CHAR_W for v in shown.values()] + [80.0]) + 16
     left, plot_w = label_w + 10, max(200.0, width - label_w - 30)
 
     def x(t: float) -> float:
@@ -220,9 +230,11 @@ def chronogram_svg(rows: list[dict[str, Any]], groups: list[tuple[str, list[str]
 
     parts: list[str] = []
     y = 40.0 if title else 16.0
+    y_grid = y
     if title:
         parts.append(f'<text x="10" y="22" font-size="14" font-weight="bold">{_esc(title)}'
                      f'</text>')
+    grid_at = len(parts)  # the grid goes under the signals
     for gtitle, keys in groups:
         y += 6
         parts.append(f'<text x="10" y="{y + 10:.1f}" font-size="11" font-weight="bold" '
@@ -232,8 +244,8 @@ def chronogram_svg(rows: list[dict[str, Any]], groups: list[tuple[str, list[str]
             s = series(rows, k, (kinds or {}).get(k))
             top, bot = y, y + ROW_H
             mid = (top + bot) / 2
-            parts.append(f'<text x="10" y="{mid + 4:.1f}" font-size="11" class="signal">'
-                         f'{_esc(k)}</text>')
+            parts.append(f'<text x="10" y="{mid + 4:.1f}" font-size="11" class="signal" '
+                         f'data-key="{_esc(k)}">{_esc(shown[k])}</text>')
             parts.append(f'<line x1="{left:.1f}" y1="{bot:.1f}" x2="{left + plot_w:.1f}" '
                          f'y2="{bot:.1f}" stroke="#eee"/>')
             spans = [(t, s.changes[i + 1][0] if i + 1 < len(s.changes) else t_end, v)
@@ -278,8 +290,8 @@ def chronogram_svg(rows: list[dict[str, Any]], groups: list[tuple[str, list[str]
         xx = x(t)
         parts.append(f'<line x1="{xx:.1f}" y1="{y:.1f}" x2="{xx:.1f}" y2="{y + 5:.1f}" '
                      f'stroke="black"/>')
-        parts.append(f'<line x1="{xx:.1f}" y1="{16:.1f}" x2="{xx:.1f}" y2="{y:.1f}" '
-                     f'stroke="#ddd" stroke-dasharray="2,3"/>')
+        parts.insert(grid_at, f'<line x1="{xx:.1f}" y1="{y_grid:.1f}" x2="{xx:.1f}" '
+                              f'y2="{y:.1f}" stroke="#ddd" stroke-dasharray="2,3"/>')
         parts.append(f'<text x="{xx:.1f}" y="{y + 17:.1f}" font-size="10" '
                      f'text-anchor="middle">{_esc(_fmt_t(t))}</text>')
         t += step
@@ -300,21 +312,71 @@ def chronogram_svg(rows: list[dict[str, Any]], groups: list[tuple[str, list[str]
                       "</svg>"]) + "\n"
 
 
+def parse_ms(text: str, what: str) -> float:
+    """``2s``, ``1500ms``, ``1m30s`` or a plain number of milliseconds -> ms."""
+    t = text.strip()
+    if t.upper().startswith(("T#", "TIME#")):
+        t = t.split("#", 1)[1]
+    try:
+        return float(t)
+    except ValueError:
+        pass
+    ns = parse_time(t)
+    if ns is None:
+        raise SourceError(Loc(what, 1, 1), f"expected a time (2s, 1500ms or a number of ms), "
+                                           f"found '{text}'")
+    return ns / 1e6
+
+
+def window(rows: list[dict[str, Any]], start: float | None,
+           end: float | None) -> list[dict[str, Any]]:
+    """The scans with ``start <= t_ms <= end`` (ms; None: no bound)."""
+    lo = -math.inf if start is None else start
+    hi = math.inf if end is None else end
+    if lo > hi:
+        raise SourceError(Loc("--from", 1, 1), f"--from {start:g} ms is after --to {end:g} ms")
+    out = [r for r in rows if lo <= float(r["t_ms"]) <= hi]
+    if not out:
+        raise SourceError(Loc("--from", 1, 1), f"no scan between {lo:g} and {hi:g} ms (the "
+                                               f"trace runs from {rows[0]['t_ms']} to "
+                                               f"{rows[-1]['t_ms']} ms)")
+    return out
+
+
+def regroup(keys: list[str], groups: list[tuple[str, list[str]]]) -> list[tuple[str, list[str]]]:
+    """``keys`` in the order given, headed by the group each belongs to (a new heading
+    where the group changes)."""
+    group_of = {k: title for title, ks in groups for k in ks}
+    out: list[tuple[str, list[str]]] = []
+    for k in keys:
+        title = group_of.get(k, "")
+        if out and out[-1][0] == title:
+            out[-1][1].append(k)
+        else:
+            out.append((title, [k]))
+    return out
+
+
 def chronogram(trace: str, out: str, signals: list[str] | None = None,
                width: float = 1000.0, cycle: int | None = None,
-               plant: str | None = None) -> int:
-    """Write the SVG; returns the number of signals drawn."""
+               plant: str | None = None, start: float | None = None,
+               end: float | None = None, title: str | None = None) -> int:
+    """Write the SVG; returns the number of signals drawn. ``start``/``end``: the time
+    window in ms."""
     rows = load_trace(trace)
     keys = all_keys(rows)
     kinds: dict[str, str] = {}
     groups: list[tuple[str, list[str]]] = []
     if plant is not None:
         groups, kinds = plant_signals(plant, keys)
-    if signals:
-        groups = [("", select(keys, signals))]
-    elif not groups:
+    if not groups:
         groups = default_signals(keys)
-    title = f"{trace} — {len(rows)} scans, {rows[0]['t_ms']}–{rows[-1]['t_ms']} ms"
+    if signals:
+        groups = regroup(select(keys, signals), groups)
+    rows = window(rows, start, end)
+    if title is None:
+        title = (f"{os.path.basename(trace)} — {len(rows)} scans, "
+                 f"{_fmt_t(float(rows[0]['t_ms']))} to {_fmt_t(float(rows[-1]['t_ms']))}")
     svg = chronogram_svg(rows, groups, width, cycle, title, kinds)
     with open(out, "w", encoding="utf-8") as f:
         f.write(svg)
@@ -323,8 +385,10 @@ def chronogram(trace: str, out: str, signals: list[str] | None = None,
 
 def cmd_chronogram(args: argparse.Namespace) -> int:
     try:
+        start = None if args.start is None else parse_ms(args.start, "--from")
+        end = None if args.end is None else parse_ms(args.end, "--to")
         n = chronogram(args.trace, args.output, args.signals, args.width, args.cycle,
-                       args.plant)
+                       args.plant, start, end, args.title)
     except SourceError as exc:
         sys.stderr.write(f"{exc}\n")
         return 2
@@ -348,6 +412,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     c.add_argument("--plant", metavar="PLANT.yaml",
                    help="the plant that wrote the trace: exact groups and types (a counter "
                         "that only reached 1 is drawn as a number, not a square wave)")
+    c.add_argument("--from", dest="start", metavar="TIME",
+                   help="start of the time window (2s, 1500ms, or ms; default: the start)")
+    c.add_argument("--to", dest="end", metavar="TIME",
+                   help="end of the time window (default: the end of the trace)")
+    c.add_argument("--title", help="title above the diagram (default: the trace's name and "
+                                   "window)")
     c.add_argument("--width", type=float, default=1000.0, help="width in px (default 1000)")
     c.set_defaults(func=cmd_chronogram)
 

@@ -13,6 +13,7 @@ import pytest
 
 from runtime import chronogram as chrono
 from runtime import draw
+from runtime.errors import SourceError
 from runtime.language import load_grafcet
 
 SVG = "{http://www.w3.org/2000/svg}"
@@ -169,16 +170,48 @@ def test_draw_a_plant_instance(write: Callable[[str, str], str], drawer: str,
     assert "gsCerrar" in texts(out)
 
 
+def signal_rows(svg_path: str) -> list[tuple[str, str]]:
+    """(key, label) of every row of a chronogram, top to bottom."""
+    root = ET.parse(svg_path).getroot()
+    return [(t.get("data-key", ""), "".join(t.itertext())) for t in root.iter(f"{SVG}text")
+            if t.get("class") == "signal"]
+
+
 def test_chronogram_default_groups(trace: str, tmp_path: Path) -> None:
     out = str(tmp_path / "c.svg")
     n = chrono.chronogram(trace, out, cycle=5)
     found = texts(out)
+    keys = dict(signal_rows(out))
     for key in ("t1.iMarcha", "t1.gsAbrir.X", "t1.oAbrir", "t1.sCierres", "t2.gsParado.X"):
-        assert key in found
+        assert key in keys
+        assert keys[key] == key.split(".", 1)[1]  # the heading names the instance
     assert "t1: inputs" in found and "t1: steps" in found and "t1: outputs" in found
     assert "cycle 5" in found
     assert n == 2 * (4 + 4 + 4 + 2)
-    assert not any(t.endswith(".T_ms") or t.startswith("sim.") for t in found)
+    assert not any(k.endswith(".T_ms") or k.startswith("sim.") for k in keys)
+
+
+def test_chronogram_window_title_and_order(trace: str, tmp_path: Path) -> None:
+    out = str(tmp_path / "w.svg")
+    n = chrono.chronogram(trace, out, ["t1.oAbrir", "t1.iMarcha", "t1.gsAbrir.X"],
+                          start=20.0, end=100.0, title="Story of t1")
+    assert n == 3
+    assert [k for k, _ in signal_rows(out)] == ["t1.oAbrir", "t1.iMarcha", "t1.gsAbrir.X"]
+    found = texts(out)
+    assert "Story of t1" in found
+    # headings follow the selection: outputs, inputs, steps
+    assert [t for t in found if t.startswith("t1: ")] == ["t1: outputs", "t1: inputs",
+                                                            "t1: steps"]
+    ticks = [t for t in found if t.endswith(" ms") or t == "0"]
+    assert ticks and ticks[0] == "20 ms" and ticks[-1] in ("100 ms", "110 ms")
+    with pytest.raises(SourceError, match="no scan between 500 and 600 ms"):
+        chrono.chronogram(trace, out, start=500.0, end=600.0)
+    assert chrono.parse_ms("2s", "--to") == 2000.0
+    assert chrono.parse_ms("1500ms", "--to") == 1500.0
+    assert chrono.parse_ms("250", "--to") == 250.0
+    assert chrono.parse_ms("T#1m", "--to") == 60000.0
+    with pytest.raises(SourceError, match="expected a time"):
+        chrono.parse_ms("soon", "--to")
 
 
 def test_chronogram_selected_signals_and_bands(trace: str, tmp_path: Path,
@@ -204,13 +237,22 @@ def test_chronogram_numbers_as_bands(tmp_path: Path) -> None:
     assert {"0", "1", "2", "3"} <= set(texts(out))
 
 
-def test_chronogram_cli(trace: str, tmp_path: Path) -> None:
+def test_chronogram_cli(trace: str, tmp_path: Path,
+                        capsys: pytest.CaptureFixture[str]) -> None:
     p = argparse.ArgumentParser()
     sub = p.add_subparsers()
     chrono.register(sub)
     args = p.parse_args(["chronogram", trace, "-o", str(tmp_path / "c.svg"), "--signals",
                          "t1.oAbrir"])
     assert args.func(args) == 0
+    args = p.parse_args(["chronogram", trace, "-o", str(tmp_path / "c.svg"), "--from", "50ms",
+                         "--to", "0.2s", "--title", "T"])
+    assert args.func(args) == 0
+    assert "T" in texts(str(tmp_path / "c.svg"))
+    args = p.parse_args(["chronogram", trace, "-o", str(tmp_path / "c.svg"), "--from", "1s",
+                         "--to", "2s"])
+    assert args.func(args) == 2
+    assert "error: no scan between 1000 and 2000 ms" in capsys.readouterr().err
     args = p.parse_args(["chronogram", str(tmp_path / "none.jsonl"), "-o",
                          str(tmp_path / "c.svg")])
     assert args.func(args) == 2
