@@ -63,6 +63,8 @@ def expect_type(value: Any, loc: Loc, types: type | tuple[type, ...], what: str)
         raise SourceError(loc, f"expected {what}, found {str(value).lower()}")
     if not isinstance(value, types):
         found = "nothing" if value is None else f"{type(value).__name__} {value!r}"
+        if isinstance(value, str):
+            found = f"the text '{value}'"
         if isinstance(value, YMap):
             found = "a mapping"
             if types is str or (isinstance(types, tuple) and str in types):

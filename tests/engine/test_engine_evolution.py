@@ -615,3 +615,34 @@ def test_entering_an_already_active_macro_step_without_leaving_it_keeps_its_time
     assert c.steps == ["y"] and c.t_ms("m") == 20
     c.scan(again=1)  # the entry step again, m was not left
     assert c.steps == ["e", "y"] and c.t_ms("m") == 30
+
+
+def test_step_time_is_read_where_it_is_read_pre_before_the_evolution_actions_and_post_after(
+        chart):
+    """.T "whenever it is read in the scan": pre sees the situation before this scan's
+    evolution (the value kept from the last activation, or 0 if never active), the actions
+    and post the new one (0 in the scan of activation); a step never active has .T = 0."""
+    c = chart("""\
+    grafcet: TAny
+    inputs: [go]
+    memory: {tPre: 0s, tAct: 0s, tPost: 0s}
+    pre: ["tPre := s1.T"]
+    steps:
+      s0: {initial: true}
+      s1: {actions: ["N tAct := s1.T"]}
+    transitions:
+      - {from: s0, to: s1, when: go}
+      - {from: s1, to: s0, when: go'}
+    post: ["tPost := s1.T"]
+    """).scan()
+    assert (c["tPre"], c["tPost"], c.t_ms("s1")) == (0, 0, 0)
+    c.scan(go=1)  # 10 ms: activated
+    assert (c["tPre"], c["tAct"], c["tPost"]) == (0, 0, 0)
+    c.run(2, go=1)  # 30 ms
+    assert (c["tPre"], c["tAct"], c["tPost"]) == (20_000_000, 20_000_000, 20_000_000)
+    c.scan(go=0)  # 40 ms: pre still sees it active (30 ms); left, .T kept at 30 ms
+    assert (c["tPre"], c["tAct"], c["tPost"]) == (30_000_000, 20_000_000, 30_000_000)
+    c.run(2, go=0)
+    assert (c["tPre"], c["tPost"]) == (30_000_000, 30_000_000)
+    c.scan(go=1)  # 70 ms: activated again
+    assert (c["tPre"], c["tAct"], c["tPost"]) == (30_000_000, 0, 0)

@@ -513,3 +513,21 @@ def test_limits_leave_room_for_real_charts() -> None:
     inst.set("iParo", True)
     inst.scan(10**9, 0)
     assert inst.get("oTest") is True
+
+
+def test_yaml_1_2_booleans_yes_no_on_off_are_text(tmp_path: Path) -> None:
+    from runtime.language import load_grafcet
+
+    g = load_grafcet(write(tmp_path, "ok.yaml", """\
+        grafcet: Names
+        inputs: [On, off, yes]
+        outputs: [No]
+        steps:
+          s0: {initial: true, actions: [No]}
+        transitions:
+          - {from: s0, to: s0, when: On AND NOT off AND yes}
+        """))
+    assert [v.name for v in g.inputs] == ["On", "off", "yes"]
+    assert g.steps["s0"].actions[0].target == "No"
+    check(tmp_path, HEAD.replace("retain: true", "retain: yes") + STEPS, "yes",
+          "expected true or false for retain", "found the text 'yes'")
