@@ -14,7 +14,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import yaml
+
+from runtime.yamlsrc import load_yaml
 
 jsonschema = pytest.importorskip("jsonschema")
 from jsonschema import Draft202012Validator  # noqa: E402
@@ -51,8 +52,13 @@ def errors(kind: str, doc: Any) -> list[str]:
     return [f"{e.json_path}: {e.message}" for e in VALIDATORS[kind].iter_errors(doc)]
 
 
+def read(text: str, path: str = "<text>") -> Any:
+    """YAML as softplc reads it (YAML 1.2 booleans: yes/no/on/off are text)."""
+    return load_yaml(path, text)
+
+
 def y(text: str) -> Any:
-    return yaml.safe_load(textwrap.dedent(text))
+    return read(textwrap.dedent(text))
 
 
 # --------------------------------------------------------------------------- the schemas
@@ -115,7 +121,7 @@ def test_configs_are_found() -> None:
 @pytest.mark.parametrize("path", YAML_FILES, ids=[p.relative_to(CONFIGS).as_posix()
                                                   for p in YAML_FILES])
 def test_config_file_matches_its_schema(path: Path) -> None:
-    doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    doc = read(path.read_text(encoding="utf-8"), str(path))
     kind = kind_of(doc)
     assert kind != "unknown", f"{path}: not a grafcet, plant or script file (top-level keys)"
     errs = errors(kind, doc)
@@ -135,9 +141,9 @@ def _keys(node: Any, path: str = ""):
 @pytest.mark.parametrize("path", YAML_FILES, ids=[p.relative_to(CONFIGS).as_posix()
                                                   for p in YAML_FILES])
 def test_config_keys_are_strings(path: Path) -> None:
-    """YAML 1.1 reads bare on/off/yes/no as bools and 0x20 as an int, in keys too: a step
-    or an input named 'on' or 'No' would silently become True/False."""
-    doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    """softplc reads YAML 1.2 booleans (a step or an input named 'on' or 'No' stays a name,
+    where YAML 1.1 would make it True/False), but a bare number is still an int key."""
+    doc = read(path.read_text(encoding="utf-8"), str(path))
     bad = [(p, k) for p, k in _keys(doc) if not isinstance(k, str)]
     assert not bad, f"{path}: non-string keys {bad}"
 
@@ -247,7 +253,7 @@ set:
 @pytest.mark.parametrize("kind, text", [("grafcet", SPEC_GRAFCET), ("plant", SPEC_PLANT),
                                         ("script", SPEC_SCRIPT)])
 def test_contract_examples_validate(kind: str, text: str) -> None:
-    doc = yaml.safe_load(text)
+    doc = read(text)
     assert kind_of(doc) == kind
     assert not errors(kind, doc), errors(kind, doc)
 
@@ -365,7 +371,7 @@ def test_plant_schema_rejects(case: str) -> None:
 
 
 def test_yaml_reads_hex_addresses_as_ints() -> None:
-    """0x20 is the integer 32 to YAML 1.1 (PyYAML): the schema takes it, and "0x20"."""
+    """0x20 is the integer 32 to softplc's YAML reader: the schema takes it, and "0x20"."""
     doc = y("drivers: {e: {type: mcp23017, bus: 1, address: 0x20}}")
     assert doc["drivers"]["e"]["address"] == 32
     plant = {**MINIMAL_PLANT, **doc}
