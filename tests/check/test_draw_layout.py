@@ -86,10 +86,78 @@ def inside(a: Box, b: Box) -> bool:
     return b[0] - 0.5 <= a[0] and a[2] <= b[2] + 0.5 and b[1] - 0.5 <= a[1] and a[3] <= b[3] + 0.5
 
 
+# branches of unequal length into an AND convergence, a second initial step reached from an
+# unreachable one, a cycle of its own on the right, a transition name, ST conditions
+UNEQUAL = """\
+grafcet: Uneq
+inputs: [iA, iB, iC, iD, iE, iStop]
+outputs: [oX, oY]
+steps:
+  gsA: {initial: true}
+  gsB: {actions: [oX]}
+  gsB2: {}
+  gsB3: {}
+  gsC: {actions: ["N oY if iC"]}
+  gsD: {}
+  gsE: {initial: true}
+  gsF: {}
+  gsZ: {}
+transitions:
+  - {from: gsA, to: [gsB, gsC], when: iA}
+  - {from: gsB, to: gsB2, when: iB}
+  - {from: gsB2, to: gsB3, when: iC}
+  - {from: [gsB3, gsC], to: gsD, when: "1"}
+  - {from: gsD, to: gsA, when: "iD + iStop"}
+  - {from: gsD, to: gsB, when: "iE·iStop'"}
+  - {name: Tmark, from: gsE, to: gsF, when: "iA AND NOT iB OR iC XOR iD"}
+  - {from: gsF, to: gsE, when: "iStop"}
+  - {from: gsZ, to: gsE, when: "iStop"}
+"""
+
+# a macro-step with a loop inside and a skipping link, a source and a sink transition
+MACRO = """\
+grafcet: Macro
+inputs: [iMarcha, iNivelA, iNivelB, iEmergencia, iAck, iFin, iLargo]
+outputs: [oValvA, oValvB, oMotor, oAlarma]
+memory: {sPiezas: 0}
+steps:
+  gsParado: {initial: true, actions: ["P1 sPiezas := 0"]}
+  gsLlenado:
+    macro:
+      steps:
+        eLlenarA: {entry: true, actions: [oValvA, "D 2s oMotor"]}
+        eLlenarB: {actions: ["N oValvB if iNivelA"]}
+        eEsperar: {}
+        sLleno: {exit: true}
+      transitions:
+        - {from: eLlenarA, to: sLleno, when: iLargo}
+        - {from: eLlenarA, to: eLlenarB, when: "iNivelA·iLargo'"}
+        - {from: eLlenarB, to: eEsperar, when: iNivelB}
+        - {from: eEsperar, to: eLlenarA, when: "iNivelB'"}
+        - {from: eEsperar, to: sLleno, when: iFin}
+  gsAlarma: {actions: [oAlarma]}
+transitions:
+  - {from: gsParado, to: gsLlenado, when: "↑iMarcha"}
+  - {from: gsLlenado, to: gsParado, when: "1"}
+  - {from: [], to: gsAlarma, when: ↑iEmergencia}
+  - {from: gsAlarma, to: [], when: iAck}
+"""
+
+
+def _charts(tmp: Path) -> list[Path]:
+    (tmp / "uneq.yaml").write_text(UNEQUAL, encoding="utf-8")
+    (tmp / "macro.yaml").write_text(MACRO, encoding="utf-8")
+    return [*CHARTS, tmp / "uneq.yaml", tmp / "macro.yaml"]
+
+
+NAMES = [p.parent.name for p in CHARTS] + ["uneq", "macro"]
+
+
 @pytest.mark.parametrize("layout", LAYOUTS)
-@pytest.mark.parametrize("chart", CHARTS, ids=[p.parent.name for p in CHARTS])
-def test_nothing_overlaps_and_no_line_crosses_a_text(chart: Path, layout: str,
+@pytest.mark.parametrize("which", range(len(NAMES)), ids=NAMES)
+def test_nothing_overlaps_and_no_line_crosses_a_text(which: int, layout: str,
                                                      tmp_path: Path) -> None:
+    chart = _charts(tmp_path)[which]
     out = str(tmp_path / "c.svg")
     draw.draw(str(chart), out, layout=layout)
     boxes, lines = parse(out)
@@ -195,3 +263,22 @@ def test_action_boxes_drop_comments_and_keep_lines(tmp_path: Path) -> None:
     assert "IF sCierres >= 1000 THEN" in actions and "END_IF" in actions
     assert actions["sCierres := 0"] > actions["END_IF"]  # indented
     assert not any("//" in a or "stop pressed" in a for a in actions)
+
+
+def test_a_given_order_is_followed_and_stays_readable(tmp_path: Path) -> None:
+    """dot's order (here a reversed one) decides left and right; the drawing stays clean."""
+    g = load_grafcet(str(ROOT / "configs/drawer_tester/drawer_tester.yaml"))
+    c = draw.build_chart(g)
+    draw.place(c)
+    normal = {n: nd.x for n, nd in c.nodes.items()}
+    c = draw.build_chart(g)
+    draw.place(c, {n: -x for n, x in normal.items()})
+    for row in c.layers:
+        assert sorted(row, key=lambda n: c.nodes[n].x) == sorted(row, key=lambda n: -normal[n])
+    assert any(len(row) > 1 for row in c.layers)
+    out = tmp_path / "r.svg"
+    out.write_text(draw.render(c, draw.route(c), set(), "reversed"), encoding="utf-8")
+    boxes, lines = parse(str(out))
+    for (wa, a), (wb, b) in itertools.combinations(boxes, 2):
+        if not (inside(a, b) or inside(b, a)):
+            assert not overlap(a, b), f"{wa} overlaps {wb}"
