@@ -2,23 +2,33 @@
 
 Sessions are transport-free: a transport (serial port, Unix socket, TCP on 127.0.0.1)
 feeds raw bytes to ``Session.feed`` and writes back the lines it returns, and calls
-``Session.poll`` a few times a second for streamed lines (watch, trace). Every read and
-write of the plant goes through ``Controller.call``, which runs it in the scan thread at a
-scan boundary: the console never touches the plant during a scan.
+``Session.poll`` a few times a second for streamed lines (watch, trace).
+
+The scan is never disturbed: every read and write of the plant goes through
+``Controller.call``, which runs a short function in the scan thread at a scan boundary, so
+a reply is one consistent snapshot. Streams register a listener that copies the process
+image (a few list copies) after each cycle; the diffing and formatting happen here, in the
+session's own thread.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import re
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any, Protocol, TypeVar
 
+from drivers.base import PointKind
+from runtime import ast as A
 from runtime.daemon import CommandRefused
-from runtime.parser import format_time
+from runtime.errors import suggest
+from runtime.model import VarKind
+from runtime.parser import format_time, parse_time
 from runtime.pin import check_pin
 from runtime.plant import BindingError, Plant
 
@@ -27,41 +37,59 @@ R = TypeVar("R")
 
 #: longest accepted line, bytes (console.md)
 MAX_LINE = 1024
-#: wrong PINs before the console locks, and for how long (seconds)
+#: wrong PINs before the console locks, and for how long, seconds (console.md)
 MAX_PIN_TRIES = 3
 LOCKOUT_S = 60.0
-#: how often a watch without ``every`` looks for changes, seconds
-WATCH_POLL_S = 0.05
+#: a half-typed line left this long (s) is dropped: a cable pulled in mid-line must not
+#: leave its fragment in front of the next person's command
+PARTIAL_LINE_TIMEOUT_S = 60.0
+#: cycles a stream keeps between two polls of its session; older ones are dropped (and
+#: counted) when the line cannot carry them
+STREAM_SCANS = 2000
+#: ``cycle N`` limits, and the cycles reported one by one
+MAX_CYCLE = 10_000
+CYCLE_DETAIL_LINES = 40
+#: faults shown by ``status``
+STATUS_FAULTS = 5
+#: shortest ``watch ... every MS``, ms
+MIN_EVERY_MS = 10
 
-READ_ONLY = ("help", "status", "stats", "get", "watch", "trace", "why", "json", "unlock", "lock")
-CHANGING = ("set", "force", "unforce", "pause", "resume", "cycle", "init", "reset", "iocheck",
-            "ack")
+READ_ONLY = ("help", "status", "stats", "get", "watch", "trace", "why", "json", "unlock",
+             "lock")
+CHANGING = ("set", "force", "unforce", "pause", "resume", "cycle", "init", "reset",
+            "iocheck", "ack")
 HELP = {
-    "help": "lists commands",
-    "status": "state, cycle, scan count, uptime, active steps, forced values",
-    "stats": "cycle time and lateness: last min mean p99 max, overruns; driver health",
-    "get": "get NAME... : current values (instance.var, instance.step.X/.T, driver.point)",
-    "watch": "watch NAME... [every MS] : stream values until a new line arrives",
-    "trace": "trace on|off : stream one line per scan of changed values",
-    "why": "why INSTANCE : why each active step's transitions fire or not",
-    "set": "set NAME VALUE : write once at the next scan boundary",
-    "force": "force NAME VALUE : hold a value until unforced",
-    "unforce": "unforce NAME|all",
-    "pause": "stop evolution of every chart (I/O keeps being scanned)",
-    "resume": "restart evolution",
-    "cycle": "cycle [N] : while paused, run exactly N scans and report what changed",
-    "init": "init INSTANCE : pulse SFCInit for one scan",
-    "reset": "reset INSTANCE : pulse SFCReset for one scan",
-    "iocheck": "iocheck on|off : commissioning, charts stopped and outputs off",
-    "ack": "acknowledge a fault or SFCError after its cause is gone",
-    "unlock": "unlock PIN : allow changing commands",
-    "lock": "lock : forbid changing commands again (releases forces)",
+    "help": "help [COMMAND] : lists commands",
+    "status": "state, cycle time, scan count, uptime, active steps, forced values, faults",
+    "stats": "cycle time and lateness (last min mean p50 p99 max, us), overruns, drivers",
+    "get": "get NAME... : current values (inst.var, inst.step.X, inst.step.T, "
+           "driver.point; an instance or driver name alone: all its signals)",
+    "watch": "watch [NAME...] [every MS] : stream values until the next line (no NAME: "
+             "every physical input with its logical value)",
+    "trace": "trace on|off : one line per scan of the values that changed",
+    "why": "why INSTANCE : each active step's transitions, their terms, what blocks them",
+    "set": "set NAME VALUE : write once at the next scan boundary *",
+    "force": "force NAME VALUE : hold a value until unforced *",
+    "unforce": "unforce NAME|all *",
+    "pause": "stop the evolution of every chart; I/O keeps being scanned *",
+    "resume": "restart the evolution *",
+    "cycle": "cycle [N] : while paused, run exactly N scans and report what changed *",
+    "init": "init INSTANCE : pulse SFCInit for one scan *",
+    "reset": "reset INSTANCE : pulse SFCReset for one scan *",
+    "iocheck": "iocheck on|off : bench wiring check: charts stopped, outputs off, set "
+               "DRIVER.POINT drives one output *",
+    "ack": "acknowledge a fault, the end of iocheck, or SFCError *",
+    "unlock": "unlock PIN : allow the commands marked *",
+    "lock": "forbid them again; releases every force",
     "json": "json on|off : replies as one JSON object per line",
 }
 
+_TERMINATOR = re.compile(rb"[\r\n\x03]")
+_TIME_LITERAL = re.compile(r"\b(?:\d+(?:d|h|ms|m|s|us|ns))+\b")
+
 
 class Controller(Protocol):
-    """What the console needs from the running daemon."""
+    """What the console needs from the running daemon (runtime.daemon.Daemon)."""
 
     plant: Plant
 
@@ -69,10 +97,10 @@ class Controller(Protocol):
         """Run ``fn`` in the scan thread at the next scan boundary; return its result."""
 
     def status(self) -> dict[str, Any]:
-        """state, fault, scans, uptime_s, cycle_ms."""
+        """state, fault, scans, uptime_s, cycle_ms, faults."""
 
     def stats(self) -> dict[str, Any]:
-        """Cycle statistics (ns) and per-driver health."""
+        """Cycle statistics (us) and per-driver health."""
 
     def ack(self) -> str:
         """Acknowledge a fault (restart the charts) or SFCError; returns what was done."""
@@ -81,54 +109,299 @@ class Controller(Protocol):
         """Hold outputs off and charts stopped until ``ack`` (after iocheck)."""
 
     def add_listener(self, fn: Callable[[int], None]) -> None:
-        """Call ``fn(scan_number)`` in the scan thread after each cycle."""
+        """Call ``fn(cycle_number)`` in the scan thread after each cycle."""
 
     def remove_listener(self, fn: Callable[[int], None]) -> None: ...
 
 
 class CommandError(Exception):
-    """A command that cannot be carried out; the message is the reply's reason."""
+    """A command that cannot be carried out; the message is the reply's reason.
+
+    Examples: a bad value (``set tester1.iParo 7``), an unknown name, ``cycle`` while the
+    charts run."""
 
 
-def snapshot(plant: Plant) -> dict[str, Any]:
-    """Every readable value of the plant, for diffs (call it at a scan boundary)."""
-    out: dict[str, Any] = {}
-    for name, inst in plant.instances.items():
+# -- names and process images --------------------------------------------------------
+@dataclass(slots=True)
+class Image:
+    """The process image after one cycle: state lists, driver images, driver health."""
+
+    scan: int
+    m: list[list[Any]]
+    inputs: list[dict[str, Any]]
+    outputs: list[dict[str, Any]]
+    ok: list[bool]
+
+
+@dataclass(frozen=True, slots=True)
+class Name:
+    """A console name resolved against the plant: its type and how to read it."""
+
+    text: str
+    type: A.Type
+    read: Callable[[Image], Any]
+    #: input, output, memory, temporary, chart flag, step, step time, point in/out, health
+    role: str
+    #: for a physical input: the chart inputs it feeds, (instance.signal, inverted)
+    feeds: tuple[tuple[str, bool], ...] = ()
+    #: for a chart input/output: its binding, e.g. "sim.I0 inverted"
+    binding: str = ""
+
+    def show(self, value: Any) -> str:
+        """The value as a person reads it: bools 0/1, times rounded to ms."""
+        if self.type is A.Type.TIME and isinstance(value, int):
+            return format_time(round(value / 1e6) * 1_000_000)
+        if isinstance(value, bool):
+            return str(int(value))
+        return str(value)
+
+    def plain(self, value: Any) -> Any:
+        """The value for JSON: bools 0/1, times in whole ms."""
+        if self.type is A.Type.TIME and isinstance(value, int):
+            return round(value / 1e6)
+        return int(value) if isinstance(value, bool) else value
+
+
+def _logical(raw: Any, inverted: bool) -> int:
+    return int((raw != 0) != inverted)
+
+
+class Catalogue:
+    """Every console name of a plant, resolved once: the plant's structure never changes
+    after construction (restart() refills the state lists in place)."""
+
+    def __init__(self, plant: Plant) -> None:
+        self.plant = plant
+        self.names: dict[str, Name] = {}
+        #: instance -> {"inputs": [...], "outputs": [...], "memory": [...]}
+        self.groups: dict[str, dict[str, list[str]]] = {}
+        #: driver -> its point names
+        self.points: dict[str, list[str]] = {}
+        #: bound driver output point -> the chart output writing it
+        self.written_by: dict[str, str] = {}
+        feeds: dict[str, list[tuple[str, bool]]] = {}
+        bindings: dict[str, str] = {}
+        for name, idef in plant.pdef.instances.items():
+            for sig, b in idef.inputs.items():
+                bindings[f"{name}.{sig}"] = "<- " + b.source + (" inverted" if b.invert
+                                                                else "")
+                if b.driver is not None:
+                    feeds.setdefault(b.source, []).append((f"{name}.{sig}", b.invert))
+            for sig, b in idef.outputs.items():
+                bindings[f"{name}.{sig}"] = "-> " + b.source + (" inverted" if b.invert
+                                                                else "")
+                self.written_by[b.source] = f"{name}.{sig}"
+        for i, (name, inst) in enumerate(plant.instances.items()):
+            self._instance(i, name, inst, bindings)
+        for j, (dname, d) in enumerate(plant.drivers.items()):
+            pts = []
+            for direction, points in (("in", d.inputs), ("out", d.outputs)):
+                for p in points:
+                    typ = A.Type.BOOL if d.kinds.get(p) is PointKind.BOOL else A.Type.INT
+                    text = f"{dname}.{p}"
+                    self.names[text] = Name(text, typ, _point_reader(direction, j, p),
+                                            f"point {direction}",
+                                            tuple(feeds.get(text, ())))
+                    pts.append(text)
+            text = f"{dname}.ok"
+            self.names[text] = Name(text, A.Type.BOOL, _ok_reader(j), "driver health",
+                                    tuple(feeds.get(text, ())))
+            pts.append(text)
+            self.points[dname] = pts
+        #: what ``trace`` and ``cycle`` compare: everything but step times (they change
+        #: every scan)
+        self.traced = [n for n in self.names.values() if n.role != "step time"]
+
+    def _instance(self, i: int, name: str, inst: Any, bindings: dict[str, str]) -> None:
+        g, ix = inst.grafcet, inst.index
+        groups: dict[str, list[str]] = {"inputs": [], "outputs": [], "memory": []}
         for key in inst.names():
-            out[f"{name}.{key}"] = _plain(inst.get(key))
-    for dname, d in plant.drivers.items():
-        for p in (*d.inputs, *d.outputs):
-            out[f"{dname}.{p}"] = plant.get(f"{dname}.{p}")
-        out[f"{dname}.ok"] = d.ok
-    return {k: _plain(v) for k, v in out.items()}
+            text = f"{name}.{key}"
+            if key.endswith(".T") and key[:-2] in g.steps:
+                s = key[:-2]
+                n = Name(text, A.Type.TIME, _step_time_reader(i, ix[f"{s}.X"], ix["#ct"],
+                                                              ix[f"{s}.T0"], ix[f"{s}.TK"]),
+                         "step time")
+            elif key.endswith(".X") and key[:-2] in g.steps:
+                n = Name(text, A.Type.BOOL, _slot_reader(i, ix[key]), "step")
+            elif key == "SFCCurrentStep":
+                leaf = tuple((s.name, ix[f"{s.name}.X"]) for s in g.leaf_steps())
+                n = Name(text, A.Type.STRING, _current_step_reader(i, leaf), "chart flag")
+            else:
+                v = g.variables[key]
+                n = Name(text, v.type, _slot_reader(i, ix[key]), v.kind.value,
+                         binding=bindings.get(text, ""))
+                if v.kind is VarKind.INPUT:
+                    groups["inputs"].append(text)
+                elif v.kind is VarKind.OUTPUT:
+                    groups["outputs"].append(text)
+                elif v.kind is VarKind.MEMORY:
+                    groups["memory"].append(text)
+            self.names[text] = n
+        self.groups[name] = groups
+
+    def resolve(self, text: str) -> Name:
+        """The Name for ``text``; CommandError naming the closest one if unknown."""
+        n = self.names.get(text)
+        if n is None:
+            raise CommandError(f"unknown name '{_printable(text)}'{suggest(text, self.names)}")
+        return n
+
+    def expand(self, words: list[str]) -> list[Name]:
+        """Names, where an instance or driver name alone stands for all its signals."""
+        out: list[Name] = []
+        for w in words:
+            if w in self.groups:
+                g = self.groups[w]
+                out += [self.names[t] for t in (*g["inputs"], *g["outputs"], *g["memory"])]
+            elif w in self.points:
+                out += [self.names[t] for t in self.points[w]]
+            else:
+                out.append(self.resolve(w))
+        return out
+
+    def physical_inputs(self) -> list[Name]:
+        return [n for n in self.names.values() if n.role == "point in"]
+
+    def capture(self, scan: int) -> Image:
+        """A copy of the process image (scan thread, between cycles: a few list copies)."""
+        p = self.plant
+        return Image(scan, [inst.m[:] for inst in p.instances.values()],
+                     [dict(d.inputs) for d in p.drivers.values()],
+                     [dict(d.outputs) for d in p.drivers.values()],
+                     [d.ok for d in p.drivers.values()])
+
+    def live(self) -> Image:
+        """The process image itself, without copies (read it at a scan boundary only)."""
+        p = self.plant
+        return Image(-1, [inst.m for inst in p.instances.values()],
+                     [d.inputs for d in p.drivers.values()],
+                     [d.outputs for d in p.drivers.values()],
+                     [d.ok for d in p.drivers.values()])
 
 
-def _plain(v: Any) -> Any:
-    return int(v) if isinstance(v, bool) else v
+def _slot_reader(i: int, idx: int) -> Callable[[Image], Any]:
+    return lambda img: img.m[i][idx]
 
 
-def _fmt(name: str, v: Any) -> str:
-    if name.endswith(".T") and isinstance(v, int):
-        return format_time(v)
-    return str(v)
+def _step_time_reader(i: int, x: int, ct: int, t0: int, tk: int) -> Callable[[Image], Any]:
+    def read(img: Image) -> int:
+        m = img.m[i]
+        return int(m[ct] - m[t0]) if m[x] else int(m[tk])
+    return read
 
 
+def _current_step_reader(i: int, leaf: tuple[tuple[str, int], ...]
+                         ) -> Callable[[Image], Any]:
+    def read(img: Image) -> str:
+        m = img.m[i]
+        active = [s for s, x in leaf if m[x]]
+        return active[-1] if active else ""
+    return read
+
+
+def _point_reader(direction: str, j: int, point: str) -> Callable[[Image], Any]:
+    if direction == "in":
+        return lambda img: img.inputs[j][point]
+    return lambda img: img.outputs[j][point]
+
+
+def _ok_reader(j: int) -> Callable[[Image], Any]:
+    return lambda img: img.ok[j]
+
+
+def parse_value(name: Name, text: str) -> Any:
+    """A value typed at the console -> the name's type; CommandError says what was
+    expected."""
+    t = name.type
+    low = text.lower()
+    if t is A.Type.BOOL:
+        if low in ("1", "true", "on"):
+            return True
+        if low in ("0", "false", "off"):
+            return False
+        expected = "0 or 1 (or true/false, on/off)"
+    elif t is A.Type.INT:
+        try:
+            return int(text, 0) if low.startswith(("0x", "0b", "0o")) else int(text)
+        except ValueError:
+            expected = "an integer"
+    elif t is A.Type.REAL:
+        try:
+            return float(text)
+        except ValueError:
+            expected = "a number"
+    elif t is A.Type.TIME:
+        ns = parse_time(text.split("#", 1)[1] if "#" in text else text)
+        if ns is not None:
+            return ns
+        expected = "a time like 5s, 250ms or T#1m30s"
+    else:
+        raise CommandError(f"{name.text} is a {t.value.lower()}: it cannot be written from "
+                           "the console")
+    raise CommandError(f"bad value '{_printable(text)}' for {name.text}: expected "
+                       f"{expected}")
+
+
+def _printable(text: str, limit: int = 40) -> str:
+    """``text`` cut to ``limit`` characters, control characters escaped (never echo
+    terminal escapes back to a person's screen)."""
+    cut = text[:limit]
+    shown = "".join(c if c.isprintable() else repr(c)[1:-1] for c in cut)
+    return shown + ("..." if len(text) > limit else "")
+
+
+def _round_times(text: str) -> str:
+    """Time literals in an engine message rounded to ms (``1s234ms567us`` -> ``1s235ms``)."""
+    def one(m: re.Match[str]) -> str:
+        ns = parse_time(m.group(0))
+        return m.group(0) if ns is None else format_time(round(ns / 1e6) * 1_000_000)
+    return _TIME_LITERAL.sub(one, text)
+
+
+def _clock_text(t: float) -> str:
+    return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(t))
+
+
+def _uptime_text(s: float) -> str:
+    return f"{s:.1f} s" if s < 60 else format_time(int(s) * 1_000_000_000)
+
+
+# -- the service: shared by every session -----------------------------------------------
 class ConsoleService:
-    """State shared by every session: the controller, the PIN and its lock-out."""
+    """State shared by every session: the controller, its names, the PIN and its
+    lock-out, and who forced what."""
 
     def __init__(self, controller: Controller, pin_hash: str | None = None,
                  release_forces_on_disconnect: bool = False,
                  clock: Callable[[], float] = time.monotonic) -> None:
         self.controller = controller
+        self.catalogue = Catalogue(controller.plant)
         self.pin_hash = pin_hash
         self.release_on_disconnect = release_forces_on_disconnect
+        #: monotonic seconds; injectable so tests step the lock-out instead of sleeping
         self.clock = clock
         self.wrong_pins = 0
         self.locked_until = 0.0
+        #: forced name -> the session that forced it last
+        self.force_owner: dict[str, Session] = {}
         self.lock = threading.Lock()
 
     def session(self, name: str, trusted: bool = False) -> Session:
         return Session(self, name, trusted)
+
+
+@dataclass
+class _Stream:
+    """A running watch or trace: what it shows and where it stands."""
+
+    kind: str  # "watch" | "trace"
+    names: list[Name]
+    every_s: float | None = None
+    last: dict[str, Any] | None = None
+    last_scan: int | None = None
+    next_due: float = 0.0
+    images: deque[Image] = field(default_factory=lambda: deque(maxlen=STREAM_SCANS))
 
 
 class Session:
@@ -137,70 +410,111 @@ class Session:
     def __init__(self, service: ConsoleService, name: str, trusted: bool) -> None:
         self.service = service
         self.ctl = service.controller
+        self.cat = service.catalogue
         self.name = name
         self.trusted = trusted
         self.unlocked = False
         self.json = False
+        self.stream: _Stream | None = None
         self._buf = b""
         self._discarding = False
-        self.forced: set[str] = set()
-        self.watch: tuple[list[str], float | None] | None = None
-        self._watch_last: dict[str, Any] = {}
-        self._watch_next = 0.0
-        self.tracing = False
-        self._trace_q: deque[int] = deque(maxlen=1000)
-        self._trace_last: dict[str, Any] | None = None
+        self._skip_lf = False
+        self._last_rx = 0.0
+        self._listening = False
 
     # -- framing ---------------------------------------------------------------------
     def feed(self, data: bytes) -> list[str]:
-        """Bytes from the line -> reply lines (each without line terminator)."""
+        """Bytes from the line -> reply lines (each without its line terminator).
+
+        A line ends at CR, LF or CRLF. Ctrl-C drops the half-typed line and stops a
+        stream. A line longer than MAX_LINE bytes is dropped whole (an error reply when
+        its end arrives)."""
+        if not data:
+            return []
         out: list[str] = []
-        self._buf += data
-        while True:
-            cut = min((i for i in (self._buf.find(b"\r"), self._buf.find(b"\n")) if i >= 0),
-                      default=-1)
-            if cut < 0:
-                if len(self._buf) > MAX_LINE:
-                    self._buf = b""
-                    self._discarding = True
-                return out
-            raw, self._buf = self._buf[:cut], self._buf[cut + 1:]
-            if self._discarding:
-                self._discarding = False
-                out += self._reply_error(f"line longer than {MAX_LINE} bytes")
+        now = self.service.clock()
+        if self._buf and now - self._last_rx > PARTIAL_LINE_TIMEOUT_S:
+            log.info("console %s: half-typed line dropped after %.0f s", self.name,
+                     now - self._last_rx)
+            self._buf = b""
+        self._last_rx = now
+        pos = 0
+        if self._skip_lf and data[:1] == b"\n":
+            pos = 1
+        self._skip_lf = False
+        while pos < len(data):
+            m = _TERMINATOR.search(data, pos)
+            if m is None:
+                self._append(data[pos:])
+                break
+            self._append(data[pos:m.start()])
+            ch = data[m.start()]
+            pos = m.end()
+            if ch == 0x03:  # Ctrl-C
+                self._buf, self._discarding = b"", False
+                self._stop_stream()
                 continue
-            if not raw and self._buf[:1] == b"\n" and data:  # CRLF
-                pass
-            out += self.handle(raw)
+            if ch == 0x0D:  # CR: a following LF belongs to it, even in the next chunk
+                if pos < len(data):
+                    if data[pos] == 0x0A:
+                        pos += 1
+                else:
+                    self._skip_lf = True
+            out += self._line()
+        return out
+
+    def _append(self, chunk: bytes) -> None:
+        if self._discarding or not chunk:
+            return
+        if len(self._buf) + len(chunk) > MAX_LINE:
+            self._buf, self._discarding = b"", True
+        else:
+            self._buf += chunk
+
+    def _line(self) -> list[str]:
+        raw, self._buf = self._buf, b""
+        if self._discarding:
+            self._discarding = False
+            self._stop_stream()
+            return self._reply_error(f"line longer than {MAX_LINE} bytes: ignored")
+        return self.handle(raw)
 
     def handle(self, raw: bytes) -> list[str]:
         """One line (without terminator) -> reply lines."""
-        self._stop_streams()
+        self._stop_stream()
         if len(raw) > MAX_LINE:
-            return self._reply_error(f"line longer than {MAX_LINE} bytes")
+            return self._reply_error(f"line longer than {MAX_LINE} bytes: ignored")
         try:
-            line = raw.decode("utf-8")
+            text = raw.decode("utf-8")
         except UnicodeDecodeError:
-            return self._reply_error("line is not valid UTF-8")
+            return self._reply_error("line is not valid UTF-8: ignored")
+        line = _edit(text)
+        bad = next((c for c in line if not c.isprintable() and c != "\t"), None)
+        if bad is not None:
+            return self._reply_error(f"control character {bad!r} in the line (arrow or "
+                                     "function key?): ignored")
         words = line.split()
         if not words:
-            return []
+            return []  # an empty line only stops a stream
         cmd, args = words[0].lower(), words[1:]
         if cmd not in READ_ONLY and cmd not in CHANGING:
-            return self._reply_error(f"unknown command '{words[0][:40]}' (try help)")
+            return self._reply_error(f"unknown command '{_printable(words[0])}' (try help)"
+                                     f"{suggest(cmd, HELP)}")
         if cmd in CHANGING and not self.may_change():
-            if self.service.pin_hash is None and not self.trusted:
-                return self._reply_error("changing commands are disabled: no PIN is set in "
-                                         "the plant file and this console is not trusted")
-            return self._reply_error("locked: unlock PIN first")
+            if self.service.pin_hash is None:
+                return self._reply_error("changing commands are disabled on this console: "
+                                         "no pin_hash in the plant file and the console is "
+                                         "not trusted")
+            return self._reply_error("locked: 'unlock PIN' first")
         try:
             result = getattr(self, f"cmd_{cmd}")(args)
-        except (CommandError, CommandRefused) as exc:
-            return self._reply_error(str(exc))
-        except BindingError as exc:
+        except (CommandError, CommandRefused, BindingError) as exc:
             return self._reply_error(str(exc))
         except TimeoutError:
             return self._reply_error("the scan did not answer in time")
+        except Exception as exc:  # noqa: BLE001 - a bug must not end the session
+            log.exception("console %s: '%s' failed", self.name, _printable(line, 80))
+            return self._reply_error(f"internal error: {type(exc).__name__}: {exc}")
         lines, data = result if isinstance(result, tuple) else (result, {})
         return self._reply_ok(lines, data)
 
@@ -210,7 +524,7 @@ class Session:
     # -- replies ---------------------------------------------------------------------
     def _reply_ok(self, lines: list[str], data: dict[str, Any]) -> list[str]:
         if self.json:
-            return [json.dumps({"ok": True, **data}, ensure_ascii=False)]
+            return [json.dumps({"ok": True, **data, "text": lines}, ensure_ascii=False)]
         return [*lines, "ok"]
 
     def _reply_error(self, reason: str) -> list[str]:
@@ -219,64 +533,125 @@ class Session:
         return [f"error {reason}"]
 
     # -- streams -----------------------------------------------------------------------
-    def _stop_streams(self) -> None:
-        self.watch = None
-        if self.tracing:
-            self.tracing = False
+    def _start_stream(self, stream: _Stream) -> None:
+        self.stream = stream
+        self.ctl.call(lambda: self._first_image(stream))
+        if not self._listening:
+            self.ctl.add_listener(self._on_scan)
+            self._listening = True
+
+    def _first_image(self, stream: _Stream) -> None:
+        stream.images.append(self.cat.capture(-1))
+
+    def _stop_stream(self) -> None:
+        self.stream = None
+        if self._listening:
+            self._listening = False
             self.ctl.remove_listener(self._on_scan)
 
-    def _on_scan(self, scan: int) -> None:  # scan thread: keep it tiny
-        self._trace_q.append(scan)
+    def _on_scan(self, scan: int) -> None:
+        """Scan thread, after each cycle: copy the image, nothing more."""
+        stream = self.stream
+        if stream is not None:
+            stream.images.append(self.cat.capture(scan))
 
     def poll(self) -> list[str]:
-        """Streamed lines due now (watch, trace); call a few times a second."""
-        out: list[str] = []
-        now = self.service.clock()
-        if self.watch is not None and now >= self._watch_next:
-            names, every = self.watch
-            values = self.ctl.call(lambda: {n: _plain(self.ctl.plant.get(n)) for n in names})
-            self._watch_next = now + (every if every is not None else WATCH_POLL_S)
-            if every is not None or values != self._watch_last:
-                out.append(self._stream_line("watch", values))
-            self._watch_last = values
-        if self.tracing and self._trace_q:
-            scans = list(self._trace_q)
-            self._trace_q.clear()
-            snap = self.ctl.call(lambda: snapshot(self.ctl.plant))
-            last = self._trace_last or {}
-            changed = {k: v for k, v in snap.items() if last.get(k) != v}
-            self._trace_last = snap
-            if changed:
-                out.append(self._stream_line("trace", changed, scan=scans[-1]))
+        """Streamed lines due now (watch, trace); call it a few times a second."""
+        stream = self.stream
+        if stream is None or not stream.images:
+            return []
+        images: list[Image] = []
+        while stream.images:
+            images.append(stream.images.popleft())
+        if stream.every_s is not None:
+            now = self.service.clock()
+            if now < stream.next_due:
+                stream.images.appendleft(images[-1])  # keep the newest for the due time
+                return []
+            stream.next_due = now + stream.every_s
+            images = images[-1:]
+        out = []
+        for img in images:
+            skipped = 0
+            if (stream.every_s is None and img.scan >= 0 and stream.last_scan is not None
+                    and stream.last_scan >= 0):
+                skipped = max(0, img.scan - stream.last_scan - 1)
+            if img.scan >= 0:
+                stream.last_scan = img.scan
+            values = {n.text: n.read(img) for n in stream.names}
+            if stream.kind == "trace":
+                last = stream.last
+                changed = {k: v for k, v in values.items() if last is None or last.get(k) != v}
+                stream.last = values
+                if changed and last is not None:
+                    out.append(self._stream_line("trace", changed, img.scan, skipped))
+            elif stream.every_s is not None or values != stream.last:
+                stream.last = values
+                out.append(self._stream_line("watch", values, img.scan, skipped))
         return out
 
-    def _stream_line(self, kind: str, values: dict[str, Any], scan: int | None = None) -> str:
+    def _stream_line(self, kind: str, values: dict[str, Any], scan: int,
+                     skipped: int) -> str:
+        names = self.cat.names
         if self.json:
-            obj: dict[str, Any] = {kind: values}
-            if scan is not None:
+            obj: dict[str, Any] = {kind: {k: names[k].plain(v) for k, v in values.items()}}
+            logical = {sig: _logical(v, inv) for k, v in values.items()
+                       for sig, inv in names[k].feeds}
+            if logical and kind == "watch":
+                obj["logical"] = logical
+            if scan >= 0:
                 obj["scan"] = scan
+            if skipped:
+                obj["skipped"] = skipped
             return json.dumps(obj, ensure_ascii=False)
-        head = f"{kind}" + (f" {scan}" if scan is not None else "")
-        return head + " " + " ".join(f"{k}={_fmt(k, v)}" for k, v in values.items())
+        parts = []
+        for k, v in values.items():
+            part = f"{k}={names[k].show(v)}"
+            if kind == "watch" and names[k].feeds:
+                part += " (" + ", ".join(f"{sig}={_logical(v, inv)}" + (" inverted" if inv
+                                                                          else "")
+                                         for sig, inv in names[k].feeds) + ")"
+            parts.append(part)
+        head = kind + (f" {scan}" if scan >= 0 else "")
+        if skipped:
+            head += f" ({skipped} scans not shown: the line is too slow)"
+        return head + ": " + "  ".join(parts)
 
     def close(self) -> None:
-        """The connection ended: stop streams; release this session's forces if asked."""
-        self._stop_streams()
-        if self.service.release_on_disconnect and self.forced:
-            names = list(self.forced)
-            self.ctl.call(lambda: [self._unforce_quiet(n) for n in names])
-            log.info("console %s closed: released forces %s", self.name, ", ".join(names))
-            self.forced.clear()
+        """The connection ended: stop streams; release this session's forces if the plant
+        says ``release_forces_on_disconnect: true``."""
+        self._stop_stream()
+        svc = self.service
+        with svc.lock:
+            mine = [n for n, s in svc.force_owner.items() if s is self]
+            for n in mine:
+                del svc.force_owner[n]
+        if not (svc.release_on_disconnect and mine):
+            return
+        plant = self.ctl.plant
 
-    def _unforce_quiet(self, name: str) -> None:
+        def release() -> None:
+            for n in mine:
+                if n in plant.forced or n in plant.forced_points:
+                    plant.unforce(n)
         try:
-            self.ctl.plant.unforce(name)
-        except BindingError:
-            pass
+            self.ctl.call(release)
+        except TimeoutError:
+            log.error("console %s closed: its forces could not be released (the scan did "
+                      "not answer)", self.name)
+            return
+        log.warning("console %s closed: released its forces %s", self.name, ", ".join(mine))
 
     # -- read-only commands ----------------------------------------------------------
     def cmd_help(self, args: list[str]) -> Any:
+        if args:
+            key = args[0].lower()
+            if key not in HELP:
+                raise CommandError(f"no command '{_printable(args[0])}'{suggest(key, HELP)}")
+            return [f"{key:8} {HELP[key]}"], {"commands": {key: HELP[key]}}
         lines = [f"{k:8} {v}" for k, v in HELP.items()]
+        lines.append("* needs 'unlock PIN' (or a trusted console); names: inst.var, "
+                     "inst.step.X, inst.step.T, inst.SFCPause, driver.point")
         return lines, {"commands": HELP}
 
     def cmd_json(self, args: list[str]) -> Any:
@@ -286,215 +661,374 @@ class Session:
         return []
 
     def cmd_status(self, args: list[str]) -> Any:
-        st = self.ctl.status()
-        plant = self.ctl.plant
+        plant, cat = self.ctl.plant, self.cat
 
         def read() -> dict[str, Any]:
-            return {"steps": {n: i.active_steps() for n, i in plant.instances.items()},
-                    "forced": {**{k: _plain(v[2]) for k, v in plant.forced.items()},
-                               **{k: v[3] for k, v in plant.forced_points.items()}},
+            forced = {**{k: cat.names[k].plain(v[2]) for k, v in plant.forced.items()},
+                      **{k: v[3] for k, v in plant.forced_points.items()}}
+            return {**self.ctl.status(),
+                    "steps": {n: i.active_steps() for n, i in plant.instances.items()},
+                    "forced": forced,
                     "errors": {n: i.get("SFCErrorStep") for n, i in plant.instances.items()
                                if i.get("SFCError")}}
-        data = {**st, **self.ctl.call(read)}
-        lines = [f"state {data['state']}" + (f" ({data['fault']})" if data.get("fault")
-                                             else ""),
-                 f"cycle {data['cycle_ms']} ms, scans {data['scans']}, "
-                 f"uptime {data['uptime_s']:.1f} s"]
-        lines += [f"{n}: {' '.join(s) or '-'}" for n, s in data["steps"].items()]
-        lines += [f"SFCError {n}: {s}" for n, s in data["errors"].items()]
+        try:
+            data = self.ctl.call(read)
+        except TimeoutError:  # say what can be said without the scan thread
+            data = {**self.ctl.status(), "steps": {}, "forced": {}, "errors": {},
+                    "note": "the scan thread did not answer"}
+        data["faults"] = data.get("faults", [])[-STATUS_FAULTS:]
+        state = data["state"] + (f" ({data['fault']})" if data.get("fault") else "")
+        lines = [f"state {state}",
+                 f"cycle time {data['cycle_ms']:g} ms, scans {data['scans']}, uptime "
+                 f"{_uptime_text(data['uptime_s'])}"]
+        if "note" in data:
+            lines.append(data["note"])
+        lines += [f"{n}: {' '.join(s) or '(no active step)'}" for n, s in data["steps"].items()]
+        lines += [f"SFCError {n}: step {s}" for n, s in data["errors"].items()]
         lines += [f"forced {k}={v}" for k, v in data["forced"].items()]
+        lines += [f"fault at {_clock_text(f['time'])}: {f['reason']}" for f in data["faults"]]
         return lines, data
 
     def cmd_stats(self, args: list[str]) -> Any:
-        s = self.ctl.stats()
-        lines = [f"{k} {v}" for k, v in s.items() if not isinstance(v, dict)]
+        s = self.ctl.stats()  # ScanStats sorts its window here, never in the scan thread
+        cols = ("last", "min", "mean", "p50", "p99", "max")
+        lines = [f"cycle time {s['cycle_us'] / 1000:g} ms: {s['cycles']} cycles, "
+                 f"{s['overruns']} overruns, {s['skipped']} deadlines skipped",
+                 f"{'(us)':10}" + "".join(f"{c:>9}" for c in cols)]
+        for key, label in (("scan_us", "scan"), ("lateness_us", "lateness")):
+            lines.append(f"{label:10}" + "".join(f"{s[key][c]:>9.1f}" for c in cols))
+        lines.append(f"gc {s['gc_runs']} runs in the idle time, {s['gc_ms']} ms in all")
         for name, d in s.get("drivers", {}).items():
-            lines.append(f"driver {name} {d}")
+            reason = f": {d['reason']}" if d.get("reason") else ""
+            lines.append(f"driver {name}: {d['health']} (on_fault {d['on_fault']}){reason}")
         return lines, {"stats": s}
 
     def cmd_get(self, args: list[str]) -> Any:
         if not args:
             raise CommandError("usage: get NAME...")
-        plant = self.ctl.plant
+        names = self.cat.expand(args)
+        plant, cat = self.ctl.plant, self.cat
 
-        def read() -> tuple[dict[str, Any], set[str]]:
-            return ({n: _plain(plant.get(n)) for n in args},
-                    set(plant.forced) | set(plant.forced_points))
+        def read() -> tuple[dict[str, Any], dict[str, Any]]:
+            img = cat.live()
+            values = {n.text: n.read(img) for n in names}
+            forced = {k: v[3] for k, v in plant.forced_points.items() if k in values}
+            forced.update({k: v[2] for k, v in plant.forced.items() if k in values})
+            return values, forced
         values, forced = self.ctl.call(read)
-        lines = [f"{n}={_fmt(n, v)}" + (" (forced)" if n in forced else "")
-                 for n, v in values.items()]
-        return lines, {"values": values, "forced": sorted(forced & set(values))}
+        lines, shown = [], {}
+        for n in names:
+            v = values[n.text]
+            if n.text in forced and n.role == "point in":
+                # a forced input masks the driver during the cycle only: show both
+                note = f" (forced; the driver reads {n.show(v)})"
+                v = forced[n.text]
+            else:
+                note = " (forced)" if n.text in forced else ""
+            shown[n.text] = n.plain(v)
+            text = f"{n.text}={n.show(v)}{note}"
+            if n.feeds:
+                text += "  " + ", ".join(f"{sig}={_logical(v, inv)}" + (" inverted" if inv
+                                                                          else "")
+                                         for sig, inv in n.feeds)
+            if n.binding and len(names) > 1:
+                text += f"  {n.binding}"
+            lines.append(text)
+        return lines, {"values": shown, "forced": sorted(forced),
+                       "roles": {n.text: n.role for n in names}}
 
     def cmd_watch(self, args: list[str]) -> Any:
         every = None
         if len(args) >= 2 and args[-2] == "every":
             try:
-                every = max(int(args[-1]), 10) / 1000
+                every = max(int(args[-1]), MIN_EVERY_MS) / 1000
             except ValueError:
-                raise CommandError(f"expected a number of ms after 'every', found "
-                                   f"'{args[-1]}'") from None
+                raise CommandError(f"bad value '{_printable(args[-1])}' after 'every': "
+                                   "expected a number of ms") from None
             args = args[:-2]
-        if not args:
-            raise CommandError("usage: watch NAME... [every MS]")
-        self.ctl.call(lambda: [self.ctl.plant.get(n) for n in args])  # validate names
-        self.watch = (args, every)
-        self._watch_last = {}
-        self._watch_next = 0.0
-        return ["watching until the next line"]
+        names = self.cat.expand(args) if args else self.cat.physical_inputs()
+        if not names:
+            raise CommandError("nothing to watch: this plant has no physical input")
+        self._start_stream(_Stream("watch", names, every))
+        return [f"watching {len(names)} value(s) "
+                + (f"every {every * 1000:g} ms" if every else "on every change")
+                + " until the next line"], {"watch": [n.text for n in names]}
 
     def cmd_trace(self, args: list[str]) -> Any:
         if args not in (["on"], ["off"]):
             raise CommandError("usage: trace on|off")
-        if args[0] == "on":
-            self._trace_last = None
-            self.tracing = True
-            self.ctl.add_listener(self._on_scan)
-            return ["tracing until the next line"]
-        return []
+        if args[0] == "off":
+            return []
+        self._start_stream(_Stream("trace", self.cat.traced))
+        return ["tracing every scan's changes until the next line"], {}
 
     def cmd_why(self, args: list[str]) -> Any:
-        if len(args) != 1 or args[0] not in self.ctl.plant.instances:
-            raise CommandError(f"usage: why INSTANCE (one of "
-                               f"{' '.join(self.ctl.plant.instances)})")
-        inst = self.ctl.plant.instances[args[0]]
         plant = self.ctl.plant
+        if len(args) != 1 or args[0] not in plant.instances:
+            given = f" '{_printable(args[0])}'" if args else ""
+            raise CommandError(f"usage: why INSTANCE; no instance{given} (one of "
+                               f"{' '.join(plant.instances)})")
+        inst = plant.instances[args[0]]
 
         def explain() -> Any:
-            inst.last_up = plant.last_up
+            inst.last_up = plant.last_up  # the plant scans without Instance.scan
             return inst.explain()
         whys = self.ctl.call(explain)
         lines, data = [], []
         for sw in whys:
-            lines.append(f"{sw.step} active for {format_time(sw.time_ns)}")
+            lines.append(f"{sw.step} active for {_round_times(format_time(sw.time_ns))}")
             for tw in sw.transitions:
-                state = "fires" if tw.condition and not tw.blocked else "blocked"
+                state = ("fires" if tw.condition and not tw.blocked else
+                         "blocked" if tw.condition else "false")
                 lines.append(f"  [{state}] {tw.text}")
                 for b in tw.blocked:
-                    lines.append(f"    blocked by: {b}")
+                    lines.append(f"      blocked by: {_round_times(b)}")
                 for term in tw.terms:
-                    lines.append(f"    {'  ' * term.depth}{term.text} = {term.value}")
-            data.append({"step": sw.step, "time_ms": sw.time_ns // 1_000_000, "transitions": [
-                {"text": t.text, "condition": t.condition, "blocked": t.blocked,
-                 "terms": [{"text": x.text, "depth": x.depth, "value": x.value}
-                           for x in t.terms]} for t in sw.transitions]})
+                    lines.append(f"      {'  ' * term.depth}{term.text} = {term.value}")
+            data.append({"step": sw.step, "time_ms": round(sw.time_ns / 1e6),
+                         "transitions": [
+                             {"text": t.text, "condition": t.condition,
+                              "blocked": [_round_times(b) for b in t.blocked],
+                              "terms": [{"text": x.text, "depth": x.depth, "value": x.value}
+                                        for x in t.terms]} for t in sw.transitions]})
         if not whys:
             lines.append("no active step")
-        return lines, {"why": data}
+        return lines, {"instance": args[0], "why": data}
 
     def cmd_unlock(self, args: list[str]) -> Any:
         svc = self.service
         if svc.pin_hash is None:
-            raise CommandError("no PIN is set in the plant file")
+            raise CommandError("no pin_hash in the plant file: nothing to unlock"
+                               + (" (this console is trusted)" if self.trusted else ""))
+        if len(args) != 1:
+            raise CommandError("usage: unlock PIN")
         with svc.lock:
             left = svc.locked_until - svc.clock()
             if left > 0:
-                raise CommandError(f"console locked for {left:.0f} s after wrong PINs")
-            if len(args) != 1 or not check_pin(args[0], svc.pin_hash):
+                raise CommandError(f"console locked for {left:.0f} s after "
+                                   f"{MAX_PIN_TRIES} wrong PINs")
+            if not check_pin(args[0], svc.pin_hash):
                 svc.wrong_pins += 1
                 if svc.wrong_pins >= MAX_PIN_TRIES:
                     svc.wrong_pins = 0
                     svc.locked_until = svc.clock() + LOCKOUT_S
-                    log.warning("console %s: %d wrong PINs, locked for %.0f s", self.name,
-                                MAX_PIN_TRIES, LOCKOUT_S)
+                    log.warning("console %s: %d wrong PINs, console locked for %.0f s",
+                                self.name, MAX_PIN_TRIES, LOCKOUT_S)
                     raise CommandError(f"wrong PIN; console locked for {LOCKOUT_S:.0f} s")
-                raise CommandError("wrong PIN")
+                log.warning("console %s: wrong PIN (%d of %d)", self.name, svc.wrong_pins,
+                            MAX_PIN_TRIES)
+                left_tries = MAX_PIN_TRIES - svc.wrong_pins
+                raise CommandError(f"wrong PIN ({left_tries} "
+                                   f"{'try' if left_tries == 1 else 'tries'} left)")
             svc.wrong_pins = 0
         self.unlocked = True
+        log.info("console %s unlocked", self.name)
         return ["unlocked"]
 
     def cmd_lock(self, args: list[str]) -> Any:
+        if not self.may_change():
+            return ["already locked"]
         self.unlocked = False
-        plant = self.ctl.plant
-        self.ctl.call(lambda: plant.unforce(None))
-        self.forced.clear()
-        return ["locked; every force released"]
+        released = self._unforce_all()
+        return ["locked" + (f"; released {', '.join(released)}" if released else "")
+                + ("; this console is trusted: changing commands stay allowed"
+                   if self.trusted else "")], {"released": released}
 
     # -- changing commands ------------------------------------------------------------
-    def _value(self, args: list[str], usage: str) -> tuple[str, str]:
+    def _state(self) -> str:
+        return str(self.ctl.status()["state"])
+
+    def _two(self, args: list[str], usage: str) -> tuple[Name, Any]:
         if len(args) != 2:
             raise CommandError(f"usage: {usage}")
-        return args[0], args[1]
+        name = self.cat.resolve(args[0])
+        return name, parse_value(name, args[1])
 
     def cmd_set(self, args: list[str]) -> Any:
-        name, value = self._value(args, "set NAME VALUE")
+        name, value = self._two(args, "set NAME VALUE")
         plant = self.ctl.plant
-        try:
-            self.ctl.call(lambda: plant.set(name, value))
-        except ValueError as exc:
-            raise CommandError(f"bad value for {name}: {exc}") from None
-        return []
+        if name.binding.startswith("<-"):
+            raise CommandError(f"{name.text} is copied from {name.binding[3:]} before every "
+                               f"scan: set that point, or force {name.text}")
+        writer = self.cat.written_by.get(name.text)
+
+        def write() -> None:
+            state = self._state()
+            if writer is not None and state in ("running", "stepping"):
+                raise CommandError(f"{name.text} is written by {writer} every scan: force "
+                                   "it, or pause or 'iocheck on' first")
+            if name.role == "point out" and state in ("fault", "halted"):
+                raise CommandError(f"the controller is {state}: outputs are held off until "
+                                   "'ack'")
+            plant.set(name.text, value)
+        self.ctl.call(write)
+        return [f"{name.text} set to {name.show(value)}"]
 
     def cmd_force(self, args: list[str]) -> Any:
-        name, value = self._value(args, "force NAME VALUE")
+        name, value = self._two(args, "force NAME VALUE")
+        if name.role in ("step", "step time", "driver health") or name.type is A.Type.STRING:
+            raise CommandError(f"{name.text} cannot be forced (a {name.role}); force "
+                               "inputs, outputs and variables")
         plant = self.ctl.plant
-        try:
-            self.ctl.call(lambda: plant.force(name, value))
-        except ValueError as exc:
-            if isinstance(exc, BindingError):
-                raise
-            raise CommandError(f"bad value for {name}: {exc}") from None
-        self.forced.add(name)
-        return [f"{name} forced to {value}"]
+
+        def force() -> None:
+            plant.force(name.text, value)
+            if name.role not in ("point in", "point out"):
+                plant.set(name.text, value)  # visible at once, even while paused
+        self.ctl.call(force)
+        with self.service.lock:
+            self.service.force_owner[name.text] = self
+        return [f"{name.text} forced to {name.show(value)}"]
 
     def cmd_unforce(self, args: list[str]) -> Any:
         if len(args) != 1:
             raise CommandError("usage: unforce NAME|all")
+        if args[0] == "all":
+            released = self._unforce_all()
+            return [f"released {', '.join(released)}" if released else "nothing was forced"
+                    ], {"released": released}
+        name = self.cat.resolve(args[0])
         plant = self.ctl.plant
-        name = None if args[0] == "all" else args[0]
-        self.ctl.call(lambda: plant.unforce(name))
-        if name is None:
-            self.forced.clear()
-        else:
-            self.forced.discard(name)
-        return []
+        self.ctl.call(lambda: plant.unforce(name.text))
+        with self.service.lock:
+            self.service.force_owner.pop(name.text, None)
+        return [f"{name.text} released"], {"released": [name.text]}
+
+    def _unforce_all(self) -> list[str]:
+        plant = self.ctl.plant
+
+        def release() -> list[str]:
+            names = [*plant.forced, *plant.forced_points]
+            plant.unforce(None)
+            return names
+        released = self.ctl.call(release)
+        with self.service.lock:
+            self.service.force_owner.clear()
+        if released:
+            log.warning("console %s: every force released (%s)", self.name,
+                        ", ".join(released))
+        return released
 
     def cmd_pause(self, args: list[str]) -> Any:
         plant = self.ctl.plant
 
-        def do() -> None:
+        def do() -> str:
+            state = self._state()
+            if state == "iocheck":
+                raise CommandError("iocheck on: the charts are stopped already")
+            was = plant.hold
             plant.hold = True
             plant.steps_left = 0
-        self.ctl.call(do)
-        return ["paused: charts hold, I/O still scanned"]
+            return "already paused" if was else "paused"
+        return [self.ctl.call(do) + ": charts hold, I/O still scanned; 'cycle N' steps, "
+                "'resume' goes on"]
 
     def cmd_resume(self, args: list[str]) -> Any:
         plant = self.ctl.plant
 
-        def do() -> None:
+        def do() -> str:
+            was = plant.hold
             plant.hold = False
-        self.ctl.call(do)
-        return []
+            plant.steps_left = 0
+            return "resumed" if was else "not paused"
+        return [self.ctl.call(do)]
 
     def cmd_cycle(self, args: list[str]) -> Any:
-        plant = self.ctl.plant
+        if len(args) > 1:
+            raise CommandError("usage: cycle [N]")
         try:
             n = int(args[0]) if args else 1
         except ValueError:
-            raise CommandError(f"expected a number of scans, found '{args[0]}'") from None
-        if n < 1 or n > 10_000:
-            raise CommandError("cycle N: N from 1 to 10000")
-        if not plant.hold:
-            raise CommandError("cycle works while paused: pause first")
-        before = self.ctl.call(lambda: snapshot(plant))
-        self.ctl.call(lambda: plant.step(n))
-        deadline = time.monotonic() + 2.0 + 2 * n * plant.cycle_ns / 1e9
-        while self.ctl.call(lambda: plant.steps_left) > 0:
-            if time.monotonic() > deadline:
-                raise CommandError("the scans did not run in time")
-            time.sleep(plant.cycle_ns / 1e9)
-        after = self.ctl.call(lambda: snapshot(plant))
-        changed = {k: v for k, v in after.items() if before.get(k) != v and not k.endswith(".T")}
-        lines = [f"ran {n} scan(s)"] + [f"{k}: {_fmt(k, before.get(k))} -> {_fmt(k, v)}"
-                                       for k, v in changed.items()]
-        return lines, {"scans": n, "changed": changed}
+            raise CommandError(f"bad value '{_printable(args[0])}': expected a number of "
+                               "scans") from None
+        if not 1 <= n <= MAX_CYCLE:
+            raise CommandError(f"bad value {n}: cycle N runs 1 to {MAX_CYCLE} scans")
+        plant, cat = self.ctl.plant, self.cat
+        images: list[Image] = []
+        done = threading.Event()
+
+        def on_scan(scan: int) -> None:  # scan thread
+            images.append(cat.capture(scan))
+            if plant.steps_left <= 0:
+                done.set()
+
+        def start() -> Image:
+            state = self._state()
+            if state != "paused":
+                raise CommandError(f"cycle runs while paused; the controller is {state}"
+                                   + (": pause first" if state == "running" else ""))
+            plant.step(n)
+            self.ctl.add_listener(on_scan)
+            return cat.capture(-1)
+        before = self.ctl.call(start)
+        try:
+            if not done.wait(2.0 + 2 * n * plant.cycle_ns / 1e9):
+                self.ctl.call(lambda: plant.step(0))
+                raise CommandError(f"the scans did not run (controller {self._state()}); "
+                                   "stepping cancelled")
+        finally:
+            self.ctl.remove_listener(on_scan)
+        return self._cycle_report(n, before, images[:n])
+
+    def _cycle_report(self, n: int, before: Image, images: list[Image]) -> Any:
+        names = self.cat.traced
+        steps = [x for x in names if x.role == "step"]
+        prev = {x.text: x.read(before) for x in names}
+        first = prev
+        lines = [f"ran {n} scan(s)" + (f" ({images[0].scan}..{images[-1].scan})"
+                                       if images else "")]
+        per_scan = []
+        for img in images:
+            cur = {x.text: x.read(img) for x in names}
+            changed = {k: v for k, v in cur.items() if prev[k] != v}
+            per_scan.append({"scan": img.scan, "changed": {
+                k: self.cat.names[k].plain(v) for k, v in changed.items()}})
+            if changed and len(lines) < CYCLE_DETAIL_LINES:
+                lines.append(f"scan {img.scan}: " + self._changes(changed, prev, steps))
+            elif changed and len(lines) == CYCLE_DETAIL_LINES:
+                lines.append("... (more scans changed; the total follows)")
+            prev = cur
+        total = {k: v for k, v in prev.items() if first[k] != v}
+        if sum(1 for p in per_scan if p["changed"]) > 1 and total:
+            lines.append("in all: " + self._changes(total, first, steps))
+        if not total and not any(p["changed"] for p in per_scan):
+            lines.append("nothing changed")
+        return lines, {"scans": n, "per_scan": per_scan,
+                       "changed": {k: self.cat.names[k].plain(v) for k, v in total.items()}}
+
+    def _changes(self, changed: dict[str, Any], before: dict[str, Any],
+                 steps: list[Name]) -> str:
+        """``tester1 gsParado -> gsAbrir; tester1.oAbrir 0 -> 1, ...``"""
+        parts = []
+        for inst in self.cat.groups:
+            mine = [x.text for x in steps if x.text.startswith(inst + ".")]
+            if not any(k in changed for k in mine):
+                continue
+            was = [k.split(".")[1] for k in mine if before[k]]
+            now = [k.split(".")[1] for k in mine if changed.get(k, before[k])]
+            parts.append(f"{inst} {','.join(was) or '-'} -> {','.join(now) or '-'}")
+        names = self.cat.names
+        others = [f"{k} {names[k].show(before[k])} -> {names[k].show(v)}"
+                  for k, v in changed.items() if names[k].role != "step"]
+        return "; ".join(parts + ([", ".join(others)] if others else []))
 
     def _pulse(self, args: list[str], flag: str) -> Any:
         plant = self.ctl.plant
         if len(args) != 1 or args[0] not in plant.instances:
-            raise CommandError(f"usage: {flag[3:].lower()} INSTANCE (one of "
+            given = f"; no instance '{_printable(args[0])}'" if args else ""
+            raise CommandError(f"usage: {flag[3:].lower()} INSTANCE{given} (one of "
                                f"{' '.join(plant.instances)})")
-        self.ctl.call(lambda: plant.pulse(args[0], flag))
-        return [f"{flag} pulsed on {args[0]}"]
+
+        def do() -> str:
+            state = self._state()
+            if state == "iocheck":
+                raise CommandError("iocheck on: the charts are stopped")
+            plant.pulse(args[0], flag)
+            return state
+        state = self.ctl.call(do)
+        when = " at the next scan" if state != "paused" else " at the next scan ('cycle' " \
+                                                              "or 'resume': paused now)"
+        return [f"{flag} pulsed on {args[0]}{when}"]
 
     def cmd_init(self, args: list[str]) -> Any:
         return self._pulse(args, "SFCInit")
@@ -505,15 +1039,63 @@ class Session:
     def cmd_iocheck(self, args: list[str]) -> Any:
         if args not in (["on"], ["off"]):
             raise CommandError("usage: iocheck on|off")
-        plant = self.ctl.plant
-        on = args[0] == "on"
-        self.ctl.call(lambda: plant.set_iocheck(on))
-        if on:
-            return ["iocheck: charts stopped, every output off; set DRIVER.POINT 0|1 drives "
-                    "one output, watch shows raw inputs"]
-        self.ctl.require_ack("iocheck ended: acknowledge to restart the charts")
-        return ["iocheck off: every output off; ack restarts the charts from their initial "
-                "situation"]
+        plant, ctl = self.ctl.plant, self.ctl
+        if args[0] == "on":
+            def enter() -> list[str]:
+                state = self._state()
+                if state == "fault":
+                    raise CommandError("the controller is in fault: 'ack' it first")
+                if state == "iocheck":
+                    return []
+                released = [*plant.forced, *plant.forced_points]
+                plant.unforce(None)  # outputs all off means forced ones too
+                if state == "halted":
+                    # back to the bench after a previous iocheck: the charts were waiting
+                    # for ack; acknowledge and re-enter in the same boundary, so no scan runs
+                    hold = plant.hold
+                    plant.hold = True
+                    ctl.ack()
+                    plant.hold = hold
+                plant.steps_left = 0
+                plant.set_iocheck(True)
+                return released
+            released = self.ctl.call(enter)
+            with self.service.lock:
+                self.service.force_owner.clear()
+            lines = ["iocheck: charts stopped, every output off. 'set DRIVER.POINT 1' drives "
+                     "one output, 'watch' shows physical inputs with their logical value, "
+                     "'iocheck off' ends"]
+            if released:
+                lines.append(f"released forces: {', '.join(released)}")
+            return lines, {"released": released}
+
+        def leave() -> None:
+            if not plant.iocheck:
+                raise CommandError("not in iocheck")
+            plant.set_iocheck(False)
+            # the same boundary: no scan may run the charts between the two
+            ctl.require_ack("iocheck ended: 'ack' restarts the charts from their initial "
+                            "situation")
+        self.ctl.call(leave)
+        return ["iocheck off: every output off; 'ack' restarts the charts from their "
+                "initial situation"]
 
     def cmd_ack(self, args: list[str]) -> Any:
         return [self.ctl.ack()]
+
+
+def _edit(text: str) -> str:
+    """Apply a terminal's editing keys typed on a raw line: backspace/DEL erase the
+    character before, Ctrl-U the whole line."""
+    if not any(c in text for c in "\b\x7f\x15"):
+        return text
+    out: list[str] = []
+    for c in text:
+        if c in "\b\x7f":
+            if out:
+                out.pop()
+        elif c == "\x15":
+            out.clear()
+        else:
+            out.append(c)
+    return "".join(out)

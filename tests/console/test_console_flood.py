@@ -1,0 +1,82 @@
+"""Bad input on the line never stops or slows the scan: a client floods the serial
+console (1000 lines/s of commands, 2000-byte lines, binary garbage) while another streams
+``trace on`` from a chart that changes every scan, and the cycle statistics are compared
+with a quiet run of the same daemon.
+
+The clients are separate processes (flooder.py), as a laptop at the other end of the
+cable would be. The bounds are generous on purpose (a loaded, shared 2-core VM): no
+more overruns than the quiet run (none at a 10 ms cycle on an idle machine), every cycle
+ran, lateness p99 at most twice the quiet run's or 2.5 ms more. The figures themselves
+are measured by bench/console.py."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+from consolekit import Rig
+
+FLOODER = str(Path(__file__).with_name("flooder.py"))
+SECONDS = 3.0
+
+
+def window(rig: Rig, run: Callable[[], Any]) -> dict[str, Any]:
+    """Cycle statistics of the daemon while ``run()`` runs (reset at the start, in the
+    scan thread)."""
+    stats = rig.daemon.scan_stats
+    rig.daemon.call(stats.reset)
+    t0 = time.monotonic()
+    extra = run()
+    elapsed = time.monotonic() - t0
+    count, overruns = rig.daemon.call(lambda: (stats.count, stats.overruns))
+    late = stats.lateness()
+    return {"cycles": count, "expected": elapsed / 0.010, "overruns": overruns,
+            "p99_us": late.p99 / 1e3, "max_us": late.max / 1e3, "extra": extra}
+
+
+@pytest.mark.slow
+def test_a_flood_on_the_console_does_not_disturb_the_scan(rigs: Callable[..., Rig]) -> None:
+    flooder = subprocess.Popen([sys.executable, FLOODER, "flood", str(SECONDS), "1000"],
+                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert flooder.stdout is not None and flooder.stdin is not None
+        port = json.loads(flooder.stdout.readline())["port"]
+        rig = rigs(serial_path=port, blink=True)
+        assert rig.socket_path is not None
+        quiet = window(rig, lambda: time.sleep(SECONDS))
+
+        def flood() -> Any:
+            tracer = subprocess.Popen([sys.executable, FLOODER, "trace", rig.socket_path,
+                                       str(SECONDS)], stdout=subprocess.PIPE, text=True)
+            flooder.stdin.write("go\n")  # type: ignore[union-attr]
+            flooder.stdin.flush()  # type: ignore[union-attr]
+            out, _ = flooder.communicate(timeout=60)
+            traced, _ = tracer.communicate(timeout=60)
+            return json.loads(out), json.loads(traced)
+        loud = window(rig, flood)
+    finally:
+        if flooder.poll() is None:
+            flooder.kill()
+            flooder.wait()
+    sent, traced = loud["extra"]
+    msg = f"quiet {quiet}, flooded {loud}"
+    # the flood reached the console and was answered, and so was the trace client
+    assert sent["rate"] >= 800 and sent["sent_lines"] >= 0.8 * 1000 * SECONDS, msg
+    assert sent["errors"] > 1000 and sent["ok"] > 50, msg
+    assert sent["answers_after"], msg
+    assert traced["trace_lines"] > 0.5 * SECONDS * 100, msg
+    # and the scan did not notice
+    assert loud["overruns"] <= quiet["overruns"], msg  # 0 unless the VM itself overran
+    assert loud["cycles"] >= 0.95 * loud["expected"], msg
+    assert loud["p99_us"] < max(2 * quiet["p99_us"], quiet["p99_us"] + 2500), msg
+    # nothing changed on the machine, and the console still answers
+    assert not rig.plant.forced and not rig.plant.forced_points
+    assert rig.state() == "running" and rig.steps("t1") == ["gsParado"]
+    assert rig.read("t1.sParo") is False and rig.read("t1.sCierres") == 0
+    assert rig.connect().cmd("status")[0] == "state running"
