@@ -542,6 +542,8 @@ def _place(c: Chart, hint: dict[str, float] | None, root_x: dict[str, float],
                 items.append(lines.pop(0))
             items.append(n)
         items += lines
+        if not items:
+            continue
         des = [desired[i] if isinstance(i, str) else i for i in items]
         wts = [weight[i] if isinstance(i, str) else 1e6 for i in items]
         seps = [_sep(c.nodes[a] if isinstance(a, str) else None,
@@ -600,6 +602,8 @@ class Routes:
     leave: dict[tuple[str, str], float] = field(default_factory=dict)  # link -> y of its
     # horizontal part below its source (back lanes and channels)
     caption_w: dict[str, float] = field(default_factory=dict)
+    and_channel: dict[tuple[str, str], float] = field(default_factory=dict)  # an AND
+    # convergence's source whose straight line down would cross an element: x of a channel
     lane_level: dict[str, int] = field(default_factory=dict)  # lanes into the same row on
     # the same side arrive one above the other (outer ones higher)
     pad: list[float] = field(default_factory=list)  # room below a row for closing frames
@@ -730,6 +734,15 @@ def route(c: Chart) -> Routes:
         for layer in range(layers[0], layers[-1] + 1):
             extra.setdefault(layer, []).append((x0, x1))
     place_buses([v for v in channels if v not in r.bus])
+    for src, t in and_links(c):  # a straight line down, unless something is in the way
+        xs = c.nodes[src].x
+        rows = range(c.nodes[src].layer + 1, c.nodes[t].layer)
+        if any(c.nodes[n].x - c.nodes[n].left - 4 < xs < c.nodes[n].x + c.nodes[n].right + 4
+               for layer in rows for n in c.layers[layer]):
+            x = max([_extent(c, layer, extra)[1] for layer in rows] + [xs]) + LANE
+            r.and_channel[(src, t)] = x
+            for layer in rows:
+                extra.setdefault(layer, []).append((x - 3, x + 3))
     place_lanes([v for v in groups if v not in r.lane])
     _rows(c, r, groups)
     return r
@@ -751,6 +764,8 @@ def _rows(c: Chart, r: Routes, groups: dict[str, list[str]]) -> None:
     for v in r.bus:
         for t in long_links(c, v):
             leaving.setdefault(c.nodes[t].layer, []).append((t, v, 1))
+    for src, t in r.and_channel:
+        leaving.setdefault(c.nodes[src].layer, []).append((src, t, 1))
     starts: dict[int, list[str]] = {}
     ends: dict[int, list[str]] = {}
     for m, box in r.frames.items():
@@ -899,11 +914,18 @@ class Drawing:
         if not outs:
             return
         ends: list[tuple[float, float]] = []
-        for t in outs:
-            if len(c.fin(t)) > 1:
+        for t in list(outs):
+            if (s, t) in self.r.and_channel:  # round what is in the way
+                x, y = self.r.and_channel[(s, t)], self.r.leave[(s, t)]
+                self.svg.line([(xs, self.step_bottom(s)), (xs, y), (x, y),
+                               (x, self.and_in_y(t) - 2)], cls="channel")
+                outs.remove(t)
+            elif len(c.fin(t)) > 1:
                 ends.append((xs, self.and_in_y(t) - 2))
             else:
                 ends.append((self.x(t), self.mid(t) - 2))
+        if not outs:
+            return
         y = self.split_y(s)
         if len(outs) == 1:
             ex, ey = ends[0]
@@ -924,7 +946,7 @@ class Drawing:
         if len(srcs) < 2:
             return
         y = self.and_in_y(t)
-        xs = [self.x(s) for s in srcs] + [self.x(t)]
+        xs = [self.r.and_channel.get((s, t), self.x(s)) for s in srcs] + [self.x(t)]
         for dy in (-2.0, 2.0):
             self.svg.line([(min(xs) - 12, y + dy), (max(xs) + 12, y + dy)], cls="and")
         self.svg.line([(self.x(t), y + 2), (self.x(t), self.mid(t) - 2)])

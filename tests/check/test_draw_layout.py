@@ -9,15 +9,19 @@ import itertools
 import json
 import re
 import shutil
+import tempfile
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
 
 from runtime import draw
 from runtime.check import file_kind
 from runtime.check_logic import unparse
+from runtime.errors import SourceError
 from runtime.language import load_grafcet
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -282,3 +286,59 @@ def test_a_given_order_is_followed_and_stays_readable(tmp_path: Path) -> None:
     for (wa, a), (wb, b) in itertools.combinations(boxes, 2):
         if not (inside(a, b) or inside(b, a)):
             assert not overlap(a, b), f"{wa} overlaps {wb}"
+
+
+# -- any chart the loader accepts is drawn, and drawn cleanly -------------------------------
+STEP_NAMES = [f"gs{c}" for c in "ABCDEFG"]
+CONDS = ["iA", "iB'", "↑iC", "iA·iB + iC", "1", "gsA.T >= 2s"]
+ACTIONS = ["{}", "{actions: [oX]}", '{actions: [oX, "P1 sN := sN + 1"]}',
+           '{actions: ["N oX if iA", "D 1s oY"]}']
+
+
+@st.composite
+def random_chart(draw_: st.DrawFn) -> str:
+    n = draw_(st.integers(1, 7))
+    steps = STEP_NAMES[:n]
+    lines = ["grafcet: F", "inputs: [iA, iB, iC]", "outputs: [oX, oY]", "memory: {sN: 0}",
+             "steps:"]
+    for i, s in enumerate(steps):
+        acts = draw_(st.sampled_from(ACTIONS))
+        if i == 0:
+            acts = acts[:-1] + (", " if acts != "{}" else "") + "initial: true}"
+        lines.append(f"  {s}: {acts}")
+    lines.append("transitions:")
+    for _ in range(draw_(st.integers(0, 9))):
+        src = draw_(st.lists(st.sampled_from(steps), max_size=2, unique=True))
+        dst = draw_(st.lists(st.sampled_from(steps), max_size=2, unique=True))
+        if src or dst:
+            lines.append(f"  - {{from: [{', '.join(src)}], to: [{', '.join(dst)}], "
+                         f"when: \"{draw_(st.sampled_from(CONDS))}\"}}")
+    return "\n".join(lines) + "\n"
+
+
+@settings(max_examples=40, deadline=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(text=random_chart())
+def test_random_charts_are_drawn_cleanly(text: str) -> None:
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "c.yaml"
+        path.write_text(text, encoding="utf-8")
+        try:
+            g = load_grafcet(str(path))
+        except SourceError:
+            assume(False)
+            return
+        for layout in LAYOUTS:
+            out = str(Path(d) / f"{layout}.svg")
+            draw.draw(str(path), out, layout=layout)
+            boxes, lines = parse(out)
+            names = [w for w, _ in boxes]
+            for s in g.leaf_steps():
+                assert f"text {s.name!r}" in names
+            for (wa, a), (wb, b) in itertools.combinations(boxes, 2):
+                if not (inside(a, b) or inside(b, a)):
+                    assert not overlap(a, b), f"{layout}: {wa} overlaps {wb}"
+            for what, b in boxes:
+                for pts in lines:
+                    for p, q in itertools.pairwise(pts):
+                        assert not segment_hits(p, q, b), f"{layout}: line crosses {what}"
