@@ -4,7 +4,7 @@ The driver is the node's NMT master and heartbeat consumer:
 
 * the PDO mapping is read from the node by SDO (TPDO/RPDO communication and mapping
   objects 0x1800/0x1A00 and 0x1400/0x1600), or taken from the EDS/DCF given as ``eds``,
-  or from ``pdo:`` in the config (then no SDO read at all);
+  or from ``pdo:`` in the config (then the mapping needs no SDO read);
 * the node's producer heartbeat time (0x1017) is set to a quarter of our ``heartbeat``
   timeout if it is off or too slow for it;
 * NMT start; then the TPDOs (inputs, 0x6000) are received by python-can's receive thread
@@ -25,7 +25,7 @@ Points ``I0``-``I63`` (0x6000 sub 1 bit 0 is I0, sub 2 bit 0 is I8, ...), ``Q0``
 
     rio: {type: canopen, interface: socketcan, channel: can0, bitrate: 250000, node: 5,
           heartbeat: 500ms, sync: 10ms}
-    # without SDO: the node's mapping, COB-IDs of the predefined connection set
+    # the node's mapping given, COB-IDs of the predefined connection set
     rio2: {type: canopen, channel: can0, node: 6,
            pdo: {tpdo1: ["6000:1", "6000:2"], rpdo1: ["6200:1"]}}
 """
