@@ -14,6 +14,7 @@ from typing import IO, Any
 from drivers.base import Driver
 from drivers.sim import SimDriver
 from runtime import ast as A
+from runtime.compiler import UnstableChart
 from runtime.engine import Instance, coerce
 from runtime.errors import Loc, SourceError, suggest
 from runtime.language import check_keys, expect_type, time_value
@@ -215,13 +216,46 @@ class Simulation:
             while ev < n_ev and events[ev].at_ns <= t:
                 events[ev].apply()
                 ev += 1
-            plant.cycle(t)
+            try:
+                plant.cycle(t)
+            except Exception as exc:  # a fault in a scan: outputs off, one clear line
+                plant.safe_state()
+                raise self._fault(exc, k, t) from None
             if trace:
                 row: dict[str, Any] = {"cycle": k, "t_ms": t // 1_000_000}
                 for key, get in cols:
                     row[key] = get()
                 yield row
         plant.safe_state()
+
+
+    def _fault(self, exc: Exception, k: int, t: int) -> ScanFault:
+        """ScanFault at the instance whose scan raised ``exc`` (found by its state list in
+        the traceback), or at the plant file."""
+        name = None
+        tb = exc.__traceback__
+        while tb is not None:
+            frame = tb.tb_frame
+            if frame.f_code.co_filename.startswith("<grafcet "):
+                m = frame.f_locals.get("m")
+                name = next((n for n, i in self.plant.instances.items() if i.m is m), name)
+            tb = tb.tb_next
+        what = str(exc) if isinstance(exc, UnstableChart) else f"{type(exc).__name__}: {exc}"
+        if name is None:
+            return ScanFault(self.pdef.instances[next(iter(self.pdef.instances))].loc
+                             if self.pdef.instances else Loc(self.pdef.path, 1, 1),
+                             f"expected every scan to end normally, found a fault in cycle "
+                             f"{k} (t = {t // 1_000_000} ms): {what}")
+        g = self.plant.instances[name].grafcet
+        return ScanFault(self.pdef.instances[name].loc,
+                         f"expected every scan to end normally, found a fault in the scan of "
+                         f"instance '{name}' (grafcet {g.name}, {g.path}) in cycle {k} "
+                         f"(t = {t // 1_000_000} ms): {what}")
+
+
+class ScanFault(SourceError):
+    """A scan of a simulated plant raised (unstable chart, division by zero ...): reported
+    as one line at the instance in the plant file, never as a traceback."""
 
 
 def write_trace(rows: Iterator[dict[str, Any]], out: IO[str]) -> int:

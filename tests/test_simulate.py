@@ -225,3 +225,47 @@ def test_vcd_holds_the_trace_values_at_their_times(write, drawer):  # type: igno
             want = format(v, "b") if key == "t1.sCierres" else str(v) if not isinstance(
                 v, str) else (v or "-")
             assert last == want, (key, row["t_ms"], last, want)
+
+
+@pytest.mark.parametrize("chart, words", [
+    ("""\
+    grafcet: U
+    scan: stable
+    inputs: [go]
+    steps:
+      a: {initial: true}
+      b: {}
+    transitions:
+      - {from: a, to: b, when: go}
+      - {from: b, to: a, when: go}
+    """, ["in cycle 2 (t = 20 ms)", "unstable chart U", "cycle of steps a, b"]),
+    ("""\
+    grafcet: U
+    inputs: [go]
+    memory: {n: 0, d: 0}
+    steps:
+      a: {initial: true, actions: ["N n := 10 / d"]}
+      b: {}
+    transitions:
+      - {from: a, to: b, when: go}
+    """, ["in cycle 0 (t = 0 ms)", "ZeroDivisionError"]),
+])
+def test_a_fault_in_a_scan_is_one_line_at_the_instance_and_exit_2(
+        write, chart, words):  # type: ignore[no-untyped-def]
+    write("u.yaml", chart)
+    plant = write("plant.yaml", """\
+    drivers: {sim: {type: sim}}
+    instances:
+      other: {grafcet: drawer_like.yaml, inputs: {go: sim.I1}}
+      u: {grafcet: u.yaml, inputs: {go: sim.I0}}
+    """)
+    write("drawer_like.yaml", "grafcet: D\ninputs: [go]\nsteps:\n  s: {initial: true}\n")
+    script = write("s.yaml", "cycles: 5\nset:\n  - {at: 20ms, u.go: 1}\n")
+    r = subprocess.run([sys.executable, "-m", "runtime.cli", "simulate", plant, "--script",
+                        script], capture_output=True, text=True, check=False)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    (line,) = [x for x in r.stderr.splitlines() if ": error: " in x]
+    assert line.startswith(f"{plant}:4:3: error: expected every scan to end normally, found a "
+                           "fault in the scan of instance 'u'")
+    for w in words:
+        assert w in line
