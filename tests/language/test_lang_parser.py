@@ -362,6 +362,25 @@ def test_event_action() -> None:
     assert len(pa.body or []) == 2
 
 
+@pytest.mark.parametrize("text, kind", [
+    ("on (↑iA + ↓iB) do n := 1", "EVENT"),  # parentheses, then do: an event
+    ("ON ↑iA do n := 1", "EVENT"),  # the word is case-insensitive
+    ("On", "target"),  # a bare output named On: an N action
+    ("oN if iA", "target"),  # conditional N action on an output named oN
+    ("ON := iA", "body"),  # an assignment to an output named ON
+    ("oN.Set(1, iA)", "body"),  # a method call on it
+    ("oN(IN := iA)", "body"),  # a block named oN called: no 'do' after the parentheses
+])
+def test_on_starts_an_event_action_only_before_an_event(text: str, kind: str) -> None:
+    pa = action(text)
+    if kind == "EVENT":
+        assert pa.qualifier == "EVENT" and pa.event is not None
+    elif kind == "target":
+        assert pa.qualifier == "N" and pa.target is not None and pa.target.name == text[:2]
+    else:
+        assert pa.qualifier == "N" and pa.body is not None and pa.event is None
+
+
 # -- round trips --------------------------------------------------------------------------
 ROUND_TRIP_EXPRESSIONS = [
     "↑iMarcha·iParo'",
