@@ -31,8 +31,10 @@ log = logging.getLogger(__name__)
 
 #: how long a command may take before the controller is considered silent, seconds
 REQUEST_TIMEOUT_S = 5.0
-#: view refresh period, seconds
+#: view refresh period, seconds; slower on a serial line, where a refresh (~2.5 kB) takes
+#: about 0.2 s at 115200 baud
 REFRESH_S = 0.25
+SERIAL_REFRESH_S = 1.0
 #: reply lines kept under the view
 LOG_LINES = 200
 
@@ -433,7 +435,10 @@ def cmd_monitor(args: argparse.Namespace) -> int:
                 view.refresh(client)
                 sys.stdout.write("\n".join(view.lines(args.width)) + "\n")
                 return 0 if not view.problem else 1
-            return run_screen(client, view, args.interval)
+            interval = args.interval
+            if interval is None:
+                interval = SERIAL_REFRESH_S if isinstance(link, SerialLink) else REFRESH_S
+            return run_screen(client, view, interval)
         finally:
             client.close()
     except MonitorError as exc:
@@ -450,8 +455,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     m.add_argument("target", metavar="PORT|SOCKET",
                    help="/run/softplc/console.sock, 127.0.0.1:5020 or /dev/ttyUSB0")
     m.add_argument("--baudrate", type=int, default=115200, help="serial speed (115200)")
-    m.add_argument("--interval", type=float, default=REFRESH_S, metavar="S",
-                   help=f"refresh period in seconds ({REFRESH_S})")
+    m.add_argument("--interval", type=float, metavar="S",
+                   help=f"refresh period in seconds ({REFRESH_S}; {SERIAL_REFRESH_S} on a "
+                        "serial line)")
     m.add_argument("--once", action="store_true",
                    help="print the view once as text and exit (scripts, dumb terminals)")
     m.add_argument("--width", type=int, default=100, help="line width for --once")
