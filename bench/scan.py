@@ -259,7 +259,7 @@ def main() -> int:
         f"{'ratio':>6} {'us/inst':>8} {'ms/cycle':>9} {'hand ms/cycle':>14}")
     with tempfile.TemporaryDirectory() as d:
         for n in args.counts:
-            cycles = args.cycles or max(200, 200_000 // n)
+            cycles = args.cycles or max(500, 200_000 // n)
             # equivalence, over more than one period of the pattern (instances are
             # independent: 100 of them, at 100 phases of the pattern, are enough)
             check, n_check = PERIOD + 300, min(n, 100)
