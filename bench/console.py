@@ -53,7 +53,7 @@ def main() -> int:
                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     assert flooder.stdout is not None and flooder.stdin is not None
     port = json.loads(flooder.stdout.readline())["port"]
-    rig = make_rig(serial_path=port, blink=True, cycle=args.cycle)
+    rig = make_rig(serial_path=port, blink=True, cycle=args.cycle, manage_gc=True)
     assert rig.socket_path is not None
     rows = []
     try:

@@ -46,6 +46,9 @@ PARTIAL_LINE_TIMEOUT_S = 60.0
 #: cycles a stream keeps between two polls of its session; older ones are dropped (and
 #: counted) when the line cannot carry them
 STREAM_SCANS = 2000
+#: stream lines sent per poll at most: on a slow line the older cycles are skipped (and
+#: counted) rather than queued, so a line typed to stop the stream is read soon
+STREAM_LINES_PER_POLL = 20
 #: ``cycle N`` limits, and the cycles reported one by one
 MAX_CYCLE = 10_000
 CYCLE_DETAIL_LINES = 40
@@ -541,7 +544,9 @@ class Session:
             self._listening = True
 
     def _first_image(self, stream: _Stream) -> None:
+        """Scan thread: the values when the stream starts, and the cycle count then."""
         stream.images.append(self.cat.capture(-1))
+        stream.last_scan = int(self.ctl.status()["scans"])
 
     def _stop_stream(self) -> None:
         self.stream = None
@@ -563,31 +568,38 @@ class Session:
         images: list[Image] = []
         while stream.images:
             images.append(stream.images.popleft())
+        out = []
+        if stream.last is None:  # the snapshot taken when the stream started
+            first = images.pop(0)
+            stream.last = {n.text: n.read(first) for n in stream.names}
+            if stream.kind == "watch":
+                out.append(self._stream_line("watch", stream.last, -1, 0))
+            if stream.every_s is not None:
+                stream.next_due = self.service.clock() + stream.every_s
         if stream.every_s is not None:
             now = self.service.clock()
-            if now < stream.next_due:
-                stream.images.appendleft(images[-1])  # keep the newest for the due time
-                return []
+            if not images or now < stream.next_due:
+                stream.images.extendleft(images[-1:])  # the newest waits for its time
+                return out
             stream.next_due = now + stream.every_s
-            images = images[-1:]
-        out = []
-        for img in images:
-            skipped = 0
-            if (stream.every_s is None and img.scan >= 0 and stream.last_scan is not None
-                    and stream.last_scan >= 0):
-                skipped = max(0, img.scan - stream.last_scan - 1)
-            if img.scan >= 0:
-                stream.last_scan = img.scan
+            values = {n.text: n.read(images[-1]) for n in stream.names}
+            stream.last_scan = images[-1].scan
+            return [*out, self._stream_line("watch", values, images[-1].scan, 0)]
+        # the first image kept is compared with the last one shown: no change is lost,
+        # only the cycles in between are not shown one by one
+        for img in images[-STREAM_LINES_PER_POLL:]:
+            skipped = (max(0, img.scan - stream.last_scan - 1) if stream.last_scan is not None
+                       else 0)
+            stream.last_scan = img.scan
             values = {n.text: n.read(img) for n in stream.names}
+            last = stream.last
             if stream.kind == "trace":
-                last = stream.last
-                changed = {k: v for k, v in values.items() if last is None or last.get(k) != v}
-                stream.last = values
-                if changed and last is not None:
+                changed = {k: v for k, v in values.items() if last.get(k) != v}
+                if changed:
                     out.append(self._stream_line("trace", changed, img.scan, skipped))
-            elif stream.every_s is not None or values != stream.last:
-                stream.last = values
+            elif values != last:
                 out.append(self._stream_line("watch", values, img.scan, skipped))
+            stream.last = values
         return out
 
     def _stream_line(self, kind: str, values: dict[str, Any], scan: int,

@@ -380,12 +380,14 @@ def wait_for(cond: Callable[[], Any], what: str, timeout: float = DEADLINE_S) ->
 def make_rig(*, serial_port: bool = True, unix_socket: bool = True, trusted: bool = True,
              pin_hash: str | None = None, release: bool = False, cycle: str = "10ms",
              clock: Callable[[], float] = time.monotonic, released_stop: bool = True,
-             serial_path: str | None = None, blink: bool = False) -> Rig:
+             serial_path: str | None = None, blink: bool = False,
+             manage_gc: bool = False) -> Rig:
     """Write the plant, start the daemon and its console; the stop button released
     (rio.I0 = rio.I4 = 1, NC contacts) so the testers can start.
 
     The serial console is on a NullModem, or on ``serial_path`` (a pty another process
-    owns) when given."""
+    owns) when given. ``manage_gc=True`` runs the collector as the daemon does in
+    production (disabled, then run in the scan's idle time): bench/console.py uses it."""
     tmp = tempfile.mkdtemp(prefix="sc", dir="/tmp")  # short: Unix socket paths <= 107
     modem = NullModem() if serial_port and serial_path is None else None
     port = modem.daemon_port if modem else serial_path
@@ -400,7 +402,7 @@ def make_rig(*, serial_port: bool = True, unix_socket: bool = True, trusted: boo
                           encoding="utf-8")
     pdef = load_plant(path)
     drv = FlakySim("rio", {"on_fault": "stop"})
-    daemon = Daemon(pdef, plant=Plant(pdef, drivers={"rio": drv}), manage_gc=False)
+    daemon = Daemon(pdef, plant=Plant(pdef, drivers={"rio": drv}), manage_gc=manage_gc)
     if released_stop:
         drv.set_input("I0", 1)
         drv.set_input("I4", 1)

@@ -4,10 +4,10 @@ console (1000 lines/s of commands, 2000-byte lines, binary garbage) while anothe
 with a quiet run of the same daemon.
 
 The clients are separate processes (flooder.py), as a laptop at the other end of the
-cable would be. The bounds are generous on purpose (a loaded, shared 2-core VM): no
-more overruns than the quiet run (none at a 10 ms cycle on an idle machine), every cycle
-ran, lateness p99 at most twice the quiet run's or 2.5 ms more. The figures themselves
-are measured by bench/console.py."""
+cable would be. The bounds are generous on purpose (a loaded, shared 2-core VM): at most
+one overrun more than the quiet run (none at a 10 ms cycle on an idle machine), every
+cycle ran, lateness p99 at most twice the quiet run's or 2.5 ms more. The figures
+themselves are measured by bench/console.py."""
 
 from __future__ import annotations
 
@@ -72,7 +72,10 @@ def test_a_flood_on_the_console_does_not_disturb_the_scan(rigs: Callable[..., Ri
     assert sent["answers_after"], msg
     assert traced["trace_lines"] > 0.5 * SECONDS * 100, msg
     # and the scan did not notice
-    assert loud["overruns"] <= quiet["overruns"], msg  # 0 unless the VM itself overran
+    # A console thread can delay a cycle by the GIL's switch interval (5 ms) at most, never
+    # by a whole 10 ms cycle; one late cycle may still come from another job on the shared
+    # VM in either window, so one is tolerated, a second is not.
+    assert loud["overruns"] <= quiet["overruns"] + 1, msg
     assert loud["cycles"] >= 0.95 * loud["expected"], msg
     assert loud["p99_us"] < max(2 * quiet["p99_us"], quiet["p99_us"] + 2500), msg
     # nothing changed on the machine, and the console still answers
