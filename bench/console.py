@@ -7,7 +7,7 @@ that changes every scan, so the trace streams a line per scan. The clients run i
 own processes (tests/console/flooder.py, at nice 10), as a laptop on the other end of
 the cable would. Not a test: prints a table.
 
-    python bench/console.py [--seconds 10] [--cycle 10ms]
+    python bench/console.py [--seconds 10] [--cycle 10ms] [--priority 50]
 """
 
 from __future__ import annotations
@@ -46,6 +46,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=10.0, help="length of each phase")
     ap.add_argument("--cycle", default="10ms", help="the plant's cycle (10ms)")
+    ap.add_argument("--priority", type=int, metavar="N",
+                    help="run the scan thread SCHED_FIFO at this priority (needs the "
+                         "privilege; keeps other jobs of a shared machine out of the figures)")
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
     secs = args.seconds
@@ -53,7 +56,8 @@ def main() -> int:
                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     assert flooder.stdout is not None and flooder.stdin is not None
     port = json.loads(flooder.stdout.readline())["port"]
-    rig = make_rig(serial_path=port, blink=True, cycle=args.cycle, manage_gc=True)
+    rig = make_rig(serial_path=port, blink=True, cycle=args.cycle, manage_gc=True,
+                   priority=args.priority)
     assert rig.socket_path is not None
     rows = []
     try:
@@ -82,7 +86,9 @@ def main() -> int:
             flooder.kill()
         rig.close()
     out = sys.stdout
-    out.write(f"cycle {args.cycle}, {secs:g} s per phase; lateness and scan time in us\n\n")
+    prio = f"SCHED_FIFO {args.priority}" if args.priority else "normal priority"
+    out.write(f"cycle {args.cycle}, {secs:g} s per phase, scan thread at {prio}; lateness "
+              "and scan time in us\n\n")
     out.write(f"{'phase':26}{'cycles':>8}{'overruns':>10}{'late p50':>10}{'late p99':>10}"
               f"{'late max':>10}{'scan p99':>10}  clients\n")
     for name, s, note in rows:

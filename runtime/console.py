@@ -436,10 +436,10 @@ class Session:
             return []
         out: list[str] = []
         now = self.service.clock()
-        if self._buf and now - self._last_rx > PARTIAL_LINE_TIMEOUT_S:
+        if (self._buf or self._discarding) and now - self._last_rx > PARTIAL_LINE_TIMEOUT_S:
             log.info("console %s: half-typed line dropped after %.0f s", self.name,
                      now - self._last_rx)
-            self._buf = b""
+            self._buf, self._discarding = b"", False
         self._last_rx = now
         pos = 0
         if self._skip_lf and data[:1] == b"\n":

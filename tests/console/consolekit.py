@@ -52,7 +52,7 @@ transitions:
 
 def plant_yaml(port: str | None, sock: str | None, *, trusted: bool = True,
                pin_hash: str | None = None, release: bool = False, cycle: str = "10ms",
-               blink: str | None = None) -> str:
+               blink: str | None = None, priority: int | None = None) -> str:
     """Two drawer testers on one simulated remote I/O ``rio`` (I0-I7, Q0-Q7); the stop
     buttons are NC contacts, inverted at the binding. With ``blink`` (the path of the
     BLINK chart), a third instance ``b1`` toggles rio.Q8 every scan."""
@@ -69,8 +69,9 @@ def plant_yaml(port: str | None, sock: str | None, *, trusted: bool = True,
     if pin_hash:
         mon.append(f"  pin_hash: '{pin_hash}'")
     mon.append(f"  release_forces_on_disconnect: {str(release).lower()}")
+    realtime = f", realtime: {{priority: {priority}}}" if priority else ""
     return f"""\
-plc: {{cycle: {cycle}, watchdog: 300ms}}
+plc: {{cycle: {cycle}, watchdog: 300ms{realtime}}}
 drivers:
   rio: {{type: sim}}
 instances:
@@ -381,7 +382,7 @@ def make_rig(*, serial_port: bool = True, unix_socket: bool = True, trusted: boo
              pin_hash: str | None = None, release: bool = False, cycle: str = "10ms",
              clock: Callable[[], float] = time.monotonic, released_stop: bool = True,
              serial_path: str | None = None, blink: bool = False,
-             manage_gc: bool = False) -> Rig:
+             manage_gc: bool = False, priority: int | None = None) -> Rig:
     """Write the plant, start the daemon and its console; the stop button released
     (rio.I0 = rio.I4 = 1, NC contacts) so the testers can start.
 
@@ -398,7 +399,8 @@ def make_rig(*, serial_port: bool = True, unix_socket: bool = True, trusted: boo
         blink_path = os.path.join(tmp, "blink.yaml")
         Path(blink_path).write_text(BLINK, encoding="utf-8")
     Path(path).write_text(plant_yaml(port, sock, trusted=trusted, pin_hash=pin_hash,
-                                     release=release, cycle=cycle, blink=blink_path),
+                                     release=release, cycle=cycle, blink=blink_path,
+                                     priority=priority),
                           encoding="utf-8")
     pdef = load_plant(path)
     drv = FlakySim("rio", {"on_fault": "stop"})
