@@ -195,6 +195,13 @@ def test_main_line_is_straight_and_back_links_have_arrows(layout: str, tmp_path:
     assert len(arrows) == 2  # back to gsParado (from tParo and iParo) and to gsAbrir
     backs = [p for p in root.iter(f"{SVG}polyline") if p.get("class") == "back"]
     assert len(backs) == 3 + 2  # one per link leaving, one per lane
+    # OR: single lines below gsAbrir and gsCerrar (divergences) and above gsAveria
+    # (convergence); AND: none in this chart
+    ors = [p for p in root.iter(f"{SVG}polyline") if p.get("class") == "or"]
+    assert len(ors) == 3 and all(p.get("stroke-width") == "1.2" for p in ors)
+    assert not [p for p in root.iter(f"{SVG}polyline") if p.get("class") == "and"]
+    initial = [r for r in root.iter(f"{SVG}rect") if r.get("class") == "initial"]
+    assert len(initial) == 1  # gsParado's inner box
     out = str(tmp_path / "r.svg")
     draw.draw(str(ROOT / "configs/reactor/reactor.yaml"), out, layout=layout)
     xs = _main_line_x(out, ["gsAbrirVA", "gsLlenarA", "gsCerrarVA", "gsAbrirVB", "gsLlenarB",
