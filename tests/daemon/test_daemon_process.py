@@ -97,6 +97,21 @@ class NotifySocket:
             got.append(data)
         return got
 
+    def drain(self) -> list[str]:
+        """Every message already queued (sent before now)."""
+        got = []
+        self.sock.setblocking(False)
+        try:
+            while True:
+                data = self.sock.recv(4096).decode()
+                self.messages.append((time.monotonic(), data))
+                got.append(data)
+        except BlockingIOError:
+            pass
+        finally:
+            self.sock.settimeout(0.05)
+        return got
+
     def wait_for(self, prefix: str, timeout: float = 20.0) -> str:
         end = time.monotonic() + timeout
         while time.monotonic() < end:
@@ -166,6 +181,7 @@ def test_notify_watchdog_trip_ack_and_sigterm(tmp_path: Path,
         assert "ok" in console(tmp_path / "console.sock", "set m.sLoops 40000000")
         wait_until(lambda: coils(peer) == [0, 0], 10, "outputs off during the hung scan")
         t_off = time.monotonic()
+        notify.drain()  # pings sent before the scan hung
         during = notify.collect(0.8)
         assert "WATCHDOG=1" not in during
         # the scan ends; the loop goes on in fault (pings again), outputs stay off
