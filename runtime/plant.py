@@ -72,7 +72,8 @@ class Plant:
         self._env = env
         self._bind_env(env)
         exec(compile(self.source, "<plant cycle>", "exec"), env)  # noqa: S102 - generated
-        self._cycle: Callable[[int, int], None] = env["cycle"]
+        self._cycle: Callable[[int, int], Driver | None] = env["cycle"]
+        self._copy_outputs: Callable[[], None] = env["copy_outputs"]
 
     # -- construction ----------------------------------------------------------------
     def _declare_points(self) -> None:
@@ -123,19 +124,33 @@ class Plant:
             add(f"    if FI: force_instance({name!r}, m)")
             add(f"    S_{name}(m, now, up)")
             add(f"    if FI: force_instance({name!r}, m)")
+        copy = self._output_copy()
+        lines += copy
+        add("    if FP: force_points(True)")
+        for name in self.drivers:
+            add(f"    W_{name}()")
+        add("    if FP: force_points(None)")
+        add("    return None")
+        # while the charts are held (console pause), forced chart outputs still reach
+        # their points: the same copy, after the forces, with no scan
+        add("")
+        add("def copy_outputs():")
+        for name in self.instances:
+            add(f"    if FI: force_instance({name!r}, M_{name})")
+        lines += copy or ["    pass"]
+        return "\n".join(lines) + "\n"
+
+    def _output_copy(self) -> list[str]:
+        """Generated lines copying every instance output through its binding."""
+        lines = []
         for name, inst in self.instances.items():
             idef = self.pdef.instances[name]
             for sig, b in idef.outputs.items():
                 val = f"M_{name}[{inst.index[sig]}]"
                 if b.invert:
                     val = f"not {val}"
-                add(f"    O_{b.driver}[{b.point!r}] = {val}  # {name}.{sig}")
-        add("    if FP: force_points(True)")
-        for name in self.drivers:
-            add(f"    W_{name}()")
-        add("    if FP: force_points(None)")
-        add("    return None")
-        return "\n".join(lines) + "\n"
+                lines.append(f"    O_{b.driver}[{b.point!r}] = {val}  # {name}.{sig}")
+        return lines
 
     def _bind_env(self, env: dict[str, Any]) -> None:
         env["OK"] = Health.OK
@@ -179,6 +194,8 @@ class Plant:
         up = now - self.start
         self.last_up = up
         if self.iocheck or (self.hold and self.steps_left <= 0):
+            if not self.iocheck and self.forced:
+                self._copy_outputs()
             self.exchange(zero_outputs=False)
             return self.faulted()
         if self.hold:

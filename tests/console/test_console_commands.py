@@ -229,9 +229,6 @@ def test_force_wins_over_drivers_and_program_and_is_listed(rig: Rig) -> None:
     assert s.error("unforce") == "usage: unforce NAME|all"
 
 
-@pytest.mark.xfail(strict=True, reason="runtime/plant.py: while paused (hold), exchange() "
-                   "applies forced driver points only; a forced chart OUTPUT is not copied "
-                   "to its driver point until the charts scan again")
 def test_forced_chart_output_reaches_its_point_while_paused(rig: Rig) -> None:
     s = rig.serial()
     s.ok("pause")
