@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import re
 
-import pytest
 from consolekit import Rig, wait_for
 
 from runtime.console import HELP, MAX_CYCLE
