@@ -1,0 +1,252 @@
+"""The names the console understands: resolved on a plant, read from an image, parsed.
+
+A name is what a person types at the console (``tester1.iMarcha``, ``tester1.gsParado.X``,
+``tester1.gsParado.T``, ``sim.I0``, ``sim.ok``). The Catalogue resolves every name of a
+plant once, each with a reader that takes it from an Image, a copy of the process image
+captured between two cycles.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from drivers.base import PointKind
+from runtime import ast as A
+from runtime.errors import suggest
+from runtime.model import VarKind
+from runtime.parser import format_time, parse_time
+from runtime.plant import Plant
+
+
+class CommandError(Exception):
+    """A command that cannot be carried out; the message is the reply's reason.
+
+    Examples: a bad value (``set tester1.iParo 7``), an unknown name, ``cycle`` while the
+    charts run."""
+
+
+@dataclass(slots=True)
+class Image:
+    """The process image after one cycle: state lists, driver images, driver health."""
+
+    scan: int
+    m: list[list[Any]]
+    inputs: list[dict[str, Any]]
+    outputs: list[dict[str, Any]]
+    ok: list[bool]
+
+
+@dataclass(frozen=True, slots=True)
+class Name:
+    """A console name resolved against the plant: its type and how to read it."""
+
+    text: str
+    type: A.Type
+    read: Callable[[Image], Any]
+    #: input, output, memory, temporary, chart flag, step, step time, point in/out, health
+    role: str
+    #: for a physical input: the chart inputs it feeds, (instance.signal, inverted)
+    feeds: tuple[tuple[str, bool], ...] = ()
+    #: for a chart input/output: its binding, e.g. "sim.I0 inverted"
+    binding: str = ""
+
+    def show(self, value: Any) -> str:
+        """The value as a person reads it: bools 0/1, times rounded to ms."""
+        if self.type is A.Type.TIME and isinstance(value, int):
+            return format_time(round(value / 1e6) * 1_000_000)
+        if isinstance(value, bool):
+            return str(int(value))
+        return str(value)
+
+    def plain(self, value: Any) -> Any:
+        """The value for JSON: bools 0/1, times in whole ms."""
+        if self.type is A.Type.TIME and isinstance(value, int):
+            return round(value / 1e6)
+        return int(value) if isinstance(value, bool) else value
+
+
+class Catalogue:
+    """Every console name of a plant, resolved once: the plant's structure never changes
+    after construction (restart() refills the state lists in place)."""
+
+    def __init__(self, plant: Plant) -> None:
+        self.plant = plant
+        self.names: dict[str, Name] = {}
+        #: instance -> {"inputs": [...], "outputs": [...], "memory": [...]}
+        self.groups: dict[str, dict[str, list[str]]] = {}
+        #: driver -> its point names
+        self.points: dict[str, list[str]] = {}
+        #: bound driver output point -> the chart output writing it
+        self.written_by: dict[str, str] = {}
+        feeds: dict[str, list[tuple[str, bool]]] = {}
+        bindings: dict[str, str] = {}
+        for name, idef in plant.pdef.instances.items():
+            for sig, b in idef.inputs.items():
+                bindings[f"{name}.{sig}"] = "<- " + b.source + (" inverted" if b.invert
+                                                                else "")
+                if b.driver is not None:
+                    feeds.setdefault(b.source, []).append((f"{name}.{sig}", b.invert))
+            for sig, b in idef.outputs.items():
+                bindings[f"{name}.{sig}"] = "-> " + b.source + (" inverted" if b.invert
+                                                                else "")
+                self.written_by[b.source] = f"{name}.{sig}"
+        for i, (name, inst) in enumerate(plant.instances.items()):
+            self._instance(i, name, inst, bindings)
+        for j, (dname, d) in enumerate(plant.drivers.items()):
+            pts = []
+            for direction, points in (("in", d.inputs), ("out", d.outputs)):
+                for p in points:
+                    typ = A.Type.BOOL if d.kinds.get(p) is PointKind.BOOL else A.Type.INT
+                    text = f"{dname}.{p}"
+                    self.names[text] = Name(text, typ, _point_reader(direction, j, p),
+                                            f"point {direction}",
+                                            tuple(feeds.get(text, ())))
+                    pts.append(text)
+            text = f"{dname}.ok"
+            self.names[text] = Name(text, A.Type.BOOL, _ok_reader(j), "driver health",
+                                    tuple(feeds.get(text, ())))
+            pts.append(text)
+            self.points[dname] = pts
+        #: what ``trace`` and ``cycle`` compare: everything but step times (they change
+        #: every scan)
+        self.traced = [n for n in self.names.values() if n.role != "step time"]
+
+    def _instance(self, i: int, name: str, inst: Any, bindings: dict[str, str]) -> None:
+        g, ix = inst.grafcet, inst.index
+        groups: dict[str, list[str]] = {"inputs": [], "outputs": [], "memory": []}
+        for key in inst.names():
+            text = f"{name}.{key}"
+            if key.endswith(".T") and key[:-2] in g.steps:
+                s = key[:-2]
+                n = Name(text, A.Type.TIME, _step_time_reader(i, ix[f"{s}.X"], ix["#ct"],
+                                                              ix[f"{s}.T0"], ix[f"{s}.TK"]),
+                         "step time")
+            elif key.endswith(".X") and key[:-2] in g.steps:
+                n = Name(text, A.Type.BOOL, _slot_reader(i, ix[key]), "step")
+            elif key == "SFCCurrentStep":
+                leaf = tuple((s.name, ix[f"{s.name}.X"]) for s in g.leaf_steps())
+                n = Name(text, A.Type.STRING, _current_step_reader(i, leaf), "chart flag")
+            else:
+                v = g.variables[key]
+                n = Name(text, v.type, _slot_reader(i, ix[key]), v.kind.value,
+                         binding=bindings.get(text, ""))
+                if v.kind is VarKind.INPUT:
+                    groups["inputs"].append(text)
+                elif v.kind is VarKind.OUTPUT:
+                    groups["outputs"].append(text)
+                elif v.kind is VarKind.MEMORY:
+                    groups["memory"].append(text)
+            self.names[text] = n
+        self.groups[name] = groups
+
+    def resolve(self, text: str) -> Name:
+        """The Name for ``text``; CommandError naming the closest one if unknown."""
+        n = self.names.get(text)
+        if n is None:
+            raise CommandError(f"unknown name '{printable(text)}'{suggest(text, self.names)}")
+        return n
+
+    def expand(self, words: list[str]) -> list[Name]:
+        """Names, where an instance or driver name alone stands for all its signals."""
+        out: list[Name] = []
+        for w in words:
+            if w in self.groups:
+                g = self.groups[w]
+                out += [self.names[t] for t in (*g["inputs"], *g["outputs"], *g["memory"])]
+            elif w in self.points:
+                out += [self.names[t] for t in self.points[w]]
+            else:
+                out.append(self.resolve(w))
+        return out
+
+    def physical_inputs(self) -> list[Name]:
+        return [n for n in self.names.values() if n.role == "point in"]
+
+    def capture(self, scan: int) -> Image:
+        """A copy of the process image (scan thread, between cycles: a few list copies)."""
+        p = self.plant
+        return Image(scan, [inst.m[:] for inst in p.instances.values()],
+                     [dict(d.inputs) for d in p.drivers.values()],
+                     [dict(d.outputs) for d in p.drivers.values()],
+                     [d.ok for d in p.drivers.values()])
+
+    def live(self) -> Image:
+        """The process image itself, without copies (read it at a scan boundary only)."""
+        p = self.plant
+        return Image(-1, [inst.m for inst in p.instances.values()],
+                     [d.inputs for d in p.drivers.values()],
+                     [d.outputs for d in p.drivers.values()],
+                     [d.ok for d in p.drivers.values()])
+
+
+def _slot_reader(i: int, idx: int) -> Callable[[Image], Any]:
+    return lambda img: img.m[i][idx]
+
+
+def _step_time_reader(i: int, x: int, ct: int, t0: int, tk: int) -> Callable[[Image], Any]:
+    def read(img: Image) -> int:
+        m = img.m[i]
+        return int(m[ct] - m[t0]) if m[x] else int(m[tk])
+    return read
+
+
+def _current_step_reader(i: int, leaf: tuple[tuple[str, int], ...]
+                         ) -> Callable[[Image], Any]:
+    def read(img: Image) -> str:
+        m = img.m[i]
+        active = [s for s, x in leaf if m[x]]
+        return active[-1] if active else ""
+    return read
+
+
+def _point_reader(direction: str, j: int, point: str) -> Callable[[Image], Any]:
+    if direction == "in":
+        return lambda img: img.inputs[j][point]
+    return lambda img: img.outputs[j][point]
+
+
+def _ok_reader(j: int) -> Callable[[Image], Any]:
+    return lambda img: img.ok[j]
+
+
+def parse_value(name: Name, text: str) -> Any:
+    """A value typed at the console -> the name's type; CommandError says what was
+    expected."""
+    t = name.type
+    low = text.lower()
+    if t is A.Type.BOOL:
+        if low in ("1", "true", "on"):
+            return True
+        if low in ("0", "false", "off"):
+            return False
+        expected = "0 or 1 (or true/false, on/off)"
+    elif t is A.Type.INT:
+        try:
+            return int(text, 0) if low.startswith(("0x", "0b", "0o")) else int(text)
+        except ValueError:
+            expected = "an integer"
+    elif t is A.Type.REAL:
+        try:
+            return float(text)
+        except ValueError:
+            expected = "a number"
+    elif t is A.Type.TIME:
+        ns = parse_time(text.split("#", 1)[1] if "#" in text else text)
+        if ns is not None:
+            return ns
+        expected = "a time like 5s, 250ms or T#1m30s"
+    else:
+        raise CommandError(f"{name.text} is a {t.value.lower()}: it cannot be written from "
+                           "the console")
+    raise CommandError(f"bad value '{printable(text)}' for {name.text}: expected "
+                       f"{expected}")
+
+
+def printable(text: str, limit: int = 40) -> str:
+    """``text`` cut to ``limit`` characters, control characters escaped (never echo
+    terminal escapes back to a person's screen)."""
+    cut = text[:limit]
+    shown = "".join(c if c.isprintable() else repr(c)[1:-1] for c in cut)
+    return shown + ("..." if len(text) > limit else "")
