@@ -25,10 +25,10 @@ import sys
 from dataclasses import dataclass
 from typing import Any
 
+from runtime.draw_text import FONT
 from runtime.errors import Loc, SourceError
 from runtime.parser import parse_time
 
-FONT = "DejaVu Sans, Helvetica, Arial, sans-serif"
 ROW_H = 18.0
 ROW_GAP = 8.0
 HIGH_FILL = "#c8e6c9"

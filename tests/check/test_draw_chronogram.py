@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from runtime import chronogram as chrono
-from runtime import draw
+from runtime import draw, draw_text
 from runtime.errors import SourceError
 from runtime.language import load_grafcet
 
@@ -109,7 +109,7 @@ def test_draw_names_every_step_and_condition(drawer: str, tmp_path: Path, layout
         assert s in found, s
     for t in g.transitions:  # the drawer tester is written in the seed notation already
         assert t.text in found, t.text
-        assert draw.seed_text(t.cond) == t.text
+        assert draw_text.seed_text(t.cond) == t.text
     assert "oAbrir" in found and "P1" in found
 
 

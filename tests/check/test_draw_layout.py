@@ -18,7 +18,7 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from runtime import draw
+from runtime import draw, draw_layout, draw_text
 from runtime.check import file_kind
 from runtime.check_logic import unparse
 from runtime.errors import SourceError
@@ -35,7 +35,7 @@ Box = tuple[float, float, float, float]  # x0 y0 x1 y1
 def text_box(t: ET.Element) -> Box:
     size = float(t.get("font-size", "12"))
     x, y = float(t.get("x", "0")), float(t.get("y", "0"))
-    w = draw.text_w("".join(t.itertext()), size)
+    w = draw_text.text_w("".join(t.itertext()), size)
     x0 = {"start": x, "middle": x - w / 2, "end": x - w}[t.get("text-anchor", "start")]
     return (x0, y - 0.75 * size, x0 + w, y + 0.2 * size)
 
@@ -237,7 +237,7 @@ def test_seed_notation(write: Callable[[str, str], str], written: str, seed: str
           - {{from: gsB, to: gsA, when: iA}}
         """)
     g = load_grafcet(path)
-    assert draw.seed_text(g.transitions[0].cond) == seed
+    assert draw_text.seed_text(g.transitions[0].cond) == seed
 
 
 def _round_trip(path: Path, tmp: Path) -> None:
@@ -245,7 +245,7 @@ def _round_trip(path: Path, tmp: Path) -> None:
     g = load_grafcet(str(path))
     text = path.read_text(encoding="utf-8")
     for k, t in enumerate(g.transitions):
-        seed = draw.seed_text(t.cond)
+        seed = draw_text.seed_text(t.cond)
         lines = text.splitlines()
         line = lines[t.loc.line - 1]
         new, n = re.subn(r"when:\s*(\"[^\"]*\"|'[^']*'|[^,}]+)",
@@ -279,16 +279,16 @@ def test_action_boxes_drop_comments_and_keep_lines(tmp_path: Path) -> None:
 def test_a_given_order_is_followed_and_stays_readable(tmp_path: Path) -> None:
     """dot's order (here a reversed one) decides left and right; the drawing stays clean."""
     g = load_grafcet(str(ROOT / "configs/drawer_tester/drawer_tester.yaml"))
-    c = draw.build_chart(g)
-    draw.place(c)
+    c = draw_layout.build_chart(g)
+    draw_layout.place(c)
     normal = {n: nd.x for n, nd in c.nodes.items()}
-    c = draw.build_chart(g)
-    draw.place(c, {n: -x for n, x in normal.items()})
+    c = draw_layout.build_chart(g)
+    draw_layout.place(c, {n: -x for n, x in normal.items()})
     for row in c.layers:
         assert sorted(row, key=lambda n: c.nodes[n].x) == sorted(row, key=lambda n: -normal[n])
     assert any(len(row) > 1 for row in c.layers)
     out = tmp_path / "r.svg"
-    out.write_text(draw.render(c, draw.route(c), set(), "reversed"), encoding="utf-8")
+    out.write_text(draw.render(c, draw_layout.route(c), set(), "reversed"), encoding="utf-8")
     boxes, lines = parse(str(out))
     for (wa, a), (wb, b) in itertools.combinations(boxes, 2):
         if not (inside(a, b) or inside(b, a)):
