@@ -8,7 +8,8 @@ from collections.abc import Callable
 
 import pytest
 
-from runtime.check import Diag, check_files, exit_status
+from runtime.check import check_files, exit_status
+from runtime.check_diag import Diag
 
 HEAD = """\
 grafcet: T

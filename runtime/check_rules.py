@@ -1,0 +1,488 @@
+"""Seed 000's rules on one loaded chart: the G102-G104 errors and the G2xx warnings.
+
+G102 unreachable step, G103 a transition back to its own source step, G104 unsafe chart;
+G201 OR divergence not exclusive, G202 action that never executes, G203 divergence not
+closed, G204 same level condition on consecutive transitions, G205 counting statement in a
+continuous action, G206 deadlock, G207 bool promoted to a number in a comparison, G208
+transition that never fires, G209 analysis cut by its bounds (docs/check.md). The rules
+that the loader enforces itself (G101, G105, G106) are reported by runtime/check.py.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from typing import Any
+
+from runtime import ast as A
+from runtime.check_diag import Diag, diag
+from runtime.check_logic import ARITH, COMPARE, Logic, has_edge, unparse
+from runtime.check_reach import LIMIT, Reach, Unsafe, explore, structural_reach
+from runtime.errors import Loc, SourceError
+from runtime.model import Grafcet, Qualifier, Step, Transition
+from runtime.parser import format_time
+from runtime.yamlsrc import YList, YMap, YStr, load_yaml
+
+T = A.Type
+
+
+# -- where things are in the YAML text ---------------------------------------------------
+class Where:
+    """Finds the file place of a character inside a condition or a statement."""
+
+    def __init__(self, path: str, doc: Any = None) -> None:
+        self.path = path
+        self._doc = doc
+        self._strings: list[YStr] | None = None
+        self._whens: dict[tuple[int, int], Any] | None = None
+
+    def _load(self) -> None:
+        if self._strings is not None:
+            return
+        self._strings, self._whens = [], {}
+        try:
+            doc = self._doc if self._doc is not None else load_yaml(self.path)
+        except SourceError:
+            return
+
+        def walk(node: Any) -> None:
+            assert self._strings is not None and self._whens is not None
+            if isinstance(node, YStr):
+                self._strings.append(node)
+            elif isinstance(node, YMap):
+                if "when" in node:
+                    self._whens[(node.loc.line, node.loc.col)] = node["when"]
+                for v in node.values():
+                    walk(v)
+            elif isinstance(node, YList):
+                for v in node:
+                    walk(v)
+
+        walk(doc)
+
+    def _string_at(self, loc: Loc, offset: int) -> YStr | None:
+        self._load()
+        assert self._strings is not None
+        for s in self._strings:
+            if offset < len(s) and s.pos(offset) == Loc(s.loc.file, loc.line, loc.col):
+                return s
+        return None
+
+    def in_text(self, start: Loc, base: int, offset: int) -> Loc:
+        """Place of character ``offset`` of a text whose character ``base`` is at ``start``."""
+        s = self._string_at(start, base)
+        if s is not None:
+            return s.pos(offset)
+        return Loc(start.file, start.line, start.col + offset - base)
+
+    def in_condition(self, t: Transition, offset: int) -> Loc:
+        self._load()
+        assert self._whens is not None
+        w = self._whens.get((t.loc.line, t.loc.col))
+        if isinstance(w, YStr):
+            return w.pos(offset)
+        return t.loc
+
+
+# -- the checks of one chart --------------------------------------------------------------
+class ChartChecker:
+    def __init__(self, g: Grafcet, limit: int = LIMIT, repaired: Iterable[str] = ()) -> None:
+        self.g = g
+        self.limit = limit
+        self.repaired = set(repaired)
+        self.out: list[Diag] = []
+        self.logic = Logic(g)
+        self.where = Where(g.path)
+        self.never: set[int] = set()
+        self.reach: Reach | None = None
+
+    def add(self, loc: Loc, severity: str, code: str, message: str) -> None:
+        self.out.append(diag(loc, severity, code, message))
+
+    def run(self) -> list[Diag]:
+        self.self_loops()
+        self.dead_transitions()
+        if "G101" not in self.repaired:
+            self.reachability()
+        self.or_exclusive()
+        self.useless_actions()
+        self.unclosed()
+        self.same_condition()
+        self.counting()
+        self.promotions()
+        return self.out
+
+    # -- helpers ------------------------------------------------------------------------
+    def tname(self, t: Transition) -> str:
+        src = ", ".join(t.sources) or "(source)"
+        dst = ", ".join(t.targets) or "(sink)"
+        return f"{t.name + ' ' if t.name else ''}{src} → {dst}"
+
+    def outgoing(self, step: str) -> list[int]:
+        return [k for k, t in enumerate(self.g.transitions) if step in t.src_steps]
+
+    # -- G103 ---------------------------------------------------------------------------
+    def self_loops(self) -> None:
+        for t in self.g.transitions:
+            same = [s for s in t.sources if s in t.targets] or [
+                s for s in t.src_steps if s in t.dst_steps]
+            if same:
+                self.add(t.loc, "error", "G103", f"transition {self.tname(t)} leads from step "
+                         f"'{same[0]}' back to itself: the previous and the next step must "
+                         "differ (seed-000 rule I.8); add a step, or keep the step active and "
+                         "drive the action with a condition instead")
+
+    # -- G208 ---------------------------------------------------------------------------
+    def dead_transitions(self) -> None:
+        for k, t in enumerate(self.g.transitions):
+            r = self.logic.solve([(t.cond, True)], t.src_steps)
+            if r.sat is False:
+                self.never.add(k)
+                self.add(t.loc, "warning", "G208", f"the condition '{t.text}' of transition "
+                         f"{self.tname(t)} can never be true: the transition never fires")
+
+    # -- G102 G104 G206 G209 --------------------------------------------------------------
+    def reachability(self) -> None:
+        g = self.g
+        r = self.reach = explore(g, self.never, self.limit)
+        if r.complete:
+            reached = r.reachable_steps
+        else:
+            reached = structural_reach(g, self.never)
+            self.add(g.loc, "warning", "G209", f"exploration of the reachable situations "
+                     f"stopped ({r.why_incomplete}; raise it with --limit): only the "
+                     "situations explored were checked for unsafe evolutions (G104), "
+                     "deadlocks (G206) are not decided, unreachable steps (G102) are checked "
+                     "on the links only")
+        structural = structural_reach(g, self.never)
+        unreachable = [s for s in g.leaf_steps() if s.name not in reached]
+        reported_macros: set[str] = set()
+        for s in unreachable:
+            top = self._outermost_unreachable_macro(s, reached)
+            if top is not None:
+                if top.name not in reported_macros:
+                    reported_macros.add(top.name)
+                    self.add(top.loc, "error", "G102", f"macro-step '{top.name}' can never "
+                             f"become active{self._why_unreachable(top.name, structural)} "
+                             "(seed-000 rule I.4)")
+                continue
+            self.add(s.loc, "error", "G102", f"step '{s.name}' can never become active"
+                     f"{self._why_unreachable(s.name, structural)} (seed-000 rule I.4)")
+        for u in r.unsafe:
+            self._unsafe(r, u)
+        if r.complete and r.back_to_initial:
+            for dead in r.dead[:3]:
+                path = r.path(dead)
+                loc = g.transitions[path[-1][1][-1]].loc if path else g.loc
+                self.add(loc, "warning", "G206", f"deadlock: in the situation "
+                         f"{r.situation(dead)} no transition can ever fire, while the chart "
+                         f"otherwise cycles back to its initial situation; reached by "
+                         f"{r.sequence(dead)}")
+
+    def _outermost_unreachable_macro(self, s: Step, reached: set[str]) -> Step | None:
+        best = None
+        parent = s.parent
+        while parent is not None:
+            m = self.g.steps[parent]
+            assert m.macro is not None
+            inner = [n for n in m.macro.steps if self.g.steps[n].macro is None]
+            if all(n not in reached for n in inner):
+                best = m
+            parent = m.parent
+        return best
+
+    def _why_unreachable(self, name: str, structural: set[str]) -> str:
+        g = self.g
+        st = g.steps[name]
+        targets = {name}
+        if st.macro is not None:
+            targets.add(st.macro.entry)
+            e = g.steps[st.macro.entry]
+            while e.macro is not None:
+                targets.add(e.macro.entry)
+                e = g.steps[e.macro.entry]
+        incoming = [(k, t) for k, t in enumerate(g.transitions)
+                    if set(t.dst_steps) & targets or set(t.targets) & targets]
+        if not incoming:
+            return ": no transition leads to it"
+        lines = ", ".join(str(t.loc.line) for _, t in incoming)
+        if all(k in self.never for k, _ in incoming):
+            return f": the transitions leading to it (line {lines}) never fire"
+        leaf = targets - {n for n in targets if g.steps[n].macro is not None}
+        if leaf & structural:
+            return (f": the transitions leading to it (line {lines}) need source steps that "
+                    "are never active together")
+        return f": no reachable step leads to it (transitions at line {lines})"
+
+    def _unsafe(self, r: Reach, u: Unsafe) -> None:
+        g = self.g
+        if not u.fired:
+            st = g.steps[u.steps[-1]]
+            self.add(st.loc, "error", "G104", f"unsafe chart: the initial steps "
+                     f"{', '.join(u.steps)} belong to one simple sequence, where at most one "
+                     "step may be active (seed-000 rule I.3)")
+            return
+        culprit = next((k for k in u.fired if set(g.transitions[k].dst_steps) & set(u.steps)),
+                       u.fired[-1])
+        loc = g.transitions[culprit].loc
+        seq = r.sequence(u.before, u.fired)
+        if u.kind == "active":
+            msg = (f"unsafe chart: step '{u.steps[0]}' is activated while it is already "
+                   f"active, by {seq}")
+        elif u.kind == "twice":
+            msg = (f"unsafe chart: step '{u.steps[0]}' is activated by two transitions at "
+                   f"once (an OR convergence fed by parallel branches?), by {seq}")
+        else:
+            msg = (f"unsafe chart: steps {', '.join(repr(s) for s in u.steps)} of one simple "
+                   f"sequence are active together, after {seq}")
+        self.add(loc, "error", "G104", msg + " (seed-000 rule I.3; conditions taken as free)")
+
+    # -- G201 ---------------------------------------------------------------------------
+    def or_exclusive(self) -> None:
+        g = self.g
+        seen: set[tuple[int, int]] = set()
+        for s in g.leaf_steps():
+            outs = [k for k in self.outgoing(s.name) if k not in self.never]
+            for i, a in enumerate(outs):
+                for b in outs[i + 1:]:
+                    if (a, b) in seen:
+                        continue
+                    seen.add((a, b))
+                    ta, tb = g.transitions[a], g.transitions[b]
+                    steps = set(ta.src_steps) | set(tb.src_steps)
+                    r = self.logic.solve([(ta.cond, True), (tb.cond, True)], steps)
+                    pair = (f"transitions {self.tname(ta)} (line {ta.loc.line}) and "
+                            f"{self.tname(tb)} (line {tb.loc.line})")
+                    if r.sat:
+                        self.add(tb.loc, "warning", "G201", f"OR divergence after step "
+                                 f"'{s.name}' is not exclusive: {pair} are both true with "
+                                 f"{r.show()} ('{ta.text}' and '{tb.text}'); the first in "
+                                 "file order wins: make the conditions mutually exclusive "
+                                 "(seed-000 rule II.1)")
+                    elif r.sat is None:
+                        self.add(tb.loc, "note", "G201", f"could not decide whether {pair} "
+                                 f"are exclusive: {r.atoms} atoms, no witness found by a "
+                                 "bounded search")
+
+    # -- G202 ---------------------------------------------------------------------------
+    def useless_actions(self) -> None:
+        g = self.g
+        unreachable: set[str] = set()
+        if self.reach is not None and self.reach.complete:
+            unreachable = set(self.reach.steps) - self.reach.reachable_steps
+        for s in g.leaf_steps():
+            if s.name in unreachable:
+                continue
+            for a in s.actions:
+                why = self._never_executes(s, a)
+                if why:
+                    self.add(a.loc, "warning", "G202", f"action '{a.text}' of step "
+                             f"'{s.name}' can never execute: {why} (seed-000 rule II.2)")
+
+    def _never_executes(self, s: Step, a: Any) -> str | None:
+        q = a.qualifier
+        if q in (Qualifier.L, Qualifier.SL) and a.time_ns == 0:
+            return f"{q.value} 0 limits it to no time at all"
+        if a.cond is not None:
+            r = self.logic.solve([(a.cond, True)], [s.name])
+            if r.sat is False:
+                return "its condition is never true"
+        if a.event is not None:
+            r = self.logic.solve([(a.event, True)], [s.name])
+            if r.sat is False:
+                return "its event never happens"
+        if q in (Qualifier.D, Qualifier.DS) and a.time_ns is not None:
+            d = a.time_ns
+            if s.max_ns is not None and d >= s.max_ns:
+                return (f"the delay {format_time(d)} is not shorter than the step's max time "
+                        f"{format_time(s.max_ns)}")
+            outs = [self.g.transitions[k] for k in self.outgoing(s.name)
+                    if self.g.transitions[k].src_steps == [s.name] and k not in self.never]
+            if outs:
+                flag = A.StepFlag(0, 0, s.name, "T")
+                flag.type = T.TIME
+                lit = A.Lit(0, 0, d, T.TIME)
+                lit.type = T.TIME
+                ge = A.Binary(0, 0, "GE", flag, lit, ">=")
+                ge.type = T.BOOL
+                conds = [(ge, True)] + [(t.cond, False) for t in outs]
+                r = self.logic.solve(conds, [s.name])
+                if r.sat is False:
+                    lines = ", ".join(str(t.loc.line) for t in outs)
+                    return (f"the step is always left (transition at line {lines}) before "
+                            f"the delay {format_time(d)} has elapsed")
+        return None
+
+    # -- G203 ---------------------------------------------------------------------------
+    def _forward(self, starts: Iterable[str], stop: str | None = None,
+                 skip: int | None = None) -> set[str]:
+        g = self.g
+        seen: set[str] = set()
+        todo = list(starts)
+        while todo:
+            n = todo.pop()
+            if n in seen:
+                continue
+            seen.add(n)
+            if n == stop:
+                continue
+            for k in self.outgoing(n):
+                if k != skip:
+                    todo.extend(g.transitions[k].dst_steps)
+        return seen
+
+    def unclosed(self) -> None:
+        g = self.g
+        incoming: dict[str, int] = {}
+        for t in g.transitions:
+            for d in set(t.dst_steps):
+                incoming[d] = incoming.get(d, 0) + 1
+        for s in g.leaf_steps():
+            outs = [k for k in self.outgoing(s.name) if k not in self.never
+                    and s.name not in g.transitions[k].dst_steps]
+            if len(outs) < 2:
+                continue
+            reach = [self._forward(g.transitions[k].dst_steps, stop=s.name) for k in outs]
+            common = set.intersection(*reach) if reach else set()
+            if not any(incoming.get(c, 0) >= 2 for c in common):
+                lines = ", ".join(str(g.transitions[k].loc.line) for k in outs)
+                self.add(s.loc, "warning", "G203", f"OR divergence after step '{s.name}' "
+                         f"(transitions at line {lines}) is not closed by an OR convergence: "
+                         "its branches never meet again (seed 000 recommends closing every "
+                         "OR divergence with an OR convergence)")
+        for k, t in enumerate(g.transitions):
+            if len(set(t.dst_steps)) < 2:
+                continue
+            branches = [self._forward([d], skip=k) for d in t.dst_steps]
+            closed = any(
+                len(set(u.src_steps)) >= 2 and j != k
+                and all(set(u.src_steps) & b for b in branches)
+                for j, u in enumerate(g.transitions))
+            if not closed:
+                self.add(t.loc, "warning", "G203", f"AND divergence {self.tname(t)} is not "
+                         "closed by an AND convergence: its parallel branches never "
+                         "synchronise again (seed 000 recommends closing every AND "
+                         "divergence with an AND convergence)")
+
+    # -- G204 ---------------------------------------------------------------------------
+    def same_condition(self) -> None:
+        g = self.g
+        for a in g.transitions:
+            key = unparse(a.cond)
+            if has_edge(a.cond) or self.logic.const(a.cond) is not None or isinstance(
+                    a.cond, A.Lit):
+                continue
+            for b in g.transitions:
+                if b is a or not set(a.dst_steps) & set(b.src_steps):
+                    continue
+                if unparse(b.cond) == key:
+                    mid = sorted(set(a.dst_steps) & set(b.src_steps))[0]
+                    self.add(b.loc, "warning", "G204", f"transitions {self.tname(a)} (line "
+                             f"{a.loc.line}) and {self.tname(b)} have the same level "
+                             f"condition '{b.text}': while it holds, step '{mid}' is passed "
+                             "through at once; probably needs an edge (↑) (seed 000)")
+
+    # -- G205 ---------------------------------------------------------------------------
+    def counting(self) -> None:
+        for a in self.g.actions():
+            if a.body is None or a.qualifier not in (Qualifier.N, Qualifier.L, Qualifier.D):
+                continue
+            for stmt, guarded in _statements(a.body, False):
+                if guarded or not isinstance(stmt, A.Assign):
+                    continue
+                name = stmt.target.name
+                if _counts(stmt.value, name):
+                    loc = self.where.in_text(a.loc, 0, stmt.start)
+                    self.add(loc, "warning", "G205", f"counting statement "
+                             f"'{a.text[stmt.start:stmt.end]}' in a continuous "
+                             f"({a.qualifier.value}) action of step '{a.step}' runs in "
+                             "every scan while the step is active, not once: use P1 (on "
+                             f"activation), or count an edge ('{name} := {name} + ↑x') "
+                             "(seed 000)")
+
+    # -- G207 ---------------------------------------------------------------------------
+    def promotions(self) -> None:
+        g = self.g
+        for t in g.transitions:
+            self._promotions([t.cond], t.text, 0, lambda off, t=t: self.where.in_condition(t, off))
+        for a in g.actions():
+            roots = [x for x in (a.cond, a.event) if x is not None] + list(a.body or [])
+            self._promotions(roots, a.text, 0,
+                             lambda off, a=a: self.where.in_text(a.loc, 0, off))
+        for st in [*g.pre, *g.post]:
+            base = st.node.start
+            self._promotions([st.node], st.text, base,
+                             lambda off, st=st, base=base: self.where.in_text(st.loc, base, off))
+
+    def _promotions(self, roots: list[A.Node], text: str, base: int, locate: Any) -> None:
+        def src(n: A.Node) -> str:
+            return text[n.start - base:n.end - base]
+
+        def parenthesised(n: A.Node) -> bool:
+            return src(n).startswith("(")
+
+        def bools(n: A.Node) -> Iterator[A.Node]:
+            assert isinstance(n, A.Binary)
+            for c in (n.left, n.right):
+                if c.type is T.BOOL and not (isinstance(c, A.Lit)):
+                    yield c
+                elif isinstance(c, A.Binary) and c.op in ARITH and not parenthesised(c):
+                    yield from bools(c)
+
+        for root in roots:
+            for n in A.walk(root):
+                if not (isinstance(n, A.Binary) and n.op in COMPARE):
+                    continue
+                for side in (n.left, n.right):
+                    if not (isinstance(side, A.Binary) and side.op in ARITH) or (
+                            parenthesised(side)):
+                        continue
+                    for b in bools(side):
+                        self.add(locate(b.start), "warning", "G207", f"bool '{src(b)}' is "
+                                 f"promoted to a number in '{src(n)}': a comparison binds "
+                                 f"looser than '{side.text or ARITH[side.op].strip()}', so "
+                                 f"this reads '({src(side)}) {n.text or COMPARE[n.op]} "
+                                 f"{src(n.right if side is n.left else n.left)}'; add "
+                                 "parentheses around the comparison if that was not meant, "
+                                 "or around the sum if it was")
+                        break
+
+
+
+def _statements(body: list[A.Node], guarded: bool) -> Iterator[tuple[A.Node, bool]]:
+    """Every statement in ``body``, with whether an edge guards it (IF ↑x THEN ...)."""
+    for s in body:
+        yield s, guarded
+        if isinstance(s, A.If):
+            g2 = guarded
+            for cond, inner in s.branches:
+                g2 = g2 or has_edge(cond)
+                yield from _statements(inner, g2)
+            yield from _statements(s.orelse, g2)
+        elif isinstance(s, A.Case):
+            for _, inner in s.arms:
+                yield from _statements(inner, guarded)
+            yield from _statements(s.orelse, guarded)
+        elif isinstance(s, A.For):
+            yield from _statements(s.body, guarded)
+
+
+def _counts(value: A.Node, name: str) -> bool:
+    """``name + ...`` / ``... - name``: a sum holding ``name`` itself, with no edge."""
+    if not (isinstance(value, A.Binary) and value.op in ("ADD", "SUB")):
+        return False
+    if has_edge(value):
+        return False
+
+    def terms(n: A.Node) -> Iterator[A.Node]:
+        if isinstance(n, A.Binary) and n.op in ("ADD", "SUB"):
+            yield from terms(n.left)
+            yield from terms(n.right)
+        else:
+            yield n
+
+    return any(isinstance(x, A.Name) and x.name == name for x in terms(value))
+
+
+def check_grafcet(g: Grafcet, limit: int = LIMIT, repaired: Iterable[str] = ()) -> list[Diag]:
+    """Every diagnostic of one loaded chart."""
+    return ChartChecker(g, limit, repaired).run()
