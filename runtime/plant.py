@@ -32,7 +32,14 @@ class Plant:
     """Runs a PlantDef: ``open()``, ``cycle(now)`` every period, ``safe_state()``, ``close()``."""
 
     def __init__(self, pdef: PlantDef, *, sim: bool = False,
-                 drivers: dict[str, Driver] | None = None) -> None:
+                 drivers: dict[str, Driver] | None = None, virtual: bool = False) -> None:
+        """``sim``: every driver replaced by simulated I/O. ``virtual`` (simulate, on a
+        virtual clock): the simulated drivers' images are the whole process image, so the
+        cycle makes no driver call (a sim driver never faults and nothing watches its bus).
+        """
+        if virtual and not sim:
+            raise ValueError("a virtual plant runs on simulated I/O only")
+        self.virtual = virtual
         self.pdef = pdef
         self.cycle_ns = pdef.cycle_ns
         self.watchdog_ns = pdef.watchdog_ns
@@ -67,10 +74,10 @@ class Plant:
         self.iocheck = False
         self.scans = 0
         self._declare_points()
-        self.source = self._generate()
         env: dict[str, Any] = {}
         self._env = env
         self._bind_env(env)
+        self.source = self._generate(sorted(env))
         exec(compile(self.source, "<plant cycle>", "exec"), env)  # noqa: S102 - generated
         self._cycle: Callable[[int, int], Driver | None] = env["cycle"]
         self._copy_outputs: Callable[[], None] = env["copy_outputs"]
@@ -103,13 +110,18 @@ class Plant:
             val = f"M_{other.name}[{other.index[ref_name]}]"
         return f"(not {val})" if b.invert else val
 
-    def _generate(self) -> str:
-        lines = ["def cycle(now, up):"]
+    def _generate(self, names: list[str]) -> str:
+        """The cycle as Python source. Every name of the environment is bound as a
+        default argument, so the cycle reads locals, not globals."""
+        defaults = ", ".join(f"{n}={n}" for n in names)
+        lines = [f"def cycle(now, up, {defaults}):"]
         add = lines.append
+        exchange = not self.virtual
         for name in self.drivers:
-            add(f"    R_{name}()")
+            if exchange:
+                add(f"    R_{name}()")
         for name, d in self.drivers.items():
-            if d.on_fault is FaultPolicy.STOP:  # a fault here: no scan, no write
+            if exchange and d.on_fault is FaultPolicy.STOP:  # a fault: no scan, no write
                 add(f"    if DV_{name}.health is FAULT: return DV_{name}")
         add("    if FP: force_points(False)")
         for name, inst in self.instances.items():
@@ -128,13 +140,14 @@ class Plant:
         lines += copy
         add("    if FP: force_points(True)")
         for name in self.drivers:
-            add(f"    W_{name}()")
+            if exchange:
+                add(f"    W_{name}()")
         add("    if FP: force_points(None)")
         add("    return None")
         # while the charts are held (console pause), forced chart outputs still reach
         # their points: the same copy, after the forces, with no scan
         add("")
-        add("def copy_outputs():")
+        add(f"def copy_outputs({defaults}):")
         for name in self.instances:
             add(f"    if FI: force_instance({name!r}, M_{name})")
         lines += copy or ["    pass"]

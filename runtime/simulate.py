@@ -185,7 +185,7 @@ class Simulation:
     def __init__(self, plant_path: str, script_path: str | None = None,
                  cycles: int | None = None) -> None:
         self.pdef = load_plant(plant_path)
-        self.plant = Plant(self.pdef, sim=True)
+        self.plant = Plant(self.pdef, sim=True, virtual=True)
         for d in self.plant.drivers.values():
             assert isinstance(d, SimDriver)
         duration: int | None = None
