@@ -54,6 +54,7 @@ def cmd_compile(args: argparse.Namespace) -> int:
 def cmd_simulate(args: argparse.Namespace) -> int:
     from runtime.simulate import Simulation, write_trace, write_vcd
 
+    logging.getLogger("drivers").setLevel(logging.WARNING)  # "driver sim: open" is noise here
     sim = Simulation(args.plant, args.script, args.cycles)
     want_rows = args.trace is not None or args.vcd is not None
     t0 = time.perf_counter()
