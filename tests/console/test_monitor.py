@@ -174,8 +174,9 @@ def test_the_screen_in_a_terminal(rig: Rig) -> None:
     term = Pty([sys.executable, "-m", "runtime.cli", "monitor", rig.socket_path,
                 "--interval", "0.1"])
     try:
-        screen = term.expect(lambda s: "t2  gsParado" in s and "state RUNNING" in s,
-                             "the steps and the I/O")
+        # a screen is drawn in several writes: wait until the whole of it is there
+        screen = term.expect(lambda s: "t2  gsParado" in s and "state RUNNING" in s
+                             and s.splitlines()[-1:] == [">"], "the steps, I/O and prompt")
         assert "t1  gsParado" in screen
         assert re.search(r"^  in  iParo=0 +iMarcha=0 +iAbierto=0 +iCerrado=0$", screen, re.M)
         assert screen.splitlines()[-1] == ">"  # the prompt on the last line
