@@ -98,9 +98,10 @@ class ConsoleServer:
 
     # -- the common loop ------------------------------------------------------------
     def _pump(self, session: Session, recv: Callable[[], bytes | None],
-              send: Callable[[bytes], None]) -> None:
+              send: Callable[[bytes], None], address: str | None = None) -> None:
         """Bytes in -> replies out, streams polled between reads, until the peer leaves
-        (``recv`` returns None) or the server stops. The session is closed at the end."""
+        (``recv`` returns None) or the server stops. The session is closed at the end, and
+        its place on ``address`` freed at the same moment it leaves ``sessions``."""
         with self._lock:
             self.sessions.append(session)
         try:
@@ -113,9 +114,13 @@ class ConsoleServer:
                 if out:
                     send(("\r\n".join(out) + "\r\n").encode("utf-8"))
         finally:
-            session.close()
-            with self._lock:
-                self.sessions.remove(session)
+            try:
+                session.close()
+            finally:
+                with self._lock:
+                    self.sessions.remove(session)
+                    if address is not None:
+                        self._active[address] -= 1
 
     # -- sockets ------------------------------------------------------------------------
     def _accept_loop(self, srv: socket.socket, e: ConsoleEntry, address: str) -> None:
@@ -158,13 +163,11 @@ class ConsoleServer:
             conn.sendall(data)
             conn.settimeout(POLL_S)
         try:
-            self._pump(session, recv, send)
+            self._pump(session, recv, send, address)
         except OSError as exc:
             log.info("console session on %s ended: %s", address, exc)
         finally:
             conn.close()
-            with self._lock:
-                self._active[address] -= 1
             log.info("console session on %s closed", address)
 
     # -- serial -------------------------------------------------------------------------
