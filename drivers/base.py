@@ -152,6 +152,10 @@ class Driver(abc.ABC):
         self.name = name
         self.config: dict[str, Any] = dict(config or {})
         self.on_fault = FaultPolicy(self.config.pop("on_fault", "stop"))
+        unknown = set(self.config) - self.config_keys
+        if unknown:
+            raise ConfigError(f"driver {name} ({self.type_name}): unknown keys "
+                              f"{sorted(unknown)}")
         self.clock = clock
         #: physical input values, point -> value, filled by read()
         self.inputs: dict[str, Any] = {}

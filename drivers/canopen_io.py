@@ -122,9 +122,6 @@ class CanopenConfig:
             return ConfigError(f"driver {name} (canopen): {key}: expected {expected}, found "
                                f"{cfg.get(key)!r}")
 
-        unknown = set(cfg) - CanopenDriver.config_keys
-        if unknown:
-            raise ConfigError(f"driver {name} (canopen): unknown keys {sorted(unknown)}")
         node = cfg.get("node")
         if not isinstance(node, int) or isinstance(node, bool) or not 1 <= node <= 127:
             raise fail("node", "a node-ID 1-127")

@@ -57,9 +57,6 @@ class GpioDriver(Driver):
     ) -> None:
         super().__init__(name, config, clock=clock)
         cfg = self.config
-        unknown = set(cfg) - self.config_keys
-        if unknown:
-            raise ConfigError(f"driver {name} (gpio): unknown keys {sorted(unknown)}")
         self.chip = str(cfg.get("chip", "/dev/gpiochip0"))
         bias = str(cfg.get("bias", "none"))
         if bias not in BIASES:

@@ -87,9 +87,6 @@ class Mcp23017Driver(Driver):
         clock: Callable[[], int] = time.monotonic_ns,
     ) -> None:
         super().__init__(name, config, clock=clock)
-        unknown = set(self.config) - self.config_keys
-        if unknown:
-            raise ConfigError(f"driver {name} (mcp23017): unknown keys {sorted(unknown)}")
         self.bus_number, self.address = i2c_config(name, self.type_name, self.config)
         pull_up = self.config.get("pull_up", True)
         if not isinstance(pull_up, bool):

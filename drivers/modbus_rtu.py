@@ -525,9 +525,6 @@ class ModbusConfig:
             return ConfigError(f"driver {name} (modbus_rtu): {key}: expected {expected}, "
                                f"found {cfg.get(key)!r}")
 
-        unknown = set(cfg) - ModbusRtuDriver.config_keys
-        if unknown:
-            raise ConfigError(f"driver {name} (modbus_rtu): unknown keys {sorted(unknown)}")
         port = cfg.get("port")
         if not isinstance(port, str) or not port:
             raise fail("port", "a serial device such as /dev/ttyUSB0")

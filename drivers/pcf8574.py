@@ -26,7 +26,7 @@ from typing import Any
 
 import smbus2
 
-from drivers.base import ConfigError, Direction, Driver, DriverError, PointError, PointKind
+from drivers.base import Direction, Driver, DriverError, PointError, PointKind
 from drivers.mcp23017 import i2c_config
 
 log = logging.getLogger(__name__)
@@ -47,9 +47,6 @@ class Pcf8574Driver(Driver):
         clock: Callable[[], int] = time.monotonic_ns,
     ) -> None:
         super().__init__(name, config, clock=clock)
-        unknown = set(self.config) - self.config_keys
-        if unknown:
-            raise ConfigError(f"driver {name} (pcf8574): unknown keys {sorted(unknown)}")
         self.bus_number, self.address = i2c_config(name, self.type_name, self.config)
         #: how many times the chip was found reset and its latch written again
         self.reinits = 0

@@ -9,7 +9,15 @@ import pytest
 from drvkit import FakeClock, wait_until
 from rigs import RIGS, Rig
 
-from drivers.base import Direction, Driver, Health, PointError, PointKind, PolledDriver
+from drivers.base import (
+    ConfigError,
+    Direction,
+    Driver,
+    Health,
+    PointError,
+    PointKind,
+    PolledDriver,
+)
 from drivers.registry import DRIVERS, driver_class
 
 
@@ -39,6 +47,11 @@ def test_every_registered_type_has_a_rig() -> None:
     assert set(RIGS) == set(DRIVERS)
     for type_name in DRIVERS:
         assert driver_class(type_name).type_name == type_name
+
+
+def test_unknown_config_key_is_refused(rig: Rig) -> None:
+    with pytest.raises(ConfigError, match=r"unknown keys \['colour'\]"):
+        rig.make(colour="red")
 
 
 def test_add_point(rig: Rig) -> None:
