@@ -420,15 +420,3 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                                    "window)")
     c.add_argument("--width", type=float, default=1000.0, help="width in px (default 1000)")
     c.set_defaults(func=cmd_chronogram)
-
-
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="softplc")
-    sub = p.add_subparsers(dest="command", required=True)
-    register(sub)
-    args = p.parse_args(["chronogram", *(argv if argv is not None else sys.argv[1:])])
-    return int(args.func(args))
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
