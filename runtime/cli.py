@@ -10,33 +10,23 @@ from collections.abc import Sequence
 from typing import Any
 
 from runtime.errors import Loc, SourceError
-from runtime.yamlsrc import YMap, load_yaml
 
 log = logging.getLogger("softplc")
 
 
-def file_kind(path: str) -> str:
-    """'grafcet', 'plant' or 'script', from the file's top-level keys."""
-    doc = load_yaml(path)
-    if isinstance(doc, YMap):
-        if "grafcet" in doc or "steps" in doc:
-            return "grafcet"
-        if "instances" in doc or "drivers" in doc or "plc" in doc:
-            return "plant"
-        if "set" in doc or "duration" in doc or "cycles" in doc:
-            return "script"
-    raise SourceError(Loc(path, 1, 1), "expected a grafcet file ('grafcet:' and 'steps:') or a "
-                                       "plant file ('instances:')")
-
-
 def cmd_compile(args: argparse.Namespace) -> int:
+    from runtime.check import file_kind
     from runtime.compiler import compile_grafcet
     from runtime.language import load_grafcet
     from runtime.plantfile import load_plant
 
     for path in args.files:
         t0 = time.perf_counter()
-        if file_kind(path) == "plant":
+        kind = file_kind(path)
+        if kind not in ("grafcet", "plant"):
+            raise SourceError(Loc(path, 1, 1), "expected a grafcet file ('grafcet:' and "
+                                               "'steps:') or a plant file ('instances:')")
+        if kind == "plant":
             pdef = load_plant(path)
             charts = {id(i.grafcet): i.grafcet for i in pdef.instances.values()}
             programs = [compile_grafcet(g) for g in charts.values()]

@@ -227,16 +227,7 @@ class Daemon:
             self.faults.append((time.time(), reason))
             self._latch(reason)
             self.fault = reason
-        self._safe_state()
-
-    def _safe_state(self) -> None:
-        """Every output off, driver by driver: one driver's bug must not keep another's
-        outputs on."""
-        for d in self.plant.drivers.values():
-            try:
-                d.safe_state()
-            except Exception:  # noqa: BLE001 - logged; the others still go off
-                log.exception("driver %s: safe state failed", d.name)
+        self.plant.safe_state()
 
     def _slow_scan(self, scan_ns: int) -> None:
         """The scheduler saw a scan longer than the watchdog (it returned, late)."""

@@ -266,9 +266,13 @@ class Plant:
         self.safe_state()
 
     def safe_state(self) -> None:
-        """Every output of every driver off (de-energised)."""
+        """Every output of every driver off (de-energised), driver by driver: a bug in
+        one driver must not keep another's outputs on."""
         for d in self.drivers.values():
-            d.safe_state()
+            try:
+                d.safe_state()
+            except Exception:  # noqa: BLE001 - logged; the others still go off
+                log.exception("driver %s: safe state failed", d.name)
 
     def close(self) -> None:
         for d in reversed(list(self.drivers.values())):

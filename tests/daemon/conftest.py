@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import sys
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from daemonkit import CHART, RecordingDriver, plant_yaml
+from daemonkit import CHART, MakeDaemon, RecordingDriver, plant_yaml
 
 from runtime.daemon import Daemon
 from runtime.plant import Plant
@@ -17,9 +17,6 @@ from runtime.plantfile import load_plant
 
 # the Modbus peer and the pty null-modem of the driver tests serve here too
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "drivers"))
-
-MakeDaemon = Callable[..., tuple[Daemon, RecordingDriver]]
-
 
 @pytest.fixture(autouse=True)
 def no_leaked_threads() -> Iterator[None]:

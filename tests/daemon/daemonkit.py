@@ -6,9 +6,12 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from drivers.base import Direction, Driver, DriverError, PointKind
+
+if TYPE_CHECKING:
+    from runtime.daemon import Daemon
 
 CHART = """\
 grafcet: Runner
@@ -102,6 +105,10 @@ class RecordingDriver(Driver):
         """Images sent after position ``index`` with any output on."""
         with self.lock:
             return [s for s in self.sent[index:] if any(s[1].values())]
+
+
+#: make_daemon(start=True, **plant_yaml options) -> (daemon, its recording driver)
+MakeDaemon = Callable[..., "tuple[Daemon, RecordingDriver]"]
 
 
 def wait_until(pred: Callable[[], bool], timeout: float = 5.0, what: str = "") -> None:

@@ -5,8 +5,7 @@ overrun; held off until ``ack`` once the cause is gone."""
 from __future__ import annotations
 
 import pytest
-from conftest import MakeDaemon
-from daemonkit import wait_until
+from daemonkit import MakeDaemon, wait_until
 
 from drivers.base import DriverError, Health
 from runtime.daemon import CommandRefused, State

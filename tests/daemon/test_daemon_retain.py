@@ -8,8 +8,7 @@ import json
 import os
 from pathlib import Path
 
-from conftest import MakeDaemon
-from daemonkit import wait_until
+from daemonkit import MakeDaemon, wait_until
 
 from runtime.retain import RetainStore, RetainWriter
 

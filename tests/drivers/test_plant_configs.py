@@ -23,46 +23,11 @@ from runtime.plantfile import load_plant
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
-#: the seed-000 drawer tester, used when configs/drawer_tester/ is not there yet
-DRAWER = """\
-grafcet: DrawerTester
-inputs: [iParo, iMarcha, iAbierto, iCerrado]
-outputs: [oAbrir, oCerrar, oParado, oTest]
-memory:
-  sParo: false
-  sCierres: {init: 0, retain: true}
-pre:
-  - sParo.Set(1, iParo)
-  - tAveriaAbrir := gsAbrir.T >= 10s
-  - tAveriaCerrar := gsCerrar.T >= 10s
-  - tParo := iCerrado·sParo + (sCierres >= 1000)
-steps:
-  gsParado: {initial: true, actions: ["P1 sParo := 0"]}
-  gsAbrir:  {actions: [oAbrir, oTest]}
-  gsCerrar: {actions: [oCerrar, oTest, "P1 sCierres := sCierres + 1"]}
-  gsAveria: {}
-transitions:
-  - {from: gsParado, to: gsAbrir, when: "↑iMarcha·iParo'"}
-  - {from: gsAbrir, to: gsCerrar, when: iAbierto}
-  - {from: gsAbrir, to: gsAveria, when: tAveriaAbrir}
-  - {from: gsCerrar, to: gsParado, when: tParo}
-  - {from: gsCerrar, to: gsAbrir, when: iCerrado}
-  - {from: gsCerrar, to: gsAveria, when: tAveriaCerrar}
-  - {from: gsAveria, to: gsParado, when: "↑iMarcha·iParo'"}
-post:
-  - oParado := gsParado.X + sParo·Clock_1Hz
-"""
-
-
 def layout(tmp_path: Path, name: str) -> str:
     """configs/<name>/plant.yaml beside a drawer_tester/ directory, in tmp_path."""
     chart = tmp_path / "drawer_tester" / "drawer_tester.yaml"
     chart.parent.mkdir()
-    real = CONFIGS / "drawer_tester" / "drawer_tester.yaml"
-    if real.exists():
-        shutil.copy(real, chart)
-    else:
-        chart.write_text(DRAWER, encoding="utf-8")
+    shutil.copy(CONFIGS / "drawer_tester" / "drawer_tester.yaml", chart)
     (tmp_path / name).mkdir()
     shutil.copy(CONFIGS / name / "plant.yaml", tmp_path / name / "plant.yaml")
     return str(tmp_path / name / "plant.yaml")

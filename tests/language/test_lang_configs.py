@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from runtime.cli import file_kind, main
+from runtime.check import file_kind
+from runtime.cli import main
 from runtime.language import load_grafcet
 
 ROOT = Path(__file__).resolve().parents[2]
