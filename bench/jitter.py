@@ -29,8 +29,8 @@ from typing import Any
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from runtime.daemon import Daemon  # noqa: E402
-from runtime.plantfile import load_plant  # noqa: E402
+from runtime.controller.daemon import Daemon  # noqa: E402
+from runtime.language.plantfile import load_plant  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CHART = os.path.join(ROOT, "configs", "drawer_tester", "drawer_tester.yaml")

@@ -30,10 +30,10 @@ import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from runtime.compiler import compile_grafcet  # noqa: E402
-from runtime.language import GrafcetLoader  # noqa: E402
-from runtime.simulate import Simulation  # noqa: E402
-from runtime.yamlsrc import YMap, load_yaml  # noqa: E402
+from runtime.compiler.codegen import compile_grafcet  # noqa: E402
+from runtime.engine.simulate import Simulation  # noqa: E402
+from runtime.language.grafcetfile import GrafcetLoader  # noqa: E402
+from runtime.language.yamlsrc import YMap, load_yaml  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CHART = os.path.join(ROOT, "configs", "drawer_tester", "drawer_tester.yaml")

@@ -15,10 +15,10 @@ log = logging.getLogger("softplc")
 
 
 def cmd_compile(args: argparse.Namespace) -> int:
-    from runtime.check import file_kind
-    from runtime.compiler import compile_grafcet
-    from runtime.language import load_grafcet
-    from runtime.plantfile import load_plant
+    from runtime.checker.check import file_kind
+    from runtime.compiler.codegen import compile_grafcet
+    from runtime.language.grafcetfile import load_grafcet
+    from runtime.language.plantfile import load_plant
 
     for path in args.files:
         t0 = time.perf_counter()
@@ -42,7 +42,7 @@ def cmd_compile(args: argparse.Namespace) -> int:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from runtime.simulate import Simulation, write_trace, write_vcd
+    from runtime.engine.simulate import Simulation, write_trace, write_vcd
 
     logging.getLogger("drivers").setLevel(logging.WARNING)  # "driver sim: open" is noise here
     sim = Simulation(args.plant, args.script, args.cycles)
@@ -69,9 +69,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 def cmd_run(args: argparse.Namespace) -> int:
     """The controller: the plant in real time on its drivers (or simulated I/O)."""
-    from runtime.daemon import Daemon, serve
-    from runtime.language import time_value
-    from runtime.plantfile import load_plant
+    from runtime.controller.daemon import Daemon, serve
+    from runtime.language.grafcetfile import time_value
+    from runtime.language.plantfile import load_plant
 
     for_ns = None
     if args.for_ is not None:
@@ -84,7 +84,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     try:
         daemon = Daemon(pdef, sim=args.sim, trace=trace)
         if args.script is not None:
-            from runtime.replay import ScriptPlayer
+            from runtime.controller.replay import ScriptPlayer
 
             daemon.add_listener(ScriptPlayer(daemon.plant, args.script))
         server = _console_server(daemon) if pdef.consoles else None
@@ -97,8 +97,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _console_server(daemon: Any) -> Any:
-    from runtime.console import ConsoleService
-    from runtime.console_server import ConsoleServer
+    from runtime.console.server import ConsoleServer
+    from runtime.console.session import ConsoleService
 
     pdef = daemon.pdef
     service = ConsoleService(daemon, pdef.pin_hash, pdef.release_forces_on_disconnect)
@@ -109,7 +109,7 @@ def cmd_hash_pin(args: argparse.Namespace) -> int:
     """Print the hash of a console PIN for the plant file's ``monitor: pin_hash:``."""
     import getpass
 
-    from runtime.pin import hash_pin
+    from runtime.console.pin import hash_pin
 
     pin = args.pin
     if pin is None:
@@ -167,8 +167,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _register_modules(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Subcommands that live with their own module (each has a ``register(sub)``)."""
-    from runtime import check, chronogram, draw, install, monitor
-
+    from runtime.checker import check
+    from runtime.console import monitor
+    from runtime.controller import install
+    from runtime.drawing import chart as draw
+    from runtime.drawing import chronogram
     for module in (check, draw, chronogram, install, monitor):
         module.register(sub)
 
@@ -180,7 +183,7 @@ EXTRA_COMMANDS = [_register_modules]
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    from runtime.logsetup import setup_logging
+    from runtime.controller.logsetup import setup_logging
 
     setup_logging(args.verbose)
     try:

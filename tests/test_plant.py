@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from runtime.plant import BindingError, Plant
-from runtime.plantfile import load_plant
+from runtime.engine.plant import BindingError, Plant
+from runtime.language.plantfile import load_plant
 
 MS = 1_000_000
 

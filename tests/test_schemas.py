@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 
-from runtime.yamlsrc import load_yaml
+from runtime.language.yamlsrc import load_yaml
 
 jsonschema = pytest.importorskip("jsonschema")
 from jsonschema import Draft202012Validator  # noqa: E402

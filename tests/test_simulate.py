@@ -8,8 +8,8 @@ import sys
 
 import pytest
 
+from runtime.engine.simulate import Simulation
 from runtime.errors import SourceError
-from runtime.simulate import Simulation
 
 PLANT = """\
 plc: {cycle: 10ms}
@@ -196,7 +196,7 @@ def test_cli_cycles_overrides_the_script_and_no_trace_writes_nothing(
 def test_vcd_holds_the_trace_values_at_their_times(write, drawer):  # type: ignore
     import io
 
-    from runtime.simulate import write_vcd
+    from runtime.engine.simulate import write_vcd
 
     rows = list(Simulation(write("plant.yaml", PLANT), write("script.yaml", SCRIPT)).run())
     buf = io.StringIO()

@@ -8,8 +8,8 @@ from collections.abc import Callable
 
 import pytest
 
-from runtime.check import check_files, exit_status
-from runtime.check_diag import Diag
+from runtime.checker.check import check_files, exit_status
+from runtime.checker.diag import Diag
 
 HEAD = """\
 grafcet: T
@@ -571,7 +571,7 @@ def test_g209_bounded_exploration(write: Callable[[str, str], str],
     # the command line takes --limit
     import argparse
 
-    from runtime.check import register
+    from runtime.checker.check import register
 
     p = argparse.ArgumentParser(prog="softplc")
     register(p.add_subparsers(dest="command", required=True))

@@ -15,7 +15,7 @@ from pathlib import Path
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from runtime.check import check_files
+from runtime.checker.check import check_files
 
 VARS = ("iA", "iB", "iC")
 COUNTS = range(-1, 6)  # sN is compared with constants 0..3: -1..5 covers every case

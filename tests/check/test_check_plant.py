@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 import pytest
 
-from runtime.check import check_files, exit_status, register
+from runtime.checker.check import check_files, exit_status, register
 
 CHART = """\
 grafcet: Small

@@ -11,10 +11,11 @@ from pathlib import Path
 
 import pytest
 
-from runtime import chronogram as chrono
-from runtime import draw, draw_text
+from runtime.drawing import chart as draw
+from runtime.drawing import chronogram as chrono
+from runtime.drawing import text as draw_text
 from runtime.errors import SourceError
-from runtime.language import load_grafcet
+from runtime.language.grafcetfile import load_grafcet
 
 SVG = "{http://www.w3.org/2000/svg}"
 LAYOUTS = ["python"] + (["dot"] if shutil.which("dot") else [])
@@ -90,7 +91,7 @@ def texts(svg_path: str) -> list[str]:
 
 @pytest.fixture
 def trace(write: Callable[[str, str], str], drawer: str, tmp_path: Path) -> str:
-    from runtime.simulate import Simulation, write_trace
+    from runtime.engine.simulate import Simulation, write_trace
 
     sim = Simulation(write("plant.yaml", PLANT), write("script.yaml", SCRIPT))
     out = tmp_path / "trace.jsonl"

@@ -24,11 +24,11 @@ from typing import Any
 import serial
 
 from drivers.sim import SimDriver
-from runtime.console import ConsoleService
-from runtime.console_server import ConsoleServer
-from runtime.daemon import Daemon
-from runtime.plant import Plant
-from runtime.plantfile import load_plant
+from runtime.console.server import ConsoleServer
+from runtime.console.session import ConsoleService
+from runtime.controller.daemon import Daemon
+from runtime.engine.plant import Plant
+from runtime.language.plantfile import load_plant
 
 ROOT = Path(__file__).resolve().parents[2]
 CHART = ROOT / "configs" / "drawer_tester" / "drawer_tester.yaml"

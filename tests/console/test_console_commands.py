@@ -7,7 +7,7 @@ import re
 
 from consolekit import Rig, wait_for
 
-from runtime.console import HELP, MAX_CYCLE
+from runtime.console.session import HELP, MAX_CYCLE
 
 
 def start_t1(rig: Rig) -> None:

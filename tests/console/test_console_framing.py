@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 from consolekit import FakeClock, Rig, wait_for
 
-from runtime.console import MAX_LINE, PARTIAL_LINE_TIMEOUT_S
+from runtime.console.session import MAX_LINE, PARTIAL_LINE_TIMEOUT_S
 
 
 def test_cr_lf_and_crlf_each_end_a_line(rig: Rig) -> None:

@@ -11,8 +11,8 @@ import yaml
 from consolekit import FakeClock, Rig
 
 from runtime import cli
-from runtime.console import CHANGING, LOCKOUT_S
-from runtime.pin import check_pin, hash_pin
+from runtime.console.pin import check_pin, hash_pin
+from runtime.console.session import CHANGING, LOCKOUT_S
 
 PIN = "4711"
 #: a cheap hash for the tests (the CLI's default costs ~0.1 s per try on purpose)

@@ -12,11 +12,11 @@ from pathlib import Path
 import pytest
 from consolekit import ROOT, NullModem, Rig, serial_client, tcp_client, wait_for
 
-from runtime.console import ConsoleService
-from runtime.console_server import MAX_CONNECTIONS, ConsoleServer
-from runtime.daemon import Daemon
-from runtime.model import ConsoleEntry
-from runtime.plantfile import load_plant
+from runtime.console.server import MAX_CONNECTIONS, ConsoleServer
+from runtime.console.session import ConsoleService
+from runtime.controller.daemon import Daemon
+from runtime.language.model import ConsoleEntry
+from runtime.language.plantfile import load_plant
 
 
 def socket_sessions(rig: Rig) -> list[object]:

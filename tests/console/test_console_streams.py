@@ -8,7 +8,7 @@ from collections.abc import Callable
 
 from consolekit import Rig, wait_for
 
-from runtime.console import STREAM_LINES_PER_POLL
+from runtime.console.session import STREAM_LINES_PER_POLL
 
 
 def test_a_slow_reader_gets_the_latest_scans_and_a_count_of_the_others(

@@ -19,9 +19,16 @@ import pytest
 from consolekit import DEADLINE_S, ROOT, Rig, TermScreen, wait_for
 
 from runtime import cli
-from runtime.console_server import ConsoleServer
-from runtime.model import ConsoleEntry
-from runtime.monitor import ConsoleClient, MonitorError, SerialLink, SocketLink, View, open_link
+from runtime.console.monitor import (
+    ConsoleClient,
+    MonitorError,
+    SerialLink,
+    SocketLink,
+    View,
+    open_link,
+)
+from runtime.console.server import ConsoleServer
+from runtime.language.model import ConsoleEntry
 
 
 @pytest.fixture

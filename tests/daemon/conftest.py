@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 from daemonkit import CHART, MakeDaemon, RecordingDriver, plant_yaml
 
-from runtime.daemon import Daemon
-from runtime.plant import Plant
-from runtime.plantfile import load_plant
+from runtime.controller.daemon import Daemon
+from runtime.engine.plant import Plant
+from runtime.language.plantfile import load_plant
 
 # the Modbus peer and the pty null-modem of the driver tests serve here too
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "drivers"))

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 from drivers.base import Direction, Driver, DriverError, PointKind
 
 if TYPE_CHECKING:
-    from runtime.daemon import Daemon
+    from runtime.controller.daemon import Daemon
 
 CHART = """\
 grafcet: Runner

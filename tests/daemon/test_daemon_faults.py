@@ -8,7 +8,7 @@ import pytest
 from daemonkit import MakeDaemon, wait_until
 
 from drivers.base import DriverError, Health
-from runtime.daemon import CommandRefused, State
+from runtime.controller.daemon import CommandRefused, State
 
 ALL_OFF = {"Q0": 0, "Q1": 0}
 RUN_ON = {"Q0": 1, "Q1": 1}

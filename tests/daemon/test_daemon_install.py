@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from runtime.install import InstallError, apply, plan, unit_text
-from runtime.plantfile import load_plant
+from runtime.controller.install import InstallError, apply, plan, unit_text
+from runtime.language.plantfile import load_plant
 
 ROOT = Path(__file__).resolve().parents[2]
 SOFTPLC = str(Path(sys.executable).parent / "softplc")

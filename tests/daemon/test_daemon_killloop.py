@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from runtime.retain import RetainStore
+from runtime.controller.retain import RetainStore
 
 ROOT = Path(__file__).resolve().parents[2]
 CYCLE_MS = 10

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from runtime.logsetup import JournalFormatter, RateLimit, under_journal
-from runtime.notify import Notifier
+from runtime.controller.logsetup import JournalFormatter, RateLimit, under_journal
+from runtime.controller.notify import Notifier
 
 
 def record(msg: str, level: int = logging.ERROR, *args: object) -> logging.LogRecord:

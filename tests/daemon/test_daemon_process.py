@@ -242,6 +242,6 @@ def test_end_of_for_is_an_orderly_stop(tmp_path: Path,
     assert "stopping: end of --for" in proc.stderr
     assert coils(peer) == [0, 0]
     # the chart did run (sN counts the scans of gsRun and is retained)
-    from runtime.retain import RetainStore
+    from runtime.controller.retain import RetainStore
 
     assert RetainStore(str(tmp_path / "var" / "retain.json")).load().data["m"]["sN"] > 10

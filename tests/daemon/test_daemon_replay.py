@@ -8,9 +8,9 @@ from pathlib import Path
 
 from daemonkit import wait_until
 
-from runtime.daemon import Daemon
-from runtime.plantfile import load_plant
-from runtime.replay import ScriptPlayer
+from runtime.controller.daemon import Daemon
+from runtime.controller.replay import ScriptPlayer
+from runtime.language.plantfile import load_plant
 
 ROOT = Path(__file__).resolve().parents[2]
 PLANT = ROOT / "configs" / "drawer_tester" / "plant_sim.yaml"

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from daemonkit import MakeDaemon, wait_until
 
-from runtime.retain import RetainStore, RetainWriter
+from runtime.controller.retain import RetainStore, RetainWriter
 
 
 def test_save_and_load_generations(tmp_path: Path) -> None:

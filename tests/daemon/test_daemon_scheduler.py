@@ -7,8 +7,8 @@ import threading
 
 import pytest
 
-from runtime.scanstats import ScanStats, Summary
-from runtime.scheduler import Scheduler, Watchdog
+from runtime.controller.scheduler import Scheduler, Watchdog
+from runtime.controller.stats import ScanStats, Summary
 
 MS = 1_000_000
 

@@ -1,4 +1,4 @@
-"""A lost I/O node, seen through the plant (runtime.plant) as each ``on_fault`` policy says:
+"""A lost I/O node, seen through the plant (runtime.engine.plant) as each ``on_fault`` policy says:
 a CiA 401 node on python-can's virtual bus powers off in the middle of a run.
 
 The chart follows one input of the node (iA) to an output of the node and to a panel lamp,
@@ -19,8 +19,8 @@ from drvkit import FakeClock, wait_until
 from drivers.base import Health
 from drivers.canopen_io import CanopenDriver
 from drivers.sim import SimDriver
-from runtime.plant import Plant
-from runtime.plantfile import load_plant
+from runtime.engine.plant import Plant
+from runtime.language.plantfile import load_plant
 
 CHART = """\
 grafcet: Follower

@@ -18,8 +18,8 @@ from i2c_emulator import I2CWorld, Mcp23017Model
 from modbus_peer import ModbusPeer
 from pty_bridge import PtyBridge
 
-from runtime.plant import Plant
-from runtime.plantfile import load_plant
+from runtime.engine.plant import Plant
+from runtime.language.plantfile import load_plant
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 

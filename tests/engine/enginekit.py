@@ -7,9 +7,9 @@ import textwrap
 from pathlib import Path
 from typing import Any
 
-from runtime.compiler import compile_grafcet
-from runtime.engine import Instance
-from runtime.language import load_grafcet
+from runtime.compiler.codegen import compile_grafcet
+from runtime.engine.instance import Instance
+from runtime.language.grafcetfile import load_grafcet
 
 MS = 1_000_000
 S = 1_000_000_000

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from runtime.plant import Plant
-from runtime.plantfile import load_plant
+from runtime.engine.plant import Plant
+from runtime.language.plantfile import load_plant
 
 MS = 1_000_000
 

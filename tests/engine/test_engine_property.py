@@ -12,9 +12,9 @@ from enginekit import BOOT, MS
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from runtime.compiler import UnstableChart, compile_grafcet
-from runtime.engine import Instance
-from runtime.language import load_grafcet
+from runtime.compiler.codegen import UnstableChart, compile_grafcet
+from runtime.engine.instance import Instance
+from runtime.language.grafcetfile import load_grafcet
 
 INPUTS = ("a", "b", "c")
 OUTPUTS = ("o0", "o1", "o2")

@@ -14,7 +14,7 @@ from typing import Any
 
 import pytest
 
-from runtime.simulate import Simulation
+from runtime.engine.simulate import Simulation
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = ROOT / "configs"

@@ -8,20 +8,20 @@ from typing import Any
 
 import pytest
 
-from runtime import ast as A
-from runtime.compiler import compile_grafcet
-from runtime.engine import Instance
+from runtime.compiler.codegen import compile_grafcet
+from runtime.engine.instance import Instance
 from runtime.errors import Loc, SourceError
-from runtime.language import GrafcetLoader, load_grafcet
-from runtime.model import Grafcet
-from runtime.parser import (
+from runtime.language import ast as A
+from runtime.language.grafcetfile import GrafcetLoader, load_grafcet
+from runtime.language.model import Grafcet
+from runtime.language.parser import (
     ParsedAction,
     format_time,
     parse_action,
     parse_expression,
     parse_statements,
 )
-from runtime.yamlsrc import load_yaml
+from runtime.language.yamlsrc import load_yaml
 
 S = 1_000_000_000
 MS = 1_000_000
@@ -207,7 +207,7 @@ def load_error(text: str, path: str = "chart.yaml") -> SourceError:
 
 def file_error(path: str) -> SourceError:
     """The SourceError that loading the grafcet or plant file ``path`` raises."""
-    from runtime.plantfile import load_plant
+    from runtime.language.plantfile import load_plant
 
     with pytest.raises(SourceError) as info:
         doc = load_yaml(path)

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from runtime.check import file_kind
+from runtime.checker.check import file_kind
 from runtime.cli import main
-from runtime.language import load_grafcet
+from runtime.language.grafcetfile import load_grafcet
 
 ROOT = Path(__file__).resolve().parents[2]
 FILES = sorted(p for p in (ROOT / "configs").glob("*/*.yaml")

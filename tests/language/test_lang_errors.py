@@ -331,7 +331,7 @@ def plant_check(tmp_path: Path, plant: str, needle: str, *words: str, nth: int =
 
 
 def test_plant_ok(tmp_path: Path) -> None:
-    from runtime.plantfile import load_plant
+    from runtime.language.plantfile import load_plant
 
     write(tmp_path, "chart.yaml", HEAD + STEPS)
     p = load_plant(write(tmp_path, "plant.yaml", PLANT))
@@ -506,8 +506,8 @@ def test_limits_leave_room_for_real_charts() -> None:
         "END_FOR; " * 16
     chain = " + ".join(["iParo"] * 101)
     g = load_text(HEAD + STEPS + f'pre:\n  - "{loops}"\npost:\n  - "oTest := {chain}"\n')
-    from runtime.compiler import compile_grafcet
-    from runtime.engine import Instance
+    from runtime.compiler.codegen import compile_grafcet
+    from runtime.engine.instance import Instance
 
     inst = Instance("deep", compile_grafcet(g))
     inst.set("iParo", True)
@@ -516,7 +516,7 @@ def test_limits_leave_room_for_real_charts() -> None:
 
 
 def test_yaml_1_2_booleans_yes_no_on_off_are_text(tmp_path: Path) -> None:
-    from runtime.language import load_grafcet
+    from runtime.language.grafcetfile import load_grafcet
 
     g = load_grafcet(write(tmp_path, "ok.yaml", """\
         grafcet: Names

@@ -16,9 +16,9 @@ from langkit import (
     unparse,
 )
 
-from runtime import ast as A
 from runtime.errors import SourceError
-from runtime.parser import format_time, parse_time
+from runtime.language import ast as A
+from runtime.language.parser import format_time, parse_time
 
 
 def lit(v, t="int"):  # type: ignore[no-untyped-def]

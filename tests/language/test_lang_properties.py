@@ -11,9 +11,9 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from langkit import assert_round_trip_expr, expr, tree
 
-from runtime.compiler import compile_grafcet
-from runtime.engine import Instance
-from runtime.yamlsrc import load_yaml
+from runtime.compiler.codegen import compile_grafcet
+from runtime.engine.instance import Instance
+from runtime.language.yamlsrc import load_yaml
 
 BOOLS = ("iA", "iB", "iC")
 INTS = ("iN", "iM")
@@ -240,7 +240,7 @@ post:
 
 
 def compiled_values(text: str, target: str, scans: list[dict[str, Any]]) -> list[Any]:
-    from runtime.language import GrafcetLoader
+    from runtime.language.grafcetfile import GrafcetLoader
 
     source = CHART.format(target=target, text=text)
     g = GrafcetLoader("prop.yaml", load_yaml("prop.yaml", source)).load()
@@ -386,7 +386,7 @@ def test_time_literals_parse_to_their_value(lit: tuple[str, int]) -> None:
 @settings(max_examples=int(os.environ.get("LANG_PROP_EXAMPLES", "100")), deadline=None)
 @given(time_node(), st.integers(-10**13, 10**13))
 def test_time_arithmetic(node: tuple[str, Any], d: int) -> None:
-    from runtime.language import GrafcetLoader
+    from runtime.language.grafcetfile import GrafcetLoader
 
     text, ref = node
     source = TIME_CHART.format(text=text)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 from langkit import MS, S, load_error, load_text, run
 
-from runtime import ast as A
-from runtime.model import VarKind
+from runtime.language import ast as A
+from runtime.language.model import VarKind
 
 T = A.Type
 

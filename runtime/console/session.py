@@ -23,13 +23,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol, TypeVar
 
-from runtime import ast as A
-from runtime.console_names import Catalogue, CommandError, Image, Name, parse_value, printable
-from runtime.daemon import CommandRefused
+from runtime.console.pin import check_pin
+from runtime.controller.daemon import CommandRefused
+from runtime.engine.names import Catalogue, CommandError, Image, Name, parse_value, printable
+from runtime.engine.plant import BindingError, Plant
 from runtime.errors import suggest
-from runtime.parser import format_time, parse_time
-from runtime.pin import check_pin
-from runtime.plant import BindingError, Plant
+from runtime.language import ast as A
+from runtime.language.parser import format_time, parse_time
 
 log = logging.getLogger(__name__)
 R = TypeVar("R")
@@ -91,7 +91,7 @@ _TIME_LITERAL = re.compile(r"\b(?:\d+(?:d|h|ms|m|s|us|ns))+\b")
 
 
 class Controller(Protocol):
-    """What the console needs from the running daemon (runtime.daemon.Daemon)."""
+    """What the console needs from the running daemon (runtime.controller.daemon.Daemon)."""
 
     plant: Plant
 

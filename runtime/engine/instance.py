@@ -10,10 +10,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from runtime import ast as A
-from runtime.compiler import Program, min_timed
-from runtime.model import Step, Transition, VarKind
-from runtime.parser import format_time
+from runtime.compiler.codegen import Program, min_timed
+from runtime.language import ast as A
+from runtime.language.model import Step, Transition, VarKind
+from runtime.language.parser import format_time
 
 T = A.Type
 
@@ -217,7 +217,7 @@ def coerce(t: A.Type, value: Any) -> Any:
         return float(value)
     if t is T.TIME:
         if isinstance(value, str):
-            from runtime.parser import parse_time
+            from runtime.language.parser import parse_time
             text = value.split("#", 1)[-1]
             ns = parse_time(text)
             if ns is None:

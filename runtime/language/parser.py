@@ -13,8 +13,8 @@ import unicodedata
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from runtime import ast as A
 from runtime.errors import Loc, SourceError
+from runtime.language import ast as A
 
 KEYWORDS = {
     "AND", "OR", "XOR", "NOT", "MOD", "RE", "FE", "TRUE", "FALSE", "IF", "THEN", "ELSIF",

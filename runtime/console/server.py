@@ -15,8 +15,8 @@ import socket
 import threading
 from collections.abc import Callable
 
-from runtime.console import ConsoleService, Session
-from runtime.model import ConsoleEntry
+from runtime.console.session import ConsoleService, Session
+from runtime.language.model import ConsoleEntry
 
 log = logging.getLogger(__name__)
 

@@ -25,13 +25,13 @@ from collections.abc import Callable
 from types import FrameType
 from typing import IO, Any, TypeVar
 
-from runtime.model import PlantDef
-from runtime.notify import Notifier
-from runtime.plant import Plant
-from runtime.realtime import lock_memory, reduce_timer_slack, set_fifo_priority
-from runtime.retain import RetainStore, RetainWriter
-from runtime.scanstats import ScanStats
-from runtime.scheduler import Scheduler, Watchdog
+from runtime.controller.notify import Notifier
+from runtime.controller.realtime import lock_memory, reduce_timer_slack, set_fifo_priority
+from runtime.controller.retain import RetainStore, RetainWriter
+from runtime.controller.scheduler import Scheduler, Watchdog
+from runtime.controller.stats import ScanStats
+from runtime.engine.plant import Plant
+from runtime.language.model import PlantDef
 
 log = logging.getLogger(__name__)
 R = TypeVar("R")
@@ -450,7 +450,7 @@ class _TraceWriter:
     cost of a few µs per instance) and written by a thread of its own."""
 
     def __init__(self, plant: Plant, out: IO[str]) -> None:
-        from runtime.simulate import trace_columns
+        from runtime.engine.simulate import trace_columns
 
         self.columns = trace_columns(plant)
         self.out = out

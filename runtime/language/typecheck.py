@@ -13,9 +13,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from runtime import ast as A
 from runtime.errors import Loc, SourceError, suggest
-from runtime.model import Grafcet, Variable, VarKind
+from runtime.language import ast as A
+from runtime.language.model import Grafcet, Variable, VarKind
 
 T = A.Type
 NUMERIC = (T.INT, T.REAL)

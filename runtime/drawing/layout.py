@@ -17,8 +17,8 @@ import subprocess
 from collections import deque
 from dataclasses import dataclass, field
 
-from runtime.draw_text import action_parts, condition_lines, seed_text, text_w
-from runtime.model import Grafcet
+from runtime.drawing.text import action_parts, condition_lines, seed_text, text_w
+from runtime.language.model import Grafcet
 
 
 def macro_of_transition(g: Grafcet) -> dict[int, str]:

@@ -5,7 +5,7 @@ G201 OR divergence not exclusive, G202 action that never executes, G203 divergen
 closed, G204 same level condition on consecutive transitions, G205 counting statement in a
 continuous action, G206 deadlock, G207 bool promoted to a number in a comparison, G208
 transition that never fires, G209 analysis cut by its bounds (docs/check.md). The rules
-that the loader enforces itself (G101, G105, G106) are reported by runtime/check.py.
+that the loader enforces itself (G101, G105, G106) are reported by runtime/checker/check.py.
 """
 
 from __future__ import annotations
@@ -13,14 +13,14 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator
 from typing import Any
 
-from runtime import ast as A
-from runtime.check_diag import Diag, diag
-from runtime.check_logic import ARITH, COMPARE, Logic, has_edge, unparse
-from runtime.check_reach import LIMIT, Reach, Unsafe, explore, structural_reach
+from runtime.checker.diag import Diag, diag
+from runtime.checker.logic import ARITH, COMPARE, Logic, has_edge, unparse
+from runtime.checker.reach import LIMIT, Reach, Unsafe, explore, structural_reach
 from runtime.errors import Loc, SourceError
-from runtime.model import Grafcet, Qualifier, Step, Transition
-from runtime.parser import format_time
-from runtime.yamlsrc import YList, YMap, YStr, load_yaml
+from runtime.language import ast as A
+from runtime.language.model import Grafcet, Qualifier, Step, Transition
+from runtime.language.parser import format_time
+from runtime.language.yamlsrc import YList, YMap, YStr, load_yaml
 
 T = A.Type
 

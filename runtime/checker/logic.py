@@ -27,9 +27,9 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from runtime import ast as A
-from runtime.model import Grafcet, VarKind
-from runtime.parser import format_time
+from runtime.language import ast as A
+from runtime.language.model import Grafcet, VarKind
+from runtime.language.parser import format_time
 
 T = A.Type
 COMPARE = {"EQ": "=", "NE": "<>", "LT": "<", "LE": "<=", "GT": ">", "GE": ">="}

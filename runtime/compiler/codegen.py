@@ -14,11 +14,11 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
-from runtime import ast as A
-from runtime import blocks as B
-from runtime.model import Action, Grafcet, Qualifier, ScanModel, Step, Transition, VarKind
-from runtime.parser import format_time
-from runtime.typecheck import CLOCK_PERIOD_NS
+from runtime.compiler import blocks as B
+from runtime.language import ast as A
+from runtime.language.model import Action, Grafcet, Qualifier, ScanModel, Step, Transition, VarKind
+from runtime.language.parser import format_time
+from runtime.language.typecheck import CLOCK_PERIOD_NS
 
 T = A.Type
 #: rounds of the stable-situation search before "unstable chart"

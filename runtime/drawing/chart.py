@@ -9,8 +9,8 @@ and convergences as single lines; links that go back up run in lanes on the left
 upward arrow; links that skip rows (into an OR convergence) run down a channel on the right
 of what they pass. Macro-step expansions are framed and captioned with the macro-step's name.
 
-The geometry (rows, x, lanes, channels, frames) is runtime/draw_layout.py's, the texts
-runtime/draw_text.py's; this module draws them. The left-to-right order in each row comes
+The geometry (rows, x, lanes, channels, frames) is runtime/drawing/layout.py's, the texts
+runtime/drawing/text.py's; this module draws them. The left-to-right order in each row comes
 from Graphviz's ``dot`` (``--layout dot``, the default when ``dot`` is installed; fewer
 crossings on large charts) or from the built-in rule (``--layout python``).
 
@@ -26,7 +26,7 @@ import json
 import shutil
 import sys
 
-from runtime.draw_layout import (
+from runtime.drawing.layout import (
     ACTION_GAP,
     BAR_W,
     CHAR_H,
@@ -40,9 +40,9 @@ from runtime.draw_layout import (
     route,
     row_h,
 )
-from runtime.draw_text import FONT, text_w
+from runtime.drawing.text import FONT, text_w
 from runtime.errors import Loc, SourceError
-from runtime.model import Grafcet
+from runtime.language.model import Grafcet
 
 ACTIVE_FILL = "#ffd54f"
 
@@ -392,9 +392,9 @@ def active_from_trace(g: Grafcet, trace: str, cycle: int,
 # -- command line ------------------------------------------------------------------------------
 def load_chart(path: str, instance: str | None) -> tuple[Grafcet, str | None]:
     """The grafcet of FILE (a grafcet file, or a plant file's instance)."""
-    from runtime.check import file_kind
-    from runtime.language import load_grafcet
-    from runtime.plantfile import load_plant
+    from runtime.checker.check import file_kind
+    from runtime.language.grafcetfile import load_grafcet
+    from runtime.language.plantfile import load_plant
 
     if file_kind(path) == "plant":
         p = load_plant(path)

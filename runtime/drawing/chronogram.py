@@ -25,9 +25,9 @@ import sys
 from dataclasses import dataclass
 from typing import Any
 
-from runtime.draw_text import FONT
+from runtime.drawing.text import FONT
 from runtime.errors import Loc, SourceError
-from runtime.parser import parse_time
+from runtime.language.parser import parse_time
 
 ROW_H = 18.0
 ROW_GAP = 8.0
@@ -104,8 +104,8 @@ def default_signals(keys: list[str]) -> list[tuple[str, list[str]]]:
 def plant_signals(plant: str, keys: list[str]) -> tuple[list[tuple[str, list[str]]],
                                                          dict[str, str]]:
     """Groups and kinds from the plant file's charts (exact, whatever the names)."""
-    from runtime.model import VarKind
-    from runtime.plantfile import load_plant
+    from runtime.language.model import VarKind
+    from runtime.language.plantfile import load_plant
 
     p = load_plant(plant)
     groups: list[tuple[str, list[str]]] = []

@@ -1,6 +1,6 @@
 """Loading grafcet files into the typed model, with errors as FILE:LINE:COL.
 
-Plant files are loaded by runtime.plantfile, which uses this module for their charts.
+Plant files are loaded by runtime.language.plantfile, which uses this module for their charts.
 """
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ import os
 from collections.abc import Callable
 from typing import Any
 
-from runtime import ast as A
 from runtime.errors import Loc, SourceError, suggest
-from runtime.model import (
+from runtime.language import ast as A
+from runtime.language.model import (
     Action,
     Block,
     Grafcet,
@@ -24,7 +24,7 @@ from runtime.model import (
     Variable,
     VarKind,
 )
-from runtime.parser import (
+from runtime.language.parser import (
     KEYWORDS,
     is_name,
     parse_action,
@@ -32,7 +32,7 @@ from runtime.parser import (
     parse_statements,
     parse_time,
 )
-from runtime.typecheck import (
+from runtime.language.typecheck import (
     FB_MEMBERS,
     FLAGS_BOOL,
     FLAGS_STRING,
@@ -40,7 +40,7 @@ from runtime.typecheck import (
     Checker,
     looks_temporary,
 )
-from runtime.yamlsrc import YList, YMap, YStr, load_yaml, synthetic_str
+from runtime.language.yamlsrc import YList, YMap, YStr, load_yaml, synthetic_str
 
 T = A.Type
 GRAFCET_KEYS = ("grafcet", "description", "scan", "inputs", "outputs", "memory", "timers",

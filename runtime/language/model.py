@@ -6,8 +6,8 @@ import enum
 from dataclasses import dataclass, field
 from typing import Any
 
-from runtime import ast as A
 from runtime.errors import Loc
+from runtime.language import ast as A
 
 
 class VarKind(enum.Enum):

@@ -13,11 +13,11 @@ from dataclasses import dataclass
 from typing import Any
 
 from drivers.base import PointKind
-from runtime import ast as A
+from runtime.engine.plant import Plant
 from runtime.errors import suggest
-from runtime.model import VarKind
-from runtime.parser import format_time, parse_time
-from runtime.plant import Plant
+from runtime.language import ast as A
+from runtime.language.model import VarKind
+from runtime.language.parser import format_time, parse_time
 
 
 class CommandError(Exception):

@@ -16,10 +16,10 @@ from typing import Any
 from drivers.base import Direction, Driver, FaultPolicy, Health
 from drivers.registry import driver_class
 from drivers.sim import SimDriver
-from runtime import ast as A
-from runtime.compiler import Program, compile_grafcet
-from runtime.engine import Instance, coerce
-from runtime.model import Binding, PlantDef, VarKind
+from runtime.compiler.codegen import Program, compile_grafcet
+from runtime.engine.instance import Instance, coerce
+from runtime.language import ast as A
+from runtime.language.model import Binding, PlantDef, VarKind
 
 log = logging.getLogger(__name__)
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 import os
 from typing import Any
 
-from runtime import ast as A
-from runtime.check_diag import Diag, diag
+from runtime.checker.diag import Diag, diag
 from runtime.errors import Loc, SourceError
-from runtime.model import PlantDef
-from runtime.yamlsrc import YMap, load_yaml
+from runtime.language import ast as A
+from runtime.language.model import PlantDef
+from runtime.language.yamlsrc import YMap, load_yaml
 
 T = A.Type
 
@@ -76,7 +76,7 @@ def check_plant_model(p: PlantDef) -> list[Diag]:
 def plant_bindings_scan(path: str) -> list[Diag]:
     """Every unbound signal and physical output bound twice, from the YAML text (the
     loader stops at the first)."""
-    from runtime.language import load_grafcet
+    from runtime.language.grafcetfile import load_grafcet
 
     out: list[Diag] = []
     try:

@@ -22,15 +22,15 @@ import sys
 import time
 from dataclasses import dataclass, field
 
-from runtime.plantfile import load_plant
-from runtime.yamlsrc import YMap, load_yaml
+from runtime.language.plantfile import load_plant
+from runtime.language.yamlsrc import YMap, load_yaml
 
 log = logging.getLogger(__name__)
 
 #: the unit file: systemd/ of the source tree, or share/softplc/ of an installed package
+_SOURCE_TREE = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 UNIT_CANDIDATES = (
-    os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "systemd",
-                 "softplc.service"),
+    os.path.join(_SOURCE_TREE, "systemd", "softplc.service"),
     os.path.join(sys.prefix, "share", "softplc", "softplc.service"),
 )
 USER = "softplc"

@@ -25,7 +25,7 @@ and G400 (note) says when no plant could be found for it.
 This module is the command: it loads each file (a chart's G101, G105 and G106 errors, which
 the loader stops at, become diagnostics and the chart is patched so that every other check
 still runs), finds each script's plant, and prints. The chart rules are
-runtime/check_rules.py's, the plant checks runtime/check_plant.py's.
+runtime/checker/rules.py's, the plant checks runtime/checker/plant_rules.py's.
 """
 
 from __future__ import annotations
@@ -38,13 +38,13 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from runtime.check_diag import Diag, diag, show_path
-from runtime.check_plant import check_plant_model, plant_bindings_scan
-from runtime.check_reach import LIMIT
-from runtime.check_rules import check_grafcet
+from runtime.checker.diag import Diag, diag, show_path
+from runtime.checker.plant_rules import check_plant_model, plant_bindings_scan
+from runtime.checker.reach import LIMIT
+from runtime.checker.rules import check_grafcet
 from runtime.errors import Loc, SourceError
-from runtime.model import Grafcet
-from runtime.yamlsrc import YList, YMap, YStr, load_yaml
+from runtime.language.model import Grafcet
+from runtime.language.yamlsrc import YList, YMap, YStr, load_yaml
 
 SEVERITY_ORDER = {"error": 0, "warning": 1, "note": 2}
 
@@ -129,7 +129,7 @@ def load_grafcet_checked(path: str) -> Loaded:
     """Load a grafcet; a loader error that breaks one of seed 000's rules (G101, G105,
     G106) becomes a diagnostic, the offending part is left out, and loading goes on so
     that every such error is reported and the rest of the checks still run."""
-    from runtime.language import GrafcetLoader, load_grafcet
+    from runtime.language.grafcetfile import GrafcetLoader, load_grafcet
 
     try:
         return Loaded(load_grafcet(path), [], set())
@@ -256,9 +256,9 @@ class Session:
         """A simulation script is checked against its plant: every name it sets must be an
         input (or chart flag) of an instance, or an input point of a driver, with a value
         of the right type; the times must be times."""
-        from runtime.plant import Plant
-        from runtime.plantfile import load_plant
-        from runtime.simulate import load_script
+        from runtime.engine.plant import Plant
+        from runtime.engine.simulate import load_script
+        from runtime.language.plantfile import load_plant
 
         plant, how = self._plant_of_script(path)
         if plant is None:
@@ -287,7 +287,7 @@ class Session:
         return FileResult(path, _sorted(diags), failure)
 
     def _plant(self, path: str) -> list[FileResult]:
-        from runtime.plantfile import load_plant
+        from runtime.language.plantfile import load_plant
 
         results: list[FileResult] = []
         diags: list[Diag] = []

@@ -29,7 +29,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field
 
-from runtime.model import Grafcet, Transition
+from runtime.language.model import Grafcet, Transition
 
 LIMIT = 100_000
 UNSAFE_REPORTS = 5  # root causes reported per chart

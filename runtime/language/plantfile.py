@@ -5,12 +5,12 @@ from __future__ import annotations
 import os
 from typing import Any
 
-from runtime import ast as A
 from runtime.errors import Loc, SourceError, suggest
-from runtime.language import check_keys, expect_type, load_grafcet, time_value
-from runtime.model import Binding, ConsoleEntry, DriverDef, InstanceDef, PlantDef, VarKind
-from runtime.typecheck import FLAGS_BOOL
-from runtime.yamlsrc import YMap, load_yaml
+from runtime.language import ast as A
+from runtime.language.grafcetfile import check_keys, expect_type, load_grafcet, time_value
+from runtime.language.model import Binding, ConsoleEntry, DriverDef, InstanceDef, PlantDef, VarKind
+from runtime.language.typecheck import FLAGS_BOOL
+from runtime.language.yamlsrc import YMap, load_yaml
 
 PLANT_KEYS = ("plc", "drivers", "instances", "monitor")
 PLC_KEYS = ("cycle", "watchdog", "retain", "retain_interval", "realtime")

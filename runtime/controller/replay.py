@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import logging
 
-from runtime.plant import Plant
-from runtime.simulate import Event, load_script
+from runtime.engine.plant import Plant
+from runtime.engine.simulate import Event, load_script
 
 log = logging.getLogger(__name__)
 

@@ -22,8 +22,8 @@ import threading
 import time
 from collections.abc import Callable
 
-from runtime.realtime import make_sleep_until
-from runtime.scanstats import ScanStats
+from runtime.controller.realtime import make_sleep_until
+from runtime.controller.stats import ScanStats
 
 log = logging.getLogger(__name__)
 

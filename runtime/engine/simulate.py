@@ -13,16 +13,16 @@ from typing import IO, Any
 
 from drivers.base import Driver
 from drivers.sim import SimDriver
-from runtime import ast as A
-from runtime.compiler import UnstableChart
-from runtime.engine import Instance, coerce
+from runtime.compiler.codegen import UnstableChart
+from runtime.engine.instance import Instance, coerce
+from runtime.engine.plant import Plant
 from runtime.errors import Loc, SourceError, suggest
-from runtime.language import check_keys, expect_type, time_value
-from runtime.model import VarKind
-from runtime.plant import Plant
-from runtime.plantfile import load_plant
-from runtime.typecheck import FB_MEMBERS
-from runtime.yamlsrc import YList, YMap, load_yaml
+from runtime.language import ast as A
+from runtime.language.grafcetfile import check_keys, expect_type, time_value
+from runtime.language.model import VarKind
+from runtime.language.plantfile import load_plant
+from runtime.language.typecheck import FB_MEMBERS
+from runtime.language.yamlsrc import YList, YMap, load_yaml
 
 T = A.Type
 

@@ -1,0 +1,1 @@
+"""Checker: the static checks of a chart and a plant (G1xx errors, G2xx/G3xx warnings)."""
