@@ -20,7 +20,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from consolekit import Rig
+
+from tests.console.consolekit import Rig
 
 FLOODER = str(Path(__file__).with_name("flooder.py"))
 SECONDS = 3.0

@@ -16,7 +16,6 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from consolekit import DEADLINE_S, ROOT, Rig, TermScreen, wait_for
 
 from runtime import cli
 from runtime.console.monitor import (
@@ -29,6 +28,7 @@ from runtime.console.monitor import (
 )
 from runtime.console.server import ConsoleServer
 from runtime.language.model import ConsoleEntry
+from tests.console.consolekit import DEADLINE_S, ROOT, Rig, TermScreen, wait_for
 
 
 @pytest.fixture

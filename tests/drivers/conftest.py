@@ -9,7 +9,8 @@ import time
 from collections.abc import Iterator
 
 import pytest
-from drvkit import FakeClock
+
+from tests.drivers.drvkit import FakeClock
 
 
 @pytest.fixture

@@ -16,11 +16,11 @@ from collections.abc import Iterator
 import can
 import canopen
 import pytest
-from canopen_slave import OPERATIONAL, PRE_OPERATIONAL, Cia401Slave
-from drvkit import FakeClock, wait_until
 
 from drivers.base import ConfigError, Direction, Health, PointError
 from drivers.canopen_io import CanopenDriver
+from tests.drivers.canopen_slave import OPERATIONAL, PRE_OPERATIONAL, Cia401Slave
+from tests.drivers.drvkit import FakeClock, wait_until
 
 HERE = os.path.dirname(__file__)
 
@@ -377,8 +377,7 @@ def test_node_in_another_process_over_udp_multicast() -> None:
         "ip route add 224.0.0.0/4 dev lo; "
         f"exec {sys.executable} {os.path.join(HERE, 'canopen_netns_scenario.py')}"
     )
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([HERE, os.path.dirname(
-        os.path.dirname(HERE))])}
+    env = {**os.environ, "PYTHONPATH": os.path.dirname(os.path.dirname(HERE))}
     run = subprocess.run(["unshare", "-rn", "sh", "-c", script], capture_output=True,
                          text=True, timeout=60, env=env)
     assert run.returncode == 0, run.stderr[-3000:]

@@ -7,14 +7,14 @@ from __future__ import annotations
 import itertools
 
 import pytest
-from engine_reference import Assoc, RefChart, Reference, Trans, Unstable
-from enginekit import BOOT, MS
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from runtime.compiler.codegen import UnstableChart, compile_grafcet
 from runtime.engine.instance import Instance
 from runtime.language.grafcetfile import load_grafcet
+from tests.engine.engine_reference import Assoc, RefChart, Reference, Trans, Unstable
+from tests.engine.enginekit import BOOT, MS
 
 INPUTS = ("a", "b", "c")
 OUTPUTS = ("o0", "o1", "o2")

@@ -9,11 +9,11 @@ from typing import Any
 
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
-from langkit import assert_round_trip_expr, expr, tree
 
 from runtime.compiler.codegen import compile_grafcet
 from runtime.engine.instance import Instance
 from runtime.language.yamlsrc import load_yaml
+from tests.language.langkit import assert_round_trip_expr, expr, tree
 
 BOOLS = ("iA", "iB", "iC")
 INTS = ("iN", "iM")

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import pytest
-from langkit import MS, S, load_error, load_text, run
 
 from runtime.language import ast as A
 from runtime.language.model import VarKind
+from tests.language.langkit import MS, S, load_error, load_text, run
 
 T = A.Type
 
