@@ -25,7 +25,7 @@ import time
 import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, TypeVar
 
 import gpiod
 import smbus2
@@ -68,8 +68,10 @@ def scan_cost(d: Driver, cycles: int, pause_s: float = 0.0) -> tuple[float, floa
             time.sleep(pause_s)
     return stats_us(samples)
 
+D = TypeVar("D", bound=Driver)
 
-def points(d: Driver, ins: list[str], outs: list[str]) -> Driver:
+
+def points(d: D, ins: list[str], outs: list[str]) -> D:
     for p in ins:
         d.add_point(p, Direction.IN)
     for p in outs:

@@ -19,7 +19,7 @@ def clock() -> FakeClock:
 
 
 def _tty_fds() -> set[str]:
-    out = set()
+    out: set[str] = set()
     try:
         names = os.listdir("/proc/self/fd")
     except OSError:  # pragma: no cover - not Linux

@@ -6,6 +6,7 @@ import errno
 import glob
 import inspect
 import os
+from collections.abc import Callable
 
 import gpiod
 import pytest
@@ -159,7 +160,7 @@ def test_bad_config(cfg: dict[str, object]) -> None:
 def test_fake_has_the_signatures_of_the_real_bindings() -> None:
     from tests.drivers.fake_gpiod import FakeLineRequest
 
-    def params(fn: object) -> list[tuple[str, object]]:
+    def params(fn: Callable[..., object]) -> list[tuple[str, object]]:
         return [(p.name, p.default) for p in inspect.signature(fn).parameters.values()
                 if p.name != "self"]
 

@@ -9,6 +9,7 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from pymodbus.constants import ExcCodes
@@ -29,7 +30,7 @@ from tests.drivers.modbus_peer import ModbusPeer
 from tests.drivers.pty_bridge import PtyBridge
 
 HERE = os.path.dirname(__file__)
-FAST = {"baudrate": 115200, "timeout": "50ms", "retries": 1}
+FAST: dict[str, Any] = {"baudrate": 115200, "timeout": "50ms", "retries": 1}
 
 
 # -- frames ----------------------------------------------------------------------------------

@@ -303,6 +303,7 @@ def test_int_expressions(n: tuple, scans: list[dict[str, Any]],  # type: ignore[
 
 
 def test_renderer_uses_the_precedence_table() -> None:
+    n: tuple[object, ...]
     n = ("and", ("AND", "AND", 5), ("cmp", (">", "GT"), ("arith", ("+", "ADD", 3),
                                                           ("ivar", "iN"), ("ilit", 1)),
                                     ("ivar", "iM")), ("bvar", "iC"))

@@ -123,6 +123,7 @@ def test_unicode_identifiers() -> None:
 def test_operator_meaning_depends_on_types(text: str, op: str, typ: A.Type) -> None:
     n = pre_value(text)
     assert n.type is typ
+    assert isinstance(n, (A.Unary, A.Binary))
     assert n.op == op
 
 
