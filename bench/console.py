@@ -7,7 +7,7 @@ that changes every scan, so the trace streams a line per scan. The clients run i
 own processes (tests/console/flooder.py, at nice 10), as a laptop on the other end of
 the cable would. Not a test: prints a table.
 
-    python bench/console.py [--seconds 10] [--cycle 10ms] [--priority 50]
+    python -m bench.console [--seconds 10] [--cycle 10ms] [--priority 50]
 """
 
 from __future__ import annotations
@@ -21,11 +21,9 @@ import sys
 import time
 from typing import Any
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, ".."))
-sys.path.insert(0, os.path.join(HERE, "..", "tests", "console"))
+from tests.console.consolekit import Rig, make_rig
 
-from consolekit import Rig, make_rig  # noqa: E402
+HERE = os.path.dirname(os.path.abspath(__file__))
 
 FLOODER = os.path.join(HERE, "..", "tests", "console", "flooder.py")
 

@@ -11,14 +11,13 @@
 
 Not a test: prints a table.
 
-    python bench/io.py [--cycles N]
+    python -m bench.io [--cycles N]
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
-import os
 import statistics
 import sys
 import threading
@@ -26,27 +25,23 @@ import time
 import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, TypeVar
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, ".."))
-sys.path.insert(0, os.path.join(HERE, "..", "tests", "drivers"))
+import gpiod
+import smbus2
 
-import gpiod  # noqa: E402
-import smbus2  # noqa: E402
-from canopen_slave import Cia401Slave  # noqa: E402
-from fake_gpiod import FakeGpio  # noqa: E402
-from i2c_emulator import I2CWorld, Mcp23017Model, Pcf8574Model  # noqa: E402
-from modbus_peer import ModbusPeer  # noqa: E402
-from pty_bridge import PtyBridge  # noqa: E402
-
-from drivers.base import Direction, Driver, Health  # noqa: E402
-from drivers.canopen_io import CanopenDriver  # noqa: E402
-from drivers.gpio import GpioDriver  # noqa: E402
-from drivers.mcp23017 import Mcp23017Driver  # noqa: E402
-from drivers.modbus_rtu import ModbusRtuDriver, RtuMaster, SerialSettings, read_request  # noqa: E402
-from drivers.pcf8574 import Pcf8574Driver  # noqa: E402
-from drivers.sim import SimDriver  # noqa: E402
+from drivers.base import Direction, Driver, Health
+from drivers.canopen_io import CanopenDriver
+from drivers.gpio import GpioDriver
+from drivers.mcp23017 import Mcp23017Driver
+from drivers.modbus_rtu import ModbusRtuDriver, RtuMaster, SerialSettings, read_request
+from drivers.pcf8574 import Pcf8574Driver
+from drivers.sim import SimDriver
+from tests.drivers.canopen_slave import Cia401Slave
+from tests.drivers.fake_gpiod import FakeGpio
+from tests.drivers.i2c_emulator import I2CWorld, Mcp23017Model, Pcf8574Model
+from tests.drivers.modbus_peer import ModbusPeer
+from tests.drivers.pty_bridge import PtyBridge
 
 #: pause between spaced Modbus requests, longer than t3.5 at 115200 baud (1.75 ms), s
 GAP_S = 0.003
@@ -73,8 +68,10 @@ def scan_cost(d: Driver, cycles: int, pause_s: float = 0.0) -> tuple[float, floa
             time.sleep(pause_s)
     return stats_us(samples)
 
+D = TypeVar("D", bound=Driver)
 
-def points(d: Driver, ins: list[str], outs: list[str]) -> Driver:
+
+def points(d: D, ins: list[str], outs: list[str]) -> D:
     for p in ins:
         d.add_point(p, Direction.IN)
     for p in outs:

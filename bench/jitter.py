@@ -14,7 +14,7 @@ and then, so the charts keep evolving (gsAbrir <-> gsCerrar) rather than idling.
 Extra rows: Python's own garbage collector instead of the scheduler's idle-time collection
 (``gc: python``), and SCHED_FIFO (needs root or CAP_SYS_NICE).
 
-    python bench/jitter.py [--seconds 60] [--quick]
+    python -m bench.jitter [--seconds 60] [--quick]
 """
 
 from __future__ import annotations
@@ -27,10 +27,8 @@ import tempfile
 import time
 from typing import Any
 
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-
-from runtime.controller.daemon import Daemon  # noqa: E402
-from runtime.language.plantfile import load_plant  # noqa: E402
+from runtime.controller.daemon import Daemon
+from runtime.language.plantfile import load_plant
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CHART = os.path.join(ROOT, "configs", "drawer_tester", "drawer_tester.yaml")

@@ -16,7 +16,7 @@ while opening and while closing, acknowledge, restart), so the programs are equi
 Also times the compilation of the chart (load, check and compile, in process). Not a test:
 prints a table. Times are the best of ``--repeat`` runs.
 
-    python bench/scan.py [--counts 1 10 100 1000] [--cycles N] [--repeat 3]
+    python -m bench.scan [--counts 1 10 100 1000] [--cycles N] [--repeat 3]
 """
 
 from __future__ import annotations
@@ -28,12 +28,10 @@ import sys
 import tempfile
 import time
 
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-
-from runtime.compiler.codegen import compile_grafcet  # noqa: E402
-from runtime.engine.simulate import Simulation  # noqa: E402
-from runtime.language.grafcetfile import GrafcetLoader  # noqa: E402
-from runtime.language.yamlsrc import YMap, load_yaml  # noqa: E402
+from runtime.compiler.codegen import compile_grafcet
+from runtime.engine.simulate import Simulation
+from runtime.language.grafcetfile import GrafcetLoader
+from runtime.language.yamlsrc import YMap, load_yaml
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CHART = os.path.join(ROOT, "configs", "drawer_tester", "drawer_tester.yaml")

@@ -1,7 +1,16 @@
 #!/usr/bin/env bash
-# Set up a virtual environment with every test dependency and run the whole test suite.
+# Set up a virtual environment with every test dependency, check the style (ruff, mypy) and
+# run the whole test suite, slow tests included (what CI runs: .ci/run).
+# Usage: scripts/test.sh [--fast] [PYTEST ARGS...]
+#   --fast      skip the tests marked slow (kill -9 loops, floods): a quick local run
+#   PYTEST ARGS passed on to pytest (e.g. tests/console -x)
 set -euo pipefail
 cd "$(dirname "$0")/.."
+fast=0
+args=()
+for a in "$@"; do
+  if [ "$a" = "--fast" ]; then fast=1; else args+=("$a"); fi
+done
 # Optional system tools some tests use (systemd-analyze for the unit, graphviz for draw,
 # socat for pty pairs); tests skip with a reason where a tool is missing.
 if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
@@ -16,4 +25,23 @@ if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
   fi
 fi
 scripts/setup.sh test
-exec .venv/bin/python -m pytest "$@"
+PY=.venv/bin/python
+# style: any finding fails the run
+echo "test.sh: ruff check runtime drivers tests bench" >&2
+"$PY" -m ruff check runtime drivers tests bench
+echo "test.sh: mypy --strict runtime drivers" >&2
+"$PY" -m mypy --strict runtime drivers
+echo "test.sh: mypy tests bench" >&2
+"$PY" -m mypy tests bench
+if [ "$fast" = 1 ]; then
+  args=(-m "not slow" "${args[@]}")
+fi
+echo "test.sh: pytest ${args[*]}" >&2
+status=0
+"$PY" -m pytest "${args[@]}" || status=$?
+# pytest's 5 is "no tests collected": a run that tested nothing is a failure, never a pass
+if [ "$status" = 5 ]; then
+  echo "test.sh: pytest collected no tests" >&2
+  exit 1
+fi
+exit "$status"

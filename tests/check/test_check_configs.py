@@ -108,8 +108,8 @@ def test_script_with_no_plant_or_several_plants(tmp_path: Path,
     assert "several plant files in its directory (plant_b.yaml, plant_sim.yaml)" in (
         res.diags[0].message)
     # the plant named on the command line, or with --plant, decides
-    res = check_files([str(tmp_path / "plant_b.yaml"), str(story)])
-    assert not [d for r in res for d in r.diags if d.code == "G400"]
+    results = check_files([str(tmp_path / "plant_b.yaml"), str(story)])
+    assert not [d for r in results for d in r.diags if d.code == "G400"]
     other = tmp_path / "elsewhere"
     other.mkdir()
     shutil.copy(story, other / "story.yaml")

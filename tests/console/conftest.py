@@ -8,7 +8,8 @@ import time
 from collections.abc import Callable, Iterator
 
 import pytest
-from consolekit import Rig, make_rig
+
+from tests.console.consolekit import Rig, make_rig
 
 
 @pytest.fixture(autouse=True)

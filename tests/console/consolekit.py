@@ -186,7 +186,7 @@ def is_final(line: str) -> bool:
 class LineClient:
     """A console client over bytes: ``cmd(line)`` -> the reply's lines."""
 
-    def __init__(self, send: Callable[[bytes], None], recv: Callable[[float], bytes | None],
+    def __init__(self, send: Callable[[bytes], object], recv: Callable[[float], bytes | None],
                  close: Callable[[], None]) -> None:
         self._send = send
         self._recv = recv

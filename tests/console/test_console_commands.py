@@ -5,9 +5,8 @@ from __future__ import annotations
 import json
 import re
 
-from consolekit import Rig, wait_for
-
 from runtime.console.session import HELP, MAX_CYCLE
+from tests.console.consolekit import Rig, wait_for
 
 
 def start_t1(rig: Rig) -> None:

@@ -20,7 +20,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from consolekit import Rig
+
+from tests.console.consolekit import Rig
 
 FLOODER = str(Path(__file__).with_name("flooder.py"))
 SECONDS = 3.0
@@ -52,6 +53,7 @@ def test_a_flood_on_the_console_does_not_disturb_the_scan(rigs: Callable[..., Ri
         quiet = window(rig, lambda: time.sleep(SECONDS))
 
         def flood() -> Any:
+            assert rig.socket_path is not None
             tracer = subprocess.Popen([sys.executable, FLOODER, "trace", rig.socket_path,
                                        str(SECONDS)], stdout=subprocess.PIPE, text=True)
             flooder.stdin.write("go\n")  # type: ignore[union-attr]

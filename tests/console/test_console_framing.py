@@ -5,9 +5,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from consolekit import FakeClock, Rig, wait_for
-
 from runtime.console.session import MAX_LINE, PARTIAL_LINE_TIMEOUT_S
+from tests.console.consolekit import FakeClock, Rig, wait_for
 
 
 def test_cr_lf_and_crlf_each_end_a_line(rig: Rig) -> None:

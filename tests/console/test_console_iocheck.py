@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import re
 
-from consolekit import Rig, wait_for
+from tests.console.consolekit import Rig, wait_for
 
 
 def outputs(rig: Rig) -> dict[str, int]:

@@ -8,11 +8,11 @@ from pathlib import Path
 
 import pytest
 import yaml
-from consolekit import FakeClock, Rig
 
 from runtime import cli
 from runtime.console.pin import check_pin, hash_pin
 from runtime.console.session import CHANGING, LOCKOUT_S
+from tests.console.consolekit import FakeClock, Rig
 
 PIN = "4711"
 #: a cheap hash for the tests (the CLI's default costs ~0.1 s per try on purpose)

@@ -10,13 +10,13 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from consolekit import ROOT, NullModem, Rig, serial_client, tcp_client, wait_for
 
 from runtime.console.server import MAX_CONNECTIONS, ConsoleServer
 from runtime.console.session import ConsoleService
 from runtime.controller.daemon import Daemon
 from runtime.language.model import ConsoleEntry
 from runtime.language.plantfile import load_plant
+from tests.console.consolekit import ROOT, NullModem, Rig, serial_client, tcp_client, wait_for
 
 
 def socket_sessions(rig: Rig) -> list[object]:

@@ -6,9 +6,8 @@ from __future__ import annotations
 import re
 from collections.abc import Callable
 
-from consolekit import Rig, wait_for
-
 from runtime.console.session import STREAM_LINES_PER_POLL
+from tests.console.consolekit import Rig, wait_for
 
 
 def test_a_slow_reader_gets_the_latest_scans_and_a_count_of_the_others(

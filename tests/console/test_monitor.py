@@ -12,11 +12,10 @@ import subprocess
 import sys
 import termios
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from consolekit import DEADLINE_S, ROOT, Rig, TermScreen, wait_for
 
 from runtime import cli
 from runtime.console.monitor import (
@@ -29,14 +28,15 @@ from runtime.console.monitor import (
 )
 from runtime.console.server import ConsoleServer
 from runtime.language.model import ConsoleEntry
+from tests.console.consolekit import DEADLINE_S, ROOT, Rig, TermScreen, wait_for
 
 
 @pytest.fixture
-def client(rig: Rig) -> ConsoleClient:
+def client(rig: Rig) -> Iterator[ConsoleClient]:
     assert rig.socket_path is not None
     c = ConsoleClient(open_link(rig.socket_path))
     c.start()
-    yield c  # type: ignore[misc]
+    yield c
     c.close()
 
 
@@ -77,8 +77,12 @@ def test_client_requests_and_streams(rig: Rig, client: ConsoleClient) -> None:
     assert client.request("watch rio.I1")["ok"]
     rig.set_input("I1", 1)
     seen: list[dict[str, object]] = []
-    wait_for(lambda: seen.extend(client.poll_streams(0.1)) or any(
-        o.get("watch") == {"rio.I1": 1} for o in seen), "the watch object")
+
+    def watched() -> bool:
+        seen.extend(client.poll_streams(0.1))
+        return any(o.get("watch") == {"rio.I1": 1} for o in seen)
+
+    wait_for(watched, "the watch object")
     assert seen[0] == {"watch": {"rio.I1": 0}, "logical": {"t1.iMarcha": 0}}
     client.send_line("")  # stops the stream, no reply
     assert client.request("status")["steps"]["t1"] == ["gsAbrir"]

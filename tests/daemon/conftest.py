@@ -3,20 +3,17 @@ stopped, and a check that no test leaves a softplc thread running."""
 
 from __future__ import annotations
 
-import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from daemonkit import CHART, MakeDaemon, RecordingDriver, plant_yaml
 
 from runtime.controller.daemon import Daemon
 from runtime.engine.plant import Plant
 from runtime.language.plantfile import load_plant
+from tests.daemon.daemonkit import CHART, MakeDaemon, RecordingDriver, plant_yaml
 
-# the Modbus peer and the pty null-modem of the driver tests serve here too
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "drivers"))
 
 @pytest.fixture(autouse=True)
 def no_leaked_threads() -> Iterator[None]:

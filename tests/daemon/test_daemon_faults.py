@@ -5,10 +5,10 @@ overrun; held off until ``ack`` once the cause is gone."""
 from __future__ import annotations
 
 import pytest
-from daemonkit import MakeDaemon, wait_until
 
 from drivers.base import DriverError, Health
 from runtime.controller.daemon import CommandRefused, State
+from tests.daemon.daemonkit import MakeDaemon, wait_until
 
 ALL_OFF = {"Q0": 0, "Q1": 0}
 RUN_ON = {"Q0": 1, "Q1": 1}

@@ -18,9 +18,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from daemonkit import wait_until
-from modbus_peer import ModbusPeer
-from pty_bridge import PtyBridge
+
+from tests.daemon.daemonkit import wait_until
+from tests.drivers.modbus_peer import ModbusPeer
+from tests.drivers.pty_bridge import PtyBridge
 
 ROOT = Path(__file__).resolve().parents[2]
 

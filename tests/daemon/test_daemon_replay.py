@@ -6,11 +6,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-from daemonkit import wait_until
-
 from runtime.controller.daemon import Daemon
 from runtime.controller.replay import ScriptPlayer
 from runtime.language.plantfile import load_plant
+from tests.daemon.daemonkit import wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
 PLANT = ROOT / "configs" / "drawer_tester" / "plant_sim.yaml"

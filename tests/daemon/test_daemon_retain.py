@@ -8,9 +8,8 @@ import json
 import os
 from pathlib import Path
 
-from daemonkit import MakeDaemon, wait_until
-
 from runtime.controller.retain import RetainStore, RetainWriter
+from tests.daemon.daemonkit import MakeDaemon, wait_until
 
 
 def test_save_and_load_generations(tmp_path: Path) -> None:

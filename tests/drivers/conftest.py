@@ -9,7 +9,8 @@ import time
 from collections.abc import Iterator
 
 import pytest
-from drvkit import FakeClock
+
+from tests.drivers.drvkit import FakeClock
 
 
 @pytest.fixture
@@ -18,7 +19,7 @@ def clock() -> FakeClock:
 
 
 def _tty_fds() -> set[str]:
-    out = set()
+    out: set[str] = set()
     try:
         names = os.listdir("/proc/self/fd")
     except OSError:  # pragma: no cover - not Linux

@@ -12,12 +12,6 @@ from typing import Any
 import gpiod
 import pytest
 import smbus2
-from canopen_slave import Cia401Slave
-from drvkit import FakeClock
-from fake_gpiod import FakeChip, FakeGpio
-from i2c_emulator import I2CWorld, Mcp23017Model, Pcf8574Model
-from modbus_peer import ModbusPeer
-from pty_bridge import PtyBridge
 
 from drivers.base import Direction, Driver, DriverError, Health, PolledDriver
 from drivers.canopen_io import CanopenDriver
@@ -26,6 +20,12 @@ from drivers.mcp23017 import Mcp23017Driver
 from drivers.modbus_rtu import ModbusRtuDriver
 from drivers.pcf8574 import Pcf8574Driver
 from drivers.sim import SimDriver
+from tests.drivers.canopen_slave import Cia401Slave
+from tests.drivers.drvkit import FakeClock
+from tests.drivers.fake_gpiod import FakeChip, FakeGpio
+from tests.drivers.i2c_emulator import I2CWorld, Mcp23017Model, Pcf8574Model
+from tests.drivers.modbus_peer import ModbusPeer
+from tests.drivers.pty_bridge import PtyBridge
 
 #: seconds any condition that depends on another thread may take
 SETTLE_S = 3.0

@@ -11,10 +11,10 @@ import threading
 from collections.abc import Iterator
 
 import pytest
-from drvkit import FakeClock
 
 from drivers.base import Direction, DriverError, Health, PointKind, PolledDriver
 from drivers.registry import DRIVERS, DriverImportError, driver_class
+from tests.drivers.drvkit import FakeClock
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 

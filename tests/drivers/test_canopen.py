@@ -16,11 +16,11 @@ from collections.abc import Iterator
 import can
 import canopen
 import pytest
-from canopen_slave import OPERATIONAL, PRE_OPERATIONAL, Cia401Slave
-from drvkit import FakeClock, wait_until
 
 from drivers.base import ConfigError, Direction, Health, PointError
 from drivers.canopen_io import CanopenDriver
+from tests.drivers.canopen_slave import OPERATIONAL, PRE_OPERATIONAL, Cia401Slave
+from tests.drivers.drvkit import FakeClock, wait_until
 
 HERE = os.path.dirname(__file__)
 
@@ -58,9 +58,15 @@ def drain(d: CanopenDriver, slave: Cia401Slave) -> None:
     d._network.unsubscribe(0x7F0)
 
 
+def scanned(d: CanopenDriver) -> CanopenDriver:
+    """The driver after one scan's read()."""
+    d.read()
+    return d
+
+
 def settle(d: CanopenDriver, health: Health = Health.OK) -> None:
     """Scan (read) until the driver reports ``health``: effects of other threads only."""
-    assert wait_until(lambda: (d.read(), d.health)[1] is health), (d.health, d.fault_reason)
+    assert wait_until(lambda: scanned(d).health is health), (d.health, d.fault_reason)
 
 
 def test_open_maps_by_sdo_sets_heartbeat_and_starts(slave: Cia401Slave, channel: str,
@@ -82,7 +88,7 @@ def test_pdo_exchange_both_ways(slave: Cia401Slave, channel: str, clock: FakeClo
     d = make(channel, clock)
     d.open()
     slave.set_input(9, 1)
-    assert wait_until(lambda: (d.read(), d.inputs["I9"])[1] == 1)
+    assert wait_until(lambda: scanned(d).inputs["I9"] == 1)
     d.outputs.update({"Q1": True, "Q10": 1})
     d.write()
     assert wait_until(lambda: slave.output(1) == 1 and slave.output(10) == 1)
@@ -103,7 +109,7 @@ def test_mapping_over_two_tpdos_with_other_objects(channel: str, clock: FakeCloc
         d.open()
         slave.set_input(9, 1)  # 0x6000:2 bit 1: TPDO2 byte 2
         slave.set_input(0, 1)
-        assert wait_until(lambda: (d.read(), d.inputs)[1] == {"I0": 1, "I3": 0, "I9": 1})
+        assert wait_until(lambda: scanned(d).inputs == {"I0": 1, "I3": 0, "I9": 1})
         d.close()
 
 
@@ -111,7 +117,7 @@ def test_heartbeat_loss_and_return(slave: Cia401Slave, channel: str, clock: Fake
     d = make(channel, clock, on_fault="hold")
     d.open()
     slave.set_input(0, 1)
-    assert wait_until(lambda: (d.read(), d.inputs["I0"])[1] == 1)
+    assert wait_until(lambda: scanned(d).inputs["I0"] == 1)
     slave.heartbeat_paused = True
     drain(d, slave)
     clock.advance(0.21)
@@ -173,7 +179,7 @@ def test_inputs_known_at_open_without_tpdo_on_start(channel: str, clock: FakeClo
         d.read()
         assert d.inputs == {"I0": 0, "I3": 1, "I9": 1}
         slave.set_input(3, 0)  # and TPDOs keep them from then on
-        assert wait_until(lambda: (d.read(), d.inputs["I3"])[1] == 0)
+        assert wait_until(lambda: scanned(d).inputs["I3"] == 0)
         d.close()
 
 
@@ -193,7 +199,7 @@ def test_tpdo_during_the_sdo_read_of_inputs_wins(slave: Cia401Slave, channel: st
         return data
 
     slave.set_input(3, 1)
-    assert wait_until(lambda: (d.read(), d.inputs["I3"])[1] == 1)
+    assert wait_until(lambda: scanned(d).inputs["I3"] == 1)
     node.sdo.upload = upload_then_input_changes  # type: ignore[method-assign]
     d._read_inputs()
     d.read()
@@ -209,7 +215,7 @@ def test_node_lost_and_back_is_started_again_after_back_off(
     slave.set_input(3, 1)
     d.outputs["Q10"] = 1
     d.write()
-    assert wait_until(lambda: (d.read(), d.inputs["I3"])[1] == 1 and slave.output(10) == 1)
+    assert wait_until(lambda: scanned(d).inputs["I3"] == 1 and slave.output(10) == 1)
     slave.power_off()
     drain(d, slave)
     clock.advance(0.21)
@@ -226,7 +232,7 @@ def test_node_lost_and_back_is_started_again_after_back_off(
     assert slave.state == OPERATIONAL and slave.nmt_log == [0x01, 0x01]
     d.write()  # outputs sent again after recovery
     assert wait_until(lambda: slave.output(10) == 1)
-    assert wait_until(lambda: (d.read(), d.inputs["I3"])[1] == 1)
+    assert wait_until(lambda: scanned(d).inputs["I3"] == 1)
     d.close()
 
 
@@ -261,7 +267,7 @@ def test_sync_mode_sends_on_change_and_node_applies_on_sync(channel: str,
         assert wait_until(lambda: slave.output(1) == 1)
         assert rpdos == [b"\x00\x00", b"\x02\x00"]  # first image, then the change only
         slave.set_input(3, 1)  # a synchronous TPDO: sent at the next SYNC
-        assert wait_until(lambda: (d.read(), d.inputs["I3"])[1] == 1)
+        assert wait_until(lambda: scanned(d).inputs["I3"] == 1)
         d.close()
 
 
@@ -271,7 +277,7 @@ def test_mapping_from_config_without_sdo(slave: Cia401Slave, channel: str,
                                   "rpdo1": ["6200:1", "6200:2"]})
     d.open()
     slave.set_input(9, 1)
-    assert wait_until(lambda: (d.read(), d.inputs["I9"])[1] == 1)
+    assert wait_until(lambda: scanned(d).inputs["I9"] == 1)
     d.outputs["Q10"] = 1
     d.write()
     assert wait_until(lambda: slave.output(10) == 1)
@@ -286,7 +292,7 @@ def test_mapping_from_eds(slave: Cia401Slave, channel: str, clock: FakeClock,
     d.open()
     assert d.health is Health.OK, d.fault_reason
     slave.set_input(0, 1)
-    assert wait_until(lambda: (d.read(), d.inputs["I0"])[1] == 1)
+    assert wait_until(lambda: scanned(d).inputs["I0"] == 1)
     d.close()
 
 
@@ -326,7 +332,7 @@ def test_receive_thread_errors(slave: Cia401Slave, channel: str, clock: FakeCloc
         raise can.CanOperationError("interface down")
 
     d._network.bus.recv = down  # type: ignore[method-assign]
-    assert wait_until(lambda: (d.read(), d.health)[1] is Health.FAULT)
+    assert wait_until(lambda: scanned(d).health is Health.FAULT)
     assert "receiving stopped: interface down" in (d.fault_reason or "")
     clock.advance(d.RECONNECT_MIN_S)
     settle(d)
@@ -377,8 +383,7 @@ def test_node_in_another_process_over_udp_multicast() -> None:
         "ip route add 224.0.0.0/4 dev lo; "
         f"exec {sys.executable} {os.path.join(HERE, 'canopen_netns_scenario.py')}"
     )
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([HERE, os.path.dirname(
-        os.path.dirname(HERE))])}
+    env = {**os.environ, "PYTHONPATH": os.path.dirname(os.path.dirname(HERE))}
     run = subprocess.run(["unshare", "-rn", "sh", "-c", script], capture_output=True,
                          text=True, timeout=60, env=env)
     assert run.returncode == 0, run.stderr[-3000:]

@@ -6,8 +6,6 @@ import logging
 from collections.abc import Iterator
 
 import pytest
-from drvkit import FakeClock, wait_until
-from rigs import RIGS, Rig
 
 from drivers.base import (
     ConfigError,
@@ -19,6 +17,8 @@ from drivers.base import (
     PolledDriver,
 )
 from drivers.registry import DRIVERS, driver_class
+from tests.drivers.drvkit import FakeClock, wait_until
+from tests.drivers.rigs import RIGS, Rig
 
 
 @pytest.fixture(params=sorted(RIGS))

@@ -6,16 +6,17 @@ import errno
 import glob
 import inspect
 import os
+from collections.abc import Callable
 
 import gpiod
 import pytest
-from drvkit import FakeClock
-from fake_gpiod import FakeGpio, debounce_of
 from gpiod.line import Bias, Value
 from gpiod.line import Direction as LineDirection
 
 from drivers.base import ConfigError, Direction, Health, PointError
 from drivers.gpio import GpioDriver
+from tests.drivers.drvkit import FakeClock
+from tests.drivers.fake_gpiod import FakeGpio, debounce_of
 
 
 @pytest.fixture
@@ -157,9 +158,9 @@ def test_bad_config(cfg: dict[str, object]) -> None:
 
 # -- the fake is the kernel as libgpiod v2 shows it ----------------------------------------
 def test_fake_has_the_signatures_of_the_real_bindings() -> None:
-    from fake_gpiod import FakeLineRequest
+    from tests.drivers.fake_gpiod import FakeLineRequest
 
-    def params(fn: object) -> list[tuple[str, object]]:
+    def params(fn: Callable[..., object]) -> list[tuple[str, object]]:
         return [(p.name, p.default) for p in inspect.signature(fn).parameters.values()
                 if p.name != "self"]
 

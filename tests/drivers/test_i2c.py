@@ -8,12 +8,12 @@ import os
 
 import pytest
 import smbus2
-from drvkit import FakeClock
-from i2c_emulator import I2CWorld, Mcp23017Model, Pcf8574Model
 
 from drivers.base import ConfigError, Direction, Health, PointError
 from drivers.mcp23017 import GPIOA, IODIRA, OLATA, Mcp23017Driver
 from drivers.pcf8574 import Pcf8574Driver
+from tests.drivers.drvkit import FakeClock
+from tests.drivers.i2c_emulator import I2CWorld, Mcp23017Model, Pcf8574Model
 
 
 @pytest.fixture

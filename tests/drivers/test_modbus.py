@@ -9,11 +9,9 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
-from drvkit import FakeClock
-from modbus_peer import ModbusPeer
-from pty_bridge import PtyBridge
 from pymodbus.constants import ExcCodes
 
 from drivers.base import ConfigError, Direction, Health, PointError, PolledDriver
@@ -27,9 +25,12 @@ from drivers.modbus_rtu import (
     write_coils_request,
     write_registers_request,
 )
+from tests.drivers.drvkit import FakeClock
+from tests.drivers.modbus_peer import ModbusPeer
+from tests.drivers.pty_bridge import PtyBridge
 
 HERE = os.path.dirname(__file__)
-FAST = {"baudrate": 115200, "timeout": "50ms", "retries": 1}
+FAST: dict[str, Any] = {"baudrate": 115200, "timeout": "50ms", "retries": 1}
 
 
 # -- frames ----------------------------------------------------------------------------------

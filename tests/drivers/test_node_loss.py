@@ -13,14 +13,14 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from canopen_slave import Cia401Slave
-from drvkit import FakeClock, wait_until
 
 from drivers.base import Health
 from drivers.canopen_io import CanopenDriver
 from drivers.sim import SimDriver
 from runtime.engine.plant import Plant
 from runtime.language.plantfile import load_plant
+from tests.drivers.canopen_slave import Cia401Slave
+from tests.drivers.drvkit import FakeClock, wait_until
 
 CHART = """\
 grafcet: Follower

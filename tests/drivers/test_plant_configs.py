@@ -12,14 +12,14 @@ from pathlib import Path
 
 import pytest
 import smbus2
-from canopen_slave import Cia401Slave
-from drvkit import wait_until
-from i2c_emulator import I2CWorld, Mcp23017Model
-from modbus_peer import ModbusPeer
-from pty_bridge import PtyBridge
 
 from runtime.engine.plant import Plant
 from runtime.language.plantfile import load_plant
+from tests.drivers.canopen_slave import Cia401Slave
+from tests.drivers.drvkit import wait_until
+from tests.drivers.i2c_emulator import I2CWorld, Mcp23017Model
+from tests.drivers.modbus_peer import ModbusPeer
+from tests.drivers.pty_bridge import PtyBridge
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from enginekit import Chart, build
+
+from tests.engine.enginekit import Chart, build
 
 
 @pytest.fixture

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import pytest
-from enginekit import MS, S
+
+from tests.engine.enginekit import MS, S
 
 # -- edges -------------------------------------------------------------------------------
 START = """\

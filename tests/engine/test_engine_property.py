@@ -7,14 +7,14 @@ from __future__ import annotations
 import itertools
 
 import pytest
-from engine_reference import Assoc, RefChart, Reference, Trans, Unstable
-from enginekit import BOOT, MS
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from runtime.compiler.codegen import UnstableChart, compile_grafcet
 from runtime.engine.instance import Instance
 from runtime.language.grafcetfile import load_grafcet
+from tests.engine.engine_reference import Assoc, Cond, RefChart, Reference, Trans, Unstable
+from tests.engine.enginekit import BOOT, MS
 
 INPUTS = ("a", "b", "c")
 OUTPUTS = ("o0", "o1", "o2")
@@ -62,7 +62,8 @@ def charts(draw: st.DrawFn, model: str) -> RefChart:
             if kind.startswith("s"):
                 q = kind[1:]
                 if q == "EV":
-                    ev = draw(st.tuples(st.sampled_from(["re", "fe"]), st.sampled_from(INPUTS)))
+                    ev: Cond = draw(st.tuples(st.sampled_from(["re", "fe"]),
+                                              st.sampled_from(INPUTS)))
                     if draw(st.booleans()):
                         ev = ("and", ev, draw(conditions(steps, edges=False)))
                     actions.append(Assoc("EVENT", s, event=ev, k=next(k)))

@@ -11,9 +11,9 @@ import sys
 from pathlib import Path
 
 import pytest
-from langkit import where, write
 
 from runtime.cli import main
+from tests.language.langkit import where, write
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -8,7 +8,8 @@ import textwrap
 from pathlib import Path
 
 import pytest
-from langkit import assert_error, file_error, where, write
+
+from tests.language.langkit import assert_error, file_error, where, write
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -454,7 +455,7 @@ def test_statement_errors(tmp_path: Path, statement: str, needle: str,
                           words: list[str]) -> None:
     text = HEAD + STEPS + f'pre:\n  - "{statement}"\n'
     if not needle:  # a correct statement
-        from langkit import load_text
+        from tests.language.langkit import load_text
 
         load_text(text)
         return
@@ -499,7 +500,7 @@ def test_limits_give_errors_not_crashes(tmp_path: Path, statement: str,
 
 
 def test_limits_leave_room_for_real_charts() -> None:
-    from langkit import load_text
+    from tests.language.langkit import load_text
 
     deep = "(" * 49 + " AND ".join(["NOT iParo"] * 50) + ")" * 49
     loops = "".join(f"FOR t{i} := 1 TO 1 DO " for i in range(16)) + f"oTest := {deep}; " + \

@@ -4,7 +4,11 @@ actions, and round trips through a fully parenthesising unparser."""
 from __future__ import annotations
 
 import pytest
-from langkit import (
+
+from runtime.errors import SourceError
+from runtime.language import ast as A
+from runtime.language.parser import format_time, parse_time
+from tests.language.langkit import (
     MS,
     S,
     action,
@@ -15,10 +19,6 @@ from langkit import (
     tree,
     unparse,
 )
-
-from runtime.errors import SourceError
-from runtime.language import ast as A
-from runtime.language.parser import format_time, parse_time
 
 
 def lit(v, t="int"):  # type: ignore[no-untyped-def]

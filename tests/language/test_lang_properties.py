@@ -9,11 +9,11 @@ from typing import Any
 
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
-from langkit import assert_round_trip_expr, expr, tree
 
 from runtime.compiler.codegen import compile_grafcet
 from runtime.engine.instance import Instance
 from runtime.language.yamlsrc import load_yaml
+from tests.language.langkit import assert_round_trip_expr, expr, tree
 
 BOOLS = ("iA", "iB", "iC")
 INTS = ("iN", "iM")
@@ -303,6 +303,7 @@ def test_int_expressions(n: tuple, scans: list[dict[str, Any]],  # type: ignore[
 
 
 def test_renderer_uses_the_precedence_table() -> None:
+    n: tuple[object, ...]
     n = ("and", ("AND", "AND", 5), ("cmp", (">", "GT"), ("arith", ("+", "ADD", 3),
                                                           ("ivar", "iN"), ("ilit", 1)),
                                     ("ivar", "iM")), ("bvar", "iC"))

@@ -3,7 +3,7 @@ function-block calls, and the action forms."""
 
 from __future__ import annotations
 
-from langkit import MS, load_error, run
+from tests.language.langkit import MS, load_error, run
 
 HEAD = """\
 grafcet: G

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import pytest
-from langkit import MS, S, load_error, load_text, run
 
 from runtime.language import ast as A
 from runtime.language.model import VarKind
+from tests.language.langkit import MS, S, load_error, load_text, run
 
 T = A.Type
 
@@ -123,6 +123,7 @@ def test_unicode_identifiers() -> None:
 def test_operator_meaning_depends_on_types(text: str, op: str, typ: A.Type) -> None:
     n = pre_value(text)
     assert n.type is typ
+    assert isinstance(n, (A.Unary, A.Binary))
     assert n.op == op
 
 
