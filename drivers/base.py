@@ -31,11 +31,12 @@ from __future__ import annotations
 import abc
 import enum
 import logging
-import re
 import threading
 import time
 from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
+
+from drivers.durations import CONFIG, NS_PER_S, parse_ns, strip_time_prefix
 
 log = logging.getLogger(__name__)
 
@@ -90,15 +91,12 @@ class ConfigError(ValueError):
     """
 
 
-_DURATION_PART = re.compile(r"(\d+(?:\.\d*)?|\.\d+)\s*(us|µs|ms|s|m|h)", re.IGNORECASE)
-_DURATION_SCALE = {"us": 1e-6, "µs": 1e-6, "ms": 1e-3, "s": 1.0, "m": 60.0, "h": 3600.0}
-
-
 def parse_duration(value: Any, what: str) -> float:
     """A duration from a driver config, in seconds.
 
     Accepts a number of seconds (``0.005``) or a time string (``5ms``, ``1s500ms``,
-    ``250us``, ``T#20ms``). Raises ConfigError naming ``what`` otherwise.
+    ``250us``, ``T#20ms``; the ``durations.CONFIG`` grammar). Raises ConfigError naming
+    ``what`` otherwise.
     """
     if isinstance(value, bool):
         raise ConfigError(f"{what}: expected a time such as 5ms or 0.005, found {value!r}")
@@ -107,19 +105,9 @@ def parse_duration(value: Any, what: str) -> float:
             raise ConfigError(f"{what}: expected a positive time, found {value!r}")
         return float(value)
     if isinstance(value, str):
-        text = value.strip()
-        if text.upper().startswith(("T#", "TIME#")):
-            text = text.split("#", 1)[1]
-        text = text.replace("_", "")
-        pos, total = 0, 0.0
-        for m in _DURATION_PART.finditer(text):
-            if m.start() != pos:
-                break
-            total += float(m.group(1)) * _DURATION_SCALE[m.group(2).lower()]
-            pos = m.end()
-        else:
-            if pos == len(text) and pos > 0:
-                return total
+        ns = parse_ns(strip_time_prefix(value.strip()), CONFIG)
+        if ns is not None:
+            return ns / NS_PER_S
     raise ConfigError(f"{what}: expected a time such as 5ms or 0.005, found {value!r}")
 
 
