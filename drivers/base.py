@@ -36,6 +36,7 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
 
+from drivers.config import ConfigKeys
 from drivers.durations import CONFIG, NS_PER_S, parse_ns, strip_time_prefix
 
 log = logging.getLogger(__name__)
@@ -121,8 +122,8 @@ class Driver(abc.ABC):
 
     #: the ``type:`` key of the plant file that selects this driver
     type_name: ClassVar[str] = ""
-    #: config keys this driver accepts besides ``type`` and ``on_fault``
-    config_keys: ClassVar[frozenset[str]] = frozenset()
+    #: config keys this driver accepts besides ``type`` and ``on_fault`` (drivers.config)
+    config_keys: ClassVar[ConfigKeys] = ConfigKeys()
     #: first reconnect delay after a fault, seconds; doubled up to RECONNECT_MAX_S
     RECONNECT_MIN_S: ClassVar[float] = 0.1
     #: longest delay between reconnect attempts, seconds
@@ -140,7 +141,7 @@ class Driver(abc.ABC):
         self.name = name
         self.config: dict[str, Any] = dict(config or {})
         self.on_fault = FaultPolicy(self.config.pop("on_fault", "stop"))
-        unknown = set(self.config) - self.config_keys
+        unknown = set(self.config) - set(self.config_keys)
         if unknown:
             raise ConfigError(f"driver {name} ({self.type_name}): unknown keys "
                               f"{sorted(unknown)}")

@@ -49,6 +49,7 @@ from drivers.base import (
     PolledDriver,
     parse_duration,
 )
+from drivers.config import MODBUS_RTU_KEYS
 
 log = logging.getLogger(__name__)
 
@@ -528,22 +529,22 @@ class ModbusConfig:
         port = cfg.get("port")
         if not isinstance(port, str) or not port:
             raise fail("port", "a serial device such as /dev/ttyUSB0")
-        unit = cfg.get("unit", 1)
+        unit = MODBUS_RTU_KEYS.value(cfg, "unit")
         if not isinstance(unit, int) or isinstance(unit, bool) or not 1 <= unit <= 247:
             raise fail("unit", "a slave address 1-247")
-        baud = cfg.get("baudrate", 19200)
+        baud = MODBUS_RTU_KEYS.value(cfg, "baudrate")
         if not isinstance(baud, int) or isinstance(baud, bool) or baud <= 0:
             raise fail("baudrate", "a baud rate such as 19200")
-        parity = PARITIES.get(str(cfg.get("parity", "N")).upper())
+        parity = PARITIES.get(str(MODBUS_RTU_KEYS.value(cfg, "parity")).upper())
         if parity is None:
             raise fail("parity", "N, E or O")
-        stopbits = cfg.get("stopbits", 1)
+        stopbits = MODBUS_RTU_KEYS.value(cfg, "stopbits")
         if stopbits not in (1, 2):
             raise fail("stopbits", "1 or 2")
-        timeout = parse_duration(cfg.get("timeout", 0.1), f"driver {name} timeout")
+        timeout = parse_duration(MODBUS_RTU_KEYS.value(cfg, "timeout"), f"driver {name} timeout")
         if timeout <= 0:
             raise fail("timeout", "a positive time such as 100ms")
-        retries = cfg.get("retries", 2)
+        retries = MODBUS_RTU_KEYS.value(cfg, "retries")
         if not isinstance(retries, int) or isinstance(retries, bool) or not 0 <= retries <= 10:
             raise fail("retries", "0-10")
         return cls(port, unit, baud, parity, int(stopbits), timeout, retries)
@@ -567,8 +568,7 @@ class ModbusRtuDriver(PolledDriver):
     """One Modbus RTU slave unit on a (possibly shared) serial port."""
 
     type_name = "modbus_rtu"
-    config_keys = frozenset({"port", "baudrate", "parity", "unit", "timeout", "retries",
-                             "stopbits"})
+    config_keys = MODBUS_RTU_KEYS
     ONE_DIRECTION_PER_POINT = True
     #: bit addresses this far apart are still read in one request (the gap is read too)
     BIT_GAP = 16
