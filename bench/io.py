@@ -44,8 +44,10 @@ from drivers.base import Direction, Driver, Health  # noqa: E402
 from drivers.canopen_io import CanopenDriver  # noqa: E402
 from drivers.gpio import GpioDriver  # noqa: E402
 from drivers.mcp23017 import Mcp23017Driver  # noqa: E402
-from drivers.modbus_rtu import ModbusRtuDriver, RtuMaster, SerialSettings, read_request  # noqa: E402
+from drivers.modbus_frame import read_request  # noqa: E402
+from drivers.modbus_rtu import ModbusRtuDriver  # noqa: E402
 from drivers.pcf8574 import Pcf8574Driver  # noqa: E402
+from drivers.serial_line import RtuMaster, SerialSettings  # noqa: E402
 from drivers.sim import SimDriver  # noqa: E402
 
 #: pause between spaced Modbus requests, longer than t3.5 at 115200 baud (1.75 ms), s
