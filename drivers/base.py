@@ -33,10 +33,10 @@ import enum
 import logging
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from drivers.config import ConfigKeys
 from drivers.durations import CONFIG, NS_PER_S, parse_ns, strip_time_prefix
 
 log = logging.getLogger(__name__)
@@ -92,6 +92,65 @@ class ConfigError(ValueError):
     """
 
 
+class Kind(enum.Enum):
+    """What a driver config value is written as in the plant file (``ConfigKey.kind``)."""
+
+    TEXT = "text"
+    INT = "int"
+    BOOL = "bool"
+    #: a time (``5ms``, ``T#5ms``) or a number of seconds: drivers.base.parse_duration
+    DURATION = "duration"
+    #: one of ``ConfigKey.choices``
+    CHOICE = "choice"
+    #: a 7-bit I2C address: an int (0x20 reads as 32) or the text ``"0x20"``
+    I2C_ADDRESS = "i2c address"
+    #: text or an int (a python-can channel: ``can0`` or 0)
+    TEXT_OR_INT = "text or int"
+    #: a mapping, checked by the driver
+    MAPPING = "mapping"
+
+
+@dataclass(frozen=True, slots=True)
+class ConfigKey:
+    """One key of a driver's config; each type's are declared in drivers.registry."""
+
+    name: str
+    kind: Kind
+    #: the value when the key is absent (None: no value, or required)
+    default: Any = None
+    required: bool = False
+    #: inclusive bounds the driver checks, for INT and I2C_ADDRESS
+    minimum: int | None = None
+    maximum: int | None = None
+    #: the values of a CHOICE
+    choices: tuple[Any, ...] = ()
+    #: a CHOICE read in any case (parity: ``e`` is ``E``)
+    any_case: bool = False
+
+
+class ConfigKeys(Mapping[str, ConfigKey]):
+    """The keys of one driver type, by name, in declaration order (the order messages use)."""
+
+    def __init__(self, *keys: ConfigKey) -> None:
+        self._keys = {k.name: k for k in keys}
+
+    def __getitem__(self, name: str) -> ConfigKey:
+        return self._keys[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._keys)
+
+    def __len__(self) -> int:
+        return len(self._keys)
+
+    def value(self, config: Mapping[str, Any], name: str) -> Any:
+        """``config[name]``, or the declared default when the key is absent."""
+        return config.get(name, self._keys[name].default)
+
+    def __repr__(self) -> str:
+        return f"ConfigKeys({', '.join(self._keys)})"
+
+
 def parse_duration(value: Any, what: str) -> float:
     """A duration from a driver config, in seconds.
 
@@ -122,7 +181,7 @@ class Driver(abc.ABC):
 
     #: the ``type:`` key of the plant file that selects this driver
     type_name: ClassVar[str] = ""
-    #: config keys this driver accepts besides ``type`` and ``on_fault`` (drivers.config)
+    #: config keys accepted besides ``type`` and ``on_fault`` (declared in drivers.registry)
     config_keys: ClassVar[ConfigKeys] = ConfigKeys()
     #: first reconnect delay after a fault, seconds; doubled up to RECONNECT_MAX_S
     RECONNECT_MIN_S: ClassVar[float] = 0.1

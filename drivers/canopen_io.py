@@ -55,7 +55,7 @@ from drivers.base import (
     PolledDriver,
     parse_duration,
 )
-from drivers.config import CANOPEN_KEYS
+from drivers.registry import CANOPEN_KEYS
 
 log = logging.getLogger(__name__)
 

@@ -31,7 +31,7 @@ from drivers.base import (
     as_bit,
     parse_duration,
 )
-from drivers.config import GPIO_KEYS
+from drivers.registry import GPIO_KEYS
 
 log = logging.getLogger(__name__)
 

@@ -33,7 +33,7 @@ from typing import Any
 import smbus2
 
 from drivers.base import ConfigError, Direction, Driver, DriverError, PointError, PointKind
-from drivers.config import MCP23017_KEYS
+from drivers.registry import MCP23017_KEYS
 
 log = logging.getLogger(__name__)
 

@@ -46,7 +46,6 @@ from drivers.base import (
     PolledDriver,
     parse_duration,
 )
-from drivers.config import MODBUS_RTU_KEYS
 from drivers.modbus_frame import (
     MAX_ITEMS,
     READ_COILS,
@@ -60,6 +59,7 @@ from drivers.modbus_frame import (
     write_coils_request,
     write_registers_request,
 )
+from drivers.registry import MODBUS_RTU_KEYS
 from drivers.serial_line import RtuMaster, SerialLine, SerialPorts, SerialSettings, shared_ports
 
 _POINT = re.compile(r"^(I|Q|IR|HR)([0-9]{1,5})$")

@@ -27,8 +27,8 @@ from typing import Any
 import smbus2
 
 from drivers.base import Direction, Driver, DriverError, PointError, PointKind
-from drivers.config import PCF8574_KEYS
 from drivers.mcp23017 import i2c_config
+from drivers.registry import PCF8574_KEYS
 
 log = logging.getLogger(__name__)
 

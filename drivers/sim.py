@@ -7,7 +7,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from drivers.base import Direction, Driver, PointKind
-from drivers.config import SIM_KEYS
+from drivers.registry import SIM_KEYS
 
 
 class SimDriver(Driver):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from typing import Any
 
-from drivers.config import DRIVER_KEYS
+from drivers.registry import DRIVER_KEYS
 from runtime.errors import Loc, SourceError, suggest
 from runtime.language import ast as A
 from runtime.language.grafcetfile import check_keys, expect_type, load_grafcet, time_value

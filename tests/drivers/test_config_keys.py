@@ -1,5 +1,5 @@
-"""The driver config keys are declared once (drivers.config): the driver classes, the plant
-loader and configs/schema/plant.schema.json all agree with the declaration."""
+"""The driver config keys are declared once (drivers.registry): the driver classes, the
+plant loader and configs/schema/plant.schema.json all agree with the declaration."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from typing import Any
 
 import pytest
 
-from drivers.config import DRIVER_KEYS, ConfigKey, ConfigKeys, Kind
-from drivers.registry import DRIVERS
+from drivers.base import ConfigKey, ConfigKeys, Kind
+from drivers.registry import DRIVER_KEYS, DRIVERS
 
 ROOT = Path(__file__).resolve().parents[2]
 SCHEMA = json.loads((ROOT / "configs" / "schema" / "plant.schema.json").read_text("utf-8"))
@@ -107,6 +107,6 @@ def test_declarations_load_without_bus_libraries() -> None:
     code = ("import sys\n"
             "for m in ('smbus2', 'gpiod', 'canopen', 'can', 'serial'):\n"
             "    sys.modules[m] = None\n"
-            "import drivers.config, runtime.language.plantfile\n"
+            "import drivers.registry, runtime.language.plantfile\n"
             "assert 'drivers.modbus_rtu' not in sys.modules\n")
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
