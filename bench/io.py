@@ -34,8 +34,10 @@ from drivers.base import Direction, Driver, Health
 from drivers.canopen_io import CanopenDriver
 from drivers.gpio import GpioDriver
 from drivers.mcp23017 import Mcp23017Driver
-from drivers.modbus_rtu import ModbusRtuDriver, RtuMaster, SerialSettings, read_request
+from drivers.modbus_frame import read_request
+from drivers.modbus_rtu import ModbusRtuDriver
 from drivers.pcf8574 import Pcf8574Driver
+from drivers.serial_line import RtuMaster, SerialSettings
 from drivers.sim import SimDriver
 from tests.drivers.canopen_slave import Cia401Slave
 from tests.drivers.fake_gpiod import FakeGpio

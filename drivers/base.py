@@ -31,11 +31,13 @@ from __future__ import annotations
 import abc
 import enum
 import logging
-import re
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass
 from typing import Any, ClassVar
+
+from drivers.durations import CONFIG, NS_PER_S, parse_ns, strip_time_prefix
 
 log = logging.getLogger(__name__)
 
@@ -90,15 +92,71 @@ class ConfigError(ValueError):
     """
 
 
-_DURATION_PART = re.compile(r"(\d+(?:\.\d*)?|\.\d+)\s*(us|µs|ms|s|m|h)", re.IGNORECASE)
-_DURATION_SCALE = {"us": 1e-6, "µs": 1e-6, "ms": 1e-3, "s": 1.0, "m": 60.0, "h": 3600.0}
+class Kind(enum.Enum):
+    """What a driver config value is written as in the plant file (``ConfigKey.kind``)."""
+
+    TEXT = "text"
+    INT = "int"
+    BOOL = "bool"
+    #: a time (``5ms``, ``T#5ms``) or a number of seconds: drivers.base.parse_duration
+    DURATION = "duration"
+    #: one of ``ConfigKey.choices``
+    CHOICE = "choice"
+    #: a 7-bit I2C address: an int (0x20 reads as 32) or the text ``"0x20"``
+    I2C_ADDRESS = "i2c address"
+    #: text or an int (a python-can channel: ``can0`` or 0)
+    TEXT_OR_INT = "text or int"
+    #: a mapping, checked by the driver
+    MAPPING = "mapping"
+
+
+@dataclass(frozen=True, slots=True)
+class ConfigKey:
+    """One key of a driver's config; each type's are declared in drivers.registry."""
+
+    name: str
+    kind: Kind
+    #: the value when the key is absent (None: no value, or required)
+    default: Any = None
+    required: bool = False
+    #: inclusive bounds the driver checks, for INT and I2C_ADDRESS
+    minimum: int | None = None
+    maximum: int | None = None
+    #: the values of a CHOICE
+    choices: tuple[Any, ...] = ()
+    #: a CHOICE read in any case (parity: ``e`` is ``E``)
+    any_case: bool = False
+
+
+class ConfigKeys(Mapping[str, ConfigKey]):
+    """The keys of one driver type, by name, in declaration order (the order messages use)."""
+
+    def __init__(self, *keys: ConfigKey) -> None:
+        self._keys = {k.name: k for k in keys}
+
+    def __getitem__(self, name: str) -> ConfigKey:
+        return self._keys[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._keys)
+
+    def __len__(self) -> int:
+        return len(self._keys)
+
+    def value(self, config: Mapping[str, Any], name: str) -> Any:
+        """``config[name]``, or the declared default when the key is absent."""
+        return config.get(name, self._keys[name].default)
+
+    def __repr__(self) -> str:
+        return f"ConfigKeys({', '.join(self._keys)})"
 
 
 def parse_duration(value: Any, what: str) -> float:
     """A duration from a driver config, in seconds.
 
     Accepts a number of seconds (``0.005``) or a time string (``5ms``, ``1s500ms``,
-    ``250us``, ``T#20ms``). Raises ConfigError naming ``what`` otherwise.
+    ``250us``, ``T#20ms``; the ``durations.CONFIG`` grammar). Raises ConfigError naming
+    ``what`` otherwise.
     """
     if isinstance(value, bool):
         raise ConfigError(f"{what}: expected a time such as 5ms or 0.005, found {value!r}")
@@ -107,19 +165,9 @@ def parse_duration(value: Any, what: str) -> float:
             raise ConfigError(f"{what}: expected a positive time, found {value!r}")
         return float(value)
     if isinstance(value, str):
-        text = value.strip()
-        if text.upper().startswith(("T#", "TIME#")):
-            text = text.split("#", 1)[1]
-        text = text.replace("_", "")
-        pos, total = 0, 0.0
-        for m in _DURATION_PART.finditer(text):
-            if m.start() != pos:
-                break
-            total += float(m.group(1)) * _DURATION_SCALE[m.group(2).lower()]
-            pos = m.end()
-        else:
-            if pos == len(text) and pos > 0:
-                return total
+        ns = parse_ns(strip_time_prefix(value.strip()), CONFIG)
+        if ns is not None:
+            return ns / NS_PER_S
     raise ConfigError(f"{what}: expected a time such as 5ms or 0.005, found {value!r}")
 
 
@@ -133,8 +181,8 @@ class Driver(abc.ABC):
 
     #: the ``type:`` key of the plant file that selects this driver
     type_name: ClassVar[str] = ""
-    #: config keys this driver accepts besides ``type`` and ``on_fault``
-    config_keys: ClassVar[frozenset[str]] = frozenset()
+    #: config keys accepted besides ``type`` and ``on_fault`` (declared in drivers.registry)
+    config_keys: ClassVar[ConfigKeys] = ConfigKeys()
     #: first reconnect delay after a fault, seconds; doubled up to RECONNECT_MAX_S
     RECONNECT_MIN_S: ClassVar[float] = 0.1
     #: longest delay between reconnect attempts, seconds
@@ -152,7 +200,7 @@ class Driver(abc.ABC):
         self.name = name
         self.config: dict[str, Any] = dict(config or {})
         self.on_fault = FaultPolicy(self.config.pop("on_fault", "stop"))
-        unknown = set(self.config) - self.config_keys
+        unknown = set(self.config) - set(self.config_keys)
         if unknown:
             raise ConfigError(f"driver {name} ({self.type_name}): unknown keys "
                               f"{sorted(unknown)}")

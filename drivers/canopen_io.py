@@ -55,6 +55,7 @@ from drivers.base import (
     PolledDriver,
     parse_duration,
 )
+from drivers.registry import CANOPEN_KEYS
 
 log = logging.getLogger(__name__)
 
@@ -128,7 +129,7 @@ class CanopenConfig:
         bitrate = cfg.get("bitrate")
         if bitrate is not None and (not isinstance(bitrate, int) or bitrate <= 0):
             raise fail("bitrate", "a bit rate such as 250000")
-        heartbeat = parse_duration(cfg.get("heartbeat", 1.0), f"driver {name} heartbeat")
+        heartbeat = parse_duration(CANOPEN_KEYS.value(cfg, "heartbeat"), f"driver {name} heartbeat")
         if heartbeat <= 0:
             raise fail("heartbeat", "a positive consumer timeout such as 500ms")
         sync = cfg.get("sync")
@@ -139,7 +140,8 @@ class CanopenConfig:
         if cfg.get("pdo") is not None:
             tpdos, rpdos = _pdo_config(name, cfg["pdo"])
         eds = cfg.get("eds")
-        return cls(node, str(cfg.get("interface", "socketcan")), str(cfg.get("channel", "can0")),
+        return cls(node, str(CANOPEN_KEYS.value(cfg, "interface")),
+                   str(CANOPEN_KEYS.value(cfg, "channel")),
                    bitrate, heartbeat, None if eds is None else str(eds), sync_s, tpdos, rpdos)
 
 
@@ -175,8 +177,7 @@ class CanopenDriver(PolledDriver):
     """One CiA 401 node; inputs by TPDO callbacks, outputs by RPDO from the scan."""
 
     type_name = "canopen"
-    config_keys = frozenset({"interface", "channel", "bitrate", "node", "heartbeat", "eds",
-                             "sync", "pdo"})
+    config_keys = CANOPEN_KEYS
     ONE_DIRECTION_PER_POINT = True
     STALE_AFTER_S = None  # TPDOs are sent on change: old inputs are not stale
     #: node loss is watched every scan; a returning node is started at most this often, s

@@ -31,6 +31,7 @@ from drivers.base import (
     as_bit,
     parse_duration,
 )
+from drivers.registry import GPIO_KEYS
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +42,7 @@ class GpioDriver(Driver):
     """GPIO lines of one chip. Reads and writes are one ioctl each, done in the scan."""
 
     type_name = "gpio"
-    config_keys = frozenset({"chip", "bias", "debounce"})
+    config_keys = GPIO_KEYS
     ONE_DIRECTION_PER_POINT = True
     #: highest line offset accepted in a point name (the chip may have fewer lines)
     MAX_OFFSET = 1023
@@ -57,14 +58,15 @@ class GpioDriver(Driver):
     ) -> None:
         super().__init__(name, config, clock=clock)
         cfg = self.config
-        self.chip = str(cfg.get("chip", "/dev/gpiochip0"))
-        bias = str(cfg.get("bias", "none"))
+        self.chip = str(GPIO_KEYS.value(cfg, "chip"))
+        bias = str(GPIO_KEYS.value(cfg, "bias"))
         if bias not in BIASES:
             raise ConfigError(f"driver {name} (gpio): bias '{bias}': expected one of "
                               f"{', '.join(BIASES)}")
         self.bias: Bias = BIASES[bias]
         #: debounce period of the inputs, seconds (0: none)
-        self.debounce_s = parse_duration(cfg.get("debounce", 0), f"driver {name} debounce")
+        self.debounce_s = parse_duration(GPIO_KEYS.value(cfg, "debounce"),
+                                         f"driver {name} debounce")
         self._request: Any = None
         self._in_offsets: list[int] = []
         self._in_points: list[str] = []

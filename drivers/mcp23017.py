@@ -33,6 +33,7 @@ from typing import Any
 import smbus2
 
 from drivers.base import ConfigError, Direction, Driver, DriverError, PointError, PointKind
+from drivers.registry import MCP23017_KEYS
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +71,7 @@ class Mcp23017Driver(Driver):
     """One MCP23017; the I2C transfers (a few hundred µs at 400 kHz) run in the scan."""
 
     type_name = "mcp23017"
-    config_keys = frozenset({"bus", "address", "pull_up"})
+    config_keys = MCP23017_KEYS
     ONE_DIRECTION_PER_POINT = True
     #: seconds between read-backs of the set-up registers (power-loss detection)
     CHECK_PERIOD_S = 0.1
@@ -88,7 +89,7 @@ class Mcp23017Driver(Driver):
     ) -> None:
         super().__init__(name, config, clock=clock)
         self.bus_number, self.address = i2c_config(name, self.type_name, self.config)
-        pull_up = self.config.get("pull_up", True)
+        pull_up = MCP23017_KEYS.value(self.config, "pull_up")
         if not isinstance(pull_up, bool):
             raise ConfigError(f"driver {name} (mcp23017): pull_up: expected true or false, "
                               f"found {pull_up!r}")

@@ -28,6 +28,7 @@ import smbus2
 
 from drivers.base import Direction, Driver, DriverError, PointError, PointKind
 from drivers.mcp23017 import i2c_config
+from drivers.registry import PCF8574_KEYS
 
 log = logging.getLogger(__name__)
 
@@ -36,7 +37,7 @@ class Pcf8574Driver(Driver):
     """One PCF8574 (or PCF8574A); one-byte transfers in the scan."""
 
     type_name = "pcf8574"
-    config_keys = frozenset({"bus", "address"})
+    config_keys = PCF8574_KEYS
     ONE_DIRECTION_PER_POINT = True
 
     def __init__(

@@ -1,10 +1,23 @@
-"""Driver lookup by the plant file's ``type:`` key, importing back-ends lazily."""
+"""Driver types: lookup by the plant file's ``type:`` key (importing back-ends lazily), and
+the config keys of each type, declared once.
+
+The declarations live here, not in the driver modules, because those import their bus
+library (smbus2, gpiod, canopen, pyserial) at the top, and the keys must be readable
+without it: ``runtime.language.plantfile`` checks a plant file's ``drivers:`` against them
+on a machine where the libraries are missing (``softplc check`` on a desktop). Who reads
+them: ``Driver.__init__`` refuses a key its class does not declare (each class points to
+its declaration: ``config_keys = GPIO_KEYS``); the plant loader refuses a key its type does
+not declare (with the place in the file and a suggestion); each driver takes its defaults
+from its declaration (``KEYS.value(cfg, "baudrate")``) and checks its values with its own
+messages; ``tests/drivers/test_config_keys.py`` holds configs/schema/plant.schema.json to
+them. ``type`` and ``on_fault`` are every driver's keys and are not listed.
+"""
 
 from __future__ import annotations
 
 import importlib
 
-from drivers.base import Driver
+from drivers.base import ConfigKey, ConfigKeys, Driver, Kind
 
 #: type -> (module, class name, pip package that provides its bus library)
 DRIVERS: dict[str, tuple[str, str, str | None]] = {
@@ -14,6 +27,57 @@ DRIVERS: dict[str, tuple[str, str, str | None]] = {
     "pcf8574": ("drivers.pcf8574", "Pcf8574Driver", "smbus2"),
     "canopen": ("drivers.canopen_io", "CanopenDriver", "canopen"),
     "modbus_rtu": ("drivers.modbus_rtu", "ModbusRtuDriver", "pyserial"),
+}
+
+
+SIM_KEYS = ConfigKeys()
+
+GPIO_KEYS = ConfigKeys(
+    ConfigKey("chip", Kind.TEXT, default="/dev/gpiochip0"),
+    ConfigKey("bias", Kind.CHOICE, default="none", choices=("pull_up", "pull_down", "none")),
+    ConfigKey("debounce", Kind.DURATION, default=0),
+)
+
+MCP23017_KEYS = ConfigKeys(
+    ConfigKey("bus", Kind.INT, required=True, minimum=0),
+    ConfigKey("address", Kind.I2C_ADDRESS, required=True, minimum=0x03, maximum=0x77),
+    ConfigKey("pull_up", Kind.BOOL, default=True),
+)
+
+PCF8574_KEYS = ConfigKeys(
+    ConfigKey("bus", Kind.INT, required=True, minimum=0),
+    ConfigKey("address", Kind.I2C_ADDRESS, required=True, minimum=0x03, maximum=0x77),
+)
+
+CANOPEN_KEYS = ConfigKeys(
+    ConfigKey("interface", Kind.TEXT, default="socketcan"),
+    ConfigKey("channel", Kind.TEXT_OR_INT, default="can0"),
+    ConfigKey("bitrate", Kind.INT, minimum=1),
+    ConfigKey("node", Kind.INT, required=True, minimum=1, maximum=127),
+    ConfigKey("heartbeat", Kind.DURATION, default=1.0),
+    ConfigKey("eds", Kind.TEXT),
+    ConfigKey("sync", Kind.DURATION),
+    ConfigKey("pdo", Kind.MAPPING),
+)
+
+MODBUS_RTU_KEYS = ConfigKeys(
+    ConfigKey("port", Kind.TEXT, required=True),
+    ConfigKey("baudrate", Kind.INT, default=19200, minimum=1),
+    ConfigKey("parity", Kind.CHOICE, default="N", choices=("N", "E", "O"), any_case=True),
+    ConfigKey("unit", Kind.INT, default=1, minimum=1, maximum=247),
+    ConfigKey("timeout", Kind.DURATION, default=0.1),
+    ConfigKey("retries", Kind.INT, default=2, minimum=0, maximum=10),
+    ConfigKey("stopbits", Kind.CHOICE, default=1, choices=(1, 2)),
+)
+
+#: driver type -> its config keys; the same types, in the same order, as DRIVERS
+DRIVER_KEYS: dict[str, ConfigKeys] = {
+    "sim": SIM_KEYS,
+    "gpio": GPIO_KEYS,
+    "mcp23017": MCP23017_KEYS,
+    "pcf8574": PCF8574_KEYS,
+    "canopen": CANOPEN_KEYS,
+    "modbus_rtu": MODBUS_RTU_KEYS,
 }
 
 

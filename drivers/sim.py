@@ -7,6 +7,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from drivers.base import Direction, Driver, PointKind
+from drivers.registry import SIM_KEYS
 
 
 class SimDriver(Driver):
@@ -18,6 +19,7 @@ class SimDriver(Driver):
     """
 
     type_name = "sim"
+    config_keys = SIM_KEYS
 
     def __init__(
         self,

@@ -25,9 +25,9 @@ import sys
 from dataclasses import dataclass
 from typing import Any
 
+from drivers.durations import parse_literal, strip_time_prefix
 from runtime.drawing.text import FONT
 from runtime.errors import Loc, SourceError
-from runtime.language.parser import parse_time
 
 ROW_H = 18.0
 ROW_GAP = 8.0
@@ -314,14 +314,12 @@ def chronogram_svg(rows: list[dict[str, Any]], groups: list[tuple[str, list[str]
 
 def parse_ms(text: str, what: str) -> float:
     """``2s``, ``1500ms``, ``1m30s`` or a plain number of milliseconds -> ms."""
-    t = text.strip()
-    if t.upper().startswith(("T#", "TIME#")):
-        t = t.split("#", 1)[1]
+    t = strip_time_prefix(text.strip())
     try:
         return float(t)
     except ValueError:
         pass
-    ns = parse_time(t)
+    ns = parse_literal(t)
     if ns is None:
         raise SourceError(Loc(what, 1, 1), f"expected a time (2s, 1500ms or a number of ms), "
                                            f"found '{text}'")

@@ -10,10 +10,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from drivers.durations import format_ns, parse_literal
 from runtime.compiler.codegen import Program, min_timed
 from runtime.language import ast as A
 from runtime.language.model import Step, Transition, VarKind
-from runtime.language.parser import format_time
 
 T = A.Type
 
@@ -176,8 +176,8 @@ class Instance:
                         blocked.append(f"source step {s} not active")
                 for st in early(t):
                     blocked.append(f"min time of {st.name}: "
-                                   f"{format_time(self.step_time(st.name))} of "
-                                   f"{format_time(st.min_ns or 0)}")
+                                   f"{format_ns(self.step_time(st.name))} of "
+                                   f"{format_ns(st.min_ns or 0)}")
                 for e in g.transitions[:t.index]:
                     if set(e.src_steps) & set(t.src_steps) and fires[e.index]:
                         blocked.append(f"earlier transition has priority: "
@@ -217,9 +217,8 @@ def coerce(t: A.Type, value: Any) -> Any:
         return float(value)
     if t is T.TIME:
         if isinstance(value, str):
-            from runtime.language.parser import parse_time
             text = value.split("#", 1)[-1]
-            ns = parse_time(text)
+            ns = parse_literal(text)
             if ns is None:
                 raise ValueError(f"expected a time like 10s, found '{value}'")
             return ns

@@ -13,11 +13,11 @@ from dataclasses import dataclass
 from typing import Any
 
 from drivers.base import PointKind
+from drivers.durations import format_ns, parse_literal
 from runtime.engine.plant import Plant
 from runtime.errors import suggest
 from runtime.language import ast as A
 from runtime.language.model import VarKind
-from runtime.language.parser import format_time, parse_time
 
 
 class CommandError(Exception):
@@ -55,7 +55,7 @@ class Name:
     def show(self, value: Any) -> str:
         """The value as a person reads it: bools 0/1, times rounded to ms."""
         if self.type is A.Type.TIME and isinstance(value, int):
-            return format_time(round(value / 1e6) * 1_000_000)
+            return format_ns(round(value / 1e6) * 1_000_000)
         if isinstance(value, bool):
             return str(int(value))
         return str(value)
@@ -233,7 +233,7 @@ def parse_value(name: Name, text: str) -> Any:
         except ValueError:
             expected = "a number"
     elif t is A.Type.TIME:
-        ns = parse_time(text.split("#", 1)[1] if "#" in text else text)
+        ns = parse_literal(text.split("#", 1)[1] if "#" in text else text)
         if ns is not None:
             return ns
         expected = "a time like 5s, 250ms or T#1m30s"

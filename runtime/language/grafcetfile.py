@@ -9,6 +9,7 @@ import os
 from collections.abc import Callable
 from typing import Any
 
+from drivers.durations import parse_literal, strip_time_prefix
 from runtime.errors import Loc, SourceError, suggest
 from runtime.language import ast as A
 from runtime.language.model import (
@@ -30,7 +31,6 @@ from runtime.language.parser import (
     parse_action,
     parse_expression,
     parse_statements,
-    parse_time,
 )
 from runtime.language.typecheck import (
     FB_MEMBERS,
@@ -81,10 +81,7 @@ def time_value(value: Any, loc: Loc, what: str) -> int:
     if value == 0 and not isinstance(value, bool):
         return 0
     if isinstance(value, str):
-        text = value.strip()
-        if text.upper().startswith(("T#", "TIME#")):
-            text = text.split("#", 1)[1]
-        ns = parse_time(text)
+        ns = parse_literal(strip_time_prefix(value.strip()))
         if ns is not None:
             return ns
     raise SourceError(loc, f"bad time literal '{value}' for {what}: expected e.g. 10s, 250ms, "

@@ -8,11 +8,11 @@ expected and what it found, and has no dependency. Precedence (language.md, tigh
 
 from __future__ import annotations
 
-import re
 import unicodedata
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from drivers.durations import format_ns, parse_literal
 from runtime.errors import Loc, SourceError
 from runtime.language import ast as A
 
@@ -24,10 +24,10 @@ KEYWORDS = {
 QUALIFIERS = ("N", "S", "R", "L", "D", "P", "P1", "P0", "DS", "SD", "SL")
 TIMED_QUALIFIERS = ("L", "D", "DS", "SD", "SL")
 
-_UNITS_NS = {"d": 86_400_000_000_000, "h": 3_600_000_000_000, "m": 60_000_000_000,
-             "s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
-_UNIT_ORDER = ["d", "h", "m", "s", "ms", "us", "ns"]
-_TIME_PART = re.compile(r"(\d+(?:\.\d+)?)(ms|us|ns|d|h|m|s)")
+#: the time literal ``1d23h30m20s700ms`` -> ns or None, and ns -> the shortest literal
+#: (their one home is drivers.durations; kept here under the names the language uses)
+parse_time = parse_literal
+format_time = format_ns
 
 _OPS = [":=", "..", "<=", ">=", "<>", "!=", "==", "≤", "≥", "≠", "(", ")", ",", ";", ":",
         ".", "+", "-", "*", "/", "·", "∙", "⋅", "&", "!", "'", "↑", "↓", "=", "<", ">"]
@@ -47,36 +47,6 @@ def is_name(word: str) -> bool:
     with a digit, and written in its canonical form (no '²', no ligatures: they would
     collide with other names once compiled)."""
     return word.isidentifier() and unicodedata.normalize("NFKC", word) == word
-
-
-def parse_time(text: str) -> int | None:
-    """``1d23h30m20s700ms`` -> nanoseconds, or None if not a time literal. Units in order."""
-    pos, total, last = 0, 0, -1
-    t = text.replace("_", "")
-    while pos < len(t):
-        m = _TIME_PART.match(t, pos)
-        if not m:
-            return None
-        unit = m.group(2)
-        idx = _UNIT_ORDER.index(unit)
-        if idx <= last:
-            return None
-        last = idx
-        total += round(float(m.group(1)) * _UNITS_NS[unit])
-        pos = m.end()
-    return total if pos > 0 else None
-
-
-def format_time(ns: int) -> str:
-    """Nanoseconds -> the shortest seed-notation literal (``1m30s``)."""
-    if ns == 0:
-        return "0s"
-    out, rest = [], abs(ns)
-    for unit in _UNIT_ORDER:
-        q, rest = divmod(rest, _UNITS_NS[unit])
-        if q:
-            out.append(f"{q}{unit}")
-    return ("-" if ns < 0 else "") + "".join(out)
 
 
 class Lexer:

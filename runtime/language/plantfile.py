@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 from typing import Any
 
+from drivers.registry import DRIVER_KEYS
 from runtime.errors import Loc, SourceError, suggest
 from runtime.language import ast as A
 from runtime.language.grafcetfile import check_keys, expect_type, load_grafcet, time_value
@@ -15,15 +16,6 @@ from runtime.language.yamlsrc import YMap, load_yaml
 PLANT_KEYS = ("plc", "drivers", "instances", "monitor")
 PLC_KEYS = ("cycle", "watchdog", "retain", "retain_interval", "realtime")
 INSTANCE_KEYS = ("grafcet", "inputs", "outputs", "description")
-DRIVER_KEYS: dict[str, tuple[str, ...]] = {
-    "sim": (),
-    "gpio": ("chip", "bias", "debounce"),
-    "mcp23017": ("bus", "address", "pull_up"),
-    "pcf8574": ("bus", "address"),
-    "canopen": ("interface", "channel", "bitrate", "node", "heartbeat", "eds", "sync",
-                "pdo"),
-    "modbus_rtu": ("port", "baudrate", "parity", "unit", "timeout", "retries", "stopbits"),
-}
 MONITOR_KEYS = ("serial", "socket", "tcp", "pin_hash", "release_forces_on_disconnect")
 
 

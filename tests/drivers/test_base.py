@@ -163,7 +163,7 @@ def test_unknown_type() -> None:
 
 
 def test_plant_file_accepts_exactly_the_keys_each_driver_takes() -> None:
-    from runtime.language.plantfile import DRIVER_KEYS
+    from drivers.registry import DRIVER_KEYS
 
     assert set(DRIVER_KEYS) == set(DRIVERS)
     for type_name, keys in DRIVER_KEYS.items():

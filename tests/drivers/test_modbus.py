@@ -15,9 +15,7 @@ import pytest
 from pymodbus.constants import ExcCodes
 
 from drivers.base import ConfigError, Direction, Health, PointError, PolledDriver
-from drivers.modbus_rtu import (
-    ModbusRtuDriver,
-    SerialLine,
+from drivers.modbus_frame import (
     crc16,
     decode_reply,
     read_request,
@@ -25,6 +23,8 @@ from drivers.modbus_rtu import (
     write_coils_request,
     write_registers_request,
 )
+from drivers.modbus_rtu import ModbusRtuDriver
+from drivers.serial_line import shared_ports
 from tests.drivers.drvkit import FakeClock
 from tests.drivers.modbus_peer import ModbusPeer
 from tests.drivers.pty_bridge import PtyBridge
@@ -141,10 +141,10 @@ def test_two_units_share_one_port(bridge: PtyBridge, peer: ModbusPeer, clock: Fa
     assert b.inputs == {"I1": 1, "I2": 1}
     assert peer.get(1, 1, 0) == [1] and peer.get(2, 1, 5) == [1] and peer.get(2, 1, 0) == [0]
     a.close()
-    assert SerialLine._lines  # b still holds the port
+    assert shared_ports().ports()  # b still holds the port
     scan(b)
     b.close()
-    assert not SerialLine._lines
+    assert not shared_ports().ports()
 
 
 def test_exception_reply_is_a_fault_with_its_code(
@@ -345,7 +345,7 @@ def test_poll_thread_bug_is_raised_in_the_scan(bridge: PtyBridge, peer: ModbusPe
     with pytest.raises(ZeroDivisionError):
         d.read()
     d.close()  # still closes cleanly, thread ended
-    assert not SerialLine._lines
+    assert not shared_ports().ports()
 
 
 def test_missing_port_and_conflicting_settings(bridge: PtyBridge, peer: ModbusPeer,
