@@ -159,6 +159,9 @@ class DivByZero(Exception):
 
 def static_bool(n: tuple) -> bool:  # type: ignore[type-arg]
     """A bool by its written type (a bool used as a number keeps it)."""
+    if n[0] == "arith" and n[1][1] in ("ADD", "MUL"):
+        # `+`/`·` between two bools is OR/AND, a bool again (`iA + iA + iA` is an OR of three)
+        return static_bool(n[2]) and static_bool(n[3])
     return n[0] in ("bvar", "blit", "not", "and", "or", "xor", "cmp", "edge") or (
         n[0] == "b2i")
 
@@ -315,6 +318,17 @@ def test_renderer_uses_the_precedence_table() -> None:
     assert render(n)[0] == "↑iA'"
     n = ("not", "'", ("edge", ("↑", "RE"), ("bvar", "iA")))
     assert render(n)[0] == "(↑iA)'"
+
+
+def test_reference_evaluator_chains_seed_or() -> None:
+    """Found by hypothesis: `iA + iA + iA` is (iA OR iA) OR iA, 1 when iA is true, not 2."""
+    a = ("b2i", ("bvar", "iA"))
+    n = ("arith", ("+", "ADD", 3), ("arith", ("+", "ADD", 3), a, a), a)
+    assert render(n)[0] == "iA + iA + iA"
+    scans = [{"iA": False, "iB": False, "iC": False, "iN": 0, "iM": 0},
+             {"iA": True, "iB": False, "iC": False, "iN": 0, "iM": 0}]
+    assert reference_values(n, scans) == [0, 1]
+    assert compiled_values("iA + iA + iA", "sOut", scans) == [0, 1]
 
 
 def test_reference_evaluator_follows_iec_division() -> None:
