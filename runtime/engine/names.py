@@ -114,23 +114,22 @@ class Catalogue:
         self.traced = [n for n in self.names.values() if n.role != "step time"]
 
     def _instance(self, i: int, name: str, inst: Any, bindings: dict[str, str]) -> None:
-        g, ix = inst.grafcet, inst.index
+        g, prog = inst.grafcet, inst.program
         groups: dict[str, list[str]] = {"inputs": [], "outputs": [], "memory": []}
         for key in inst.names():
             text = f"{name}.{key}"
             if key.endswith(".T") and key[:-2] in g.steps:
                 s = key[:-2]
-                n = Name(text, A.Type.TIME, _step_time_reader(i, ix[f"{s}.X"], ix["#ct"],
-                                                              ix[f"{s}.T0"], ix[f"{s}.TK"]),
+                n = Name(text, A.Type.TIME, _step_time_reader(i, prog.step_time_reader(s)),
                          "step time")
             elif key.endswith(".X") and key[:-2] in g.steps:
-                n = Name(text, A.Type.BOOL, _slot_reader(i, ix[key]), "step")
+                n = Name(text, A.Type.BOOL, _slot_reader(i, prog.x_index(key[:-2])), "step")
             elif key == "SFCCurrentStep":
-                leaf = tuple((s.name, ix[f"{s.name}.X"]) for s in g.leaf_steps())
+                leaf = tuple((s.name, prog.x_index(s.name)) for s in g.leaf_steps())
                 n = Name(text, A.Type.STRING, _current_step_reader(i, leaf), "chart flag")
             else:
                 v = g.variables[key]
-                n = Name(text, v.type, _slot_reader(i, ix[key]), v.kind.value,
+                n = Name(text, v.type, _slot_reader(i, prog.var_index(key)), v.kind.value,
                          binding=bindings.get(text, ""))
                 if v.kind is VarKind.INPUT:
                     groups["inputs"].append(text)
@@ -185,11 +184,9 @@ def _slot_reader(i: int, idx: int) -> Callable[[Image], Any]:
     return lambda img: img.m[i][idx]
 
 
-def _step_time_reader(i: int, x: int, ct: int, t0: int, tk: int) -> Callable[[Image], Any]:
-    def read(img: Image) -> int:
-        m = img.m[i]
-        return int(m[ct] - m[t0]) if m[x] else int(m[tk])
-    return read
+def _step_time_reader(i: int, step_time: Callable[[list[Any]], int]
+                      ) -> Callable[[Image], Any]:
+    return lambda img: step_time(img.m[i])
 
 
 def _current_step_reader(i: int, leaf: tuple[tuple[str, int], ...]

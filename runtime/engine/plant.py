@@ -107,7 +107,7 @@ class Plant:
         if ref_name.endswith(".T") and ref_name[:-2] in other.grafcet.steps:
             val = f"ST_{other.name}({ref_name[:-2]!r})"
         else:
-            val = f"M_{other.name}[{other.index[ref_name]}]"
+            val = f"M_{other.name}[{other.program.index_of(ref_name)}]"
         return f"(not {val})" if b.invert else val
 
     def _generate(self, names: list[str]) -> str:
@@ -131,7 +131,8 @@ class Plant:
             add(f"    m = M_{name}")
             for sig, b in idef.inputs.items():
                 v = g.variables[sig]
-                add(f"    m[{inst.index[sig]}] = {self._input_expr(b, v.type)}  # {sig} <- "
+                slot = inst.program.var_index(sig)
+                add(f"    m[{slot}] = {self._input_expr(b, v.type)}  # {sig} <- "
                     f"{b.source}{' inverted' if b.invert else ''}")
             add(f"    if FI: force_instance({name!r}, m)")
             add(f"    S_{name}(m, now, up)")
@@ -159,7 +160,7 @@ class Plant:
         for name, inst in self.instances.items():
             idef = self.pdef.instances[name]
             for sig, b in idef.outputs.items():
-                val = f"M_{name}[{inst.index[sig]}]"
+                val = f"M_{name}[{inst.program.var_index(sig)}]"
                 if b.invert:
                     val = f"not {val}"
                 lines.append(f"    O_{b.driver}[{b.point!r}] = {val}  # {name}.{sig}")
@@ -257,7 +258,7 @@ class Plant:
     def pulse(self, instance: str, flag: str) -> None:
         """Hold a chart flag (SFCInit/SFCReset) true for the next scan only."""
         inst = self.instances[instance]
-        self._pulses.append((instance, inst.index[flag]))
+        self._pulses.append((instance, inst.program.var_index(flag)))
 
     def set_iocheck(self, on: bool) -> None:
         """Commissioning mode: charts stopped, every output off; leaving it turns every
@@ -350,7 +351,7 @@ class Plant:
             v = obj.grafcet.variables.get(rest)
             if v is None or v.kind in (VarKind.SYSTEM,) or v.type is A.Type.STRING:
                 raise BindingError(f"'{name}' cannot be forced")
-            self.forced[name] = (obj.name, obj.index[rest], coerce(v.type, value))
+            self.forced[name] = (obj.name, obj.program.var_index(rest), coerce(v.type, value))
             self._rebuild_instance_forces()
         else:
             if rest == "ok":

@@ -118,24 +118,24 @@ def trace_columns(plant: Plant) -> list[tuple[str, Callable[[], Any]]]:
     """(key, getter) for every traced value, as language.md lists them."""
     cols: list[tuple[str, Callable[[], Any]]] = []
     for name, inst in plant.instances.items():
-        g, m, ix = inst.grafcet, inst.m, inst.index
+        g, m, prog = inst.grafcet, inst.m, inst.program
         for v in g.variables.values():
             if v.kind is VarKind.SYSTEM:
                 continue
             if v.name == "SFCCurrentStep":
                 cols.append((f"{name}.SFCCurrentStep", inst.current_step))
                 continue
-            i = ix[v.name]
+            i = prog.var_index(v.name)
             kind = "bool" if v.type is T.BOOL else "ms" if v.type is T.TIME else "raw"
             cols.append((f"{name}.{v.name}", _slot(m, i, kind)))
         for s in g.steps:
-            cols.append((f"{name}.{s}.X", _slot(m, ix[f"{s}.X"], "bool")))
+            cols.append((f"{name}.{s}.X", _slot(m, prog.x_index(s), "bool")))
             cols.append((f"{name}.{s}.T_ms", _step_ms(inst, s)))
         for b in g.blocks.values():  # extra keys: function-block outputs (ET in ms)
             for member, (mtype, is_input) in FB_MEMBERS[b.kind].items():
                 if not is_input:
                     cols.append((f"{name}.{b.name}.{member}",
-                                 _member(m, ix[b.name], member, mtype)))
+                                 _member(m, prog.block_index(b.name), member, mtype)))
     for dname, d in plant.drivers.items():
         for p in d.inputs:
             cols.append((f"{dname}.{p}", _point(d.inputs, p)))
