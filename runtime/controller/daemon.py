@@ -30,6 +30,7 @@ from runtime.controller.realtime import lock_memory, reduce_timer_slack, set_fif
 from runtime.controller.retain import RetainStore, RetainWriter
 from runtime.controller.scheduler import Scheduler, Watchdog
 from runtime.controller.stats import ScanStats
+from runtime.engine.commands import CommandRefused
 from runtime.engine.plant import Plant
 from runtime.language.model import PlantDef
 
@@ -51,13 +52,6 @@ class State(enum.Enum):
     FAULT = "fault"
     HALTED = "halted"
     STOPPED = "stopped"
-
-
-class CommandRefused(Exception):
-    """A request the controller will not carry out now; the message says why.
-
-    Examples: ``ack`` while the lost I/O node is still missing; ``ack`` with nothing to
-    acknowledge."""
 
 
 class _Call:
@@ -360,8 +354,8 @@ class Daemon:
             return State.STARTING
         if plant.iocheck:
             return State.IOCHECK
-        if plant.hold:
-            return State.STEPPING if plant.steps_left > 0 else State.PAUSED
+        if plant.held:
+            return State.STEPPING if plant.stepping else State.PAUSED
         return State.RUNNING
 
     def uptime_s(self) -> float:

@@ -11,13 +11,14 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 from drivers.base import Direction, Driver, FaultPolicy, Health
 from drivers.registry import driver_class
 from drivers.sim import SimDriver
 from runtime.compiler.codegen import Program, compile_grafcet
-from runtime.engine.instance import Instance, coerce
+from runtime.engine.instance import Instance, StepWhy, coerce
 from runtime.language import ast as A
 from runtime.language.model import Binding, PlantDef, VarKind
 
@@ -26,6 +27,25 @@ log = logging.getLogger(__name__)
 
 class BindingError(ValueError):
     """A name given to force/set does not exist in the plant."""
+
+
+@dataclass(frozen=True, slots=True)
+class ForcedVariable:
+    """A chart variable held at ``value`` (of its type) until unforced."""
+
+    instance: str
+    slot: int  # its index in the instance's state list
+    value: Any
+
+
+@dataclass(frozen=True, slots=True)
+class ForcedPoint:
+    """A physical point held at ``value`` (a raw number) until unforced."""
+
+    driver: Driver
+    point: str
+    is_output: bool
+    value: Any
 
 
 class Plant:
@@ -62,15 +82,16 @@ class Plant:
                 self.drivers[name] = SimDriver(name, cfg)
             else:
                 self.drivers[name] = driver_class(ddef.type)(name, ddef.config)
-        #: forced values: "instance.var" -> (instance, slot index, value)
-        self.forced: dict[str, tuple[str, int, Any]] = {}
-        #: forced physical points: "driver.point" -> (driver, point, is_output, value)
-        self.forced_points: dict[str, tuple[Driver, str, bool, Any]] = {}
+        #: forced variables by name ("instance.var"); change them with force/unforce
+        self.forced: dict[str, ForcedVariable] = {}
+        #: forced physical points by name ("driver.point"); change them with force/unforce
+        self.forced_points: dict[str, ForcedPoint] = {}
         self._forced_by_inst: dict[str, list[tuple[int, Any]]] = {}
         self._stash: list[tuple[Driver, str, Any]] = []
         self._pulses: list[tuple[str, int]] = []
-        self.hold = False  # console pause: charts not scanned, I/O still exchanged
-        self.steps_left = 0
+        #: console pause: charts not scanned, I/O still exchanged (pause/resume/step)
+        self.hold = False
+        self.steps_left = 0  # while held: full cycles still let through
         self.iocheck = False
         self.scans = 0
         self._declare_points()
@@ -252,8 +273,39 @@ class Plant:
             self._apply_point_forces(None)
 
     def step(self, n: int) -> None:
-        """While held: let exactly ``n`` full cycles through."""
+        """While held: let exactly ``n`` full cycles through (0 cancels)."""
         self.steps_left = n
+
+    def pause(self) -> bool:
+        """Hold the charts (I/O still exchanged), cancelling any steps; returns whether
+        they were held already."""
+        was = self.hold
+        self.hold = True
+        self.steps_left = 0
+        return was
+
+    def resume(self) -> bool:
+        """Let the charts run again; returns whether they were held."""
+        was = self.hold
+        self.hold = False
+        self.steps_left = 0
+        return was
+
+    @property
+    def held(self) -> bool:
+        """Whether the charts are held (console pause), stepping or not."""
+        return self.hold
+
+    @property
+    def stepping(self) -> bool:
+        """Whether cycles asked for by ``step`` are still to run."""
+        return self.steps_left > 0
+
+    def explain(self, instance: str) -> list[StepWhy]:
+        """``Instance.explain`` of one instance, at the time of the plant's last cycle."""
+        inst = self.instances[instance]
+        inst.last_up = self.last_up  # the plant scans without Instance.scan
+        return inst.explain()
 
     def pulse(self, instance: str, flag: str) -> None:
         """Hold a chart flag (SFCInit/SFCReset) true for the next scan only."""
@@ -351,13 +403,14 @@ class Plant:
             v = obj.grafcet.variables.get(rest)
             if v is None or v.kind in (VarKind.SYSTEM,) or v.type is A.Type.STRING:
                 raise BindingError(f"'{name}' cannot be forced")
-            self.forced[name] = (obj.name, obj.program.var_index(rest), coerce(v.type, value))
+            self.forced[name] = ForcedVariable(obj.name, obj.program.var_index(rest),
+                                               coerce(v.type, value))
             self._rebuild_instance_forces()
         else:
             if rest == "ok":
                 raise BindingError(f"'{name}' cannot be forced")
-            self.forced_points[name] = (obj, rest, rest in obj.outputs,
-                                        int(coerce(A.Type.INT, value)))
+            self.forced_points[name] = ForcedPoint(obj, rest, rest in obj.outputs,
+                                                   int(coerce(A.Type.INT, value)))
 
     def unforce(self, name: str | None = None) -> None:
         """Release one forced name, or every force when ``name`` is None."""
@@ -371,10 +424,24 @@ class Plant:
             self.forced_points.pop(name, None)
         self._rebuild_instance_forces()
 
+    def is_forced(self, name: str) -> bool:
+        """Whether ``name`` (a variable or a point) is forced."""
+        return name in self.forced or name in self.forced_points
+
+    def forced_names(self) -> list[str]:
+        """Every forced name: variables, then points."""
+        return [*self.forced, *self.forced_points]
+
+    def forced_values(self) -> dict[str, Any]:
+        """Every forced name with its forced value (a variable's of its type, a point's
+        raw), variables first."""
+        return {**{k: f.value for k, f in self.forced.items()},
+                **{k: f.value for k, f in self.forced_points.items()}}
+
     def _rebuild_instance_forces(self) -> None:
         self._forced_by_inst.clear()
-        for inst, idx, value in self.forced.values():
-            self._forced_by_inst.setdefault(inst, []).append((idx, value))
+        for f in self.forced.values():
+            self._forced_by_inst.setdefault(f.instance, []).append((f.slot, f.value))
 
     def _apply_instance_forces(self, inst: str, m: list[Any]) -> None:
         for idx, value in self._forced_by_inst.get(inst, ()):
@@ -389,11 +456,12 @@ class Plant:
                 d.inputs[point] = value
             self._stash.clear()
             return
-        for d, point, is_out, value in self.forced_points.values():
-            if is_out != outputs:
+        for f in self.forced_points.values():
+            if f.is_output != outputs:
                 continue
-            if is_out:
-                d.outputs[point] = value
+            d = f.driver
+            if f.is_output:
+                d.outputs[f.point] = f.value
             else:
-                self._stash.append((d, point, d.inputs[point]))
-                d.inputs[point] = value
+                self._stash.append((d, f.point, d.inputs[f.point]))
+                d.inputs[f.point] = f.value
