@@ -17,6 +17,7 @@ from runtime.language import ast as A
 from runtime.language.model import Action, Grafcet, Qualifier, ScanModel, Step, Transition, VarKind
 from runtime.language.parser import format_time
 from runtime.language.typecheck import CLOCK_PERIOD_NS
+from runtime.language.unparse import transition_text
 
 T = A.Type
 #: rounds of the stable-situation search before "unstable chart"
@@ -366,11 +367,6 @@ class Compiler:
     def fired_name(self, t: Transition) -> str:
         return f"pf{t.index}" if self.codesys else f"f{t.index}"
 
-    def describe(self, t: Transition) -> str:
-        src = ",".join(t.sources) or "(source)"
-        dst = ",".join(t.targets) or "(sink)"
-        return f"{src} -> {dst} when {t.text}"
-
     def evaluate_transitions(self, out: _Emitter) -> None:
         g = self.g
         taken: dict[str, list[str]] = {}
@@ -382,7 +378,7 @@ class Compiler:
             earlier = sorted({e for s in t.src_steps for e in taken.get(s, [])})
             terms += [f"not {e}" for e in earlier]
             terms.append(self.ex(t.cond))
-            out(f"# {self.describe(t)}")
+            out(f"# {transition_text(t)}")
             out(self.let(f, value=" and ".join(terms)))
             for s in t.src_steps:
                 taken.setdefault(s, []).append(f)
@@ -724,7 +720,7 @@ class Compiler:
                 out.dedent()
             out(f"if rounds > {STABLE_MAX_ROUNDS}:")
             out.indent()
-            names = [self.describe(t) for t in g.transitions]
+            names = [transition_text(t) for t in g.transitions]
             steps = [[*t.src_steps, *t.dst_steps] for t in g.transitions]
             flags = ", ".join(f"f{t.index}" for t in g.transitions)
             out(f"raise _Unstable({g.name!r}, {names!r}, {steps!r}, "

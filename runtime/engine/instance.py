@@ -14,6 +14,7 @@ from runtime.compiler.codegen import Program, min_timed
 from runtime.language import ast as A
 from runtime.language.model import Step, Transition, VarKind
 from runtime.language.parser import format_time
+from runtime.language.unparse import transition_text
 
 T = A.Type
 
@@ -183,10 +184,8 @@ class Instance:
                                        f"when {e.text}")
                 terms = [TermWhy(p.text, p.depth, _plain(p.fn(m, now, up)))
                          for p in self.program.probes[t.index]]
-                src_text = ",".join(t.sources) or "(source)"
-                dst_text = ",".join(t.targets) or "(sink)"
-                whys.append(TransitionWhy(t.index, f"{src_text} -> {dst_text} when {t.text}",
-                                          values[t.index], blocked, terms))
+                whys.append(TransitionWhy(t.index, transition_text(t), values[t.index],
+                                          blocked, terms))
             out.append(StepWhy(step, self.step_time(step), whys))
         return out
 
