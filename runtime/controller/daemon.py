@@ -32,6 +32,7 @@ from runtime.controller.scheduler import Scheduler, Watchdog
 from runtime.controller.stats import ScanStats
 from runtime.engine.commands import CommandRefused
 from runtime.engine.plant import Plant
+from runtime.engine.trace import trace_columns
 from runtime.language.model import PlantDef
 
 log = logging.getLogger(__name__)
@@ -444,8 +445,6 @@ class _TraceWriter:
     cost of a few µs per instance) and written by a thread of its own."""
 
     def __init__(self, plant: Plant, out: IO[str]) -> None:
-        from runtime.engine.simulate import trace_columns
-
         self.columns = trace_columns(plant)
         self.out = out
         self.plant = plant

@@ -1,23 +1,27 @@
-"""The names the console understands: resolved on a plant, read from an image, parsed.
+"""The names of a plant: resolved from its definition, read from an image, parsed.
 
-A name is what a person types at the console (``tester1.iMarcha``, ``tester1.gsParado.X``,
-``tester1.gsParado.T``, ``sim.I0``, ``sim.ok``). The Catalogue resolves every name of a
-plant once, each with a reader that takes it from an Image, a copy of the process image
-captured between two cycles.
+A name is what a person types at the console or a script sets (``tester1.iMarcha``,
+``tester1.gsParado.X``, ``tester1.gsParado.T``, ``sim.I0``, ``sim.ok``). PlantNames
+resolves a name from the plant definition alone (no driver opened, no Plant built); the
+Catalogue resolves every name of a running plant once, each with a reader that takes it
+from an Image, a copy of the process image captured between two cycles.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import enum
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from drivers.base import PointKind
-from runtime.engine.plant import Plant
 from runtime.errors import suggest
 from runtime.language import ast as A
-from runtime.language.model import VarKind
+from runtime.language.model import Binding, PlantDef, Variable, VarKind
 from runtime.language.parser import format_time, parse_time
+
+if TYPE_CHECKING:
+    from runtime.engine.plant import Plant
 
 
 class CommandError(Exception):
@@ -25,6 +29,97 @@ class CommandError(Exception):
 
     Examples: a bad value (``set tester1.iParo 7``), an unknown name, ``cycle`` while the
     charts run."""
+
+
+class UnknownName(LookupError):
+    """A name that does not resolve; the message says why, with the closest name."""
+
+
+class Owner(enum.Enum):
+    """What the first part of a plant name designates."""
+
+    INSTANCE = "instance"
+    DRIVER = "driver"
+
+
+@dataclass(frozen=True, slots=True)
+class ScriptInput:
+    """What a simulation script may set: an unbound chart input or flag (written into the
+    instance), a chart input bound to a driver point (written into that point, inverted
+    at the binding), or a driver's input point (raw). A chart input bound to another
+    instance or to ``driver.ok`` cannot be set: ``bound_to`` names that source."""
+
+    key: str
+    instance: str | None = None
+    variable: Variable | None = None
+    driver: str | None = None
+    point: str | None = None
+    invert: bool = False
+    bound_to: str | None = None
+
+
+class PlantNames:
+    """The names of a plant, from its definition: its instances with their charts, its
+    drivers with the points the bindings declare (or, on a built plant, the drivers'
+    own point tables)."""
+
+    def __init__(self, pdef: PlantDef,
+                 points: Mapping[str, tuple[Collection[str], Collection[str]]] | None = None
+                 ) -> None:
+        """``points``: driver -> (input points, output points); by default the points the
+        bindings declare, in the order a Plant declares them."""
+        self.pdef = pdef
+        if points is None:
+            found: dict[str, tuple[dict[str, None], dict[str, None]]] = {
+                d: ({}, {}) for d in pdef.drivers}
+            for idef in pdef.instances.values():
+                for k, section in enumerate((idef.inputs, idef.outputs)):
+                    for b in section.values():
+                        if b.driver is not None and b.point != "ok" and b.driver in found:
+                            found[b.driver][k][b.point or ""] = None
+            points = found
+        self.points = points
+
+    def owner(self, name: str) -> tuple[Owner, str, str]:
+        """``instance.rest`` or ``driver.point`` (a declared point or ``ok``) ->
+        (owner, head, rest); UnknownName otherwise."""
+        head, _, rest = name.partition(".")
+        if head in self.pdef.instances and rest:
+            return Owner.INSTANCE, head, rest
+        if head in self.points and rest:
+            ins, outs = self.points[head]
+            if rest in ins or rest in outs or rest == "ok":
+                return Owner.DRIVER, head, rest
+        raise UnknownName(f"unknown name '{name}'")
+
+    def script_input(self, key: str) -> ScriptInput:
+        """What setting ``key`` in a simulation script writes; UnknownName if it is no
+        input (see ``bound_to`` for an input that is bound to what cannot be set)."""
+        head, _, rest = key.partition(".")
+        if head in self.pdef.instances and rest:
+            idef = self.pdef.instances[head]
+            g = idef.grafcet
+            var = g.variables.get(rest)
+            if var is None or (var.kind is not VarKind.INPUT and var.kind is not VarKind.FLAG):
+                names = [v.name for v in g.variables.values() if v.kind in (VarKind.INPUT,
+                                                                              VarKind.FLAG)]
+                raise UnknownName(f"'{key}' is not an input or chart flag of {head}"
+                                  f"{suggest(rest, names)}")
+            b: Binding | None = idef.inputs.get(rest)
+            if b is None:  # an unbound chart flag: written into the instance
+                return ScriptInput(key, head, var)
+            if b.driver is None or b.point == "ok":
+                return ScriptInput(key, head, var, bound_to=b.source)
+            return ScriptInput(key, head, var, b.driver, b.point or "", b.invert)
+        if head in self.points and rest:
+            ins = self.points[head][0]
+            if rest not in ins:
+                raise UnknownName(f"'{key}' is not an input point of driver {head}"
+                                  f"{suggest(rest, ins)}")
+            return ScriptInput(key, driver=head, point=rest)
+        raise UnknownName(f"unknown name '{key}': expected instance.input, instance.SFCFlag "
+                          "or driver.point" + suggest(head, [*self.pdef.instances,
+                                                             *self.pdef.drivers]))
 
 
 @dataclass(slots=True)

@@ -19,6 +19,7 @@ from drivers.registry import driver_class
 from drivers.sim import SimDriver
 from runtime.compiler.codegen import Program, compile_grafcet
 from runtime.engine.instance import Instance, StepWhy, coerce
+from runtime.engine.names import Owner, PlantNames, UnknownName
 from runtime.language import ast as A
 from runtime.language.model import Binding, PlantDef, VarKind
 
@@ -95,6 +96,9 @@ class Plant:
         self.iocheck = False
         self.scans = 0
         self._declare_points()
+        #: the plant's names, resolved on the drivers' own point tables
+        self.names = PlantNames(pdef, {n: (d.inputs, d.outputs)
+                                       for n, d in self.drivers.items()})
         env: dict[str, Any] = {}
         self._env = env
         self._bind_env(env)
@@ -360,14 +364,13 @@ class Plant:
     # -- names, set and force --------------------------------------------------------
     def resolve(self, name: str) -> tuple[str, Any]:
         """``instance.var`` -> ("instance", Instance) or ``driver.point`` -> ("point", Driver)."""
-        head, _, rest = name.partition(".")
-        if head in self.instances and rest:
+        try:
+            owner, head, _ = self.names.owner(name)
+        except UnknownName as exc:
+            raise BindingError(str(exc)) from None
+        if owner is Owner.INSTANCE:
             return "instance", self.instances[head]
-        if head in self.drivers and rest:
-            d = self.drivers[head]
-            if rest in d.inputs or rest in d.outputs or rest == "ok":
-                return "point", d
-        raise BindingError(f"unknown name '{name}'")
+        return "point", self.drivers[head]
 
     def get(self, name: str) -> Any:
         kind, obj = self.resolve(name)
