@@ -15,7 +15,7 @@ from runtime.engine.instance import Instance
 from runtime.engine.plant import Plant
 from runtime.language import ast as A
 from runtime.language.model import VarKind
-from runtime.language.typecheck import FB_MEMBERS
+from runtime.language.signatures import FB_MEMBERS
 
 T = A.Type
 
