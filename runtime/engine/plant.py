@@ -21,7 +21,7 @@ from runtime.compiler.codegen import Program, compile_grafcet
 from runtime.engine.instance import Instance, StepWhy, coerce
 from runtime.engine.names import Owner, PlantNames, UnknownName
 from runtime.language import ast as A
-from runtime.language.model import Binding, PlantDef, VarKind
+from runtime.language.model import Binding, Grafcet, PlantDef, VarKind
 
 log = logging.getLogger(__name__)
 
@@ -67,13 +67,12 @@ class Plant:
         self.retain_interval_ns = pdef.retain_interval_ns
         self.start: int | None = None
         self.last_up = 0
-        self.programs: dict[int, Program] = {}
-        self.instances: dict[str, Instance] = {}
-        for name, idef in pdef.instances.items():
-            key = id(idef.grafcet)
-            if key not in self.programs:
-                self.programs[key] = compile_grafcet(idef.grafcet)
-            self.instances[name] = Instance(name, self.programs[key])
+        #: one program per distinct chart (the plant file's loader shares the Grafcet of a
+        #: file between its instances): the instances of a chart share its code
+        self.programs: list[Program] = []
+        self.instances: dict[str, Instance] = {
+            name: Instance(name, self._program(idef.grafcet))
+            for name, idef in pdef.instances.items()}
         self.drivers: dict[str, Driver] = {}
         for name, ddef in pdef.drivers.items():
             if drivers and name in drivers:
@@ -108,6 +107,15 @@ class Plant:
         self._copy_outputs: Callable[[], None] = env["copy_outputs"]
 
     # -- construction ----------------------------------------------------------------
+    def _program(self, g: Grafcet) -> Program:
+        """The program of chart ``g``, compiled the first time it is asked for."""
+        for p in self.programs:
+            if p.grafcet is g:
+                return p
+        p = compile_grafcet(g)
+        self.programs.append(p)
+        return p
+
     def _declare_points(self) -> None:
         for idef in self.pdef.instances.values():
             for direction, section in ((Direction.IN, idef.inputs), (Direction.OUT,

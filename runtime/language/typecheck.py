@@ -66,7 +66,13 @@ def ambiguous(n: A.Node) -> bool:
 
 
 class Checker:
-    """Types the expressions and statements of one grafcet, creating its temporaries."""
+    """Types the expressions and statements of one grafcet, creating its temporaries.
+
+    It annotates the syntax trees in place: each node's ``type``, the seed ``+``/``·``
+    rewritten to OR/AND or ADD/MUL, a 0/1 literal's value as bool or int. Only the chart
+    loader runs it, on trees it has just parsed, before ``load_grafcet`` caches and shares
+    the Grafcet; nothing types a cached tree again (the compiler and the checker only read
+    the annotations)."""
 
     def __init__(self, g: Grafcet) -> None:
         self.g = g
