@@ -25,7 +25,7 @@ from typing import Any, Protocol, TypeVar
 
 from runtime.console.pin import check_pin
 from runtime.engine.commands import CommandRefused
-from runtime.engine.names import Catalogue, CommandError, Image, Name, parse_value, printable
+from runtime.engine.names import Catalogue, CommandError, Image, Signal, parse_value, printable
 from runtime.engine.plant import BindingError, Plant
 from runtime.errors import suggest
 from runtime.language import ast as A
@@ -166,7 +166,7 @@ class _Stream:
     """A running watch or trace: what it shows and where it stands."""
 
     kind: str  # "watch" | "trace"
-    names: list[Name]
+    names: list[Signal]
     every_s: float | None = None
     last: dict[str, Any] | None = None
     last_scan: int | None = None
@@ -612,7 +612,7 @@ class Session:
     def _state(self) -> str:
         return str(self.ctl.status()["state"])
 
-    def _two(self, args: list[str], usage: str) -> tuple[Name, Any]:
+    def _two(self, args: list[str], usage: str) -> tuple[Signal, Any]:
         if len(args) != 2:
             raise CommandError(f"usage: {usage}")
         name = self.cat.resolve(args[0])
@@ -765,7 +765,7 @@ class Session:
                        "changed": {k: self.cat.names[k].plain(v) for k, v in total.items()}}
 
     def _changes(self, changed: dict[str, Any], before: dict[str, Any],
-                 steps: list[Name]) -> str:
+                 steps: list[Signal]) -> str:
         """``tester1 gsParado -> gsAbrir; tester1.oAbrir 0 -> 1, ...``"""
         parts = []
         for inst in self.cat.groups:

@@ -134,8 +134,9 @@ class Image:
 
 
 @dataclass(frozen=True, slots=True)
-class Name:
-    """A console name resolved against the plant: its type and how to read it."""
+class Signal:
+    """A name of the running plant (what the console reads): its type and how to read it
+    from an Image."""
 
     text: str
     type: A.Type
@@ -168,7 +169,7 @@ class Catalogue:
 
     def __init__(self, plant: Plant) -> None:
         self.plant = plant
-        self.names: dict[str, Name] = {}
+        self.names: dict[str, Signal] = {}
         #: instance -> {"inputs": [...], "outputs": [...], "memory": [...]}
         self.groups: dict[str, dict[str, list[str]]] = {}
         #: driver -> its point names
@@ -195,12 +196,12 @@ class Catalogue:
                 for p in points:
                     typ = A.Type.BOOL if d.kinds.get(p) is PointKind.BOOL else A.Type.INT
                     text = f"{dname}.{p}"
-                    self.names[text] = Name(text, typ, _point_reader(direction, j, p),
+                    self.names[text] = Signal(text, typ, _point_reader(direction, j, p),
                                             f"point {direction}",
                                             tuple(feeds.get(text, ())))
                     pts.append(text)
             text = f"{dname}.ok"
-            self.names[text] = Name(text, A.Type.BOOL, _ok_reader(j), "driver health",
+            self.names[text] = Signal(text, A.Type.BOOL, _ok_reader(j), "driver health",
                                     tuple(feeds.get(text, ())))
             pts.append(text)
             self.points[dname] = pts
@@ -215,16 +216,16 @@ class Catalogue:
             text = f"{name}.{key}"
             if key.endswith(".T") and key[:-2] in g.steps:
                 s = key[:-2]
-                n = Name(text, A.Type.TIME, _step_time_reader(i, prog.step_time_reader(s)),
+                n = Signal(text, A.Type.TIME, _step_time_reader(i, prog.step_time_reader(s)),
                          "step time")
             elif key.endswith(".X") and key[:-2] in g.steps:
-                n = Name(text, A.Type.BOOL, _slot_reader(i, prog.x_index(key[:-2])), "step")
+                n = Signal(text, A.Type.BOOL, _slot_reader(i, prog.x_index(key[:-2])), "step")
             elif key == "SFCCurrentStep":
                 leaf = tuple((s.name, prog.x_index(s.name)) for s in g.leaf_steps())
-                n = Name(text, A.Type.STRING, _current_step_reader(i, leaf), "chart flag")
+                n = Signal(text, A.Type.STRING, _current_step_reader(i, leaf), "chart flag")
             else:
                 v = g.variables[key]
-                n = Name(text, v.type, _slot_reader(i, prog.var_index(key)), v.kind.value,
+                n = Signal(text, v.type, _slot_reader(i, prog.var_index(key)), v.kind.value,
                          binding=bindings.get(text, ""))
                 if v.kind is VarKind.INPUT:
                     groups["inputs"].append(text)
@@ -235,16 +236,16 @@ class Catalogue:
             self.names[text] = n
         self.groups[name] = groups
 
-    def resolve(self, text: str) -> Name:
-        """The Name for ``text``; CommandError naming the closest one if unknown."""
+    def resolve(self, text: str) -> Signal:
+        """The Signal for ``text``; CommandError naming the closest one if unknown."""
         n = self.names.get(text)
         if n is None:
             raise CommandError(f"unknown name '{printable(text)}'{suggest(text, self.names)}")
         return n
 
-    def expand(self, words: list[str]) -> list[Name]:
+    def expand(self, words: list[str]) -> list[Signal]:
         """Names, where an instance or driver name alone stands for all its signals."""
-        out: list[Name] = []
+        out: list[Signal] = []
         for w in words:
             if w in self.groups:
                 g = self.groups[w]
@@ -255,7 +256,7 @@ class Catalogue:
                 out.append(self.resolve(w))
         return out
 
-    def physical_inputs(self) -> list[Name]:
+    def physical_inputs(self) -> list[Signal]:
         return [n for n in self.names.values() if n.role == "point in"]
 
     def capture(self, scan: int) -> Image:
@@ -303,7 +304,7 @@ def _ok_reader(j: int) -> Callable[[Image], Any]:
     return lambda img: img.ok[j]
 
 
-def parse_value(name: Name, text: str) -> Any:
+def parse_value(name: Signal, text: str) -> Any:
     """A value typed at the console -> the name's type; CommandError says what was
     expected."""
     t = name.type
