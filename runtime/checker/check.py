@@ -256,8 +256,8 @@ class Session:
         """A simulation script is checked against its plant: every name it sets must be an
         input (or chart flag) of an instance, or an input point of a driver, with a value
         of the right type; the times must be times."""
-        from runtime.engine.plant import Plant
-        from runtime.engine.simulate import load_script
+        from runtime.engine.names import PlantNames
+        from runtime.engine.script import read_script
         from runtime.language.plantfile import load_plant
 
         plant, how = self._plant_of_script(path)
@@ -266,13 +266,13 @@ class Session:
                                           f"script not checked: {how}; name its plant with "
                                           "--plant PLANT.yaml")])
         try:
-            p = Plant(load_plant(plant), sim=True)
+            names = PlantNames(load_plant(plant))
         except SourceError:
             return FileResult(path, [diag(Loc(path, 1, 1), "note", "G400", "simulation "
                                           f"script not checked: its plant "
                                           f"{show_path(plant)} ({how}) does not load")])
         try:
-            load_script(path, p)
+            read_script(path, names)
         except SourceError as exc:
             return FileResult(path, [], f"{exc} (checked against {show_path(plant)})")
         return FileResult(path, [])

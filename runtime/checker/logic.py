@@ -30,6 +30,7 @@ from typing import Any
 from runtime.language import ast as A
 from runtime.language.model import Grafcet, VarKind
 from runtime.language.parser import format_time
+from runtime.language.unparse import unparse as unparse  # re-exported for rules.py
 
 T = A.Type
 COMPARE = {"EQ": "=", "NE": "<>", "LT": "<", "LE": "<=", "GT": ">", "GE": ">="}
@@ -37,35 +38,6 @@ ARITH = {"ADD": "+", "SUB": "-", "MUL": "*", "DIV": "/", "MOD": " MOD "}
 LOGIC = {"OR": " OR ", "XOR": " XOR ", "AND": " AND "}
 EXACT_LIMIT = 1 << 16
 BUDGET = 200_000
-
-
-# -- canonical text of a node (keys of atoms, comparisons of conditions) ----------------
-def unparse(n: A.Node) -> str:
-    """A canonical ST-like text of an expression: equal texts mean equal expressions."""
-    if isinstance(n, A.Lit):
-        if n.lit_type is T.TIME:
-            return format_time(int(n.value))
-        if n.type is T.BOOL or n.lit_type is T.BOOL:
-            return "1" if n.value else "0"
-        return repr(n.value)
-    if isinstance(n, A.Name):
-        return n.name
-    if isinstance(n, A.StepFlag):
-        return f"{n.step}.{n.flag}"
-    if isinstance(n, A.Member):
-        return f"{n.obj}.{n.member}"
-    if isinstance(n, A.MethodCall):
-        return f"{n.obj}.{n.method}({', '.join(unparse(a) for a in n.args)})"
-    if isinstance(n, A.Unary):
-        inner = unparse(n.operand)
-        op = {"NOT": "NOT ", "NEG": "-", "RE": "↑", "FE": "↓"}[n.op]
-        return f"{op}({inner})" if isinstance(n.operand, (A.Binary, A.Unary)) else op + inner
-    if isinstance(n, A.Binary):
-        op = COMPARE.get(n.op) or ARITH.get(n.op) or LOGIC.get(n.op) or n.op
-        if n.op in COMPARE:
-            op = f" {op} "
-        return f"({unparse(n.left)}{op}{unparse(n.right)})"
-    return f"<{type(n).__name__}@{n.start}>"
 
 
 def has_edge(n: A.Node) -> bool:

@@ -9,16 +9,15 @@ code and own their state list. The order of one scan is semantics.md's, per scan
 from __future__ import annotations
 
 import hashlib
-import re
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
 from typing import Any
 
-from runtime.compiler import blocks as B
+from runtime.compiler.program import Probe, Program, Slot, SlotKind, step_time_code
 from runtime.language import ast as A
 from runtime.language.model import Action, Grafcet, Qualifier, ScanModel, Step, Transition, VarKind
 from runtime.language.parser import format_time
 from runtime.language.typecheck import CLOCK_PERIOD_NS
+from runtime.language.unparse import transition_text
 
 T = A.Type
 #: rounds of the stable-situation search before "unstable chart"
@@ -54,48 +53,6 @@ def _idiv(a: int, b: int) -> int:
 def _imod(a: int, b: int) -> int:
     """IEC MOD: the sign follows the dividend."""
     return a - b * _idiv(a, b)
-
-
-@dataclass
-class Slot:
-    """One entry of an instance's state list."""
-
-    key: str  # "iParo", "gsAbrir.X", "#ct" ...
-    local: str  # name of the local in the scan function
-    init: Any
-    block: str | None = None  # function-block kind to instantiate per instance
-
-
-@dataclass
-class Probe:
-    """A sub-term of a transition condition that ``explain`` evaluates on an instance."""
-
-    text: str
-    depth: int
-    fn: Callable[[list[Any], int, int], Any]
-
-
-@dataclass
-class Program:
-    """A compiled grafcet: generated source, scan function and state layout."""
-
-    grafcet: Grafcet
-    source: str
-    scan: Callable[[list[Any], int, int], None]
-    slots: list[Slot]
-    index: dict[str, int]  # slot key -> index
-    probes: dict[int, list[Probe]] = field(default_factory=dict)  # transition -> sub-terms
-
-    def new_state(self) -> list[Any]:
-        state = []
-        for s in self.slots:
-            if s.block == "SeedTimer":
-                state.append(B.SeedTimer())
-            elif s.block is not None:
-                state.append(B.BLOCKS[s.block]())
-            else:
-                state.append(s.init)
-        return state
 
 
 def min_timed(g: Grafcet, t: Transition) -> list[Step]:
@@ -138,7 +95,8 @@ class Compiler:
     def __init__(self, g: Grafcet) -> None:
         self.g = g
         self.slots: list[Slot] = []
-        self.index: dict[str, int] = {}
+        self.index: dict[str, int] = {}  # slot key -> index
+        self.stored: dict[str, int] = {}  # local of a slot -> index
         self.edges: dict[int, int] = {}  # id(node) -> edge number
         self.edge_nodes: list[A.Unary] = []
         self.tmp = 0
@@ -148,25 +106,45 @@ class Compiler:
         self.codesys = g.scan is ScanModel.CODESYS
 
     # -- state layout ----------------------------------------------------------------
-    def slot(self, key: str, local: str, init: Any, block: str | None = None) -> None:
-        self.index[key] = len(self.slots)
-        self.slots.append(Slot(key, local, init, block))
+    def slot(self, key: str, local: str, init: Any, block: str | None = None,
+             kind: SlotKind = SlotKind.INTERNAL, name: str = "",
+             type_: A.Type | None = None) -> None:
+        i = len(self.slots)
+        self.index[key] = i
+        self.stored[local] = i
+        self.slots.append(Slot(key, local, init, block, kind, name, type_, i))
+
+    def let(self, *targets: str, value: str) -> str:
+        """``a = b = value``, where each state local is also stored into its slot
+        (``a = m[i] = value``): a scan writes only what it changes, instead of packing
+        every local back at its end (drawer tester: 0.91 us instead of 1.51 us a scan)."""
+        parts = [f"{t} = m[{self.stored[t]}]" if t in self.stored else t for t in targets]
+        return " = ".join([*parts, value])
+
+    def add(self, target: str, delta: str) -> str:
+        """``target += delta``, stored like ``let``."""
+        return self.let(target, value=f"{target} + ({delta})")
 
     def layout(self) -> None:
         g = self.g
         for v in g.variables.values():
             if v.kind is VarKind.SYSTEM:
                 continue
-            self.slot(v.name, _ident("v", v.name), v.init)
+            self.slot(v.name, _ident("v", v.name), v.init, None, SlotKind.VARIABLE, v.name,
+                      v.type)
         for s in g.steps.values():
-            self.slot(f"{s.name}.X", _ident("x", s.name), s.initial or self._macro_initial(s))
-            self.slot(f"{s.name}.T0", _ident("t0", s.name), 0)
-            self.slot(f"{s.name}.TK", _ident("tk", s.name), 0)
+            self.slot(f"{s.name}.X", _ident("x", s.name), s.initial or self._macro_initial(s),
+                      None, SlotKind.STEP_X, s.name, T.BOOL)
+            self.slot(f"{s.name}.T0", _ident("t0", s.name), 0, None, SlotKind.STEP_START,
+                      s.name, T.TIME)
+            self.slot(f"{s.name}.TK", _ident("tk", s.name), 0, None, SlotKind.STEP_LAST,
+                      s.name, T.TIME)
         for name in g.timers:
-            self.slot(name, _ident("b", name), None, "SeedTimer")
+            self.slot(name, _ident("b", name), None, "SeedTimer", SlotKind.BLOCK, name)
         for b in g.blocks.values():
-            self.slot(b.name, _ident("b", b.name), None, b.kind)
-        for key, local, init in (("#ct", "ct", 0), ("#last", "lastnow", 0),
+            self.slot(b.name, _ident("b", b.name), None, b.kind, SlotKind.BLOCK, b.name)
+        self.slot("#ct", "ct", 0, None, SlotKind.CLOCK, "", T.TIME)
+        for key, local, init in (("#last", "lastnow", 0),
                                  ("#first", "first", True), ("#initpend", "initpend", True),
                                  ("#paused", "wp", False), ("#resetprev", "resetprev", False),
                                  ("#quitprev", "quitprev", False), ("#tipprev", "tipprev", True)):
@@ -223,7 +201,8 @@ class Compiler:
         if kind == "X":
             return _ident("x", name)
         if kind == "T":
-            return f"(ct - {_ident('t0', name)} if {_ident('x', name)} else {_ident('tk', name)})"
+            return step_time_code(_ident("x", name), "ct", _ident("t0", name),
+                                  _ident("tk", name))
         if kind == "block":
             return _ident("b", name)
         if kind == "edge":
@@ -240,8 +219,8 @@ class Compiler:
         if kind == "X":
             return f"m[{ix[name + '.X']}]"
         if kind == "T":
-            return (f"(m[{ix['#ct']}] - m[{ix[name + '.T0']}] if m[{ix[name + '.X']}] "
-                    f"else m[{ix[name + '.TK']}])")
+            return step_time_code(f"m[{ix[name + '.X']}]", f"m[{ix['#ct']}]",
+                                  f"m[{ix[name + '.T0']}]", f"m[{ix[name + '.TK']}]")
         if kind == "block":
             return f"m[{ix[name]}]"
         if kind == "edge":
@@ -311,10 +290,8 @@ class Compiler:
             k = self.edges[id(n)]
             cur = self.ex(n.operand)
             out(f"_c = {cur}")
-            if n.op == "RE":
-                out(f"e{k} = _c and not ep{k}; ep{k} = _c")
-            else:
-                out(f"e{k} = ep{k} and not _c; ep{k} = _c")
+            now = f"_c and not ep{k}" if n.op == "RE" else f"ep{k} and not _c"
+            out(f"{self.let(f'e{k}', value=now)}; {self.let(f'ep{k}', value='_c')}")
 
     # -- statements --------------------------------------------------------------------
     def converted(self, vt: A.Type | None, value: A.Node) -> str:
@@ -329,13 +306,13 @@ class Compiler:
     def stmt(self, out: _Emitter, s: A.Node) -> None:
         if isinstance(s, A.Assign):
             value = self.converted(s.target.type, s.value)
-            out(f"{_ident('v', s.target.name)} = {value}")
+            out(self.let(_ident("v", s.target.name), value=value))
         elif isinstance(s, A.CallStmt):
             c = s.call
             if c.method == "Set":
                 var = self.g.variables.get(c.obj)
                 value = self.converted(var.type if var else None, c.args[0])
-                out(f"if {self.ex(c.args[1])}: {_ident('v', c.obj)} = {value}")
+                out(f"if {self.ex(c.args[1])}: {self.let(_ident('v', c.obj), value=value)}")
             elif c.method == "Ini":
                 out(f"{_ident('b', c.obj)}.ini(now, {self.ex(c.args[0])})")
             else:
@@ -370,9 +347,9 @@ class Compiler:
             v = _ident("v", s.var.name)
             out(f"_last{k} = {self.ex(s.last)}; _by{k} = {self.ex(s.step) if s.step else 1}")
             out(f"if _by{k} == 0: raise ZeroDivisionError('FOR loop with BY 0')")
-            out(f"{v} = {self.ex(s.first)}")
+            out(self.let(v, value=self.ex(s.first)))
             out(f"while ({v} <= _last{k}) if _by{k} > 0 else ({v} >= _last{k}):")
-            self.block(out, s.body, extra=f"{v} += _by{k}")
+            self.block(out, s.body, extra=self.add(v, f"_by{k}"))
         else:  # pragma: no cover
             raise AssertionError(type(s))
 
@@ -390,11 +367,6 @@ class Compiler:
     def fired_name(self, t: Transition) -> str:
         return f"pf{t.index}" if self.codesys else f"f{t.index}"
 
-    def describe(self, t: Transition) -> str:
-        src = ",".join(t.sources) or "(source)"
-        dst = ",".join(t.targets) or "(sink)"
-        return f"{src} -> {dst} when {t.text}"
-
     def evaluate_transitions(self, out: _Emitter) -> None:
         g = self.g
         taken: dict[str, list[str]] = {}
@@ -406,32 +378,42 @@ class Compiler:
             earlier = sorted({e for s in t.src_steps for e in taken.get(s, [])})
             terms += [f"not {e}" for e in earlier]
             terms.append(self.ex(t.cond))
-            out(f"# {self.describe(t)}")
-            out(f"{f} = {' and '.join(terms)}")
+            out(f"# {transition_text(t)}")
+            out(self.let(f, value=" and ".join(terms)))
             for s in t.src_steps:
                 taken.setdefault(s, []).append(f)
 
-    def apply_fired(self, out: _Emitter, accumulate: bool) -> None:
+    def _leave(self, step: str) -> str:
+        """Statements deactivating ``step``: its .T is kept, it is marked left."""
+        x, t0, tk, lft = (_ident(p, step) for p in ("x", "t0", "tk", "l"))
+        return (f"{self.let(x, value='False')}; {self.let(tk, value=f'ct - {t0}')}; "
+                f"{self.let(lft, value='True')}")
+
+    def _enter(self, step: str) -> str:
+        """Statements activating ``step``: its .T restarts, it is marked entered."""
+        x, t0, a = (_ident(p, step) for p in ("x", "t0", "a"))
+        return (f"{self.let(x, value='True')}; {self.let(t0, value='ct')}; "
+                f"{self.let(a, value='True')}")
+
+    def apply_fired(self, out: _Emitter) -> None:
         """Deactivate sources, then activate targets, of the transitions that fired."""
         g = self.g
         for st in self.leaf:
             leaving = [self.fired_name(t) for t in g.transitions if st.name in t.src_steps]
             entering = [self.fired_name(t) for t in g.transitions if st.name in t.dst_steps]
-            x, t0, tk = (_ident(p, st.name) for p in ("x", "t0", "tk"))
-            a, lft = _ident("a", st.name), _ident("l", st.name)
+            x, t0 = _ident("x", st.name), _ident("t0", st.name)
             if leaving and entering:
                 out(f"if {' or '.join(leaving)}:")
                 out.indent()
-                out(f"if {' or '.join(entering)}: {t0} = ct  # rule 5: stays active, .T restarts")
-                out(f"else: {x} = False; {tk} = ct - {t0}; {lft} = True")
+                out(f"if {' or '.join(entering)}: {self.let(t0, value='ct')}  "
+                    "# rule 5: stays active, .T restarts")
+                out(f"else: {self._leave(st.name)}")
                 out.dedent()
-                out(f"elif ({' or '.join(entering)}) and not {x}: {x} = True; {t0} = ct; "
-                    f"{a} = True")
+                out(f"elif ({' or '.join(entering)}) and not {x}: {self._enter(st.name)}")
             elif leaving:
-                out(f"if {' or '.join(leaving)}: {x} = False; {tk} = ct - {t0}; {lft} = True")
+                out(f"if {' or '.join(leaving)}: {self._leave(st.name)}")
             elif entering:
-                out(f"if ({' or '.join(entering)}) and not {x}: {x} = True; {t0} = ct; "
-                    f"{a} = True")
+                out(f"if ({' or '.join(entering)}) and not {x}: {self._enter(st.name)}")
         for m in self.macros:
             assert m.macro is not None
             x, t0, tk = (_ident(p, m.name) for p in ("x", "t0", "tk"))
@@ -447,12 +429,12 @@ class Compiler:
                 again = f" or {' or '.join(leaving)}" if leaving else ""
                 out(f"if ({' or '.join(entering)}) and (not {x}{again}):")
                 out.indent()
-                out(f"{t0} = ct")
-                out(f"if not {x}: {a} = True")
+                out(self.let(t0, value="ct"))
+                out(f"if not {x}: {self.let(a, value='True')}")
                 out.dedent()
-            out(f"if {x} and not _nx: {tk} = ct - {t0}; {lft} = True")
-            out(f"{x} = _nx")
-        del accumulate
+            out(f"if {x} and not _nx: {self.let(tk, value=f'ct - {t0}')}; "
+                f"{self.let(lft, value='True')}")
+            out(self.let(x, value="_nx"))
 
     def _left_macros(self, t: Transition) -> set[str]:
         """The macro-steps that ``t`` leaves: its sources' exit chains."""
@@ -478,17 +460,19 @@ class Compiler:
         for st in self.g.steps.values():
             x, t0, tk = (_ident(p, st.name) for p in ("x", "t0", "tk"))
             init = st.initial or self._macro_initial(st)
-            line = f"{x} = {init}; {t0} = ct; {tk} = 0"
+            line = (f"{self.let(x, value=str(init))}; {self.let(t0, value='ct')}; "
+                    f"{self.let(tk, value='0')}")
             if mark_entered and init:
-                line += f"; {_ident('a', st.name)} = True"
+                line += f"; {self.let(_ident('a', st.name), value='True')}"
             out(line)
         if self.codesys:
-            out("; ".join(f"pf{t.index} = False" for t in self.g.transitions) or "pass")
+            out("; ".join(self.let(f"pf{t.index}", value="False") for t in self.g.transitions)
+                or "pass")
 
     def reset_stored(self, out: _Emitter) -> None:
         for s in self.slots:
             if s.key.startswith("#S.") or (s.key.startswith("#") and s.key.endswith(".F")):
-                out(f"{s.local} = False")
+                out(self.let(s.local, value="False"))
 
     # -- actions -------------------------------------------------------------------------
     def active(self, step: str) -> str:
@@ -507,7 +491,7 @@ class Compiler:
         sets = [self.active(a.step) for a in assocs if a.qualifier is Qualifier.S]
         if sets:
             s = _ident("s", target)
-            out(f"{s} = ({s} or {' or '.join(sets)})" + (" and not _r" if r else ""))
+            out(self.let(s, value=f"({s} or {' or '.join(sets)})" + (" and not _r" if r else "")))
             terms.append(s)
         for k, a in enumerate(assocs):
             q, st = a.qualifier, a.step
@@ -524,18 +508,19 @@ class Compiler:
                 tag = f"{q.value.lower()}{k}_{target}"
                 ff, tt = f"f{tag}", f"t{tag}"
                 if q is Qualifier.DS:
-                    out(f"if {x} and ct - {t0} >= {a.time_ns}: {ff} = True")
+                    out(f"if {x} and ct - {t0} >= {a.time_ns}: {self.let(ff, value='True')}")
                     terms.append(ff)
                 else:
-                    out(f"if {self.active(st)} and not {ff}: {ff} = True; {tt} = ct")
+                    out(f"if {self.active(st)} and not {ff}: {self.let(ff, value='True')}; "
+                        f"{self.let(tt, value='ct')}")
                     cmp = ">=" if q is Qualifier.SD else "<"
                     terms.append(f"({ff} and ct - {tt} {cmp} {a.time_ns})")
                 if r:
-                    out(f"if _r: {ff} = False")
+                    out(f"if _r: {self.let(ff, value='False')}")
         value = " or ".join(terms) or "False"
         if r:
             value = f"not _r and ({value})"
-        out(f"{_ident('v', target)} = {value}")
+        out(self.let(_ident("v", target), value=value))
 
     def statement_action(self, out: _Emitter, a: Action, final_scan: bool = False) -> None:
         """``if <the action's Q>: body``; with ``final_scan``, CODESYS's extra run of an IEC
@@ -566,7 +551,7 @@ class Compiler:
             cond = f"{self.active(st)} and {self.ex(a.event)}"  # type: ignore[arg-type]
         out(f"# {label}")
         if held:
-            out(f"{held} = {cond}")
+            out(self.let(held, value=cond))
             cond = held
         out(f"if {cond}:")
         self.block(out, a.body or [])
@@ -600,7 +585,8 @@ class Compiler:
             for i, s in enumerate(supervised):
                 x, t0 = _ident("x", s.name), _ident("t0", s.name)
                 out(f"{'if' if i == 0 else 'elif'} {x} and ct - {t0} > {s.max_ns}: "
-                    f"v_SFCError = True; v_SFCErrorStep = {s.name!r}")
+                    f"{self.let('v_SFCError', value='True')}; "
+                    f"{self.let('v_SFCErrorStep', value=repr(s.name))}")
             out.dedent()
 
     # -- the scan function ---------------------------------------------------------------
@@ -615,9 +601,10 @@ class Compiler:
                 "def scan(m, now, up):"]
         out(f"{locals_}, = m")
         out("# chart clock: advances unless the chart was paused during the last interval")
-        out("if first: ct = 0")
-        out("elif not wp: ct += now - lastnow")
-        out("lastnow = now")
+        L = self.let  # noqa: N806 - short: many emitted lines
+        out(f"if first: {L('ct', value='0')}")
+        out(f"elif not wp: {self.add('ct', 'now - lastnow')}")
+        out(L("lastnow", value="now"))
         steps = list(g.steps.values())
         out(" = ".join(_ident("a", s.name) for s in steps) + " = False")
         out(" = ".join(_ident("l", s.name) for s in steps) + " = False")
@@ -635,38 +622,41 @@ class Compiler:
         out.indent()
         self.to_initial(out, mark_entered=False)
         self.reset_stored(out)
-        out("v_SFCError = v_SFCPause = v_SFCQuitError = False; v_SFCErrorStep = ''")
-        out("initpend = frozen = True; run = False")
+        out(f"{L('v_SFCError', 'v_SFCPause', 'v_SFCQuitError', value='False')}; "
+            f"{L('v_SFCErrorStep', value=repr(''))}")
+        out(f"{L('initpend', 'frozen', value='True')}; run = False")
         out.dedent()
         out("elif initpend:  # start-up, or SFCInit fell: the initial steps are activated")
         out.indent()
-        out("initpend = False; frozen = True")
+        out(f"{L('initpend', value='False')}; frozen = True")
         self.to_initial(out, mark_entered=True)
         out.dedent()
         out("elif v_SFCReset:")
         out.indent()
         self.reset_stored(out)
-        out("v_SFCError = False; v_SFCErrorStep = ''  # SFCReset acknowledges an error")
+        out(f"{L('v_SFCError', value='False')}; {L('v_SFCErrorStep', value=repr(''))}  "
+            "# SFCReset acknowledges an error")
         self.to_initial(out, mark_entered=False)
         out("if not resetprev:")
         out.indent()
-        out("; ".join(f"{_ident('a', s.name)} = True" for s in steps
+        out("; ".join(L(_ident("a", s.name), value="True") for s in steps
                       if s.initial or self._macro_initial(s)))
         out.dedent()
         out("frozen = True")
         out.dedent()
         out("else:")
         out.indent()
-        out("if v_SFCQuitError: v_SFCError = False; v_SFCErrorStep = ''; frozen = paused = True")
+        out(f"if v_SFCQuitError: {L('v_SFCError', value='False')}; "
+            f"{L('v_SFCErrorStep', value=repr(''))}; frozen = paused = True")
         out("elif quitprev:  # SFCQuitError fell: the active steps' times restart")
         out.indent()
         for st in steps:
-            out(f"if {_ident('x', st.name)}: {_ident('t0', st.name)} = ct")
+            out(f"if {_ident('x', st.name)}: {L(_ident('t0', st.name), value='ct')}")
         out.dedent()
         out("if v_SFCPause: frozen = paused = True")
         out.dedent()
-        out("resetprev = v_SFCReset; quitprev = v_SFCQuitError")
-        out("tip = v_SFCTip and not tipprev; tipprev = v_SFCTip")
+        out(f"{L('resetprev', value='v_SFCReset')}; {L('quitprev', value='v_SFCQuitError')}")
+        out(f"tip = v_SFCTip and not tipprev; {L('tipprev', value='v_SFCTip')}")
         out.dedent()
         if self.codesys:
             if g.transitions:
@@ -675,7 +665,7 @@ class Compiler:
                 pending = " or ".join(f"pf{t.index}" for t in g.transitions)
                 out(f"if not frozen and ({pending}):")
                 out.indent()
-                self.apply_fired(out, accumulate=False)
+                self.apply_fired(out)
                 out.dedent()
             self.actions_section(out)
             self.evolution_section(out)
@@ -687,8 +677,7 @@ class Compiler:
             for s in g.post:
                 self.sample_edges(out, [s.node])
                 self.stmt(out, s.node)
-        out("first = False; wp = paused")
-        out(f"m[:] = ({locals_},)")
+        out(f"{L('first', value='False')}; {L('wp', value='paused')}")
         return "\n".join(head + out.lines) + "\n"
 
     def evolution_section(self, out: _Emitter) -> None:
@@ -707,7 +696,7 @@ class Compiler:
             out.dedent()
             out("elif not paused:  # a pending evolution waits for the end of a pause")
             out.indent()
-            out(" = ".join(f"pf{t.index}" for t in g.transitions) + " = False")
+            out(self.let(*(f"pf{t.index}" for t in g.transitions), value="False"))
             out.dedent()
             return
         fired = " or ".join(f"f{t.index}" for t in g.transitions)
@@ -719,7 +708,7 @@ class Compiler:
             out.indent()
             self.evaluate_transitions(out)
             out(f"if not ({fired}): break")
-            self.apply_fired(out, accumulate=True)
+            self.apply_fired(out)
             out("rounds += 1")
             trans_edges = sorted({self.edges[id(n)] for t in g.transitions
                                   for n in A.walk(t.cond)
@@ -727,11 +716,11 @@ class Compiler:
             if trans_edges:
                 out("if rounds == 1:  # edges are true in the first round only")
                 out.indent()
-                out(" = ".join(f"e{k}" for k in trans_edges) + " = False")
+                out(self.let(*(f"e{k}" for k in trans_edges), value="False"))
                 out.dedent()
             out(f"if rounds > {STABLE_MAX_ROUNDS}:")
             out.indent()
-            names = [self.describe(t) for t in g.transitions]
+            names = [transition_text(t) for t in g.transitions]
             steps = [[*t.src_steps, *t.dst_steps] for t in g.transitions]
             flags = ", ".join(f"f{t.index}" for t in g.transitions)
             out(f"raise _Unstable({g.name!r}, {names!r}, {steps!r}, "
@@ -742,7 +731,7 @@ class Compiler:
             self.evaluate_transitions(out)
             out(f"if {fired}:")
             out.indent()
-            self.apply_fired(out, accumulate=False)
+            self.apply_fired(out)
             out.dedent()
         out.dedent()
 
@@ -765,7 +754,7 @@ class Compiler:
         if targets:
             out("elif not paused:  # SFCInit: no action executes, bool targets are off")
             out.indent()
-            out(" = ".join(_ident("v", t) for t in targets) + " = False")
+            out(self.let(*(_ident("v", t) for t in targets), value="False"))
             out.dedent()
 
     def probes(self) -> dict[int, list[Probe]]:
@@ -793,42 +782,16 @@ class Compiler:
         return out
 
 
-def write_through(source: str, slots: list[Slot]) -> str:
-    """Store every state local into the state list where it is assigned (``x = m[i] = v``)
-    instead of packing all of them back at the end: a scan then writes only what it
-    changes (measured on the drawer tester: 0.91 us instead of 1.51 us a scan)."""
-    idx = {s.local: i for i, s in enumerate(slots)}
-    names = "|".join(sorted(map(re.escape, idx), key=len, reverse=True))
-    assign = re.compile(rf"(?<![\w.])({names})\s*=(?!=)")
-    augmented = re.compile(rf"(?<![\w.])({names}) \+= ([^;\n]+)")
-    out = []
-    for n, line in enumerate(source.split("\n")):
-        stripped = line.lstrip()
-        if stripped.startswith("m[:] = ("):
-            continue
-        if n < 4 and stripped.endswith(", = m"):  # the unpacking line
-            out.append(line)
-            continue
-        code, sep, comment = line.partition("  #")
-        if stripped.startswith("#"):
-            out.append(line)
-            continue
-        code = assign.sub(lambda m: f"{m.group(1)} = m[{idx[m.group(1)]}] =", code)
-        code = augmented.sub(lambda m: f"{m.group(1)} = m[{idx[m.group(1)]}] = "
-                                       f"{m.group(1)} + ({m.group(2)})", code)
-        out.append(code + sep + comment)
-    return "\n".join(out)
-
-
 def compile_grafcet(g: Grafcet) -> Program:
     """Compile ``g`` into a Program (source, scan function, state layout)."""
     c = Compiler(g)
-    source = write_through(c.generate(), c.slots)
+    source = c.generate()
     digest = hashlib.sha1(source.encode()).hexdigest()[:8]
     env: dict[str, Any] = {"_idiv": _idiv, "_imod": _imod, "_Unstable": _unstable}
     code = compile(source, f"<grafcet {g.name} {digest}>", "exec")
     exec(code, env)  # noqa: S102 - generated from the checked model
-    return Program(g, source, env["scan"], c.slots, c.index, c.probes())
+    return Program(g, source, env["scan"], c.slots, c.probes())
 
 
-__all__ = ["Program", "compile_grafcet", "UnstableChart", "format_time"]
+__all__ = ["Program", "Slot", "SlotKind", "Probe", "compile_grafcet", "UnstableChart",
+           "format_time"]

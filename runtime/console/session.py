@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol, TypeVar
 
 from runtime.console.pin import check_pin
-from runtime.controller.daemon import CommandRefused
-from runtime.engine.names import Catalogue, CommandError, Image, Name, parse_value, printable
+from runtime.engine.commands import CommandRefused
+from runtime.engine.names import Catalogue, CommandError, Image, Signal, parse_value, printable
 from runtime.engine.plant import BindingError, Plant
 from runtime.errors import suggest
 from runtime.language import ast as A
@@ -166,7 +166,7 @@ class _Stream:
     """A running watch or trace: what it shows and where it stands."""
 
     kind: str  # "watch" | "trace"
-    names: list[Name]
+    names: list[Signal]
     every_s: float | None = None
     last: dict[str, Any] | None = None
     last_scan: int | None = None
@@ -411,7 +411,7 @@ class Session:
 
         def release() -> None:
             for n in mine:
-                if n in plant.forced or n in plant.forced_points:
+                if plant.is_forced(n):
                     plant.unforce(n)
         try:
             self.ctl.call(release)
@@ -443,8 +443,8 @@ class Session:
         plant, cat = self.ctl.plant, self.cat
 
         def read() -> dict[str, Any]:
-            forced = {**{k: cat.names[k].plain(v[2]) for k, v in plant.forced.items()},
-                      **{k: v[3] for k, v in plant.forced_points.items()}}
+            forced = {k: cat.names[k].plain(v) if k in plant.forced else v
+                      for k, v in plant.forced_values().items()}
             return {**self.ctl.status(),
                     "steps": {n: i.active_steps() for n, i in plant.instances.items()},
                     "forced": forced,
@@ -491,8 +491,7 @@ class Session:
         def read() -> tuple[dict[str, Any], dict[str, Any]]:
             img = cat.live()
             values = {n.text: n.read(img) for n in names}
-            forced = {k: v[3] for k, v in plant.forced_points.items() if k in values}
-            forced.update({k: v[2] for k, v in plant.forced.items() if k in values})
+            forced = {k: v for k, v in plant.forced_values().items() if k in values}
             return values, forced
         values, forced = self.ctl.call(read)
         lines, shown = [], {}
@@ -547,12 +546,8 @@ class Session:
             given = f" '{printable(args[0])}'" if args else ""
             raise CommandError(f"usage: why INSTANCE; no instance{given} (one of "
                                f"{' '.join(plant.instances)})")
-        inst = plant.instances[args[0]]
-
-        def explain() -> Any:
-            inst.last_up = plant.last_up  # the plant scans without Instance.scan
-            return inst.explain()
-        whys = self.ctl.call(explain)
+        name = args[0]
+        whys = self.ctl.call(lambda: plant.explain(name))
         lines, data = [], []
         for sw in whys:
             lines.append(f"{sw.step} active for {_round_times(format_time(sw.time_ns))}")
@@ -617,7 +612,7 @@ class Session:
     def _state(self) -> str:
         return str(self.ctl.status()["state"])
 
-    def _two(self, args: list[str], usage: str) -> tuple[Name, Any]:
+    def _two(self, args: list[str], usage: str) -> tuple[Signal, Any]:
         if len(args) != 2:
             raise CommandError(f"usage: {usage}")
         name = self.cat.resolve(args[0])
@@ -677,7 +672,7 @@ class Session:
         plant = self.ctl.plant
 
         def release() -> list[str]:
-            names = [*plant.forced, *plant.forced_points]
+            names = plant.forced_names()
             plant.unforce(None)
             return names
         released = self.ctl.call(release)
@@ -695,10 +690,7 @@ class Session:
             state = self._state()
             if state == "iocheck":
                 raise CommandError("iocheck on: the charts are stopped already")
-            was = plant.hold
-            plant.hold = True
-            plant.steps_left = 0
-            return "already paused" if was else "paused"
+            return "already paused" if plant.pause() else "paused"
         return [self.ctl.call(do) + ": charts hold, I/O still scanned; 'cycle N' steps, "
                 "'resume' goes on"]
 
@@ -706,10 +698,7 @@ class Session:
         plant = self.ctl.plant
 
         def do() -> str:
-            was = plant.hold
-            plant.hold = False
-            plant.steps_left = 0
-            return "resumed" if was else "not paused"
+            return "resumed" if plant.resume() else "not paused"
         return [self.ctl.call(do)]
 
     def cmd_cycle(self, args: list[str]) -> Any:
@@ -728,7 +717,7 @@ class Session:
 
         def on_scan(scan: int) -> None:  # scan thread
             images.append(cat.capture(scan))
-            if plant.steps_left <= 0:
+            if not plant.stepping:
                 done.set()
 
         def start() -> Image:
@@ -776,7 +765,7 @@ class Session:
                        "changed": {k: self.cat.names[k].plain(v) for k, v in total.items()}}
 
     def _changes(self, changed: dict[str, Any], before: dict[str, Any],
-                 steps: list[Name]) -> str:
+                 steps: list[Signal]) -> str:
         """``tester1 gsParado -> gsAbrir; tester1.oAbrir 0 -> 1, ...``"""
         parts = []
         for inst in self.cat.groups:
@@ -826,16 +815,16 @@ class Session:
                     raise CommandError("the controller is in fault: 'ack' it first")
                 if state == "iocheck":
                     return []
-                released = [*plant.forced, *plant.forced_points]
+                released = plant.forced_names()
                 plant.unforce(None)  # outputs all off means forced ones too
                 if state == "halted":
                     # back to the bench after a previous iocheck: the charts were waiting
                     # for ack; acknowledge and re-enter in the same boundary, so no scan runs
-                    hold = plant.hold
-                    plant.hold = True
+                    was = plant.pause()
                     ctl.ack()
-                    plant.hold = hold
-                plant.steps_left = 0
+                    if not was:
+                        plant.resume()
+                plant.step(0)
                 plant.set_iocheck(True)
                 return released
             released = self.ctl.call(enter)

@@ -30,7 +30,9 @@ from runtime.controller.realtime import lock_memory, reduce_timer_slack, set_fif
 from runtime.controller.retain import RetainStore, RetainWriter
 from runtime.controller.scheduler import Scheduler, Watchdog
 from runtime.controller.stats import ScanStats
+from runtime.engine.commands import CommandRefused
 from runtime.engine.plant import Plant
+from runtime.engine.trace import trace_columns
 from runtime.language.model import PlantDef
 
 log = logging.getLogger(__name__)
@@ -51,13 +53,6 @@ class State(enum.Enum):
     FAULT = "fault"
     HALTED = "halted"
     STOPPED = "stopped"
-
-
-class CommandRefused(Exception):
-    """A request the controller will not carry out now; the message says why.
-
-    Examples: ``ack`` while the lost I/O node is still missing; ``ack`` with nothing to
-    acknowledge."""
 
 
 class _Call:
@@ -360,8 +355,8 @@ class Daemon:
             return State.STARTING
         if plant.iocheck:
             return State.IOCHECK
-        if plant.hold:
-            return State.STEPPING if plant.steps_left > 0 else State.PAUSED
+        if plant.held:
+            return State.STEPPING if plant.stepping else State.PAUSED
         return State.RUNNING
 
     def uptime_s(self) -> float:
@@ -450,8 +445,6 @@ class _TraceWriter:
     cost of a few µs per instance) and written by a thread of its own."""
 
     def __init__(self, plant: Plant, out: IO[str]) -> None:
-        from runtime.engine.simulate import trace_columns
-
         self.columns = trace_columns(plant)
         self.out = out
         self.plant = plant

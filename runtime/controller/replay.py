@@ -12,7 +12,7 @@ from __future__ import annotations
 import logging
 
 from runtime.engine.plant import Plant
-from runtime.engine.simulate import Event, load_script
+from runtime.engine.script import Event, load_script
 
 log = logging.getLogger(__name__)
 

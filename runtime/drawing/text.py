@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import re
 
-from runtime.checker.logic import unparse
 from runtime.language import ast as A
 from runtime.language.model import Action, Qualifier
 from runtime.language.parser import format_time
+from runtime.language.unparse import unparse
 
 #: the font family of every drawing; the widths below are this font's
 FONT = "DejaVu Sans, Helvetica, Arial, sans-serif"

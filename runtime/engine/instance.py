@@ -14,6 +14,7 @@ from drivers.durations import format_ns, parse_literal
 from runtime.compiler.codegen import Program, min_timed
 from runtime.language import ast as A
 from runtime.language.model import Step, Transition, VarKind
+from runtime.language.unparse import transition_text
 
 T = A.Type
 
@@ -52,11 +53,12 @@ class Instance:
         self.grafcet = program.grafcet
         self.m: list[Any] = program.new_state()
         self._scan = program.scan
-        self.index = program.index
+        #: slot of each variable, ``step.X`` and function block (for tests and tools)
+        self.index = program.public_index()
         self.last_up = 0
         g = self.grafcet
         self._leaf = [s.name for s in g.leaf_steps()]
-        self._x = [self.index[f"{s}.X"] for s in self._leaf]
+        self._x = [program.x_index(s) for s in self._leaf]
         self._retained = [v.name for v in g.variables.values() if v.retain]
 
     def scan(self, now: int, up: int) -> None:
@@ -67,10 +69,7 @@ class Instance:
     # -- reading and writing -------------------------------------------------------
     def step_time(self, step: str) -> int:
         """``step.T`` in ns as the chart sees it now (kept after deactivation)."""
-        m, ix = self.m, self.index
-        if m[ix[f"{step}.X"]]:
-            return int(m[ix["#ct"]] - m[ix[f"{step}.T0"]])
-        return int(m[ix[f"{step}.TK"]])
+        return self.program.step_time(self.m, step)
 
     def active_steps(self) -> list[str]:
         m = self.m
@@ -87,16 +86,16 @@ class Instance:
             return self.step_time(key[:-2])
         if key == "SFCCurrentStep":
             return self.current_step()
-        if key in self.grafcet.timers or key in self.grafcet.blocks or key.startswith("#"):
-            raise KeyError(key)
-        return self.m[self.index[key]]
+        if key.endswith(".X") and key[:-2] in self.grafcet.steps:
+            return self.m[self.program.x_index(key[:-2])]
+        return self.program.read(self.m, key)
 
     def set(self, key: str, value: Any) -> None:
         """Write a variable or chart flag (between scans)."""
         v = self.grafcet.variables.get(key)
         if v is None or v.kind is VarKind.SYSTEM or v.type is T.STRING:
             raise KeyError(key)
-        self.m[self.index[key]] = coerce(v.type, value)
+        self.program.write(self.m, key, coerce(v.type, value))
 
     def names(self) -> list[str]:
         """Every readable name: variables, flags, step.X and step.T."""
@@ -108,8 +107,8 @@ class Instance:
 
     # -- retain and restart --------------------------------------------------------
     def retain_snapshot(self) -> dict[str, Any]:
-        m, ix = self.m, self.index
-        return {name: m[ix[name]] for name in self._retained}
+        m, read = self.m, self.program.read
+        return {name: read(m, name) for name in self._retained}
 
     def restore_retain(self, data: dict[str, Any]) -> list[str]:
         """Restore retained memory; returns the names that were ignored (unknown, bad type)."""
@@ -120,7 +119,7 @@ class Instance:
                 ignored.append(name)
                 continue
             try:
-                self.m[self.index[name]] = coerce(v.type, value)
+                self.program.write(self.m, name, coerce(v.type, value))
             except (TypeError, ValueError):
                 ignored.append(name)
         return ignored
@@ -136,12 +135,12 @@ class Instance:
         """For each active step, each outgoing transition and why it does (not) fire.
 
         Values are those of the last scan (edges as they were sampled in it)."""
-        g, m, ix = self.grafcet, self.m, self.index
-        now = m[ix["#last"]]
+        g, m, prog = self.grafcet, self.m, self.program
+        now = prog.scan_time(m)
         up = self.last_up
-        paused = bool(m[ix["#paused"]])
-        tipmode = bool(m[ix["SFCTipMode"]])
-        held = [f for f in ("SFCInit", "SFCReset") if m[ix[f]]]
+        paused = prog.chart_paused(m)
+        tipmode = bool(prog.read(m, "SFCTipMode"))
+        held = [f for f in ("SFCInit", "SFCReset") if prog.read(m, f)]
         out = []
         values: dict[int, bool] = {}
         for t in g.transitions:
@@ -157,7 +156,7 @@ class Instance:
         taken: set[str] = set()
         for t in g.transitions:
             src = set(t.src_steps)
-            fires[t.index] = (all(m[ix[f"{s}.X"]] for s in src) and not (src & taken)
+            fires[t.index] = (all(prog.step_active(m, s) for s in src) and not (src & taken)
                               and not early(t) and values[t.index])
             if fires[t.index]:
                 taken |= src
@@ -172,7 +171,7 @@ class Instance:
                 if tipmode:
                     blocked.append("SFCTipMode: fires only on ↑SFCTip")
                 for s in t.src_steps:
-                    if not m[ix[f"{s}.X"]]:
+                    if not prog.step_active(m, s):
                         blocked.append(f"source step {s} not active")
                 for st in early(t):
                     blocked.append(f"min time of {st.name}: "
@@ -185,10 +184,8 @@ class Instance:
                                        f"when {e.text}")
                 terms = [TermWhy(p.text, p.depth, _plain(p.fn(m, now, up)))
                          for p in self.program.probes[t.index]]
-                src_text = ",".join(t.sources) or "(source)"
-                dst_text = ",".join(t.targets) or "(sink)"
-                whys.append(TransitionWhy(t.index, f"{src_text} -> {dst_text} when {t.text}",
-                                          values[t.index], blocked, terms))
+                whys.append(TransitionWhy(t.index, transition_text(t), values[t.index],
+                                          blocked, terms))
             out.append(StepWhy(step, self.step_time(step), whys))
         return out
 

@@ -1,23 +1,27 @@
-"""The names the console understands: resolved on a plant, read from an image, parsed.
+"""The names of a plant: resolved from its definition, read from an image, parsed.
 
-A name is what a person types at the console (``tester1.iMarcha``, ``tester1.gsParado.X``,
-``tester1.gsParado.T``, ``sim.I0``, ``sim.ok``). The Catalogue resolves every name of a
-plant once, each with a reader that takes it from an Image, a copy of the process image
-captured between two cycles.
+A name is what a person types at the console or a script sets (``tester1.iMarcha``,
+``tester1.gsParado.X``, ``tester1.gsParado.T``, ``sim.I0``, ``sim.ok``). PlantNames
+resolves a name from the plant definition alone (no driver opened, no Plant built); the
+Catalogue resolves every name of a running plant once, each with a reader that takes it
+from an Image, a copy of the process image captured between two cycles.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import enum
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from drivers.base import PointKind
 from drivers.durations import format_ns, parse_literal
-from runtime.engine.plant import Plant
 from runtime.errors import suggest
 from runtime.language import ast as A
-from runtime.language.model import VarKind
+from runtime.language.model import Binding, PlantDef, Variable, VarKind
+
+if TYPE_CHECKING:
+    from runtime.engine.plant import Plant
 
 
 class CommandError(Exception):
@@ -25,6 +29,97 @@ class CommandError(Exception):
 
     Examples: a bad value (``set tester1.iParo 7``), an unknown name, ``cycle`` while the
     charts run."""
+
+
+class UnknownName(LookupError):
+    """A name that does not resolve; the message says why, with the closest name."""
+
+
+class Owner(enum.Enum):
+    """What the first part of a plant name designates."""
+
+    INSTANCE = "instance"
+    DRIVER = "driver"
+
+
+@dataclass(frozen=True, slots=True)
+class ScriptInput:
+    """What a simulation script may set: an unbound chart input or flag (written into the
+    instance), a chart input bound to a driver point (written into that point, inverted
+    at the binding), or a driver's input point (raw). A chart input bound to another
+    instance or to ``driver.ok`` cannot be set: ``bound_to`` names that source."""
+
+    key: str
+    instance: str | None = None
+    variable: Variable | None = None
+    driver: str | None = None
+    point: str | None = None
+    invert: bool = False
+    bound_to: str | None = None
+
+
+class PlantNames:
+    """The names of a plant, from its definition: its instances with their charts, its
+    drivers with the points the bindings declare (or, on a built plant, the drivers'
+    own point tables)."""
+
+    def __init__(self, pdef: PlantDef,
+                 points: Mapping[str, tuple[Collection[str], Collection[str]]] | None = None
+                 ) -> None:
+        """``points``: driver -> (input points, output points); by default the points the
+        bindings declare, in the order a Plant declares them."""
+        self.pdef = pdef
+        if points is None:
+            found: dict[str, tuple[dict[str, None], dict[str, None]]] = {
+                d: ({}, {}) for d in pdef.drivers}
+            for idef in pdef.instances.values():
+                for k, section in enumerate((idef.inputs, idef.outputs)):
+                    for b in section.values():
+                        if b.driver is not None and b.point != "ok" and b.driver in found:
+                            found[b.driver][k][b.point or ""] = None
+            points = found
+        self.points = points
+
+    def owner(self, name: str) -> tuple[Owner, str, str]:
+        """``instance.rest`` or ``driver.point`` (a declared point or ``ok``) ->
+        (owner, head, rest); UnknownName otherwise."""
+        head, _, rest = name.partition(".")
+        if head in self.pdef.instances and rest:
+            return Owner.INSTANCE, head, rest
+        if head in self.points and rest:
+            ins, outs = self.points[head]
+            if rest in ins or rest in outs or rest == "ok":
+                return Owner.DRIVER, head, rest
+        raise UnknownName(f"unknown name '{name}'")
+
+    def script_input(self, key: str) -> ScriptInput:
+        """What setting ``key`` in a simulation script writes; UnknownName if it is no
+        input (see ``bound_to`` for an input that is bound to what cannot be set)."""
+        head, _, rest = key.partition(".")
+        if head in self.pdef.instances and rest:
+            idef = self.pdef.instances[head]
+            g = idef.grafcet
+            var = g.variables.get(rest)
+            if var is None or (var.kind is not VarKind.INPUT and var.kind is not VarKind.FLAG):
+                names = [v.name for v in g.variables.values() if v.kind in (VarKind.INPUT,
+                                                                              VarKind.FLAG)]
+                raise UnknownName(f"'{key}' is not an input or chart flag of {head}"
+                                  f"{suggest(rest, names)}")
+            b: Binding | None = idef.inputs.get(rest)
+            if b is None:  # an unbound chart flag: written into the instance
+                return ScriptInput(key, head, var)
+            if b.driver is None or b.point == "ok":
+                return ScriptInput(key, head, var, bound_to=b.source)
+            return ScriptInput(key, head, var, b.driver, b.point or "", b.invert)
+        if head in self.points and rest:
+            ins = self.points[head][0]
+            if rest not in ins:
+                raise UnknownName(f"'{key}' is not an input point of driver {head}"
+                                  f"{suggest(rest, ins)}")
+            return ScriptInput(key, driver=head, point=rest)
+        raise UnknownName(f"unknown name '{key}': expected instance.input, instance.SFCFlag "
+                          "or driver.point" + suggest(head, [*self.pdef.instances,
+                                                             *self.pdef.drivers]))
 
 
 @dataclass(slots=True)
@@ -39,8 +134,9 @@ class Image:
 
 
 @dataclass(frozen=True, slots=True)
-class Name:
-    """A console name resolved against the plant: its type and how to read it."""
+class Signal:
+    """A name of the running plant (what the console reads): its type and how to read it
+    from an Image."""
 
     text: str
     type: A.Type
@@ -73,7 +169,7 @@ class Catalogue:
 
     def __init__(self, plant: Plant) -> None:
         self.plant = plant
-        self.names: dict[str, Name] = {}
+        self.names: dict[str, Signal] = {}
         #: instance -> {"inputs": [...], "outputs": [...], "memory": [...]}
         self.groups: dict[str, dict[str, list[str]]] = {}
         #: driver -> its point names
@@ -100,12 +196,12 @@ class Catalogue:
                 for p in points:
                     typ = A.Type.BOOL if d.kinds.get(p) is PointKind.BOOL else A.Type.INT
                     text = f"{dname}.{p}"
-                    self.names[text] = Name(text, typ, _point_reader(direction, j, p),
+                    self.names[text] = Signal(text, typ, _point_reader(direction, j, p),
                                             f"point {direction}",
                                             tuple(feeds.get(text, ())))
                     pts.append(text)
             text = f"{dname}.ok"
-            self.names[text] = Name(text, A.Type.BOOL, _ok_reader(j), "driver health",
+            self.names[text] = Signal(text, A.Type.BOOL, _ok_reader(j), "driver health",
                                     tuple(feeds.get(text, ())))
             pts.append(text)
             self.points[dname] = pts
@@ -114,23 +210,22 @@ class Catalogue:
         self.traced = [n for n in self.names.values() if n.role != "step time"]
 
     def _instance(self, i: int, name: str, inst: Any, bindings: dict[str, str]) -> None:
-        g, ix = inst.grafcet, inst.index
+        g, prog = inst.grafcet, inst.program
         groups: dict[str, list[str]] = {"inputs": [], "outputs": [], "memory": []}
         for key in inst.names():
             text = f"{name}.{key}"
             if key.endswith(".T") and key[:-2] in g.steps:
                 s = key[:-2]
-                n = Name(text, A.Type.TIME, _step_time_reader(i, ix[f"{s}.X"], ix["#ct"],
-                                                              ix[f"{s}.T0"], ix[f"{s}.TK"]),
+                n = Signal(text, A.Type.TIME, _step_time_reader(i, prog.step_time_reader(s)),
                          "step time")
             elif key.endswith(".X") and key[:-2] in g.steps:
-                n = Name(text, A.Type.BOOL, _slot_reader(i, ix[key]), "step")
+                n = Signal(text, A.Type.BOOL, _slot_reader(i, prog.x_index(key[:-2])), "step")
             elif key == "SFCCurrentStep":
-                leaf = tuple((s.name, ix[f"{s.name}.X"]) for s in g.leaf_steps())
-                n = Name(text, A.Type.STRING, _current_step_reader(i, leaf), "chart flag")
+                leaf = tuple((s.name, prog.x_index(s.name)) for s in g.leaf_steps())
+                n = Signal(text, A.Type.STRING, _current_step_reader(i, leaf), "chart flag")
             else:
                 v = g.variables[key]
-                n = Name(text, v.type, _slot_reader(i, ix[key]), v.kind.value,
+                n = Signal(text, v.type, _slot_reader(i, prog.var_index(key)), v.kind.value,
                          binding=bindings.get(text, ""))
                 if v.kind is VarKind.INPUT:
                     groups["inputs"].append(text)
@@ -141,16 +236,16 @@ class Catalogue:
             self.names[text] = n
         self.groups[name] = groups
 
-    def resolve(self, text: str) -> Name:
-        """The Name for ``text``; CommandError naming the closest one if unknown."""
+    def resolve(self, text: str) -> Signal:
+        """The Signal for ``text``; CommandError naming the closest one if unknown."""
         n = self.names.get(text)
         if n is None:
             raise CommandError(f"unknown name '{printable(text)}'{suggest(text, self.names)}")
         return n
 
-    def expand(self, words: list[str]) -> list[Name]:
+    def expand(self, words: list[str]) -> list[Signal]:
         """Names, where an instance or driver name alone stands for all its signals."""
-        out: list[Name] = []
+        out: list[Signal] = []
         for w in words:
             if w in self.groups:
                 g = self.groups[w]
@@ -161,7 +256,7 @@ class Catalogue:
                 out.append(self.resolve(w))
         return out
 
-    def physical_inputs(self) -> list[Name]:
+    def physical_inputs(self) -> list[Signal]:
         return [n for n in self.names.values() if n.role == "point in"]
 
     def capture(self, scan: int) -> Image:
@@ -185,11 +280,9 @@ def _slot_reader(i: int, idx: int) -> Callable[[Image], Any]:
     return lambda img: img.m[i][idx]
 
 
-def _step_time_reader(i: int, x: int, ct: int, t0: int, tk: int) -> Callable[[Image], Any]:
-    def read(img: Image) -> int:
-        m = img.m[i]
-        return int(m[ct] - m[t0]) if m[x] else int(m[tk])
-    return read
+def _step_time_reader(i: int, step_time: Callable[[list[Any]], int]
+                      ) -> Callable[[Image], Any]:
+    return lambda img: step_time(img.m[i])
 
 
 def _current_step_reader(i: int, leaf: tuple[tuple[str, int], ...]
@@ -211,7 +304,7 @@ def _ok_reader(j: int) -> Callable[[Image], Any]:
     return lambda img: img.ok[j]
 
 
-def parse_value(name: Name, text: str) -> Any:
+def parse_value(name: Signal, text: str) -> Any:
     """A value typed at the console -> the name's type; CommandError says what was
     expected."""
     t = name.type

@@ -11,21 +11,42 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 from drivers.base import Direction, Driver, FaultPolicy, Health
 from drivers.registry import driver_class
 from drivers.sim import SimDriver
 from runtime.compiler.codegen import Program, compile_grafcet
-from runtime.engine.instance import Instance, coerce
+from runtime.engine.instance import Instance, StepWhy, coerce
+from runtime.engine.names import Owner, PlantNames, UnknownName
 from runtime.language import ast as A
-from runtime.language.model import Binding, PlantDef, VarKind
+from runtime.language.model import Binding, Grafcet, PlantDef, VarKind
 
 log = logging.getLogger(__name__)
 
 
 class BindingError(ValueError):
     """A name given to force/set does not exist in the plant."""
+
+
+@dataclass(frozen=True, slots=True)
+class ForcedVariable:
+    """A chart variable held at ``value`` (of its type) until unforced."""
+
+    instance: str
+    slot: int  # its index in the instance's state list
+    value: Any
+
+
+@dataclass(frozen=True, slots=True)
+class ForcedPoint:
+    """A physical point held at ``value`` (a raw number) until unforced."""
+
+    driver: Driver
+    point: str
+    is_output: bool
+    value: Any
 
 
 class Plant:
@@ -46,13 +67,12 @@ class Plant:
         self.retain_interval_ns = pdef.retain_interval_ns
         self.start: int | None = None
         self.last_up = 0
-        self.programs: dict[int, Program] = {}
-        self.instances: dict[str, Instance] = {}
-        for name, idef in pdef.instances.items():
-            key = id(idef.grafcet)
-            if key not in self.programs:
-                self.programs[key] = compile_grafcet(idef.grafcet)
-            self.instances[name] = Instance(name, self.programs[key])
+        #: one program per distinct chart (the plant file's loader shares the Grafcet of a
+        #: file between its instances): the instances of a chart share its code
+        self.programs: list[Program] = []
+        self.instances: dict[str, Instance] = {
+            name: Instance(name, self._program(idef.grafcet))
+            for name, idef in pdef.instances.items()}
         self.drivers: dict[str, Driver] = {}
         for name, ddef in pdef.drivers.items():
             if drivers and name in drivers:
@@ -62,18 +82,22 @@ class Plant:
                 self.drivers[name] = SimDriver(name, cfg)
             else:
                 self.drivers[name] = driver_class(ddef.type)(name, ddef.config)
-        #: forced values: "instance.var" -> (instance, slot index, value)
-        self.forced: dict[str, tuple[str, int, Any]] = {}
-        #: forced physical points: "driver.point" -> (driver, point, is_output, value)
-        self.forced_points: dict[str, tuple[Driver, str, bool, Any]] = {}
+        #: forced variables by name ("instance.var"); change them with force/unforce
+        self.forced: dict[str, ForcedVariable] = {}
+        #: forced physical points by name ("driver.point"); change them with force/unforce
+        self.forced_points: dict[str, ForcedPoint] = {}
         self._forced_by_inst: dict[str, list[tuple[int, Any]]] = {}
         self._stash: list[tuple[Driver, str, Any]] = []
         self._pulses: list[tuple[str, int]] = []
-        self.hold = False  # console pause: charts not scanned, I/O still exchanged
-        self.steps_left = 0
+        #: console pause: charts not scanned, I/O still exchanged (pause/resume/step)
+        self.hold = False
+        self.steps_left = 0  # while held: full cycles still let through
         self.iocheck = False
         self.scans = 0
         self._declare_points()
+        #: the plant's names, resolved on the drivers' own point tables
+        self.names = PlantNames(pdef, {n: (d.inputs, d.outputs)
+                                       for n, d in self.drivers.items()})
         env: dict[str, Any] = {}
         self._env = env
         self._bind_env(env)
@@ -83,6 +107,15 @@ class Plant:
         self._copy_outputs: Callable[[], None] = env["copy_outputs"]
 
     # -- construction ----------------------------------------------------------------
+    def _program(self, g: Grafcet) -> Program:
+        """The program of chart ``g``, compiled the first time it is asked for."""
+        for p in self.programs:
+            if p.grafcet is g:
+                return p
+        p = compile_grafcet(g)
+        self.programs.append(p)
+        return p
+
     def _declare_points(self) -> None:
         for idef in self.pdef.instances.values():
             for direction, section in ((Direction.IN, idef.inputs), (Direction.OUT,
@@ -107,7 +140,7 @@ class Plant:
         if ref_name.endswith(".T") and ref_name[:-2] in other.grafcet.steps:
             val = f"ST_{other.name}({ref_name[:-2]!r})"
         else:
-            val = f"M_{other.name}[{other.index[ref_name]}]"
+            val = f"M_{other.name}[{other.program.index_of(ref_name)}]"
         return f"(not {val})" if b.invert else val
 
     def _generate(self, names: list[str]) -> str:
@@ -131,7 +164,8 @@ class Plant:
             add(f"    m = M_{name}")
             for sig, b in idef.inputs.items():
                 v = g.variables[sig]
-                add(f"    m[{inst.index[sig]}] = {self._input_expr(b, v.type)}  # {sig} <- "
+                slot = inst.program.var_index(sig)
+                add(f"    m[{slot}] = {self._input_expr(b, v.type)}  # {sig} <- "
                     f"{b.source}{' inverted' if b.invert else ''}")
             add(f"    if FI: force_instance({name!r}, m)")
             add(f"    S_{name}(m, now, up)")
@@ -159,7 +193,7 @@ class Plant:
         for name, inst in self.instances.items():
             idef = self.pdef.instances[name]
             for sig, b in idef.outputs.items():
-                val = f"M_{name}[{inst.index[sig]}]"
+                val = f"M_{name}[{inst.program.var_index(sig)}]"
                 if b.invert:
                     val = f"not {val}"
                 lines.append(f"    O_{b.driver}[{b.point!r}] = {val}  # {name}.{sig}")
@@ -251,13 +285,44 @@ class Plant:
             self._apply_point_forces(None)
 
     def step(self, n: int) -> None:
-        """While held: let exactly ``n`` full cycles through."""
+        """While held: let exactly ``n`` full cycles through (0 cancels)."""
         self.steps_left = n
+
+    def pause(self) -> bool:
+        """Hold the charts (I/O still exchanged), cancelling any steps; returns whether
+        they were held already."""
+        was = self.hold
+        self.hold = True
+        self.steps_left = 0
+        return was
+
+    def resume(self) -> bool:
+        """Let the charts run again; returns whether they were held."""
+        was = self.hold
+        self.hold = False
+        self.steps_left = 0
+        return was
+
+    @property
+    def held(self) -> bool:
+        """Whether the charts are held (console pause), stepping or not."""
+        return self.hold
+
+    @property
+    def stepping(self) -> bool:
+        """Whether cycles asked for by ``step`` are still to run."""
+        return self.steps_left > 0
+
+    def explain(self, instance: str) -> list[StepWhy]:
+        """``Instance.explain`` of one instance, at the time of the plant's last cycle."""
+        inst = self.instances[instance]
+        inst.last_up = self.last_up  # the plant scans without Instance.scan
+        return inst.explain()
 
     def pulse(self, instance: str, flag: str) -> None:
         """Hold a chart flag (SFCInit/SFCReset) true for the next scan only."""
         inst = self.instances[instance]
-        self._pulses.append((instance, inst.index[flag]))
+        self._pulses.append((instance, inst.program.var_index(flag)))
 
     def set_iocheck(self, on: bool) -> None:
         """Commissioning mode: charts stopped, every output off; leaving it turns every
@@ -307,14 +372,13 @@ class Plant:
     # -- names, set and force --------------------------------------------------------
     def resolve(self, name: str) -> tuple[str, Any]:
         """``instance.var`` -> ("instance", Instance) or ``driver.point`` -> ("point", Driver)."""
-        head, _, rest = name.partition(".")
-        if head in self.instances and rest:
+        try:
+            owner, head, _ = self.names.owner(name)
+        except UnknownName as exc:
+            raise BindingError(str(exc)) from None
+        if owner is Owner.INSTANCE:
             return "instance", self.instances[head]
-        if head in self.drivers and rest:
-            d = self.drivers[head]
-            if rest in d.inputs or rest in d.outputs or rest == "ok":
-                return "point", d
-        raise BindingError(f"unknown name '{name}'")
+        return "point", self.drivers[head]
 
     def get(self, name: str) -> Any:
         kind, obj = self.resolve(name)
@@ -350,13 +414,14 @@ class Plant:
             v = obj.grafcet.variables.get(rest)
             if v is None or v.kind in (VarKind.SYSTEM,) or v.type is A.Type.STRING:
                 raise BindingError(f"'{name}' cannot be forced")
-            self.forced[name] = (obj.name, obj.index[rest], coerce(v.type, value))
+            self.forced[name] = ForcedVariable(obj.name, obj.program.var_index(rest),
+                                               coerce(v.type, value))
             self._rebuild_instance_forces()
         else:
             if rest == "ok":
                 raise BindingError(f"'{name}' cannot be forced")
-            self.forced_points[name] = (obj, rest, rest in obj.outputs,
-                                        int(coerce(A.Type.INT, value)))
+            self.forced_points[name] = ForcedPoint(obj, rest, rest in obj.outputs,
+                                                   int(coerce(A.Type.INT, value)))
 
     def unforce(self, name: str | None = None) -> None:
         """Release one forced name, or every force when ``name`` is None."""
@@ -370,10 +435,24 @@ class Plant:
             self.forced_points.pop(name, None)
         self._rebuild_instance_forces()
 
+    def is_forced(self, name: str) -> bool:
+        """Whether ``name`` (a variable or a point) is forced."""
+        return name in self.forced or name in self.forced_points
+
+    def forced_names(self) -> list[str]:
+        """Every forced name: variables, then points."""
+        return [*self.forced, *self.forced_points]
+
+    def forced_values(self) -> dict[str, Any]:
+        """Every forced name with its forced value (a variable's of its type, a point's
+        raw), variables first."""
+        return {**{k: f.value for k, f in self.forced.items()},
+                **{k: f.value for k, f in self.forced_points.items()}}
+
     def _rebuild_instance_forces(self) -> None:
         self._forced_by_inst.clear()
-        for inst, idx, value in self.forced.values():
-            self._forced_by_inst.setdefault(inst, []).append((idx, value))
+        for f in self.forced.values():
+            self._forced_by_inst.setdefault(f.instance, []).append((f.slot, f.value))
 
     def _apply_instance_forces(self, inst: str, m: list[Any]) -> None:
         for idx, value in self._forced_by_inst.get(inst, ()):
@@ -388,11 +467,12 @@ class Plant:
                 d.inputs[point] = value
             self._stash.clear()
             return
-        for d, point, is_out, value in self.forced_points.values():
-            if is_out != outputs:
+        for f in self.forced_points.values():
+            if f.is_output != outputs:
                 continue
-            if is_out:
-                d.outputs[point] = value
+            d = f.driver
+            if f.is_output:
+                d.outputs[f.point] = f.value
             else:
-                self._stash.append((d, point, d.inputs[point]))
-                d.inputs[point] = value
+                self._stash.append((d, f.point, d.inputs[f.point]))
+                d.inputs[f.point] = f.value

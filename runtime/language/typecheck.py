@@ -16,6 +16,8 @@ from collections.abc import Callable
 from runtime.errors import Loc, SourceError, suggest
 from runtime.language import ast as A
 from runtime.language.model import Grafcet, Variable, VarKind
+from runtime.language.signatures import FB_MEMBERS as FB_MEMBERS  # re-exported
+from runtime.language.signatures import TIMER_METHODS
 
 T = A.Type
 NUMERIC = (T.INT, T.REAL)
@@ -31,23 +33,6 @@ CLOCK_PERIOD_NS = {"Clock_10Hz": 100_000_000, "Clock_5Hz": 200_000_000,
                    "Clock_2Hz": 500_000_000, "Clock_1Hz": 1_000_000_000,
                    "Clock_0_5Hz": 2_000_000_000}
 
-#: function block kind -> member -> (type, is_input)
-FB_MEMBERS: dict[str, dict[str, tuple[A.Type, bool]]] = {
-    "TON": {"IN": (T.BOOL, True), "PT": (T.TIME, True), "Q": (T.BOOL, False),
-            "ET": (T.TIME, False)},
-    "CTU": {"CU": (T.BOOL, True), "R": (T.BOOL, True), "PV": (T.INT, True),
-            "Q": (T.BOOL, False), "CV": (T.INT, False)},
-    "CTD": {"CD": (T.BOOL, True), "LD": (T.BOOL, True), "PV": (T.INT, True),
-            "Q": (T.BOOL, False), "CV": (T.INT, False)},
-    "CTUD": {"CU": (T.BOOL, True), "CD": (T.BOOL, True), "R": (T.BOOL, True),
-             "LD": (T.BOOL, True), "PV": (T.INT, True), "QU": (T.BOOL, False),
-             "QD": (T.BOOL, False), "CV": (T.INT, False)},
-    "R_TRIG": {"CLK": (T.BOOL, True), "Q": (T.BOOL, False)},
-    "SR": {"S1": (T.BOOL, True), "R": (T.BOOL, True), "Q1": (T.BOOL, False)},
-    "RS": {"S": (T.BOOL, True), "R1": (T.BOOL, True), "Q1": (T.BOOL, False)},
-}
-FB_MEMBERS["TOF"] = FB_MEMBERS["TP"] = FB_MEMBERS["TON"]
-FB_MEMBERS["F_TRIG"] = FB_MEMBERS["R_TRIG"]
 
 WRITABLE_FLAGS = ("SFCInit", "SFCReset", "SFCPause", "SFCEnableLimit", "SFCQuitError",
                   "SFCTipMode", "SFCTip", "SFCError")
@@ -81,7 +66,13 @@ def ambiguous(n: A.Node) -> bool:
 
 
 class Checker:
-    """Types the expressions and statements of one grafcet, creating its temporaries."""
+    """Types the expressions and statements of one grafcet, creating its temporaries.
+
+    It annotates the syntax trees in place: each node's ``type``, the seed ``+``/``·``
+    rewritten to OR/AND or ADD/MUL, a 0/1 literal's value as bool or int. Only the chart
+    loader runs it, on trees it has just parsed, before ``load_grafcet`` caches and shares
+    the Grafcet; nothing types a cached tree again (the compiler and the checker only read
+    the annotations)."""
 
     def __init__(self, g: Grafcet) -> None:
         self.g = g
@@ -264,20 +255,20 @@ class Checker:
             self.want_bool(n.args[1], "a bool condition in Set")
             return vt
         if n.obj not in self.g.timers:
-            if m in ("Ini", "End", "Reset", "Val"):
+            if m in TIMER_METHODS:
                 raise self.err(n, f"unknown timer '{n.obj}'{suggest(n.obj, self.g.timers)}")
             raise self.err(n, f"unknown method '{m}': expected Ini End Reset Val (timers) or "
                               "Set (variables)")
-        if m not in ("Ini", "End", "Reset", "Val"):
+        if m not in TIMER_METHODS:
             raise self.err(n, f"timer '{n.obj}' has no method '{m}': expected Ini End Reset Val")
-        want = {"Ini": 1, "End": 0, "Reset": 0, "Val": 0}[m]
+        want, result, statement = TIMER_METHODS[m]
         if len(n.args) != want:
             raise self.err(n, f"expected {want} argument(s) for {n.obj}.{m}, found "
                               f"{len(n.args)}")
-        if m in ("Ini", "Reset") and not as_statement:
+        if statement and not as_statement:
             raise self.err(n, f"expected a value, found the statement {n.obj}.{m}(): "
                               "call it on its own")
-        if m in ("End", "Val") and as_statement:
+        if not statement and as_statement:
             raise self.err(n, f"expected a statement, found the value {n.obj}.{m}(): use it "
                               "in an expression")
         if m == "Ini":
@@ -285,7 +276,7 @@ class Checker:
             if t is not T.TIME:
                 raise self.err(n.args[0], f"type error: expected a time for {n.obj}.Ini, found "
                                           f"{t} '{self._text(n.args[0])}'")
-        return T.BOOL if m == "End" else T.TIME
+        return result
 
     # -- statements ----------------------------------------------------------------
     def _target_type(self, target: A.Name) -> A.Type:

@@ -23,7 +23,7 @@ from drivers.durations import (
 )
 from runtime.drawing.chronogram import parse_ms
 from runtime.engine.instance import coerce
-from runtime.engine.names import CommandError, Name, parse_value
+from runtime.engine.names import CommandError, Signal, parse_value
 from runtime.errors import Loc, SourceError
 from runtime.language import ast as A
 from runtime.language.grafcetfile import time_value
@@ -222,8 +222,8 @@ def test_coerce_numbers() -> None:
     assert coerce(A.Type.TIME, 2.7) == 2
 
 
-def _time_name() -> Name:
-    return Name("T1", A.Type.TIME, lambda img: 0, "memory")
+def _time_name() -> Signal:
+    return Signal("T1", A.Type.TIME, lambda img: 0, "memory")
 
 
 @pytest.mark.parametrize("text", PARSE_VALUE_OK)

@@ -1,0 +1,161 @@
+"""A compiled grafcet: its scan function, the layout of its state list, and the accessors.
+
+The state list ``m`` of an instance holds every variable, each step's ``X``, the times its
+``.T`` is made of, every function block and the scan's own memory. Only the compiler knows
+the layout; everything else reads and writes through a Program's methods, by the names a
+person uses (``iMarcha``, a step's X and T).
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from runtime.compiler import blocks as B
+from runtime.language import ast as A
+from runtime.language.model import Grafcet
+
+
+class SlotKind(enum.Enum):
+    """What one entry of the state list holds."""
+
+    VARIABLE = "variable"  # a chart variable or flag (not the SYSTEM clock bits)
+    STEP_X = "step X"  # a step's activity
+    STEP_START = "step start"  # chart clock (ns) at the step's activation
+    STEP_LAST = "step last T"  # the step's .T (ns) frozen when it was left
+    BLOCK = "block"  # a function-block or seed-timer object
+    CLOCK = "chart clock"  # chart time (ns): advances unless the chart is paused
+    INTERNAL = "internal"  # the scan's own memory (edges, stored actions, flags' history)
+
+
+@dataclass
+class Slot:
+    """One entry of an instance's state list."""
+
+    key: str  # the compiler's own key: "iParo", "gsAbrir.X", "#ct" ...
+    local: str  # name of the local in the scan function
+    init: Any
+    block: str | None = None  # function-block kind to instantiate per instance
+    kind: SlotKind = SlotKind.INTERNAL
+    name: str = ""  # the variable, step or block it belongs to ("" for internal memory)
+    type: A.Type | None = None  # a variable's type, BOOL for X, TIME for the step times
+    index: int = 0  # position in the state list
+
+
+def step_time_code(x: str, ct: str, t0: str, tk: str) -> str:
+    """The expression of ``step.T`` (ns), given the expressions of the step's X, the chart
+    clock, the clock at its activation and the .T kept when it was left: the time since
+    activation while active, else the duration of its last activity. The one place this
+    formula is written: the scan function inlines it, Program evaluates it."""
+    return f"({ct} - {t0} if {x} else {tk})"
+
+
+@dataclass
+class Probe:
+    """A sub-term of a transition condition that ``explain`` evaluates on an instance."""
+
+    text: str
+    depth: int
+    fn: Callable[[list[Any], int, int], Any]
+
+
+@dataclass
+class Program:
+    """A compiled grafcet: generated source, scan function, state layout and accessors."""
+
+    grafcet: Grafcet
+    source: str
+    scan: Callable[[list[Any], int, int], None]
+    slots: list[Slot]
+    probes: dict[int, list[Probe]] = field(default_factory=dict)  # transition -> sub-terms
+    _by_key: dict[str, int] = field(init=False, repr=False)
+    _step_times: dict[str, Callable[[list[Any]], int]] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self._by_key = {s.key: s.index for s in self.slots}
+        self._step_times = {}
+
+    def new_state(self) -> list[Any]:
+        """A fresh state list: initial values, one new object per function block."""
+        state = []
+        for s in self.slots:
+            if s.block == "SeedTimer":
+                state.append(B.SeedTimer())
+            elif s.block is not None:
+                state.append(B.BLOCKS[s.block]())
+            else:
+                state.append(s.init)
+        return state
+
+    # -- where things are ------------------------------------------------------------
+    def var_index(self, name: str) -> int:
+        """Slot of variable ``name``; KeyError if it has none (unknown, a SYSTEM bit)."""
+        s = self.slots[self._by_key[name]]
+        if s.kind is not SlotKind.VARIABLE:
+            raise KeyError(name)
+        return s.index
+
+    def x_index(self, step: str) -> int:
+        """Slot of ``step.X``; KeyError for an unknown step."""
+        return self._by_key[f"{step}.X"]
+
+    def block_index(self, name: str) -> int:
+        """Slot of the function block or seed timer ``name``."""
+        s = self.slots[self._by_key[name]]
+        if s.kind is not SlotKind.BLOCK:
+            raise KeyError(name)
+        return s.index
+
+    def index_of(self, name: str) -> int:
+        """Slot of a readable name as a plant file writes it: a variable or ``step.X``."""
+        if name.endswith(".X") and name[:-2] in self.grafcet.steps:
+            return self.x_index(name[:-2])
+        return self.var_index(name)
+
+    def public_index(self) -> dict[str, int]:
+        """Slot of every name outside code may address: variables, ``step.X``, blocks."""
+        out = {}
+        for s in self.slots:
+            if s.kind in (SlotKind.VARIABLE, SlotKind.BLOCK):
+                out[s.name] = s.index
+            elif s.kind is SlotKind.STEP_X:
+                out[f"{s.name}.X"] = s.index
+        return out
+
+    # -- reading and writing a state list -------------------------------------------
+    def read(self, m: list[Any], name: str) -> Any:
+        """Value of variable ``name`` in state list ``m``."""
+        return m[self.var_index(name)]
+
+    def write(self, m: list[Any], name: str, value: Any) -> None:
+        """Store ``value`` (already of the variable's type) into variable ``name``."""
+        m[self.var_index(name)] = value
+
+    def step_active(self, m: list[Any], step: str) -> bool:
+        """``step.X`` in ``m``."""
+        return bool(m[self.x_index(step)])
+
+    def step_time(self, m: list[Any], step: str) -> int:
+        """``step.T`` (ns) in ``m``, as the chart sees it (kept after deactivation)."""
+        return self.step_time_reader(step)(m)
+
+    def step_time_reader(self, step: str) -> Callable[[list[Any]], int]:
+        """A function of a state list giving ``step.T`` (ns); built once per step."""
+        fn = self._step_times.get(step)
+        if fn is None:
+            ix = self._by_key
+            code = step_time_code(f"m[{ix[step + '.X']}]", f"m[{ix['#ct']}]",
+                                  f"m[{ix[step + '.T0']}]", f"m[{ix[step + '.TK']}]")
+            fn = eval(f"lambda m: int({code})", {})  # noqa: S307 - our own code
+            self._step_times[step] = fn
+        return fn
+
+    def scan_time(self, m: list[Any]) -> int:
+        """Monotonic time (ns) of the last scan of ``m``."""
+        return int(m[self._by_key["#last"]])
+
+    def chart_paused(self, m: list[Any]) -> bool:
+        """Whether the last scan of ``m`` was paused (SFCPause/SFCQuitError)."""
+        return bool(m[self._by_key["#paused"]])
