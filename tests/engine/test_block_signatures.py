@@ -18,7 +18,8 @@ def test_every_declared_block_is_implemented() -> None:
 @pytest.mark.parametrize("kind", sorted(FB_MEMBERS))
 def test_members_and_their_types(kind: str) -> None:
     cls = BLOCKS[kind]
-    public = {s for s in getattr(cls, "__slots__") if not s.startswith("_")}
+    slots: tuple[str, ...] = cls.__slots__  # type: ignore[attr-defined]
+    public = {s for s in slots if not s.startswith("_")}
     assert public == set(FB_MEMBERS[kind])
     block = cls()
     for member, (mtype, _) in FB_MEMBERS[kind].items():
