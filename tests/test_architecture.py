@@ -39,7 +39,8 @@ ALLOWED: dict[str, frozenset[str]] = {
     "runtime.console": frozenset({"runtime.errors", "runtime.language", "runtime.compiler",
                                   "runtime.engine", "runtime.controller", "drivers.contract"}),
     "runtime.checker": frozenset({"runtime.errors", "runtime.language", "runtime.compiler",
-                                  "runtime.engine.names", "drivers.contract"}),
+                                  "runtime.engine.names", "runtime.engine.script",
+                                  "drivers.contract"}),
     "runtime.drawing": frozenset({"runtime.errors", "runtime.language", "drivers.contract"}),
     "runtime.cli": frozenset({"*"}),
 }
