@@ -1,14 +1,29 @@
-"""Loading plant files: cycle, drivers, instances and their bindings (language.md)."""
+"""Loading plant files: cycle, drivers, instances and their bindings (language.md).
+
+Without a list of diagnostics the loader raises the first error; with one (``PlantLoad``),
+it records the binding errors it can go on after (G301 unbound signal, G302 physical output
+bound twice) and the load errors of its charts (that instance is left out), and raises only
+the others.
+"""
 
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass, field
 from typing import Any
 
-from runtime.errors import Loc, SourceError, suggest
+from runtime.errors import Diagnostic, Loc, SourceError, suggest
 from runtime.language import ast as A
 from runtime.language.grafcetfile import check_keys, expect_type, load_grafcet, time_value
-from runtime.language.model import Binding, ConsoleEntry, DriverDef, InstanceDef, PlantDef, VarKind
+from runtime.language.model import (
+    Binding,
+    ConsoleEntry,
+    DriverDef,
+    Grafcet,
+    InstanceDef,
+    PlantDef,
+    VarKind,
+)
 from runtime.language.typecheck import FLAGS_BOOL
 from runtime.language.yamlsrc import YMap, load_yaml
 
@@ -25,6 +40,32 @@ DRIVER_KEYS: dict[str, tuple[str, ...]] = {
     "modbus_rtu": ("port", "baudrate", "parity", "unit", "timeout", "retries", "stopbits"),
 }
 MONITOR_KEYS = ("serial", "socket", "tcp", "pin_hash", "release_forces_on_disconnect")
+
+
+@dataclass
+class PlantLoad:
+    """One load of a plant file: the charts it read and, if collected, its diagnostics.
+
+    Each chart file is read once per load and its Grafcet shared by every instance that
+    names it (the engine compiles each distinct Grafcet once); nothing outlives the load.
+    """
+
+    diagnostics: list[Diagnostic] | None = None
+    charts: dict[str, Grafcet] = field(default_factory=dict)  # real path -> chart
+    chart_files: list[str] = field(default_factory=list)  # as named, instance order, once each
+
+    def chart(self, path: str) -> Grafcet:
+        """The chart of file ``path``, read at its first use in this load."""
+        real = os.path.realpath(path)
+        if real not in self.charts:
+            self.charts[real] = load_grafcet(path)
+        return self.charts[real]
+
+    def rule(self, code: str, loc: Loc, message: str) -> None:
+        """A binding error the load can go on after: raised, or recorded if collected."""
+        if self.diagnostics is None:
+            raise SourceError(loc, message, code)
+        self.diagnostics.append(Diagnostic(code, loc, message))
 
 
 def _resolve(base: str, path: str) -> str:
@@ -50,8 +91,12 @@ def _binding(signal: str, spec: Any, loc: Loc) -> Binding:
     return Binding(signal, str(source), loc, invert)
 
 
-def load_plant(path: str) -> PlantDef:
-    """Load a plant file and every grafcet it names; bindings fully checked."""
+def load_plant(path: str, load: PlantLoad | None = None) -> PlantDef:
+    """Load a plant file and every grafcet it names; bindings fully checked.
+
+    ``load``: a ``PlantLoad`` with a list of diagnostics to collect them (see the module's
+    docstring); by default, a load of its own that raises the first error."""
+    load = PlantLoad() if load is None else load
     doc = load_yaml(path)
     if not isinstance(doc, YMap):
         raise SourceError(Loc(path, 1, 1), "expected a YAML mapping with 'instances:'")
@@ -111,7 +156,15 @@ def load_plant(path: str) -> PlantDef:
         gpath = _resolve(path, str(spec["grafcet"]))
         if not os.path.exists(gpath):
             raise SourceError(spec.val_locs["grafcet"], f"grafcet file not found: {gpath}")
-        g = load_grafcet(gpath)
+        if gpath not in load.chart_files:
+            load.chart_files.append(gpath)
+        try:
+            g = load.chart(gpath)
+        except SourceError as exc:
+            if load.diagnostics is None:
+                raise
+            load.diagnostics.append(exc.diagnostic)
+            continue  # the instance is left out
         inst = InstanceDef(name, g, loc)
         for key in ("inputs", "outputs"):
             section = spec.get(key) or YMap()
@@ -136,18 +189,17 @@ def load_plant(path: str) -> PlantDef:
             bound = getattr(inst, key)
             for var in signals:
                 if var.name not in bound:
-                    raise SourceError(spec.key_locs.get(key, loc), f"instance '{name}' leaves "
-                                      f"{key[:-1]} '{var.name}' of grafcet {g.name} unbound: "
-                                      f"expected a binding '{var.name}: driver.point' in "
-                                      f"'{key}', found none")
+                    load.rule("G301", spec.key_locs.get(key, loc), f"instance '{name}' leaves "
+                              f"{key[:-1]} '{var.name}' of grafcet {g.name} unbound: expected "
+                              f"a binding '{var.name}: driver.point' in '{key}', found none")
         p.instances[name] = inst
-    _resolve_bindings(p)
+    _resolve_bindings(p, load)
     if "monitor" in doc and doc["monitor"] is not None:
         _monitor(p, doc["monitor"], doc.val_locs["monitor"])
     return p
 
 
-def _resolve_bindings(p: PlantDef) -> None:
+def _resolve_bindings(p: PlantDef, load: PlantLoad) -> None:
     driven: dict[str, tuple[str, Binding]] = {}
     for inst in p.instances.values():
         for key in ("inputs", "outputs"):
@@ -163,12 +215,13 @@ def _resolve_bindings(p: PlantDef) -> None:
                     if key == "outputs":
                         if b.source in driven:
                             other_inst, other = driven[b.source]
-                            raise SourceError(b.loc, f"physical output '{b.source}' is bound "
-                                              f"twice: expected one output per point, found "
-                                              f"'{inst.name}.{b.signal}' and "
-                                              f"'{other_inst}.{other.signal}' (line "
-                                              f"{other.loc.line})")
-                        driven[b.source] = (inst.name, b)
+                            load.rule("G302", b.loc, f"physical output '{b.source}' is bound "
+                                      f"twice: expected one output per point, found "
+                                      f"'{inst.name}.{b.signal}' and "
+                                      f"'{other_inst}.{other.signal}' (line "
+                                      f"{other.loc.line})")
+                        else:
+                            driven[b.source] = (inst.name, b)
                 elif head in p.instances and key == "inputs":
                     chart = p.instances[head].grafcet
                     found: A.Type | None = None
