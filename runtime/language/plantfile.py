@@ -1,9 +1,10 @@
 """Loading plant files: cycle, drivers, instances and their bindings (language.md).
 
 Without a list of diagnostics the loader raises the first error; with one (``PlantLoad``),
-it records the binding errors it can go on after (G301 unbound signal, G302 physical output
-bound twice) and the load errors of its charts (that instance is left out), and raises only
-the others.
+it records, in the order it meets them, the errors it can go on after: the binding errors
+(G301 unbound signal, G302 physical output bound twice, and the faults of one binding, which
+is then left out) and the load errors of its charts (that instance is left out); it raises
+the others. The plant it returns is whole only if it recorded nothing.
 """
 
 from __future__ import annotations
@@ -61,11 +62,11 @@ class PlantLoad:
             self.charts[real] = load_grafcet(path)
         return self.charts[real]
 
-    def rule(self, code: str, loc: Loc, message: str) -> None:
-        """A binding error the load can go on after: raised, or recorded if collected."""
+    def report(self, error: SourceError) -> None:
+        """An error the load can go on after: raised, or recorded if collected."""
         if self.diagnostics is None:
-            raise SourceError(loc, message, code)
-        self.diagnostics.append(Diagnostic(code, loc, message))
+            raise error
+        self.diagnostics.append(error.diagnostic)
 
 
 def _resolve(base: str, path: str) -> str:
@@ -161,17 +162,20 @@ def load_plant(path: str, load: PlantLoad | None = None) -> PlantDef:
         try:
             g = load.chart(gpath)
         except SourceError as exc:
-            if load.diagnostics is None:
-                raise
-            load.diagnostics.append(exc.diagnostic)
+            load.report(exc)
             continue  # the instance is left out
         inst = InstanceDef(name, g, loc)
+        written: dict[str, YMap] = {}
         for key in ("inputs", "outputs"):
-            section = spec.get(key) or YMap()
+            section = written[key] = spec.get(key) or YMap()
             if section:
                 expect_type(section, spec.val_locs[key], YMap, f"a mapping of {key}")
             for sig, bspec in section.items():
-                b = _binding(sig, bspec, section.val_locs[sig])
+                try:
+                    b = _binding(sig, bspec, section.val_locs[sig])
+                except SourceError as exc:
+                    load.report(exc)
+                    continue  # the binding is left out
                 v = g.variables.get(sig)
                 if key == "inputs":
                     ok = v is not None and (v.kind is VarKind.INPUT or sig in FLAGS_BOOL)
@@ -180,18 +184,21 @@ def load_plant(path: str, load: PlantLoad | None = None) -> PlantDef:
                     ok = v is not None and v.kind is VarKind.OUTPUT
                     wanted = [x.name for x in g.outputs]
                 if not ok:
-                    raise SourceError(section.key_locs[sig], f"'{sig}' is not an "
-                                      f"{key[:-1]} of grafcet {g.name}{suggest(sig, wanted)}")
+                    load.report(SourceError(section.key_locs[sig], f"'{sig}' is not an "
+                                            f"{key[:-1]} of grafcet {g.name}"
+                                            f"{suggest(sig, wanted)}"))
+                    continue
                 if b.invert and v is not None and v.type is not A.Type.BOOL:
-                    raise SourceError(b.loc, f"invert applies to bools only; '{sig}' is {v.type}")
+                    load.report(SourceError(b.loc, f"invert applies to bools only; '{sig}' is "
+                                                   f"{v.type}"))
                 getattr(inst, key)[sig] = b
         for key, signals in (("inputs", g.inputs), ("outputs", g.outputs)):
-            bound = getattr(inst, key)
             for var in signals:
-                if var.name not in bound:
-                    load.rule("G301", spec.key_locs.get(key, loc), f"instance '{name}' leaves "
-                              f"{key[:-1]} '{var.name}' of grafcet {g.name} unbound: expected "
-                              f"a binding '{var.name}: driver.point' in '{key}', found none")
+                if var.name not in written[key]:  # a binding left out is not unbound
+                    load.report(SourceError(spec.key_locs.get(key, loc), f"instance '{name}' "
+                                f"leaves {key[:-1]} '{var.name}' of grafcet {g.name} unbound: "
+                                f"expected a binding '{var.name}: driver.point' in '{key}', "
+                                "found none", "G301"))
         p.instances[name] = inst
     _resolve_bindings(p, load)
     if "monitor" in doc and doc["monitor"] is not None:
@@ -209,17 +216,17 @@ def _resolve_bindings(p: PlantDef, load: PlantLoad) -> None:
                 if head in p.drivers:
                     b.driver, b.point = head, rest
                     if rest == "ok" and want is not A.Type.BOOL:
-                        raise SourceError(b.loc, f"type error: expected a {want} source for "
-                                          f"'{inst.name}.{b.signal}', found the bool "
-                                          f"'{b.source}' (driver health)")
+                        load.report(SourceError(b.loc, f"type error: expected a {want} source "
+                                                f"for '{inst.name}.{b.signal}', found the bool "
+                                                f"'{b.source}' (driver health)"))
                     if key == "outputs":
                         if b.source in driven:
                             other_inst, other = driven[b.source]
-                            load.rule("G302", b.loc, f"physical output '{b.source}' is bound "
-                                      f"twice: expected one output per point, found "
-                                      f"'{inst.name}.{b.signal}' and "
-                                      f"'{other_inst}.{other.signal}' (line "
-                                      f"{other.loc.line})")
+                            load.report(SourceError(b.loc, f"physical output '{b.source}' is "
+                                                    "bound twice: expected one output per "
+                                                    f"point, found '{inst.name}.{b.signal}' "
+                                                    f"and '{other_inst}.{other.signal}' (line "
+                                                    f"{other.loc.line})", "G302"))
                         else:
                             driven[b.source] = (inst.name, b)
                 elif head in p.instances and key == "inputs":
@@ -232,21 +239,22 @@ def _resolve_bindings(p: PlantDef, load: PlantLoad) -> None:
                         found = A.Type.BOOL if rest.endswith(".X") else A.Type.TIME
                     if found is None:
                         names = [*chart.variables, *(f"{s}.X" for s in chart.steps)]
-                        raise SourceError(b.loc, f"instance '{head}' has no signal '{rest}'"
-                                                 f"{suggest(rest, names)}")
-                    if found is not want:
-                        raise SourceError(b.loc, f"type error: expected a {want} signal for "
-                                          f"'{inst.name}.{b.signal}', found {found} "
-                                          f"'{b.source}'")
-                    b.instance, b.ref = head, rest
+                        load.report(SourceError(b.loc, f"instance '{head}' has no signal "
+                                                f"'{rest}'{suggest(rest, names)}"))
+                    elif found is not want:
+                        load.report(SourceError(b.loc, f"type error: expected a {want} signal "
+                                                f"for '{inst.name}.{b.signal}', found {found} "
+                                                f"'{b.source}'"))
+                    else:
+                        b.instance, b.ref = head, rest
                 elif head in p.instances:
-                    raise SourceError(b.loc, f"expected a driver point for output "
-                                             f"'{b.signal}', found instance '{head}' (an "
-                                             "instance's signal can feed an input only)")
+                    load.report(SourceError(b.loc, f"expected a driver point for output "
+                                                   f"'{b.signal}', found instance '{head}' (an "
+                                                   "instance's signal can feed an input only)"))
                 else:
                     where = list(p.drivers) + (list(p.instances) if key == "inputs" else [])
-                    raise SourceError(b.loc, f"unknown driver or instance '{head}' in "
-                                             f"'{b.source}'{suggest(head, where)}")
+                    load.report(SourceError(b.loc, f"unknown driver or instance '{head}' in "
+                                                   f"'{b.source}'{suggest(head, where)}"))
 
 
 def _need(m: YMap, key: str, what: str) -> Any:
