@@ -5,7 +5,9 @@ G201 OR divergence not exclusive, G202 action that never executes, G203 divergen
 closed, G204 same level condition on consecutive transitions, G205 counting statement in a
 continuous action, G206 deadlock, G207 bool promoted to a number in a comparison, G208
 transition that never fires, G209 analysis cut by its bounds (docs/check.md). The rules
-that the loader enforces itself (G101, G105, G106) are reported by runtime/checker/check.py.
+that the loader enforces itself (G101, G105, G106) are the loader's diagnostics, printed by
+runtime/checker/check.py. Positions inside a condition or an action come from the model
+(``Transition.at``, ``Action.at``, ``Statement.at``).
 """
 
 from __future__ import annotations
