@@ -149,17 +149,20 @@ def load_plant(path: str, load: PlantLoad | None = None) -> PlantDef:
     for name, spec in instances.items():
         loc = instances.key_locs[name]
         if not str(name).isidentifier():
-            raise SourceError(loc, f"expected an instance name, found '{name}'")
-        spec = expect_type(spec, instances.val_locs[name], YMap, f"instance '{name}'")
-        check_keys(spec, INSTANCE_KEYS, f"instance '{name}'")
-        if "grafcet" not in spec:
-            raise SourceError(spec.loc, f"instance '{name}' needs 'grafcet: FILE'")
-        gpath = _resolve(path, str(spec["grafcet"]))
-        if not os.path.exists(gpath):
-            raise SourceError(spec.val_locs["grafcet"], f"grafcet file not found: {gpath}")
-        if gpath not in load.chart_files:
-            load.chart_files.append(gpath)
-        try:
+            load.report(SourceError(loc, f"expected an instance name, found '{name}'"))
+        try:  # an error here leaves the instance out (when collected)
+            spec = expect_type(spec, instances.val_locs[name], YMap, f"instance '{name}'")
+            try:  # an unknown key does not
+                check_keys(spec, INSTANCE_KEYS, f"instance '{name}'")
+            except SourceError as exc:
+                load.report(exc)
+            if "grafcet" not in spec:
+                raise SourceError(spec.loc, f"instance '{name}' needs 'grafcet: FILE'")
+            gpath = _resolve(path, str(spec["grafcet"]))
+            if not os.path.exists(gpath):
+                raise SourceError(spec.val_locs["grafcet"], f"grafcet file not found: {gpath}")
+            if gpath not in load.chart_files:
+                load.chart_files.append(gpath)
             g = load.chart(gpath)
         except SourceError as exc:
             load.report(exc)
@@ -167,9 +170,14 @@ def load_plant(path: str, load: PlantLoad | None = None) -> PlantDef:
         inst = InstanceDef(name, g, loc)
         written: dict[str, YMap] = {}
         for key in ("inputs", "outputs"):
-            section = written[key] = spec.get(key) or YMap()
+            section = spec.get(key) or YMap()
             if section:
-                expect_type(section, spec.val_locs[key], YMap, f"a mapping of {key}")
+                try:
+                    expect_type(section, spec.val_locs[key], YMap, f"a mapping of {key}")
+                except SourceError as exc:
+                    load.report(exc)
+                    section = YMap()  # its signals are then unbound
+            written[key] = section
             for sig, bspec in section.items():
                 try:
                     b = _binding(sig, bspec, section.val_locs[sig])

@@ -138,6 +138,29 @@ def test_plant_binding_errors_are_all_recorded_in_one_load(tmp_path: Path) -> No
     assert load.chart_files == [str(tmp_path / "small.yaml")]
 
 
+def test_an_instance_that_does_not_load_is_left_out_and_the_others_checked(
+        tmp_path: Path) -> None:
+    write(tmp_path, "small.yaml", CHART)
+    path = write(tmp_path, "plant.yaml", """\
+drivers: {sim: {type: sim}}
+instances:
+  a: {grafcet: small.yaml, inputs: {iA: sim.I0}, outputs: {oX: sim.Q0, oY: sim.Q1}}
+  b: {grafcet: missing.yaml}
+  c: {grafcet: small.yaml, colour: red, inputs: [iA], outputs: {oX: sim.Q2, oY: sim.Q3}}
+""")
+    load = PlantLoad([])
+    p = load_plant(path, load)
+    assert load.diagnostics is not None
+    assert [(d.code, d.loc.line, d.message.split(":")[0]) for d in load.diagnostics] == [
+        ("G301", 3, "instance 'a' leaves input 'iB' of grafcet Small unbound"),
+        ("", 4, "grafcet file not found"),
+        ("", 5, "unknown key 'colour' in instance 'c'"),
+        ("", 5, "expected a mapping of inputs, found a list"),
+        ("G301", 5, "instance 'c' leaves input 'iA' of grafcet Small unbound"),
+        ("G301", 5, "instance 'c' leaves input 'iB' of grafcet Small unbound")]
+    assert list(p.instances) == ["a", "c"]
+
+
 def test_a_chart_error_in_a_plant_is_recorded_and_its_instance_left_out(
         tmp_path: Path) -> None:
     write(tmp_path, "small.yaml", CHART)
