@@ -2,8 +2,8 @@
 
 Plant files are loaded by runtime.language.plantfile, which uses this module for their charts.
 Without a list of diagnostics the loader raises the first error; with one, it records the
-rule errors of seed 000 that it can go on after (G101 no initial step, G105 and G106 in
-actions: the action is left out) and raises only the others.
+rule errors of seed 000 that it can go on after (G101 no initial step: the first step is
+taken as initial; G105 and G106 in actions: the action is left out) and raises the others.
 """
 
 from __future__ import annotations
