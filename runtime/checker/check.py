@@ -22,10 +22,11 @@ A simulation script (``duration:``/``cycles:``, ``set:``) is checked against its
 configs/*/*.yaml`` checks everything: an error in it is a loading error (exit status 2),
 and G400 (note) says when no plant could be found for it.
 
-This module is the command: it loads each file (a chart's G101, G105 and G106 errors, which
-the loader stops at, become diagnostics and the chart is patched so that every other check
-still runs), finds each script's plant, and prints. The chart rules are
-runtime/checker/rules.py's, the plant checks runtime/checker/plant_rules.py's.
+This module is the command: it loads each file once, with the loaders collecting their rule
+errors as diagnostics (a chart's G101, G105 and G106, a plant's G301 and G302: the loaders
+go on after them, so every other check still runs), finds each script's plant, and prints.
+The chart rules are runtime/checker/rules.py's, the driver point checks
+runtime/checker/plant_rules.py's.
 """
 
 from __future__ import annotations
@@ -36,122 +37,51 @@ import sys
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any
 
-from runtime.checker.diag import Diag, diag, show_path
-from runtime.checker.plant_rules import check_plant_model, plant_bindings_scan
+from runtime.checker.diag import Diag, diag, from_loader, show_path
+from runtime.checker.plant_rules import check_plant_model
 from runtime.checker.reach import LIMIT
 from runtime.checker.rules import check_grafcet
-from runtime.errors import Loc, SourceError
-from runtime.language.model import Grafcet
-from runtime.language.yamlsrc import YList, YMap, YStr, load_yaml
+from runtime.errors import Diagnostic, Loc, SourceError
+from runtime.language.grafcetfile import load_grafcet
+from runtime.language.model import Grafcet, PlantDef
+from runtime.language.plantfile import PlantLoad, load_plant
+from runtime.language.yamlsrc import YMap, load_yaml
 
 SEVERITY_ORDER = {"error": 0, "warning": 1, "note": 2}
 
 
-# -- loading, with the loader's rule errors turned into diagnostics -----------------------
-def _grafcet_code(exc: SourceError) -> str | None:
-    m = exc.message
-    if "no initial step" in m:
-        return "G101"
-    if "rule I.6" in m:
-        return "G105"
-    if "without edges in a conditional action" in m:
-        return "G106"
-    return None
-
-
-def _plant_code(exc: SourceError) -> str | None:
-    m = exc.message
-    if " unbound" in m and "leaves" in m:
-        return "G301"
-    if "is bound twice" in m:
-        return "G302"
-    return None
-
-
-def _before(a: Loc, b: Loc) -> bool:
-    return (a.line, a.col) <= (b.line, b.col)
-
-
-def _remove_action(node: Any, loc: Loc) -> bool:
-    """Delete the action string of the YAML document that contains ``loc``."""
-    if isinstance(node, YMap):
-        acts = node.get("actions")
-        if isinstance(acts, YStr) and _contains(acts, loc):
-            node["actions"] = None
-            return True
-        if isinstance(acts, YList):
-            for i, a in enumerate(acts):
-                if isinstance(a, YStr) and _contains(a, loc):
-                    del acts[i]
-                    del acts.locs[i]
-                    return True
-        return any(_remove_action(v, loc) for v in node.values())
-    if isinstance(node, YList):
-        return any(_remove_action(v, loc) for v in node)
-    return False
-
-
-def _contains(s: YStr, loc: Loc) -> bool:
-    if not s:
-        return False
-    first, last = s.pos(0), s.pos(len(s) - 1)
-    return _before(first, loc) and _before(loc, Loc(loc.file, last.line, last.col + 1))
-
-
-def _mark_initial(doc: YMap) -> bool:
-    steps = doc.get("steps")
-    if not isinstance(steps, YMap) or not steps:
-        return False
-    name = next(iter(steps))
-    spec = steps[name]
-    if spec is None:
-        spec = YMap()
-        spec.loc, spec.key_locs, spec.val_locs = steps.key_locs[name], {}, {}
-        steps[name] = spec
-    if not isinstance(spec, YMap) or spec.get("initial") is True:
-        return False
-    spec["initial"] = True
-    spec.key_locs["initial"] = spec.val_locs["initial"] = spec.loc
-    return True
+# -- loading, with the loader's rule errors as diagnostics --------------------------------
+CHART_RULES = frozenset({"G101", "G105", "G106"})  # found by the grafcet loader
+BINDING_RULES = frozenset({"G301", "G302"})  # found by the plant loader
 
 
 @dataclass
 class Loaded:
     g: Grafcet | None
     diags: list[Diag]
-    repaired: set[str]  # codes of rule errors found by the loader (the chart was patched)
     failure: SourceError | None = None
+
+    @property
+    def repaired(self) -> set[str]:
+        """Codes of the rule errors the loader went on after (G101: no reachability)."""
+        return {d.code for d in self.diags}
 
 
 def load_grafcet_checked(path: str) -> Loaded:
-    """Load a grafcet; a loader error that breaks one of seed 000's rules (G101, G105,
-    G106) becomes a diagnostic, the offending part is left out, and loading goes on so
-    that every such error is reported and the rest of the checks still run."""
-    from runtime.language.grafcetfile import GrafcetLoader, load_grafcet
-
+    """Load a grafcet, its rule errors of seed 000 (G101, G105, G106) as diagnostics: the
+    loader leaves out what breaks a rule and goes on, so that every such error is reported
+    and the rest of the checks still run. Any other error is the failure."""
+    found: list[Diagnostic] = []
     try:
-        return Loaded(load_grafcet(path), [], set())
+        g: Grafcet | None = load_grafcet(path, found)
     except SourceError as exc:
-        if _grafcet_code(exc) is None:
-            return Loaded(None, [], set(), exc)
-    doc = load_yaml(path)
-    diags: list[Diag] = []
-    codes: set[str] = set()
-    for _ in range(500):
-        try:
-            return Loaded(GrafcetLoader(path, doc).load(), diags, codes)
-        except SourceError as exc:
-            code = _grafcet_code(exc)
-            if code is None:
-                return Loaded(None, diags, codes, exc)
-            diags.append(diag(exc.loc, "error", code, exc.message))
-            codes.add(code)
-            ok = _mark_initial(doc) if code == "G101" else _remove_action(doc, exc.loc)
-            if not ok:
-                return Loaded(None, diags, codes)
-    return Loaded(None, diags, codes)
+        if not exc.code:
+            return Loaded(None, [from_loader(d) for d in found], exc)
+        found.append(exc.diagnostic)  # a rule error the loader could not go on after
+        g = None
+    return Loaded(g, [from_loader(d) for d in found])
+
 
 # -- files ----------------------------------------------------------------------------------
 SCRIPT_KEYS = frozenset({"duration", "cycles", "set", "description"})
@@ -179,8 +109,9 @@ class FileResult:
     ms: float = 0.0
 
 
-class Session:
-    """Checks files, each chart once (a plant's charts are checked with it).
+class CheckRun:
+    """One ``softplc check`` run: checks files, each chart once (a plant's charts are
+    checked with it).
 
     ``plant``: the plant that simulation scripts are checked against (``--plant``); without
     it, a script is checked against the one plant file of its directory (the layout of
@@ -277,9 +208,10 @@ class Session:
             return FileResult(path, [], f"{exc} (checked against {show_path(plant)})")
         return FileResult(path, [])
 
-    def _grafcet(self, path: str) -> FileResult:
+    def _grafcet(self, path: str, g: Grafcet | None = None) -> FileResult:
+        """Check one chart; ``g``: the chart already loaded without error (by its plant)."""
         self.charts_done.add(os.path.realpath(path))
-        loaded = load_grafcet_checked(path)
+        loaded = Loaded(g, []) if g is not None else load_grafcet_checked(path)
         diags = list(loaded.diags)
         if loaded.g is not None:
             diags += check_grafcet(loaded.g, self.limit, loaded.repaired)
@@ -287,61 +219,44 @@ class Session:
         return FileResult(path, _sorted(diags), failure)
 
     def _plant(self, path: str) -> list[FileResult]:
-        from runtime.language.plantfile import load_plant
-
-        results: list[FileResult] = []
-        diags: list[Diag] = []
+        """Check a plant and then its charts. What the plant loader met first decides, as
+        if it had stopped there: nothing (the driver points are checked), a binding error
+        (every binding error is reported), a chart breaking a rule of seed 000 (G300: the
+        plant is not checked further, the chart is), or another error (the failure)."""
+        found: list[Diagnostic] = []
+        load = PlantLoad(found)
+        fatal: SourceError | None = None
+        p: PlantDef | None = None
         try:
-            p = load_plant(path)
+            p = load_plant(path, load)
         except SourceError as exc:
-            code = _plant_code(exc)
-            chart = exc.loc.file
-            if code is None and os.path.realpath(chart) != os.path.realpath(path) and (
-                    _grafcet_code(exc) is not None):
-                # a chart of the plant breaks one of seed 000's rules: report its findings
-                # with their codes; the plant itself cannot be checked further
-                res = [] if os.path.realpath(chart) in self.charts_done else [
-                    self._grafcet(chart)]
-                if not any(r.failure for r in res):
-                    note = diag(Loc(path, 1, 1), "note", "G300", f"plant not checked further: "
-                                f"its chart {show_path(chart)} does not load")
-                    return [FileResult(path, [note]), *res]
-            if code is None:
-                return [FileResult(path, [], str(exc))]
-            found = plant_bindings_scan(path)
-            if not any(d.line == exc.loc.line and d.code == code for d in found):
-                found.append(diag(exc.loc, "error", code, exc.message))
-            diags += found
-            charts = self._plant_charts(path)
-        else:
-            diags += check_plant_model(p)
-            charts = []
+            fatal = exc
+        first = found[0] if found else fatal.diagnostic if fatal is not None else None
+        charts: list[tuple[str, Grafcet | None]] = []
+        if first is None:
+            assert p is not None
+            diags = check_plant_model(p)
             for inst in p.instances.values():
-                if inst.grafcet.path not in charts:
-                    charts.append(inst.grafcet.path)
-        results.append(FileResult(path, _sorted(diags)))
-        for c in charts:
+                if inst.grafcet.path not in [c for c, _ in charts]:
+                    charts.append((inst.grafcet.path, inst.grafcet))
+        elif first.code in BINDING_RULES:
+            diags = [from_loader(d) for d in found if d.code in BINDING_RULES]
+            charts = [(c, None) for c in load.chart_files]
+        elif first.code in CHART_RULES:
+            chart = first.loc.file
+            res = [] if os.path.realpath(chart) in self.charts_done else [self._grafcet(chart)]
+            if any(r.failure for r in res):
+                return [FileResult(path, [], str(first))]
+            note = diag(Loc(path, 1, 1), "note", "G300", f"plant not checked further: its "
+                        f"chart {show_path(chart)} does not load")
+            return [FileResult(path, [note]), *res]
+        else:
+            return [FileResult(path, [], str(first))]
+        results = [FileResult(path, _sorted(diags))]
+        for c, g in charts:
             if os.path.realpath(c) not in self.charts_done:
-                results.append(self._grafcet(c))
+                results.append(self._grafcet(c, g))
         return results
-
-    def _plant_charts(self, path: str) -> list[str]:
-        out: list[str] = []
-        try:
-            doc = load_yaml(path)
-        except SourceError:
-            return out
-        inst = doc.get("instances") if isinstance(doc, YMap) else None
-        if isinstance(inst, YMap):
-            for spec in inst.values():
-                if isinstance(spec, YMap) and isinstance(spec.get("grafcet"), str):
-                    g = str(spec["grafcet"])
-                    if not os.path.isabs(g):
-                        g = os.path.normpath(os.path.join(os.path.dirname(
-                            os.path.abspath(path)), g))
-                    if os.path.exists(g) and g not in out:
-                        out.append(g)
-        return out
 
 
 def _sorted(diags: list[Diag]) -> list[Diag]:
@@ -353,10 +268,10 @@ def _sorted(diags: list[Diag]) -> list[Diag]:
 def check_files(paths: Iterable[str], limit: int = LIMIT,
                 plant: str | None = None) -> list[FileResult]:
     paths = list(paths)
-    session = Session(limit, plant, paths)
+    run = CheckRun(limit, plant, paths)
     out: list[FileResult] = []
     for p in paths:
-        out += session.check_path(p)
+        out += run.check_path(p)
     return out
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
-from runtime.errors import Loc
+from runtime.errors import Diagnostic, Loc
 
 
 @dataclass(frozen=True, order=True)
@@ -32,3 +32,8 @@ def show_path(path: str) -> str:
 
 def diag(loc: Loc, severity: str, code: str, message: str) -> Diag:
     return Diag(loc.file, loc.line, loc.col, severity, code, message)
+
+
+def from_loader(d: Diagnostic) -> Diag:
+    """A loader's diagnostic (a rule error of seed 000) as ``softplc check`` prints it."""
+    return diag(d.loc, "error", d.code, d.message)

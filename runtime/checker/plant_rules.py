@@ -1,15 +1,17 @@
-"""Plant files: signals left unbound, outputs bound twice, driver points (G301-G305)."""
+"""Plant files: driver points (G303-G305).
+
+Signals left unbound (G301) and physical outputs bound twice (G302) are the plant loader's
+own checks: it reports them as diagnostics (runtime/language/plantfile.py), and
+runtime/checker/check.py prints them.
+"""
 
 from __future__ import annotations
 
-import os
 from typing import Any
 
 from runtime.checker.diag import Diag, diag
-from runtime.errors import Loc, SourceError
 from runtime.language import ast as A
 from runtime.language.model import PlantDef
-from runtime.language.yamlsrc import YMap, load_yaml
 
 T = A.Type
 
@@ -70,63 +72,4 @@ def check_plant_model(p: PlantDef) -> list[Diag]:
                     out.append(diag(b.loc, "error", "G303", f"'{b.source}' carries "
                                     f"{'a register (int)' if kind is PointKind.INT else 'a bit'}"
                                     f" but '{inst.name}.{b.signal}' is {var.type}"))
-    return out
-
-
-def plant_bindings_scan(path: str) -> list[Diag]:
-    """Every unbound signal and physical output bound twice, from the YAML text (the
-    loader stops at the first)."""
-    from runtime.language.grafcetfile import load_grafcet
-
-    out: list[Diag] = []
-    try:
-        doc = load_yaml(path)
-    except SourceError:
-        return out
-    if not isinstance(doc, YMap) or not isinstance(doc.get("instances"), YMap):
-        return out
-    drv = doc.get("drivers")
-    drivers: dict[str, Any] = drv if isinstance(drv, YMap) else {}
-    driven: dict[str, tuple[str, str, Loc]] = {}
-    instances = doc["instances"]
-    for name, spec in instances.items():
-        if not isinstance(spec, YMap) or "grafcet" not in spec:
-            continue
-        gpath = str(spec["grafcet"])
-        if not os.path.isabs(gpath):
-            gpath = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(path)),
-                                                  gpath))
-        try:
-            g = load_grafcet(gpath)
-        except SourceError:
-            continue
-        for key, signals in (("inputs", g.inputs), ("outputs", g.outputs)):
-            section = spec.get(key)
-            bound = section if isinstance(section, YMap) else {}
-            where = spec.key_locs.get(key, instances.key_locs[name])
-            for var in signals:
-                if var.name not in bound:
-                    out.append(diag(where, "error", "G301", f"instance '{name}' leaves "
-                                    f"{key[:-1]} '{var.name}' of grafcet {g.name} unbound: "
-                                    f"expected a binding '{var.name}: driver.point' in "
-                                    f"'{key}', found none"))
-            if key != "outputs" or not isinstance(section, YMap):
-                continue
-            for sig, b in section.items():
-                loc = section.val_locs[sig]
-                if isinstance(b, YMap):
-                    loc = b.val_locs.get("from", loc)
-                    b = b.get("from")
-                if not isinstance(b, str) or "." not in b:
-                    continue
-                if b.split(".", 1)[0] not in drivers:
-                    continue
-                if b in driven:
-                    other_inst, other_sig, other_loc = driven[b]
-                    out.append(diag(loc, "error", "G302", f"physical output '{b}' is bound "
-                                    f"twice: expected one output per point, found "
-                                    f"'{name}.{sig}' and '{other_inst}.{other_sig}' (line "
-                                    f"{other_loc.line})"))
-                else:
-                    driven[str(b)] = (name, sig, loc)
     return out

@@ -5,82 +5,25 @@ G201 OR divergence not exclusive, G202 action that never executes, G203 divergen
 closed, G204 same level condition on consecutive transitions, G205 counting statement in a
 continuous action, G206 deadlock, G207 bool promoted to a number in a comparison, G208
 transition that never fires, G209 analysis cut by its bounds (docs/check.md). The rules
-that the loader enforces itself (G101, G105, G106) are reported by runtime/checker/check.py.
+that the loader enforces itself (G101, G105, G106) are the loader's diagnostics, printed by
+runtime/checker/check.py. Positions inside a condition or an action come from the model
+(``Transition.at``, ``Action.at``, ``Statement.at``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 from runtime.checker.diag import Diag, diag
 from runtime.checker.logic import ARITH, COMPARE, Logic, has_edge, unparse
 from runtime.checker.reach import LIMIT, Reach, Unsafe, explore, structural_reach
-from runtime.errors import Loc, SourceError
+from runtime.errors import Loc
 from runtime.language import ast as A
 from runtime.language.model import Grafcet, Qualifier, Step, Transition
 from runtime.language.parser import format_time
-from runtime.language.yamlsrc import YList, YMap, YStr, load_yaml
 
 T = A.Type
-
-
-# -- where things are in the YAML text ---------------------------------------------------
-class Where:
-    """Finds the file place of a character inside a condition or a statement."""
-
-    def __init__(self, path: str, doc: Any = None) -> None:
-        self.path = path
-        self._doc = doc
-        self._strings: list[YStr] | None = None
-        self._whens: dict[tuple[int, int], Any] | None = None
-
-    def _load(self) -> None:
-        if self._strings is not None:
-            return
-        self._strings, self._whens = [], {}
-        try:
-            doc = self._doc if self._doc is not None else load_yaml(self.path)
-        except SourceError:
-            return
-
-        def walk(node: Any) -> None:
-            assert self._strings is not None and self._whens is not None
-            if isinstance(node, YStr):
-                self._strings.append(node)
-            elif isinstance(node, YMap):
-                if "when" in node:
-                    self._whens[(node.loc.line, node.loc.col)] = node["when"]
-                for v in node.values():
-                    walk(v)
-            elif isinstance(node, YList):
-                for v in node:
-                    walk(v)
-
-        walk(doc)
-
-    def _string_at(self, loc: Loc, offset: int) -> YStr | None:
-        self._load()
-        assert self._strings is not None
-        for s in self._strings:
-            if offset < len(s) and s.pos(offset) == Loc(s.loc.file, loc.line, loc.col):
-                return s
-        return None
-
-    def in_text(self, start: Loc, base: int, offset: int) -> Loc:
-        """Place of character ``offset`` of a text whose character ``base`` is at ``start``."""
-        s = self._string_at(start, base)
-        if s is not None:
-            return s.pos(offset)
-        return Loc(start.file, start.line, start.col + offset - base)
-
-    def in_condition(self, t: Transition, offset: int) -> Loc:
-        self._load()
-        assert self._whens is not None
-        w = self._whens.get((t.loc.line, t.loc.col))
-        if isinstance(w, YStr):
-            return w.pos(offset)
-        return t.loc
 
 
 # -- the checks of one chart --------------------------------------------------------------
@@ -91,7 +34,6 @@ class ChartChecker:
         self.repaired = set(repaired)
         self.out: list[Diag] = []
         self.logic = Logic(g)
-        self.where = Where(g.path)
         self.never: set[int] = set()
         self.reach: Reach | None = None
 
@@ -391,7 +333,7 @@ class ChartChecker:
                     continue
                 name = stmt.target.name
                 if _counts(stmt.value, name):
-                    loc = self.where.in_text(a.loc, 0, stmt.start)
+                    loc = a.at(stmt.start)
                     self.add(loc, "warning", "G205", f"counting statement "
                              f"'{a.text[stmt.start:stmt.end]}' in a continuous "
                              f"({a.qualifier.value}) action of step '{a.step}' runs in "
@@ -403,17 +345,15 @@ class ChartChecker:
     def promotions(self) -> None:
         g = self.g
         for t in g.transitions:
-            self._promotions([t.cond], t.text, 0, lambda off, t=t: self.where.in_condition(t, off))
+            self._promotions([t.cond], t.text, 0, t.at)
         for a in g.actions():
             roots = [x for x in (a.cond, a.event) if x is not None] + list(a.body or [])
-            self._promotions(roots, a.text, 0,
-                             lambda off, a=a: self.where.in_text(a.loc, 0, off))
+            self._promotions(roots, a.text, 0, a.at)
         for st in [*g.pre, *g.post]:
-            base = st.node.start
-            self._promotions([st.node], st.text, base,
-                             lambda off, st=st, base=base: self.where.in_text(st.loc, base, off))
+            self._promotions([st.node], st.text, st.node.start, st.at)
 
-    def _promotions(self, roots: list[A.Node], text: str, base: int, locate: Any) -> None:
+    def _promotions(self, roots: list[A.Node], text: str, base: int,
+                    locate: Callable[[int], Loc]) -> None:
         def src(n: A.Node) -> str:
             return text[n.start - base:n.end - base]
 

@@ -1,16 +1,18 @@
 """Loading grafcet files into the typed model, with errors as FILE:LINE:COL.
 
 Plant files are loaded by runtime.language.plantfile, which uses this module for their charts.
+Without a list of diagnostics the loader raises the first error; with one, it records the
+rule errors of seed 000 that it can go on after (G101 no initial step: the first step is
+taken as initial; G105 and G106 in actions: the action is left out) and raises the others.
 """
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from typing import Any
 
 from drivers.durations import parse_literal, strip_time_prefix
-from runtime.errors import Loc, SourceError, suggest
+from runtime.errors import Diagnostic, Loc, SourceError, suggest
 from runtime.language import ast as A
 from runtime.language.model import (
     Action,
@@ -109,13 +111,21 @@ def _identifier(name: str, loc: Loc, what: str) -> str:
 class GrafcetLoader:
     """Builds one Grafcet from a YAML mapping."""
 
-    def __init__(self, path: str, doc: YMap) -> None:
+    def __init__(self, path: str, doc: YMap, diagnostics: list[Diagnostic] | None = None
+                 ) -> None:
         self.path = path
         self.doc = doc
+        self.diagnostics = diagnostics
         self.g = Grafcet(name="", path=path, loc=doc.loc)
         self.units: list[tuple[str, str, Callable[[int], Loc], object]] = []
-        self.ref_locs: dict[int, dict[str, list[Loc]]] = {}  # transition -> step name places
         self.stmt_index = 0
+
+    def _rule(self, code: str, loc: Loc, message: str) -> None:
+        """A rule error the load can go on after: raised, or recorded if diagnostics are
+        collected (the caller then leaves out what broke the rule)."""
+        if self.diagnostics is None:
+            raise SourceError(loc, message, code)
+        self.diagnostics.append(Diagnostic(code, loc, message))
 
     def load(self) -> Grafcet:
         d, g = self.doc, self.g
@@ -156,9 +166,17 @@ class GrafcetLoader:
             t.index = i
         g.transitions = transitions
         if not any(g.steps[n].initial for n in g.steps):
-            raise SourceError(d.key_locs["steps"], "the chart has no initial step: expected a "
-                              "step with 'initial: true', found none among "
-                              f"{', '.join(g.steps)}")
+            error = SourceError(d.key_locs["steps"], "the chart has no initial step: expected "
+                                "a step with 'initial: true', found none among "
+                                f"{', '.join(g.steps)}", "G101")
+            if not g.steps:
+                raise error  # nothing to go on with
+            self._rule(error.code, error.loc, error.message)
+            # go on as if the first step were initial (its expansion's entry step with it)
+            first = g.steps[top[0]]
+            first.initial = True
+            if first.macro is not None:
+                g.steps[first.macro.entry].initial = True
         del top
         self.pre_post()
         self._resolve_macros()
@@ -278,7 +296,9 @@ class GrafcetLoader:
                     acts = single
                 acts = expect_type(acts, spec.val_locs["actions"], YList, "a list of actions")
                 for text, aloc in zip(acts, acts.locs, strict=True):
-                    st.actions.append(self._action(st, text, aloc))
+                    act = self._action(st, text, aloc)
+                    if act is not None:
+                        st.actions.append(act)
         return names
 
     def _macro(self, st: Step, spec: Any, loc: Loc) -> None:
@@ -321,6 +341,7 @@ class GrafcetLoader:
             dsts, dst_locs = self._step_refs(spec["to"], spec.val_locs["to"], "to")
             when = spec["when"]
             wloc = spec.val_locs["when"]
+            written = isinstance(when, YStr)  # a text of the file, not a YAML bool or number
             if isinstance(when, bool):
                 when = synthetic_str("TRUE" if when else "FALSE", wloc)
             elif isinstance(when, int):
@@ -329,9 +350,9 @@ class GrafcetLoader:
             locate = _locator(when, wloc)
             cond = parse_expression(when, locate)
             t = Transition(srcs, dsts, cond, str(when), spec.loc,
-                           name=str(spec.get("name", "")))
+                           name=str(spec.get("name", "")), source_locs=src_locs,
+                           target_locs=dst_locs, locate=locate if written else None)
             self.units.append(("bool", str(when), locate, cond))
-            self.ref_locs[id(t)] = {"from": src_locs, "to": dst_locs}
             out.append(t)
         return out
 
@@ -343,29 +364,38 @@ class GrafcetLoader:
             expect_type(v, vloc, str, "a step name")
         return [str(v) for v in lst], list(lst.locs)
 
-    def _action(self, st: Step, text: Any, loc: Loc) -> Action:
+    def _action(self, st: Step, text: Any, loc: Loc) -> Action | None:
+        """The action, or None if it breaks a rule of seed 000 and diagnostics are
+        collected (it is left out)."""
         text = expect_type(text, loc, str, "an action string")
         locate = _locator(text, loc)
-        pa = parse_action(text, locate)
+        try:
+            pa = parse_action(text, locate)
+        except SourceError as exc:
+            if not exc.code:
+                raise
+            self._rule(exc.code, exc.loc, exc.message)  # G105: 'on EVENT do oX'
+            return None
         q = Qualifier(pa.qualifier)
-        act = Action(q, st.name, str(text), loc, pa.time_ns)
+        act = Action(q, st.name, str(text), loc, pa.time_ns, locate=locate)
         if pa.target is not None:
             if q in (Qualifier.P1, Qualifier.P0):
-                raise SourceError(locate(pa.target.start), f"expected statements after "
-                                  f"{q.value} (e.g. '{q.value} {pa.target.name} := 1'), found "
-                                  f"the bare variable '{pa.target.name}': a continuous action "
-                                  "cannot be tied to activation or deactivation (seed-000 rule "
-                                  "I.6)")
+                self._rule("G105", locate(pa.target.start), f"expected statements after "
+                           f"{q.value} (e.g. '{q.value} {pa.target.name} := 1'), found the "
+                           f"bare variable '{pa.target.name}': a continuous action cannot be "
+                           "tied to activation or deactivation (seed-000 rule I.6)")
+                return None
             if pa.cond is not None and q is not Qualifier.N:
                 raise SourceError(locate(pa.cond.start), f"expected 'if CONDITION' on an N "
                                   f"action only, found it with {q.value}")
             if pa.cond is not None:
                 for n in A.walk(pa.cond):
                     if isinstance(n, A.Unary) and n.op in ("RE", "FE"):
-                        raise SourceError(locate(n.start), "expected a condition without "
-                                          "edges in a conditional action (seed 000: the "
-                                          f"condition has no event), found "
-                                          f"'{text[n.start:n.end]}': use 'on EVENT do'")
+                        self._rule("G106", locate(n.start), "expected a condition without "
+                                   "edges in a conditional action (seed 000: the condition "
+                                   f"has no event), found '{text[n.start:n.end]}': use 'on "
+                                   "EVENT do'")
+                        return None
             act.target = pa.target.name
             act.cond = pa.cond
             self._check_target(pa.target, locate)
@@ -425,7 +455,7 @@ class GrafcetLoader:
                 locate = _locator(text, loc)
                 body = parse_statements(text, locate)
                 for s in body:
-                    out.append(Statement(s, str(text)[s.start:s.end], locate(s.start)))
+                    out.append(Statement(s, str(text)[s.start:s.end], locate(s.start), locate))
                 self.units.append(("stmts", str(text), locate, body))
 
     def _resolve_macros(self) -> None:
@@ -440,11 +470,10 @@ class GrafcetLoader:
             return exit_(st.macro.exit) if st.macro else name
 
         for t in g.transitions:
-            locs = self.ref_locs.get(id(t), {})
-            for key, names in (("from", t.sources), ("to", t.targets)):
+            for key, names, where in (("from", t.sources, t.source_locs),
+                                      ("to", t.targets, t.target_locs)):
                 for i, n in enumerate(names):
                     if n not in g.steps:
-                        where = locs.get(key, [])
                         loc = where[i] if i < len(where) else t.loc
                         raise SourceError(loc, f"unknown step '{n}' in the transition's "
                                                f"'{key}'{suggest(n, g.steps)}: expected a step "
@@ -503,21 +532,12 @@ def _initial(spec: Any, loc: Loc, name: str) -> tuple[A.Type, object]:
                            f"like 10s), found {spec!r}")
 
 
-_CACHE: dict[tuple[str, float], Grafcet] = {}
+def load_grafcet(path: str, diagnostics: list[Diagnostic] | None = None) -> Grafcet:
+    """Load and type-check one grafcet file; each call reads the file anew.
 
-
-def load_grafcet(path: str) -> Grafcet:
-    """Load and type-check one grafcet file (cached by path and modification time)."""
-    real = os.path.realpath(path)
-    try:
-        key = (real, os.path.getmtime(real))
-    except OSError:
-        key = (real, -1.0)
-    if key in _CACHE:
-        return _CACHE[key]
+    With ``diagnostics``, the rule errors the load can go on after are appended to it
+    instead of raised (see the module's docstring); any other error is raised."""
     doc = load_yaml(path)
     if not isinstance(doc, YMap):
         raise SourceError(Loc(path, 1, 1), "expected a YAML mapping with 'grafcet:' and 'steps:'")
-    g = GrafcetLoader(path, doc).load()
-    _CACHE[key] = g
-    return g
+    return GrafcetLoader(path, doc, diagnostics).load()

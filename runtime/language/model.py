@@ -3,11 +3,20 @@
 from __future__ import annotations
 
 import enum
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 from runtime.errors import Loc
 from runtime.language import ast as A
+
+#: The file place of character ``i`` of a text read from a user's file (a condition, an
+#: action, a statement), whatever its YAML style (quoted, block, folded).
+Locator = Callable[[int], Loc]
+
+
+def _shifted(loc: Loc, columns: int) -> Loc:
+    return Loc(loc.file, loc.line, loc.col + columns)
 
 
 class VarKind(enum.Enum):
@@ -62,6 +71,11 @@ class Action:
     event: A.Node | None = None  # `on E do`
     body: list[A.Node] | None = None  # statements
     index: int = 0  # order of the statement action in the chart (file order)
+    locate: Locator | None = field(default=None, compare=False, repr=False)  # of ``text``
+
+    def at(self, offset: int) -> Loc:
+        """File place of character ``offset`` of the action's text."""
+        return self.locate(offset) if self.locate else _shifted(self.loc, offset)
 
 
 @dataclass(slots=True)
@@ -99,6 +113,15 @@ class Transition:
     # resolved by the loader: macro-steps replaced by their exit/entry steps
     src_steps: list[str] = field(default_factory=list)
     dst_steps: list[str] = field(default_factory=list)
+    # where each name of ``sources``/``targets`` is written, and where the condition is
+    source_locs: list[Loc] = field(default_factory=list, compare=False, repr=False)
+    target_locs: list[Loc] = field(default_factory=list, compare=False, repr=False)
+    locate: Locator | None = field(default=None, compare=False, repr=False)  # of ``text``
+
+    def at(self, offset: int) -> Loc:
+        """File place of character ``offset`` of the condition (the transition's place if
+        the condition is not a text of the file)."""
+        return self.locate(offset) if self.locate else self.loc
 
 
 @dataclass(slots=True)
@@ -115,6 +138,14 @@ class Statement:
     node: A.Node
     text: str
     loc: Loc
+    # of the whole text the statement was written in (offsets as in ``node``)
+    locate: Locator | None = field(default=None, compare=False, repr=False)
+
+    def at(self, offset: int) -> Loc:
+        """File place of character ``offset`` of the text holding the statement."""
+        if self.locate:
+            return self.locate(offset)
+        return _shifted(self.loc, offset - self.node.start)
 
 
 @dataclass(slots=True)

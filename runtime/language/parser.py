@@ -668,7 +668,8 @@ def parse_action(text: str, locate: Callable[[int], Loc]) -> ParsedAction:
         if t.kind == "NAME" and after.kind in ("EOF", "NL"):
             raise SourceError(locate(t.start), f"expected statements after 'do' (e.g. "
                               f"'{t.text} := 1'), found the bare variable '{t.text}': a "
-                              "continuous action cannot be tied to an event (seed-000 rule I.6)")
+                              "continuous action cannot be tied to an event (seed-000 rule I.6)",
+                              "G105")
         body = p.statements()
         p.finish("';' or a new line between statements")
         if not body:

@@ -1,15 +1,31 @@
-"""Loading plant files: cycle, drivers, instances and their bindings (language.md)."""
+"""Loading plant files: cycle, drivers, instances and their bindings (language.md).
+
+Without a list of diagnostics the loader raises the first error; with one (``PlantLoad``),
+it records, in the order it meets them, the errors it can go on after: the binding errors
+(G301 unbound signal, G302 physical output bound twice, and the faults of one binding, which
+is then left out) and the load errors of its charts (that instance is left out); it raises
+the others. The plant it returns is whole only if it recorded nothing.
+"""
 
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass, field
 from typing import Any
 
 from drivers.registry import DRIVER_KEYS
-from runtime.errors import Loc, SourceError, suggest
+from runtime.errors import Diagnostic, Loc, SourceError, suggest
 from runtime.language import ast as A
 from runtime.language.grafcetfile import check_keys, expect_type, load_grafcet, time_value
-from runtime.language.model import Binding, ConsoleEntry, DriverDef, InstanceDef, PlantDef, VarKind
+from runtime.language.model import (
+    Binding,
+    ConsoleEntry,
+    DriverDef,
+    Grafcet,
+    InstanceDef,
+    PlantDef,
+    VarKind,
+)
 from runtime.language.typecheck import FLAGS_BOOL
 from runtime.language.yamlsrc import YMap, load_yaml
 
@@ -17,6 +33,32 @@ PLANT_KEYS = ("plc", "drivers", "instances", "monitor")
 PLC_KEYS = ("cycle", "watchdog", "retain", "retain_interval", "realtime")
 INSTANCE_KEYS = ("grafcet", "inputs", "outputs", "description")
 MONITOR_KEYS = ("serial", "socket", "tcp", "pin_hash", "release_forces_on_disconnect")
+
+
+@dataclass
+class PlantLoad:
+    """One load of a plant file: the charts it read and, if collected, its diagnostics.
+
+    Each chart file is read once per load and its Grafcet shared by every instance that
+    names it (the engine compiles each distinct Grafcet once); nothing outlives the load.
+    """
+
+    diagnostics: list[Diagnostic] | None = None
+    charts: dict[str, Grafcet] = field(default_factory=dict)  # real path -> chart
+    chart_files: list[str] = field(default_factory=list)  # as named, instance order, once each
+
+    def chart(self, path: str) -> Grafcet:
+        """The chart of file ``path``, read at its first use in this load."""
+        real = os.path.realpath(path)
+        if real not in self.charts:
+            self.charts[real] = load_grafcet(path)
+        return self.charts[real]
+
+    def report(self, error: SourceError) -> None:
+        """An error the load can go on after: raised, or recorded if collected."""
+        if self.diagnostics is None:
+            raise error
+        self.diagnostics.append(error.diagnostic)
 
 
 def _resolve(base: str, path: str) -> str:
@@ -42,8 +84,12 @@ def _binding(signal: str, spec: Any, loc: Loc) -> Binding:
     return Binding(signal, str(source), loc, invert)
 
 
-def load_plant(path: str) -> PlantDef:
-    """Load a plant file and every grafcet it names; bindings fully checked."""
+def load_plant(path: str, load: PlantLoad | None = None) -> PlantDef:
+    """Load a plant file and every grafcet it names; bindings fully checked.
+
+    ``load``: a ``PlantLoad`` with a list of diagnostics to collect them (see the module's
+    docstring); by default, a load of its own that raises the first error."""
+    load = PlantLoad() if load is None else load
     doc = load_yaml(path)
     if not isinstance(doc, YMap):
         raise SourceError(Loc(path, 1, 1), "expected a YAML mapping with 'instances:'")
@@ -95,22 +141,41 @@ def load_plant(path: str) -> PlantDef:
     for name, spec in instances.items():
         loc = instances.key_locs[name]
         if not str(name).isidentifier():
-            raise SourceError(loc, f"expected an instance name, found '{name}'")
-        spec = expect_type(spec, instances.val_locs[name], YMap, f"instance '{name}'")
-        check_keys(spec, INSTANCE_KEYS, f"instance '{name}'")
-        if "grafcet" not in spec:
-            raise SourceError(spec.loc, f"instance '{name}' needs 'grafcet: FILE'")
-        gpath = _resolve(path, str(spec["grafcet"]))
-        if not os.path.exists(gpath):
-            raise SourceError(spec.val_locs["grafcet"], f"grafcet file not found: {gpath}")
-        g = load_grafcet(gpath)
+            load.report(SourceError(loc, f"expected an instance name, found '{name}'"))
+        try:  # an error here leaves the instance out (when collected)
+            spec = expect_type(spec, instances.val_locs[name], YMap, f"instance '{name}'")
+            try:  # an unknown key does not
+                check_keys(spec, INSTANCE_KEYS, f"instance '{name}'")
+            except SourceError as exc:
+                load.report(exc)
+            if "grafcet" not in spec:
+                raise SourceError(spec.loc, f"instance '{name}' needs 'grafcet: FILE'")
+            gpath = _resolve(path, str(spec["grafcet"]))
+            if not os.path.exists(gpath):
+                raise SourceError(spec.val_locs["grafcet"], f"grafcet file not found: {gpath}")
+            if gpath not in load.chart_files:
+                load.chart_files.append(gpath)
+            g = load.chart(gpath)
+        except SourceError as exc:
+            load.report(exc)
+            continue  # the instance is left out
         inst = InstanceDef(name, g, loc)
+        written: dict[str, YMap] = {}
         for key in ("inputs", "outputs"):
             section = spec.get(key) or YMap()
             if section:
-                expect_type(section, spec.val_locs[key], YMap, f"a mapping of {key}")
+                try:
+                    expect_type(section, spec.val_locs[key], YMap, f"a mapping of {key}")
+                except SourceError as exc:
+                    load.report(exc)
+                    section = YMap()  # its signals are then unbound
+            written[key] = section
             for sig, bspec in section.items():
-                b = _binding(sig, bspec, section.val_locs[sig])
+                try:
+                    b = _binding(sig, bspec, section.val_locs[sig])
+                except SourceError as exc:
+                    load.report(exc)
+                    continue  # the binding is left out
                 v = g.variables.get(sig)
                 if key == "inputs":
                     ok = v is not None and (v.kind is VarKind.INPUT or sig in FLAGS_BOOL)
@@ -119,27 +184,29 @@ def load_plant(path: str) -> PlantDef:
                     ok = v is not None and v.kind is VarKind.OUTPUT
                     wanted = [x.name for x in g.outputs]
                 if not ok:
-                    raise SourceError(section.key_locs[sig], f"'{sig}' is not an "
-                                      f"{key[:-1]} of grafcet {g.name}{suggest(sig, wanted)}")
+                    load.report(SourceError(section.key_locs[sig], f"'{sig}' is not an "
+                                            f"{key[:-1]} of grafcet {g.name}"
+                                            f"{suggest(sig, wanted)}"))
+                    continue
                 if b.invert and v is not None and v.type is not A.Type.BOOL:
-                    raise SourceError(b.loc, f"invert applies to bools only; '{sig}' is {v.type}")
+                    load.report(SourceError(b.loc, f"invert applies to bools only; '{sig}' is "
+                                                   f"{v.type}"))
                 getattr(inst, key)[sig] = b
         for key, signals in (("inputs", g.inputs), ("outputs", g.outputs)):
-            bound = getattr(inst, key)
             for var in signals:
-                if var.name not in bound:
-                    raise SourceError(spec.key_locs.get(key, loc), f"instance '{name}' leaves "
-                                      f"{key[:-1]} '{var.name}' of grafcet {g.name} unbound: "
-                                      f"expected a binding '{var.name}: driver.point' in "
-                                      f"'{key}', found none")
+                if var.name not in written[key]:  # a binding left out is not unbound
+                    load.report(SourceError(spec.key_locs.get(key, loc), f"instance '{name}' "
+                                f"leaves {key[:-1]} '{var.name}' of grafcet {g.name} unbound: "
+                                f"expected a binding '{var.name}: driver.point' in '{key}', "
+                                "found none", "G301"))
         p.instances[name] = inst
-    _resolve_bindings(p)
+    _resolve_bindings(p, load)
     if "monitor" in doc and doc["monitor"] is not None:
         _monitor(p, doc["monitor"], doc.val_locs["monitor"])
     return p
 
 
-def _resolve_bindings(p: PlantDef) -> None:
+def _resolve_bindings(p: PlantDef, load: PlantLoad) -> None:
     driven: dict[str, tuple[str, Binding]] = {}
     for inst in p.instances.values():
         for key in ("inputs", "outputs"):
@@ -149,18 +216,19 @@ def _resolve_bindings(p: PlantDef) -> None:
                 if head in p.drivers:
                     b.driver, b.point = head, rest
                     if rest == "ok" and want is not A.Type.BOOL:
-                        raise SourceError(b.loc, f"type error: expected a {want} source for "
-                                          f"'{inst.name}.{b.signal}', found the bool "
-                                          f"'{b.source}' (driver health)")
+                        load.report(SourceError(b.loc, f"type error: expected a {want} source "
+                                                f"for '{inst.name}.{b.signal}', found the bool "
+                                                f"'{b.source}' (driver health)"))
                     if key == "outputs":
                         if b.source in driven:
                             other_inst, other = driven[b.source]
-                            raise SourceError(b.loc, f"physical output '{b.source}' is bound "
-                                              f"twice: expected one output per point, found "
-                                              f"'{inst.name}.{b.signal}' and "
-                                              f"'{other_inst}.{other.signal}' (line "
-                                              f"{other.loc.line})")
-                        driven[b.source] = (inst.name, b)
+                            load.report(SourceError(b.loc, f"physical output '{b.source}' is "
+                                                    "bound twice: expected one output per "
+                                                    f"point, found '{inst.name}.{b.signal}' "
+                                                    f"and '{other_inst}.{other.signal}' (line "
+                                                    f"{other.loc.line})", "G302"))
+                        else:
+                            driven[b.source] = (inst.name, b)
                 elif head in p.instances and key == "inputs":
                     chart = p.instances[head].grafcet
                     found: A.Type | None = None
@@ -171,21 +239,22 @@ def _resolve_bindings(p: PlantDef) -> None:
                         found = A.Type.BOOL if rest.endswith(".X") else A.Type.TIME
                     if found is None:
                         names = [*chart.variables, *(f"{s}.X" for s in chart.steps)]
-                        raise SourceError(b.loc, f"instance '{head}' has no signal '{rest}'"
-                                                 f"{suggest(rest, names)}")
-                    if found is not want:
-                        raise SourceError(b.loc, f"type error: expected a {want} signal for "
-                                          f"'{inst.name}.{b.signal}', found {found} "
-                                          f"'{b.source}'")
-                    b.instance, b.ref = head, rest
+                        load.report(SourceError(b.loc, f"instance '{head}' has no signal "
+                                                f"'{rest}'{suggest(rest, names)}"))
+                    elif found is not want:
+                        load.report(SourceError(b.loc, f"type error: expected a {want} signal "
+                                                f"for '{inst.name}.{b.signal}', found {found} "
+                                                f"'{b.source}'"))
+                    else:
+                        b.instance, b.ref = head, rest
                 elif head in p.instances:
-                    raise SourceError(b.loc, f"expected a driver point for output "
-                                             f"'{b.signal}', found instance '{head}' (an "
-                                             "instance's signal can feed an input only)")
+                    load.report(SourceError(b.loc, f"expected a driver point for output "
+                                                   f"'{b.signal}', found instance '{head}' (an "
+                                                   "instance's signal can feed an input only)"))
                 else:
                     where = list(p.drivers) + (list(p.instances) if key == "inputs" else [])
-                    raise SourceError(b.loc, f"unknown driver or instance '{head}' in "
-                                             f"'{b.source}'{suggest(head, where)}")
+                    load.report(SourceError(b.loc, f"unknown driver or instance '{head}' in "
+                                                   f"'{b.source}'{suggest(head, where)}"))
 
 
 def _need(m: YMap, key: str, what: str) -> Any:
