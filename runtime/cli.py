@@ -15,9 +15,10 @@ log = logging.getLogger("softplc")
 
 
 def cmd_compile(args: argparse.Namespace) -> int:
-    from runtime.checker.check import file_kind
     from runtime.compiler.codegen import compile_grafcet
+    from runtime.language.filekind import file_kind
     from runtime.language.grafcetfile import load_grafcet
+    from runtime.language.model import Grafcet
     from runtime.language.plantfile import load_plant
 
     for path in args.files:
@@ -28,8 +29,11 @@ def cmd_compile(args: argparse.Namespace) -> int:
                                                "'steps:') or a plant file ('instances:')")
         if kind == "plant":
             pdef = load_plant(path)
-            charts = {id(i.grafcet): i.grafcet for i in pdef.instances.values()}
-            programs = [compile_grafcet(g) for g in charts.values()]
+            charts: list[Grafcet] = []  # each chart once: instances of one plant share it
+            for idef in pdef.instances.values():
+                if not any(g is idef.grafcet for g in charts):
+                    charts.append(idef.grafcet)
+            programs = [compile_grafcet(g) for g in charts]
         else:
             programs = [compile_grafcet(load_grafcet(path))]
         ms = (time.perf_counter() - t0) * 1000

@@ -122,7 +122,6 @@ def test_every_module_belongs_to_a_part() -> None:
     assert loose == [], f"modules outside the documented parts: {loose}"
 
 
-@pytest.mark.xfail(strict=True, reason="WIP: checker->plant, drawing->checker still to remove")
 def test_the_import_graph_follows_the_rules() -> None:
     bad = violations(project_graph(), ALLOWED)
     assert bad == [], "import rules broken (docs/architecture.md):\n" + "\n".join(bad)

@@ -43,10 +43,10 @@ from runtime.checker.plant_rules import check_plant_model
 from runtime.checker.reach import LIMIT
 from runtime.checker.rules import check_grafcet
 from runtime.errors import Diagnostic, Loc, SourceError
+from runtime.language.filekind import file_kind
 from runtime.language.grafcetfile import load_grafcet
 from runtime.language.model import Grafcet, PlantDef
 from runtime.language.plantfile import PlantLoad, load_plant
-from runtime.language.yamlsrc import YMap, load_yaml
 
 SEVERITY_ORDER = {"error": 0, "warning": 1, "note": 2}
 
@@ -81,24 +81,6 @@ def load_grafcet_checked(path: str) -> Loaded:
         found.append(exc.diagnostic)  # a rule error the loader could not go on after
         g = None
     return Loaded(g, [from_loader(d) for d in found])
-
-
-# -- files ----------------------------------------------------------------------------------
-SCRIPT_KEYS = frozenset({"duration", "cycles", "set", "description"})
-
-
-def file_kind(path: str) -> str:
-    """'grafcet', 'plant', 'script' (a simulation script) or 'other', from the top-level
-    keys (SourceError if the file is not YAML)."""
-    doc = load_yaml(path)
-    if isinstance(doc, YMap):
-        if "grafcet" in doc or "steps" in doc:
-            return "grafcet"
-        if "instances" in doc or "drivers" in doc or "plc" in doc:
-            return "plant"
-        if set(doc) <= SCRIPT_KEYS and set(doc) & {"duration", "cycles", "set"}:
-            return "script"
-    return "other"
 
 
 @dataclass

@@ -392,7 +392,7 @@ def active_from_trace(g: Grafcet, trace: str, cycle: int,
 # -- command line ------------------------------------------------------------------------------
 def load_chart(path: str, instance: str | None) -> tuple[Grafcet, str | None]:
     """The grafcet of FILE (a grafcet file, or a plant file's instance)."""
-    from runtime.checker.check import file_kind
+    from runtime.language.filekind import file_kind
     from runtime.language.grafcetfile import load_grafcet
     from runtime.language.plantfile import load_plant
 

@@ -15,6 +15,7 @@ from runtime.engine.instance import coerce
 from runtime.engine.names import PlantNames, ScriptInput, UnknownName
 from runtime.errors import Loc, SourceError
 from runtime.language import ast as A
+from runtime.language.filekind import SCRIPT_KEYS
 from runtime.language.grafcetfile import check_keys, expect_type, time_value
 from runtime.language.yamlsrc import YList, YMap, load_yaml
 
@@ -56,7 +57,7 @@ def read_script(path: str, names: PlantNames) -> Script:
     doc = load_yaml(path)
     if not isinstance(doc, YMap):
         raise SourceError(Loc(path, 1, 1), "expected a mapping with 'duration:' or 'cycles:'")
-    check_keys(doc, ("duration", "cycles", "set", "description"), "a simulation script")
+    check_keys(doc, SCRIPT_KEYS, "a simulation script")
     duration = cycles = None
     if "duration" in doc:
         duration = time_value(doc["duration"], doc.val_locs["duration"], "duration")

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from runtime.checker.check import check_files, exit_status, file_kind, register
+from runtime.checker.check import check_files, exit_status, register
+from runtime.language.filekind import file_kind
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = sorted(p for p in (ROOT / "configs").glob("**/*.yaml") if "schema" not in p.parts)

@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-import runtime.checker.check as check_module
+import runtime.language.filekind as filekind
 import runtime.language.grafcetfile as grafcetfile
 import runtime.language.plantfile as plantfile
 from runtime.checker.check import CheckRun, check_files, exit_status
@@ -45,7 +45,7 @@ instances:
 def reads(monkeypatch: pytest.MonkeyPatch) -> Counter[str]:
     """How many times each file is read as YAML."""
     count: Counter[str] = Counter()
-    for module in (check_module, grafcetfile, plantfile):
+    for module in (filekind, grafcetfile, plantfile):
         real = module.load_yaml
 
         def counting(path: str, *args: Any, real: Any = real) -> Any:

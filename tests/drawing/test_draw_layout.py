@@ -18,12 +18,12 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from runtime.checker.check import file_kind
 from runtime.checker.logic import unparse
 from runtime.drawing import chart as draw
 from runtime.drawing import layout as draw_layout
 from runtime.drawing import text as draw_text
 from runtime.errors import SourceError
+from runtime.language.filekind import file_kind
 from runtime.language.grafcetfile import load_grafcet
 
 ROOT = Path(__file__).resolve().parents[2]

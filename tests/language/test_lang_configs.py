@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from runtime.checker.check import file_kind
 from runtime.cli import main
+from runtime.language.filekind import file_kind
 from runtime.language.grafcetfile import load_grafcet
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -1,0 +1,27 @@
+"""What a YAML file of the project is, from its top-level keys: a grafcet (chart), a plant,
+or a simulation script. The one place that tells them apart (compile, check, draw)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from runtime.language.yamlsrc import YMap, load_yaml
+
+#: the top-level keys of a simulation script
+SCRIPT_KEYS = ("duration", "cycles", "set", "description")
+
+FileKind = Literal["grafcet", "plant", "script", "other"]
+
+
+def file_kind(path: str) -> FileKind:
+    """'grafcet', 'plant', 'script' (a simulation script) or 'other', from the top-level
+    keys (SourceError if the file is not YAML)."""
+    doc = load_yaml(path)
+    if isinstance(doc, YMap):
+        if "grafcet" in doc or "steps" in doc:
+            return "grafcet"
+        if "instances" in doc or "drivers" in doc or "plc" in doc:
+            return "plant"
+        if set(doc) <= set(SCRIPT_KEYS) and set(doc) & {"duration", "cycles", "set"}:
+            return "script"
+    return "other"
