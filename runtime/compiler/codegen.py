@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 from runtime.compiler.program import Probe, Program, Slot, SlotKind, step_time_code
+from runtime.errors import SoftplcError
 from runtime.language import ast as A
 from runtime.language.model import Action, Grafcet, Qualifier, ScanModel, Step, Transition, VarKind
 from runtime.language.parser import format_time
@@ -24,7 +25,7 @@ T = A.Type
 STABLE_MAX_ROUNDS = 100
 
 
-class UnstableChart(RuntimeError):
+class UnstableChart(SoftplcError, RuntimeError):
     """``scan: stable`` found no stable situation within STABLE_MAX_ROUNDS rounds."""
 
     def __init__(self, chart: str, cycle: list[str], steps: list[str] | None = None) -> None:

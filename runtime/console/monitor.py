@@ -27,6 +27,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+from runtime.errors import SoftplcError
+
 log = logging.getLogger(__name__)
 
 #: how long a command may take before the controller is considered silent, seconds
@@ -41,7 +43,7 @@ LOG_LINES = 200
 _TCP = re.compile(r"^(?:\[?[\w.:-]*\]?):(\d+)$")
 
 
-class MonitorError(Exception):
+class MonitorError(SoftplcError):
     """The controller cannot be reached or stopped answering.
 
     Examples: the socket path does not exist; the serial port is held by another

@@ -22,6 +22,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 
+from runtime.errors import SoftplcError
 from runtime.language.plantfile import load_plant
 from runtime.language.yamlsrc import YMap, load_yaml
 
@@ -39,7 +40,7 @@ STATE_DIR = "/var/lib/softplc"
 RUNTIME_DIR = "/run/softplc"
 
 
-class InstallError(Exception):
+class InstallError(SoftplcError):
     """The installation cannot go on; the message says what to do."""
 
 

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 from drivers.base import PointKind
 from drivers.durations import format_ns, parse_literal
-from runtime.errors import suggest
+from runtime.errors import SoftplcError, suggest
 from runtime.language import ast as A
 from runtime.language.model import Binding, PlantDef, Variable, VarKind
 
@@ -24,14 +24,14 @@ if TYPE_CHECKING:
     from runtime.engine.plant import Plant
 
 
-class CommandError(Exception):
+class CommandError(SoftplcError):
     """A command that cannot be carried out; the message is the reply's reason.
 
     Examples: a bad value (``set tester1.iParo 7``), an unknown name, ``cycle`` while the
     charts run."""
 
 
-class UnknownName(LookupError):
+class UnknownName(SoftplcError, LookupError):
     """A name that does not resolve; the message says why, with the closest name."""
 
 

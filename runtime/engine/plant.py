@@ -20,13 +20,14 @@ from drivers.sim import SimDriver
 from runtime.compiler.codegen import Program, compile_grafcet
 from runtime.engine.instance import Instance, StepWhy, coerce
 from runtime.engine.names import Owner, PlantNames, UnknownName
+from runtime.errors import SoftplcError
 from runtime.language import ast as A
 from runtime.language.model import Binding, Grafcet, PlantDef, VarKind
 
 log = logging.getLogger(__name__)
 
 
-class BindingError(ValueError):
+class BindingError(SoftplcError, ValueError):
     """A name given to force/set does not exist in the plant."""
 
 
