@@ -46,6 +46,9 @@ LITERAL = Grammar(re.compile(r"(\d+(?:\.\d+)?)(ms|us|ns|d|h|m|s)"), in_order=Tru
 #: a duration in a driver config (also matches the Greek small mu, read as the micro sign)
 CONFIG = Grammar(re.compile(r"(\d+(?:\.\d*)?|\.\d+)\s*(us|µs|ms|s|m|h)", re.IGNORECASE),
                  in_order=False)
+#: a candidate time literal inside other text (``for 1s234ms567us``): whole words of
+#: integer parts only; ``parse_literal`` of a match says whether it is one
+LITERAL_IN_TEXT = re.compile(r"\b(?:\d+(?:d|h|ms|m|s|us|ns))+\b")
 
 
 def _unit(text: str) -> str:

@@ -102,7 +102,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def _console_server(daemon: Any) -> Any:
     from runtime.console.server import ConsoleServer
-    from runtime.console.session import ConsoleService
+    from runtime.console.service import ConsoleService
 
     pdef = daemon.pdef
     service = ConsoleService(daemon, pdef.pin_hash, pdef.release_forces_on_disconnect)

@@ -1,2 +1,2 @@
-"""Console: the line protocol, sessions and commands, the socket/serial server, the PIN,
-and the curses monitor client."""
+"""Console: the line protocol, the service every session shares, sessions, commands,
+streams, the socket/serial server, the PIN, and the curses monitor client."""

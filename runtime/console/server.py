@@ -15,7 +15,8 @@ import socket
 import threading
 from collections.abc import Callable
 
-from runtime.console.session import ConsoleService, Session
+from runtime.console.service import ConsoleService
+from runtime.console.session import Session
 from runtime.language.model import ConsoleEntry
 
 log = logging.getLogger(__name__)

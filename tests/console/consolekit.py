@@ -25,7 +25,7 @@ import serial
 
 from drivers.sim import SimDriver
 from runtime.console.server import ConsoleServer
-from runtime.console.session import ConsoleService
+from runtime.console.service import ConsoleService
 from runtime.controller.daemon import Daemon
 from runtime.engine.plant import Plant
 from runtime.language.plantfile import load_plant

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import re
 
-from runtime.console.session import HELP, MAX_CYCLE
+from runtime.console.protocol import HELP, MAX_CYCLE
 from tests.console.consolekit import Rig, wait_for
 
 

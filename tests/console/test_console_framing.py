@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from runtime.console.session import MAX_LINE, PARTIAL_LINE_TIMEOUT_S
+from runtime.console.protocol import MAX_LINE, PARTIAL_LINE_TIMEOUT_S
 from tests.console.consolekit import FakeClock, Rig, wait_for
 
 

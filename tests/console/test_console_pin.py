@@ -11,7 +11,7 @@ import yaml
 
 from runtime import cli
 from runtime.console.pin import check_pin, hash_pin
-from runtime.console.session import CHANGING, LOCKOUT_S
+from runtime.console.protocol import CHANGING, LOCKOUT_S
 from tests.console.consolekit import FakeClock, Rig
 
 PIN = "4711"

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from runtime.console.server import MAX_CONNECTIONS, ConsoleServer
-from runtime.console.session import ConsoleService
+from runtime.console.service import ConsoleService
 from runtime.controller.daemon import Daemon
 from runtime.language.model import ConsoleEntry
 from runtime.language.plantfile import load_plant

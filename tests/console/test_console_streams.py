@@ -6,7 +6,7 @@ from __future__ import annotations
 import re
 from collections.abc import Callable
 
-from runtime.console.session import STREAM_LINES_PER_POLL
+from runtime.console.protocol import STREAM_LINES_PER_POLL
 from tests.console.consolekit import Rig, wait_for
 
 

@@ -1,0 +1,277 @@
+"""The console commands that change the plant (marked * in help; they need ``unlock PIN``
+or a trusted console): set, force, unforce, pause, resume, cycle, init, reset, iocheck,
+ack. Plain functions ``(session, args) -> Reply``, dispatched through commands.COMMANDS.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from typing import TYPE_CHECKING, Any
+
+from runtime.console.protocol import CYCLE_DETAIL_LINES, MAX_CYCLE, Reply
+from runtime.engine.names import Catalogue, CommandError, Image, Signal, parse_value, printable
+from runtime.language import ast as A
+
+if TYPE_CHECKING:
+    from runtime.console.session import Session
+
+log = logging.getLogger(__name__)
+
+
+def _state(session: Session) -> str:
+    """The controller's state (running, paused, iocheck, fault...)."""
+    return str(session.ctl.status()["state"])
+
+
+def _two(session: Session, args: list[str], usage: str) -> tuple[Signal, Any]:
+    """``NAME VALUE`` -> the name and its parsed value."""
+    if len(args) != 2:
+        raise CommandError(f"usage: {usage}")
+    name = session.cat.resolve(args[0])
+    return name, parse_value(name, args[1])
+
+
+def cmd_set(session: Session, args: list[str]) -> Reply:
+    name, value = _two(session, args, "set NAME VALUE")
+    plant = session.ctl.plant
+    if name.binding.startswith("<-"):
+        raise CommandError(f"{name.text} is copied from {name.binding[3:]} before every "
+                           f"scan: set that point, or force {name.text}")
+    writer = session.cat.written_by.get(name.text)
+
+    def write() -> None:
+        state = _state(session)
+        if writer is not None and state in ("running", "stepping"):
+            raise CommandError(f"{name.text} is written by {writer} every scan: force "
+                               "it, or pause or 'iocheck on' first")
+        if name.role == "point out" and state in ("fault", "halted"):
+            raise CommandError(f"the controller is {state}: outputs are held off until "
+                               "'ack'")
+        plant.set(name.text, value)
+    session.ctl.call(write)
+    return [f"{name.text} set to {name.show(value)}"]
+
+
+def cmd_force(session: Session, args: list[str]) -> Reply:
+    name, value = _two(session, args, "force NAME VALUE")
+    if name.role in ("step", "step time", "driver health") or name.type is A.Type.STRING:
+        raise CommandError(f"{name.text} cannot be forced (a {name.role}); force "
+                           "inputs, outputs and variables")
+    plant = session.ctl.plant
+
+    def force() -> None:
+        plant.force(name.text, value)
+        if name.role not in ("point in", "point out"):
+            plant.set(name.text, value)  # visible at once, even while paused
+    session.ctl.call(force)
+    session.service.forced_by(name.text, session)
+    return [f"{name.text} forced to {name.show(value)}"]
+
+
+def cmd_unforce(session: Session, args: list[str]) -> Reply:
+    if len(args) != 1:
+        raise CommandError("usage: unforce NAME|all")
+    if args[0] == "all":
+        released = unforce_all(session)
+        return [f"released {', '.join(released)}" if released else "nothing was forced"
+                ], {"released": released}
+    name = session.cat.resolve(args[0])
+    plant = session.ctl.plant
+    session.ctl.call(lambda: plant.unforce(name.text))
+    session.service.released(name.text)
+    return [f"{name.text} released"], {"released": [name.text]}
+
+
+def unforce_all(session: Session) -> list[str]:
+    """Release every force (``unforce all``, ``lock``); the names released."""
+    plant = session.ctl.plant
+
+    def release() -> list[str]:
+        names = plant.forced_names()
+        plant.unforce(None)
+        return names
+    released = session.ctl.call(release)
+    session.service.released(None)
+    if released:
+        log.warning("console %s: every force released (%s)", session.name,
+                    ", ".join(released))
+    return released
+
+
+def cmd_pause(session: Session, args: list[str]) -> Reply:
+    plant = session.ctl.plant
+
+    def do() -> str:
+        state = _state(session)
+        if state == "iocheck":
+            raise CommandError("iocheck on: the charts are stopped already")
+        return "already paused" if plant.pause() else "paused"
+    return [session.ctl.call(do) + ": charts hold, I/O still scanned; 'cycle N' steps, "
+            "'resume' goes on"]
+
+
+def cmd_resume(session: Session, args: list[str]) -> Reply:
+    plant = session.ctl.plant
+
+    def do() -> str:
+        return "resumed" if plant.resume() else "not paused"
+    return [session.ctl.call(do)]
+
+
+def cmd_cycle(session: Session, args: list[str]) -> Reply:
+    if len(args) > 1:
+        raise CommandError("usage: cycle [N]")
+    try:
+        n = int(args[0]) if args else 1
+    except ValueError:
+        raise CommandError(f"bad value '{printable(args[0])}': expected a number of "
+                           "scans") from None
+    if not 1 <= n <= MAX_CYCLE:
+        raise CommandError(f"bad value {n}: cycle N runs 1 to {MAX_CYCLE} scans")
+    plant, cat = session.ctl.plant, session.cat
+    images: list[Image] = []
+    done = threading.Event()
+
+    def on_scan(scan: int) -> None:  # scan thread
+        images.append(cat.capture(scan))
+        if not plant.stepping:
+            done.set()
+
+    def start() -> Image:
+        state = _state(session)
+        if state != "paused":
+            raise CommandError(f"cycle runs while paused; the controller is {state}"
+                               + (": pause first" if state == "running" else ""))
+        plant.step(n)
+        session.ctl.add_listener(on_scan)
+        return cat.capture(-1)
+    before = session.ctl.call(start)
+    try:
+        if not done.wait(2.0 + 2 * n * plant.cycle_ns / 1e9):
+            session.ctl.call(lambda: plant.step(0))
+            raise CommandError(f"the scans did not run (controller {_state(session)}); "
+                               "stepping cancelled")
+    finally:
+        session.ctl.remove_listener(on_scan)
+    return _cycle_report(session.cat, n, before, images[:n])
+
+
+def _cycle_report(cat: Catalogue, n: int, before: Image, images: list[Image]) -> Reply:
+    """What ``cycle N`` changed: scan by scan (the first CYCLE_DETAIL_LINES), then in all."""
+    names = cat.traced
+    steps = [x for x in names if x.role == "step"]
+    prev = {x.text: x.read(before) for x in names}
+    first = prev
+    lines = [f"ran {n} scan(s)" + (f" ({images[0].scan}..{images[-1].scan})"
+                                   if images else "")]
+    per_scan = []
+    for img in images:
+        cur = {x.text: x.read(img) for x in names}
+        changed = {k: v for k, v in cur.items() if prev[k] != v}
+        per_scan.append({"scan": img.scan, "changed": {
+            k: cat.names[k].plain(v) for k, v in changed.items()}})
+        if changed and len(lines) < CYCLE_DETAIL_LINES:
+            lines.append(f"scan {img.scan}: " + _changes(cat, changed, prev, steps))
+        elif changed and len(lines) == CYCLE_DETAIL_LINES:
+            lines.append("... (more scans changed; the total follows)")
+        prev = cur
+    total = {k: v for k, v in prev.items() if first[k] != v}
+    if sum(1 for p in per_scan if p["changed"]) > 1 and total:
+        lines.append("in all: " + _changes(cat, total, first, steps))
+    if not total and not any(p["changed"] for p in per_scan):
+        lines.append("nothing changed")
+    return lines, {"scans": n, "per_scan": per_scan,
+                   "changed": {k: cat.names[k].plain(v) for k, v in total.items()}}
+
+
+def _changes(cat: Catalogue, changed: dict[str, Any], before: dict[str, Any],
+             steps: list[Signal]) -> str:
+    """``tester1 gsParado -> gsAbrir; tester1.oAbrir 0 -> 1, ...``"""
+    parts = []
+    for inst in cat.groups:
+        mine = [x.text for x in steps if x.text.startswith(inst + ".")]
+        if not any(k in changed for k in mine):
+            continue
+        was = [k.split(".")[1] for k in mine if before[k]]
+        now = [k.split(".")[1] for k in mine if changed.get(k, before[k])]
+        parts.append(f"{inst} {','.join(was) or '-'} -> {','.join(now) or '-'}")
+    names = cat.names
+    others = [f"{k} {names[k].show(before[k])} -> {names[k].show(v)}"
+              for k, v in changed.items() if names[k].role != "step"]
+    return "; ".join(parts + ([", ".join(others)] if others else []))
+
+
+def _pulse(session: Session, args: list[str], flag: str) -> Reply:
+    plant = session.ctl.plant
+    if len(args) != 1 or args[0] not in plant.instances:
+        given = f"; no instance '{printable(args[0])}'" if args else ""
+        raise CommandError(f"usage: {flag[3:].lower()} INSTANCE{given} (one of "
+                           f"{' '.join(plant.instances)})")
+
+    def do() -> str:
+        state = _state(session)
+        if state == "iocheck":
+            raise CommandError("iocheck on: the charts are stopped")
+        plant.pulse(args[0], flag)
+        return state
+    state = session.ctl.call(do)
+    when = " at the next scan" if state != "paused" else " at the next scan ('cycle' " \
+                                                          "or 'resume': paused now)"
+    return [f"{flag} pulsed on {args[0]}{when}"]
+
+
+def cmd_init(session: Session, args: list[str]) -> Reply:
+    return _pulse(session, args, "SFCInit")
+
+
+def cmd_reset(session: Session, args: list[str]) -> Reply:
+    return _pulse(session, args, "SFCReset")
+
+
+def cmd_iocheck(session: Session, args: list[str]) -> Reply:
+    if args not in (["on"], ["off"]):
+        raise CommandError("usage: iocheck on|off")
+    plant, ctl = session.ctl.plant, session.ctl
+    if args[0] == "on":
+        def enter() -> list[str]:
+            state = _state(session)
+            if state == "fault":
+                raise CommandError("the controller is in fault: 'ack' it first")
+            if state == "iocheck":
+                return []
+            released = plant.forced_names()
+            plant.unforce(None)  # outputs all off means forced ones too
+            if state == "halted":
+                # back to the bench after a previous iocheck: the charts were waiting
+                # for ack; acknowledge and re-enter in the same boundary, so no scan runs
+                was = plant.pause()
+                ctl.ack()
+                if not was:
+                    plant.resume()
+            plant.step(0)
+            plant.set_iocheck(True)
+            return released
+        released = session.ctl.call(enter)
+        session.service.released(None)
+        lines = ["iocheck: charts stopped, every output off. 'set DRIVER.POINT 1' drives "
+                 "one output, 'watch' shows physical inputs with their logical value, "
+                 "'iocheck off' ends"]
+        if released:
+            lines.append(f"released forces: {', '.join(released)}")
+        return lines, {"released": released}
+
+    def leave() -> None:
+        if not plant.iocheck:
+            raise CommandError("not in iocheck")
+        plant.set_iocheck(False)
+        # the same boundary: no scan may run the charts between the two
+        ctl.require_ack("iocheck ended: 'ack' restarts the charts from their initial "
+                        "situation")
+    session.ctl.call(leave)
+    return ["iocheck off: every output off; 'ack' restarts the charts from their "
+            "initial situation"]
+
+
+def cmd_ack(session: Session, args: list[str]) -> Reply:
+    return [session.ctl.ack()]

@@ -1,0 +1,234 @@
+"""The console's commands, and the table the session dispatches through (``COMMANDS``).
+
+Each command is a plain function ``(session, args) -> Reply``: its reply lines, and the
+data of its JSON reply; it raises CommandError with the reply's error text. The read-only
+commands are here; the ones that change the plant (marked * in help) are in changing.py.
+Plant reads go through ``Controller.call``: one consistent snapshot at a scan boundary.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+from drivers.durations import LITERAL_IN_TEXT, format_ns, parse_literal
+from runtime.console import changing
+from runtime.console.protocol import HELP, MIN_EVERY_MS, STATUS_FAULTS, Reply
+from runtime.console.streams import Stream, feeds_text
+from runtime.engine.names import CommandError, printable
+from runtime.errors import suggest
+
+if TYPE_CHECKING:
+    from runtime.console.session import Session
+
+log = logging.getLogger(__name__)
+
+#: a command: the session it runs in, the words after its name -> its reply
+Command = Callable[["Session", list[str]], Reply]
+
+
+def round_times(text: str) -> str:
+    """Time literals in an engine message rounded to ms (``1s234ms567us`` -> ``1s235ms``)."""
+    def one(m: re.Match[str]) -> str:
+        ns = parse_literal(m.group(0))
+        return m.group(0) if ns is None else format_ns(round(ns / 1e6) * 1_000_000)
+    return LITERAL_IN_TEXT.sub(one, text)
+
+
+def _clock_text(t: float) -> str:
+    return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(t))
+
+
+def _uptime_text(s: float) -> str:
+    return f"{s:.1f} s" if s < 60 else format_ns(int(s) * 1_000_000_000)
+
+
+def cmd_help(session: Session, args: list[str]) -> Reply:
+    if args:
+        key = args[0].lower()
+        if key not in HELP:
+            raise CommandError(f"no command '{printable(args[0])}'{suggest(key, HELP)}")
+        return [f"{key:8} {HELP[key]}"], {"commands": {key: HELP[key]}}
+    lines = [f"{k:8} {v}" for k, v in HELP.items()]
+    lines.append("* needs 'unlock PIN' (or a trusted console); names: inst.var, "
+                 "inst.step.X, inst.step.T, inst.SFCPause, driver.point")
+    return lines, {"commands": HELP}
+
+
+def cmd_json(session: Session, args: list[str]) -> Reply:
+    if args not in (["on"], ["off"]):
+        raise CommandError("usage: json on|off")
+    session.json = args[0] == "on"
+    return []
+
+
+def cmd_status(session: Session, args: list[str]) -> Reply:
+    plant, cat = session.ctl.plant, session.cat
+
+    def read() -> dict[str, Any]:
+        forced = {k: cat.names[k].plain(v) if k in plant.forced else v
+                  for k, v in plant.forced_values().items()}
+        return {**session.ctl.status(),
+                "steps": {n: i.active_steps() for n, i in plant.instances.items()},
+                "forced": forced,
+                "errors": {n: i.get("SFCErrorStep") for n, i in plant.instances.items()
+                           if i.get("SFCError")}}
+    try:
+        data = session.ctl.call(read)
+    except TimeoutError:  # say what can be said without the scan thread
+        data = {**session.ctl.status(), "steps": {}, "forced": {}, "errors": {},
+                "note": "the scan thread did not answer"}
+    data["faults"] = data.get("faults", [])[-STATUS_FAULTS:]
+    state = data["state"] + (f" ({data['fault']})" if data.get("fault") else "")
+    lines = [f"state {state}",
+             f"cycle time {data['cycle_ms']:g} ms, scans {data['scans']}, uptime "
+             f"{_uptime_text(data['uptime_s'])}"]
+    if "note" in data:
+        lines.append(data["note"])
+    lines += [f"{n}: {' '.join(s) or '(no active step)'}" for n, s in data["steps"].items()]
+    lines += [f"SFCError {n}: step {s}" for n, s in data["errors"].items()]
+    lines += [f"forced {k}={v}" for k, v in data["forced"].items()]
+    lines += [f"fault at {_clock_text(f['time'])}: {f['reason']}" for f in data["faults"]]
+    return lines, data
+
+
+def cmd_stats(session: Session, args: list[str]) -> Reply:
+    s = session.ctl.stats()  # ScanStats sorts its window here, never in the scan thread
+    cols = ("last", "min", "mean", "p50", "p99", "max")
+    lines = [f"cycle time {s['cycle_us'] / 1000:g} ms: {s['cycles']} cycles, "
+             f"{s['overruns']} overruns, {s['skipped']} deadlines skipped",
+             f"{'(us)':10}" + "".join(f"{c:>9}" for c in cols)]
+    for key, label in (("scan_us", "scan"), ("lateness_us", "lateness")):
+        lines.append(f"{label:10}" + "".join(f"{s[key][c]:>9.1f}" for c in cols))
+    lines.append(f"gc {s['gc_runs']} runs in the idle time, {s['gc_ms']} ms in all")
+    for name, d in s.get("drivers", {}).items():
+        reason = f": {d['reason']}" if d.get("reason") else ""
+        lines.append(f"driver {name}: {d['health']} (on_fault {d['on_fault']}){reason}")
+    return lines, {"stats": s}
+
+
+def cmd_get(session: Session, args: list[str]) -> Reply:
+    if not args:
+        raise CommandError("usage: get NAME...")
+    names = session.cat.expand(args)
+    plant, cat = session.ctl.plant, session.cat
+
+    def read() -> tuple[dict[str, Any], dict[str, Any]]:
+        img = cat.live()
+        values = {n.text: n.read(img) for n in names}
+        forced = {k: v for k, v in plant.forced_values().items() if k in values}
+        return values, forced
+    values, forced = session.ctl.call(read)
+    lines, shown = [], {}
+    for n in names:
+        v = values[n.text]
+        if n.text in forced and n.role == "point in":
+            # a forced input masks the driver during the cycle only: show both
+            note = f" (forced; the driver reads {n.show(v)})"
+            v = forced[n.text]
+        else:
+            note = " (forced)" if n.text in forced else ""
+        shown[n.text] = n.plain(v)
+        text = f"{n.text}={n.show(v)}{note}"
+        if n.feeds:
+            text += "  " + feeds_text(n, v)
+        if n.binding and len(names) > 1:
+            text += f"  {n.binding}"
+        lines.append(text)
+    return lines, {"values": shown, "forced": sorted(forced),
+                   "roles": {n.text: n.role for n in names}}
+
+
+def cmd_watch(session: Session, args: list[str]) -> Reply:
+    every = None
+    if len(args) >= 2 and args[-2] == "every":
+        try:
+            every = max(int(args[-1]), MIN_EVERY_MS) / 1000
+        except ValueError:
+            raise CommandError(f"bad value '{printable(args[-1])}' after 'every': "
+                               "expected a number of ms") from None
+        args = args[:-2]
+    names = session.cat.expand(args) if args else session.cat.physical_inputs()
+    if not names:
+        raise CommandError("nothing to watch: this plant has no physical input")
+    session.start_stream(Stream("watch", names, session.cat, every))
+    return [f"watching {len(names)} value(s) "
+            + (f"every {every * 1000:g} ms" if every else "on every change")
+            + " until the next line"], {"watch": [n.text for n in names]}
+
+
+def cmd_trace(session: Session, args: list[str]) -> Reply:
+    if args not in (["on"], ["off"]):
+        raise CommandError("usage: trace on|off")
+    if args[0] == "off":
+        return []
+    session.start_stream(Stream("trace", session.cat.traced, session.cat))
+    return ["tracing every scan's changes until the next line"], {}
+
+
+def cmd_why(session: Session, args: list[str]) -> Reply:
+    plant = session.ctl.plant
+    if len(args) != 1 or args[0] not in plant.instances:
+        given = f" '{printable(args[0])}'" if args else ""
+        raise CommandError(f"usage: why INSTANCE; no instance{given} (one of "
+                           f"{' '.join(plant.instances)})")
+    name = args[0]
+    whys = session.ctl.call(lambda: plant.explain(name))
+    lines, data = [], []
+    for sw in whys:
+        lines.append(f"{sw.step} active for {round_times(format_ns(sw.time_ns))}")
+        for tw in sw.transitions:
+            state = ("fires" if tw.condition and not tw.blocked else
+                     "blocked" if tw.condition else "false")
+            lines.append(f"  [{state}] {tw.text}")
+            for b in tw.blocked:
+                lines.append(f"      blocked by: {round_times(b)}")
+            for term in tw.terms:
+                lines.append(f"      {'  ' * term.depth}{term.text} = {term.value}")
+        data.append({"step": sw.step, "time_ms": round(sw.time_ns / 1e6),
+                     "transitions": [
+                         {"text": t.text, "condition": t.condition,
+                          "blocked": [round_times(b) for b in t.blocked],
+                          "terms": [{"text": x.text, "depth": x.depth, "value": x.value}
+                                    for x in t.terms]} for t in sw.transitions]})
+    if not whys:
+        lines.append("no active step")
+    return lines, {"instance": args[0], "why": data}
+
+
+def cmd_unlock(session: Session, args: list[str]) -> Reply:
+    svc = session.service
+    if svc.pin_hash is None:
+        raise CommandError("no pin_hash in the plant file: nothing to unlock"
+                           + (" (this console is trusted)" if session.trusted else ""))
+    if len(args) != 1:
+        raise CommandError("usage: unlock PIN")
+    svc.try_pin(args[0], session.name)
+    session.unlocked = True
+    log.info("console %s unlocked", session.name)
+    return ["unlocked"]
+
+
+def cmd_lock(session: Session, args: list[str]) -> Reply:
+    if not session.may_change():
+        return ["already locked"]
+    session.unlocked = False
+    released = changing.unforce_all(session)
+    return ["locked" + (f"; released {', '.join(released)}" if released else "")
+            + ("; this console is trusted: changing commands stay allowed"
+               if session.trusted else "")], {"released": released}
+
+
+#: every command by name (protocol.READ_ONLY and protocol.CHANGING name the same ones)
+COMMANDS: dict[str, Command] = {
+    "help": cmd_help, "status": cmd_status, "stats": cmd_stats, "get": cmd_get,
+    "watch": cmd_watch, "trace": cmd_trace, "why": cmd_why, "json": cmd_json,
+    "unlock": cmd_unlock, "lock": cmd_lock,
+    "set": changing.cmd_set, "force": changing.cmd_force, "unforce": changing.cmd_unforce,
+    "pause": changing.cmd_pause, "resume": changing.cmd_resume, "cycle": changing.cmd_cycle,
+    "init": changing.cmd_init, "reset": changing.cmd_reset, "iocheck": changing.cmd_iocheck,
+    "ack": changing.cmd_ack,
+}
