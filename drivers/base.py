@@ -112,20 +112,113 @@ class Kind(enum.Enum):
 
 @dataclass(frozen=True, slots=True)
 class ConfigKey:
-    """One key of a driver's config; each type's are declared in drivers.registry."""
+    """One key of a driver's config: its kind, default, range, choices and the words of its
+    refusal. Each type's are declared in drivers.registry; ``check`` is the only place a
+    value is checked (``ConfigKeys.validate``, called by ``Driver.__init__``)."""
 
     name: str
     kind: Kind
     #: the value when the key is absent (None: no value, or required)
     default: Any = None
     required: bool = False
-    #: inclusive bounds the driver checks, for INT and I2C_ADDRESS
+    #: inclusive bounds: of the value for INT and I2C_ADDRESS, of the length for TEXT
     minimum: int | None = None
     maximum: int | None = None
     #: the values of a CHOICE
     choices: tuple[Any, ...] = ()
     #: a CHOICE read in any case (parity: ``e`` is ``E``)
     any_case: bool = False
+    #: other spellings of a CHOICE, (alias, choice) pairs (parity: ``even`` is ``E``)
+    aliases: tuple[tuple[str, Any], ...] = ()
+    #: a DURATION that must be more than 0 (every duration is at least 0)
+    positive: bool = False
+    #: what the value should be, as the refusal says it ("a node-ID 1-127"); "" says it
+    #: from the kind, range and choices
+    expected: str = ""
+    #: the refusal after ``driver NAME (TYPE): ``; fields ``key``, ``value``, ``expected``
+    message: str = "{key}: expected {expected}, found {value!r}"
+
+    def describe(self) -> str:
+        """What the value should be, in the words of a refusal."""
+        if self.expected:
+            return self.expected
+        low, high = self.minimum, self.maximum
+        if self.kind is Kind.INT:
+            return "an integer" + _range_words(low, high, str)
+        if self.kind is Kind.I2C_ADDRESS:
+            return "an I2C address" + _range_words(low, high, lambda n: f"0x{n:02x}")
+        if self.kind is Kind.TEXT:
+            return "non-empty text" if low else "text"
+        if self.kind is Kind.CHOICE:
+            return "one of " + ", ".join(str(c) for c in self.choices)
+        return {Kind.BOOL: "true or false", Kind.DURATION: "a positive time",
+                Kind.TEXT_OR_INT: "text or an integer", Kind.MAPPING: "a mapping"}[self.kind]
+
+    def refusal(self, value: Any, driver: str, type_name: str) -> ConfigError:
+        """The ConfigError that refuses ``value`` for this key of ``driver``."""
+        text = self.message.format(key=self.name, value=value, expected=self.describe())
+        return ConfigError(f"driver {driver} ({type_name}): {text}")
+
+    def check(self, value: Any, driver: str, type_name: str) -> Any:
+        """``value`` as the driver uses it (a time in seconds, an I2C address as an int, a
+        CHOICE as declared); raises ``refusal`` (or parse_duration's ConfigError)."""
+        if self.kind is Kind.DURATION:
+            seconds = parse_duration(value, f"driver {driver} {self.name}")
+            if self.positive and seconds <= 0:
+                raise self.refusal(value, driver, type_name)
+            return seconds
+        ok, out = self._convert(value)
+        if not ok:
+            raise self.refusal(value, driver, type_name)
+        return out
+
+    def _convert(self, value: Any) -> tuple[bool, Any]:
+        kind = self.kind
+        if kind is Kind.CHOICE:
+            return self._choice(value)
+        if kind is Kind.BOOL:
+            return isinstance(value, bool), value
+        if kind is Kind.MAPPING:
+            return isinstance(value, Mapping), value
+        if kind is Kind.TEXT_OR_INT:
+            return isinstance(value, str) or _is_int(value), value
+        if kind is Kind.TEXT:
+            return isinstance(value, str) and self._in_range(len(value)), value
+        if kind is Kind.I2C_ADDRESS and isinstance(value, str):
+            try:
+                value = int(value, 0)
+            except ValueError:
+                return False, value
+        return _is_int(value) and self._in_range(value), value
+
+    def _choice(self, value: Any) -> tuple[bool, Any]:
+        def same(a: Any, b: Any) -> bool:
+            if self.any_case and isinstance(a, str) and isinstance(b, str):
+                return a.upper() == b.upper()
+            return a == b and isinstance(a, bool) == isinstance(b, bool)
+
+        for spelling, choice in (*((c, c) for c in self.choices), *self.aliases):
+            if same(value, spelling):
+                return True, choice
+        return False, value
+
+    def _in_range(self, n: int) -> bool:
+        return ((self.minimum is None or n >= self.minimum)
+                and (self.maximum is None or n <= self.maximum))
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _range_words(low: int | None, high: int | None, show: Callable[[int], str]) -> str:
+    if low is not None and high is not None:
+        return f" from {show(low)} to {show(high)}"
+    if low is not None:
+        return f" of at least {show(low)}"
+    if high is not None:
+        return f" of at most {show(high)}"
+    return ""
 
 
 class ConfigKeys(Mapping[str, ConfigKey]):
@@ -146,6 +239,25 @@ class ConfigKeys(Mapping[str, ConfigKey]):
     def value(self, config: Mapping[str, Any], name: str) -> Any:
         """``config[name]``, or the declared default when the key is absent."""
         return config.get(name, self._keys[name].default)
+
+    def validate(self, config: Mapping[str, Any], driver: str, type_name: str) -> dict[str, Any]:
+        """Every declared key of ``driver``'s ``config`` as the driver uses it (see
+        ``ConfigKey.check``), its default when absent; an optional key without a default
+        may be absent or null (None). Checked in declaration order; the first bad value
+        raises ConfigError. Keys not declared here are ignored (Driver refuses them)."""
+        out: dict[str, Any] = {}
+        for key in self._keys.values():
+            if key.name in config:
+                value = config[key.name]
+            elif key.required:
+                raise key.refusal(None, driver, type_name)
+            else:
+                value = key.default
+            if value is None and key.default is None and not key.required:
+                out[key.name] = None
+            else:
+                out[key.name] = key.check(value, driver, type_name)
+        return out
 
     def __repr__(self) -> str:
         return f"ConfigKeys({', '.join(self._keys)})"
@@ -204,6 +316,9 @@ class Driver(abc.ABC):
         if unknown:
             raise ConfigError(f"driver {name} ({self.type_name}): unknown keys "
                               f"{sorted(unknown)}")
+        #: the config as checked by ``config_keys``: every declared key, defaults filled in,
+        #: times in seconds, I2C addresses as ints, choices as declared
+        self.params = self.config_keys.validate(self.config, name, self.type_name)
         self.clock = clock
         #: physical input values, point -> value, filled by read()
         self.inputs: dict[str, Any] = {}

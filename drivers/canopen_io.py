@@ -46,15 +46,7 @@ import canopen
 from canopen.objectdictionary import ODVariable
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
-from drivers.base import (
-    ConfigError,
-    Direction,
-    DriverError,
-    PointError,
-    PointKind,
-    PolledDriver,
-    parse_duration,
-)
+from drivers.base import ConfigError, Direction, DriverError, PointError, PointKind, PolledDriver
 from drivers.registry import CANOPEN_KEYS
 
 log = logging.getLogger(__name__)
@@ -105,51 +97,34 @@ class Pdo:
 
 @dataclass(frozen=True)
 class CanopenConfig:
-    """A canopen driver's configuration, checked on construction."""
+    """A canopen driver's configuration, as checked by its declaration (CANOPEN_KEYS, which
+    holds the defaults and ranges), with the ``pdo`` mapping parsed."""
 
     node: int
-    interface: str = "socketcan"
-    channel: str = "can0"
-    bitrate: int | None = None
-    heartbeat_s: float = 1.0
-    eds: str | None = None
-    sync_s: float | None = None
-    tpdos: list[list[PdoEntry]] | None = None
-    rpdos: list[list[PdoEntry]] | None = None
+    interface: str
+    channel: str
+    bitrate: int | None
+    heartbeat_s: float
+    eds: str | None
+    sync_s: float | None
+    tpdos: list[list[PdoEntry]] | None
+    rpdos: list[list[PdoEntry]] | None
 
     @classmethod
-    def from_mapping(cls, name: str, cfg: Mapping[str, Any]) -> CanopenConfig:
-        def fail(key: str, expected: str) -> ConfigError:
-            return ConfigError(f"driver {name} (canopen): {key}: expected {expected}, found "
-                               f"{cfg.get(key)!r}")
-
-        node = cfg.get("node")
-        if not isinstance(node, int) or isinstance(node, bool) or not 1 <= node <= 127:
-            raise fail("node", "a node-ID 1-127")
-        bitrate = cfg.get("bitrate")
-        if bitrate is not None and (not isinstance(bitrate, int) or bitrate <= 0):
-            raise fail("bitrate", "a bit rate such as 250000")
-        heartbeat = parse_duration(CANOPEN_KEYS.value(cfg, "heartbeat"), f"driver {name} heartbeat")
-        if heartbeat <= 0:
-            raise fail("heartbeat", "a positive consumer timeout such as 500ms")
-        sync = cfg.get("sync")
-        sync_s = None if sync is None else parse_duration(sync, f"driver {name} sync")
-        if sync_s is not None and sync_s <= 0:
-            raise fail("sync", "a positive SYNC period such as 10ms")
+    def from_params(cls, name: str, params: Mapping[str, Any]) -> CanopenConfig:
+        """From driver ``name``'s ``params`` (``ConfigKeys.validate``); ConfigError for a
+        bad ``pdo`` entry."""
         tpdos = rpdos = None
-        if cfg.get("pdo") is not None:
-            tpdos, rpdos = _pdo_config(name, cfg["pdo"])
-        eds = cfg.get("eds")
-        return cls(node, str(CANOPEN_KEYS.value(cfg, "interface")),
-                   str(CANOPEN_KEYS.value(cfg, "channel")),
-                   bitrate, heartbeat, None if eds is None else str(eds), sync_s, tpdos, rpdos)
+        if params["pdo"] is not None:
+            tpdos, rpdos = _pdo_config(name, params["pdo"])
+        return cls(params["node"], params["interface"], str(params["channel"]),
+                   params["bitrate"], params["heartbeat"], params["eds"], params["sync"],
+                   tpdos, rpdos)
 
 
-def _pdo_config(name: str, pdo: Any) -> tuple[list[list[PdoEntry]], list[list[PdoEntry]]]:
+def _pdo_config(name: str, pdo: Mapping[Any, Any]) -> tuple[list[list[PdoEntry]],
+                                                             list[list[PdoEntry]]]:
     """``{tpdo1: ["6000:1", ...], rpdo1: [...]}`` -> (TPDO maps, RPDO maps) by number."""
-    if not isinstance(pdo, Mapping):
-        raise ConfigError(f"driver {name} (canopen): pdo: expected a mapping such as "
-                          "{tpdo1: ['6000:1'], rpdo1: ['6200:1']}")
     maps: dict[str, list[list[PdoEntry]]] = {"tpdo": [[] for _ in range(4)],
                                              "rpdo": [[] for _ in range(4)]}
     for key, entries in pdo.items():
@@ -197,7 +172,7 @@ class CanopenDriver(PolledDriver):
         clock: Callable[[], int] = time.monotonic_ns,
     ) -> None:
         super().__init__(name, config, clock=clock)
-        self.cfg = CanopenConfig.from_mapping(name, self.config)
+        self.cfg = CanopenConfig.from_params(name, self.params)
         self.first_data_timeout_s = max(self.FIRST_DATA_TIMEOUT_S, 3 * self.cfg.heartbeat_s)
         self._network: canopen.Network | None = None
         self._node: canopen.RemoteNode | None = None

@@ -21,20 +21,12 @@ import gpiod
 from gpiod.line import Bias, Value
 from gpiod.line import Direction as LineDirection
 
-from drivers.base import (
-    ConfigError,
-    Direction,
-    Driver,
-    DriverError,
-    PointError,
-    PointKind,
-    as_bit,
-    parse_duration,
-)
+from drivers.base import Direction, Driver, DriverError, PointError, PointKind, as_bit
 from drivers.registry import GPIO_KEYS
 
 log = logging.getLogger(__name__)
 
+#: the declared choices of ``bias`` (drivers.registry) as libgpiod biases
 BIASES = {"pull_up": Bias.PULL_UP, "pull_down": Bias.PULL_DOWN, "none": Bias.DISABLED}
 
 
@@ -57,16 +49,10 @@ class GpioDriver(Driver):
         clock: Callable[[], int] = time.monotonic_ns,
     ) -> None:
         super().__init__(name, config, clock=clock)
-        cfg = self.config
-        self.chip = str(GPIO_KEYS.value(cfg, "chip"))
-        bias = str(GPIO_KEYS.value(cfg, "bias"))
-        if bias not in BIASES:
-            raise ConfigError(f"driver {name} (gpio): bias '{bias}': expected one of "
-                              f"{', '.join(BIASES)}")
-        self.bias: Bias = BIASES[bias]
+        self.chip: str = self.params["chip"]
+        self.bias: Bias = BIASES[self.params["bias"]]
         #: debounce period of the inputs, seconds (0: none)
-        self.debounce_s = parse_duration(GPIO_KEYS.value(cfg, "debounce"),
-                                         f"driver {name} debounce")
+        self.debounce_s: float = self.params["debounce"]
         self._request: Any = None
         self._in_offsets: list[int] = []
         self._in_points: list[str] = []

@@ -32,7 +32,7 @@ from typing import Any
 
 import smbus2
 
-from drivers.base import ConfigError, Direction, Driver, DriverError, PointError, PointKind
+from drivers.base import Direction, Driver, DriverError, PointError, PointKind
 from drivers.registry import MCP23017_KEYS
 
 log = logging.getLogger(__name__)
@@ -48,23 +48,6 @@ GPIOA = 0x12
 OLATA = 0x14
 #: IOCON's address when IOCON.BANK = 1
 IOCON_BANK1 = 0x05
-
-
-def i2c_config(name: str, type_name: str, cfg: Mapping[str, Any]) -> tuple[int, int]:
-    """(bus number, 7-bit address) from a driver config; ConfigError if out of range."""
-    bus, address = cfg.get("bus"), cfg.get("address")
-    if not isinstance(bus, int) or isinstance(bus, bool) or bus < 0:
-        raise ConfigError(f"driver {name} ({type_name}): bus: expected the I2C bus number "
-                          f"(1 for /dev/i2c-1), found {bus!r}")
-    if isinstance(address, str):
-        try:
-            address = int(address, 0)
-        except ValueError:
-            address = None
-    if not isinstance(address, int) or isinstance(address, bool) or not 0x03 <= address <= 0x77:
-        raise ConfigError(f"driver {name} ({type_name}): address: expected a 7-bit I2C address "
-                          f"such as 0x20, found {cfg.get('address')!r}")
-    return bus, address
 
 
 class Mcp23017Driver(Driver):
@@ -88,12 +71,9 @@ class Mcp23017Driver(Driver):
         clock: Callable[[], int] = time.monotonic_ns,
     ) -> None:
         super().__init__(name, config, clock=clock)
-        self.bus_number, self.address = i2c_config(name, self.type_name, self.config)
-        pull_up = MCP23017_KEYS.value(self.config, "pull_up")
-        if not isinstance(pull_up, bool):
-            raise ConfigError(f"driver {name} (mcp23017): pull_up: expected true or false, "
-                              f"found {pull_up!r}")
-        self.pull_up = pull_up
+        self.bus_number: int = self.params["bus"]
+        self.address: int = self.params["address"]
+        self.pull_up: bool = self.params["pull_up"]
         #: how many times the chip was found reset and set up again
         self.reinits = 0
         self._bus: Any = None

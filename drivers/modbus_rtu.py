@@ -38,14 +38,7 @@ from typing import Any
 
 import serial
 
-from drivers.base import (
-    ConfigError,
-    Direction,
-    PointError,
-    PointKind,
-    PolledDriver,
-    parse_duration,
-)
+from drivers.base import Direction, PointError, PointKind, PolledDriver
 from drivers.modbus_frame import (
     MAX_ITEMS,
     READ_COILS,
@@ -63,50 +56,29 @@ from drivers.registry import MODBUS_RTU_KEYS
 from drivers.serial_line import RtuMaster, SerialLine, SerialPorts, SerialSettings, shared_ports
 
 _POINT = re.compile(r"^(I|Q|IR|HR)([0-9]{1,5})$")
-PARITIES = {"N": serial.PARITY_NONE, "E": serial.PARITY_EVEN, "O": serial.PARITY_ODD,
-            "NONE": serial.PARITY_NONE, "EVEN": serial.PARITY_EVEN, "ODD": serial.PARITY_ODD}
+#: the declared choices of ``parity`` (drivers.registry) as pyserial parities
+PARITIES = {"N": serial.PARITY_NONE, "E": serial.PARITY_EVEN, "O": serial.PARITY_ODD}
 
 
 @dataclass(frozen=True)
 class ModbusConfig:
-    """A modbus_rtu driver's configuration, checked on construction."""
+    """A modbus_rtu driver's configuration, as checked by its declaration (MODBUS_RTU_KEYS,
+    which holds the defaults and ranges)."""
 
     port: str
     unit: int
-    baudrate: int = 19200
-    parity: str = "N"
-    stopbits: int = 1
-    timeout_s: float = 0.1
-    retries: int = 2
+    baudrate: int
+    parity: str  # a pyserial parity
+    stopbits: int
+    timeout_s: float
+    retries: int
 
     @classmethod
-    def from_mapping(cls, name: str, cfg: Mapping[str, Any]) -> ModbusConfig:
-        def fail(key: str, expected: str) -> ConfigError:
-            return ConfigError(f"driver {name} (modbus_rtu): {key}: expected {expected}, "
-                               f"found {cfg.get(key)!r}")
-
-        port = cfg.get("port")
-        if not isinstance(port, str) or not port:
-            raise fail("port", "a serial device such as /dev/ttyUSB0")
-        unit = MODBUS_RTU_KEYS.value(cfg, "unit")
-        if not isinstance(unit, int) or isinstance(unit, bool) or not 1 <= unit <= 247:
-            raise fail("unit", "a slave address 1-247")
-        baud = MODBUS_RTU_KEYS.value(cfg, "baudrate")
-        if not isinstance(baud, int) or isinstance(baud, bool) or baud <= 0:
-            raise fail("baudrate", "a baud rate such as 19200")
-        parity = PARITIES.get(str(MODBUS_RTU_KEYS.value(cfg, "parity")).upper())
-        if parity is None:
-            raise fail("parity", "N, E or O")
-        stopbits = MODBUS_RTU_KEYS.value(cfg, "stopbits")
-        if stopbits not in (1, 2):
-            raise fail("stopbits", "1 or 2")
-        timeout = parse_duration(MODBUS_RTU_KEYS.value(cfg, "timeout"), f"driver {name} timeout")
-        if timeout <= 0:
-            raise fail("timeout", "a positive time such as 100ms")
-        retries = MODBUS_RTU_KEYS.value(cfg, "retries")
-        if not isinstance(retries, int) or isinstance(retries, bool) or not 0 <= retries <= 10:
-            raise fail("retries", "0-10")
-        return cls(port, unit, baud, parity, int(stopbits), timeout, retries)
+    def from_params(cls, params: Mapping[str, Any]) -> ModbusConfig:
+        """From a driver's ``params`` (``ConfigKeys.validate``)."""
+        return cls(params["port"], params["unit"], params["baudrate"],
+                   PARITIES[params["parity"]], params["stopbits"], params["timeout"],
+                   params["retries"])
 
 
 @dataclass
@@ -143,7 +115,7 @@ class ModbusRtuDriver(PolledDriver):
         super().__init__(name, config, clock=clock)
         #: the open lines this driver's port is shared through (default: the process's)
         self.ports = shared_ports() if ports is None else ports
-        self.cfg = ModbusConfig.from_mapping(name, self.config)
+        self.cfg = ModbusConfig.from_params(self.params)
         self.settings = SerialSettings(self.cfg.port, self.cfg.baudrate, self.cfg.parity,
                                        self.cfg.stopbits)
         self.stale_after_s = max(self.STALE_AFTER_S or 0.0,

@@ -27,7 +27,6 @@ from typing import Any
 import smbus2
 
 from drivers.base import Direction, Driver, DriverError, PointError, PointKind
-from drivers.mcp23017 import i2c_config
 from drivers.registry import PCF8574_KEYS
 
 log = logging.getLogger(__name__)
@@ -48,7 +47,8 @@ class Pcf8574Driver(Driver):
         clock: Callable[[], int] = time.monotonic_ns,
     ) -> None:
         super().__init__(name, config, clock=clock)
-        self.bus_number, self.address = i2c_config(name, self.type_name, self.config)
+        self.bus_number: int = self.params["bus"]
+        self.address: int = self.params["address"]
         #: how many times the chip was found reset and its latch written again
         self.reinits = 0
         self._bus: Any = None

@@ -37,6 +37,7 @@ from drivers.modbus_frame import (
     describe,
     response_length,
 )
+from drivers.registry import MODBUS_RTU_KEYS
 
 if TYPE_CHECKING:  # the driver imports this module
     from drivers.modbus_rtu import ModbusRtuDriver
@@ -46,12 +47,13 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class SerialSettings:
-    """What every driver sharing a port must agree on."""
+    """What every driver sharing a port must agree on; the defaults are the declared ones
+    (MODBUS_RTU_KEYS)."""
 
     port: str
-    baudrate: int = 19200
-    parity: str = "N"
-    stopbits: int = 1
+    baudrate: int = MODBUS_RTU_KEYS["baudrate"].default
+    parity: str = MODBUS_RTU_KEYS["parity"].default  # a pyserial parity: N, E, O
+    stopbits: int = MODBUS_RTU_KEYS["stopbits"].default
 
     @property
     def char_s(self) -> float:
