@@ -28,8 +28,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from runtime.language import ast as A
+from runtime.language.lexer import format_time
 from runtime.language.model import Grafcet, VarKind
-from runtime.language.parser import format_time
 from runtime.language.unparse import unparse as unparse  # re-exported for rules.py
 
 T = A.Type

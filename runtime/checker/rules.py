@@ -20,8 +20,8 @@ from runtime.checker.logic import ARITH, COMPARE, Logic, has_edge, unparse
 from runtime.checker.reach import LIMIT, Reach, Unsafe, explore, structural_reach
 from runtime.errors import Loc
 from runtime.language import ast as A
+from runtime.language.lexer import format_time
 from runtime.language.model import Grafcet, Qualifier, Step, Transition
-from runtime.language.parser import format_time
 
 T = A.Type
 

@@ -15,8 +15,8 @@ from typing import Any
 from runtime.compiler.program import Probe, Program, Slot, SlotKind, step_time_code
 from runtime.errors import SoftplcError
 from runtime.language import ast as A
+from runtime.language.lexer import format_time
 from runtime.language.model import Action, Grafcet, Qualifier, ScanModel, Step, Transition, VarKind
-from runtime.language.parser import format_time
 from runtime.language.typecheck import CLOCK_PERIOD_NS
 from runtime.language.unparse import transition_text
 

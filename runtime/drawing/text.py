@@ -10,8 +10,8 @@ from __future__ import annotations
 import re
 
 from runtime.language import ast as A
+from runtime.language.lexer import format_time
 from runtime.language.model import Action, Qualifier
-from runtime.language.parser import format_time
 from runtime.language.unparse import unparse
 
 #: the font family of every drawing; the widths below are this font's

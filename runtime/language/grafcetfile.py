@@ -14,6 +14,7 @@ from typing import Any
 from drivers.durations import parse_literal, strip_time_prefix
 from runtime.errors import Diagnostic, Loc, SourceError, suggest
 from runtime.language import ast as A
+from runtime.language.lexer import KEYWORDS, is_name
 from runtime.language.model import (
     Action,
     Block,
@@ -27,13 +28,7 @@ from runtime.language.model import (
     Variable,
     VarKind,
 )
-from runtime.language.parser import (
-    KEYWORDS,
-    is_name,
-    parse_action,
-    parse_expression,
-    parse_statements,
-)
+from runtime.language.parser import parse_action, parse_expression, parse_statements
 from runtime.language.typecheck import (
     FB_MEMBERS,
     FLAGS_BOOL,

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from runtime.language import ast as A
+from runtime.language.lexer import format_time
 from runtime.language.model import Transition
-from runtime.language.parser import format_time
 
 T = A.Type
 _COMPARE = {"EQ": "=", "NE": "<>", "LT": "<", "LE": "<=", "GT": ">", "GE": ">="}

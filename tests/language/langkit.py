@@ -13,10 +13,10 @@ from runtime.engine.instance import Instance
 from runtime.errors import Loc, SourceError
 from runtime.language import ast as A
 from runtime.language.grafcetfile import GrafcetLoader, load_grafcet
+from runtime.language.lexer import format_time
 from runtime.language.model import Grafcet
 from runtime.language.parser import (
     ParsedAction,
-    format_time,
     parse_action,
     parse_expression,
     parse_statements,

@@ -7,7 +7,7 @@ import pytest
 
 from runtime.errors import SourceError
 from runtime.language import ast as A
-from runtime.language.parser import format_time, parse_time
+from runtime.language.lexer import format_time, parse_time
 from tests.language.langkit import (
     MS,
     S,

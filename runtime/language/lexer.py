@@ -1,0 +1,162 @@
+"""Lexer of expressions, statements and action strings: the text as tokens (names,
+keywords, numbers, time literals, operators, new lines), each with its offsets."""
+
+from __future__ import annotations
+
+import unicodedata
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from drivers.durations import format_ns, parse_literal
+from runtime.errors import Loc, SourceError
+
+KEYWORDS = {
+    "AND", "OR", "XOR", "NOT", "MOD", "RE", "FE", "TRUE", "FALSE", "IF", "THEN", "ELSIF",
+    "ELSE", "END_IF", "CASE", "OF", "END_CASE", "FOR", "TO", "BY", "DO", "END_FOR",
+    "WHILE", "REPEAT", "END_WHILE", "UNTIL", "END_REPEAT",
+}
+
+#: the time literal ``1d23h30m20s700ms`` -> ns or None, and ns -> the shortest literal
+#: (their one home is drivers.durations; kept here under the names the language uses)
+parse_time = parse_literal
+format_time = format_ns
+
+_OPS = [":=", "..", "<=", ">=", "<>", "!=", "==", "≤", "≥", "≠", "(", ")", ",", ";", ":",
+        ".", "+", "-", "*", "/", "·", "∙", "⋅", "&", "!", "'", "↑", "↓", "=", "<", ">"]
+
+
+@dataclass(slots=True)
+class Tok:
+    kind: str  # NAME KW INT REAL TIME OP NL EOF
+    text: str
+    start: int
+    end: int
+    value: object = None
+
+
+def is_name(word: str) -> bool:
+    """A name of the language: letters (any alphabet: gsAvería), digits and '_', not starting
+    with a digit, and written in its canonical form (no '²', no ligatures: they would
+    collide with other names once compiled)."""
+    return word.isidentifier() and unicodedata.normalize("NFKC", word) == word
+
+
+class Lexer:
+    """Turns a source string into tokens; ``locate(offset)`` maps an offset to a file place."""
+
+    def __init__(self, text: str, locate: Callable[[int], Loc]) -> None:
+        self.text = text
+        self.locate = locate
+
+    def error(self, offset: int, msg: str) -> SourceError:
+        return SourceError(self.locate(offset), msg)
+
+    def tokens(self) -> list[Tok]:
+        text, i, out = self.text, 0, []
+        n = len(text)
+        while i < n:
+            c = text[i]
+            if c == "\n":
+                out.append(Tok("NL", "\n", i, i + 1))
+                i += 1
+                continue
+            if c.isspace():
+                i += 1
+                continue
+            if text.startswith("(*", i):  # ST comment
+                j = text.find("*)", i + 2)
+                if j < 0:
+                    raise self.error(i, "unterminated comment: expected '*)'")
+                i = j + 2
+                continue
+            if text.startswith("//", i):
+                j = text.find("\n", i)
+                i = n if j < 0 else j
+                continue
+            if c.isdigit():
+                out.append(self._number(i))
+                i = out[-1].end
+                continue
+            if c.isalpha() or c == "_":
+                j = i + 1
+                while j < n and (text[j].isalnum() or text[j] == "_"):
+                    j += 1
+                word = text[i:j]
+                if j < n and text[j] == "#" and word.upper() in ("T", "TIME"):
+                    k = j + 1
+                    while k < n and (text[k].isalnum() or text[k] in "._"):
+                        k += 1
+                    lit = text[j + 1:k]
+                    ns = parse_time(lit)
+                    if ns is None:
+                        raise self.error(i, f"bad time literal '{text[i:k]}': expected units "
+                                            "in order d h m s ms (e.g. T#1h30m)")
+                    out.append(Tok("TIME", text[i:k], i, k, ns))
+                    i = k
+                    continue
+                if j < n and text[j] == "#" and word.isdigit():  # pragma: no cover
+                    pass
+                kind = "KW" if word.upper() in KEYWORDS else "NAME"
+                if kind == "NAME" and not is_name(word):
+                    raise self.error(i, f"expected a name of letters, digits and '_', found "
+                                        f"'{word}'")
+                out.append(Tok(kind, word.upper() if kind == "KW" else word, i, j))
+                i = j
+                continue
+            for op in _OPS:
+                if text.startswith(op, i):
+                    out.append(Tok("OP", op, i, i + len(op)))
+                    i += len(op)
+                    break
+            else:
+                if unicodedata.category(c).startswith("M"):
+                    raise self.error(i, f"expected a letter, found the combining mark "
+                                        f"U+{ord(c):04X}: write accented letters precomposed "
+                                        "(save the file in Unicode NFC form)")
+                raise self.error(i, f"expected an operand or an operator, found the "
+                                    f"unexpected character '{c}'")
+        out.append(Tok("EOF", "", n, n))
+        return out
+
+    def _number(self, i: int) -> Tok:
+        text, n = self.text, len(self.text)
+        j = i
+        while j < n and (text[j].isdigit() or text[j] == "_"):
+            j += 1
+        if j < n and text[j] == "#":  # based integer 16#FF, 2#1010
+            base = int(text[i:j].replace("_", ""))
+            k = j + 1
+            while k < n and (text[k].isalnum() or text[k] == "_"):
+                k += 1
+            try:
+                return Tok("INT", text[i:k], i, k, int(text[j + 1:k].replace("_", ""), base))
+            except ValueError:
+                raise self.error(i, f"bad based integer '{text[i:k]}'") from None
+        is_real = False
+        if j + 1 < n and text[j] == "." and text[j + 1].isdigit():
+            is_real = True
+            j += 1
+            while j < n and text[j].isdigit():
+                j += 1
+        if j < n and text[j] in "eE" and (j + 1 < n and (text[j + 1].isdigit() or
+                                                      text[j + 1] in "+-")):
+            k = j + 1 + (text[j + 1] in "+-")
+            if k < n and text[k].isdigit():
+                is_real = True
+                j = k
+                while j < n and text[j].isdigit():
+                    j += 1
+        if j < n and (text[j].isalpha() or text[j] == "_"):
+            k = j
+            while k < n and (text[k].isalnum() or text[k] in "._"):
+                k += 1
+            lit = text[i:k]
+            ns = parse_time(lit)
+            if ns is None:
+                raise self.error(i, f"bad time literal '{lit}': expected a number followed by "
+                                    "units in order d h m s ms (e.g. 1m30s, 250ms)")
+            return Tok("TIME", lit, i, k, ns)
+        raw = text[i:j].replace("_", "")
+        if is_real:
+            return Tok("REAL", text[i:j], i, j, float(raw))
+        return Tok("INT", text[i:j], i, j, int(raw))
