@@ -11,7 +11,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from drivers.durations import format_ns, parse_literal
-from runtime.compiler.codegen import Program, min_timed
+from runtime.compiler.evolution import min_timed
+from runtime.compiler.program import Program
 from runtime.language import ast as A
 from runtime.language.model import Step, Transition, VarKind
 from runtime.language.unparse import transition_text

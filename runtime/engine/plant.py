@@ -17,7 +17,8 @@ from typing import Any
 from drivers.base import Direction, Driver, FaultPolicy, Health
 from drivers.registry import driver_class
 from drivers.sim import SimDriver
-from runtime.compiler.codegen import Program, compile_grafcet
+from runtime.compiler.codegen import compile_grafcet
+from runtime.compiler.program import Program
 from runtime.engine.instance import Instance, StepWhy, coerce
 from runtime.engine.names import Owner, PlantNames, UnknownName
 from runtime.errors import SoftplcError

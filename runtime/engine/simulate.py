@@ -10,7 +10,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from drivers.sim import SimDriver
-from runtime.compiler.codegen import UnstableChart
+from runtime.compiler.evolution import UnstableChart
 from runtime.engine.plant import Plant
 from runtime.engine.script import Event, load_script
 from runtime.engine.trace import trace_columns, write_trace, write_vcd

@@ -10,7 +10,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from runtime.compiler.codegen import UnstableChart, compile_grafcet
+from runtime.compiler.codegen import compile_grafcet
+from runtime.compiler.evolution import UnstableChart
 from runtime.engine.instance import Instance
 from runtime.language.grafcetfile import load_grafcet
 from tests.engine.engine_reference import Assoc, Cond, RefChart, Reference, Trans, Unstable

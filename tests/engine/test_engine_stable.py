@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from runtime.compiler.codegen import STABLE_MAX_ROUNDS, UnstableChart
+from runtime.compiler.evolution import STABLE_MAX_ROUNDS, UnstableChart
 
 PASS = """\
 grafcet: Pass

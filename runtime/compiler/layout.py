@@ -1,0 +1,120 @@
+"""The state list of a compiled chart laid out: a slot for each variable, each step's X and
+times, each block, and the scan's own memory (edges, stored actions, the flags' history);
+and the writes that keep a local of the scan function and its slot together."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+from runtime.compiler.emit import ident
+from runtime.compiler.program import Slot, SlotKind
+from runtime.language import ast as A
+from runtime.language.model import Action, Grafcet, Qualifier, ScanModel, Step, VarKind
+
+T = A.Type
+
+
+def macro_initial(g: Grafcet, s: Step) -> bool:
+    """Is ``s`` a macro-step whose entry step is initial (so it is active at start)?"""
+    return s.macro is not None and g.steps[s.macro.entry].initial
+
+
+def bool_targets(g: Grafcet) -> dict[str, list[Action]]:
+    """The actions that drive each bool target, by target, in file order."""
+    out: dict[str, list[Action]] = {}
+    for a in g.actions():
+        if a.target is not None:
+            out.setdefault(a.target, []).append(a)
+    return out
+
+
+class StateLayout:
+    """The slots of one chart's state list, and the locals stored into them."""
+
+    def __init__(self, g: Grafcet) -> None:
+        self.g = g
+        self.slots: list[Slot] = []
+        self.index: dict[str, int] = {}  # slot key -> index
+        self.stored: dict[str, int] = {}  # local of a slot -> index
+        self.edges: dict[int, int] = {}  # id(node) -> edge number
+        self.edge_nodes: list[A.Unary] = []
+
+    def slot(self, key: str, local: str, init: Any, block: str | None = None,
+             kind: SlotKind = SlotKind.INTERNAL, name: str = "",
+             type_: A.Type | None = None) -> None:
+        i = len(self.slots)
+        self.index[key] = i
+        self.stored[local] = i
+        self.slots.append(Slot(key, local, init, block, kind, name, type_, i))
+
+    def let(self, *targets: str, value: str) -> str:
+        """``a = b = value``, where each state local is also stored into its slot
+        (``a = m[i] = value``): a scan writes only what it changes, instead of packing
+        every local back at its end (drawer tester: 0.91 us instead of 1.51 us a scan)."""
+        parts = [f"{t} = m[{self.stored[t]}]" if t in self.stored else t for t in targets]
+        return " = ".join([*parts, value])
+
+    def add(self, target: str, delta: str) -> str:
+        """``target += delta``, stored like ``let``."""
+        return self.let(target, value=f"{target} + ({delta})")
+
+    def build(self) -> None:
+        """Adds the slots of the variables, the steps, the blocks, the scan memory, the edges."""
+        g = self.g
+        for v in g.variables.values():
+            if v.kind is VarKind.SYSTEM:
+                continue
+            self.slot(v.name, ident("v", v.name), v.init, None, SlotKind.VARIABLE, v.name,
+                      v.type)
+        for s in g.steps.values():
+            self.slot(f"{s.name}.X", ident("x", s.name), s.initial or macro_initial(g, s),
+                      None, SlotKind.STEP_X, s.name, T.BOOL)
+            self.slot(f"{s.name}.T0", ident("t0", s.name), 0, None, SlotKind.STEP_START,
+                      s.name, T.TIME)
+            self.slot(f"{s.name}.TK", ident("tk", s.name), 0, None, SlotKind.STEP_LAST,
+                      s.name, T.TIME)
+        for name in g.timers:
+            self.slot(name, ident("b", name), None, "SeedTimer", SlotKind.BLOCK, name)
+        for b in g.blocks.values():
+            self.slot(b.name, ident("b", b.name), None, b.kind, SlotKind.BLOCK, b.name)
+        self.slot("#ct", "ct", 0, None, SlotKind.CLOCK, "", T.TIME)
+        for key, local, init in (("#last", "lastnow", 0),
+                                 ("#first", "first", True), ("#initpend", "initpend", True),
+                                 ("#paused", "wp", False), ("#resetprev", "resetprev", False),
+                                 ("#quitprev", "quitprev", False), ("#tipprev", "tipprev", True)):
+            self.slot(key, local, init)
+        if g.scan is ScanModel.CODESYS:
+            for t in g.transitions:
+                self.slot(f"#pending{t.index}", f"pf{t.index}", False)
+            for a in g.actions():  # Q of the last scan, for the final scan of L/D actions
+                if a.body is not None and a.qualifier in (Qualifier.L, Qualifier.D):
+                    self.slot(f"#cq{a.index}.F", f"cq{a.index}", False)
+        for target, assocs in bool_targets(g).items():
+            quals = {a.qualifier for a in assocs}
+            if Qualifier.S in quals:
+                self.slot(f"#S.{target}", ident("s", target), False)
+            for k, a in enumerate(assocs):
+                if a.qualifier in (Qualifier.SD, Qualifier.SL, Qualifier.DS):
+                    tag = f"{a.qualifier.value.lower()}{k}_{target}"
+                    self.slot(f"#{tag}.F", f"f{tag}", False)
+                    self.slot(f"#{tag}.T", f"t{tag}", 0)
+        # edges: every RE/FE node of the chart
+        for n in self._all_nodes():
+            if isinstance(n, A.Unary) and n.op in ("RE", "FE"):
+                k = len(self.edge_nodes)
+                self.edges[id(n)] = k
+                self.edge_nodes.append(n)
+                self.slot(f"#edge{k}.prev", f"ep{k}", n.op == "RE")
+                self.slot(f"#edge{k}", f"e{k}", False)
+
+    def _all_nodes(self) -> Iterator[A.Node]:
+        g = self.g
+        roots: list[A.Node] = [st.node for st in g.pre]
+        roots += [t.cond for t in g.transitions]
+        for a in g.actions():
+            roots += [x for x in (a.cond, a.event) if x is not None]
+            roots += a.body or []
+        roots += [st.node for st in g.post]
+        for r in roots:
+            yield from A.walk(r)
