@@ -46,7 +46,8 @@ import canopen
 from canopen.objectdictionary import ODVariable
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
-from drivers.base import ConfigError, Direction, DriverError, PointError, PointKind, PolledDriver
+from drivers.base import Direction, DriverError, PointError, PointKind, PolledDriver
+from drivers.config import ConfigError
 from drivers.registry import CANOPEN_KEYS
 
 log = logging.getLogger(__name__)

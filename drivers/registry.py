@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import importlib
 
-from drivers.base import ConfigKey, ConfigKeys, Driver, Kind
+from drivers.base import Driver
+from drivers.config import ConfigKey, ConfigKeys, Kind
 
 #: type -> (module, class name, pip package that provides its bus library)
 DRIVERS: dict[str, tuple[str, str, str | None]] = {

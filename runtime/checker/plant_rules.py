@@ -18,7 +18,8 @@ T = A.Type
 
 def check_plant_model(p: PlantDef) -> list[Diag]:
     """Driver points of a loaded plant: do they exist on their driver (G303-G305)?"""
-    from drivers.base import ConfigError, Direction, PointError, PointKind
+    from drivers.base import Direction, PointError, PointKind
+    from drivers.config import ConfigError
     from drivers.registry import DriverImportError, driver_class
 
     out: list[Diag] = []

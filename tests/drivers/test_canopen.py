@@ -17,8 +17,9 @@ import can
 import canopen
 import pytest
 
-from drivers.base import ConfigError, Direction, Health, PointError
+from drivers.base import Direction, Health, PointError
 from drivers.canopen_io import CanopenDriver
+from drivers.config import ConfigError
 from tests.drivers.canopen_slave import OPERATIONAL, PRE_OPERATIONAL, Cia401Slave
 from tests.drivers.drvkit import FakeClock, wait_until
 

@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from drivers.base import ConfigKey, ConfigKeys, Kind
+from drivers.config import ConfigKey, ConfigKeys, Kind
 from drivers.registry import DRIVER_KEYS, DRIVERS
 
 ROOT = Path(__file__).resolve().parents[2]

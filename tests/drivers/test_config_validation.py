@@ -12,8 +12,9 @@ from typing import Any
 
 import pytest
 
-from drivers.base import ConfigError, ConfigKey, Driver, Kind
+from drivers.base import Driver
 from drivers.canopen_io import CanopenDriver
+from drivers.config import ConfigError, ConfigKey, Kind
 from drivers.modbus_rtu import ModbusRtuDriver
 from drivers.registry import DRIVER_KEYS, MODBUS_RTU_KEYS, driver_class
 from drivers.serial_line import SerialSettings

@@ -7,15 +7,8 @@ from collections.abc import Iterator
 
 import pytest
 
-from drivers.base import (
-    ConfigError,
-    Direction,
-    Driver,
-    Health,
-    PointError,
-    PointKind,
-    PolledDriver,
-)
+from drivers.base import Direction, Driver, Health, PointError, PointKind, PolledDriver
+from drivers.config import ConfigError
 from drivers.registry import DRIVERS, driver_class
 from tests.drivers.drvkit import FakeClock, wait_until
 from tests.drivers.rigs import RIGS, Rig

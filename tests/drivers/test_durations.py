@@ -11,7 +11,7 @@ from typing import Any
 
 import pytest
 
-from drivers.base import ConfigError, parse_duration
+from drivers.config import ConfigError, parse_duration
 from drivers.durations import (
     CONFIG,
     LITERAL,

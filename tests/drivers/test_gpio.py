@@ -13,7 +13,8 @@ import pytest
 from gpiod.line import Bias, Value
 from gpiod.line import Direction as LineDirection
 
-from drivers.base import ConfigError, Direction, Health, PointError
+from drivers.base import Direction, Health, PointError
+from drivers.config import ConfigError
 from drivers.gpio import GpioDriver
 from tests.drivers.drvkit import FakeClock
 from tests.drivers.fake_gpiod import FakeGpio, debounce_of

@@ -9,7 +9,8 @@ import os
 import pytest
 import smbus2
 
-from drivers.base import ConfigError, Direction, Health, PointError
+from drivers.base import Direction, Health, PointError
+from drivers.config import ConfigError
 from drivers.mcp23017 import GPIOA, IODIRA, OLATA, Mcp23017Driver
 from drivers.pcf8574 import Pcf8574Driver
 from tests.drivers.drvkit import FakeClock

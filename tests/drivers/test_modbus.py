@@ -14,7 +14,8 @@ from typing import Any
 import pytest
 from pymodbus.constants import ExcCodes
 
-from drivers.base import ConfigError, Direction, Health, PointError, PolledDriver
+from drivers.base import Direction, Health, PointError, PolledDriver
+from drivers.config import ConfigError
 from drivers.modbus_frame import (
     crc16,
     decode_reply,
