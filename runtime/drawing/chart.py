@@ -21,7 +21,6 @@ With ``--trace TRACE.jsonl --cycle K`` the steps active in scan K of the trace (
 from __future__ import annotations
 
 import argparse
-import html
 import json
 import shutil
 import sys
@@ -40,7 +39,8 @@ from runtime.drawing.layout import (
     route,
     row_h,
 )
-from runtime.drawing.text import FONT, text_w
+from runtime.drawing.svg import Svg, esc, esc_attr
+from runtime.drawing.text import text_w
 from runtime.errors import Loc, SourceError
 from runtime.language.model import Grafcet
 
@@ -48,51 +48,6 @@ ACTIVE_FILL = "#ffd54f"
 
 
 # -- rendering ---------------------------------------------------------------------------------
-class Svg:
-    def __init__(self) -> None:
-        self.parts: list[str] = []
-        self.x0 = self.y0 = float("inf")
-        self.x1 = self.y1 = float("-inf")
-
-    def _grow(self, x: float, y: float) -> None:
-        self.x0, self.y0 = min(self.x0, x), min(self.y0, y)
-        self.x1, self.y1 = max(self.x1, x), max(self.y1, y)
-
-    def add(self, s: str) -> None:
-        self.parts.append(s)
-
-    def line(self, pts: list[tuple[float, float]], width: float = 1.2, cls: str = "") -> None:
-        pts = [p for i, p in enumerate(pts) if i == 0 or p != pts[i - 1]]
-        if len(pts) < 2:
-            return
-        for x, y in pts:
-            self._grow(x, y)
-        d = " ".join(f"{x:.1f},{y:.1f}" for x, y in pts)
-        extra = f' class="{cls}"' if cls else ""
-        self.add(f'<polyline points="{d}" fill="none" stroke="black" '
-                 f'stroke-width="{width}"{extra}/>')
-
-    def rect(self, x: float, y: float, w: float, h: float, fill: str = "white",
-             extra: str = "") -> None:
-        self._grow(x, y)
-        self._grow(x + w, y + h)
-        self.add(f'<rect x="{x:.1f}" y="{y:.1f}" width="{w:.1f}" height="{h:.1f}" '
-                 f'fill="{fill}" stroke="black" stroke-width="1.2"{extra}/>')
-
-    def text(self, x: float, y: float, s: str, size: float = 12, anchor: str = "start",
-             extra: str = "") -> None:
-        w = text_w(s, size)
-        left = {"start": x, "middle": x - w / 2, "end": x - w}[anchor]
-        self._grow(left, y - size)
-        self._grow(left + w, y + 4)
-        self.add(f'<text x="{x:.1f}" y="{y:.1f}" font-size="{size}" text-anchor="{anchor}"'
-                 f'{extra}>{html.escape(s, quote=False)}</text>')
-
-    def arrow_up(self, x: float, y: float) -> None:
-        self.add(f'<polygon points="{x - 4:.1f},{y + 5:.1f} {x + 4:.1f},{y + 5:.1f} '
-                 f'{x:.1f},{y - 4:.1f}" fill="black" class="arrow"/>')
-
-
 class Drawing:
     """Draws a placed and routed chart."""
 
@@ -279,7 +234,7 @@ class Drawing:
             fill = ACTIVE_FILL if st.name in self.active else "white"
             self.svg.add('<g class="step-group">')
             if st.description:
-                self.svg.add(f"<title>{html.escape(st.description, quote=False)}</title>")
+                self.svg.add(f"<title>{esc(st.description)}</title>")
             self.svg.rect(x0, y0, w, STEP_H, fill, extra=' class="step"')
             if st.initial:
                 self.svg.rect(x0 + 3.5, y0 + 3.5, w - 7, STEP_H - 7, fill,
@@ -299,7 +254,7 @@ class Drawing:
         total = sum(row_h(lines) for _, lines in rows)
         yy = y - total / 2
         self.svg.line([(x_right, y), (ax, y)])
-        self.svg.add(f'<g class="actions" data-step="{html.escape(step)}">')
+        self.svg.add(f'<g class="actions" data-step="{esc_attr(step)}">')
         for q, lines in rows:
             h = row_h(lines)
             self.svg.rect(ax, yy, qw, h)
@@ -324,17 +279,14 @@ def render(c: Chart, r: Routes, active: set[str], title: str) -> str:
     d.draw_steps()
     svg = d.svg
     title_svg = (f'<text x="0" y="26" font-size="15" font-weight="bold" class="title">'
-                 f'{html.escape(title or c.g.name, quote=False)}</text>')
+                 f'{esc(title or c.g.name)}</text>')
     x0 = min(svg.x0, 0.0) - 20
     width = max(svg.x1, text_w(title or c.g.name, 15)) - x0 + 20
     height = svg.y1 + 20
-    head = (f'<svg xmlns="http://www.w3.org/2000/svg" width="{width:.0f}" '
-            f'height="{height:.0f}" viewBox="{x0:.0f} 0 {width:.0f} {height:.0f}" '
-            f'font-family="{FONT}">')
     title_svg = title_svg.replace('x="0"', f'x="{min(svg.x0, 0.0):.0f}"')
-    return "\n".join([head, f"<title>{html.escape(c.g.name, quote=False)}</title>",
-                      f'<rect x="{x0:.0f}" width="{width:.0f}" height="100%" fill="white"/>',
-                      title_svg, *svg.parts, "</svg>"]) + "\n"
+    return svg.document(width, height, x0, [
+        f"<title>{esc(c.g.name)}</title>",
+        f'<rect x="{x0:.0f}" width="{width:.0f}" height="100%" fill="white"/>', title_svg])
 
 
 def chart_svg(g: Grafcet, active: set[str] | None = None, title: str = "",

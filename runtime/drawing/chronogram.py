@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import fnmatch
-import html
 import json
 import math
 import os
@@ -26,7 +25,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from drivers.durations import parse_literal, strip_time_prefix
-from runtime.drawing.text import FONT
+from runtime.drawing.svg import Svg, esc, esc_attr
 from runtime.errors import Loc, SourceError
 
 ROW_H = 18.0
@@ -210,10 +209,6 @@ def _fmt_v(v: Any) -> str:
     return str(v)
 
 
-def _esc(s: str) -> str:
-    return html.escape(s, quote=True)
-
-
 def chronogram_svg(rows: list[dict[str, Any]], groups: list[tuple[str, list[str]]],
                    width: float = 1000.0, cursor: int | None = None, title: str = "",
                    kinds: dict[str, str] | None = None) -> str:
@@ -228,25 +223,25 @@ def chronogram_svg(rows: list[dict[str, Any]], groups: list[tuple[str, list[str]
     def x(t: float) -> float:
         return left + (t - t0) / (t_end - t0) * plot_w
 
-    parts: list[str] = []
+    svg = Svg()
     y = 40.0 if title else 16.0
     y_grid = y
     if title:
-        parts.append(f'<text x="10" y="22" font-size="14" font-weight="bold">{_esc(title)}'
+        svg.add(f'<text x="10" y="22" font-size="14" font-weight="bold">{esc(title)}'
                      f'</text>')
-    grid_at = len(parts)  # the grid goes under the signals
+    grid_at = len(svg.parts)  # the grid goes under the signals
     for gtitle, keys in groups:
         y += 6
-        parts.append(f'<text x="10" y="{y + 10:.1f}" font-size="11" font-weight="bold" '
-                     f'fill="#555">{_esc(gtitle)}</text>')
+        svg.add(f'<text x="10" y="{y + 10:.1f}" font-size="11" font-weight="bold" '
+                     f'fill="#555">{esc(gtitle)}</text>')
         y += 16
         for k in keys:
             s = series(rows, k, (kinds or {}).get(k))
             top, bot = y, y + ROW_H
             mid = (top + bot) / 2
-            parts.append(f'<text x="10" y="{mid + 4:.1f}" font-size="11" class="signal" '
-                         f'data-key="{_esc(k)}">{_esc(shown[k])}</text>')
-            parts.append(f'<line x1="{left:.1f}" y1="{bot:.1f}" x2="{left + plot_w:.1f}" '
+            svg.add(f'<text x="10" y="{mid + 4:.1f}" font-size="11" class="signal" '
+                         f'data-key="{esc_attr(k)}">{esc(shown[k])}</text>')
+            svg.add(f'<line x1="{left:.1f}" y1="{bot:.1f}" x2="{left + plot_w:.1f}" '
                          f'y2="{bot:.1f}" stroke="#eee"/>')
             spans = [(t, s.changes[i + 1][0] if i + 1 < len(s.changes) else t_end, v)
                      for i, (t, v) in enumerate(s.changes)]
@@ -259,10 +254,10 @@ def chronogram_svg(rows: list[dict[str, Any]], groups: list[tuple[str, list[str]
                     yy = top + 2 if v else bot
                     pts += [f"{x(a):.1f},{yy:.1f}", f"{x(b):.1f},{yy:.1f}"]
                     if v:
-                        parts.append(f'<rect x="{x(a):.1f}" y="{top + 2:.1f}" '
+                        svg.add(f'<rect x="{x(a):.1f}" y="{top + 2:.1f}" '
                                      f'width="{max(0.5, x(b) - x(a)):.1f}" '
                                      f'height="{ROW_H - 2:.1f}" fill="{fill}"/>')
-                parts.append(f'<polyline points="{" ".join(pts)}" fill="none" stroke="black" '
+                svg.add(f'<polyline points="{" ".join(pts)}" fill="none" stroke="black" '
                              f'stroke-width="1.2"/>')
             else:
                 for a, b, v in spans:
@@ -270,46 +265,42 @@ def chronogram_svg(rows: list[dict[str, Any]], groups: list[tuple[str, list[str]
                         continue
                     xa, xb = x(a), x(b)
                     e = min(3.0, (xb - xa) / 2)
-                    parts.append(f'<polygon points="{xa:.1f},{mid:.1f} {xa + e:.1f},'
+                    svg.add(f'<polygon points="{xa:.1f},{mid:.1f} {xa + e:.1f},'
                                  f'{top + 1:.1f} {xb - e:.1f},{top + 1:.1f} {xb:.1f},'
                                  f'{mid:.1f} {xb - e:.1f},{bot:.1f} {xa + e:.1f},{bot:.1f}" '
                                  f'fill="{BAND_FILL}" stroke="black" stroke-width="1"/>')
                     text = _fmt_v(v)
                     if len(text) * CHAR_W < xb - xa - 6:
-                        parts.append(f'<text x="{(xa + xb) / 2:.1f}" y="{mid + 4:.1f}" '
-                                     f'font-size="11" text-anchor="middle">{_esc(text)}'
+                        svg.add(f'<text x="{(xa + xb) / 2:.1f}" y="{mid + 4:.1f}" '
+                                     f'font-size="11" text-anchor="middle">{esc(text)}'
                                      f'</text>')
             y = bot + ROW_GAP
     # time axis
     y += 4
-    parts.append(f'<line x1="{left:.1f}" y1="{y:.1f}" x2="{left + plot_w:.1f}" y2="{y:.1f}" '
+    svg.add(f'<line x1="{left:.1f}" y1="{y:.1f}" x2="{left + plot_w:.1f}" y2="{y:.1f}" '
                  f'stroke="black"/>')
     step = _nice_step(t_end - t0)
     t = math.ceil(t0 / step) * step
     while t <= t_end + 1e-9:
         xx = x(t)
-        parts.append(f'<line x1="{xx:.1f}" y1="{y:.1f}" x2="{xx:.1f}" y2="{y + 5:.1f}" '
+        svg.add(f'<line x1="{xx:.1f}" y1="{y:.1f}" x2="{xx:.1f}" y2="{y + 5:.1f}" '
                      f'stroke="black"/>')
-        parts.insert(grid_at, f'<line x1="{xx:.1f}" y1="{y_grid:.1f}" x2="{xx:.1f}" '
+        svg.insert(grid_at, f'<line x1="{xx:.1f}" y1="{y_grid:.1f}" x2="{xx:.1f}" '
                               f'y2="{y:.1f}" stroke="#ddd" stroke-dasharray="2,3"/>')
-        parts.append(f'<text x="{xx:.1f}" y="{y + 17:.1f}" font-size="10" '
-                     f'text-anchor="middle">{_esc(_fmt_t(t))}</text>')
+        svg.add(f'<text x="{xx:.1f}" y="{y + 17:.1f}" font-size="10" '
+                     f'text-anchor="middle">{esc(_fmt_t(t))}</text>')
         t += step
     if cursor is not None:
         row = next((r for r in rows if r.get("cycle") == cursor), None)
         if row is not None:
             xx = x(float(row["t_ms"]))
-            parts.append(f'<line x1="{xx:.1f}" y1="16" x2="{xx:.1f}" y2="{y:.1f}" '
+            svg.add(f'<line x1="{xx:.1f}" y1="16" x2="{xx:.1f}" y2="{y:.1f}" '
                          f'stroke="red" stroke-width="1.2" class="cursor"/>')
-            parts.append(f'<text x="{xx + 3:.1f}" y="{y - 3:.1f}" font-size="10" fill="red">'
+            svg.add(f'<text x="{xx + 3:.1f}" y="{y - 3:.1f}" font-size="10" fill="red">'
                          f'cycle {cursor}</text>')
     height = y + 30
     total_w = left + plot_w + 20
-    head = (f'<svg xmlns="http://www.w3.org/2000/svg" width="{total_w:.0f}" '
-            f'height="{height:.0f}" viewBox="0 0 {total_w:.0f} {height:.0f}" '
-            f'font-family="{FONT}">')
-    return "\n".join([head, '<rect width="100%" height="100%" fill="white"/>', *parts,
-                      "</svg>"]) + "\n"
+    return svg.document(total_w, height, 0.0, ['<rect width="100%" height="100%" fill="white"/>'])
 
 
 def parse_ms(text: str, what: str) -> float:
