@@ -372,57 +372,55 @@ class Plant:
             inst.restart()
 
     # -- names, set and force --------------------------------------------------------
-    def resolve(self, name: str) -> tuple[str, Any]:
-        """``instance.var`` -> ("instance", Instance) or ``driver.point`` -> ("point", Driver)."""
+    def _owner(self, name: str) -> tuple[Owner, str, str]:
+        """``instance.var`` or ``driver.point`` -> (owner, head, rest); BindingError if the
+        plant has no such name."""
         try:
-            owner, head, _ = self.names.owner(name)
+            return self.names.owner(name)
         except UnknownName as exc:
             raise BindingError(str(exc)) from None
-        if owner is Owner.INSTANCE:
-            return "instance", self.instances[head]
-        return "point", self.drivers[head]
 
     def get(self, name: str) -> Any:
-        kind, obj = self.resolve(name)
-        rest = name.split(".", 1)[1]
-        if kind == "instance":
+        owner, head, rest = self._owner(name)
+        if owner is Owner.INSTANCE:
             try:
-                return obj.get(rest)
+                return self.instances[head].get(rest)
             except KeyError:
                 raise BindingError(f"unknown name '{name}'") from None
+        d = self.drivers[head]
         if rest == "ok":
-            return obj.ok
-        return obj.inputs[rest] if rest in obj.inputs else obj.outputs[rest]
+            return d.ok
+        return d.inputs[rest] if rest in d.inputs else d.outputs[rest]
 
     def set(self, name: str, value: Any) -> None:
         """Write once (between cycles): a variable, or a physical input of a sim driver."""
-        kind, obj = self.resolve(name)
-        rest = name.split(".", 1)[1]
-        if kind == "instance":
+        owner, head, rest = self._owner(name)
+        if owner is Owner.INSTANCE:
             try:
-                obj.set(rest, value)
+                self.instances[head].set(rest, value)
             except KeyError:
                 raise BindingError(f"'{name}' cannot be written") from None
-        elif rest in obj.inputs:
-            obj.inputs[rest] = int(coerce(A.Type.INT, value))
-        else:
-            obj.outputs[rest] = int(coerce(A.Type.INT, value))
+            return
+        d = self.drivers[head]
+        image = d.inputs if rest in d.inputs else d.outputs
+        image[rest] = int(coerce(A.Type.INT, value))
 
     def force(self, name: str, value: Any) -> None:
         """Hold a variable or a physical point at ``value`` until unforced."""
-        kind, obj = self.resolve(name)
-        rest = name.split(".", 1)[1]
-        if kind == "instance":
-            v = obj.grafcet.variables.get(rest)
-            if v is None or v.kind in (VarKind.SYSTEM,) or v.type is A.Type.STRING:
+        owner, head, rest = self._owner(name)
+        if owner is Owner.INSTANCE:
+            inst = self.instances[head]
+            v = inst.grafcet.variables.get(rest)
+            if v is None or v.kind is VarKind.SYSTEM or v.type is A.Type.STRING:
                 raise BindingError(f"'{name}' cannot be forced")
-            self.forced[name] = ForcedVariable(obj.name, obj.program.var_index(rest),
+            self.forced[name] = ForcedVariable(head, inst.program.var_index(rest),
                                                coerce(v.type, value))
             self._rebuild_instance_forces()
         else:
             if rest == "ok":
                 raise BindingError(f"'{name}' cannot be forced")
-            self.forced_points[name] = ForcedPoint(obj, rest, rest in obj.outputs,
+            d = self.drivers[head]
+            self.forced_points[name] = ForcedPoint(d, rest, rest in d.outputs,
                                                    int(coerce(A.Type.INT, value)))
 
     def unforce(self, name: str | None = None) -> None:
