@@ -27,8 +27,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from drivers.durations import format_ns
 from runtime.language import ast as A
-from runtime.language.lexer import format_time
 from runtime.language.model import Grafcet, VarKind
 from runtime.language.unparse import unparse as unparse  # re-exported for rules.py
 
@@ -122,7 +122,7 @@ class Atom:
         if not self.numeric:
             v = "1" if value else "0"
         elif self.typ is T.TIME:
-            v = format_time(int(value))
+            v = format_ns(int(value))
         elif self.typ is T.REAL:
             v = f"{value:g}"
         else:

@@ -15,12 +15,12 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
+from drivers.durations import format_ns
 from runtime.checker.diag import Diag, diag
 from runtime.checker.logic import ARITH, COMPARE, Logic, has_edge, unparse
 from runtime.checker.reach import LIMIT, Reach, Unsafe, explore, structural_reach
 from runtime.errors import Loc
 from runtime.language import ast as A
-from runtime.language.lexer import format_time
 from runtime.language.model import Grafcet, Qualifier, Step, Transition
 
 T = A.Type
@@ -235,8 +235,8 @@ class ChartChecker:
         if q in (Qualifier.D, Qualifier.DS) and a.time_ns is not None:
             d = a.time_ns
             if s.max_ns is not None and d >= s.max_ns:
-                return (f"the delay {format_time(d)} is not shorter than the step's max time "
-                        f"{format_time(s.max_ns)}")
+                return (f"the delay {format_ns(d)} is not shorter than the step's max time "
+                        f"{format_ns(s.max_ns)}")
             outs = [self.g.transitions[k] for k in self.outgoing(s.name)
                     if self.g.transitions[k].src_steps == [s.name] and k not in self.never]
             if outs:
@@ -251,7 +251,7 @@ class ChartChecker:
                 if r.sat is False:
                     lines = ", ".join(str(t.loc.line) for t in outs)
                     return (f"the step is always left (transition at line {lines}) before "
-                            f"the delay {format_time(d)} has elapsed")
+                            f"the delay {format_ns(d)} has elapsed")
         return None
 
     # -- G203 ---------------------------------------------------------------------------

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import re
 
+from drivers.durations import format_ns
 from runtime.language import ast as A
-from runtime.language.lexer import format_time
 from runtime.language.model import Action, Qualifier
 from runtime.language.unparse import unparse
 
@@ -52,7 +52,7 @@ def _seed(n: A.Node) -> tuple[str, int]:
     4 comparisons, 6 XOR)."""
     if isinstance(n, A.Lit):
         if n.lit_type is A.Type.TIME:
-            return format_time(int(n.value)), 0
+            return format_ns(int(n.value)), 0
         if n.lit_type is A.Type.BOOL or isinstance(n.value, bool):
             return ("1" if n.value else "0"), 0
         return f"{n.value!r}", (1 if n.value < 0 else 0)
@@ -128,7 +128,7 @@ def action_parts(a: Action) -> tuple[str, list[str]]:
             parts = body.split(None, 1)
             body = parts[1] if len(parts) > 1 else ""
     if a.time_ns is not None:
-        q = f"{q} {format_time(a.time_ns)}"
+        q = f"{q} {format_ns(a.time_ns)}"
     return q, body_lines(body)
 
 

@@ -7,7 +7,7 @@ import unicodedata
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from drivers.durations import format_ns, parse_literal
+from drivers.durations import parse_literal
 from runtime.errors import Loc, SourceError
 
 KEYWORDS = {
@@ -15,11 +15,6 @@ KEYWORDS = {
     "ELSE", "END_IF", "CASE", "OF", "END_CASE", "FOR", "TO", "BY", "DO", "END_FOR",
     "WHILE", "REPEAT", "END_WHILE", "UNTIL", "END_REPEAT",
 }
-
-#: the time literal ``1d23h30m20s700ms`` -> ns or None, and ns -> the shortest literal
-#: (their one home is drivers.durations; kept here under the names the language uses)
-parse_time = parse_literal
-format_time = format_ns
 
 _OPS = [":=", "..", "<=", ">=", "<>", "!=", "==", "≤", "≥", "≠", "(", ")", ",", ";", ":",
         ".", "+", "-", "*", "/", "·", "∙", "⋅", "&", "!", "'", "↑", "↓", "=", "<", ">"]
@@ -87,7 +82,7 @@ class Lexer:
                     while k < n and (text[k].isalnum() or text[k] in "._"):
                         k += 1
                     lit = text[j + 1:k]
-                    ns = parse_time(lit)
+                    ns = parse_literal(lit)
                     if ns is None:
                         raise self.error(i, f"bad time literal '{text[i:k]}': expected units "
                                             "in order d h m s ms (e.g. T#1h30m)")
@@ -151,7 +146,7 @@ class Lexer:
             while k < n and (text[k].isalnum() or text[k] in "._"):
                 k += 1
             lit = text[i:k]
-            ns = parse_time(lit)
+            ns = parse_literal(lit)
             if ns is None:
                 raise self.error(i, f"bad time literal '{lit}': expected a number followed by "
                                     "units in order d h m s ms (e.g. 1m30s, 250ms)")

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from drivers.durations import format_ns
 from runtime.language import ast as A
-from runtime.language.lexer import format_time
 from runtime.language.model import Transition
 
 T = A.Type
@@ -17,7 +17,7 @@ def unparse(n: A.Node) -> str:
     """A canonical ST-like text of an expression: equal texts mean equal expressions."""
     if isinstance(n, A.Lit):
         if n.lit_type is T.TIME:
-            return format_time(int(n.value))
+            return format_ns(int(n.value))
         if n.type is T.BOOL or n.lit_type is T.BOOL:
             return "1" if n.value else "0"
         return repr(n.value)

@@ -21,13 +21,14 @@ from drivers.durations import (
     parse_ns,
     strip_time_prefix,
 )
+from drivers.durations import format_ns as format_time
+from drivers.durations import parse_literal as parse_time
 from runtime.drawing.chronogram import parse_ms
 from runtime.engine.instance import coerce
 from runtime.engine.names import CommandError, Signal, parse_value
 from runtime.errors import Loc, SourceError
 from runtime.language import ast as A
 from runtime.language.grafcetfile import time_value
-from runtime.language.lexer import format_time, parse_time
 
 PARSE_TIME_OK = {'10s': 10000000000, '1m30s': 90000000000, '250ms': 250000000,
     '1d23h': 169200000000000, '1d23h30m20s700ms': 171020700000000, '1.5s': 1500000000,

@@ -8,12 +8,12 @@ from typing import Any
 
 import pytest
 
+from drivers.durations import format_ns as format_time
 from runtime.compiler.codegen import compile_grafcet
 from runtime.engine.instance import Instance
 from runtime.errors import Loc, SourceError
 from runtime.language import ast as A
 from runtime.language.grafcetfile import GrafcetLoader, load_grafcet
-from runtime.language.lexer import format_time
 from runtime.language.model import Grafcet
 from runtime.language.parser import (
     ParsedAction,

@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import pytest
 
+from drivers.durations import format_ns as format_time
+from drivers.durations import parse_literal as parse_time
 from runtime.errors import SourceError
 from runtime.language import ast as A
-from runtime.language.lexer import format_time, parse_time
 from tests.language.langkit import (
     MS,
     S,
