@@ -30,12 +30,9 @@ from typing import Any
 from drivers.durations import format_ns
 from runtime.language import ast as A
 from runtime.language.model import Grafcet, VarKind
-from runtime.language.unparse import unparse as unparse  # re-exported for rules.py
+from runtime.language.unparse import ARITH, COMPARE, unparse
 
 T = A.Type
-COMPARE = {"EQ": "=", "NE": "<>", "LT": "<", "LE": "<=", "GT": ">", "GE": ">="}
-ARITH = {"ADD": "+", "SUB": "-", "MUL": "*", "DIV": "/", "MOD": " MOD "}
-LOGIC = {"OR": " OR ", "XOR": " XOR ", "AND": " AND "}
 EXACT_LIMIT = 1 << 16
 BUDGET = 200_000
 

@@ -17,11 +17,12 @@ from typing import Any
 
 from drivers.durations import format_ns
 from runtime.checker.diag import Diag, diag
-from runtime.checker.logic import ARITH, COMPARE, Logic, has_edge, unparse
+from runtime.checker.logic import Logic, has_edge
 from runtime.checker.reach import LIMIT, Reach, Unsafe, explore, structural_reach
 from runtime.errors import Loc
 from runtime.language import ast as A
 from runtime.language.model import Grafcet, Qualifier, Step, Transition
+from runtime.language.unparse import ARITH, COMPARE, unparse
 
 T = A.Type
 

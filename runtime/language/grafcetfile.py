@@ -29,8 +29,8 @@ from runtime.language.model import (
     VarKind,
 )
 from runtime.language.parser import parse_action, parse_expression, parse_statements
+from runtime.language.signatures import FB_MEMBERS
 from runtime.language.typecheck import (
-    FB_MEMBERS,
     FLAGS_BOOL,
     FLAGS_STRING,
     SYSTEM_BOOL,

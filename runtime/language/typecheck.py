@@ -16,8 +16,7 @@ from collections.abc import Callable
 from runtime.errors import Loc, SourceError, suggest
 from runtime.language import ast as A
 from runtime.language.model import Grafcet, Variable, VarKind
-from runtime.language.signatures import FB_MEMBERS as FB_MEMBERS  # re-exported
-from runtime.language.signatures import TIMER_METHODS
+from runtime.language.signatures import FB_MEMBERS, TIMER_METHODS
 
 T = A.Type
 NUMERIC = (T.INT, T.REAL)

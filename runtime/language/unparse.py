@@ -7,9 +7,10 @@ from runtime.language import ast as A
 from runtime.language.model import Transition
 
 T = A.Type
-_COMPARE = {"EQ": "=", "NE": "<>", "LT": "<", "LE": "<=", "GT": ">", "GE": ">="}
-_ARITH = {"ADD": "+", "SUB": "-", "MUL": "*", "DIV": "/", "MOD": " MOD "}
-_LOGIC = {"OR": " OR ", "XOR": " XOR ", "AND": " AND "}
+#: binary operators (the syntax tree's names) -> their ST spelling
+COMPARE = {"EQ": "=", "NE": "<>", "LT": "<", "LE": "<=", "GT": ">", "GE": ">="}
+ARITH = {"ADD": "+", "SUB": "-", "MUL": "*", "DIV": "/", "MOD": " MOD "}
+LOGIC = {"OR": " OR ", "XOR": " XOR ", "AND": " AND "}
 _PREFIX = {"NOT": "NOT ", "NEG": "-", "RE": "↑", "FE": "↓"}
 
 
@@ -34,8 +35,8 @@ def unparse(n: A.Node) -> str:
         op = _PREFIX[n.op]
         return f"{op}({inner})" if isinstance(n.operand, (A.Binary, A.Unary)) else op + inner
     if isinstance(n, A.Binary):
-        op = _COMPARE.get(n.op) or _ARITH.get(n.op) or _LOGIC.get(n.op) or n.op
-        if n.op in _COMPARE:
+        op = COMPARE.get(n.op) or ARITH.get(n.op) or LOGIC.get(n.op) or n.op
+        if n.op in COMPARE:
             op = f" {op} "
         return f"({unparse(n.left)}{op}{unparse(n.right)})"
     return f"<{type(n).__name__}@{n.start}>"
