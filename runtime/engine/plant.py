@@ -353,8 +353,9 @@ class Plant:
         return None
 
     def retain_snapshot(self) -> dict[str, dict[str, Any]]:
-        return {name: inst.retain_snapshot() for name, inst in self.instances.items()
-                if inst.retain_snapshot()}
+        """Retained values by instance (instances with none left out), read once each."""
+        snaps = {name: inst.retain_snapshot() for name, inst in self.instances.items()}
+        return {name: snap for name, snap in snaps.items() if snap}
 
     def restore_retain(self, data: dict[str, Any]) -> None:
         for name, values in data.items():
