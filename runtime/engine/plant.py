@@ -5,6 +5,10 @@ each instance in plant order, copy its inputs through the bindings (``invert`` a
 here and only here), scan it; copy every output through the bindings into the drivers'
 output images; every driver's ``write()``. The copy is generated as Python code once, so
 a cycle is one function call with no interpretation of the bindings.
+
+The charts are scanned on the program's time, not the raw clock: it stands still while
+they are not scanned (console pause, iocheck) and each stepped cycle counts exactly one
+plant cycle (semantics.md, "Program time").
 """
 
 from __future__ import annotations
