@@ -15,6 +15,7 @@ from typing import Any
 
 import pytest
 
+from runtime.controller.replay import ScriptPlayer
 from runtime.engine.plant import Plant
 from runtime.language.plantfile import load_plant
 
@@ -241,3 +242,29 @@ def test_never_paused_the_chart_sees_the_monotonic_clock(bench: Bench) -> None:
     assert bench.plant.get("clk.s1.T") == 40 * MS
     assert bench.plant.instances["clk"].program.scan_time(
         bench.plant.instances["clk"].m) == bench.now
+
+
+def test_a_run_script_waits_with_the_paused_chart(bench: Bench,
+                                                  write: Callable[[str, str], str]) -> None:
+    """``run --script`` plays its events on the program's time (``Plant.last_up``): while
+    paused the simulated machine stands still with the chart, and a stepped chart sees an
+    event in the scan at its time, as a running one does."""
+    player = ScriptPlayer(bench.plant, write("story.yaml", """\
+        duration: 1s
+        set:
+          - {at: 30ms, clk.go: 1}
+        """))
+    bench.plant.cycle(bench.now)  # program time 0
+    player(0)
+    bench.cycle()  # 10 ms
+    player(1)
+    bench.plant.pause()
+    for n in range(2, 200):  # 2 s of paused cycles, the player called after each
+        bench.cycle()
+        player(n)
+    assert bench.sim.inputs["I0"] == 0, "a scripted event played while paused"
+    bench.step()  # 20 ms
+    player(200)
+    assert bench.plant.get("clk.s0.X") is True and bench.sim.inputs["I0"] == 1
+    bench.step()  # 30 ms: the scan at the event's time sees it
+    assert bench.plant.get("clk.s1.X") is True and bench.plant.last_up == 30 * MS
