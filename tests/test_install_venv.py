@@ -79,11 +79,19 @@ for t in DRIVERS:
     got = dict(line.split(" ", 1) for line in r.stdout.splitlines())
     for t in ("sim", "mcp23017", "pcf8574", "canopen", "modbus_rtu"):
         assert "missing" not in got[t], (t, got[t])
-    has_gpiod = run([venv / "bin" / "python", "-c", "import gpiod"], cwd=tmp_path)
-    if has_gpiod.returncode != 0:
-        assert got["gpio"].startswith("missing:") and "softplc[gpio]" in got["gpio"], got
-    else:  # pragma: no cover - gpiod is an extra: a clean install has it only if asked for
-        assert "missing" not in got["gpio"]
+    assert run([venv / "bin" / "python", "-c", "import gpiod"], cwd=tmp_path).returncode, \
+        "gpiod is the extra 'gpio': a plain install must not bring it"
+    assert got["gpio"].startswith("missing:") and "softplc[gpio]" in got["gpio"], got
+    # the controller of a gpio plant says so in one line and stops (exit 2), no traceback
+    (tmp_path / "chart.yaml").write_text("grafcet: G\ninputs: [go]\nsteps:\n"
+                                         "  s: {initial: true}\n")
+    (tmp_path / "plant.yaml").write_text("drivers: {io: {type: gpio}}\n"
+                                         "instances: {g: {grafcet: chart.yaml, "
+                                         "inputs: {go: io.17}}}\n")
+    r = run([venv / "bin" / "softplc", "run", "plant.yaml", "--for", "1s"], cwd=tmp_path)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert "driver type 'gpio' needs the Python package 'gpiod': pip install " \
+           "'softplc[gpio]'" in r.stderr, r.stderr
 
 
 @pytest.mark.parametrize("plant", PLANTS, ids=[f"{p.parent.name}/{p.name}" for p in PLANTS])
