@@ -38,6 +38,7 @@ from typing import NamedTuple
 
 from runtime.errors import SoftplcError
 from runtime.language.plantfile import load_plant
+from runtime.language.runtimedir import runtime_dir
 from runtime.language.yamlsrc import YMap, load_yaml
 
 log = logging.getLogger(__name__)
@@ -174,11 +175,12 @@ def plan(plant_path: str, softplc: str, etc: str = "/etc/softplc",
         p.warnings.append(f"plc: retain: {pdef.retain_path} is outside {STATE_DIR}: the "
                           "service may not write there (ProtectSystem=strict); use "
                           f"{STATE_DIR}/retain.json")
+    mine = runtime_dir()  # ${RUNTIME_DIR} here; /run/softplc under the service
     for c in pdef.consoles:
-        if c.kind == "socket" and not c.address.startswith(RUNTIME_DIR + "/"):
+        if c.kind == "socket" and not c.address.startswith((RUNTIME_DIR + "/", mine + "/")):
             p.warnings.append(f"monitor: socket: {c.address} is outside {RUNTIME_DIR}: "
                               "other users will not reach it (PrivateTmp); use "
-                              f"{RUNTIME_DIR}/console.sock")
+                              "${RUNTIME_DIR}/console.sock")
         if c.trusted and any(d.type != "sim" for d in pdef.drivers.values()):
             p.warnings.append(f"monitor: the {c.kind} console is trusted (no PIN) on a plant "
                               "that drives real I/O: set pin_hash (softplc hash-pin) instead")
