@@ -101,17 +101,20 @@ def can(what, fn):
         print(what, "yes")
     except OSError as e:
         print(what, "no", e.errno)
-etc, state = %r, %r
+etc, state, run = %r, %r, %r
 can("read plant", lambda: open(os.path.join(etc, "plant.yaml")).read())
 can("read chart", lambda: open(os.path.join(etc, "drawer_tester.yaml")).read())
 can("write plant", lambda: open(os.path.join(etc, "plant.yaml"), "a").close())
 can("create in etc", lambda: open(os.path.join(etc, "new.yaml"), "w").close())
 can("create in state", lambda: open(os.path.join(state, "retain.json"), "w").close())
+can("create in run", lambda: open(os.path.join(run, "console.sock"), "w").close())
+can("create in /etc", lambda: open(os.path.join(etc, "..", "softplc.conf"), "w").close())
 """
 
 
 def probe(uid: int, gid: int, root: Path) -> dict[str, bool]:
-    code = PROBE % (str(root / "etc" / "softplc"), str(root / "var" / "lib" / "softplc"))
+    code = PROBE % (str(root / "etc" / "softplc"), str(root / "var" / "lib" / "softplc"),
+                    str(root / "run" / "softplc"))
     r = run_as(uid, gid, code)
     assert r.returncode == 0, r.stderr
     answers: dict[str, bool] = {}
@@ -149,10 +152,12 @@ def test_the_service_reads_its_plant_and_writes_only_its_state(staged: Path) -> 
     systemd_prepares(unit, r, SERVICE)
     service = probe(SERVICE.uid, SERVICE.gid, r)
     assert service == {"read plant": True, "read chart": True, "write plant": False,
-                       "create in etc": False, "create in state": True}, service
+                       "create in etc": False, "create in state": True,
+                       "create in run": True, "create in /etc": False}, service
     other = probe(OTHER, OTHER, r)
     assert other == {"read plant": False, "read chart": False, "write plant": False,
-                     "create in etc": False, "create in state": False}, other
+                     "create in etc": False, "create in state": False,
+                     "create in run": False, "create in /etc": False}, other
     etc = r / "etc" / "softplc"
     assert (os.lstat(etc).st_uid, os.lstat(etc).st_gid) == (0, SERVICE.gid)
     assert (os.lstat(etc / "plant.yaml").st_uid, os.lstat(etc / "plant.yaml").st_gid) == \
