@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from runtime.controller.install import ServiceIds, apply, plan, unit_text
+from runtime.controller.install import STATE_DIR_MODE, ServiceIds, apply, plan, unit_text
 
 ROOT = Path(__file__).resolve().parents[2]
 SOFTPLC = str(Path(sys.executable).parent / "softplc")
@@ -194,7 +194,7 @@ def test_unit_directories_match_systemd_exec(tmp_path: Path) -> None:
     unit = unit_text(SOFTPLC, "/etc/softplc/plant.yaml")
     lines = unit.splitlines()
     assert not any(line.startswith("ConfigurationDirectory") for line in lines), unit
-    for line in ("StateDirectory=softplc", "StateDirectoryMode=0750",
+    for line in ("StateDirectory=softplc", f"StateDirectoryMode={STATE_DIR_MODE:04o}",
                  "RuntimeDirectory=softplc", "RuntimeDirectoryMode=0750", "UMask=0077"):
         assert line in lines, line
     path = tmp_path / "softplc.service"
