@@ -86,6 +86,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def cmd_run(args: argparse.Namespace) -> int:
     """The controller: the plant in real time on its drivers (or simulated I/O)."""
     from runtime.controller.daemon import Daemon, serve
+    from runtime.controller.paths import PathError, plant_files, prepare
     from runtime.language.grafcetfile import time_value
     from runtime.language.plantfile import load_plant
 
@@ -96,6 +97,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         sys.stderr.write("softplc run: error: --script plays simulated inputs: add --sim\n")
         return 2
     pdef = load_plant(args.plant)
+    try:
+        prepare(plant_files(pdef))  # its own directories, before anything is written
+    except PathError as exc:
+        sys.stderr.write(f"softplc run: error: {exc}\n")
+        return 2
     trace = open(args.trace, "w", encoding="utf-8") if args.trace else None  # noqa: SIM115
     try:
         daemon = Daemon(pdef, sim=args.sim, trace=trace)

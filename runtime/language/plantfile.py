@@ -26,6 +26,7 @@ from runtime.language.model import (
     PlantDef,
     VarKind,
 )
+from runtime.language.runtimedir import expand
 from runtime.language.typecheck import FLAGS_BOOL
 from runtime.language.yamlsrc import YMap, load_yaml
 
@@ -106,7 +107,7 @@ def load_plant(path: str, load: PlantLoad | None = None) -> PlantDef:
                     raise SourceError(plc.val_locs[key], f"plc {key} must be positive")
                 setattr(p, attr, ns)
         if "retain" in plc and plc["retain"] is not None:
-            p.retain_path = _resolve(path, str(plc["retain"]))
+            p.retain_path = _resolve(path, expand(str(plc["retain"]), plc.val_locs["retain"]))
         if "realtime" in plc:
             rt = expect_type(plc["realtime"], plc.val_locs["realtime"], YMap, "a mapping")
             check_keys(rt, ("priority", "lock_memory"), "plc realtime")
@@ -289,10 +290,12 @@ def _monitor(p: PlantDef, mon: Any, loc: Loc) -> None:
             check_keys(s, ("path", "trusted"), "monitor socket")
             path = expect_type(_need(s, "path", "the socket's path"),
                                s.val_locs.get("path", s.loc), str, "a socket path")
-            p.consoles.append(ConsoleEntry("socket", str(path), trusted=_flag(s, "trusted")))
+            path = expand(str(path), s.val_locs.get("path", s.loc))
+            p.consoles.append(ConsoleEntry("socket", path, trusted=_flag(s, "trusted")))
         else:
-            path = expect_type(s, mon.val_locs["socket"], str, "a socket path")
-            p.consoles.append(ConsoleEntry("socket", str(path)))
+            path = expand(str(expect_type(s, mon.val_locs["socket"], str, "a socket path")),
+                          mon.val_locs["socket"])
+            p.consoles.append(ConsoleEntry("socket", path))
     if "tcp" in mon:
         s = mon["tcp"]
         if isinstance(s, YMap):
