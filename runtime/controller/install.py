@@ -310,10 +310,17 @@ def _run(cmd: list[str], root: str | None) -> str:
     return "ran: " + " ".join(cmd)
 
 
+def _this_softplc() -> str:
+    """The ``softplc`` program of the environment running this command (the unit must start
+    the same installation, not whichever ``softplc`` comes first on PATH)."""
+    beside = os.path.join(os.path.dirname(sys.executable), "softplc")
+    if os.access(beside, os.X_OK):
+        return beside
+    return shutil.which("softplc") or beside
+
+
 def cmd_install_service(args: argparse.Namespace) -> int:
-    softplc = shutil.which("softplc") or os.path.join(os.path.dirname(sys.executable),
-                                                       "softplc")
-    softplc = os.path.abspath(softplc)
+    softplc = os.path.abspath(_this_softplc())
     if not args.root:
         if os.geteuid() != 0:
             sys.stderr.write("softplc install-service: error: run it as root (it creates a "
