@@ -4,12 +4,20 @@ unlocked session locks itself again after an idle time."""
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 
 from runtime.console.pin import hash_pin
 from runtime.console.protocol import LOCKOUT_MAX_S, LOCKOUT_MIN_S, MAX_PIN_TRIES
 from runtime.console.server import ConsoleServer
 from runtime.language.model import ConsoleEntry
-from tests.console.consolekit import FakeClock, Rig, tcp_client
+from tests.console.consolekit import (
+    FakeClock,
+    NullModem,
+    Rig,
+    serial_client,
+    tcp_client,
+    wait_for,
+)
 
 PIN = "4711"
 HASH = hash_pin(PIN, iterations=1000)
@@ -84,3 +92,31 @@ def test_an_unlocked_session_locks_itself_after_an_idle_time(
     assert list(rig.plant.forced) == ["t1.iMarcha"]  # its force keeps its own time limit
     # a fresh session is always locked
     assert rig.connect().error("pause") == "locked: 'unlock PIN' first"
+
+
+def test_the_next_person_after_a_serial_hang_up_needs_the_pin(
+        rigs: Callable[..., Rig]) -> None:
+    """A hang-up ends the session; the port opened again starts a fresh, locked one."""
+    rig = rigs(trusted=False, pin_hash=HASH, serial_port=False)
+    link = Path(rig.tmp, "ttyGS0")
+    first, second = NullModem(), NullModem()
+    server = ConsoleServer(rig.service, [ConsoleEntry("serial", str(link))])
+    link.symlink_to(first.daemon_port)
+    server.start()
+    try:
+        wait_for(lambda: server.sessions, "the serial port opened")
+        a = serial_client(first.peer_port)
+        assert a.ok(f"unlock {PIN}") == ["unlocked"]
+        a.close()
+        first.hangup()
+        wait_for(lambda: not server.sessions, "the hang-up seen")
+        link.unlink()
+        link.symlink_to(second.daemon_port)
+        wait_for(lambda: server.sessions, "the port opened again")
+        b = serial_client(second.peer_port)
+        assert b.error("pause") == "locked: 'unlock PIN' first"
+        b.close()
+    finally:
+        server.stop()
+        first.close()
+        second.close()

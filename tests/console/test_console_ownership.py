@@ -4,6 +4,7 @@ the plant's limits (a warning first); ``ack`` leaves no force behind."""
 
 from __future__ import annotations
 
+import json
 import re
 import threading
 from collections.abc import Callable
@@ -192,8 +193,10 @@ def test_a_force_is_released_after_its_maximum_time(rigs: Callable[..., Rig]) ->
     clock.t += lim.max_force_s - lim.warn_before_s - 100
     assert c.line() == (f"warning: force rio.Q0 is released in {lim.warn_before_s:.0f} s "
                         f"(max_force {lim.max_force_s:.0f} s); force it again to keep it")
+    assert c.jcmd("json on")["ok"] is True  # notices are objects without "ok" in JSON
     clock.t += lim.warn_before_s
-    assert c.line() == f"force rio.Q0 released after {lim.max_force_s:.0f} s (max_force)"
+    assert json.loads(c.line()) == {
+        "notice": f"force rio.Q0 released after {lim.max_force_s:.0f} s (max_force)"}
     wait_for(lambda: not rig.plant.forced_points, "rio.Q0 released")
     assert list(rig.plant.forced) == ["t1.iMarcha"] and rig.state() == "running"
 
