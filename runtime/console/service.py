@@ -14,7 +14,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 from runtime.console.pin import check_pin
@@ -83,6 +83,8 @@ class _Peer:
     locked_until: float = 0.0
     #: the length of its last lock-out, s (0: none yet); the next one doubles it
     lockout_s: float = 0.0
+    #: held while one of its PINs is checked
+    trying: threading.Lock = field(default_factory=threading.Lock)
 
 
 class ConsoleService:
@@ -108,6 +110,7 @@ class ConsoleService:
         self._holds: dict[str, Hold] = {}
         self._notices: dict[Session, list[str]] = {}
         self._ending: set[Session] = set()
+        self._end_failed: set[Session] = set()
         self.lock = threading.Lock()
 
     def session(self, name: str, trusted: bool = False, peer: str | None = None) -> Session:
@@ -127,25 +130,35 @@ class ConsoleService:
             raise CommandError("no pin_hash in the plant file: nothing to unlock")
         with self.lock:
             p = self._peers.setdefault(peer, _Peer())
-            now = self.clock()
-            left = p.locked_until - now
+        # one try at a time per peer (more connections give no more tries), and the slow
+        # hash outside ``lock``, which the scan thread takes to record holds
+        with p.trying:
+            with self.lock:
+                now = self.clock()
+                left = p.locked_until - now
             if left > 0:
                 raise CommandError(f"console locked for {left:.0f} s after "
                                    f"{MAX_PIN_TRIES} wrong PINs")
             if check_pin(pin, self.pin_hash):
-                del self._peers[peer]
+                with self.lock:
+                    p.wrong, p.lockout_s = 0, 0.0
                 return
-            p.wrong += 1
-            if p.wrong < MAX_PIN_TRIES:
-                log.warning("console %s: wrong PIN (%d of %d)", who, p.wrong, MAX_PIN_TRIES)
-                n = MAX_PIN_TRIES - p.wrong
-                raise CommandError(f"wrong PIN ({n} {'try' if n == 1 else 'tries'} left)")
-            recent = p.lockout_s and now - p.locked_until < LOCKOUT_MAX_S
-            p.lockout_s = min(2 * p.lockout_s, LOCKOUT_MAX_S) if recent else LOCKOUT_MIN_S
-            p.wrong, p.locked_until = 0, now + p.lockout_s
-            log.warning("console %s: %d wrong PINs, unlock refused to %s for %.0f s", who,
-                        MAX_PIN_TRIES, peer, p.lockout_s)
-            raise CommandError(f"wrong PIN; locked for {p.lockout_s:.0f} s")
+            with self.lock:
+                p.wrong += 1
+                tries_left = MAX_PIN_TRIES - p.wrong
+                if not tries_left:
+                    recent = p.lockout_s and now - p.locked_until < LOCKOUT_MAX_S
+                    p.lockout_s = (min(2 * p.lockout_s, LOCKOUT_MAX_S) if recent
+                                   else LOCKOUT_MIN_S)
+                    p.wrong, p.locked_until = 0, now + p.lockout_s
+        if tries_left:
+            log.warning("console %s: wrong PIN (%d of %d)", who, MAX_PIN_TRIES - tries_left,
+                        MAX_PIN_TRIES)
+            raise CommandError(f"wrong PIN ({tries_left} "
+                               f"{'try' if tries_left == 1 else 'tries'} left)")
+        log.warning("console %s: %d wrong PINs, unlock refused to %s for %.0f s", who,
+                    MAX_PIN_TRIES, peer, p.lockout_s)
+        raise CommandError(f"wrong PIN; locked for {p.lockout_s:.0f} s")
 
     # -- who holds what (called inside Controller.call) --------------------------------
     def hold(self, what: str, session: Session) -> None:
@@ -212,20 +225,22 @@ class ConsoleService:
         try:
             held, halted = self.controller.call(react)
         except TimeoutError:
-            log.error("%s while it held %s, and the scan did not answer: tried again at "
-                      "the next poll of any session", why, ", ".join(self.holdings(session))
-                      or "nothing")
+            if session not in self._end_failed:  # once: it is tried again at every poll
+                self._end_failed.add(session)
+                log.error("%s while it held %s, and the scan did not answer: tried again "
+                          "at the next poll of any session", why,
+                          ", ".join(self.holdings(session)) or "nothing")
             return
         finally:
             with self.lock:
                 self._ending.discard(session)
+        self._end_failed.discard(session)
         if halted:
             log.error("%s while it held: %s: forces released, every output off, charts "
                       "stopped until ack", why, ", ".join(held))
-        elif held and reason != SERVER_STOPPING:
-            log.warning("%s: released its forces %s", why, ", ".join(held))
         elif held:
-            log.info("%s: released its forces %s", why, ", ".join(held))
+            log.log(logging.INFO if reason == SERVER_STOPPING else logging.WARNING,
+                    "%s while it held: %s: its forces released", why, ", ".join(held))
 
     def _halt(self, reason: str, iocheck: bool) -> None:
         """Scan thread: end the pause and stepping (whoever held them) and, if asked,
@@ -240,13 +255,14 @@ class ConsoleService:
 
     # -- time limits (called by every session's poll) -----------------------------------
     def tick(self, session: Session) -> list[str]:
-        """Apply the time limits of pause and forces (warning the owner WARN_BEFORE
+        """Apply the time limits of pause and forces (warning the owner warn_before
         ahead, then ending them), finish the end of sessions the scan did not answer in
         time, and return the notices for ``session``."""
         lim = self.limits
         now = self.clock()
         due: list[tuple[str, Hold]] = []
         orphans: set[Session] = set()
+        warnings: list[tuple[Session, str]] = []
         with self.lock:
             for what, h in self._holds.items():
                 if h.owner.closed:
@@ -261,8 +277,11 @@ class ConsoleService:
                     due.append((what, h))
                 elif now - h.since >= limit - lim.warn_before_s and not h.warned:
                     h.warned = True
-                    self._warn(what, h, limit)
-        for owner in orphans - self._ending:
+                    warnings.append((h.owner, self._warning(what, limit)))
+                    self._notify(h.owner, warnings[-1][1])
+        for owner, text in warnings:
+            log.warning("console %s: %s", owner.name, text)
+        for owner in orphans:  # their end found the scan busy: try again
             self.session_ended(owner, owner.close_reason)
         for what, h in due:
             self._expire(what, h)
@@ -273,17 +292,14 @@ class ConsoleService:
         """Under ``lock``: a line for ``session``'s next poll."""
         self._notices.setdefault(session, []).append(text)
 
-    def _warn(self, what: str, h: Hold, limit: float) -> None:
+    def _warning(self, what: str, limit: float) -> str:
         lim = self.limits
         if what == "pause":
-            text = (f"warning: the pause ends in {lim.warn_before_s:.0f} s (max_pause "
+            return (f"warning: the pause ends in {lim.warn_before_s:.0f} s (max_pause "
                     f"{limit:.0f} s): the controller then halts until 'ack'; 'pause' "
                     "again keeps it")
-        else:
-            text = (f"warning: {what} is released in {lim.warn_before_s:.0f} s (max_force "
-                    f"{limit:.0f} s); force it again to keep it")
-        log.warning("console %s: %s", h.owner.name, text)
-        self._notify(h.owner, text)
+        return (f"warning: {what} is released in {lim.warn_before_s:.0f} s (max_force "
+                f"{limit:.0f} s); force it again to keep it")
 
     def _expire(self, what: str, h: Hold) -> None:
         """A pause or a force reached its maximum time: end it at a scan boundary."""
