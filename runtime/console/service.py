@@ -60,7 +60,7 @@ class Controller(Protocol):
 HOLD_ORDER = ("iocheck", "pause", "cycle")
 #: the reason the server gives when the daemon stops in order: forces released, no halt
 SERVER_STOPPING = "server stopping"
-#: after this, what ``ack`` says to do (halt reasons end with it)
+#: how every halt reason of the console ends: what ``ack`` will do
 ACK_RESTARTS = "'ack' restarts the charts from their initial situation"
 
 
