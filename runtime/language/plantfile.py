@@ -20,6 +20,7 @@ from runtime.language.grafcetfile import check_keys, expect_type, load_grafcet, 
 from runtime.language.model import (
     Binding,
     ConsoleEntry,
+    ConsoleLimits,
     DriverDef,
     Grafcet,
     InstanceDef,
@@ -33,7 +34,8 @@ from runtime.language.yamlsrc import YMap, load_yaml
 PLANT_KEYS = ("plc", "drivers", "instances", "monitor")
 PLC_KEYS = ("cycle", "watchdog", "retain", "retain_interval", "realtime")
 INSTANCE_KEYS = ("grafcet", "inputs", "outputs", "description")
-MONITOR_KEYS = ("serial", "socket", "tcp", "pin_hash", "release_forces_on_disconnect")
+MONITOR_KEYS = ("serial", "socket", "tcp", "pin_hash", "release_forces_on_disconnect",
+                "limits")
 
 
 @dataclass
@@ -311,3 +313,22 @@ def _monitor(p: PlantDef, mon: Any, loc: Loc) -> None:
         p.pin_hash = str(mon["pin_hash"])
     if "release_forces_on_disconnect" in mon:
         p.release_forces_on_disconnect = _flag(mon, "release_forces_on_disconnect")
+    if "limits" in mon:
+        p.console_limits = _console_limits(mon["limits"], mon.val_locs["limits"])
+
+
+def _console_limits(value: Any, loc: Loc) -> ConsoleLimits:
+    """``monitor: limits: {max_pause: 15m, max_force: 15m, warn_before: 30s,
+    relock_after_idle: 5m}`` (each optional) -> ConsoleLimits."""
+    lim = expect_type(value, loc, YMap, "a mapping of times")
+    keys = ("max_pause", "max_force", "warn_before", "relock_after_idle")
+    check_keys(lim, keys, "monitor limits")
+    given = {f"{k}_s": time_value(lim[k], lim.val_locs[k], f"monitor limits {k}") / 1e9
+             for k in keys if k in lim}
+    out = ConsoleLimits(**given)
+    for k in ("max_pause", "max_force", "relock_after_idle"):
+        s = getattr(out, f"{k}_s")
+        if s <= 0 or (k != "relock_after_idle" and s <= out.warn_before_s):
+            raise SourceError(lim.val_locs.get(k, lim.loc), f"monitor limits: {k} must be "
+                              + ("longer than warn_before" if s > 0 else "more than 0"))
+    return out
