@@ -73,10 +73,10 @@ class ConsoleService:
         self.force_owner: dict[str, Session] = {}
         self.lock = threading.Lock()
 
-    def session(self, name: str, trusted: bool = False) -> Session:
+    def session(self, name: str, trusted: bool = False, peer: str | None = None) -> Session:
         """A new session of this console (``name`` says where it is, for the log)."""
         from runtime.console.session import Session  # session.py imports this module
-        return Session(self, name, trusted)
+        return Session(self, name, trusted, peer)
 
     # -- the PIN ---------------------------------------------------------------------
     def try_pin(self, pin: str, who: str) -> None:

@@ -40,12 +40,14 @@ class Session:
     a stream with ``start_stream``; any line, Ctrl-C or the end of the connection stops it.
     """
 
-    def __init__(self, service: ConsoleService, name: str, trusted: bool) -> None:
+    def __init__(self, service: ConsoleService, name: str, trusted: bool,
+                 peer: str | None = None) -> None:
         self.service = service
         self.ctl = service.controller
         self.cat = service.catalogue
         #: where the session is (``serial:/dev/ttyS0``), for the log
         self.name = name
+        self.peer = peer or name
         #: a trusted console may change the plant without a PIN
         self.trusted = trusted
         self.unlocked = False
@@ -160,7 +162,7 @@ class Session:
             return []
         return stream.poll(self.service.clock, self.json)
 
-    def close(self) -> None:
+    def close(self, reason: str = "connection closed") -> None:
         """The connection ended: stop streams; release this session's forces if the plant
         says ``release_forces_on_disconnect: true``."""
         self._stop_stream()

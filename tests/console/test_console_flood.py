@@ -21,6 +21,8 @@ from typing import Any
 
 import pytest
 
+from runtime.console.server import ConsoleServer
+from runtime.language.model import ConsoleEntry
 from tests.console.consolekit import Rig
 
 FLOODER = str(Path(__file__).with_name("flooder.py"))
@@ -85,3 +87,39 @@ def test_a_flood_on_the_console_does_not_disturb_the_scan(rigs: Callable[..., Ri
     assert rig.state() == "running" and rig.steps("t1") == ["gsParado"]
     assert rig.read("t1.sParo") is False and rig.read("t1.sCierres") == 0
     assert rig.connect().cmd("status")[0] == "state running"
+
+
+def pipelining(addresses: list[str], commands: list[str], seconds: float
+               ) -> list[dict[str, Any]]:
+    """One flooder process per address, each pipelining ``commands`` for ``seconds``."""
+    procs = [subprocess.Popen([sys.executable, FLOODER, "pipeline", a, str(seconds),
+                               *commands], stdout=subprocess.PIPE, text=True)
+             for a in addresses]
+    return [json.loads(p.communicate(timeout=seconds + 60)[0]) for p in procs]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("command", ["stats", "help"])
+def test_eight_tcp_clients_pipelining_do_not_starve_the_scan(
+        rigs: Callable[..., Rig], command: str) -> None:
+    """The attack of issue 12: eight local clients sending ``stats`` (or ``help``), no PIN
+    needed, as fast as the replies come. The scan keeps its cycle: no watchdog fault, no
+    more overruns than a quiet run, every cycle ran; and every client is answered."""
+    rig = rigs(serial_port=False)
+    server = ConsoleServer(rig.service, [ConsoleEntry("tcp", "127.0.0.1:0")])
+    server.start()
+    try:
+        quiet = window(rig, lambda: time.sleep(SECONDS))
+        loud = window(rig, lambda: pipelining([server.addresses[0]] * 8, [command],
+                                              SECONDS))
+        faults = list(rig.daemon.faults)
+    finally:
+        server.stop()
+    msg = f"quiet {quiet}, flooded {loud}"
+    assert not faults and rig.state() == "running", f"{faults}; {msg}"
+    for client in loud["extra"]:
+        assert not client["closed_by_server"] and client["ok"] > 0, msg
+        assert client["replies"] == client["sent"], msg  # throttled lines are answered too
+    assert loud["overruns"] <= quiet["overruns"] + 1, msg
+    assert loud["cycles"] >= 0.95 * loud["expected"], msg
+    assert loud["p99_us"] < max(2 * quiet["p99_us"], quiet["p99_us"] + 2500), msg
