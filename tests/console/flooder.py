@@ -9,7 +9,9 @@
                                              one client (ADDRESS: a socket path or
                                              127.0.0.1:PORT) sending the COMMANDs round
                                              and round as fast as the replies come, with
-                                             PIPELINE_DEPTH requests in flight
+                                             PIPELINE_DEPTH requests in flight, from
+                                             when "go" arrives on stdin (it prints
+                                             {"connected": ADDRESS} first)
 
 Each prints one JSON object with what was sent and received. The load is prepared before
 it starts, and the process runs at nice 10: it stands for a laptop at the other end of
@@ -199,6 +201,10 @@ def pipeline(address: str, seconds: float, commands: list[str]) -> dict[str, flo
     the replies (their final lines) and how they ended."""
     sock = connect(address)
     sock.setblocking(False)
+    sys.stdout.write(json.dumps({"connected": address}) + "\n")
+    sys.stdout.flush()
+    if sys.stdin.readline().strip() != "go":
+        return {}
     wire = [(c + "\r\n").encode() for c in commands]
     sent = replies = ok = refused = errors = 0
     buf = b""
