@@ -2,7 +2,8 @@
 client, with a client streaming ``trace on``, with that client plus a flood on the
 serial console (1000 lines/s of commands, 2000-byte lines and binary garbage), and with
 16 clients (8 TCP + 8 Unix socket) pipelining ``stats``, ``help`` and ``get`` of every
-name as fast as the replies come (issue 12: no client can starve the scan).
+name as fast as the replies come (``mix``), or ``stats`` alone, or ``help`` alone (issue
+12: no client can starve the scan).
 
 The plant is the console tests' one: two drawer testers on simulated I/O plus a chart
 that changes every scan, so the trace streams a line per scan. The clients run in their
@@ -11,7 +12,8 @@ the cable would. The garbage collector runs as in production (in the scan's idle
 Not a test: prints a table.
 
     python -m bench.console [--seconds 60] [--cycle 10ms] [--fifo | --priority N]
-                            [--phases quiet,trace,serial,clients] [--switch-interval MS]
+                            [--phases quiet,trace,serial,mix,stats,help]
+                            [--switch-interval MS]
 """
 
 from __future__ import annotations
@@ -47,8 +49,12 @@ def window(rig: Rig, seconds: float) -> dict[str, Any]:
             "p99": late.p99 / 1e3, "max": late.max / 1e3, "scan_p99": scan.p99 / 1e3}
 
 
-#: the pipelining clients of the ``clients`` phase, per transport
+#: the pipelining clients of a clients phase, per transport
 CLIENTS_PER_TRANSPORT = 8
+#: phases of pipelining clients -> what they send round and round (None: stats, help and
+#: get of every name, the issue's mix); stats and help alone were the attacks of issue 12
+CLIENT_PHASES: dict[str, list[str] | None] = {"mix": None, "stats": ["stats"],
+                                              "help": ["help"]}
 
 
 def pipeliners(addresses: list[str], commands: list[str], seconds: float
@@ -63,10 +69,10 @@ def pipeliners(addresses: list[str], commands: list[str], seconds: float
     return procs
 
 
-def clients_phase(rig: Rig, tcp: str, secs: float) -> tuple[dict[str, Any], str]:
-    """16 clients (8 TCP, 8 Unix socket) pipelining stats, help and get of every name."""
+def clients_phase(rig: Rig, tcp: str, secs: float, commands: list[str]
+                  ) -> tuple[dict[str, Any], str]:
+    """16 clients (8 TCP, 8 Unix socket) pipelining ``commands``."""
     assert rig.socket_path is not None
-    commands = ["stats", "help", *(f"get {n}" for n in rig.service.catalogue.names)]
     procs = pipeliners([tcp] * CLIENTS_PER_TRANSPORT
                        + [rig.socket_path] * CLIENTS_PER_TRANSPORT, commands, secs)
     for p in procs:
@@ -90,8 +96,8 @@ def main() -> int:
                     help="run the scan thread SCHED_FIFO at this priority (the plant's "
                          "plc: realtime: priority key; needs the privilege)")
     ap.add_argument("--fifo", action="store_true", help="the same as --priority 50")
-    ap.add_argument("--phases", default="quiet,trace,serial,clients",
-                    help="which phases, in this order (quiet,trace,serial,clients)")
+    ap.add_argument("--phases", default="quiet,trace,serial,mix,stats,help",
+                    help="which phases, in this order (quiet,trace,serial,mix,stats,help)")
     ap.add_argument("--switch-interval", type=float, metavar="MS",
                     help="set the GIL switch interval after the daemon started (it sets "
                          "0.5 ms): to measure its effect")
@@ -129,9 +135,11 @@ def main() -> int:
                              f"{traced['trace_lines']} trace lines"))
             elif phase == "serial":
                 rows.append(serial_phase(rig, flooder, secs))
-            elif phase == "clients":
-                stats, note = clients_phase(rig, tcp_server.addresses[0], secs)
-                rows.append(("16 clients pipelining", stats, note))
+            elif phase in CLIENT_PHASES:
+                commands = CLIENT_PHASES[phase] or [
+                    "stats", "help", *(f"get {n}" for n in rig.service.catalogue.names)]
+                stats, note = clients_phase(rig, tcp_server.addresses[0], secs, commands)
+                rows.append((f"16 clients: {phase}", stats, note))
             else:
                 raise SystemExit(f"unknown phase {phase!r}")
     finally:

@@ -6,8 +6,9 @@ serial port by a thread of its own. None of this runs in the scan thread: plant 
 through Controller.call.
 
 No client can starve the scan (docs/console.md, "Transports and limits"):
-- lines are taken one at a time per connection, round-robin, at most ROUND_BUDGET_S of
-  work per round, then the thread sleeps YIELD_S so the scan thread finds the GIL free;
+- console work (lines, streams) runs only in the first half of each cycle, from the end
+  of a scan (ScanWindow): when the scan thread wakes at its deadline the GIL is free;
+- lines are taken one at a time per connection, round-robin;
 - each session may run LINES_PER_S lines a second (bursts of BURST_LINES); a line over
   that gets ``error too many requests`` and is not run;
 - the daemon shortens the interpreter's GIL switch interval (daemon.GIL_SWITCH_S), so a
@@ -62,9 +63,12 @@ EVICT_IDLE_S = 10.0
 #: lines a session may run per second, and at once after a pause
 LINES_PER_S = 50.0
 BURST_LINES = 100
-#: console work per round of the socket thread before it sleeps YIELD_S, seconds
+#: console work per round of the socket thread before it looks for I/O again, seconds
 ROUND_BUDGET_S = 0.002
-YIELD_S = 0.001
+#: console work runs in this share of each cycle, from the end of a scan
+WINDOW_SHARE = 0.5
+#: the shortest sleep waiting for the next window, seconds
+WINDOW_POLL_S = 0.0002
 #: a serial port that cannot be opened is tried again after this delay, doubling up to
 #: the maximum, seconds
 REOPEN_MIN_S = 0.5
@@ -97,6 +101,34 @@ class Throttle:
     def next_token(self) -> float:
         """When the next token comes (clock seconds)."""
         return self.last + max(0.0, 1.0 - self.tokens) / self.rate
+
+
+class ScanWindow:
+    """When console work may hold the GIL: from the end of a scan for WINDOW_SHARE of the
+    cycle, so that the scan thread, waking at its next deadline, finds the GIL free (a
+    thread holding it delays the scan by up to the switch interval). When no scan has
+    ended for two cycles (the scan is stuck, or stopped), at any time: the console must
+    still answer."""
+
+    def __init__(self, cycle_s: float) -> None:
+        self.cycle_s = cycle_s
+        #: monotonic seconds at the end of the last scan (written by the scan thread)
+        self.scan_end = 0.0
+
+    def on_scan(self, scan: int) -> None:
+        """Scan thread, after each cycle: one float stored."""
+        self.scan_end = time.monotonic()
+
+    def until(self) -> float:
+        """Wait for a window; return when it closes (monotonic seconds)."""
+        while True:
+            now = time.monotonic()
+            end = self.scan_end + WINDOW_SHARE * self.cycle_s
+            if now < end:
+                return end
+            if now - self.scan_end > 2 * self.cycle_s:
+                return now + ROUND_BUDGET_S
+            time.sleep(max(WINDOW_POLL_S, self.scan_end + self.cycle_s - now))
 
 
 class Line:
@@ -218,6 +250,7 @@ class ConsoleServer:
         self._lock = threading.Lock()
         self._conns: list[_Conn] = []
         self._selector: selectors.BaseSelector | None = None
+        self.window = ScanWindow(service.controller.plant.cycle_ns / 1e9)
         #: where the console is served: serial ports, socket paths, 127.0.0.1:PORT
         self.addresses: list[str] = []
         #: the sessions open now
@@ -230,6 +263,7 @@ class ConsoleServer:
 
     def start(self) -> None:
         """Open every listener (errors raised here) and start the serving threads."""
+        self.service.controller.add_listener(self.window.on_scan)
         for e in self.entries:
             if e.kind == "serial":
                 self.addresses.append(e.address)
@@ -300,16 +334,15 @@ class ConsoleServer:
                         self._accept(sel, key.data)
                     else:
                         self._io(key.data)
-                started = time.monotonic()
-                worked = self._work(started)
-                now = time.monotonic()
-                if now >= next_poll:
-                    next_poll = now + POLL_S
-                    self._tick()
+                tick = time.monotonic() >= next_poll
+                if tick or any(c.line.ready() for c in self._conns):
+                    closes = self.window.until()
+                    self._work(min(closes, time.monotonic() + ROUND_BUDGET_S))
+                    if tick:
+                        next_poll = time.monotonic() + POLL_S
+                        self._tick()
                 for c in list(self._conns):
                     self._flush(c)
-                if worked and time.monotonic() - started >= ROUND_BUDGET_S:
-                    time.sleep(YIELD_S)  # the GIL is free for the scan thread
         finally:
             for c in list(self._conns):
                 self._drop(c, "server stopping")
@@ -328,18 +361,17 @@ class ConsoleServer:
                     sel.unregister(c.sock)
                 c.events = ev
 
-    def _work(self, started: float) -> bool:
-        """Lines handed over round-robin, one per connection, for ROUND_BUDGET_S at most."""
-        worked = False
+    def _work(self, until: float) -> None:
+        """Lines handed over round-robin, one per connection, until ``until`` (monotonic
+        seconds)."""
         while True:
             ready = [c for c in self._conns if c.line.ready()]
             if not ready:
-                return worked
+                return
             for c in ready:
                 c.line.step()
-                worked = True
-                if time.monotonic() - started >= ROUND_BUDGET_S:
-                    return worked
+                if time.monotonic() >= until:
+                    return
 
     def _tick(self) -> None:
         """Streams polled, and idle connections closed (POLL_S apart)."""
@@ -493,7 +525,6 @@ class ConsoleServer:
         poller.register(fd, select.POLLIN)
         carrier = _carrier(port)  # None: no modem lines (a pty, a USB gadget)
         next_poll = 0.0
-        round_start = time.monotonic()
         while not self._stop.is_set():
             if reading != (len(line.inbuf) < IN_MAX):  # full: the bytes wait in the port
                 reading = not reading
@@ -507,15 +538,13 @@ class ConsoleServer:
                     data = bytes(port.read(min(max(port.in_waiting, 1), READ_CHUNK)))
                     if data:
                         line.receive(data)
-            now = time.monotonic()
-            if not busy:
-                round_start = now
-            elif now - round_start >= ROUND_BUDGET_S:
-                time.sleep(YIELD_S)  # the GIL is free for the scan thread
-                round_start = time.monotonic()
+            tick = time.monotonic() >= next_poll
+            if line.ready() or tick:
+                self.window.until()
             if line.ready():
                 line.step()
-            if now >= next_poll:
+            if tick:
+                now = time.monotonic()
                 next_poll = now + POLL_S
                 line.poll()
                 if carrier is not None:
@@ -537,6 +566,7 @@ class ConsoleServer:
         """Stop serving: every session closed (its streams and, if configured, its
         forces released), threads joined, socket files removed. Idempotent."""
         self._stop.set()
+        self.service.controller.remove_listener(self.window.on_scan)
         with self._lock:
             threads = list(self._threads)
         for t in threads:
