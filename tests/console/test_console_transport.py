@@ -177,3 +177,29 @@ def _reader(fd: int) -> Callable[[float], bytes | None]:
         ready, _, _ = select.select([fd], [], [], timeout)
         return os.read(fd, 65536) if ready else b""
     return recv
+
+
+def test_carrier_lost_locks_the_serial_console_again(
+        rigs: Callable[..., Rig], pty_line: Callable[[], tuple[int, str]],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A port with modem lines: the carrier detect line drops (the modem or the terminal
+    at the far end hung up) while the fd stays open. A pty has no modem lines, so the
+    port's ``cd`` is the one thing played here; the bytes go over the real pty."""
+    import serial
+
+    carrier = {"cd": True}
+    monkeypatch.setattr(serial.Serial, "cd", property(lambda self: carrier["cd"]))
+    master, path = pty_line()
+    rig = rigs(serial_port=False, unix_socket=False, trusted=False, pin_hash=HASH,
+               serial_path=path)
+    wait_for(lambda: rig.server.sessions, "the serial console to open")
+    first = rig.server.sessions[0]
+    line = LineClient(lambda b: os.write(master, b), _reader(master), lambda: None)
+    assert line.ok(f"unlock {PIN}") and first.unlocked
+    carrier["cd"] = False
+    wait_for(lambda: first not in rig.server.sessions, "the carrier loss seen")
+    wait_for(lambda: rig.server.sessions, "the port opened again")
+    carrier["cd"] = True
+    assert line.error("pause") == "locked: 'unlock PIN' first"
+    (second,) = rig.server.sessions
+    assert second is not first and not second.unlocked
