@@ -144,8 +144,9 @@ class Line:
         self.throttle = throttle
         self.inbuf = bytearray()
         self.out = bytearray()
-        #: monotonic seconds of the last input
-        self.last_input = clock()
+        #: clock seconds since which the session has had no input while neither trusted
+        #: nor unlocked (its idle time counts from there)
+        self.idle_since = clock()
         #: monotonic seconds before which no line is handed over (0: none)
         self.held_until = 0.0
         #: bytes of a line were handed over without its end (the framer holds them)
@@ -153,7 +154,7 @@ class Line:
 
     def receive(self, data: bytes) -> None:
         self.inbuf += data
-        self.last_input = self.clock()
+        self.idle_since = self.clock()
 
     def ready(self) -> bool:
         """A line (or a stretch of a long line) is waiting, the peer takes replies, and
@@ -309,6 +310,14 @@ class ConsoleServer:
                  " (trusted)" if e.trusted else "")
         return srv
 
+    def idle_s(self, session: Session) -> float | None:
+        """How long a socket session has been idle while neither trusted nor unlocked
+        (clock seconds, as the server last saw it); None if no socket serves it."""
+        for c in list(self._conns):
+            if c.line.session is session:
+                return self.clock() - c.line.idle_since
+        return None
+
     def _opened(self, session: Session) -> None:
         with self._lock:
             self.sessions.append(session)
@@ -379,7 +388,9 @@ class ConsoleServer:
         for c in list(self._conns):
             c.line.poll()
             s = c.line.session
-            if not (s.trusted or s.unlocked) and now - c.line.last_input >= IDLE_TIMEOUT_S:
+            if s.trusted or s.unlocked:
+                c.line.idle_since = now  # locked again later: idle from then on
+            elif now - c.line.idle_since >= IDLE_TIMEOUT_S:
                 self._idle_out(c, now)
             elif c.line.out and time.monotonic() - c.drained > SEND_TIMEOUT_S:
                 log.warning("console %s: the peer took nothing for %.0f s", c.address,
@@ -388,7 +399,7 @@ class ConsoleServer:
 
     def _idle_out(self, c: _Conn, now: float) -> None:
         c.line.out.clear()
-        c.line.say(f"error idle timeout ({now - c.line.last_input:.0f} s without input, "
+        c.line.say(f"error idle timeout ({now - c.line.idle_since:.0f} s without input, "
                    "not unlocked)")
         self._flush(c)
         self._drop(c, "idle timeout")
@@ -405,7 +416,7 @@ class ConsoleServer:
         if len(here) >= MAX_CONNECTIONS:
             now = self.clock()
             idle = [c for c in here if not (c.line.session.trusted or c.line.session.unlocked)
-                    and now - c.line.last_input >= EVICT_IDLE_S]
+                    and now - c.line.idle_since >= EVICT_IDLE_S]
             if not idle:
                 log.warning("console %s: connection refused, %d sessions already",
                             lst.address, MAX_CONNECTIONS)
@@ -416,7 +427,7 @@ class ConsoleServer:
                     pass
                 conn.close()
                 return
-            self._idle_out(min(idle, key=lambda c: c.line.last_input), now)
+            self._idle_out(min(idle, key=lambda c: c.line.idle_since), now)
         conn.setblocking(False)
         e = lst.entry
         session = self.service.session(f"{e.kind}:{lst.address}", trusted=e.trusted,

@@ -103,6 +103,16 @@ def test_an_idle_unauthenticated_connection_is_closed(
         idle.line()
     wait_for(lambda: tcp_sessions(server) == 1, "the idle session closed")
     assert unlocked.cmd("status")[-1] == "ok" and trusted.cmd("status")[-1] == "ok"
+    # locked again without a line of its own (the relock after an idle time): its idle
+    # time counts from then, not from its last input long ago
+    clock.t += 3 * IDLE_TIMEOUT_S
+    (session,) = [s for s in server.sessions if s.name.startswith("tcp")]
+    wait_for(lambda: server.idle_s(session) == 0.0, "the server to see it unlocked")
+    session.unlocked = False
+    clock.t += IDLE_TIMEOUT_S - 1.0
+    assert unlocked.pending(0.3) == b""
+    clock.t += 2.0
+    assert unlocked.line().startswith("error idle timeout")
 
 
 def test_lines_over_the_rate_get_an_error_reply(
