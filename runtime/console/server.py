@@ -6,8 +6,8 @@ serial port by a thread of its own. None of this runs in the scan thread: plant 
 through Controller.call.
 
 No client can starve the scan (docs/console.md, "Transports and limits"):
-- console work (lines, streams) runs only in the first half of each cycle, from the end
-  of a scan (ScanWindow): when the scan thread wakes at its deadline the GIL is free;
+- console work (lines, streams) stops QUIET_BEFORE_S (at most half a cycle) before each
+  scan is due, until it has ended (ScanWindow): the scan thread wakes to a free GIL;
 - lines are taken one at a time per connection, round-robin;
 - each session may run LINES_PER_S lines a second (bursts of BURST_LINES); a line over
   that gets ``error too many requests`` and is not run;
@@ -65,7 +65,10 @@ LINES_PER_S = 50.0
 BURST_LINES = 100
 #: console work per round of the socket thread before it looks for I/O again, seconds
 ROUND_BUDGET_S = 0.002
-#: console work runs in this share of each cycle, from the end of a scan
+#: console work stops this long before the next scan is due, until that scan has ended,
+#: seconds (at most WINDOW_SHARE of the cycle): the longest line handled (``stats``, ~1 ms)
+#: fits in it with room to spare
+QUIET_BEFORE_S = 0.005
 WINDOW_SHARE = 0.5
 #: the shortest sleep waiting for the next window, seconds
 WINDOW_POLL_S = 0.0002
@@ -104,31 +107,36 @@ class Throttle:
 
 
 class ScanWindow:
-    """When console work may hold the GIL: from the end of a scan for WINDOW_SHARE of the
-    cycle, so that the scan thread, waking at its next deadline, finds the GIL free (a
-    thread holding it delays the scan by up to the switch interval). When no scan has
-    ended for two cycles (the scan is stuck, or stopped), at any time: the console must
-    still answer."""
+    """When console work may hold the GIL: from the end of a scan until QUIET_BEFORE_S
+    (at most half the cycle) before the next one is due, so that the scan thread, waking
+    at its deadline, finds the GIL free (a thread holding it delays the scan by up to the
+    switch interval). When no scan has ended for two cycles (the scan is stuck, or
+    stopped), at any time: the console must still answer."""
 
-    def __init__(self, cycle_s: float) -> None:
+    def __init__(self, cycle_s: float, clock: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
         self.cycle_s = cycle_s
-        #: monotonic seconds at the end of the last scan (written by the scan thread)
+        self.clock = clock
+        self.sleep = sleep
+        #: clock seconds at the end of the last scan (written by the scan thread)
         self.scan_end = 0.0
 
     def on_scan(self, scan: int) -> None:
         """Scan thread, after each cycle: one float stored."""
-        self.scan_end = time.monotonic()
+        self.scan_end = self.clock()
 
     def until(self) -> float:
         """Wait for a window; return when it closes (monotonic seconds)."""
+        cycle = self.cycle_s
+        open_s = cycle - min(WINDOW_SHARE * cycle, QUIET_BEFORE_S)
         while True:
-            now = time.monotonic()
-            end = self.scan_end + WINDOW_SHARE * self.cycle_s
+            now = self.clock()
+            end = self.scan_end + open_s
             if now < end:
                 return end
-            if now - self.scan_end > 2 * self.cycle_s:
+            if now - self.scan_end > 2 * cycle:
                 return now + ROUND_BUDGET_S
-            time.sleep(max(WINDOW_POLL_S, self.scan_end + self.cycle_s - now))
+            self.sleep(max(WINDOW_POLL_S, self.scan_end + cycle - now))
 
 
 class Line:
