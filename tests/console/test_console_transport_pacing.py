@@ -1,7 +1,10 @@
-"""The console's pacing on a virtual clock: the quiet time before each scan (ScanWindow)
-and the rate of a session (Throttle)."""
+"""The console's pacing: on a virtual clock, the quiet time before each scan (ScanWindow)
+and the rate of a session (Throttle); on a running daemon, how often ``stats`` sorts."""
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
 
 import pytest
 
@@ -13,6 +16,8 @@ from runtime.console.server import (
     ScanWindow,
     Throttle,
 )
+from runtime.controller.daemon import STATS_MAX_AGE_NS
+from tests.console.consolekit import Rig, wait_for
 
 
 class VirtualTime:
@@ -76,3 +81,26 @@ def test_a_session_runs_its_rate_and_its_burst() -> None:
     assert sum(th.take() for _ in range(3 * BURST_LINES)) == int(LINES_PER_S)
     vt.t += 3600.0  # a long pause: never more than the burst
     assert sum(th.take() for _ in range(3 * BURST_LINES)) == BURST_LINES
+
+
+def test_stats_sorts_the_cycle_window_at_most_every_100_ms_of_cycles(
+        rigs: Callable[..., Rig]) -> None:
+    """``stats`` percentiles sort up to 8192 cycles (~3 ms holding the GIL): however many
+    consoles ask, the daemon computes them once per STATS_MAX_AGE_NS of cycles."""
+    rig = rigs(serial_port=False, unix_socket=False)
+    real = rig.daemon.scan_stats.as_dict
+    sorts: list[int] = []
+
+    def counting() -> dict[str, Any]:
+        sorts.append(rig.daemon.scan_stats.count)
+        return real()
+    rig.daemon.scan_stats.as_dict = counting  # type: ignore[method-assign]
+    first = rig.daemon.scan_stats.count
+    replies = [rig.daemon.stats() for _ in range(500)]
+    wait_for(lambda: rig.daemon.scan_stats.count >= first + 30, "30 cycles")
+    replies += [rig.daemon.stats() for _ in range(500)]
+    last = rig.daemon.scan_stats.count
+    per = STATS_MAX_AGE_NS // rig.plant.cycle_ns
+    assert 2 <= len(sorts) <= 2 + (last - first) // per, sorts
+    assert all(b - a >= per for a, b in zip(sorts, sorts[1:], strict=False)), sorts
+    assert replies[-1]["cycles"] >= first + 30 - per  # fresh within that age
