@@ -272,7 +272,8 @@ class ConsoleServer:
 
     def start(self) -> None:
         """Open every listener (errors raised here) and start the serving threads."""
-        self.service.controller.add_listener(self.window.on_scan)
+        if self.entries:
+            self.service.controller.add_listener(self.window.on_scan)
         for e in self.entries:
             if e.kind == "serial":
                 self.addresses.append(e.address)
