@@ -1,7 +1,8 @@
 """Bad input on the line never stops or slows the scan: a client floods the serial
 console (1000 lines/s of commands, 2000-byte lines, binary garbage) while another streams
-``trace on`` from a chart that changes every scan, and the cycle statistics are compared
-with a quiet run of the same daemon.
+``trace on`` from a chart that changes every scan; eight TCP clients pipeline ``stats``
+(or ``help``) as fast as the replies come. The cycle statistics are compared with a quiet
+run of the same daemon.
 
 The clients are separate processes (flooder.py), as a laptop at the other end of the
 cable would be. The bounds are generous on purpose (a loaded, shared 2-core VM): at most
