@@ -1,19 +1,41 @@
 """Console transports: serial line (pyserial), Unix socket, TCP on 127.0.0.1 only.
 
-One thread per connection (and one per serial port); each feeds bytes to its Session,
-writes back the replies and polls the session's streams. None of this runs in the scan
-thread: plant access goes through Controller.call. A serial port that fails or hangs up
-(a USB gadget unplugged) ends its session and is opened again, so the console comes back
-when the cable does.
+Every socket connection is served by ONE thread with ``selectors`` (so whatever the number
+of clients, a single console thread competes with the scan thread for the GIL), and each
+serial port by a thread of its own. None of this runs in the scan thread: plant access goes
+through Controller.call.
+
+No client can starve the scan (docs/console.md, "Transports and limits"):
+- console work (lines, streams) stops QUIET_BEFORE_S (at most half a cycle) before each
+  scan is due, until it has ended (ScanWindow): the scan thread wakes to a free GIL;
+- lines are taken one at a time per connection, round-robin;
+- each session may run LINES_PER_S lines a second (bursts of BURST_LINES); a line over
+  that gets ``error too many requests`` and is not run;
+- the daemon shortens the interpreter's GIL switch interval (daemon.GIL_SWITCH_S), so a
+  scan waits at most that long for a console thread holding the GIL.
+
+Limits: MAX_CONNECTIONS per socket or TCP port (one more gets an error line and is
+closed); a connection neither trusted nor unlocked that sends nothing for IDLE_TIMEOUT_S
+is closed, and when every place is taken, the one idle longest (over EVICT_IDLE_S) makes
+room. A serial port always has its own session; one that fails or hangs up (POLLHUP on the
+fd, or its carrier detect line dropping) ends its session and is opened again, so the next
+person on the line gets a fresh, locked session.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import os
+import re
+import select
+import selectors
 import socket
+import struct
 import threading
+import time
 from collections.abc import Callable
+from typing import Any
 
 from runtime.console.service import ConsoleService
 from runtime.console.session import Session
@@ -21,19 +43,207 @@ from runtime.language.model import ConsoleEntry
 
 log = logging.getLogger(__name__)
 
-#: how long a read waits before the session's streams are polled, seconds
+#: how long the serving loops wait for input before polling streams and timers, seconds
 POLL_S = 0.05
-#: bytes taken from the line per read: keeps each burst of console work short
+#: bytes taken from a connection per read
 READ_CHUNK = 1024
+#: bytes received and not yet handled, per connection, before reading from it stops
+IN_MAX = 8192
+#: reply bytes not yet taken by the peer, per connection, before its lines wait
+OUT_MAX = 65536
 #: a peer that takes nothing for this long loses the output (serial) or the connection
 #: (socket), seconds
 SEND_TIMEOUT_S = 5.0
 #: connections served at once on one socket or TCP port
 MAX_CONNECTIONS = 8
+#: a connection neither trusted nor unlocked is closed after this long without input, s
+IDLE_TIMEOUT_S = 60.0
+#: when every place is taken, such a connection idle this long makes room for a new one, s
+EVICT_IDLE_S = 10.0
+#: lines a session may run per second, and at once after a pause
+LINES_PER_S = 50.0
+BURST_LINES = 100
+#: console work per round of the socket thread before it looks for I/O again, seconds
+ROUND_BUDGET_S = 0.002
+#: console work stops this long before the next scan is due, until that scan has ended,
+#: seconds (at most WINDOW_SHARE of the cycle): the longest line handled (``stats``, ~1 ms)
+#: fits in it with room to spare
+QUIET_BEFORE_S = 0.005
+WINDOW_SHARE = 0.5
+#: the shortest sleep waiting for the next window, seconds
+WINDOW_POLL_S = 0.0002
 #: a serial port that cannot be opened is tried again after this delay, doubling up to
 #: the maximum, seconds
 REOPEN_MIN_S = 0.5
 REOPEN_MAX_S = 10.0
+
+_LINE_END = re.compile(rb"\r\n?|\n|\x03")
+
+
+class Throttle:
+    """A token bucket: ``rate`` lines a second, ``burst`` at once."""
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic,
+                 rate: float = LINES_PER_S, burst: int = BURST_LINES) -> None:
+        self.clock = clock
+        self.rate = rate
+        self.burst = float(burst)
+        self.tokens = float(burst)
+        self.last = clock()
+
+    def take(self) -> bool:
+        """One line may run now (a token is taken), or not."""
+        now = self.clock()
+        self.tokens = min(self.burst, self.tokens + (now - self.last) * self.rate)
+        self.last = now
+        if self.tokens >= 1.0:
+            self.tokens -= 1.0
+            return True
+        return False
+
+    def next_token(self) -> float:
+        """When the next token comes (clock seconds)."""
+        return self.last + max(0.0, 1.0 - self.tokens) / self.rate
+
+
+class ScanWindow:
+    """When console work may hold the GIL: from the end of a scan until QUIET_BEFORE_S
+    (at most half the cycle) before the next one is due, so that the scan thread, waking
+    at its deadline, finds the GIL free (a thread holding it delays the scan by up to the
+    switch interval). When no scan has ended for two cycles (the scan is stuck, or
+    stopped), at any time: the console must still answer."""
+
+    def __init__(self, cycle_s: float, clock: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
+        self.cycle_s = cycle_s
+        self.clock = clock
+        self.sleep = sleep
+        #: clock seconds at the end of the last scan (written by the scan thread)
+        self.scan_end = 0.0
+
+    def on_scan(self, scan: int) -> None:
+        """Scan thread, after each cycle: one float stored."""
+        self.scan_end = self.clock()
+
+    def until(self) -> float:
+        """Wait for a window; return when it closes (monotonic seconds)."""
+        cycle = self.cycle_s
+        open_s = cycle - min(WINDOW_SHARE * cycle, QUIET_BEFORE_S)
+        while True:
+            now = self.clock()
+            end = self.scan_end + open_s
+            if now < end:
+                return end
+            if now - self.scan_end > 2 * cycle:
+                return now + ROUND_BUDGET_S
+            self.sleep(max(WINDOW_POLL_S, self.scan_end + cycle - now))
+
+
+class Line:
+    """One connection's input queue in front of its Session: whole lines are handed over
+    one at a time (``step``), each paid with a token of its Throttle; the reply bytes
+    wait in ``out`` for the transport."""
+
+    def __init__(self, session: Session, clock: Callable[[], float],
+                 throttle: Throttle | None = None) -> None:
+        self.session = session
+        self.clock = clock
+        #: None: every line runs (a serial line, limited by its speed)
+        self.throttle = throttle
+        self.inbuf = bytearray()
+        self.out = bytearray()
+        #: clock seconds since which the session has had no input while neither trusted
+        #: nor unlocked (its idle time counts from there)
+        self.idle_since = clock()
+        #: monotonic seconds before which no line is handed over (0: none)
+        self.held_until = 0.0
+        #: bytes of a line were handed over without its end (the framer holds them)
+        self._partial = False
+
+    def receive(self, data: bytes) -> None:
+        self.inbuf += data
+        self.idle_since = self.clock()
+
+    def ready(self) -> bool:
+        """A line (or a stretch of a long line) is waiting, the peer takes replies, and
+        the session is not waiting for its next token after a refused line."""
+        return (bool(self.inbuf) and len(self.out) < OUT_MAX
+                and (self.held_until == 0.0 or self._unheld()))
+
+    def _unheld(self) -> bool:
+        if time.monotonic() < self.held_until:
+            return False
+        self.held_until = 0.0
+        return True
+
+    def step(self) -> None:
+        """Hand the next line over (or what there is of it) and queue the reply."""
+        m = _LINE_END.search(self.inbuf)
+        if m is None:  # half a line: the framer keeps it (and drops it when overlong)
+            chunk, self.inbuf = bytes(self.inbuf), bytearray()
+            self._partial = True
+            self._send(self.session.feed(chunk))
+            return
+        chunk = bytes(self.inbuf[:m.end()])
+        del self.inbuf[:m.end()]
+        if m.group() == b"\x03" or not (self._partial or chunk[:m.start()].strip()):
+            self._partial = False  # Ctrl-C, or an empty line: nothing runs
+            self._send(self.session.feed(chunk))
+            return
+        self._partial = False
+        if self.throttle is None or self.throttle.take():
+            self._send(self.session.feed(chunk))
+            return
+        self.session.feed(b"\x03")  # the line is dropped, as Ctrl-C would drop it
+        # its next line waits for the next token: refusals come at the rate, not as fast
+        # as the peer can send (each costs console time too)
+        self.held_until = self.throttle.next_token()
+        reason = f"too many requests (more than {LINES_PER_S:g} lines/s): line ignored"
+        self._send([json.dumps({"ok": False, "error": reason}) if self.session.json
+                    else f"error {reason}"])
+
+    def poll(self) -> None:
+        """The session's streamed lines, unless the peer is behind with its replies."""
+        if len(self.out) < OUT_MAX:
+            self._send(self.session.poll())
+
+    def say(self, line: str) -> None:
+        self._send([line])
+
+    def _send(self, lines: list[str]) -> None:
+        if lines:
+            self.out += ("\r\n".join(lines) + "\r\n").encode("utf-8")
+
+
+def peer_of(conn: socket.socket, kind: str) -> str:
+    """Who is at the other end: ``uid:N`` on a Unix socket (SO_PEERCRED), ``tcp``."""
+    if kind == "socket":
+        try:
+            cred = conn.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED,
+                                   struct.calcsize("3i"))
+            return f"uid:{struct.unpack('3i', cred)[1]}"
+        except OSError:
+            return "uid:?"
+    return "tcp"
+
+
+class _Conn:
+    """A socket connection served by the selector loop."""
+
+    def __init__(self, sock: socket.socket, line: Line, address: str) -> None:
+        self.sock = sock
+        self.line = line
+        self.address = address
+        #: monotonic seconds since the peer last took bytes (or had none to take)
+        self.drained = time.monotonic()
+        self.events = 0
+
+
+class _Listener:
+    def __init__(self, sock: socket.socket, entry: ConsoleEntry, address: str) -> None:
+        self.sock = sock
+        self.entry = entry
+        self.address = address
 
 
 class ConsoleServer:
@@ -44,31 +254,43 @@ class ConsoleServer:
         self.entries = entries
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
-        self._listeners: list[socket.socket] = []
+        self._listeners: list[_Listener] = []
         self._socket_paths: list[str] = []
         self._lock = threading.Lock()
-        self._active: dict[str, int] = {}
+        self._conns: list[_Conn] = []
+        self._selector: selectors.BaseSelector | None = None
+        self.window = ScanWindow(service.controller.plant.cycle_ns / 1e9)
         #: where the console is served: serial ports, socket paths, 127.0.0.1:PORT
         self.addresses: list[str] = []
         #: the sessions open now
         self.sessions: list[Session] = []
 
+    @property
+    def clock(self) -> Callable[[], float]:
+        """Monotonic seconds for idle times and rates: the service's (tests step it)."""
+        return self.service.clock
+
     def start(self) -> None:
         """Open every listener (errors raised here) and start the serving threads."""
+        if self.entries:
+            self.service.controller.add_listener(self.window.on_scan)
         for e in self.entries:
             if e.kind == "serial":
                 self.addresses.append(e.address)
                 self._spawn(self._serve_serial, e, name=f"console-serial-{e.address}")
             else:
                 srv = self._listen(e)
-                self._listeners.append(srv)
-                self._spawn(self._accept_loop, srv, e, self.addresses[-1],
-                            name=f"console-{e.kind}")
+                self._listeners.append(_Listener(srv, e, self.addresses[-1]))
+        if self._listeners:
+            sel = selectors.DefaultSelector()
+            for lst in self._listeners:
+                sel.register(lst.sock, selectors.EVENT_READ, lst)
+            self._selector = sel
+            self._spawn(self._serve_sockets, sel, name="console-sockets")
 
     def _spawn(self, fn: Callable[..., None], *args: object, name: str) -> None:
         t = threading.Thread(target=fn, args=args, name=name, daemon=True)
         with self._lock:
-            self._threads = [x for x in self._threads if x.is_alive()]
             self._threads.append(t)
         t.start()
 
@@ -92,93 +314,200 @@ class ConsoleServer:
             srv.bind((host, int(port)))
             self.addresses.append(f"{host}:{srv.getsockname()[1]}")
         srv.listen(MAX_CONNECTIONS)
-        srv.settimeout(POLL_S * 4)
+        srv.setblocking(False)
         log.info("console listening on %s%s", self.addresses[-1],
                  " (trusted)" if e.trusted else "")
         return srv
 
-    # -- the common loop ------------------------------------------------------------
-    def _pump(self, session: Session, recv: Callable[[], bytes | None],
-              send: Callable[[bytes], None], address: str | None = None) -> None:
-        """Bytes in -> replies out, streams polled between reads, until the peer leaves
-        (``recv`` returns None) or the server stops. The session is closed at the end, and
-        its place on ``address`` freed at the same moment it leaves ``sessions``."""
+    def idle_s(self, session: Session) -> float | None:
+        """How long a socket session has been idle while neither trusted nor unlocked
+        (clock seconds, as the server last saw it); None if no socket serves it."""
+        for c in list(self._conns):
+            if c.line.session is session:
+                return self.clock() - c.line.idle_since
+        return None
+
+    def _opened(self, session: Session) -> None:
         with self._lock:
             self.sessions.append(session)
+
+    def _closed(self, session: Session, reason: str) -> None:
+        """End ``session``: closed (its streams and forces), then out of ``sessions``."""
+        try:
+            session.close(reason)
+        finally:
+            with self._lock:
+                self.sessions.remove(session)
+        log.info("console session %s closed: %s", session.name, reason)
+
+    # -- sockets: one thread, one selector ---------------------------------------------
+    def _serve_sockets(self, sel: selectors.BaseSelector) -> None:
+        next_poll = 0.0
         try:
             while not self._stop.is_set():
-                data = recv()
-                if data is None:
-                    return
-                out = session.feed(data) if data else []
-                out += session.poll()
-                if out:
-                    send(("\r\n".join(out) + "\r\n").encode("utf-8"))
+                busy = any(c.line.ready() for c in self._conns)
+                self._set_events(sel)
+                for key, _ in sel.select(0 if busy else POLL_S):
+                    if isinstance(key.data, _Listener):
+                        self._accept(sel, key.data)
+                    else:
+                        self._io(key.data)
+                tick = time.monotonic() >= next_poll
+                if tick or any(c.line.ready() for c in self._conns):
+                    closes = self.window.until()
+                    self._work(min(closes, time.monotonic() + ROUND_BUDGET_S))
+                    if tick:
+                        next_poll = time.monotonic() + POLL_S
+                        self._tick()
+                for c in list(self._conns):
+                    self._flush(c)
         finally:
-            try:
-                session.close()
-            finally:
-                with self._lock:
-                    self.sessions.remove(session)
-                    if address is not None:
-                        self._active[address] -= 1
+            for c in list(self._conns):
+                self._drop(c, "server stopping")
+            sel.close()
 
-    # -- sockets ------------------------------------------------------------------------
-    def _accept_loop(self, srv: socket.socket, e: ConsoleEntry, address: str) -> None:
-        while not self._stop.is_set():
-            try:
-                conn, _ = srv.accept()
-            except TimeoutError:
-                continue
-            except OSError:
-                return  # closed by stop()
-            with self._lock:
-                busy = self._active.get(address, 0) >= MAX_CONNECTIONS
-                if not busy:
-                    self._active[address] = self._active.get(address, 0) + 1
-            if busy:
-                log.warning("console %s: connection refused, %d sessions already", address,
-                            MAX_CONNECTIONS)
+    def _set_events(self, sel: selectors.BaseSelector) -> None:
+        for c in self._conns:
+            ev = (selectors.EVENT_READ if len(c.line.inbuf) < IN_MAX else 0) | (
+                selectors.EVENT_WRITE if c.line.out else 0)
+            if ev != c.events:
+                if c.events and ev:
+                    sel.modify(c.sock, ev, c)
+                elif ev:
+                    sel.register(c.sock, ev, c)
+                else:
+                    sel.unregister(c.sock)
+                c.events = ev
+
+    def _work(self, until: float) -> None:
+        """Lines handed over round-robin, one per connection, until ``until`` (monotonic
+        seconds)."""
+        while True:
+            ready = [c for c in self._conns if c.line.ready()]
+            if not ready:
+                return
+            for c in ready:
+                c.line.step()
+                if time.monotonic() >= until:
+                    return
+
+    def _tick(self) -> None:
+        """Streams polled, and idle connections closed (POLL_S apart)."""
+        now = self.clock()
+        for c in list(self._conns):
+            c.line.poll()
+            s = c.line.session
+            if s.trusted or s.unlocked:
+                c.line.idle_since = now  # locked again later: idle from then on
+            elif now - c.line.idle_since >= IDLE_TIMEOUT_S:
+                self._idle_out(c, now)
+            elif c.line.out and time.monotonic() - c.drained > SEND_TIMEOUT_S:
+                log.warning("console %s: the peer took nothing for %.0f s", c.address,
+                            SEND_TIMEOUT_S)
+                self._drop(c, "peer disconnected")
+
+    def _idle_out(self, c: _Conn, now: float) -> None:
+        c.line.out.clear()
+        c.line.say(f"error idle timeout ({now - c.line.idle_since:.0f} s without input, "
+                   "not unlocked)")
+        self._flush(c)
+        self._drop(c, "idle timeout")
+
+    def _accept(self, sel: selectors.BaseSelector, lst: _Listener) -> None:
+        try:
+            conn, _ = lst.sock.accept()
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError as exc:
+            log.warning("console %s: accept failed: %s", lst.address, exc)
+            return
+        here = [c for c in self._conns if c.address == lst.address]
+        if len(here) >= MAX_CONNECTIONS:
+            now = self.clock()
+            idle = [c for c in here if not (c.line.session.trusted or c.line.session.unlocked)
+                    and now - c.line.idle_since >= EVICT_IDLE_S]
+            if not idle:
+                log.warning("console %s: connection refused, %d sessions already",
+                            lst.address, MAX_CONNECTIONS)
                 try:
-                    conn.sendall(f"error too many console sessions ({MAX_CONNECTIONS})\r\n"
-                                 .encode())
+                    conn.send(f"error too many console sessions ({MAX_CONNECTIONS})\r\n"
+                              .encode())
                 except OSError:
                     pass
                 conn.close()
-                continue
-            session = self.service.session(f"{e.kind}:{address}", trusted=e.trusted)
-            self._spawn(self._serve_socket, conn, session, address, name="console-conn")
+                return
+            self._idle_out(min(idle, key=lambda c: c.line.idle_since), now)
+        conn.setblocking(False)
+        e = lst.entry
+        session = self.service.session(f"{e.kind}:{lst.address}", trusted=e.trusted,
+                                       peer=peer_of(conn, e.kind))
+        # real time: a test's stepped clock does not refill the bucket
+        c = _Conn(conn, Line(session, self.clock, Throttle()), lst.address)
+        self._conns.append(c)
+        self._opened(session)
+        log.info("console session on %s opened (%s)", lst.address, session.peer)
 
-    def _serve_socket(self, conn: socket.socket, session: Session, address: str) -> None:
-        log.info("console session on %s opened", address)
-        conn.settimeout(POLL_S)
-
-        def recv() -> bytes | None:
+    def _io(self, c: _Conn) -> None:
+        if c not in self._conns:
+            return  # dropped earlier in this round
+        if len(c.line.inbuf) < IN_MAX:
             try:
-                return conn.recv(READ_CHUNK) or None
-            except TimeoutError:
-                return b""
+                data = c.sock.recv(READ_CHUNK)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as exc:
+                log.info("console session on %s ended: %s", c.address, exc)
+                self._drop(c, "peer disconnected")
+                return
+            if not data:
+                self._drop(c, "peer disconnected")
+                return
+            c.line.receive(data)
 
-        def send(data: bytes) -> None:
-            conn.settimeout(SEND_TIMEOUT_S)
-            conn.sendall(data)
-            conn.settimeout(POLL_S)
+    def _flush(self, c: _Conn) -> None:
+        out = c.line.out
+        if not out:
+            c.drained = time.monotonic()
+            return
         try:
-            self._pump(session, recv, send, address)
-        except OSError as exc:
-            log.info("console session on %s ended: %s", address, exc)
-        finally:
-            conn.close()
-            log.info("console session on %s closed", address)
+            sent = c.sock.send(out)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            self._drop(c, "peer disconnected")
+            return
+        if sent:
+            del out[:sent]
+            c.drained = time.monotonic()
 
-    # -- serial -------------------------------------------------------------------------
+    def _drop(self, c: _Conn, reason: str) -> None:
+        if c not in self._conns:
+            return
+        self._conns.remove(c)
+        if c.events and self._selector is not None:
+            try:
+                self._selector.unregister(c.sock)
+            except (KeyError, ValueError):
+                pass
+        try:
+            if c.line.out:
+                c.sock.send(c.line.out)  # what fits: the last replies, a reason
+        except OSError:
+            pass
+        c.sock.close()
+        try:
+            self._closed(c.line.session, reason)
+        except Exception:  # noqa: BLE001 - one session's close must not stop the others
+            log.exception("console session on %s: close failed", c.address)
+
+    # -- serial: a thread per port ------------------------------------------------------
     def _serve_serial(self, e: ConsoleEntry) -> None:
         import serial  # pyserial
 
         delay = REOPEN_MIN_S
         while not self._stop.is_set():
             try:
-                port = serial.Serial(e.address, e.baudrate, timeout=POLL_S,
+                port = serial.Serial(e.address, e.baudrate, timeout=0,
                                      write_timeout=SEND_TIMEOUT_S, exclusive=True)
             except (OSError, ValueError, serial.SerialException) as exc:
                 if delay == REOPEN_MIN_S:
@@ -189,40 +518,93 @@ class ConsoleServer:
             delay = REOPEN_MIN_S
             log.info("console on serial %s at %d baud%s", e.address, e.baudrate,
                      " (trusted)" if e.trusted else "")
-            session = self.service.session(f"serial:{e.address}", trusted=e.trusted)
+            session = self.service.session(f"serial:{e.address}", trusted=e.trusted,
+                                           peer=f"serial:{e.address}")
+            self._opened(session)
+            reason = "server stopping"
+            try:
+                reason = self._pump_serial(port, Line(session, self.clock), e.address)
+            except (OSError, serial.SerialException) as exc:
+                log.warning("console serial %s: %s: session ended", e.address, exc)
+                reason = "hang-up"
+            finally:
+                try:
+                    self._closed(session, reason)
+                finally:
+                    port.close()
+            if reason == "hang-up":
+                self._stop.wait(REOPEN_MIN_S)
 
-            def recv(port: serial.Serial = port) -> bytes | None:
-                return bytes(port.read(min(max(port.in_waiting, 1), READ_CHUNK)))
+    def _pump_serial(self, port: Any, line: Line, address: str) -> str:
+        """Serve one open port until it hangs up (returns "hang-up") or the server stops."""
+        import serial  # pyserial
 
-            def send(data: bytes, port: serial.Serial = port) -> None:
+        poller = select.poll()
+        fd = port.fileno()
+        reading = True
+        poller.register(fd, select.POLLIN)
+        carrier = _carrier(port)  # None: no modem lines (a pty, a USB gadget)
+        next_poll = 0.0
+        while not self._stop.is_set():
+            if reading != (len(line.inbuf) < IN_MAX):  # full: the bytes wait in the port
+                reading = not reading
+                poller.modify(fd, select.POLLIN if reading else 0)
+            busy = line.ready()
+            for _, ev in poller.poll(0 if busy else POLL_S * 1000):
+                if ev & (select.POLLHUP | select.POLLERR | select.POLLNVAL):
+                    log.warning("console serial %s: hang-up", address)
+                    return "hang-up"
+                if ev & select.POLLIN:
+                    data = bytes(port.read(min(max(port.in_waiting, 1), READ_CHUNK)))
+                    if data:
+                        line.receive(data)
+            tick = time.monotonic() >= next_poll
+            if line.ready() or tick:
+                self.window.until()
+            if line.ready():
+                line.step()
+            if tick:
+                now = time.monotonic()
+                next_poll = now + POLL_S
+                line.poll()
+                if carrier is not None:
+                    cd = _carrier(port)
+                    if carrier and cd is False:
+                        log.warning("console serial %s: carrier lost (hang-up)", address)
+                        return "hang-up"
+                    carrier = carrier or bool(cd)
+            if line.out:
+                data, line.out = bytes(line.out), bytearray()
                 try:
                     port.write(data)
                 except serial.SerialTimeoutException:
                     log.warning("console serial %s: nobody reads the line, output dropped",
-                                e.address)
-            try:
-                self._pump(session, recv, send)
-            except (OSError, serial.SerialException) as exc:
-                log.warning("console serial %s: %s (hang-up?): session ended", e.address, exc)
-                self._stop.wait(REOPEN_MIN_S)
-            finally:
-                port.close()
+                                address)
+        return "server stopping"
 
     def stop(self) -> None:
         """Stop serving: every session closed (its streams and, if configured, its
         forces released), threads joined, socket files removed. Idempotent."""
         self._stop.set()
-        for srv in self._listeners:
-            srv.close()
+        self.service.controller.remove_listener(self.window.on_scan)
+        with self._lock:
+            threads = list(self._threads)
+        for t in threads:
+            t.join(timeout=SEND_TIMEOUT_S + 1.0)
+            if t.is_alive():
+                log.error("console thread %s did not stop", t.name)
+        for lst in self._listeners:
+            lst.sock.close()
         self._listeners.clear()
-        for _ in range(2):  # an accept loop may have spawned a session while stopping
-            with self._lock:
-                threads = list(self._threads)
-            for t in threads:
-                t.join(timeout=SEND_TIMEOUT_S + 1.0)
-                if t.is_alive():
-                    log.error("console thread %s did not stop", t.name)
         for path in self._socket_paths:
             if os.path.exists(path):
                 os.unlink(path)
         self._socket_paths.clear()
+
+
+def _carrier(port: Any) -> bool | None:
+    """The port's carrier detect line, or None if it has no modem lines."""
+    try:
+        return bool(port.cd)
+    except (OSError, ValueError, AttributeError):
+        return None

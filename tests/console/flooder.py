@@ -5,6 +5,13 @@
                                              commands, 2000-byte lines and binary garbage
                                              into it, reading every reply
     python flooder.py trace SOCKET SECONDS   a client streaming ``trace on``
+    python flooder.py pipeline ADDRESS SECONDS COMMAND...
+                                             one client (ADDRESS: a socket path or
+                                             127.0.0.1:PORT) sending the COMMANDs round
+                                             and round as fast as the replies come, with
+                                             PIPELINE_DEPTH requests in flight, from
+                                             when "go" arrives on stdin (it prints
+                                             {"connected": ADDRESS} first)
 
 Each prints one JSON object with what was sent and received. The load is prepared before
 it starts, and the process runs at nice 10: it stands for a laptop at the other end of
@@ -175,10 +182,89 @@ def trace(target: str, seconds: float) -> dict[str, float]:
     return {"seconds": seconds, "trace_lines": counter.trace, "received_bytes": counter.bytes}
 
 
+#: requests a pipelining client keeps in flight
+PIPELINE_DEPTH = 32
+
+
+def connect(address: str) -> socket.socket:
+    """A Unix socket path, or 127.0.0.1:PORT."""
+    if address.startswith("/"):
+        sock = socket.socket(socket.AF_UNIX)
+        sock.connect(address)
+        return sock
+    host, port = address.rsplit(":", 1)
+    return socket.create_connection((host, int(port)))
+
+
+def pipeline(address: str, seconds: float, commands: list[str]) -> dict[str, float]:
+    """Send ``commands`` round and round, PIPELINE_DEPTH in flight, for ``seconds``; count
+    the replies (their final lines) and how they ended."""
+    sock = connect(address)
+    sock.setblocking(False)
+    sys.stdout.write(json.dumps({"connected": address}) + "\n")
+    sys.stdout.flush()
+    if sys.stdin.readline().strip() != "go":
+        return {}
+    wire = [(c + "\r\n").encode() for c in commands]
+    sent = replies = ok = refused = errors = 0
+    buf = b""
+    out = b""
+    lost = False
+    start = time.monotonic()
+    end = start + seconds
+    drain_end = end + 10.0
+    k = 0
+    while True:
+        now = time.monotonic()
+        if now >= drain_end or (now >= end and replies >= sent):
+            break
+        while now < end and sent - replies < PIPELINE_DEPTH:
+            out += wire[k % len(wire)]
+            k += 1
+            sent += 1
+        rd, wr, _ = select.select([sock], [sock] if out else [], [], 0.05)
+        if wr:
+            try:
+                out = out[sock.send(out):]
+            except BlockingIOError:
+                pass
+        if rd:
+            try:
+                data: bytes | None = sock.recv(65536)
+            except BlockingIOError:
+                data = None
+            except OSError:
+                data = b""
+            if data == b"":
+                lost = True
+                break
+            if data is None:
+                continue
+            buf += data
+            *lines, buf = buf.split(b"\n")
+            for line in lines:
+                if line.startswith(b"ok"):
+                    replies += 1
+                    ok += 1
+                elif line.startswith(b"error too many requests"):
+                    replies += 1
+                    refused += 1
+                elif line.startswith(b"error"):
+                    replies += 1
+                    errors += 1
+    elapsed = time.monotonic() - start
+    sock.close()
+    return {"sent": sent, "replies": replies, "ok": ok, "refused": refused,
+            "errors": errors, "closed_by_server": lost, "seconds": round(elapsed, 2),
+            "rate": round(replies / min(elapsed, seconds))}
+
+
 def main(argv: list[str]) -> int:
     os.nice(10)
     if argv[0] == "flood":
         out = flood(float(argv[1]), int(argv[2]) if len(argv) > 2 else 1000)
+    elif argv[0] == "pipeline":
+        out = pipeline(argv[1], float(argv[2]), argv[3:])
     else:
         out = trace(argv[1], float(argv[2]))
     sys.stdout.write(json.dumps(out) + "\n")
