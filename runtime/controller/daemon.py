@@ -27,12 +27,13 @@ from typing import IO, Any, TypeVar
 
 from runtime.controller.notify import Notifier
 from runtime.controller.realtime import lock_memory, reduce_timer_slack, set_fifo_priority
-from runtime.controller.retain import RetainStore, RetainWriter
+from runtime.controller.retain import RetainedVars, RetainStore, RetainWriter, reconcile
 from runtime.controller.scheduler import Scheduler, Watchdog
 from runtime.controller.stats import ScanStats
 from runtime.engine.commands import CommandRefused
 from runtime.engine.plant import Plant
 from runtime.engine.trace import trace_columns
+from runtime.errors import Loc, SourceError
 from runtime.language.model import PlantDef
 
 log = logging.getLogger(__name__)
@@ -115,6 +116,7 @@ class Daemon:
         self._retain_writer: RetainWriter | None = None
         self._retain_next = 0
         self._retain_last: dict[str, Any] | None = None
+        self._retain_lost: str | None = None  # started without the retained data: why
         self._latch_path = (pdef.retain_path + ".fault") if pdef.retain_path else None
         self._trace = _TraceWriter(self.plant, trace) if trace is not None else None
 
@@ -272,25 +274,46 @@ class Daemon:
         if self._retain_writer is not None and now >= self._retain_next:
             self._retain_next = now + self.plant.retain_interval_ns
             snap = self.plant.retain_snapshot()
-            if snap != self._retain_last:
+            if snap != self._retain_last or self._retain_writer.last_error is not None:
                 self._retain_writer.submit(snap)
                 self._retain_last = snap
 
     # -- retain and the fault latch ----------------------------------------------------
     def _restore(self) -> None:
+        """Load the retained data and restore what the plant may reuse (docs/daemon.md,
+        "Retained memory"); SourceError if it is lost and the plant requires it."""
         path = self.pdef.retain_path
         if path is None:
             return
         try:
-            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+            os.makedirs(os.path.dirname(os.path.abspath(path)), mode=0o750, exist_ok=True)
         except OSError as exc:
             log.error("retain directory of %s not usable: %s", path, exc)
-        self.retain = RetainStore(path)
+        layout = RetainedVars.of(self.pdef)
+        self.retain = RetainStore(path, layout)
         loaded = self.retain.load()
         for problem in loaded.problems:
             log.warning("retain: %s", problem)
-        if loaded.source is not None:
-            self.plant.restore_retain(loaded.data)
+        if loaded.lost is not None:
+            if self.pdef.retain_required:
+                raise SourceError(self.pdef.retain_required_loc or Loc(self.pdef.path, 1, 1),
+                                  f"retained data required but lost ({loaded.lost}): "
+                                  f"not started")
+            log.error("retained data LOST (%s): starting with init values", loaded.lost)
+            self._retain_lost = f"started without retained data: {loaded.lost}"
+        elif loaded.source is None:
+            log.info("no retained data in %s yet (first start): init values", path)
+        else:
+            kept = reconcile(loaded, layout)
+            for line in kept.dropped:
+                log.warning("retain: %s", line)
+            if kept.dropped:
+                orphan = self.retain.keep_orphan(loaded)
+                if orphan is not None:
+                    log.warning("retain: %s as it was is kept as %s", loaded.source, orphan)
+                if kept.missing:
+                    log.info("retain: init value for %s", ", ".join(kept.missing))
+            self.plant.restore_retain(kept.values)
             log.info("retained data restored from %s (generation %d)", loaded.source,
                      loaded.generation)
         self._retain_last = self.plant.retain_snapshot()
@@ -378,7 +401,25 @@ class Daemon:
         return {"state": self.state.value, "fault": self.fault or self.halted,
                 "scans": self.scan_stats.count, "uptime_s": round(self.uptime_s(), 3),
                 "cycle_ms": self.plant.cycle_ns / 1e6,
-                "faults": [{"time": t, "reason": r} for t, r in self.faults]}
+                "faults": [{"time": t, "reason": r} for t, r in self.faults],
+                "retain": self.retain_status()}
+
+    def retain_status(self) -> dict[str, Any] | None:
+        """``status``'s ``retain`` entry: state ok | failing | lost, since (wall time), text;
+        None without a retain file."""
+        w, store = self._retain_writer, self.retain
+        if w is None or store is None:
+            return None
+        texts = []
+        if w.failing_since is not None:
+            since = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(w.failing_since))
+            texts.append(f"saving fails since {since}: {w.last_error}")
+        if self._retain_lost is not None:
+            texts.append(self._retain_lost)
+        state = "failing" if w.failing_since is not None else \
+            "lost" if self._retain_lost is not None else "ok"
+        return {"state": state, "since": w.failing_since, "generation": store.generation,
+                "text": "; ".join(texts) or f"saved, generation {store.generation}"}
 
     def stats(self) -> dict[str, Any]:
         out = self.scan_stats.as_dict()
