@@ -129,7 +129,13 @@ class Daemon:
                 log.info("memory locked (mlockall)")
             else:
                 log.warning("memory not locked: %s", why)
-        self._restore()
+        try:
+            self._restore()
+        except SourceError as exc:  # nothing opened yet: nothing for stop() to do
+            self.notifier.status(exc.message)
+            self.notifier.close()
+            self._stopping = self.stopped = True
+            raise
         self.plant.open()  # every output off before the first scan
         self.scheduler.stop_event.clear()
         self._loop_alive = True
@@ -164,6 +170,10 @@ class Daemon:
         if self._retain_writer is not None:
             self._retain_writer.submit(self.plant.retain_snapshot())
             self._retain_writer.close()
+            if self._retain_writer.last_error is not None and self.retain is not None:
+                log.error("retained data not saved at the stop: %s (%s keeps generation %d)",
+                          self._retain_writer.last_error, self.retain.path,
+                          self.retain.generation)
         if self._trace is not None:
             self._trace.close()
         self.plant.close()
@@ -292,8 +302,9 @@ class Daemon:
         layout = RetainedVars.of(self.pdef)
         self.retain = RetainStore(path, layout)
         loaded = self.retain.load()
-        for problem in loaded.problems:
-            log.warning("retain: %s", problem)
+        if loaded.lost is None:  # else they are in the one line about the loss
+            for problem in loaded.problems:
+                log.warning("retain: %s", problem)
         if loaded.lost is not None:
             if self.pdef.retain_required:
                 raise SourceError(self.pdef.retain_required_loc or Loc(self.pdef.path, 1, 1),

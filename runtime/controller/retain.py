@@ -82,8 +82,9 @@ class Loaded:
     charts: dict[str, str] | None = None
     types: dict[str, dict[str, str]] | None = None
     raw: bytes = b""  # the source file as read (kept aside when values are dropped)
-    #: why the retained data is lost (files there but none good, or files gone while a
-    #: previous run saved some); None when restored or at a first start
+    #: why the retained data is lost (files there but none good: ``problems`` say why
+    #: each, or files gone while a previous run saved some); None when restored or at a
+    #: first start
     lost: str | None = None
 
 
@@ -307,7 +308,8 @@ class RetainStore:
             best.problems.append(f"restored generation {best.generation} from {best.source}")
         if best.source is None:
             if present:
-                best.lost = f"no good generation among {', '.join(sorted(set(present)))}"
+                why = "; ".join(p.removesuffix("; passed over") for p in best.problems)
+                best.lost = f"no good generation: {why}"
             elif os.path.lexists(self.marker):
                 best.lost = (f"{self.path} and {self.prev} are gone, but {self.marker} "
                              f"records that retained data was saved here")
@@ -332,7 +334,8 @@ class RetainStore:
                 raise RetainFileError("not a regular file")
             if st.st_size > MAX_FILE_BYTES:
                 raise RetainFileError(f"larger than {MAX_FILE_BYTES} bytes ({st.st_size})")
-            chunks, size = [], 0
+            chunks: list[bytes] = []
+            size = 0
             while True:
                 chunk = os.read(fd, 65536)
                 if not chunk:
