@@ -311,6 +311,10 @@ class Daemon:
                                   f"retained data required but lost ({loaded.lost}): "
                                   f"not started")
             log.error("retained data LOST (%s): starting with init values", loaded.lost)
+            for bad, raw in loaded.bad:
+                orphan = self.retain.keep_orphan(raw)
+                if orphan is not None:
+                    log.warning("retain: %s as it was is kept as %s", bad, orphan)
             self._retain_lost = f"started without retained data: {loaded.lost}"
         elif loaded.source is None:
             log.info("no retained data in %s yet (first start): init values", path)
@@ -319,7 +323,7 @@ class Daemon:
             for line in kept.dropped:
                 log.warning("retain: %s", line)
             if kept.dropped:
-                orphan = self.retain.keep_orphan(loaded)
+                orphan = self.retain.keep_orphan(loaded.raw)
                 if orphan is not None:
                     log.warning("retain: %s as it was is kept as %s", loaded.source, orphan)
                 if kept.missing:

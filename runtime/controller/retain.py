@@ -82,6 +82,8 @@ class Loaded:
     charts: dict[str, str] | None = None
     types: dict[str, dict[str, str]] | None = None
     raw: bytes = b""  # the source file as read (kept aside when values are dropped)
+    #: (file, contents) of each regular file passed over (kept aside when data is lost)
+    bad: list[tuple[str, bytes]] = field(default_factory=list)
     #: why the retained data is lost (files there but none good: ``problems`` say why
     #: each, or files gone while a previous run saved some); None when restored or at a
     #: first start
@@ -287,6 +289,7 @@ class RetainStore:
         best = Loaded()
         present: list[str] = []
         for candidate in (self.path, self.prev, self.tmp):
+            raw = None
             try:
                 raw = self._read(candidate)
                 if raw is None:
@@ -298,6 +301,8 @@ class RetainStore:
                 if candidate != self.tmp:  # a torn .tmp is the normal trace of a power cut
                     present.append(candidate)
                     best.problems.append(f"{candidate}: {_reason(exc)}; passed over")
+                    if raw is not None:
+                        best.bad.append((candidate, raw))
                 if candidate == self.path:
                     self._path_bad = True
                 continue
@@ -347,14 +352,15 @@ class RetainStore:
         finally:
             os.close(fd)
 
-    def keep_orphan(self, loaded: Loaded) -> str | None:
-        """Keep the file ``loaded`` came from as ``PATH.orphan`` (``.orphan.2``... if that
-        exists: never overwritten). Returns the name, None if it could not be written."""
+    def keep_orphan(self, raw: bytes) -> str | None:
+        """Keep ``raw`` (a file's contents before the next save replaces it) as
+        ``PATH.orphan`` (``.orphan.2``... if that exists: never overwritten). Returns the
+        name, None if it could not be written (logged)."""
         n = 1
         while True:
             name = self.path + ".orphan" + (f".{n}" if n > 1 else "")
             try:
-                self._write_new(name, loaded.raw, exclusive=True)
+                self._write_new(name, raw, exclusive=True)
                 return name
             except FileExistsError:
                 n += 1

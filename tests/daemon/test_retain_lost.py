@@ -34,10 +34,15 @@ def test_both_generations_bad_start_with_an_error_and_a_flag(
         make_daemon: MakeDaemon, tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     path = tmp_path / "retain.json"
     _saved_twice(path)
+    torn = {}
     for name in ("retain.json", "retain.json.prev"):
-        (tmp_path / name).write_bytes((tmp_path / name).read_bytes()[:30])  # torn
+        torn[name] = (tmp_path / name).read_bytes()[:30]
+        (tmp_path / name).write_bytes(torn[name])
     daemon, _ = make_daemon(retain=str(path))
     assert daemon.plant.get("m.sN") == 0
+    # kept aside for whoever wants to repair them by hand
+    assert (tmp_path / "retain.json.orphan").read_bytes() == torn["retain.json"]
+    assert (tmp_path / "retain.json.orphan.2").read_bytes() == torn["retain.json.prev"]
     assert any(e.startswith("retained data LOST (no good generation: ") for e in
                _errors(caplog)), _errors(caplog)
     status = daemon.status()["retain"]
