@@ -201,3 +201,69 @@ def test_the_daemon_retries_a_failed_save_and_shows_it_in_status(
     sn = daemon.plant.get("m.sN")
     wait_until(lambda: RetainStore(str(path)).load().data.get("m", {}).get("sN") == sn,
                what="the value on disk")
+
+
+FULL_RUNS = textwrap.dedent("""\
+    import errno, os, subprocess, sys
+    root, mnt, plant = sys.argv[1:4]
+    subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", mnt], check=True)
+    def run(seconds):
+        return subprocess.run([sys.executable, "-m", "runtime.cli", "run", "--sim", "--for",
+                               seconds, plant], cwd=root, capture_output=True, text=True,
+                              timeout=120).stderr
+    first = run("1s")
+    filler = os.path.join(mnt, "filler")
+    fd = os.open(filler, os.O_WRONLY | os.O_CREAT)
+    try:
+        while os.write(fd, b"x" * 4096) == 4096:
+            pass
+    except OSError as exc:
+        assert exc.errno == errno.ENOSPC
+    os.close(fd)
+    size = os.path.getsize(filler)
+    os.truncate(filler, size - size % 4096 - 4096)  # one page left
+    second = run("1s")
+    os.unlink(filler)
+    third = run("0.3s")
+    sys.stdout.write("\\n=====\\n".join((first, second, third)))
+""")
+
+
+def test_a_controller_on_a_full_disk_says_so_once_and_keeps_its_data(tmp_path: Path) -> None:
+    """The attack as an operator meets it: three runs of ``softplc run``, the second on a
+    disk left with one page."""
+    if shutil.which("unshare") is None:
+        pytest.skip("unshare(1) is not installed")
+    probe = subprocess.run(["unshare", "-rm", "true"], capture_output=True)
+    if probe.returncode != 0:
+        pytest.skip(f"unshare -rm not permitted here: {probe.stderr.decode().strip()}")
+    mnt = tmp_path / "mnt"
+    mnt.mkdir()
+    memory = "".join(f"  sCounter{i:03d}: {{init: 0, retain: true}}\n" for i in range(200))
+    counts = "".join(f"    - sCounter{i:03d} := sCounter{i:03d} + 1\n" for i in range(200))
+    (tmp_path / "count.yaml").write_text(
+        "grafcet: Count\ninputs: [iGo]\noutputs: [oRun]\nmemory:\n" + memory +
+        "steps:\n  gsRun: {initial: true, actions: [oRun]}\ntransitions: []\npost:\n" + counts)
+    (tmp_path / "plant.yaml").write_text(
+        f"plc:\n  cycle: 10ms\n  watchdog: 500ms\n  retain: {mnt}/retain.json\n"
+        "  retain_interval: 100ms\ndrivers:\n  io: {type: sim}\ninstances:\n  m:\n"
+        f"    grafcet: {tmp_path}/count.yaml\n    inputs: {{iGo: io.I0}}\n"
+        "    outputs: {oRun: io.Q0}\n")
+    script = tmp_path / "runs.py"
+    script.write_text(FULL_RUNS)
+    out = subprocess.run(["unshare", "-rm", sys.executable, str(script), str(ROOT), str(mnt),
+                          str(tmp_path / "plant.yaml")], capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr
+    first, second, third = out.stdout.split("\n=====\n")
+    assert "ERROR" not in first and "retained data restored" not in first, first
+    errors = [line for line in second.splitlines() if "ERROR" in line]
+    assert len(errors) == 2, second  # saving fails (once), and the stop could not save
+    assert "not written: [Errno 28] No space left on device" in errors[0]
+    assert "retained data not saved at the stop" in errors[1]
+    def restored(log: str) -> str:
+        found = [line for line in log.splitlines() if "retained data restored" in line]
+        assert len(found) == 1 and "LOST" not in log and "passed over" not in log, log
+        return found[0].rsplit("(", 1)[1]  # "generation N)"
+
+    assert restored(third) == restored(second)  # what the first run saved, untouched
