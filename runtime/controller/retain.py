@@ -40,8 +40,8 @@ FORMAT = "softplc-retain/2"
 FORMAT_1 = "softplc-retain/1"
 #: a retain file longer than this is refused unread, bytes
 MAX_FILE_BYTES = 4 * 1024 * 1024
-#: bounds of a retained int or time (ns): a signed 64-bit word
-INT_MIN, INT_MAX = -(2 ** 63), 2 ** 63 - 1
+#: bound of a generation number
+GENERATION_MAX = 2 ** 63 - 1
 #: how a real that is not finite is written (plain JSON has no Infinity or NaN)
 NON_FINITE = {"inf": math.inf, "-inf": -math.inf, "nan": math.nan}
 TYPES = ("bool", "int", "real", "time", "string")
@@ -119,10 +119,21 @@ def _type_of(value: Any) -> str:
     return "string"
 
 
-def _encode(typ: str, value: Any) -> Any:
-    if typ == "real" and isinstance(value, float) and not math.isfinite(value):
-        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
-    return value
+def _encode(typ: str, value: Any, where: str) -> Any:
+    """``value`` of a variable of type ``typ`` as the file holds it; ValueError if it is
+    not one (the save fails: a bug, said in the log and ``status``)."""
+    if typ == "bool" and isinstance(value, (bool, int)) and value in (0, 1):
+        return bool(value)
+    if typ in ("int", "time") and isinstance(value, int):
+        return int(value)
+    if typ == "real" and isinstance(value, (int, float)):
+        value = float(value)
+        if not math.isfinite(value):
+            return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+        return value
+    if typ == "string" and isinstance(value, str):
+        return value
+    raise ValueError(f"{where}: {value!r} is not of type {typ}: not saved")
 
 
 def _decode(typ: str, value: Any, where: str) -> Any:
@@ -131,9 +142,8 @@ def _decode(typ: str, value: Any, where: str) -> Any:
     ok = False
     if typ == "bool":
         ok = isinstance(value, bool)
-    elif typ in ("int", "time"):
-        ok = isinstance(value, int) and not isinstance(value, bool) and \
-            INT_MIN <= value <= INT_MAX
+    elif typ in ("int", "time"):  # ints have no fixed width (language.md)
+        ok = isinstance(value, int) and not isinstance(value, bool)
     elif typ == "real":
         if isinstance(value, str) and value in NON_FINITE:
             return NON_FINITE[value]
@@ -142,7 +152,7 @@ def _decode(typ: str, value: Any, where: str) -> Any:
     elif typ == "string":
         ok = isinstance(value, str)
     if not ok:
-        raise RetainFileError(f"{where}: {_short(value)} is not a {typ}")
+        raise RetainFileError(f"{where}: {_short(value)} is not of type {typ}")
     return float(value) if typ == "real" else value
 
 
@@ -185,7 +195,7 @@ def parse(raw: bytes) -> tuple[dict[str, Any], dict[str, dict[str, str]] | None,
     if doc.get("sha256") != _digest(payload):
         raise RetainFileError("checksum mismatch")
     gen, saved_at = payload["generation"], payload["saved_at"]
-    if not isinstance(gen, int) or isinstance(gen, bool) or not 0 < gen <= INT_MAX:
+    if not isinstance(gen, int) or isinstance(gen, bool) or not 0 < gen <= GENERATION_MAX:
         raise RetainFileError(f"generation {_short(gen)} is not a positive integer")
     if not isinstance(saved_at, (int, float)) or isinstance(saved_at, bool) \
             or not math.isfinite(saved_at):
@@ -380,7 +390,7 @@ class RetainStore:
         gen = self.generation + 1
         payload = {"format": FORMAT, "generation": gen, "saved_at": time.time(),
                    "charts": charts, "types": types,
-                   "data": {inst: {name: _encode(types[inst][name], v)
+                   "data": {inst: {name: _encode(types[inst][name], v, f"{inst}.{name}")
                                    for name, v in values.items()}
                             for inst, values in data.items()}}
         doc = {**payload, "sha256": _digest(payload)}

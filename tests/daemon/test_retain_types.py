@@ -106,3 +106,16 @@ def test_a_real_that_is_not_finite_is_kept(tmp_path: Path) -> None:
                         R.RetainedVars({"m": "Runner"}, {"m": {"sR": "real"}}))
     store.save({"m": {"sR": float("-inf")}})
     assert RetainStore(str(tmp_path / "r.json")).load().data == {"m": {"sR": float("-inf")}}
+
+
+def test_values_are_saved_as_their_declared_type(tmp_path: Path) -> None:
+    layout = R.RetainedVars({"m": "Runner"}, {"m": {"sB": "bool", "sI": "int", "sR": "real"}})
+    store = RetainStore(str(tmp_path / "r.json"), layout)
+    store.save({"m": {"sB": 1, "sI": 10 ** 30, "sR": 2}})  # ints have no fixed width
+    loaded = RetainStore(str(tmp_path / "r.json")).load()
+    assert loaded.data == {"m": {"sB": True, "sI": 10 ** 30, "sR": 2.0}}
+    assert isinstance(loaded.data["m"]["sR"], float)
+    before = (tmp_path / "r.json").read_bytes()
+    with pytest.raises(ValueError, match=r"m.sI: 'abc' is not of type int: not saved"):
+        store.save({"m": {"sB": True, "sI": "abc", "sR": 1.0}})
+    assert (tmp_path / "r.json").read_bytes() == before
