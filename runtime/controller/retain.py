@@ -31,6 +31,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+from runtime.errors import SoftplcError
 from runtime.language.model import PlantDef
 
 log = logging.getLogger(__name__)
@@ -47,8 +48,10 @@ NON_FINITE = {"inf": math.inf, "-inf": -math.inf, "nan": math.nan}
 TYPES = ("bool", "int", "real", "time", "string")
 
 
-class RetainFileError(ValueError):
-    """A retain file that is not what softplc writes (torn, corrupt, crafted)."""
+class RetainFileError(SoftplcError):
+    """A retain file that is not what softplc writes: torn by a power cut ("not JSON"), a
+    flipped bit ("checksum mismatch"), crafted ("m.sN: "abc" is not of type int"), a
+    symbolic link or a FIFO. The file is passed over, never the controller stopped."""
 
 
 @dataclass(frozen=True)
