@@ -27,7 +27,13 @@ from typing import IO, Any, TypeVar
 
 from runtime.controller.notify import Notifier
 from runtime.controller.realtime import lock_memory, reduce_timer_slack, set_fifo_priority
-from runtime.controller.retain import RetainedVars, RetainStore, RetainWriter, reconcile
+from runtime.controller.retain import (
+    RetainedVars,
+    RetainLost,
+    RetainStore,
+    RetainWriter,
+    restore,
+)
 from runtime.controller.scheduler import Scheduler, Watchdog
 from runtime.controller.stats import ScanStats
 from runtime.engine.commands import CommandRefused
@@ -299,38 +305,15 @@ class Daemon:
             os.makedirs(os.path.dirname(os.path.abspath(path)), mode=0o750, exist_ok=True)
         except OSError as exc:
             log.error("retain directory of %s not usable: %s", path, exc)
-        layout = RetainedVars.of(self.pdef)
-        self.retain = RetainStore(path, layout)
-        loaded = self.retain.load()
-        if loaded.lost is None:  # else they are in the one line about the loss
-            for problem in loaded.problems:
-                log.warning("retain: %s", problem)
-        if loaded.lost is not None:
-            if self.pdef.retain_required:
-                raise SourceError(self.pdef.retain_required_loc or Loc(self.pdef.path, 1, 1),
-                                  f"retained data required but lost ({loaded.lost}): "
-                                  f"not started")
-            log.error("retained data LOST (%s): starting with init values", loaded.lost)
-            for bad, raw in loaded.bad:
-                orphan = self.retain.keep_orphan(raw)
-                if orphan is not None:
-                    log.warning("retain: %s as it was is kept as %s", bad, orphan)
-            self._retain_lost = f"started without retained data: {loaded.lost}"
-        elif loaded.source is None:
-            log.info("no retained data in %s yet (first start): init values", path)
-        else:
-            kept = reconcile(loaded, layout)
-            for line in kept.dropped:
-                log.warning("retain: %s", line)
-            if kept.dropped:
-                orphan = self.retain.keep_orphan(loaded.raw)
-                if orphan is not None:
-                    log.warning("retain: %s as it was is kept as %s", loaded.source, orphan)
-                if kept.missing:
-                    log.info("retain: init value for %s", ", ".join(kept.missing))
-            self.plant.restore_retain(kept.values)
-            log.info("retained data restored from %s (generation %d)", loaded.source,
-                     loaded.generation)
+        self.retain = RetainStore(path, RetainedVars.of(self.pdef))
+        try:
+            restored = restore(self.retain, refuse_if_lost=self.pdef.retain_required)
+        except RetainLost as exc:
+            raise SourceError(self.pdef.retain_required_loc or Loc(self.pdef.path, 1, 1),
+                              f"retained data required but lost ({exc}): not started") from None
+        self.plant.restore_retain(restored.values)
+        if restored.lost is not None:
+            self._retain_lost = f"started without retained data: {restored.lost}"
         self._retain_last = self.plant.retain_snapshot()
         self._retain_writer = RetainWriter(self.retain)
         if self._latch_path and os.path.exists(self._latch_path):

@@ -54,6 +54,11 @@ class RetainFileError(SoftplcError):
     symbolic link or a FIFO. The file is passed over, never the controller stopped."""
 
 
+class RetainLost(SoftplcError):
+    """Retained data that should be there is not (``restore(refuse_if_lost=True)``): both
+    generations torn, or every file gone while ``PATH.saved`` records a save."""
+
+
 @dataclass(frozen=True)
 class RetainedVars:
     """What the running plant retains: each instance's chart name and the type name
@@ -280,6 +285,50 @@ def reconcile(loaded: Loaded, plant: RetainedVars) -> Reconciled:
         have = out.values.get(inst, {})
         out.missing += [f"{inst}.{name}" for name in want if name not in have]
     return out
+
+
+@dataclass
+class Restored:
+    """What a start restores: the values the plant may reuse, and why it starts without
+    its retained data if it does (None when restored, or at a first start)."""
+
+    values: dict[str, dict[str, Any]]
+    lost: str | None = None
+
+
+def restore(store: RetainStore, *, refuse_if_lost: bool = False) -> Restored:
+    """Load ``store`` for its plant and say in the log what was passed over, not reused or
+    lost; where anything is dropped the file as it was is kept (``keep_orphan``).
+
+    Lost data is one ERROR line (and the bad files kept), or RetainLost if
+    ``refuse_if_lost`` (then nothing is logged or written: the caller says it)."""
+    loaded = store.load()
+    if loaded.lost is not None:  # its one line carries the problems
+        if refuse_if_lost:
+            raise RetainLost(loaded.lost)
+        log.error("retained data LOST (%s): starting with init values", loaded.lost)
+        for bad, raw in loaded.bad:
+            orphan = store.keep_orphan(raw)
+            if orphan is not None:
+                log.warning("retain: %s as it was is kept as %s", bad, orphan)
+        return Restored({}, loaded.lost)
+    for problem in loaded.problems:
+        log.warning("retain: %s", problem)
+    if loaded.source is None:
+        log.info("no retained data in %s yet (first start): init values", store.path)
+        return Restored({})
+    kept = reconcile(loaded, store.plant or RetainedVars({}, {}))
+    for line in kept.dropped:
+        log.warning("retain: %s", line)
+    if kept.dropped:
+        orphan = store.keep_orphan(loaded.raw)
+        if orphan is not None:
+            log.warning("retain: %s as it was is kept as %s", loaded.source, orphan)
+        if kept.missing:
+            log.info("retain: init value for %s", ", ".join(kept.missing))
+    log.info("retained data restored from %s (generation %d)", loaded.source,
+             loaded.generation)
+    return Restored(kept.values)
 
 
 class RetainStore:
