@@ -98,6 +98,13 @@ DRIVER_KEYS: dict[str, ConfigKeys] = {
 }
 
 
+#: bus libraries that are an extra of softplc, not a core dependency: package -> (extra,
+#: what installing it needs). gpiod has no wheel for 32-bit ARM on PyPI: pip compiles it.
+EXTRAS: dict[str, tuple[str, str]] = {
+    "gpiod": ("gpio", "on 32-bit ARM pip compiles it: apt-get install gcc python3-dev first"),
+}
+
+
 class DriverImportError(ImportError):
     """The library a driver needs is not installed; the message names the package."""
 
@@ -112,9 +119,11 @@ def driver_class(type_name: str) -> type[Driver]:
         if exc.name and exc.name.startswith(("drivers.", "runtime.")):
             raise
         missing = "" if exc.name in (None, package) else f" (module '{exc.name}' not found)"
+        extra = EXTRAS.get(package or "")
+        hint = (f"pip install 'softplc[{extra[0]}]' ({extra[1]})" if extra
+                else f"pip install {package}")
         raise DriverImportError(
-            f"driver type '{type_name}' needs the Python package '{package}'{missing}: "
-            f"pip install {package}"
+            f"driver type '{type_name}' needs the Python package '{package}'{missing}: {hint}"
         ) from exc
     cls: type[Driver] = getattr(module, class_name)
     return cls

@@ -6,7 +6,7 @@ import argparse
 import logging
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 from runtime.errors import Loc, SourceError
@@ -46,23 +46,35 @@ def cmd_compile(args: argparse.Namespace) -> int:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    """The plant on a virtual clock; the trace and VCD are written as far as the run went
+    (a scan fault: every scan before it and a last record naming it, then exit 2)."""
     from runtime.engine.simulate import Simulation, write_trace, write_vcd
 
     logging.getLogger("drivers").setLevel(logging.WARNING)  # "driver sim: open" is noise here
     sim = Simulation(args.plant, args.script, args.cycles)
-    want_rows = args.trace is not None or args.vcd is not None
+    kept: list[dict[str, Any]] = []  # the rows for the VCD, written at the end
+
+    def rows() -> Iterator[dict[str, Any]]:
+        for row in sim.run(trace=True):
+            if args.vcd:
+                kept.append(row)
+            yield row
+
     t0 = time.perf_counter()
-    if want_rows:
-        rows = list(sim.run(trace=True))
+    try:
         if args.trace:
             with open(args.trace, "w", encoding="utf-8") as f:
-                write_trace(iter(rows), f)
-        if args.vcd:
+                write_trace(rows(), f)
+        elif args.vcd:
+            for _ in rows():
+                pass
+        else:
+            for _ in sim.run(trace=False):
+                pass
+    finally:
+        if args.vcd and kept:
             with open(args.vcd, "w", encoding="utf-8") as f:
-                write_vcd(rows, f)
-    else:
-        for _ in sim.run(trace=False):
-            pass
+                write_vcd(kept, f)
     dt = time.perf_counter() - t0
     steps = "; ".join(f"{n}: {','.join(i.active_steps())}" for n, i in
                       sim.plant.instances.items())
@@ -74,6 +86,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def cmd_run(args: argparse.Namespace) -> int:
     """The controller: the plant in real time on its drivers (or simulated I/O)."""
     from runtime.controller.daemon import Daemon, serve
+    from runtime.controller.paths import PathError, plant_files, prepare
     from runtime.language.grafcetfile import time_value
     from runtime.language.plantfile import load_plant
 
@@ -84,6 +97,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         sys.stderr.write("softplc run: error: --script plays simulated inputs: add --sim\n")
         return 2
     pdef = load_plant(args.plant)
+    try:
+        prepare(plant_files(pdef))  # its own directories, before anything is written
+    except PathError as exc:
+        sys.stderr.write(f"softplc run: error: {exc}\n")
+        return 2
     trace = open(args.trace, "w", encoding="utf-8") if args.trace else None  # noqa: SIM115
     try:
         daemon = Daemon(pdef, sim=args.sim, trace=trace)
@@ -128,9 +146,21 @@ def cmd_hash_pin(args: argparse.Namespace) -> int:
     return 0
 
 
+def package_version() -> str:
+    """The installed package's version (importlib.metadata), or a word saying it is not
+    installed (run from a source tree without ``pip install``)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("softplc")
+    except PackageNotFoundError:
+        return "(not installed: run from a source tree)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="softplc", description="GRAFCET/SFC soft-PLC runtime")
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    p.add_argument("--version", action="version", version=f"softplc {package_version()}")
     sub = p.add_subparsers(dest="command", required=True)
 
     c = sub.add_parser("compile", help="compile and check grafcet or plant files")

@@ -1,6 +1,10 @@
 """The console commands that change the plant (marked * in help; they need ``unlock PIN``
 or a trusted console): set, force, unforce, pause, resume, cycle, init, reset, iocheck,
 ack. Plain functions ``(session, args) -> Reply``, dispatched through commands.COMMANDS.
+
+Pause, stepping, iocheck and forces are held by the session that made them: each is
+recorded with ``ConsoleService.hold`` in the same scan-thread call as the plant change, and
+let go in the call that ends it.
 """
 
 from __future__ import annotations
@@ -61,11 +65,11 @@ def cmd_force(session: Session, args: list[str]) -> Reply:
     plant = session.ctl.plant
 
     def force() -> None:
+        session.service.hold(f"force {name.text}", session)
         plant.force(name.text, value)
         if name.role not in ("point in", "point out"):
             plant.set(name.text, value)  # visible at once, even while paused
     session.ctl.call(force)
-    session.service.forced_by(name.text, session)
     return [f"{name.text} forced to {name.show(value)}"]
 
 
@@ -78,8 +82,11 @@ def cmd_unforce(session: Session, args: list[str]) -> Reply:
                 ], {"released": released}
     name = session.cat.resolve(args[0])
     plant = session.ctl.plant
-    session.ctl.call(lambda: plant.unforce(name.text))
-    session.service.released(name.text)
+
+    def release() -> None:
+        plant.unforce(name.text)
+        session.service.let_go(f"force {name.text}")
+    session.ctl.call(release)
     return [f"{name.text} released"], {"released": [name.text]}
 
 
@@ -90,9 +97,9 @@ def unforce_all(session: Session) -> list[str]:
     def release() -> list[str]:
         names = plant.forced_names()
         plant.unforce(None)
+        session.service.let_go_forces()
         return names
     released = session.ctl.call(release)
-    session.service.released(None)
     if released:
         log.warning("console %s: every force released (%s)", session.name,
                     ", ".join(released))
@@ -106,6 +113,7 @@ def cmd_pause(session: Session, args: list[str]) -> Reply:
         state = _state(session)
         if state == "iocheck":
             raise CommandError("iocheck on: the charts are stopped already")
+        session.service.hold("pause", session)  # taken again: its time starts again
         return "already paused" if plant.pause() else "paused"
     return [session.ctl.call(do) + ": charts hold, I/O still scanned; 'cycle N' steps, "
             "'resume' goes on"]
@@ -115,6 +123,7 @@ def cmd_resume(session: Session, args: list[str]) -> Reply:
     plant = session.ctl.plant
 
     def do() -> str:
+        session.service.let_go("pause", "cycle")
         return "resumed" if plant.resume() else "not paused"
     return [session.ctl.call(do)]
 
@@ -143,6 +152,8 @@ def cmd_cycle(session: Session, args: list[str]) -> Reply:
         if state != "paused":
             raise CommandError(f"cycle runs while paused; the controller is {state}"
                                + (": pause first" if state == "running" else ""))
+        session.service.hold("pause", session)  # the stepping session answers for both
+        session.service.hold("cycle", session)
         plant.step(n)
         session.ctl.add_listener(on_scan)
         return cat.capture(-1)
@@ -154,6 +165,7 @@ def cmd_cycle(session: Session, args: list[str]) -> Reply:
                                "stepping cancelled")
     finally:
         session.ctl.remove_listener(on_scan)
+        session.service.let_go("cycle")
     return _cycle_report(session.cat, n, before, images[:n])
 
 
@@ -238,22 +250,22 @@ def cmd_iocheck(session: Session, args: list[str]) -> Reply:
             state = _state(session)
             if state == "fault":
                 raise CommandError("the controller is in fault: 'ack' it first")
+            session.service.hold("iocheck", session)
             if state == "iocheck":
                 return []
             released = plant.forced_names()
             plant.unforce(None)  # outputs all off means forced ones too
+            session.service.let_go_forces()
             if state == "halted":
                 # back to the bench after a previous iocheck: the charts were waiting
                 # for ack; acknowledge and re-enter in the same boundary, so no scan runs
-                was = plant.pause()
                 ctl.ack()
-                if not was:
-                    plant.resume()
-            plant.step(0)
+            # iocheck ends a pause: its end halts, and 'ack' restarts the charts running
+            plant.resume()
+            session.service.let_go("pause", "cycle")
             plant.set_iocheck(True)
             return released
         released = session.ctl.call(enter)
-        session.service.released(None)
         lines = ["iocheck: charts stopped, every output off. 'set DRIVER.POINT 1' drives "
                  "one output, 'watch' shows physical inputs with their logical value, "
                  "'iocheck off' ends"]
@@ -265,6 +277,7 @@ def cmd_iocheck(session: Session, args: list[str]) -> Reply:
         if not plant.iocheck:
             raise CommandError("not in iocheck")
         plant.set_iocheck(False)
+        session.service.let_go("iocheck")
         # the same boundary: no scan may run the charts between the two
         ctl.require_ack("iocheck ended: 'ack' restarts the charts from their initial "
                         "situation")
@@ -274,4 +287,8 @@ def cmd_iocheck(session: Session, args: list[str]) -> Reply:
 
 
 def cmd_ack(session: Session, args: list[str]) -> Reply:
-    return [session.ctl.ack()]
+    def do() -> str:
+        done = session.ctl.ack()  # releases every force (Daemon._ack)
+        session.service.let_go_forces()
+        return done
+    return [session.ctl.call(do)]

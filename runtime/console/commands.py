@@ -208,7 +208,7 @@ def cmd_unlock(session: Session, args: list[str]) -> Reply:
                            + (" (this console is trusted)" if session.trusted else ""))
     if len(args) != 1:
         raise CommandError("usage: unlock PIN")
-    svc.try_pin(args[0], session.name)
+    svc.try_pin(args[0], session.name, session.peer)
     session.unlocked = True
     log.info("console %s unlocked", session.name)
     return ["unlocked"]

@@ -18,9 +18,12 @@ log = logging.getLogger(__name__)
 
 #: longest accepted line, bytes (console.md)
 MAX_LINE = 1024
-#: wrong PINs before the console locks, and for how long, seconds (console.md)
+#: wrong PINs in a row from one peer before its ``unlock`` is locked out (console.md)
 MAX_PIN_TRIES = 3
-LOCKOUT_S = 60.0
+#: the first lock-out of a peer, seconds; each further one doubles, up to LOCKOUT_MAX_S.
+#: A correct PIN, or LOCKOUT_MAX_S without a lock-out, starts again from the first.
+LOCKOUT_MIN_S = 30.0
+LOCKOUT_MAX_S = 900.0
 #: a half-typed line left this long (s) is dropped: a cable pulled in mid-line must not
 #: leave its fragment in front of the next person's command
 PARTIAL_LINE_TIMEOUT_S = 60.0
@@ -55,16 +58,19 @@ HELP = {
     "trace": "trace on|off : one line per scan of the values that changed",
     "why": "why INSTANCE : each active step's transitions, their terms, what blocks them",
     "set": "set NAME VALUE : write once at the next scan boundary *",
-    "force": "force NAME VALUE : hold a value until unforced *",
+    "force": "force NAME VALUE : hold a value until unforced, at most max_force (forcing "
+             "again restarts it) *",
     "unforce": "unforce NAME|all *",
-    "pause": "stop the evolution of every chart; I/O keeps being scanned *",
+    "pause": "stop the evolution of every chart; I/O keeps being scanned; after max_pause "
+             "(pausing again restarts it) the controller halts until ack *",
     "resume": "restart the evolution *",
     "cycle": "cycle [N] : while paused, run exactly N scans and report what changed *",
     "init": "init INSTANCE : pulse SFCInit for one scan *",
     "reset": "reset INSTANCE : pulse SFCReset for one scan *",
     "iocheck": "iocheck on|off : bench wiring check: charts stopped, outputs off, set "
                "DRIVER.POINT drives one output *",
-    "ack": "acknowledge a fault, the end of iocheck, or SFCError *",
+    "ack": "acknowledge a fault, a halt (end of iocheck, of a session holding a pause or "
+           "forces), or SFCError; releases every force *",
     "unlock": "unlock PIN : allow the commands marked *",
     "lock": "forbid them again; releases every force",
     "json": "json on|off : replies as one JSON object per line",

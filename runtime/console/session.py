@@ -3,8 +3,10 @@ check -> reply, and its stream.
 
 Sessions are transport-free: a transport (serial port, Unix socket, TCP on 127.0.0.1)
 feeds raw bytes to ``Session.feed`` and writes back the lines it returns, and calls
-``Session.poll`` a few times a second for streamed lines (watch, trace). The commands
-themselves are in commands.py and changing.py, the stream's lines in streams.py.
+``Session.poll`` a few times a second for streamed lines (watch, trace), the time limits
+(service.tick) and the relock after an idle time, and ``Session.close(reason)`` when the
+connection ends. The commands themselves are in commands.py and changing.py, the stream's
+lines in streams.py.
 """
 
 from __future__ import annotations
@@ -38,17 +40,28 @@ class Session:
 
     The commands change ``unlocked`` (unlock, lock) and ``json`` (json on|off), and start
     a stream with ``start_stream``; any line, Ctrl-C or the end of the connection stops it.
+    A session is always created locked, and locks itself again after
+    ``relock_after_idle`` without input.
     """
 
-    def __init__(self, service: ConsoleService, name: str, trusted: bool) -> None:
+    def __init__(self, service: ConsoleService, name: str, trusted: bool,
+                 peer: str | None = None) -> None:
         self.service = service
         self.ctl = service.controller
         self.cat = service.catalogue
         #: where the session is (``serial:/dev/ttyS0``), for the log
         self.name = name
+        #: who is at the other end (``serial:/dev/ttyS0``, ``uid:1000``, ``tcp``): wrong
+        #: PINs lock out this peer only
+        self.peer = peer if peer is not None else name
         #: a trusted console may change the plant without a PIN
         self.trusted = trusted
         self.unlocked = False
+        #: service clock seconds of the last byte fed (the idle time counts from it)
+        self.last_input = service.clock()
+        #: set by ``close``: the session takes nothing more, and why it ended
+        self.closed = False
+        self.close_reason = ""
         #: replies as one JSON object per line
         self.json = False
         self.stream: Stream | None = None
@@ -68,6 +81,8 @@ class Session:
         stream. A line longer than MAX_LINE bytes is dropped whole (an error reply when
         its end arrives)."""
         out: list[str] = []
+        if data:
+            self.last_input = self.service.clock()
         for item in self._framer.feed(data):
             if isinstance(item, bytes):
                 out += self.handle(item)
@@ -154,30 +169,31 @@ class Session:
             stream.capture(scan)
 
     def poll(self) -> list[str]:
-        """Streamed lines due now (watch, trace); call it a few times a second."""
+        """Lines due now: notices (time limits, relock) and streamed lines (watch,
+        trace); call it a few times a second."""
+        notices = self.service.tick(self)
+        idle = self.service.limits.relock_after_idle_s
+        if self.unlocked and self.service.clock() - self.last_input >= idle:
+            self.unlocked = False
+            log.info("console %s locked after %.0f s idle", self.name, idle)
+            notices.append(f"locked after {idle:.0f} s idle: 'unlock PIN' to change the "
+                           "machine")
+        out = [json.dumps({"notice": n}, ensure_ascii=False) if self.json else n
+               for n in notices]
         stream = self.stream
-        if stream is None:
-            return []
-        return stream.poll(self.service.clock, self.json)
+        if stream is not None:
+            out += stream.poll(self.service.clock, self.json)
+        return out
 
-    def close(self) -> None:
-        """The connection ended: stop streams; release this session's forces if the plant
-        says ``release_forces_on_disconnect: true``."""
+    def close(self, reason: str = "connection closed") -> None:
+        """The connection ended (``reason``: "peer disconnected", "hang-up", "idle
+        timeout", "server stopping"...): stop streams; its forces are released and, if it
+        held the pause, stepping, iocheck or forces, the controller halts until ``ack``
+        (ConsoleService.session_ended). Idempotent."""
+        if self.closed:
+            return
+        self.close_reason = reason
+        self.closed = True
+        self.unlocked = False
         self._stop_stream()
-        svc = self.service
-        mine = svc.take_forces_of(self)
-        if not (svc.release_on_disconnect and mine):
-            return
-        plant = self.ctl.plant
-
-        def release() -> None:
-            for n in mine:
-                if plant.is_forced(n):
-                    plant.unforce(n)
-        try:
-            self.ctl.call(release)
-        except TimeoutError:
-            log.error("console %s closed: its forces could not be released (the scan did "
-                      "not answer)", self.name)
-            return
-        log.warning("console %s closed: released its forces %s", self.name, ", ".join(mine))
+        self.service.session_ended(self, reason)

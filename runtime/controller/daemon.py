@@ -460,6 +460,11 @@ class Daemon:
                 done.append(f"SFCError of {name}{f' ({step})' if step else ''} acknowledged")
         if not done:
             raise CommandRefused("nothing to acknowledge")
+        forced = plant.forced_names()
+        if forced:  # no force survives an ack: the restarted charts start clean
+            plant.unforce(None)
+            log.warning("ack released every force: %s", ", ".join(forced))
+            done.append(f"forces released: {', '.join(forced)}")
         return "; ".join(done)
 
     def require_ack(self, reason: str) -> None:

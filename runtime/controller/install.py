@@ -7,23 +7,38 @@ kept). A file already there with other contents is never overwritten: the comman
 and says so (``--force`` keeps the old one as ``NAME.bak-TIMESTAMP``). With ``--root DIR``
 everything is written below DIR and the user, group and systemctl steps are only printed
 (for packaging and for the tests).
+
+Who may read what (the plant holds the console's PIN hash): /etc/softplc is 0750
+root:softplc and the plant and its charts 0640 root:softplc (root writes them, the service
+reads them, nobody else does); /var/lib/softplc, the service's state directory, is 0750
+softplc:softplc. The unit's ``StateDirectory=`` and ``RuntimeDirectory=`` keep those two
+owned by the service; it has no ``ConfigurationDirectory=``: systemd would apply its mode to
+/etc/softplc without ever changing its group (systemd.exec(5)), locking the service out of
+its plant when the directory is root's. A file is written under a temporary name with its
+final mode and owner, then renamed: it is never readable by others, not even for a moment.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import grp
 import logging
 import os
 import pwd
 import shutil
+import stat
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
+from enum import Enum
+from typing import NamedTuple
 
 from runtime.errors import SoftplcError
 from runtime.language.plantfile import load_plant
+from runtime.language.runtimedir import runtime_dir
 from runtime.language.yamlsrc import YMap, load_yaml
 
 log = logging.getLogger(__name__)
@@ -44,12 +59,45 @@ class InstallError(SoftplcError):
     """The installation cannot go on; the message says what to do."""
 
 
+class Owner(Enum):
+    """Who owns an installed file or directory (user:group)."""
+
+    ROOT = "root:root"  # the unit: root writes, everybody reads
+    CONFIG = f"root:{USER}"  # plant and charts: root writes, the service reads
+    SERVICE = f"{USER}:{USER}"  # the state directory: the service writes
+
+
+class ServiceIds(NamedTuple):
+    """The service user's uid and gid."""
+
+    uid: int
+    gid: int
+
+
+#: mode of the configuration directory and of the plant and charts in it
+CONFIG_DIR_MODE = 0o750
+CONFIG_FILE_MODE = 0o640
+#: as the unit's StateDirectoryMode=
+STATE_DIR_MODE = 0o750
+UNIT_MODE = 0o644
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One file (``data``) or directory (``data`` None) to install, with mode and owner."""
+
+    mode: int
+    owner: Owner
+    data: bytes | None = None
+
+
 @dataclass
 class Plan:
-    """What install-service will write and run."""
+    """What install-service will write and run: directories first, then files."""
 
-    files: dict[str, bytes] = field(default_factory=dict)  # absolute path -> contents
-    commands: list[list[str]] = field(default_factory=list)
+    files: dict[str, Entry] = field(default_factory=dict)  # absolute path -> entry
+    user_commands: list[list[str]] = field(default_factory=list)  # before the files
+    commands: list[list[str]] = field(default_factory=list)  # after the files
     warnings: list[str] = field(default_factory=list)
 
 
@@ -99,6 +147,8 @@ def plan(plant_path: str, softplc: str, etc: str = "/etc/softplc",
     """Work out the files and commands of an installation (nothing is written)."""
     pdef = load_plant(plant_path)  # refuses a broken plant before anything is installed
     p = Plan()
+    p.files[etc] = Entry(CONFIG_DIR_MODE, Owner.CONFIG)
+    p.files[STATE_DIR] = Entry(STATE_DIR_MODE, Owner.SERVICE)
     copies: dict[str, str] = {}  # source path -> name in etc
     names: dict[str, str] = {}
     for name, inst in pdef.instances.items():
@@ -115,26 +165,28 @@ def plan(plant_path: str, softplc: str, etc: str = "/etc/softplc",
         names[name] = copies[src]
     for src, base in copies.items():
         with open(src, "rb") as f:
-            p.files[os.path.join(etc, base)] = f.read()
+            p.files[os.path.join(etc, base)] = Entry(CONFIG_FILE_MODE, Owner.CONFIG, f.read())
     plant_target = os.path.join(etc, "plant.yaml")
-    p.files[plant_target] = _rewrite_grafcet_paths(plant_path, names).encode()
-    p.files[os.path.join(unit_dir, "softplc.service")] = unit_text(
-        softplc, plant_target).encode()
+    p.files[plant_target] = Entry(CONFIG_FILE_MODE, Owner.CONFIG,
+                                  _rewrite_grafcet_paths(plant_path, names).encode())
+    p.files[os.path.join(unit_dir, "softplc.service")] = Entry(
+        UNIT_MODE, Owner.ROOT, unit_text(softplc, plant_target).encode())
     if pdef.retain_path and not pdef.retain_path.startswith(STATE_DIR + "/"):
         p.warnings.append(f"plc: retain: {pdef.retain_path} is outside {STATE_DIR}: the "
                           "service may not write there (ProtectSystem=strict); use "
                           f"{STATE_DIR}/retain.json")
+    mine = runtime_dir()  # ${RUNTIME_DIR} here; /run/softplc under the service
     for c in pdef.consoles:
-        if c.kind == "socket" and not c.address.startswith(RUNTIME_DIR + "/"):
+        if c.kind == "socket" and not c.address.startswith((RUNTIME_DIR + "/", mine + "/")):
             p.warnings.append(f"monitor: socket: {c.address} is outside {RUNTIME_DIR}: "
                               "other users will not reach it (PrivateTmp); use "
-                              f"{RUNTIME_DIR}/console.sock")
+                              "${RUNTIME_DIR}/console.sock")
         if c.trusted and any(d.type != "sim" for d in pdef.drivers.values()):
             p.warnings.append(f"monitor: the {c.kind} console is trusted (no PIN) on a plant "
                               "that drives real I/O: set pin_hash (softplc hash-pin) instead")
     if any(d.type == "sim" for d in pdef.drivers.values()):
         p.warnings.append("the plant uses simulated I/O (type: sim): nothing physical moves")
-    p.commands += _user_commands()
+    p.user_commands = _user_commands()
     p.commands.append(["systemctl", "daemon-reload"])
     if enable:
         p.commands.append(["systemctl", "enable", *(["--now"] if start else []),
@@ -158,50 +210,117 @@ def _user_commands() -> list[list[str]]:
     return cmds
 
 
-def apply(p: Plan, root: str | None = None, force: bool = False) -> list[str]:
+def service_ids() -> ServiceIds:
+    """The uid and gid of the installed service user."""
+    try:
+        user = pwd.getpwnam(USER)
+    except KeyError:
+        raise InstallError(f"user {USER} not found after creating it") from None
+    return ServiceIds(user.pw_uid, user.pw_gid)
+
+
+def _ids_of(owner: Owner, ids: ServiceIds) -> tuple[int, int]:
+    return {Owner.ROOT: (0, 0), Owner.CONFIG: (0, ids.gid),
+            Owner.SERVICE: (ids.uid, ids.gid)}[owner]
+
+
+def _make_dir(path: str, entry: Entry, ids: ServiceIds | None) -> None:
+    os.makedirs(path, exist_ok=True)
+    st = os.lstat(path)
+    if not stat.S_ISDIR(st.st_mode):  # a symbolic link or a file: never follow or replace
+        raise InstallError(f"{path} is not a directory (a symbolic link?): remove it first")
+    if ids is not None:
+        os.chown(path, *_ids_of(entry.owner, ids))
+    os.chmod(path, entry.mode)
+
+
+def _write_file(path: str, entry: Entry, ids: ServiceIds | None) -> None:
+    """Write under a temporary name created 0600, give it its owner and mode, then rename:
+    the contents are never readable by others, not even while being written."""
+    assert entry.data is not None
+    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(path),
+                               prefix="." + os.path.basename(path) + ".")
+    try:
+        with os.fdopen(fd, "wb") as out:
+            if ids is not None:
+                os.fchown(out.fileno(), *_ids_of(entry.owner, ids))
+            os.fchmod(out.fileno(), entry.mode)
+            out.write(entry.data)
+            out.flush()
+            os.fsync(out.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def apply(p: Plan, root: str | None = None, force: bool = False,
+          ids: ServiceIds | None = None) -> list[str]:
     """Write the files (below ``root`` if given) and run the commands (only printed with
-    ``root``). Returns what was done, one line each. Raises InstallError before writing
-    anything if a file the user wrote would be overwritten."""
+    ``root``). Ownership is applied when really installing, or with ``ids`` below ``root``
+    (tests); otherwise only printed. Returns what was done, one line each. Raises
+    InstallError before writing anything if a file the user wrote would be overwritten."""
     done: list[str] = []
 
     def target(path: str) -> str:
         return os.path.join(root, path.lstrip("/")) if root else path
 
     clashes = []
-    for path, data in p.files.items():
+    for path, entry in p.files.items():
         t = target(path)
-        if os.path.exists(t):
+        if entry.data is not None and os.path.exists(t):
             with open(t, "rb") as old:
-                if old.read() != data:
+                if old.read() != entry.data:
                     clashes.append(t)
     if clashes and not force:
         raise InstallError("these files exist with other contents and are left alone: "
                            + ", ".join(clashes) + " (compare them, then run again with "
                            "--force to keep each old one as NAME.bak-TIMESTAMP)")
+    for cmd in p.user_commands:  # the softplc group must exist before files get it
+        done.append(_run(cmd, root))
+    if root is None:
+        ids = service_ids()
     stamp = time.strftime("%Y%m%d-%H%M%S")
-    for path, data in p.files.items():
+    for path, entry in p.files.items():
         t = target(path)
-        os.makedirs(os.path.dirname(t), exist_ok=True)
-        if t in clashes:
-            shutil.copy2(t, f"{t}.bak-{stamp}")
-            done.append(f"kept the old {t} as {t}.bak-{stamp}")
-        with open(t, "wb") as out:
-            out.write(data)
-        os.chmod(t, 0o644)
-        done.append(f"wrote {t}")
-    for cmd in p.commands:
-        if root:
-            done.append("would run: " + " ".join(cmd))
+        how = f"{entry.mode:04o}, " + (f"{entry.owner.value}" if ids is not None
+                                        else f"would chown {entry.owner.value}")
+        if entry.data is None:
+            _make_dir(t, entry, ids)
+            done.append(f"directory {t} ({how})")
             continue
-        subprocess.run(cmd, check=True)
-        done.append("ran: " + " ".join(cmd))
+        os.makedirs(os.path.dirname(t), exist_ok=True)
+        if t in clashes:  # the old file may hold a PIN hash: the backup gets the new mode
+            with open(t, "rb") as old:
+                _write_file(f"{t}.bak-{stamp}", Entry(entry.mode, entry.owner, old.read()),
+                            ids)
+            done.append(f"kept the old {t} as {t}.bak-{stamp}")
+        _write_file(t, entry, ids)
+        done.append(f"wrote {t} ({how})")
+    for cmd in p.commands:
+        done.append(_run(cmd, root))
     return done
 
 
+def _run(cmd: list[str], root: str | None) -> str:
+    if root:
+        return "would run: " + " ".join(cmd)
+    subprocess.run(cmd, check=True)
+    return "ran: " + " ".join(cmd)
+
+
+def _this_softplc() -> str:
+    """The ``softplc`` program of the environment running this command (the unit must start
+    the same installation, not whichever ``softplc`` comes first on PATH)."""
+    beside = os.path.join(os.path.dirname(sys.executable), "softplc")
+    if os.access(beside, os.X_OK):
+        return beside
+    return shutil.which("softplc") or beside
+
+
 def cmd_install_service(args: argparse.Namespace) -> int:
-    softplc = shutil.which("softplc") or os.path.join(os.path.dirname(sys.executable),
-                                                       "softplc")
-    softplc = os.path.abspath(softplc)
+    softplc = os.path.abspath(_this_softplc())
     if not args.root:
         if os.geteuid() != 0:
             sys.stderr.write("softplc install-service: error: run it as root (it creates a "

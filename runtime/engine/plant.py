@@ -5,6 +5,10 @@ each instance in plant order, copy its inputs through the bindings (``invert`` a
 here and only here), scan it; copy every output through the bindings into the drivers'
 output images; every driver's ``write()``. The copy is generated as Python code once, so
 a cycle is one function call with no interpretation of the bindings.
+
+The charts are scanned on the program's time, not the raw clock: it stands still while
+they are not scanned (console pause, iocheck) and each stepped cycle counts exactly one
+plant cycle (semantics.md, "Program time").
 """
 
 from __future__ import annotations
@@ -67,8 +71,17 @@ class Plant:
         self.cycle_ns = pdef.cycle_ns
         self.watchdog_ns = pdef.watchdog_ns
         self.retain_interval_ns = pdef.retain_interval_ns
+        #: program time (ns) of the first cycle: the clock bits count from it
         self.start: int | None = None
+        #: program time since the start (ns) of the last cycle that scanned the charts
         self.last_up = 0
+        #: the program's time is the monotonic clock less this offset (ns): it grows by
+        #: the time the charts stood still (console pause, iocheck)
+        self.offset_ns = 0
+        #: program time (ns) of the last scan of the charts, None before the first
+        self._last_scan: int | None = None
+        #: whether a cycle since the last scan did not scan the charts
+        self._stood_still = False
         #: one program per distinct chart (the plant file's loader shares the Grafcet of a
         #: file between its instances): the instances of a chart share its code
         self.programs: list[Program] = []
@@ -237,33 +250,53 @@ class Plant:
         While ``hold`` is set (console ``pause``) the charts are not scanned but the I/O
         is: inputs are read and the held outputs written; ``step(n)`` lets exactly n full
         cycles through. In ``iocheck`` mode the charts are stopped and the drivers'
-        output images are left to the technician (every output off on entry)."""
-        if self.start is None:
-            self.start = now
-        up = now - self.start
-        self.last_up = up
+        output images are left to the technician (every output off on entry). The
+        charts see the program's time (``_program_time``), which stands still while
+        they are not scanned."""
         if self.iocheck or (self.hold and self.steps_left <= 0):
+            if self._last_scan is not None:
+                self._stood_still = True
             if not self.iocheck and self.forced:
                 self._copy_outputs()
             self.exchange(zero_outputs=False)
             return self.faulted()
         if self.hold:
             self.steps_left -= 1
+        pnow = self._program_time(now)
+        if self.start is None:
+            self.start = pnow
+        up = pnow - self.start
+        self.last_up = up
+        self._last_scan = pnow
         if self._pulses:
             self._rebuild_instance_forces()
             for inst, idx in self._pulses:
                 self._forced_by_inst.setdefault(inst, []).append((idx, True))
-            stopped = self._cycle(now, up)
+            stopped = self._cycle(pnow, up)
             for inst, idx in self._pulses:
                 self.instances[inst].m[idx] = False
             self._pulses.clear()
             self._rebuild_instance_forces()
         else:
-            stopped = self._cycle(now, up)
+            stopped = self._cycle(pnow, up)
         if stopped is not None:
             return f"driver {stopped.name}: {stopped.fault_reason}"
         self.scans += 1
         return None
+
+    def _program_time(self, now: int) -> int:
+        """The program's time (ns) for a scan at monotonic time ``now``.
+
+        Running, it is the clock less ``offset_ns``: real intervals, overruns included.
+        A scan that follows cycles in which the charts stood still (console pause,
+        iocheck), and every scan let through by ``step``, comes exactly one plant cycle
+        after the previous scan, whatever the clock says; the offset takes up the rest,
+        so ``resume`` goes on from there with no jump."""
+        last = self._last_scan
+        if last is not None and (self._stood_still or self.hold):
+            self._stood_still = False
+            self.offset_ns = now - (last + self.cycle_ns)
+        return now - self.offset_ns
 
     def exchange(self, zero_outputs: bool) -> None:
         """A cycle without scans: read every driver (so inputs stay visible and a lost

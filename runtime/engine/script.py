@@ -51,9 +51,9 @@ class Event:
     apply: Callable[[], None]
 
 
-def read_script(path: str, names: PlantNames) -> Script:
+def read_script(path: str, names: PlantNames, need_length: bool = True) -> Script:
     """The script at ``path``, every name and value checked; SourceError at the first
-    fault."""
+    fault. ``need_length``: refuse a script with neither 'duration:' nor 'cycles:'."""
     doc = load_yaml(path)
     if not isinstance(doc, YMap):
         raise SourceError(Loc(path, 1, 1), "expected a mapping with 'duration:' or 'cycles:'")
@@ -63,7 +63,7 @@ def read_script(path: str, names: PlantNames) -> Script:
         duration = time_value(doc["duration"], doc.val_locs["duration"], "duration")
     if "cycles" in doc:
         cycles = expect_type(doc["cycles"], doc.val_locs["cycles"], int, "a number of cycles")
-    if duration is None and cycles is None:
+    if need_length and duration is None and cycles is None:
         raise SourceError(doc.loc, "the script needs 'duration:' or 'cycles:'")
     changes: list[Change] = []
     items = doc.get("set") or YList()
@@ -108,8 +108,9 @@ def _change(names: PlantNames, at: int, key: str, value: Any, kloc: Loc, vloc: L
 
 def load_script(path: str, plant: Plant) -> tuple[int | None, int | None, list[Event]]:
     """Returns (duration_ns, cycles, events sorted by time, file order kept at equal times),
-    each event writing its change into ``plant``."""
-    script = read_script(path, plant.names)
+    each event writing its change into ``plant``. The length may be absent (None, None):
+    the caller decides whether it needs one (``simulate --cycles`` does not)."""
+    script = read_script(path, plant.names, need_length=False)
     return (script.duration_ns, script.cycles,
             [Event(c.at_ns, c.key, c.value, _apply(plant, c)) for c in script.changes])
 

@@ -1,7 +1,8 @@
 """``softplc simulate``: a plant on a virtual clock with simulated I/O, driven by a script.
 
 Scan k happens at t = k·cycle; a scripted change at time t is seen by the first scan with
-time >= t; nothing sleeps. The trace has one JSON object per scan (language.md).
+time >= t; nothing sleeps. The trace has one JSON object per scan (semantics.md), and a
+last one naming the fault when a scan raises.
 """
 
 from __future__ import annotations
@@ -13,7 +14,13 @@ from drivers.sim import SimDriver
 from runtime.compiler.evolution import UnstableChart
 from runtime.engine.plant import Plant
 from runtime.engine.script import Event, load_script
-from runtime.engine.trace import trace_columns, write_trace, write_vcd
+from runtime.engine.trace import (
+    driver_columns,
+    fault_row,
+    trace_columns,
+    write_trace,
+    write_vcd,
+)
 from runtime.errors import Loc, SourceError
 from runtime.language.plantfile import load_plant
 
@@ -36,6 +43,10 @@ class Simulation:
         self.events: list[Event] = []
         if script_path is not None:
             duration, script_cycles, self.events = load_script(script_path, self.plant)
+        if cycles is None and script_path is not None and (duration, script_cycles) == (
+                None, None):
+            raise SourceError(Loc(script_path, 1, 1), "the script needs 'duration:' or "
+                                                      "'cycles:' (or give --cycles N)")
         cyc = self.plant.cycle_ns
         if cycles is not None:
             self.cycles = cycles
@@ -46,9 +57,13 @@ class Simulation:
         else:
             self.cycles = 100
         self.columns = trace_columns(self.plant)
+        self.points = driver_columns(self.plant)
 
     def run(self, trace: bool = True) -> Iterator[dict[str, Any]]:
-        """Run every scan; yields each scan's trace row (or nothing when ``trace`` is off)."""
+        """Run every scan; yields each scan's trace row (or nothing when ``trace`` is off).
+
+        A scan that raises puts the plant in its safe state, yields a last row naming the
+        fault (:func:`~runtime.engine.trace.fault_row`) and raises :class:`ScanFault`."""
         plant, events, cyc = self.plant, self.events, self.plant.cycle_ns
         plant.open()
         ev = 0
@@ -63,7 +78,10 @@ class Simulation:
                 plant.cycle(t)
             except Exception as exc:  # a fault in a scan: outputs off, one clear line
                 plant.safe_state()
-                raise self._fault(exc, k, t) from None
+                fault, name = self._fault(exc, k, t)
+                if trace:
+                    yield fault_row(k, t, fault.message, name, self.points)
+                raise fault from None
             if trace:
                 row: dict[str, Any] = {"cycle": k, "t_ms": t // 1_000_000}
                 for key, get in cols:
@@ -71,10 +89,9 @@ class Simulation:
                 yield row
         plant.safe_state()
 
-
-    def _fault(self, exc: Exception, k: int, t: int) -> ScanFault:
+    def _fault(self, exc: Exception, k: int, t: int) -> tuple[ScanFault, str | None]:
         """ScanFault at the instance whose scan raised ``exc`` (found by its state list in
-        the traceback), or at the plant file."""
+        the traceback), or at the plant file; and that instance's name (None if none)."""
         name = None
         tb = exc.__traceback__
         while tb is not None:
@@ -88,12 +105,12 @@ class Simulation:
             return ScanFault(self.pdef.instances[next(iter(self.pdef.instances))].loc
                              if self.pdef.instances else Loc(self.pdef.path, 1, 1),
                              f"expected every scan to end normally, found a fault in cycle "
-                             f"{k} (t = {t // 1_000_000} ms): {what}")
+                             f"{k} (t = {t // 1_000_000} ms): {what}"), None
         g = self.plant.instances[name].grafcet
         return ScanFault(self.pdef.instances[name].loc,
                          f"expected every scan to end normally, found a fault in the scan of "
                          f"instance '{name}' (grafcet {g.name}, {g.path}) in cycle {k} "
-                         f"(t = {t // 1_000_000} ms): {what}")
+                         f"(t = {t // 1_000_000} ms): {what}"), name
 
 
 class ScanFault(SourceError):

@@ -21,7 +21,8 @@ T = A.Type
 
 
 def trace_columns(plant: Plant) -> list[tuple[str, Callable[[], Any]]]:
-    """(key, getter) for every traced value, as language.md lists them."""
+    """(key, getter) for every traced value, as semantics.md lists them: the instances'
+    values, then the drivers' (:func:`driver_columns`)."""
     cols: list[tuple[str, Callable[[], Any]]] = []
     for name, inst in plant.instances.items():
         g, m, prog = inst.grafcet, inst.m, inst.program
@@ -42,6 +43,12 @@ def trace_columns(plant: Plant) -> list[tuple[str, Callable[[], Any]]]:
                 if not is_input:
                     cols.append((f"{name}.{b.name}.{member}",
                                  _member(m, prog.block_index(b.name), member, mtype)))
+    return cols + driver_columns(plant)
+
+
+def driver_columns(plant: Plant) -> list[tuple[str, Callable[[], Any]]]:
+    """(key, getter) for every driver point (the process image) and every ``driver.ok``."""
+    cols: list[tuple[str, Callable[[], Any]]] = []
     for dname, d in plant.drivers.items():
         for p in d.inputs:
             cols.append((f"{dname}.{p}", _point(d.inputs, p)))
@@ -85,9 +92,22 @@ def _num(v: Any) -> Any:
     return int(v) if isinstance(v, bool) else v
 
 
+def fault_row(k: int, t_ns: int, fault: str, instance: str | None,
+              points: list[tuple[str, Callable[[], Any]]]) -> dict[str, Any]:
+    """The last record of a trace whose scan ``k`` (at ``t_ns``) faulted: the fault's
+    message, the instance whose scan raised (None if none), and the process image after
+    the safe state (``points``: :func:`driver_columns`). The instances' values are left
+    out: the scan that raised left them half-computed."""
+    row: dict[str, Any] = {"cycle": k, "t_ms": t_ns // 1_000_000, "fault": fault,
+                           "instance": instance}
+    for key, get in points:
+        row[key] = get()
+    return row
 
 
 def write_trace(rows: Iterator[dict[str, Any]], out: IO[str]) -> int:
+    """One JSON line per row, written as the rows come (a run that stops on a fault keeps
+    every row before it); returns the number of rows."""
     n = 0
     for row in rows:
         out.write(json.dumps(row, ensure_ascii=False, separators=(",", ":")))
@@ -97,13 +117,19 @@ def write_trace(rows: Iterator[dict[str, Any]], out: IO[str]) -> int:
 
 
 def write_vcd(rows: list[dict[str, Any]], out: IO[str]) -> None:
-    """Value Change Dump of a trace (GTKWave, Surfer): one signal per traced key, in ms."""
+    """Value Change Dump of a trace (GTKWave, Surfer): one signal per traced key, in ms.
+    A key missing from a row (the fault record has only the drivers' points) keeps its
+    value; the fault record's ``fault`` is a string signal, ``-`` until the fault."""
     if not rows:
         return
-    keys = [k for k in rows[0] if k not in ("cycle", "t_ms")]
+    keys: list[str] = []
+    for r in rows:
+        keys += [k for k in r if k not in ("cycle", "t_ms", "instance") and k not in keys]
+    if "fault" in keys:
+        rows = [r if "fault" in r else {**r, "fault": ""} for r in rows]
     kinds: dict[str, str] = {}
     for k in keys:
-        values = {r[k] for r in rows}
+        values = {r[k] for r in rows if k in r}
         if any(isinstance(v, str) for v in values):
             kinds[k] = "string"
         elif any(isinstance(v, float) for v in values):
@@ -128,7 +154,7 @@ def write_vcd(rows: list[dict[str, Any]], out: IO[str]) -> None:
     out.write("$upscope $end\n$enddefinitions $end\n")
     last: dict[str, Any] = {}
     for r in rows:
-        changes = [k for k in keys if k not in last or last[k] != r[k]]
+        changes = [k for k in keys if k in r and (k not in last or last[k] != r[k])]
         if not changes:
             continue
         out.write(f"#{r['t_ms']}\n")

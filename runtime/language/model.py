@@ -223,6 +223,20 @@ class ConsoleEntry:
 
 
 @dataclass(slots=True)
+class ConsoleLimits:
+    """How long console holds may last, seconds (``monitor: limits:``, console.md)."""
+
+    #: a pause ends into a halt (outputs off, ``ack`` needed) after this long
+    max_pause_s: float = 900.0
+    #: a force is released after this long
+    max_force_s: float = 900.0
+    #: the owning session is warned this long before either ends
+    warn_before_s: float = 30.0
+    #: an unlocked session with no input for this long locks itself again
+    relock_after_idle_s: float = 300.0
+
+
+@dataclass(slots=True)
 class PlantDef:
     path: str
     cycle_ns: int = 10_000_000
@@ -239,3 +253,4 @@ class PlantDef:
     consoles: list[ConsoleEntry] = field(default_factory=list)
     pin_hash: str | None = None
     release_forces_on_disconnect: bool = False
+    console_limits: ConsoleLimits = field(default_factory=ConsoleLimits)

@@ -21,19 +21,22 @@ from runtime.language.grafcetfile import check_keys, expect_type, load_grafcet, 
 from runtime.language.model import (
     Binding,
     ConsoleEntry,
+    ConsoleLimits,
     DriverDef,
     Grafcet,
     InstanceDef,
     PlantDef,
     VarKind,
 )
+from runtime.language.runtimedir import expand
 from runtime.language.typecheck import FLAGS_BOOL
 from runtime.language.yamlsrc import YMap, load_yaml
 
 PLANT_KEYS = ("plc", "drivers", "instances", "monitor")
 PLC_KEYS = ("cycle", "watchdog", "retain", "retain_interval", "retain_required", "realtime")
 INSTANCE_KEYS = ("grafcet", "inputs", "outputs", "description")
-MONITOR_KEYS = ("serial", "socket", "tcp", "pin_hash", "release_forces_on_disconnect")
+MONITOR_KEYS = ("serial", "socket", "tcp", "pin_hash", "release_forces_on_disconnect",
+                "limits")
 
 
 @dataclass
@@ -69,7 +72,7 @@ def _resolve(base: str, path: str) -> str:
 
 def _retain_path(base: str, value: Any, loc: Loc) -> str:
     """``plc: retain``: a regular file, or one not yet there, never a directory."""
-    text = expect_type(value, loc, str, "a file name for plc retain")
+    text = expand(str(expect_type(value, loc, str, "a file name for plc retain")), loc)
     if not text.strip():
         raise SourceError(loc, "plc retain: expected a file name, found an empty text")
     if text.endswith(("/", os.sep)):
@@ -323,10 +326,12 @@ def _monitor(p: PlantDef, mon: Any, loc: Loc) -> None:
             check_keys(s, ("path", "trusted"), "monitor socket")
             path = expect_type(_need(s, "path", "the socket's path"),
                                s.val_locs.get("path", s.loc), str, "a socket path")
-            p.consoles.append(ConsoleEntry("socket", str(path), trusted=_flag(s, "trusted")))
+            path = expand(str(path), s.val_locs.get("path", s.loc))
+            p.consoles.append(ConsoleEntry("socket", path, trusted=_flag(s, "trusted")))
         else:
-            path = expect_type(s, mon.val_locs["socket"], str, "a socket path")
-            p.consoles.append(ConsoleEntry("socket", str(path)))
+            path = expand(str(expect_type(s, mon.val_locs["socket"], str, "a socket path")),
+                          mon.val_locs["socket"])
+            p.consoles.append(ConsoleEntry("socket", path))
     if "tcp" in mon:
         s = mon["tcp"]
         if isinstance(s, YMap):
@@ -342,3 +347,22 @@ def _monitor(p: PlantDef, mon: Any, loc: Loc) -> None:
         p.pin_hash = str(mon["pin_hash"])
     if "release_forces_on_disconnect" in mon:
         p.release_forces_on_disconnect = _flag(mon, "release_forces_on_disconnect")
+    if "limits" in mon:
+        p.console_limits = _console_limits(mon["limits"], mon.val_locs["limits"])
+
+
+def _console_limits(value: Any, loc: Loc) -> ConsoleLimits:
+    """``monitor: limits: {max_pause: 15m, max_force: 15m, warn_before: 30s,
+    relock_after_idle: 5m}`` (each optional) -> ConsoleLimits."""
+    lim = expect_type(value, loc, YMap, "a mapping of times")
+    keys = ("max_pause", "max_force", "warn_before", "relock_after_idle")
+    check_keys(lim, keys, "monitor limits")
+    given = {f"{k}_s": time_value(lim[k], lim.val_locs[k], f"monitor limits {k}") / 1e9
+             for k in keys if k in lim}
+    out = ConsoleLimits(**given)
+    for k in ("max_pause", "max_force", "relock_after_idle"):
+        s = getattr(out, f"{k}_s")
+        if s <= 0 or (k != "relock_after_idle" and s <= out.warn_before_s):
+            raise SourceError(lim.val_locs.get(k, lim.loc), f"monitor limits: {k} must be "
+                              + ("longer than warn_before" if s > 0 else "more than 0"))
+    return out

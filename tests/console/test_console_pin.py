@@ -1,5 +1,5 @@
-"""Who may change the machine: the PIN (stored hashed), the lock-out after three wrong
-PINs, trusted consoles, and consoles with neither."""
+"""Who may change the machine: the PIN (stored hashed), the lock-out of a peer after three
+wrong PINs, trusted consoles, and consoles with neither."""
 
 from __future__ import annotations
 
@@ -10,13 +10,14 @@ import pytest
 import yaml
 
 from runtime import cli
+from runtime.console import pin as pinmod
 from runtime.console.pin import check_pin, hash_pin
-from runtime.console.protocol import CHANGING, LOCKOUT_S
+from runtime.console.protocol import CHANGING, LOCKOUT_MIN_S
 from tests.console.consolekit import FakeClock, Rig
 
 PIN = "4711"
-#: a cheap hash for the tests (the CLI's default costs ~0.1 s per try on purpose)
-HASH = hash_pin(PIN, iterations=1000)
+#: a cheap hash for the tests (the CLI's default costs ~0.2 s and 32 MiB per try on purpose)
+HASH = hash_pin(PIN, n=16, r=1, p=1)
 CHANGES = ["set t1.sCierres 3", "force t1.iMarcha 1", "unforce all", "pause", "resume",
            "cycle", "init t1", "reset t1", "iocheck on", "ack"]
 
@@ -55,20 +56,24 @@ def test_pin_unlocks_and_lock_locks_again_releasing_forces(rigs: Callable[..., R
     assert s.error("force t1.iMarcha 1") == "locked: 'unlock PIN' first"
 
 
-def test_three_wrong_pins_lock_every_console_for_60_s(rigs: Callable[..., Rig]) -> None:
+def test_three_wrong_pins_lock_that_peer_for_30_s(rigs: Callable[..., Rig]) -> None:
+    """Per peer (this test changed: three wrong PINs used to lock every console for 60 s,
+    a denial of service; test_console_lockout.py has the back-off)."""
     clock = FakeClock()
     rig = rigs(trusted=False, pin_hash=HASH, clock=clock)
     s, other = rig.serial(), rig.connect()
     assert s.error("unlock 1") == "wrong PIN (2 tries left)"
-    assert other.error("unlock 2") == "wrong PIN (1 try left)"  # counted across consoles
-    assert s.error("unlock 3") == f"wrong PIN; console locked for {LOCKOUT_S:.0f} s"
-    assert s.error(f"unlock {PIN}") == "console locked for 60 s after 3 wrong PINs"
-    clock.t += 59
-    assert other.error(f"unlock {PIN}") == "console locked for 1 s after 3 wrong PINs"
-    assert other.error("pause") == "locked: 'unlock PIN' first"
+    assert other.error("unlock 2") == "wrong PIN (2 tries left)"  # another peer
+    assert s.error("unlock 3") == "wrong PIN (1 try left)"
+    assert s.error("unlock 4") == f"wrong PIN; locked for {LOCKOUT_MIN_S:.0f} s"
+    assert s.error(f"unlock {PIN}") == "console locked for 30 s after 3 wrong PINs"
+    clock.t += 29
+    assert s.error(f"unlock {PIN}") == "console locked for 1 s after 3 wrong PINs"
+    assert s.error("pause") == "locked: 'unlock PIN' first"
+    assert other.ok(f"unlock {PIN}") == ["unlocked"]  # never locked by the serial peer
     clock.t += 1.5
-    assert other.ok(f"unlock {PIN}") == ["unlocked"]
-    assert other.ok("pause")[0].startswith("paused")
+    assert s.ok(f"unlock {PIN}") == ["unlocked"]
+    assert s.ok("pause")[0].startswith("paused")
     # a good PIN resets the count
     assert s.error("unlock 9") == "wrong PIN (2 tries left)"
 
@@ -86,7 +91,7 @@ def test_hash_pin_prints_a_salted_hash_for_the_plant_file(
         capsys: pytest.CaptureFixture[str], rigs: Callable[..., Rig]) -> None:
     assert cli.main(["hash-pin", PIN]) == 0
     stored = capsys.readouterr().out.strip()
-    assert stored.startswith("pbkdf2_sha256$") and PIN not in stored
+    assert stored.startswith("scrypt$") and PIN not in stored
     assert check_pin(PIN, stored) and not check_pin("4712", stored)
     assert cli.main(["hash-pin", PIN]) == 0
     assert capsys.readouterr().out.strip() != stored  # salted
@@ -104,3 +109,68 @@ def test_check_pin_refuses_malformed_hashes() -> None:
     assert not check_pin(PIN, "plain-text")
     assert not check_pin(PIN, "md5$1$00$00")
     assert not check_pin(PIN, "pbkdf2_sha256$x$00$00")
+
+
+def scrypt_cost(stored: str) -> tuple[int, int, int]:
+    algo, n, r, p, _salt, _digest = stored.split("$")
+    assert algo == "scrypt", stored
+    return int(n), int(r), int(p)
+
+
+def test_hash_pin_makes_a_slow_memory_hard_hash(capsys: pytest.CaptureFixture[str]) -> None:
+    """Attack: the plant file read, a 4-digit PIN searched offline. The default cost is
+    scrypt with 32 MiB and N*r*p = 2**20 (0.2 s per guess on an x86 server core: 10**4
+    guesses take more than half an hour per core, hours on the controller's own CPU)."""
+    assert cli.main(["hash-pin", PIN]) == 0
+    stored = capsys.readouterr().out.strip()
+    n, r, p = scrypt_cost(stored)
+    assert 128 * n * r >= 32 * 2**20  # memory per guess, bytes
+    assert n * r * p >= 2**20
+    assert check_pin(PIN, stored) and not check_pin("4712", stored)
+
+
+def test_old_pbkdf2_hashes_still_verify_with_a_warning(caplog: pytest.LogCaptureFixture) -> None:
+    old = hash_pin(PIN, iterations=1000)
+    assert old.startswith("pbkdf2_sha256$1000$")
+    with caplog.at_level("WARNING", logger="runtime.console.pin"):
+        assert check_pin(PIN, old)
+        assert not check_pin("4712", old)
+    assert "old pbkdf2_sha256 format" in caplog.text and "softplc hash-pin" in caplog.text
+
+
+def test_a_stored_hash_asking_for_too_much_is_refused_at_once() -> None:
+    """A pin_hash costing a gigabyte or hours matches nothing (and costs nothing)."""
+    huge = "scrypt$1048576$8$1$" + "00" * 16 + "$" + "00" * 32  # 1 GiB
+    endless = "pbkdf2_sha256$1000000000000$" + "00" * 16 + "$" + "00" * 32
+    assert not check_pin(PIN, huge)
+    assert not check_pin(PIN, endless)
+
+
+def test_a_pin_check_lets_other_threads_run() -> None:
+    """The hash runs without the GIL: a pure-Python loop in this thread keeps going while
+    another thread checks a PIN at the default cost (the scan thread is such a loop)."""
+    import threading
+    import time
+
+    stored = hash_pin(PIN)
+    done = threading.Event()
+    took: list[float] = []
+
+    def unlock() -> None:
+        t0 = time.perf_counter()
+        check_pin(PIN, stored)
+        took.append(time.perf_counter() - t0)
+        done.set()
+
+    worker = threading.Thread(target=unlock)
+    last = time.perf_counter()
+    worst = 0.0
+    worker.start()
+    while not done.is_set():
+        now = time.perf_counter()
+        worst = max(worst, now - last)
+        last = now
+    worker.join()
+    # holding the GIL, the hash would stop this loop for its whole duration
+    assert worst < took[0] / 2, (worst, took)
+    assert pinmod.SCRYPT_MAXMEM >= 128 * pinmod.SCRYPT_N * pinmod.SCRYPT_R

@@ -14,6 +14,7 @@ import pytest
 
 from runtime.controller.install import InstallError, apply, plan, unit_text
 from runtime.language.plantfile import load_plant
+from runtime.language.runtimedir import runtime_dir
 
 ROOT = Path(__file__).resolve().parents[2]
 SOFTPLC = str(Path(sys.executable).parent / "softplc")
@@ -90,13 +91,21 @@ def test_install_never_overwrites_what_the_user_changed(tmp_path: Path) -> None:
     assert any("kept the old" in line for line in done)
 
 
-def test_install_warns_about_paths_the_service_cannot_use() -> None:
+def test_install_warns_about_paths_the_service_cannot_use(tmp_path: Path) -> None:
     p = plan(str(ROOT / "configs" / "drawer_tester" / "plant_sim.yaml"), SOFTPLC)
     text = "\n".join(p.warnings)
-    assert "retain: /tmp/softplc/drawer_tester_sim.retain.json is outside /var/lib/softplc" \
-        in text
-    assert "socket: /tmp/softplc/drawer.sock is outside /run/softplc" in text
+    # ${RUNTIME_DIR}: a runtime directory is emptied at every stop, no place for retain
+    assert f"retain: {runtime_dir()}/drawer_tester_sim.retain.json is outside " \
+        "/var/lib/softplc" in text
+    # and it is /run/softplc under the service: the socket is where it should be
+    assert "socket:" not in text
     assert "simulated I/O" in text
+    plant = tmp_path / "plant.yaml"
+    plant.write_text((ROOT / "configs" / "drawer_tester" / "plant_sim.yaml").read_text()
+                     .replace("grafcet: ", f"grafcet: {ROOT}/configs/drawer_tester/")
+                     .replace("'${RUNTIME_DIR}/drawer.sock'", "/tmp/softplc/drawer.sock"))
+    text = "\n".join(plan(str(plant), SOFTPLC).warnings)
+    assert "socket: /tmp/softplc/drawer.sock is outside /run/softplc" in text
 
 
 def test_cli_refuses_a_broken_plant(tmp_path: Path) -> None:

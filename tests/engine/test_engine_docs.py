@@ -18,6 +18,8 @@ def test_every_test_named_in_the_rule_table_exists() -> None:
         path = ROOT / "tests" / f"test_{module}.py"
         if not path.exists():
             path = ROOT / "tests" / "engine" / f"test_engine_{module}.py"
+        if not path.exists():
+            path = ROOT / "tests" / "engine" / f"test_{module}.py"
         if not path.exists() or not re.search(rf"^def {name}\(", path.read_text(
                 encoding="utf-8"), re.M):
             missing.append(f"{module}::{name}")

@@ -1,0 +1,219 @@
+"""Pause, stepping, iocheck and forces belong to the session that made them: when it ends
+the controller halts with every output off until ``ack``; a pause and a force last at most
+the plant's limits (a warning first); ``ack`` leaves no force behind."""
+
+from __future__ import annotations
+
+import json
+import re
+import threading
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from runtime.errors import SourceError
+from runtime.language.model import ConsoleLimits
+from runtime.language.plantfile import load_plant
+from tests.console.consolekit import FakeClock, Rig, wait_for
+
+
+def outputs(rig: Rig) -> dict[str, int]:
+    return dict(rig.daemon.call(lambda: dict(rig.driver.outputs)))
+
+
+def halted_reason(rig: Rig) -> str:
+    st = rig.daemon.status()
+    assert st["state"] == "halted", st
+    return str(st["fault"])
+
+
+def test_a_session_that_forced_an_output_and_left_halts_the_controller(rig: Rig) -> None:
+    """The attack: force an output, drop the connection. Before: the output stayed on and
+    the stop button did nothing, for as long as anyone cared to wait."""
+    c = rig.connect()
+    c.ok("force rio.Q0 1")
+    wait_for(lambda: outputs(rig)["Q0"] == 1, "rio.Q0 forced on")
+    c.close()
+    wait_for(lambda: rig.state() == "halted", "the controller halted by the session's end")
+    reason = halted_reason(rig)
+    assert re.fullmatch(r"console socket:\S+ ended \(.+\) while it held: force rio\.Q0; "
+                        r"'ack' restarts the charts from their initial situation", reason)
+    assert not rig.plant.forced_points
+    # outputs off, and they stay off: the stop button is no longer needed to get there
+    scans = rig.daemon.scan_stats.count
+    wait_for(lambda: rig.daemon.scan_stats.count > scans + 3, "a few cycles")
+    assert set(outputs(rig).values()) == {0}
+    other = rig.serial()
+    assert other.ok("ack") == ["charts restarted from their initial situation"]
+    wait_for(lambda: outputs(rig)["Q2"] == 1, "pilot 'stopped' on: the charts run again")
+    assert outputs(rig)["Q0"] == 0
+
+
+def test_a_session_that_paused_and_left_halts_instead_of_freezing(rig: Rig) -> None:
+    rig.set_input("I1", 1)
+    wait_for(lambda: rig.steps("t1") == ["gsAbrir"], "t1 opening the drawer")
+    c = rig.connect()
+    c.ok("pause")
+    c.ok("force t2.iMarcha 1")
+    assert outputs(rig)["Q0"] == 1  # paused with the drawer motor on
+    c.close()
+    wait_for(lambda: rig.state() == "halted", "the controller halted")
+    assert "while it held: pause, force t2.iMarcha;" in halted_reason(rig)
+    assert set(outputs(rig).values()) == {0} and not rig.plant.forced
+    assert not rig.plant.held  # the pause is over: ack restarts the charts, running
+    rig.serial().ok("ack")
+    assert rig.state() == "running"
+
+
+def test_a_session_in_iocheck_that_left_halts(rig: Rig) -> None:
+    c = rig.connect()
+    c.ok("iocheck on")
+    c.ok("set rio.Q3 1")
+    wait_for(lambda: outputs(rig)["Q3"] == 1, "rio.Q3 on")
+    c.close()
+    wait_for(lambda: rig.state() == "halted", "the controller halted")
+    assert "while it held: iocheck;" in halted_reason(rig)
+    assert not rig.plant.iocheck and set(outputs(rig).values()) == {0}
+
+
+def test_a_session_closed_while_stepping_cancels_the_steps_and_halts(rig: Rig) -> None:
+    """The server may end a session from another thread while ``cycle`` waits."""
+    s = rig.service.session("tcp:test", trusted=True, peer="tcp")
+    s.feed(b"pause\r\n")
+    replies: list[str] = []
+    t = threading.Thread(target=lambda: replies.extend(s.feed(b"cycle 10000\r\n")),
+                         name="console-test-cycle")
+    t.start()
+    wait_for(lambda: rig.state() == "stepping", "stepping")
+    s.close("peer disconnected")
+    t.join(10)
+    assert not t.is_alive() and replies[-1] == "ok"
+    assert rig.state() == "halted" and not rig.plant.stepping
+    assert "ended (peer disconnected) while it held: pause, cycle;" in halted_reason(rig)
+
+
+def test_another_session_keeps_what_it_holds_and_leaving_with_nothing_is_harmless(
+        rig: Rig) -> None:
+    keeper, leaver = rig.connect(), rig.connect()
+    keeper.ok("force t2.iMarcha 1")
+    leaver.ok("status")
+    leaver.close()
+    wait_for(lambda: sum(x.name.startswith("socket") for x in rig.server.sessions) == 1,
+             "the session to end")
+    assert rig.state() == "running" and list(rig.plant.forced) == ["t2.iMarcha"]
+    # the pause passes to the last session that paused
+    leaver = rig.connect()
+    leaver.ok("pause")
+    keeper.ok("pause")
+    leaver.close()
+    wait_for(lambda: sum(x.name.startswith("socket") for x in rig.server.sessions) == 1,
+             "the session to end")
+    assert rig.state() == "paused"
+
+
+def test_release_forces_on_disconnect_releases_without_a_halt(
+        rigs: Callable[..., Rig]) -> None:
+    """``release_forces_on_disconnect: true``: forces alone are released and the charts go
+    on; a pause (or iocheck, or stepping) still halts."""
+    rig = rigs(release=True)
+    c = rig.connect()
+    c.ok("force rio.Q0 1")
+    c.close()
+    wait_for(lambda: not rig.plant.forced_points, "rio.Q0 released")
+    assert rig.state() == "running"
+    c = rig.connect()
+    c.ok("pause")
+    c.close()
+    wait_for(lambda: rig.state() == "halted", "the controller halted")
+
+
+def test_the_server_stopping_releases_forces_without_a_halt(rig: Rig) -> None:
+    s = rig.service.session("tcp:test", trusted=True, peer="tcp")
+    s.feed(b"force rio.Q0 1\r\n")
+    s.close("server stopping")
+    assert not rig.plant.forced_points and rig.state() == "running"
+
+
+def test_ack_after_a_fault_leaves_no_force(rig: Rig) -> None:
+    """The attack: force an output, a fault, ack. Before: the output came back on."""
+    s = rig.serial()
+    s.ok("force rio.Q0 1")
+    wait_for(lambda: outputs(rig)["Q0"] == 1, "rio.Q0 forced on")
+    rig.driver.broken = "bus cable cut"
+    wait_for(lambda: rig.state() == "fault", "the fault")
+    rig.driver.broken = None
+    wait_for(lambda: rig.daemon.call(rig.plant.faulted) is None, "the bus mended")
+    out = s.ok("ack")
+    assert out == ["fault acknowledged: charts restarted from their initial situation; "
+                   "forces released: rio.Q0"]
+    scans = rig.daemon.scan_stats.count
+    wait_for(lambda: rig.daemon.scan_stats.count > scans + 3, "a few cycles")
+    assert outputs(rig)["Q0"] == 0 and not rig.plant.forced_points
+    assert not any(x.startswith("forced") for x in s.ok("status"))
+    assert not rig.service.holdings()
+
+
+def test_a_pause_ends_into_a_halt_after_its_maximum_time(rigs: Callable[..., Rig]) -> None:
+    clock = FakeClock()
+    rig = rigs(clock=clock)
+    lim = rig.service.limits
+    c = rig.connect()
+    c.ok("pause")
+    clock.t += lim.max_pause_s - lim.warn_before_s - 1
+    c.ok("status")  # nothing said yet
+    clock.t += 2
+    assert c.line() == (f"warning: the pause ends in {lim.warn_before_s:.0f} s (max_pause "
+                        f"{lim.max_pause_s:.0f} s): the controller then halts until 'ack'; "
+                        "'pause' again keeps it")
+    # 'pause' again restarts its time
+    c.ok("pause")
+    clock.t += lim.max_pause_s - 1
+    assert c.line().startswith("warning: the pause ends in")
+    assert rig.state() == "paused"
+    clock.t += 1
+    assert c.line() == (f"pause ended after {lim.max_pause_s:.0f} s (max_pause): every "
+                        "output off, 'ack' restarts the charts")
+    wait_for(lambda: rig.state() == "halted", "the halt")
+    assert halted_reason(rig).startswith(f"the pause of console socket:{rig.socket_path} "
+                                         f"lasted its maximum {lim.max_pause_s:.0f} s")
+    assert set(outputs(rig).values()) == {0}
+    c.ok("ack")
+    assert rig.state() == "running"  # never an automatic resume: ack did it
+
+
+def test_a_force_is_released_after_its_maximum_time(rigs: Callable[..., Rig]) -> None:
+    clock = FakeClock()
+    rig = rigs(clock=clock)
+    lim = rig.service.limits
+    c = rig.connect()
+    c.ok("force rio.Q0 1")
+    clock.t += 100
+    c.ok("force t1.iMarcha 1")
+    clock.t += lim.max_force_s - lim.warn_before_s - 100
+    assert c.line() == (f"warning: force rio.Q0 is released in {lim.warn_before_s:.0f} s "
+                        f"(max_force {lim.max_force_s:.0f} s); force it again to keep it")
+    assert c.jcmd("json on")["ok"] is True  # notices are objects without "ok" in JSON
+    clock.t += lim.warn_before_s
+    assert json.loads(c.line()) == {
+        "notice": f"force rio.Q0 released after {lim.max_force_s:.0f} s (max_force)"}
+    wait_for(lambda: not rig.plant.forced_points, "rio.Q0 released")
+    assert list(rig.plant.forced) == ["t1.iMarcha"] and rig.state() == "running"
+
+
+def test_the_limits_come_from_the_plant_file(tmp_path: Path) -> None:
+    path = tmp_path / "plant.yaml"
+    base = "plc: {cycle: 10ms}\ndrivers: {rio: {type: sim}}\ninstances: {}\nmonitor:\n"
+    path.write_text(base + "  limits: {max_pause: 2m, max_force: 1h, warn_before: 10s, "
+                           "relock_after_idle: 90s}\n", encoding="utf-8")
+    assert load_plant(str(path)).console_limits == ConsoleLimits(120.0, 3600.0, 10.0, 90.0)
+    path.write_text(base + "  socket: /tmp/x.sock\n", encoding="utf-8")
+    assert load_plant(str(path)).console_limits == ConsoleLimits()
+    assert ConsoleLimits() == ConsoleLimits(900.0, 900.0, 30.0, 300.0)
+    for bad, msg in (("{max_pause: 0}", "max_pause must be more than 0"),
+                     ("{warn_before: 20m}", "must be longer than warn_before"),
+                     ("{max_pause: 5}", "bad time literal"),
+                     ("{max_paus: 5m}", "unknown key 'max_paus'")):
+        path.write_text(base + f"  limits: {bad}\n", encoding="utf-8")
+        with pytest.raises(SourceError, match=msg):
+            load_plant(str(path))

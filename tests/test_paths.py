@@ -1,0 +1,220 @@
+"""Where a controller started by hand puts its socket and retained data: ``${RUNTIME_DIR}``,
+a directory of the user's own (0700, checked), never a /tmp path another user can take first.
+The attacks are played by a second uid (root in these tests chowns for it)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import stat
+import subprocess
+import sys
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from runtime.controller.paths import PathError, check_dir, ensure_private_dir, prepare
+from runtime.errors import Loc, SourceError
+from runtime.language.plantfile import load_plant
+from runtime.language.runtimedir import expand, runtime_dir
+
+ROOT = Path(__file__).resolve().parents[1]
+SOFTPLC = str(Path(sys.executable).parent / "softplc")
+ATTACKER = 64124
+as_root = pytest.mark.skipif(os.geteuid() != 0, reason="needs root to act as another uid")
+LOC = Loc("plant.yaml", 3, 11)
+
+
+@pytest.fixture
+def tmp() -> Iterator[Path]:
+    """A stand-in for /tmp: world-writable with the sticky bit, owned by root."""
+    d = Path(tempfile.mkdtemp(prefix="softplc-tmp-"))
+    d.chmod(0o1777)
+    try:
+        yield d
+    finally:
+        shutil.rmtree(d)
+
+
+def mode(p: Path) -> int:
+    return stat.S_IMODE(os.lstat(p).st_mode)
+
+
+def test_runtime_dir_is_systemds_then_the_sessions_then_a_private_tmp_one(tmp: Path) -> None:
+    uid = os.geteuid()
+    mine = tmp / "xdg"
+    mine.mkdir(mode=0o700)
+    assert runtime_dir({"RUNTIME_DIRECTORY": "/run/softplc", "XDG_RUNTIME_DIR": str(mine)},
+                       uid) == "/run/softplc"
+    assert runtime_dir({"XDG_RUNTIME_DIR": str(mine)}, uid) == f"{mine}/softplc"
+    assert runtime_dir({}, uid) == f"/tmp/softplc-{uid}"
+    assert runtime_dir({"TMPDIR": str(tmp)}, uid) == f"{tmp}/softplc-{uid}"
+    # su keeps the caller's XDG_RUNTIME_DIR: a directory of another uid is not ours
+    assert runtime_dir({"XDG_RUNTIME_DIR": str(mine), "TMPDIR": str(tmp)}, uid + 1) == \
+        f"{tmp}/softplc-{uid + 1}"
+    assert runtime_dir({"XDG_RUNTIME_DIR": "relative", "TMPDIR": "also"}, 7) == \
+        "/tmp/softplc-7"
+
+
+def test_expand_knows_one_placeholder() -> None:
+    env = {"RUNTIME_DIRECTORY": "/run/softplc"}
+    assert expand("${RUNTIME_DIR}/drawer.sock", LOC, env) == "/run/softplc/drawer.sock"
+    assert expand("/var/lib/softplc/x.json", LOC, env) == "/var/lib/softplc/x.json"
+    with pytest.raises(SourceError, match=r"plant.yaml:3:11: error: unknown placeholder in "
+                                          r"'\$\{RUNTIME_DIRECTORY\}/x.sock'"):
+        expand("${RUNTIME_DIRECTORY}/x.sock", LOC, env)
+
+
+def test_the_example_plants_keep_their_files_in_the_runtime_dir(
+        monkeypatch: pytest.MonkeyPatch, tmp: Path) -> None:
+    """Attack: /tmp/softplc, named by the examples, pre-created by another user."""
+    monkeypatch.delenv("RUNTIME_DIRECTORY", raising=False)
+    monkeypatch.delenv("XDG_RUNTIME_DIR", raising=False)
+    monkeypatch.setenv("TMPDIR", str(tmp))
+    rdir = f"{tmp}/softplc-{os.geteuid()}"
+    plants = sorted(ROOT.glob("configs/*/plant_sim.yaml"))
+    assert plants
+    for plant in plants:
+        text = plant.read_text(encoding="utf-8")
+        pdef = load_plant(str(plant))
+        files = ([pdef.retain_path] if pdef.retain_path else []) + \
+            [c.address for c in pdef.consoles if c.kind == "socket"]
+        for f in files:
+            assert f.startswith(rdir + "/"), (plant, f)
+        assert "/tmp/softplc/" not in text, plant
+    demo = load_plant(str(ROOT / "configs" / "drawer_tester" / "plant_sim.yaml"))
+    assert [c.address for c in demo.consoles] == [f"{rdir}/drawer.sock"]
+
+
+def test_the_runtime_dir_is_created_private(tmp: Path) -> None:
+    d = tmp / f"softplc-{os.geteuid()}"
+    ensure_private_dir(str(d))
+    assert d.is_dir() and mode(d) == 0o700 and d.stat().st_uid == os.geteuid()
+    ensure_private_dir(str(d))  # and used again as it is
+    d.chmod(0o755)
+    with pytest.raises(PathError, match=rf"^{d} has mode 0755, open to other users: "
+                                        rf"chmod 700 {d}$"):
+        ensure_private_dir(str(d))
+
+
+@as_root
+def test_a_runtime_dir_taken_by_another_user_is_refused(tmp: Path) -> None:
+    theirs = tmp / "softplc-0"
+    theirs.mkdir(mode=0o777)
+    os.chown(theirs, ATTACKER, ATTACKER)
+    with pytest.raises(PathError, match=f"belongs to uid {ATTACKER}, not to you"):
+        ensure_private_dir(str(theirs))
+    theirs.rmdir()
+    evil = tmp / "evil"
+    evil.mkdir()
+    os.chown(evil, ATTACKER, ATTACKER)
+    theirs.symlink_to(evil)
+    os.lchown(theirs, ATTACKER, ATTACKER)
+    with pytest.raises(PathError, match="is a symbolic link"):
+        ensure_private_dir(str(theirs))
+    assert list(evil.iterdir()) == []
+
+
+@as_root
+def test_files_in_a_directory_others_control_are_refused(tmp: Path) -> None:
+    theirs = tmp / "softplc"
+    theirs.mkdir(mode=0o755)
+    os.chown(theirs, ATTACKER, ATTACKER)
+    with pytest.raises(PathError, match=rf"belongs to uid {ATTACKER}, not to you \(uid 0\) "
+                                        r"or root: put d.sock in a directory of yours, e\.g\. "
+                                        r"\$\{RUNTIME_DIR\}/d\.sock"):
+        check_dir(str(theirs), str(theirs / "d.sock"))
+    with pytest.raises(PathError, match="writable by every user"):
+        check_dir(str(tmp), str(tmp / "d.sock"))
+    with pytest.raises(PathError, match="would be created in .*, writable by every user"):
+        check_dir(str(tmp / "not-yet"), str(tmp / "not-yet" / "d.sock"))
+    link = tmp / "link"
+    link.symlink_to("/var/lib")
+    os.lchown(link, ATTACKER, ATTACKER)
+    with pytest.raises(PathError, match="is a symbolic link of uid"):
+        check_dir(str(link), str(link / "r.json"))
+    check_dir("/var/lib", "/var/lib/softplc/r.json")  # root's directories are fine
+
+
+def test_prepare_makes_the_runtime_dir_for_the_plants_files(
+        monkeypatch: pytest.MonkeyPatch, tmp: Path) -> None:
+    monkeypatch.delenv("RUNTIME_DIRECTORY", raising=False)
+    monkeypatch.delenv("XDG_RUNTIME_DIR", raising=False)
+    monkeypatch.setenv("TMPDIR", str(tmp))
+    rdir = tmp / f"softplc-{os.geteuid()}"
+    prepare([f"{rdir}/drawer.sock", f"{rdir}/sub/r.json"])
+    assert mode(rdir) == 0o700
+
+
+def run_plant(plant: Path, tmp: Path) -> subprocess.CompletedProcess[str]:
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("RUNTIME_DIRECTORY", "XDG_RUNTIME_DIR")}
+    env["TMPDIR"] = str(tmp)
+    return subprocess.run([SOFTPLC, "run", str(plant), "--sim", "--for", "0.3s"],
+                          capture_output=True, text=True, timeout=60, env=env)
+
+
+def demo_plant(tmp: Path, socket_path: str, retain: str) -> Path:
+    text = (ROOT / "configs" / "drawer_tester" / "plant_sim.yaml").read_text(encoding="utf-8")
+    out = []
+    for line in text.splitlines():
+        if line.strip().startswith("retain:"):
+            line = f"  retain: {retain}"
+        elif line.strip().startswith("socket:"):
+            line = f"  socket: {{path: '{socket_path}', trusted: true}}"
+        out.append(line.replace("grafcet: ", f"grafcet: {ROOT}/configs/drawer_tester/"))
+    plant = tmp / "plant.yaml"
+    plant.write_text("\n".join(out) + "\n", encoding="utf-8")
+    return plant
+
+
+@as_root
+def test_run_refuses_a_socket_dir_planted_by_another_user(tmp: Path) -> None:
+    """Attack: another user makes /tmp/softplc a link to a directory of theirs; the
+    controller put its console socket and retained data there."""
+    evil = tmp / "evil"
+    evil.mkdir()
+    os.chown(evil, ATTACKER, ATTACKER)
+    planted = tmp / "softplc"
+    planted.symlink_to(evil)
+    os.lchown(planted, ATTACKER, ATTACKER)
+    plant = demo_plant(tmp, f"{planted}/drawer.sock", f"{planted}/r.json")
+    r = run_plant(plant, tmp)
+    assert list(evil.iterdir()) == [], r.stderr
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert lines[-1] == (f"softplc run: error: {planted}/r.json: {planted} is a symbolic "
+                         f"link of uid {ATTACKER}: put r.json in a directory of yours, e.g. "
+                         "${RUNTIME_DIR}/r.json"), r.stderr
+
+
+def test_run_uses_the_private_runtime_dir(tmp: Path) -> None:
+    plant = demo_plant(tmp, "${RUNTIME_DIR}/drawer.sock", "${RUNTIME_DIR}/r.json")
+    r = run_plant(plant, tmp)
+    rdir = tmp / f"softplc-{os.geteuid()}"
+    assert r.returncode == 0, r.stderr
+    assert f"console listening on {rdir}/drawer.sock" in r.stderr
+    assert mode(rdir) == 0o700 and (rdir / "r.json").exists()
+
+
+def test_the_demo_script_prints_the_socket_it_opens(tmp: Path) -> None:
+    """scripts/run-demo.sh as shipped, its venv set-up replaced by the existing .venv."""
+    tree = tmp / "tree"
+    (tree / "scripts").mkdir(parents=True)
+    shutil.copy(ROOT / "scripts" / "run-demo.sh", tree / "scripts" / "run-demo.sh")
+    (tree / "scripts" / "setup.sh").write_text("#!/bin/sh\nexit 0\n")
+    (tree / "scripts" / "setup.sh").chmod(0o755)
+    (tree / "configs").symlink_to(ROOT / "configs")
+    (tree / ".venv").symlink_to(Path(sys.executable).parent.parent)
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("RUNTIME_DIRECTORY", "XDG_RUNTIME_DIR")}
+    env["TMPDIR"] = str(tmp)
+    r = subprocess.run([str(tree / "scripts" / "run-demo.sh"), "--for", "0.3s"],
+                       capture_output=True, text=True, timeout=120, env=env)
+    sock = f"{tmp}/softplc-{os.geteuid()}/drawer.sock"
+    assert r.returncode == 0, r.stderr
+    assert f"run-demo: console on {sock}; in a second terminal: .venv/bin/softplc monitor " \
+           f"{sock}\n" in r.stderr
+    assert f"console listening on {sock} (trusted)" in r.stderr
