@@ -35,7 +35,8 @@ FULL_TMPFS = textwrap.dedent("""\
     from runtime.controller.retain import RetainStore
     from tests.daemon.test_retain_disk import _big
     mnt = sys.argv[2]
-    subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", mnt], check=True)
+    subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k,mode=0700", "tmpfs", mnt],
+                   check=True)
     path = os.path.join(mnt, "retain.json")
     store = RetainStore(path)
     store.save(_big(1))
@@ -206,7 +207,8 @@ def test_the_daemon_retries_a_failed_save_and_shows_it_in_status(
 FULL_RUNS = textwrap.dedent("""\
     import errno, os, subprocess, sys
     root, mnt, plant = sys.argv[1:4]
-    subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", mnt], check=True)
+    subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k,mode=0700", "tmpfs", mnt],
+                   check=True)
     def run(seconds):
         return subprocess.run([sys.executable, "-m", "runtime.cli", "run", "--sim", "--for",
                                seconds, plant], cwd=root, capture_output=True, text=True,
