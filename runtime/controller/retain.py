@@ -344,6 +344,8 @@ class RetainStore:
         self.plant = plant
         self.generation = 0
         self._path_bad = False  # PATH is not a good generation: never rotate it to .prev
+        self._marked = False  # PATH.saved checked (and written if missing) in this run
+        self._marker_failed = False  # ... and its failure said once
 
     # -- loading -------------------------------------------------------------------
     def load(self) -> Loaded:
@@ -460,14 +462,18 @@ class RetainStore:
             os.replace(self.path, self.prev)
         os.replace(self.tmp, self.path)
         self._path_bad = False
+        self.generation = gen  # in place: the next one is gen + 1 even if fsync fails
         self._fsync_dir()
-        self.generation = gen
-        if not os.path.lexists(self.marker):
+        if not self._marked:  # once per run; retried at each save until written
             try:
-                self._write_new(self.marker, json.dumps({"first_saved": time.time()}).encode(),
-                                exclusive=True)
+                if not os.path.lexists(self.marker):
+                    self._write_new(self.marker, json.dumps(
+                        {"first_saved": time.time()}).encode(), exclusive=True)
+                self._marked = True
             except OSError as exc:
-                log.warning("retain: %s not written: %s", self.marker, exc)
+                if not self._marker_failed:
+                    log.warning("retain: %s not written: %s", self.marker, exc)
+                self._marker_failed = True
         return gen
 
     def _type(self, inst: str, name: str, value: Any) -> str:
