@@ -90,8 +90,8 @@ def test_a_full_tmpfs_keeps_the_last_good_generation(tmp_path: Path) -> None:
 
 
 class _FailingWrite:
-    """``os.write`` replaced: after ``good`` calls, each call writes at most ``short``
-    bytes (a short count) or raises ``error``."""
+    """``os.write`` replaced (every caller in the process, for the test's duration): each
+    call raises ``error``, or writes at most ``short`` bytes and returns that short count."""
 
     def __init__(self, monkeypatch: pytest.MonkeyPatch, *, short: int | None = None,
                  error: int | None = None) -> None:
