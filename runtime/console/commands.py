@@ -92,6 +92,8 @@ def cmd_status(session: Session, args: list[str]) -> Reply:
     lines += [f"SFCError {n}: step {s}" for n, s in data["errors"].items()]
     lines += [f"forced {k}={v}" for k, v in data["forced"].items()]
     lines += [f"fault at {_clock_text(f['time'])}: {f['reason']}" for f in data["faults"]]
+    if data.get("retain") and data["retain"]["state"] != "ok":
+        lines.append(f"retain {data['retain']['state']}: {data['retain']['text']}")
     return lines, data
 
 

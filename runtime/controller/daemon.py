@@ -28,12 +28,19 @@ from typing import IO, Any, TypeVar
 
 from runtime.controller.notify import Notifier
 from runtime.controller.realtime import lock_memory, reduce_timer_slack, set_fifo_priority
-from runtime.controller.retain import RetainStore, RetainWriter
+from runtime.controller.retain import (
+    RetainedVars,
+    RetainLost,
+    RetainStore,
+    RetainWriter,
+    restore,
+)
 from runtime.controller.scheduler import Scheduler, Watchdog
 from runtime.controller.stats import ScanStats
 from runtime.engine.commands import CommandRefused
 from runtime.engine.plant import Plant
 from runtime.engine.trace import trace_columns
+from runtime.errors import Loc, SourceError
 from runtime.language.model import PlantDef
 
 log = logging.getLogger(__name__)
@@ -122,6 +129,7 @@ class Daemon:
         self._retain_writer: RetainWriter | None = None
         self._retain_next = 0
         self._retain_last: dict[str, Any] | None = None
+        self._retain_lost: str | None = None  # started without the retained data: why
         self._latch_path = (pdef.retain_path + ".fault") if pdef.retain_path else None
         self._trace = _TraceWriter(self.plant, trace) if trace is not None else None
         self._switch_was = sys.getswitchinterval()
@@ -136,7 +144,13 @@ class Daemon:
                 log.info("memory locked (mlockall)")
             else:
                 log.warning("memory not locked: %s", why)
-        self._restore()
+        try:
+            self._restore()
+        except SourceError as exc:  # nothing opened yet: nothing for stop() to do
+            self.notifier.status(exc.message)
+            self.notifier.close()
+            self._stopping = self.stopped = True
+            raise
         self.plant.open()  # every output off before the first scan
         self.scheduler.stop_event.clear()
         self._switch_was = sys.getswitchinterval()
@@ -174,6 +188,10 @@ class Daemon:
         if self._retain_writer is not None:
             self._retain_writer.submit(self.plant.retain_snapshot())
             self._retain_writer.close()
+            if self._retain_writer.last_error is not None and self.retain is not None:
+                log.error("retained data not saved at the stop: %s (%s keeps generation %d)",
+                          self._retain_writer.last_error, self.retain.path,
+                          self.retain.generation)
         if self._trace is not None:
             self._trace.close()
         self.plant.close()
@@ -284,27 +302,30 @@ class Daemon:
         if self._retain_writer is not None and now >= self._retain_next:
             self._retain_next = now + self.plant.retain_interval_ns
             snap = self.plant.retain_snapshot()
-            if snap != self._retain_last:
+            if snap != self._retain_last or self._retain_writer.last_error is not None:
                 self._retain_writer.submit(snap)
                 self._retain_last = snap
 
     # -- retain and the fault latch ----------------------------------------------------
     def _restore(self) -> None:
+        """Load the retained data and restore what the plant may reuse (docs/daemon.md,
+        "Retained memory"); SourceError if it is lost and the plant requires it."""
         path = self.pdef.retain_path
         if path is None:
             return
         try:
-            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+            os.makedirs(os.path.dirname(os.path.abspath(path)), mode=0o750, exist_ok=True)
         except OSError as exc:
             log.error("retain directory of %s not usable: %s", path, exc)
-        self.retain = RetainStore(path)
-        loaded = self.retain.load()
-        for problem in loaded.problems:
-            log.warning("retain: %s", problem)
-        if loaded.source is not None:
-            self.plant.restore_retain(loaded.data)
-            log.info("retained data restored from %s (generation %d)", loaded.source,
-                     loaded.generation)
+        self.retain = RetainStore(path, RetainedVars.of(self.pdef))
+        try:
+            restored = restore(self.retain, refuse_if_lost=self.pdef.retain_required)
+        except RetainLost as exc:
+            raise SourceError(self.pdef.retain_required_loc or Loc(self.pdef.path, 1, 1),
+                              f"retained data required but lost ({exc}): not started") from None
+        self.plant.restore_retain(restored.values)
+        if restored.lost is not None:
+            self._retain_lost = f"started without retained data: {restored.lost}"
         self._retain_last = self.plant.retain_snapshot()
         self._retain_writer = RetainWriter(self.retain)
         if self._latch_path and os.path.exists(self._latch_path):
@@ -390,7 +411,25 @@ class Daemon:
         return {"state": self.state.value, "fault": self.fault or self.halted,
                 "scans": self.scan_stats.count, "uptime_s": round(self.uptime_s(), 3),
                 "cycle_ms": self.plant.cycle_ns / 1e6,
-                "faults": [{"time": t, "reason": r} for t, r in self.faults]}
+                "faults": [{"time": t, "reason": r} for t, r in self.faults],
+                "retain": self.retain_status()}
+
+    def retain_status(self) -> dict[str, Any] | None:
+        """``status``'s ``retain`` entry: state ok | failing | lost, since (wall time), text;
+        None without a retain file."""
+        w, store = self._retain_writer, self.retain
+        if w is None or store is None:
+            return None
+        texts = []
+        if w.failing_since is not None:
+            since = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(w.failing_since))
+            texts.append(f"saving fails since {since}: {w.last_error}")
+        if self._retain_lost is not None:
+            texts.append(self._retain_lost)
+        state = "failing" if w.failing_since is not None else \
+            "lost" if self._retain_lost is not None else "ok"
+        return {"state": state, "since": w.failing_since, "generation": store.generation,
+                "text": "; ".join(texts) or f"saved, generation {store.generation}"}
 
     def stats(self) -> dict[str, Any]:
         """Cycle statistics (µs) and driver health. The percentiles sort up to 8192

@@ -243,6 +243,9 @@ class PlantDef:
     watchdog_ns: int = 100_000_000
     retain_path: str | None = None
     retain_interval_ns: int = 1_000_000_000
+    #: refuse to start when the retained data is lost (docs/daemon.md)
+    retain_required: bool = False
+    retain_required_loc: Loc | None = None
     realtime_priority: int | None = None
     lock_memory: bool = False
     drivers: dict[str, DriverDef] = field(default_factory=dict)

@@ -10,6 +10,7 @@ the others. The plant it returns is whole only if it recorded nothing.
 from __future__ import annotations
 
 import os
+import stat
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -32,7 +33,7 @@ from runtime.language.typecheck import FLAGS_BOOL
 from runtime.language.yamlsrc import YMap, load_yaml
 
 PLANT_KEYS = ("plc", "drivers", "instances", "monitor")
-PLC_KEYS = ("cycle", "watchdog", "retain", "retain_interval", "realtime")
+PLC_KEYS = ("cycle", "watchdog", "retain", "retain_interval", "retain_required", "realtime")
 INSTANCE_KEYS = ("grafcet", "inputs", "outputs", "description")
 MONITOR_KEYS = ("serial", "socket", "tcp", "pin_hash", "release_forces_on_disconnect",
                 "limits")
@@ -67,6 +68,33 @@ class PlantLoad:
 def _resolve(base: str, path: str) -> str:
     return path if os.path.isabs(path) else os.path.normpath(
         os.path.join(os.path.dirname(os.path.abspath(base)), path))
+
+
+def _retain_path(base: str, value: Any, loc: Loc) -> str:
+    """``plc: retain``: a regular file, or one not yet there, never a directory."""
+    text = expand(str(expect_type(value, loc, str, "a file name for plc retain")), loc)
+    if not text.strip():
+        raise SourceError(loc, "plc retain: expected a file name, found an empty text")
+    if text.endswith(("/", os.sep)):
+        raise SourceError(loc, f"plc retain: '{text}' names a directory, expected a file")
+    path = _resolve(base, text)
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        mode = None
+    except OSError as exc:
+        raise SourceError(loc, f"plc retain: {path}: {exc.strerror}") from None
+    if mode is not None and stat.S_ISDIR(mode):
+        raise SourceError(loc, f"plc retain: {path} is a directory, expected a file")
+    if mode is not None and not stat.S_ISREG(mode):
+        raise SourceError(loc, f"plc retain: {path} is not a regular file (a symbolic link, "
+                               "a device or a FIFO)")
+    if os.path.realpath(path) == os.path.realpath(base):
+        raise SourceError(loc, "plc retain: that is the plant file itself")
+    parent = os.path.dirname(path)
+    if os.path.lexists(parent) and not os.path.isdir(parent):
+        raise SourceError(loc, f"plc retain: {parent} is not a directory")
+    return path
 
 
 def _binding(signal: str, spec: Any, loc: Loc) -> Binding:
@@ -109,7 +137,13 @@ def load_plant(path: str, load: PlantLoad | None = None) -> PlantDef:
                     raise SourceError(plc.val_locs[key], f"plc {key} must be positive")
                 setattr(p, attr, ns)
         if "retain" in plc and plc["retain"] is not None:
-            p.retain_path = _resolve(path, expand(str(plc["retain"]), plc.val_locs["retain"]))
+            p.retain_path = _retain_path(path, plc["retain"], plc.val_locs["retain"])
+        if "retain_required" in plc:
+            loc = plc.val_locs["retain_required"]
+            p.retain_required = expect_type(plc["retain_required"], loc, bool, "true or false")
+            p.retain_required_loc = loc
+            if p.retain_required and p.retain_path is None:
+                raise SourceError(loc, "plc retain_required needs a retain file (plc retain)")
         if "realtime" in plc:
             rt = expect_type(plc["realtime"], plc.val_locs["realtime"], YMap, "a mapping")
             check_keys(rt, ("priority", "lock_memory"), "plc realtime")

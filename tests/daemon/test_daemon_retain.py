@@ -92,6 +92,7 @@ def test_writer_reports_a_disk_error_and_goes_on(tmp_path: Path) -> None:
 
 def test_daemon_restores_at_start_and_saves_at_stop(make_daemon: MakeDaemon,
                                                      tmp_path: Path) -> None:
+    (tmp_path / "var").mkdir()  # the store creates no directory (the daemon does)
     path = str(tmp_path / "var" / "retain.json")
     RetainStore(path).save({"m": {"sN": 1000, "sDiv": 7}})  # sDiv is not retained
     daemon, drv = make_daemon(retain=path)
