@@ -48,14 +48,16 @@ post:
 """
 
 
-def plant(tmp: Path, port: str, cycle: str = "20ms", loops: int = 0) -> Path:
+def plant(tmp: Path, port: str, cycle: str = "20ms", loops: int = 0,
+          watchdog: str = "100ms", retain_interval: str = "1s") -> Path:
     (tmp / "busy.yaml").write_text(BUSY.replace("LOOPS", str(loops)), encoding="utf-8")
     path = tmp / "plant.yaml"
     path.write_text(f"""\
 plc:
   cycle: {cycle}
-  watchdog: 100ms
+  watchdog: {watchdog}
   retain: {tmp}/var/retain.json
+  retain_interval: {retain_interval}
 drivers:
   mb: {{type: modbus_rtu, port: {port}, baudrate: 115200, unit: 1, timeout: 50ms,
         retries: 1}}

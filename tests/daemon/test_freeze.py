@@ -1,0 +1,170 @@
+"""A frozen process (SIGSTOP, a paused VM, a suspended system) is noticed when it runs
+again: on a virtual clock here, with a real SIGSTOP of a real controller below.
+
+The scan thread sees a freeze as the lateness of its wake-up (CLOCK_MONOTONIC runs on
+during SIGSTOP) or as a jump of CLOCK_BOOTTIME against CLOCK_MONOTONIC (the monotonic
+clock stands still while the system is suspended). A freeze longer than the watchdog is a
+fault; the watchdog thread, frozen too, does not blame the scan thread for it."""
+
+from __future__ import annotations
+
+import json
+import re
+import signal
+import socket
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from runtime.controller.scheduler import Scheduler, Watchdog
+from tests.daemon.daemonkit import wait_until
+from tests.daemon.test_daemon_process import coils, console, plant, start, stop
+from tests.drivers.modbus_peer import ModbusPeer
+from tests.drivers.pty_bridge import PtyBridge
+
+MS = 1_000_000
+
+
+class Clocks:
+    """A virtual CLOCK_MONOTONIC and CLOCK_BOOTTIME; ``suspend`` moves only the second."""
+
+    def __init__(self) -> None:
+        self.mono = 5 * MS
+        self.boot_offset = 1_000 * MS
+
+    def clock(self) -> int:
+        return self.mono
+
+    def boot(self) -> int:
+        return self.mono + self.boot_offset
+
+
+def run_with(events: dict[int, tuple[str, int]], cycles: int = 6, cycle: int = 10 * MS,
+             watchdog: int = 100 * MS) -> tuple[Scheduler, list[int], list[int]]:
+    """Run ``cycles`` 1 ms scans; before wake-up k, ``events[k]`` is ("late", ns): the
+    process did not run for ns after the deadline, or ("suspend", ns): the system slept."""
+    ck = Clocks()
+    frozen: list[int] = []
+    wakes: list[int] = []
+
+    def sleep_until(deadline: int) -> None:
+        ck.mono = max(ck.mono, deadline)
+        kind, ns = events.get(len(wakes), ("", 0))
+        if kind == "late":
+            ck.mono += ns
+        elif kind == "suspend":
+            ck.boot_offset += ns
+
+    def body(now: int) -> None:
+        wakes.append(now)
+        ck.mono += 1 * MS
+
+    s = Scheduler(body, cycle, watchdog, on_freeze=frozen.append, clock=ck.clock,
+                  boot_clock=ck.boot, sleep_until=sleep_until, manage_gc=False)
+    s.run(cycles=cycles)
+    return s, frozen, wakes
+
+
+def test_a_wake_up_later_than_the_watchdog_is_a_freeze() -> None:
+    s, frozen, wakes = run_with({2: ("late", 1500 * MS), 4: ("late", 60 * MS)})
+    assert frozen == [1500 * MS]  # 60 ms late is lateness, not a freeze
+    assert s.stats.freezes == 1 and s.stats.freeze_max == 1500 * MS
+    assert s.stats.as_dict()["freezes"] == 1
+    assert s.stats.as_dict()["freeze_max_ms"] == 1500.0
+    # the overrun policy is unchanged: no catch-up burst after the freeze
+    assert min(b - a for a, b in zip(wakes, wakes[1:], strict=False)) >= 10 * MS
+
+
+def test_a_system_suspend_is_a_freeze_though_the_monotonic_clock_stood_still() -> None:
+    s, frozen, wakes = run_with({3: ("suspend", 30_000 * MS), 5: ("suspend", 50 * MS)})
+    assert frozen == [30_000 * MS]
+    assert s.stats.freezes == 1
+    assert s.stats.late_max == 0  # invisible to the monotonic clock
+
+
+def test_no_freeze_on_a_regular_run() -> None:
+    s, frozen, _ = run_with({})
+    assert frozen == [] and s.stats.freezes == 0
+
+
+class _Sched:
+    """What the watchdog reads of a scheduler."""
+
+    def __init__(self) -> None:
+        self.cycle_ns = 10 * MS
+        self.scanning_since = 0
+        self.last_wake = 0
+
+
+def test_the_watchdog_thread_does_not_blame_the_scan_for_a_freeze() -> None:
+    # tick by tick on a virtual clock: the thread is not started
+    sched, trips, now = _Sched(), [], [0]
+    wd = Watchdog(sched, 100 * MS, trips.append, clock=lambda: now[0])  # type: ignore[arg-type]
+    wd.tick(0)
+    sched.last_wake = 5 * MS
+    wd.tick(25 * MS)
+    # the whole process was stopped for 1.5 s; the watchdog thread runs first
+    wd.tick(1525 * MS)
+    assert trips == [], "the frozen scan thread was blamed for the freeze"
+    assert wd.freezes == 1
+    sched.last_wake = 1526 * MS  # the scan thread wakes up and carries on
+    for t in range(1550, 1800, 25):
+        wd.tick(t * MS)
+    assert trips == []
+    # but a scan thread that does not come back after the freeze is stuck
+    for t in range(1800, 1800 + 200, 25):
+        wd.tick(t * MS)
+    assert len(trips) == 1 and trips[0] > 110 * MS
+
+
+def stats_json(path: Path) -> dict[str, Any]:
+    """``stats`` over the console socket, as JSON."""
+    with socket.socket(socket.AF_UNIX) as s:
+        s.connect(str(path))
+        s.settimeout(10)
+        s.sendall(b"json on\nstats\n")
+        out = b""
+        while True:
+            for ln in out.split(b"\n")[:-1]:
+                reply: dict[str, Any] = json.loads(ln) if ln.startswith(b"{") else {}
+                if "stats" in reply:
+                    return reply
+            chunk = s.recv(65536)
+            assert chunk, out
+            out += chunk
+
+
+@pytest.fixture
+def line() -> Iterator[tuple[PtyBridge, ModbusPeer]]:
+    with PtyBridge() as bridge, ModbusPeer(bridge.peer_port, (1,)) as peer:
+        yield bridge, peer
+
+
+def test_sigstop_longer_than_the_watchdog_is_a_fault(tmp_path: Path,
+                                                      line: tuple[PtyBridge, ModbusPeer]
+                                                      ) -> None:
+    bridge, peer = line
+    peer.set(1, 2, 0, [1])  # iGo
+    sock = tmp_path / "console.sock"
+    proc = start(plant(tmp_path, bridge.driver_port), {})
+    try:
+        for n in range(1, 4):
+            wait_until(lambda: coils(peer) == [1, 1], 20, "outputs on")
+            assert "state running" in console(sock, "status")
+            proc.send_signal(signal.SIGSTOP)
+            time.sleep(1.5)  # the attack: 15 watchdog times without running
+            proc.send_signal(signal.SIGCONT)
+            wait_until(lambda: "state fault" in console(sock, "status"), 20,
+                       "a fault after the freeze")
+            status = console(sock, "status")
+            assert re.search(r"frozen for 1[5-9]\d\d ms", status), status
+            assert coils(peer) == [0, 0]
+            assert stats_json(sock)["stats"]["freezes"] == n
+            assert "ok" in console(sock, "ack")
+    finally:
+        code, err = stop(proc)
+    assert code == 0, err
+    assert len(re.findall(r"FAULT: .*frozen for", err)) == 3, err
