@@ -100,24 +100,41 @@ class _Sched:
 
 
 def test_the_watchdog_thread_does_not_blame_the_scan_for_a_freeze() -> None:
-    # tick by tick on a virtual clock: the thread is not started
-    sched, trips, now = _Sched(), [], [0]
-    wd = Watchdog(sched, 100 * MS, trips.append, clock=lambda: now[0])  # type: ignore[arg-type]
-    wd.tick(0)
-    sched.last_wake = 5 * MS
-    wd.tick(25 * MS)
+    # tick by tick on a virtual clock (the thread is not started); a 10 ms cycle
+    sched, trips = _Sched(), []
+    wd = Watchdog(sched, 100 * MS, trips.append)  # type: ignore[arg-type]
+    for t in range(0, 100, 25):
+        sched.last_wake = t * MS
+        wd.tick(t * MS + 1 * MS)
     # the whole process was stopped for 1.5 s; the watchdog thread runs first
-    wd.tick(1525 * MS)
+    wd.tick(1575 * MS)
     assert trips == [], "the frozen scan thread was blamed for the freeze"
     assert wd.freezes == 1
-    sched.last_wake = 1526 * MS  # the scan thread wakes up and carries on
-    for t in range(1550, 1800, 25):
+    assert wd.froze_during(70 * MS, 1580 * MS) == 1474 * MS  # its last look at 76 ms, then one period of waiting
+    assert wd.froze_during(1600 * MS, 1700 * MS) == 0
+    for t in range(1600, 1800, 25):  # the scan thread wakes up and carries on
+        sched.last_wake = t * MS - 3 * MS
         wd.tick(t * MS)
     assert trips == []
-    # but a scan thread that does not come back after the freeze is stuck
-    for t in range(1800, 1800 + 200, 25):
+    # frozen again, and this time the scan thread does not come back: it is stuck
+    wd.tick(3800 * MS)
+    assert wd.freezes == 2 and trips == []
+    for t in range(3825, 4000, 25):
         wd.tick(t * MS)
-    assert len(trips) == 1 and trips[0] > 110 * MS
+    assert len(trips) == 1 and trips[0] > 2000 * MS
+
+
+def test_a_freeze_the_watchdog_thread_has_not_seen_yet_is_told_by_its_silence() -> None:
+    sched = _Sched()
+    wd = Watchdog(sched, 100 * MS, lambda ns: None)  # type: ignore[arg-type]
+    sched.last_wake = 1 * MS
+    wd.tick(2 * MS)
+    # a scan from 10 ms to 1530 ms, frozen inside: it ends before this thread runs again
+    assert wd.froze_during(10 * MS, 1530 * MS) == 1503 * MS
+    # a scan that was merely slow while this thread kept looking is no freeze
+    for t in range(25, 1525, 25):
+        wd.tick(t * MS)
+    assert wd.froze_during(10 * MS, 1530 * MS) == 0
 
 
 def stats_json(path: Path) -> dict[str, Any]:
@@ -160,7 +177,7 @@ def test_sigstop_longer_than_the_watchdog_is_a_fault(tmp_path: Path,
             wait_until(lambda: "state fault" in console(sock, "status"), 20,
                        "a fault after the freeze")
             status = console(sock, "status")
-            assert re.search(r"frozen for 1[5-9]\d\d ms", status), status
+            assert re.search(r"frozen for 1[4-9]\d\d ms", status), status
             assert coils(peer) == [0, 0]
             assert stats_json(sock)["stats"]["freezes"] == n
             assert "ok" in console(sock, "ack")
