@@ -257,7 +257,8 @@ class Watchdog:
         elif now - max(beat, self._resumed) > sched.cycle_ns + self.watchdog_ns:
             stuck_since = beat
         else:
-            if self._ping is not None and now >= self._next_ping:
+            # after a freeze, vouch for the scan thread only once it has woken since
+            if self._ping is not None and now >= self._next_ping and beat >= self._resumed:
                 with self._ping_lock:
                     if self._ping is not None:
                         self._ping()

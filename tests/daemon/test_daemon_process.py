@@ -7,6 +7,7 @@ the watchdog trip of a hung scan, SIGTERM/SIGINT in the middle of scans, and the
 
 from __future__ import annotations
 
+import json
 import os
 import random
 import signal
@@ -16,6 +17,7 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -210,21 +212,59 @@ def test_notify_watchdog_trip_ack_and_sigterm(tmp_path: Path,
     assert "stopping: SIGTERM" in err
 
 
+def stats_json(path: Path) -> dict[str, Any]:
+    """``stats`` over the console socket, as its JSON reply."""
+    with socket.socket(socket.AF_UNIX) as s:
+        s.connect(str(path))
+        s.settimeout(10)
+        s.sendall(b"json on\nstats\n")
+        out = b""
+        while True:
+            for ln in out.split(b"\n")[:-1]:
+                reply: dict[str, Any] = json.loads(ln) if ln.startswith(b"{") else {}
+                if "stats" in reply:
+                    return reply
+            chunk = s.recv(65536)
+            assert chunk, out
+            out += chunk
+
+
+def busy_loops_for(sock: Path, scan_ms: float) -> int:
+    """The chart's busy-loop count that makes a scan last about ``scan_ms`` on this
+    machine now: measured on the running controller, not assumed."""
+    loops = 20_000
+    for _ in range(4):  # each round rescales from the scan time it measured
+        assert "ok" in console(sock, f"set m.sLoops {loops}")
+        before = stats_json(sock)["stats"]["cycles"]
+        wait_until(lambda: stats_json(sock)["stats"]["cycles"] > before + 3, 20,  # noqa: B023
+                   "cycles with the new loop count")
+        last_ms = stats_json(sock)["stats"]["scan_us"]["last"] / 1000
+        loops = max(1000, int(loops * scan_ms / max(last_ms, 0.1)))
+    return loops
+
+
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_signal_in_the_middle_of_scans_ends_with_outputs_off(
         tmp_path: Path, line: tuple[PtyBridge, ModbusPeer], sig: int) -> None:
     bridge, peer = line
     peer.set(1, 2, 0, [1])
-    # each scan spends about 60 % of its 50 ms cycle in the chart's busy loop
-    path = plant(tmp_path, bridge.driver_port, cycle="50ms", loops=250_000)
+    sock = tmp_path / "console.sock"
+    # each scan spends about 60 % of its 50 ms cycle in the chart's busy loop, sized by
+    # time on the running controller; a generous watchdog, as load stretches the scans
+    path = plant(tmp_path, bridge.driver_port, cycle="50ms", watchdog="2s")
     rng = random.Random(sig)
+    loops = 0
     for _ in range(3):
         notify = NotifySocket(tmp_path / f"n{rng.random()}.sock")
         proc = start(path, {"NOTIFY_SOCKET": notify.path})
         try:
             notify.wait_for("READY=1")
-            wait_until(lambda: coils(peer) == [1, 1], 10, "outputs on")
-            time.sleep(rng.uniform(0.0, 0.3))
+            wait_until(lambda: coils(peer) == [1, 1], 20, "outputs on")
+            if not loops:
+                loops = busy_loops_for(sock, 30.0)
+            else:
+                assert "ok" in console(sock, f"set m.sLoops {loops}")
+            time.sleep(rng.uniform(0.0, 0.3))  # a random moment in the scans
         finally:
             code, err = stop(proc, sig)
             notify.close()

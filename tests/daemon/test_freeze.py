@@ -8,20 +8,17 @@ fault; the watchdog thread, frozen too, does not blame the scan thread for it.""
 
 from __future__ import annotations
 
-import json
 import re
 import signal
-import socket
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import pytest
 
 from runtime.controller.scheduler import Scheduler, Watchdog
 from tests.daemon.daemonkit import wait_until
-from tests.daemon.test_daemon_process import coils, console, plant, start, stop
+from tests.daemon.test_daemon_process import coils, console, plant, start, stats_json, stop
 from tests.drivers.modbus_peer import ModbusPeer
 from tests.drivers.pty_bridge import PtyBridge
 
@@ -101,7 +98,7 @@ class _Sched:
 
 def test_the_watchdog_thread_does_not_blame_the_scan_for_a_freeze() -> None:
     # tick by tick on a virtual clock (the thread is not started); a 10 ms cycle
-    sched, trips = _Sched(), []
+    sched, trips = _Sched(), list[int]()
     wd = Watchdog(sched, 100 * MS, trips.append)  # type: ignore[arg-type]
     for t in range(0, 100, 25):
         sched.last_wake = t * MS
@@ -110,7 +107,8 @@ def test_the_watchdog_thread_does_not_blame_the_scan_for_a_freeze() -> None:
     wd.tick(1575 * MS)
     assert trips == [], "the frozen scan thread was blamed for the freeze"
     assert wd.freezes == 1
-    assert wd.froze_during(70 * MS, 1580 * MS) == 1474 * MS  # its last look at 76 ms, then one period of waiting
+    # its last look was at 76 ms, then one period (25 ms) of waiting is no freeze
+    assert wd.froze_during(70 * MS, 1580 * MS) == 1474 * MS
     assert wd.froze_during(1600 * MS, 1700 * MS) == 0
     for t in range(1600, 1800, 25):  # the scan thread wakes up and carries on
         sched.last_wake = t * MS - 3 * MS
@@ -124,6 +122,22 @@ def test_the_watchdog_thread_does_not_blame_the_scan_for_a_freeze() -> None:
     assert len(trips) == 1 and trips[0] > 2000 * MS
 
 
+def test_after_a_freeze_no_ping_until_the_scan_thread_has_woken() -> None:
+    sched, pings = _Sched(), list[int]()
+    wd = Watchdog(sched, 100 * MS, lambda ns: None, ping=lambda: pings.append(1),
+                  ping_interval_ns=10 * MS)  # type: ignore[arg-type]
+    sched.last_wake = sched.scanning_since = 1 * MS  # a scan that hangs from 1 ms on
+    wd.tick(2 * MS)
+    assert pings == [1]
+    wd.tick(500 * MS)  # this thread was starved (or frozen): not the scan's fault...
+    for t in range(525, 600, 25):
+        wd.tick(t * MS)  # ...but no vouching for a scan thread that has not run since
+    assert pings == [1]
+    sched.scanning_since, sched.last_wake = 0, 610 * MS
+    wd.tick(611 * MS)
+    assert pings == [1, 1]
+
+
 def test_a_freeze_the_watchdog_thread_has_not_seen_yet_is_told_by_its_silence() -> None:
     sched = _Sched()
     wd = Watchdog(sched, 100 * MS, lambda ns: None)  # type: ignore[arg-type]
@@ -135,23 +149,6 @@ def test_a_freeze_the_watchdog_thread_has_not_seen_yet_is_told_by_its_silence() 
     for t in range(25, 1525, 25):
         wd.tick(t * MS)
     assert wd.froze_during(10 * MS, 1530 * MS) == 0
-
-
-def stats_json(path: Path) -> dict[str, Any]:
-    """``stats`` over the console socket, as JSON."""
-    with socket.socket(socket.AF_UNIX) as s:
-        s.connect(str(path))
-        s.settimeout(10)
-        s.sendall(b"json on\nstats\n")
-        out = b""
-        while True:
-            for ln in out.split(b"\n")[:-1]:
-                reply: dict[str, Any] = json.loads(ln) if ln.startswith(b"{") else {}
-                if "stats" in reply:
-                    return reply
-            chunk = s.recv(65536)
-            assert chunk, out
-            out += chunk
 
 
 @pytest.fixture
