@@ -270,7 +270,7 @@ def test_signal_in_the_middle_of_scans_ends_with_outputs_off(
             notify.close()
         assert code == 0, err
         assert f"stopping: {signal.Signals(sig).name}" in err
-        assert coils(peer) == [0, 0]
+        assert coils(peer) == [0, 0], err
 
 
 def test_end_of_for_is_an_orderly_stop(tmp_path: Path,

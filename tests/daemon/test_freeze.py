@@ -124,8 +124,8 @@ def test_the_watchdog_thread_does_not_blame_the_scan_for_a_freeze() -> None:
 
 def test_after_a_freeze_no_ping_until_the_scan_thread_has_woken() -> None:
     sched, pings = _Sched(), list[int]()
-    wd = Watchdog(sched, 100 * MS, lambda ns: None, ping=lambda: pings.append(1),
-                  ping_interval_ns=10 * MS)  # type: ignore[arg-type]
+    wd = Watchdog(sched, 100 * MS, lambda ns: None,  # type: ignore[arg-type]
+                  ping=lambda: pings.append(1), ping_interval_ns=10 * MS)
     sched.last_wake = sched.scanning_since = 1 * MS  # a scan that hangs from 1 ms on
     wd.tick(2 * MS)
     assert pings == [1]

@@ -142,3 +142,21 @@ def test_sigpipe_from_gone_clients_and_trace_readers_harms_nothing(
     assert coils(peer) == [0, 0]
     assert "Traceback" not in err, err
     assert len(re.findall(r"trace.*(Broken pipe|EPIPE)", err)) == 1, err
+
+
+def test_a_stop_while_the_module_is_faulted_still_switches_its_outputs_off(
+        tmp_path: Path, line: tuple[PtyBridge, ModbusPeer]) -> None:
+    bridge, peer = line
+    peer.set(1, 2, 0, [1])
+    sock = tmp_path / "console.sock"
+    proc = start(plant(tmp_path, bridge.driver_port), {})
+    try:
+        wait_until(lambda: coils(peer) == [1, 1], 20, "outputs on")
+        bridge.cut = True  # the cable is pulled: the unit faults, its relays stay on
+        wait_until(lambda: "state fault" in console(sock, "status"), 20, "the fault")
+        time.sleep(3.0)  # the attack: out long enough for the reconnect back-off to grow
+        bridge.cut = False  # plugged in again, and the controller is stopped at once
+    finally:
+        code, err = stop(proc)
+    assert code == 0, err
+    assert coils(peer) == [0, 0], err

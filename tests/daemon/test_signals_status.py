@@ -6,6 +6,8 @@ log) shows them too."""
 from __future__ import annotations
 
 from runtime.controller.daemon import Daemon
+from tests.console.conftest import rig, rigs  # noqa: F401 - the console's fixtures
+from tests.console.consolekit import Rig
 from tests.daemon.daemonkit import MakeDaemon, wait_until
 
 
@@ -64,3 +66,19 @@ def test_instances_held_by_their_chart_flags_are_named(make_daemon: MakeDaemon) 
         assert inhibits(d) == [f"m: held by {flag}"]
         d.call(lambda f=flag: m.set(f, False))  # type: ignore[misc]
         assert inhibits(d) == []
+
+
+def test_the_console_status_says_what_holds_an_instance(rig: Rig) -> None:  # noqa: F811
+    s = rig.serial()
+    s.ok("set t1.SFCPause 1")
+    status = s.ok("status")
+    assert status[0] == "state running"
+    assert "inhibit: t1: held by SFCPause" in status
+    s.ok("pause")
+    status = s.ok("status")
+    assert status[0] == "state paused"
+    assert status[2:4] == ["inhibit: paused by the console: charts held",
+                           "inhibit: t1: held by SFCPause"]
+    s.ok("set t1.SFCPause 0")
+    s.ok("resume")
+    assert not [ln for ln in s.ok("status") if ln.startswith("inhibit")]
