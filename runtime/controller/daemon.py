@@ -247,9 +247,10 @@ class Daemon:
 
     def _frozen(self, frozen_ns: int) -> None:
         """The process did not run for longer than the watchdog (SIGSTOP, a paused VM, a
-        suspend): the outputs stood still unwatched, so it is a fault like an overrun."""
+        suspend, a CPU taken by others): the outputs stood unwatched, a fault like an
+        overrun."""
         reason = (f"frozen for {frozen_ns / 1e6:.0f} ms: the process did not run "
-                  f"(stopped, paused or suspended; watchdog "
+                  f"(stopped, paused, suspended or starved of CPU; watchdog "
                   f"{self.plant.watchdog_ns / 1e6:g} ms)")
         if self.fault is None:
             self._enter_fault(reason)

@@ -54,7 +54,8 @@ def test_each_stop_signal_is_an_orderly_safe_stop(tmp_path: Path,
     peer.set(1, 2, 0, [1])  # iGo: the chart switches both outputs on
     sock = tmp_path / "console.sock"
     # retained data is saved only at the stop: a value in the file proves the stop saved it
-    proc = start(plant(tmp_path, bridge.driver_port, retain_interval="3600s"), {})
+    proc = start(plant(tmp_path, bridge.driver_port, watchdog="500ms",
+                       retain_interval="3600s"), {})
     try:
         wait_until(lambda: coils(peer) == [1, 1], 20, "outputs on")
         wait_until(lambda: counted(sock) > 5, 20, "the chart counting")
@@ -81,7 +82,7 @@ def test_sighup_stays_ignored_under_nohup(tmp_path: Path,
     sock = tmp_path / "console.sock"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     env.pop("JOURNAL_STREAM", None)
-    path = plant(tmp_path, bridge.driver_port)
+    path = plant(tmp_path, bridge.driver_port, watchdog="500ms")
     proc = subprocess.Popen(["nohup", sys.executable, "-m",
                              "runtime.cli", "run", str(path)], cwd=str(tmp_path), env=env,
                             text=True, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
@@ -111,7 +112,8 @@ def test_sigpipe_from_gone_clients_and_trace_readers_harms_nothing(
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     env.pop("JOURNAL_STREAM", None)
     proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run",
-                             str(plant(tmp_path, bridge.driver_port)), "--trace", str(fifo)],
+                             str(plant(tmp_path, bridge.driver_port, watchdog="500ms")), "--trace",
+                             str(fifo)],
                             cwd=str(tmp_path), env=env, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
@@ -149,7 +151,7 @@ def test_a_stop_while_the_module_is_faulted_still_switches_its_outputs_off(
     bridge, peer = line
     peer.set(1, 2, 0, [1])
     sock = tmp_path / "console.sock"
-    proc = start(plant(tmp_path, bridge.driver_port), {})
+    proc = start(plant(tmp_path, bridge.driver_port, watchdog="500ms"), {})
     try:
         wait_until(lambda: coils(peer) == [1, 1], 20, "outputs on")
         bridge.cut = True  # the cable is pulled: the unit faults, its relays stay on
