@@ -156,9 +156,29 @@ def test_a_stop_while_the_module_is_faulted_still_switches_its_outputs_off(
         wait_until(lambda: coils(peer) == [1, 1], 20, "outputs on")
         bridge.cut = True  # the cable is pulled: the unit faults, its relays stay on
         wait_until(lambda: "state fault" in console(sock, "status"), 20, "the fault")
-        time.sleep(3.0)  # the attack: out long enough for the reconnect back-off to grow
+        # the attack: out long enough for the reconnect back-off to grow (retries 0.1,
+        # 0.3, 0.7, 1.5, 3.1 s after the fault), then back between two retries
+        time.sleep(2.0)
         bridge.cut = False  # plugged in again, and the controller is stopped at once
     finally:
         code, err = stop(proc)
     assert code == 0, err
     assert coils(peer) == [0, 0], err
+
+
+def test_a_stop_with_the_module_unreachable_says_its_outputs_may_be_on(
+        tmp_path: Path, line: tuple[PtyBridge, ModbusPeer]) -> None:
+    bridge, peer = line
+    peer.set(1, 2, 0, [1])
+    sock = tmp_path / "console.sock"
+    proc = start(plant(tmp_path, bridge.driver_port, watchdog="500ms"), {})
+    try:
+        wait_until(lambda: coils(peer) == [1, 1], 20, "outputs on")
+        bridge.cut = True
+        wait_until(lambda: "state fault" in console(sock, "status"), 20, "the fault")
+    finally:
+        code, err = stop(proc)
+    assert code == 0, err
+    assert coils(peer) == [1, 1]  # nothing could reach the module: its relays stay on
+    assert len(re.findall(r"driver mb: unit 1 did not confirm the safe state before the "
+                          r"port closed: its outputs may still be on", err)) == 1, err
