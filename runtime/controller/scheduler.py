@@ -2,7 +2,7 @@
 
 Per cycle: sleep until the deadline, run the cycle body (read inputs, scan, write
 outputs), record scan time and wake-up lateness, then spend what is left of the period on
-the idle work (console requests, systemd pings, retain hand-off, garbage collection),
+the idle work (console requests, systemd status, retain hand-off, garbage collection),
 never past a guard band before the next deadline.
 
 Overrun policy: when a cycle ends at or after the next deadline, the overrun is counted,

@@ -151,6 +151,55 @@ def console(path: Path, command: str) -> str:
     return out.decode()
 
 
+class Console:
+    """One console session on the Unix socket, kept for a whole test as an operator's
+    terminal is (a connection per request would run into the bound on sessions)."""
+
+    def __init__(self, path: Path, timeout: float = 20.0) -> None:
+        self.sock = socket.socket(socket.AF_UNIX)
+        end = time.monotonic() + timeout  # the controller may still be starting
+        while True:
+            try:
+                self.sock.connect(str(path))
+                break
+            except (FileNotFoundError, ConnectionRefusedError):
+                if time.monotonic() > end:
+                    raise
+                time.sleep(0.02)
+        self.sock.settimeout(timeout)
+        self._buf = b""
+
+    def _line(self) -> str:
+        while b"\n" not in self._buf:
+            chunk = self.sock.recv(65536)
+            if not chunk:
+                raise ConnectionError(f"the console closed the session: {self._buf!r}")
+            self._buf += chunk
+        line, self._buf = self._buf.split(b"\n", 1)
+        return line.decode().rstrip("\r")
+
+    def cmd(self, command: str) -> str:
+        """The reply to ``command``, up to its final line (``ok``, ``error ...`` or a
+        JSON object)."""
+        self.sock.sendall(command.encode() + b"\n")
+        lines = []
+        while True:
+            lines.append(self._line())
+            if lines[-1] == "ok" or lines[-1].startswith(("error", "{")):
+                return "\r\n".join(lines) + "\r\n"
+
+    def json(self, command: str) -> dict[str, Any]:
+        """``command`` answered as JSON (the session is switched to JSON on first use)."""
+        if not getattr(self, "_json", False):
+            self.cmd("json on")
+            self._json = True
+        reply: dict[str, Any] = json.loads(self.cmd(command).splitlines()[-1])
+        return reply
+
+    def close(self) -> None:
+        self.sock.close()
+
+
 def coils(peer: ModbusPeer) -> list[int]:
     return peer.get(1, 1, 0, 2)
 
@@ -212,33 +261,16 @@ def test_notify_watchdog_trip_ack_and_sigterm(tmp_path: Path,
     assert "stopping: SIGTERM" in err
 
 
-def stats_json(path: Path) -> dict[str, Any]:
-    """``stats`` over the console socket, as its JSON reply."""
-    with socket.socket(socket.AF_UNIX) as s:
-        s.connect(str(path))
-        s.settimeout(10)
-        s.sendall(b"json on\nstats\n")
-        out = b""
-        while True:
-            for ln in out.split(b"\n")[:-1]:
-                reply: dict[str, Any] = json.loads(ln) if ln.startswith(b"{") else {}
-                if "stats" in reply:
-                    return reply
-            chunk = s.recv(65536)
-            assert chunk, out
-            out += chunk
-
-
-def busy_loops_for(sock: Path, scan_ms: float) -> int:
+def busy_loops_for(con: Console, scan_ms: float) -> int:
     """The chart's busy-loop count that makes a scan last about ``scan_ms`` on this
     machine now: measured on the running controller, not assumed."""
     loops = 20_000
     for _ in range(4):  # each round rescales from the scan time it measured
-        assert "ok" in console(sock, f"set m.sLoops {loops}")
-        before = stats_json(sock)["stats"]["cycles"]
-        wait_until(lambda: stats_json(sock)["stats"]["cycles"] > before + 3, 20,  # noqa: B023
-                   "cycles with the new loop count")
-        last_ms = stats_json(sock)["stats"]["scan_us"]["last"] / 1000
+        assert "ok" in con.cmd(f"set m.sLoops {loops}")
+        before = con.json("stats")["stats"]["cycles"]
+        wait_until(lambda: con.json("stats")["stats"]["cycles"] > before + 3,  # noqa: B023
+                   20, "cycles with the new loop count")
+        last_ms = con.json("stats")["stats"]["scan_us"]["last"] / 1000
         loops = max(1000, int(loops * scan_ms / max(last_ms, 0.1)))
     return loops
 
@@ -260,10 +292,12 @@ def test_signal_in_the_middle_of_scans_ends_with_outputs_off(
         try:
             notify.wait_for("READY=1")
             wait_until(lambda: coils(peer) == [1, 1], 20, "outputs on")
+            con = Console(sock)
             if not loops:
-                loops = busy_loops_for(sock, 30.0)
+                loops = busy_loops_for(con, 30.0)
             else:
-                assert "ok" in console(sock, f"set m.sLoops {loops}")
+                assert "ok" in con.cmd(f"set m.sLoops {loops}")
+            con.close()
             time.sleep(rng.uniform(0.0, 0.3))  # a random moment in the scans
         finally:
             code, err = stop(proc, sig)

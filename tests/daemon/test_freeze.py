@@ -18,7 +18,7 @@ import pytest
 
 from runtime.controller.scheduler import Scheduler, Watchdog
 from tests.daemon.daemonkit import wait_until
-from tests.daemon.test_daemon_process import coils, console, plant, start, stats_json, stop
+from tests.daemon.test_daemon_process import Console, coils, plant, start, stop
 from tests.drivers.modbus_peer import ModbusPeer
 from tests.drivers.pty_bridge import PtyBridge
 
@@ -166,21 +166,23 @@ def test_sigstop_longer_than_the_watchdog_is_a_fault(tmp_path: Path,
     # a watchdog a loaded test machine keeps (starved of CPU longer than the watchdog,
     # the process is frozen too), well below the 1.5 s of the attack
     proc = start(plant(tmp_path, bridge.driver_port, watchdog="500ms"), {})
+    con = Console(sock)
     try:
         for n in range(1, 4):
             wait_until(lambda: coils(peer) == [1, 1], 20, "outputs on")
-            assert "state running" in console(sock, "status")
+            assert "state running" in con.cmd("status")
             proc.send_signal(signal.SIGSTOP)
-            time.sleep(1.5)  # the attack: 15 watchdog times without running
+            time.sleep(1.5)  # the attack: three watchdog times without running
             proc.send_signal(signal.SIGCONT)
-            wait_until(lambda: "state fault" in console(sock, "status"), 20,
+            wait_until(lambda: "state fault" in con.cmd("status"), 20,
                        "a fault after the freeze")
-            status = console(sock, "status")
+            status = con.cmd("status")
             assert re.search(r"frozen for 1[4-9]\d\d ms", status), status
             assert coils(peer) == [0, 0]
-            assert stats_json(sock)["stats"]["freezes"] == n
-            assert "ok" in console(sock, "ack")
+            assert con.json("stats")["stats"]["freezes"] == n
+            assert con.json("ack")["ok"] is True
     finally:
+        con.close()
         code, err = stop(proc)
     assert code == 0, err
     assert len(re.findall(r"FAULT: frozen for 1[4-9]\d\d ms", err)) == 3, err

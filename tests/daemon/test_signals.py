@@ -19,7 +19,7 @@ import pytest
 
 from runtime.controller.retain import RetainStore
 from tests.daemon.daemonkit import wait_until
-from tests.daemon.test_daemon_process import ROOT, coils, console, plant, start, stop
+from tests.daemon.test_daemon_process import ROOT, Console, coils, plant, start, stop
 from tests.drivers.modbus_peer import ModbusPeer
 from tests.drivers.pty_bridge import PtyBridge
 
@@ -33,14 +33,14 @@ def line() -> Iterator[tuple[PtyBridge, ModbusPeer]]:
         yield bridge, peer
 
 
-def counted(sock: Path) -> int:
+def counted(con: Console) -> int:
     """The chart's retained scan counter m.sN, read over the console."""
-    m = re.search(r"m\.sN=(\d+)", console(sock, "get m.sN"))
+    m = re.search(r"m\.sN=(\d+)", con.cmd("get m.sN"))
     return int(m.group(1)) if m else -1
 
 
-def scan_count(sock: Path) -> int:
-    m = re.search(r"scans (\d+)", console(sock, "status"))
+def scan_count(con: Console) -> int:
+    m = re.search(r"scans (\d+)", con.cmd("status"))
     assert m is not None
     return int(m.group(1))
 
@@ -58,8 +58,10 @@ def test_each_stop_signal_is_an_orderly_safe_stop(tmp_path: Path,
                        retain_interval="3600s"), {})
     try:
         wait_until(lambda: coils(peer) == [1, 1], 20, "outputs on")
-        wait_until(lambda: counted(sock) > 5, 20, "the chart counting")
-        seen = counted(sock)
+        con = Console(sock)
+        wait_until(lambda: counted(con) > 5, 20, "the chart counting")
+        seen = counted(con)
+        con.close()
         writes_before = len(peer.served)
     finally:
         code, err = stop(proc, sig)
@@ -89,9 +91,11 @@ def test_sighup_stays_ignored_under_nohup(tmp_path: Path,
                             stderr=subprocess.PIPE)
     try:
         wait_until(lambda: coils(peer) == [1, 1], 20, "outputs on")
+        con = Console(sock)
         proc.send_signal(signal.SIGHUP)
         # the console answers after the signal was delivered: the process lives on
-        assert "state running" in console(sock, "status")
+        assert "state running" in con.cmd("status")
+        con.close()
         assert proc.poll() is None
         assert coils(peer) == [1, 1]
     finally:
@@ -128,15 +132,17 @@ def test_sigpipe_from_gone_clients_and_trace_readers_harms_nothing(
                 time.sleep(0.01)
         assert b'"cycle"' in got
         os.close(reader)
+        con = Console(sock)  # the operator's session, opened before the others come
         # console clients that send a lot and hang up without reading the replies
         for _ in range(20):
             with socket.socket(socket.AF_UNIX) as c:
                 c.connect(str(sock))
                 c.sendall(b"help\n" * 50)
-        scans = scan_count(sock)  # some cycles to write into the closed pipe and sockets
-        wait_until(lambda: scan_count(sock) > scans + 25, 20, "cycles after the hang-ups")
+        scans = scan_count(con)  # some cycles to write into the closed pipe and sockets
+        wait_until(lambda: scan_count(con) > scans + 25, 20, "cycles after the hang-ups")
         assert proc.poll() is None, "the controller died"
-        assert "state running" in console(sock, "status")
+        assert "state running" in con.cmd("status")
+        con.close()
         assert coils(peer) == [1, 1]
     finally:
         code, err = stop(proc)
@@ -155,7 +161,9 @@ def test_a_stop_while_the_module_is_faulted_still_switches_its_outputs_off(
     try:
         wait_until(lambda: coils(peer) == [1, 1], 20, "outputs on")
         bridge.cut = True  # the cable is pulled: the unit faults, its relays stay on
-        wait_until(lambda: "state fault" in console(sock, "status"), 20, "the fault")
+        con = Console(sock)
+        wait_until(lambda: "state fault" in con.cmd("status"), 20, "the fault")
+        con.close()
         # the attack: out long enough for the reconnect back-off to grow (retries 0.1,
         # 0.3, 0.7, 1.5, 3.1 s after the fault), then back between two retries
         time.sleep(2.0)
@@ -175,7 +183,9 @@ def test_a_stop_with_the_module_unreachable_says_its_outputs_may_be_on(
     try:
         wait_until(lambda: coils(peer) == [1, 1], 20, "outputs on")
         bridge.cut = True
-        wait_until(lambda: "state fault" in console(sock, "status"), 20, "the fault")
+        con = Console(sock)
+        wait_until(lambda: "state fault" in con.cmd("status"), 20, "the fault")
+        con.close()
     finally:
         code, err = stop(proc)
     assert code == 0, err
