@@ -165,7 +165,7 @@ def test_sigstop_longer_than_the_watchdog_is_a_fault(tmp_path: Path,
     sock = tmp_path / "console.sock"
     # a watchdog a loaded test machine keeps (starved of CPU longer than the watchdog,
     # the process is frozen too), well below the 1.5 s of the attack
-    proc = start(plant(tmp_path, bridge.driver_port, watchdog="500ms"), {})
+    proc = start(plant(tmp_path, bridge.driver_port, tolerant=True), {})
     con = Console(sock)
     try:
         for n in range(1, 4):
@@ -178,7 +178,7 @@ def test_sigstop_longer_than_the_watchdog_is_a_fault(tmp_path: Path,
                        "a fault after the freeze")
             status = con.cmd("status")
             assert re.search(r"frozen for 1[4-9]\d\d ms", status), status
-            assert coils(peer) == [0, 0]
+            wait_until(lambda: coils(peer) == [0, 0], 20, "outputs off")
             assert con.json("stats")["stats"]["freezes"] == n
             assert con.json("ack")["ok"] is True
     finally:

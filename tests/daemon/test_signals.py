@@ -54,7 +54,7 @@ def test_each_stop_signal_is_an_orderly_safe_stop(tmp_path: Path,
     peer.set(1, 2, 0, [1])  # iGo: the chart switches both outputs on
     sock = tmp_path / "console.sock"
     # retained data is saved only at the stop: a value in the file proves the stop saved it
-    proc = start(plant(tmp_path, bridge.driver_port, watchdog="500ms",
+    proc = start(plant(tmp_path, bridge.driver_port, tolerant=True,
                        retain_interval="3600s"), {})
     try:
         wait_until(lambda: coils(peer) == [1, 1], 20, "outputs on")
@@ -84,7 +84,7 @@ def test_sighup_stays_ignored_under_nohup(tmp_path: Path,
     sock = tmp_path / "console.sock"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     env.pop("JOURNAL_STREAM", None)
-    path = plant(tmp_path, bridge.driver_port, watchdog="500ms")
+    path = plant(tmp_path, bridge.driver_port, tolerant=True)
     proc = subprocess.Popen(["nohup", sys.executable, "-m",
                              "runtime.cli", "run", str(path)], cwd=str(tmp_path), env=env,
                             text=True, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
@@ -116,7 +116,7 @@ def test_sigpipe_from_gone_clients_and_trace_readers_harms_nothing(
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     env.pop("JOURNAL_STREAM", None)
     proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run",
-                             str(plant(tmp_path, bridge.driver_port, watchdog="500ms")), "--trace",
+                             str(plant(tmp_path, bridge.driver_port, tolerant=True)), "--trace",
                              str(fifo)],
                             cwd=str(tmp_path), env=env, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
@@ -157,7 +157,7 @@ def test_a_stop_while_the_module_is_faulted_still_switches_its_outputs_off(
     bridge, peer = line
     peer.set(1, 2, 0, [1])
     sock = tmp_path / "console.sock"
-    proc = start(plant(tmp_path, bridge.driver_port, watchdog="500ms"), {})
+    proc = start(plant(tmp_path, bridge.driver_port, tolerant=True), {})
     try:
         wait_until(lambda: coils(peer) == [1, 1], 20, "outputs on")
         bridge.cut = True  # the cable is pulled: the unit faults, its relays stay on
@@ -179,7 +179,7 @@ def test_a_stop_with_the_module_unreachable_says_its_outputs_may_be_on(
     bridge, peer = line
     peer.set(1, 2, 0, [1])
     sock = tmp_path / "console.sock"
-    proc = start(plant(tmp_path, bridge.driver_port, watchdog="500ms"), {})
+    proc = start(plant(tmp_path, bridge.driver_port, tolerant=True), {})
     try:
         wait_until(lambda: coils(peer) == [1, 1], 20, "outputs on")
         bridge.cut = True
