@@ -29,6 +29,7 @@ Config::
 
 from __future__ import annotations
 
+import logging
 import re
 import threading
 import time
@@ -54,6 +55,8 @@ from drivers.modbus_frame import (
 )
 from drivers.registry import MODBUS_RTU_KEYS
 from drivers.serial_line import RtuMaster, SerialLine, SerialPorts, SerialSettings, shared_ports
+
+log = logging.getLogger(__name__)
 
 _POINT = re.compile(r"^(I|Q|IR|HR)([0-9]{1,5})$")
 #: the declared choices of ``parity`` (drivers.registry) as pyserial parities
@@ -224,8 +227,10 @@ class ModbusRtuDriver(PolledDriver):
         line, self.line = self.line, None
         if line is None:
             return
-        if not self.io_faulted:
-            line.flush(self, SerialLine.FLUSH_TIMEOUT_S)
+        # even a faulted unit gets one more try: its relays may still be on
+        if not line.flush(self, SerialLine.FLUSH_TIMEOUT_S, probe=True):
+            log.error("driver %s: unit %d did not confirm the safe state before the port "
+                      "closed: its outputs may still be on", self.name, self.cfg.unit)
         self.ports.detach(line, self)
 
     def _wake(self) -> None:

@@ -261,15 +261,22 @@ class SerialLine:
     def wake(self) -> None:
         self._wake.set()
 
-    def flush(self, driver: ModbusRtuDriver, timeout: float) -> bool:
-        """Wait until the outputs ``driver`` holds now went out; False on timeout or fault."""
+    def flush(self, driver: ModbusRtuDriver, timeout: float, probe: bool = False) -> bool:
+        """Wait until the outputs ``driver`` holds now went out; False on timeout or fault.
+        ``probe``: a faulted unit is tried once more at once (the stop: the line may be
+        back, and the outputs must go off)."""
         target = driver._out_seq
         deadline = time.monotonic() + timeout
         while driver._written_seq < target:
             remaining = deadline - time.monotonic()
             thread = self._thread
-            if remaining <= 0 or driver.io_faulted or thread is None or not thread.is_alive():
+            if remaining <= 0 or thread is None or not thread.is_alive():
                 return False
+            if driver.io_faulted and not driver._retry_flag.is_set():
+                if not probe:
+                    return False  # faulted, and its one more try (if any) failed
+                probe = False
+                driver._retry_flag.set()  # taken by the next round, which writes
             driver._exchanged.clear()
             self.wake()
             driver._exchanged.wait(remaining)

@@ -178,7 +178,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("run", help="run a plant in real time (the controller)",
                        description="Run the plant on its drivers in real time until "
-                                   "SIGTERM/SIGINT; every output off before the first scan "
+                                   "SIGTERM/SIGINT/SIGHUP/SIGQUIT; every output off before "
+                                   "the first scan "
                                    "and at the end.")
     r.add_argument("plant")
     r.add_argument("--sim", action="store_true",

@@ -88,6 +88,8 @@ def cmd_status(session: Session, args: list[str]) -> Reply:
              f"{_uptime_text(data['uptime_s'])}"]
     if "note" in data:
         lines.append(data["note"])
+    lines += [f"inhibit: {x}" for x in data.get("inhibits", [])
+              if not x.startswith(f"{data['state']}: ")]  # the state line says that one
     lines += [f"{n}: {' '.join(s) or '(no active step)'}" for n, s in data["steps"].items()]
     lines += [f"SFCError {n}: step {s}" for n, s in data["errors"].items()]
     lines += [f"forced {k}={v}" for k, v in data["forced"].items()]

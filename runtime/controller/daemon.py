@@ -56,6 +56,10 @@ FAULT_HISTORY = 20
 GIL_SWITCH_S = 0.0005
 #: ``stats`` figures are at most this many ns of cycles old
 STATS_MAX_AGE_NS = 100_000_000
+#: chart flags that hold an instance (initial situation, reset, frozen situation)
+HOLD_FLAGS = ("SFCInit", "SFCReset", "SFCPause")
+#: signals that stop the controller in order (safe state, retained data saved)
+STOP_SIGNALS = (signal.SIGHUP, signal.SIGINT, signal.SIGTERM, signal.SIGQUIT)
 
 
 class State(enum.Enum):
@@ -104,9 +108,14 @@ class Daemon:
         self.notifier = notifier or Notifier()
         self.scan_stats = ScanStats()
         self.scheduler = Scheduler(self._cycle, self.plant.cycle_ns, self.plant.watchdog_ns,
-                                   idle=self._idle, on_watchdog=self._slow_scan, clock=clock,
+                                   idle=self._idle, on_watchdog=self._slow_scan,
+                                   on_freeze=self._frozen, clock=clock,
                                    stats=self.scan_stats, manage_gc=manage_gc)
-        self.watchdog = Watchdog(self.scheduler, self.plant.watchdog_ns, self._trip, clock)
+        # systemd's watchdog is fed by the watchdog thread, not by the scan's idle time:
+        # a cycle longer than WatchdogSec is valid, only a stuck scan stops the pings
+        self.watchdog = Watchdog(self.scheduler, self.plant.watchdog_ns, self._trip, clock,
+                                 ping=self.notifier.watchdog,
+                                 ping_interval_ns=self.notifier.watchdog_interval_ns)
         self.fault: str | None = None
         self.halted: str | None = None
         #: (wall-clock time, reason) of the last faults, oldest first
@@ -121,7 +130,6 @@ class Daemon:
         self._thread: threading.Thread | None = None
         self._loop_alive = False
         self._ready_sent = False
-        self._next_ping = 0
         self._next_status = 0
         self._last_state: State | None = None
         self._trip_reason: str | None = None
@@ -172,6 +180,7 @@ class Daemon:
         if self._stopping:
             return
         self._stopping = True
+        self.watchdog.stop_pinging()
         self.notifier.stopping(f"stopping: {why}")
         log.info("stopping: %s", why)
         self.scheduler.stop_event.set()
@@ -256,10 +265,27 @@ class Daemon:
 
     def _slow_scan(self, scan_ns: int) -> None:
         """The scheduler saw a scan longer than the watchdog (it returned, late)."""
-        if self.fault is None:
+        end = self.clock()
+        frozen = self.watchdog.froze_during(end - scan_ns, end)
+        if frozen:  # the process was stopped in the middle of the scan
+            self.scan_stats.record_freeze(frozen)
+            self._frozen(frozen)
+        elif self.fault is None:
             self._enter_fault(self._trip_reason or
                               f"watchdog: a scan took {scan_ns / 1e6:.1f} ms (watchdog "
                               f"{self.plant.watchdog_ns / 1e6:g} ms)")
+
+    def _frozen(self, frozen_ns: int) -> None:
+        """The process did not run for longer than the watchdog (SIGSTOP, a paused VM, a
+        suspend, a CPU taken by others): the outputs stood unwatched, a fault like an
+        overrun."""
+        reason = (f"frozen for {frozen_ns / 1e6:.0f} ms: the process did not run "
+                  f"(stopped, paused, suspended or starved of CPU; watchdog "
+                  f"{self.plant.watchdog_ns / 1e6:g} ms)")
+        if self.fault is None:
+            self._enter_fault(reason)
+        else:
+            log.warning("%s", reason)
 
     def _trip(self, running_ns: int) -> None:
         """Watchdog thread: a scan has been running too long; outputs off from here."""
@@ -289,9 +315,6 @@ class Daemon:
             self._ready_sent = True
             self.notifier.ready(self.summary())
             self._next_status = now + STATUS_EVERY_NS
-        if self.notifier.watchdog_interval_ns and now >= self._next_ping:
-            self.notifier.watchdog()
-            self._next_ping = now + self.notifier.watchdog_interval_ns
         if state is not self._last_state or now >= self._next_status:
             if self._ready_sent:
                 self.notifier.status(self.summary())
@@ -395,22 +418,53 @@ class Daemon:
     def uptime_s(self) -> float:
         return 0.0 if self.started_ns is None else (self.clock() - self.started_ns) / 1e9
 
+    def inhibits(self) -> list[str]:
+        """Every condition that keeps the charts or the outputs from running, worst first
+        (empty when the plant runs freely)."""
+        plant = self.plant
+        out = []
+        if self.fault is not None:
+            out.append(f"fault: {self.fault}")
+        if any(d.inhibited for d in plant.drivers.values()):
+            out.append("outputs inhibited by the watchdog thread")
+        if self.halted is not None:
+            out.append(f"halted: {self.halted} (outputs off until ack)")
+        if plant.iocheck:
+            out.append("iocheck: charts stopped, outputs set by hand")
+        if plant.stepping:
+            out.append(f"stepping by the console: {plant.steps_left} cycle(s) to go")
+        elif plant.held:
+            out.append("paused by the console: charts held")
+        for name, inst in plant.instances.items():
+            out += [f"{name}: held by {flag}" for flag in HOLD_FLAGS if inst.get(flag)]
+        return out
+
     def summary(self) -> str:
-        """One line: state, reason, cycle figures (systemd's STATUS=, logs)."""
-        state = self.state
+        """One line: state, what inhibits the plant, cycle figures (systemd's STATUS=,
+        logs)."""
         lat = self.scan_stats.lateness()
         scan = self.scan_stats.scan()
-        text = f"{state.value}"
-        if self.fault or self.halted:
-            text += f" ({self.fault or self.halted})"
-        return (f"{text}; {len(self.plant.instances)} instance(s); {self.scan_stats.count} cycles; "
-                f"scan p99 {scan.p99 / 1e3:.0f} us; lateness p99 {lat.p99 / 1e3:.0f} us; "
-                f"{self.scan_stats.overruns} overruns")
+        text = self.state.value
+        inhibits = [x.removeprefix(f"{text}: ") for x in self.inhibits()]
+        if inhibits:
+            text += f" ({'; '.join(inhibits)})"
+        stats = self.scan_stats
+        text += (f"; {len(self.plant.instances)} instance(s); {stats.count} cycles; "
+                 f"scan p99 {scan.p99 / 1e3:.0f} us; lateness p99 {lat.p99 / 1e3:.0f} us; "
+                 f"{stats.overruns} overruns")
+        if stats.freezes:
+            text += f"; {stats.freezes} freezes"
+        retain = self.retain_status()
+        if retain is not None and retain["state"] != "ok":
+            text += f"; retain {retain['state']}"
+        return text
 
     def status(self) -> dict[str, Any]:
+        """State, fault, ``inhibits`` (see ``inhibits()``), counts and the last faults."""
         return {"state": self.state.value, "fault": self.fault or self.halted,
+                "inhibits": self.inhibits(),
                 "scans": self.scan_stats.count, "uptime_s": round(self.uptime_s(), 3),
-                "cycle_ms": self.plant.cycle_ns / 1e6,
+                "cycle_ms": self.plant.cycle_ns / 1e6, "freezes": self.scan_stats.freezes,
                 "faults": [{"time": t, "reason": r} for t, r in self.faults],
                 "retain": self.retain_status()}
 
@@ -516,10 +570,13 @@ class _TraceWriter:
         self._wake = threading.Event()
         self._stop = False
         self.dropped = 0
+        self.failed = False  # the file could not be written (a reader gone, a full disk)
         self._thread = threading.Thread(target=self._run, name="softplc-trace", daemon=True)
         self._thread.start()
 
     def __call__(self, n: int) -> None:
+        if self.failed:
+            return
         row: dict[str, Any] = {"cycle": n - 1, "t_ms": self.plant.last_up // 1_000_000}
         for key, get in self.columns:
             row[key] = get()
@@ -532,11 +589,21 @@ class _TraceWriter:
         while True:
             self._wake.wait(0.2)
             self._wake.clear()
-            while self._rows:
-                self.out.write(json.dumps(self._rows.popleft(), ensure_ascii=False,
-                                          separators=(",", ":")) + "\n")
-            if self._stop:
-                self.out.flush()
+            try:
+                while self._rows:
+                    self.out.write(json.dumps(self._rows.popleft(), ensure_ascii=False,
+                                              separators=(",", ":")) + "\n")
+                if self._stop:
+                    self.out.flush()
+                    return
+            except OSError as exc:  # EPIPE (SIGPIPE is ignored), ENOSPC: the plant runs on
+                self.failed = True
+                self._rows.clear()
+                log.error("trace stopped: %s", exc)
+                try:
+                    self.out.close()  # closed even if its last flush fails again
+                except OSError:
+                    pass
                 return
 
     def close(self) -> None:
@@ -550,7 +617,12 @@ class _TraceWriter:
 def serve(daemon: Daemon, for_ns: int | None = None,
           started: Callable[[], None] | None = None,
           stopping: Callable[[], None] | None = None) -> int:
-    """Run ``daemon`` in the foreground until SIGTERM/SIGINT (or ``for_ns``).
+    """Run ``daemon`` in the foreground until a stop signal (or ``for_ns``).
+
+    SIGHUP, SIGINT, SIGTERM and SIGQUIT each stop the controller in order (every output
+    off, retained data saved, one line naming the signal); a SIGHUP that was ignored when
+    the process started (``nohup``) stays ignored. SIGPIPE stays ignored, as Python sets
+    it: a client or reader gone is an ``EPIPE`` error where it was written to.
 
     ``started`` is called once the scan runs and ``stopping`` before the orderly stop:
     the console lives between the two, so it never sees a plant that has not restored
@@ -563,10 +635,12 @@ def serve(daemon: Daemon, for_ns: int | None = None,
     why = ["end of --for"]
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
-        why[0] = signal.Signals(signum).name
+        if not stop.is_set():  # the first signal names the stop; more change nothing
+            why[0] = signal.Signals(signum).name
         stop.set()
 
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
+    old = {s: signal.signal(s, on_signal) for s in STOP_SIGNALS
+           if not (s is signal.SIGHUP and signal.getsignal(s) is signal.SIG_IGN)}
     status = 0
     try:
         daemon.start()

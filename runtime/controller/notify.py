@@ -2,7 +2,9 @@
 
 One AF_UNIX datagram per message to ``$NOTIFY_SOCKET`` (a path, or an abstract name
 written ``@name``). Sends never block: a full socket buffer drops the message, which
-systemd's watchdog then notices as a missed ping, the safe outcome.
+systemd's watchdog then notices as a missed ping, the safe outcome. Each message is one
+``sendto``, so two threads may send (the watchdog thread pings, the scan thread sends
+READY and STATUS).
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Per cycle: sleep until the deadline, run the cycle body (read inputs, scan, write
 outputs), record scan time and wake-up lateness, then spend what is left of the period on
-the idle work (console requests, systemd pings, retain hand-off, garbage collection),
+the idle work (console requests, systemd status, retain hand-off, garbage collection),
 never past a guard band before the next deadline.
 
 Overrun policy: when a cycle ends at or after the next deadline, the overrun is counted,
@@ -12,10 +12,19 @@ scans (OpenPLC's behaviour): the process sees one late cycle, then the normal pe
 
 A scan longer than ``watchdog_ns`` is a fault, detected twice: by the loop when the scan
 returns, and by ``Watchdog``, a thread that acts while a scan hangs.
+
+Freezes: a process that did not run at all for longer than ``watchdog_ns`` (SIGSTOP, a
+paused VM, a suspended system) is noticed when it runs again, as a wake-up later than the
+watchdog (CLOCK_MONOTONIC runs on while a process is stopped) or as CLOCK_BOOTTIME
+jumping ahead of CLOCK_MONOTONIC (the monotonic clock stands still while the system
+sleeps). It is counted in ``ScanStats.freezes`` and reported to ``on_freeze`` before the
+cycle's body runs. ``Watchdog`` notices its own freezes too, so that it does not blame the
+scan thread for time during which no thread ran, and pings systemd's watchdog.
 """
 
 from __future__ import annotations
 
+import collections
 import gc
 import logging
 import threading
@@ -34,19 +43,30 @@ GUARD_NS = 300_000
 GC_GEN0_THRESHOLD = 700
 #: a full collection at most this often, ns, and only when the idle time allows it
 GC_FULL_EVERY_NS = 60_000_000_000
+#: freezes the watchdog thread remembers for ``Watchdog.froze_during``
+FREEZES_KEPT = 8
+
+
+def boot_clock_ns() -> int:
+    """CLOCK_BOOTTIME, ns: the monotonic clock plus the time the system was suspended."""
+    return time.clock_gettime_ns(time.CLOCK_BOOTTIME)
 
 
 class Scheduler:
     """Paces ``body(now)`` to absolute deadlines; ``run()`` is the scan thread's loop.
 
     ``idle(deadline_ns)`` is called after each cycle and must return before
-    ``deadline_ns``; ``on_watchdog(scan_ns)`` when a scan took longer than the watchdog.
-    The clock and the sleep are injectable, so tests run the loop on virtual time."""
+    ``deadline_ns``; ``on_watchdog(scan_ns)`` when a scan took longer than the watchdog;
+    ``on_freeze(frozen_ns)`` when the process did not run for longer than the watchdog.
+    The clocks and the sleep are injectable, so tests run the loop on virtual time
+    (``boot_clock`` defaults to CLOCK_BOOTTIME with the default clock, else to none)."""
 
     def __init__(self, body: Callable[[int], None], cycle_ns: int, watchdog_ns: int, *,
                  idle: Callable[[int], None] | None = None,
                  on_watchdog: Callable[[int], None] | None = None,
+                 on_freeze: Callable[[int], None] | None = None,
                  clock: Callable[[], int] = time.monotonic_ns,
+                 boot_clock: Callable[[], int] | None = None,
                  sleep_until: Callable[[int], None] | None = None,
                  stats: ScanStats | None = None, manage_gc: bool = True) -> None:
         self.body = body
@@ -54,7 +74,11 @@ class Scheduler:
         self.watchdog_ns = watchdog_ns
         self.idle = idle
         self.on_watchdog = on_watchdog
+        self.on_freeze = on_freeze
         self.clock = clock
+        if boot_clock is None and clock is time.monotonic_ns:
+            boot_clock = boot_clock_ns
+        self.boot_clock = boot_clock
         self.sleep_until = sleep_until or make_sleep_until()
         self.stats = stats or ScanStats()
         self.manage_gc = manage_gc
@@ -69,7 +93,7 @@ class Scheduler:
     def run(self, cycles: int | None = None) -> None:
         """Run until ``stop_event`` is set (or ``cycles`` cycles, for tests)."""
         clock, cycle, stats, body = self.clock, self.cycle_ns, self.stats, self.body
-        stop = self.stop_event
+        stop, boot, watchdog = self.stop_event, self.boot_clock, self.watchdog_ns
         gc_was_enabled = gc.isenabled()
         if self.manage_gc:
             gc.collect()
@@ -77,11 +101,21 @@ class Scheduler:
             gc.disable()
         deadline = clock()
         self._last_full_gc = deadline
+        #: CLOCK_BOOTTIME - CLOCK_MONOTONIC at the last wake-up: grows by each suspend
+        slept = 0 if boot is None else boot() - deadline
         n = 0
         try:
             while not stop.is_set() and (cycles is None or n < cycles):
                 self.sleep_until(deadline)
                 wake = clock()
+                frozen = wake - deadline
+                if boot is not None:
+                    was, slept = slept, boot() - wake
+                    frozen += slept - was
+                if frozen > watchdog:
+                    stats.record_freeze(frozen)
+                    if self.on_freeze is not None:
+                        self.on_freeze(frozen)
                 self.scanning_since = self.last_wake = wake
                 body(wake)
                 end = clock()
@@ -89,7 +123,7 @@ class Scheduler:
                 scan = end - wake
                 stats.record(scan, wake - deadline)
                 n += 1
-                if scan > self.watchdog_ns and self.on_watchdog is not None:
+                if scan > watchdog and self.on_watchdog is not None:
                     self.on_watchdog(scan)
                 deadline += cycle
                 if end >= deadline:
@@ -123,20 +157,42 @@ class Scheduler:
 
 
 class Watchdog:
-    """A thread that calls ``trip(running_ns)`` once when a scan of ``scheduler`` has been
-    running longer than ``watchdog_ns``, or the loop has not woken up for a cycle plus
-    ``watchdog_ns`` (stuck between scans, e.g. in idle work): the scan thread is stuck or
-    far too slow.
+    """A thread that watches the scan thread of ``scheduler`` and feeds systemd's watchdog.
 
-    It wakes every quarter of the watchdog time, so it reacts within 1.25 × watchdog."""
+    It calls ``trip(running_ns)`` once when a scan has been running longer than
+    ``watchdog_ns``, or the loop has not woken up for a cycle plus ``watchdog_ns`` (stuck
+    between scans, e.g. in idle work): the scan thread is stuck or far too slow. It wakes
+    every quarter of the watchdog time, so it reacts within 1.25 × watchdog.
+
+    ``ping()`` (systemd's WATCHDOG=1) is called every ``ping_interval_ns`` while the scan
+    loop runs and is not stuck, whatever the cycle time: only a stuck scan thread (or a
+    stopped loop) starves systemd's watchdog.
+
+    When the thread itself did not run for longer than the watchdog, the whole process was
+    frozen: that is counted (``freezes``), remembered for ``froze_during`` and not blamed
+    on the scan thread, which gets a full watchdog time from the resumption to wake up."""
 
     def __init__(self, scheduler: Scheduler, watchdog_ns: int,
-                 trip: Callable[[int], None], clock: Callable[[], int] = time.monotonic_ns
+                 trip: Callable[[int], None], clock: Callable[[], int] = time.monotonic_ns,
+                 *, ping: Callable[[], object] | None = None, ping_interval_ns: int = 0
                  ) -> None:
         self.scheduler = scheduler
         self.watchdog_ns = watchdog_ns
         self.trip = trip
         self.clock = clock
+        #: longest wait between two looks, ns
+        self.period_ns = max(1, watchdog_ns // 4)
+        self.ping_interval_ns = ping_interval_ns
+        self._ping = ping if ping_interval_ns > 0 else None
+        self._ping_lock = threading.Lock()
+        self._next_ping = 0
+        #: freezes of the whole process this thread noticed
+        self.freezes = 0
+        #: (resumed at, frozen for) of the last freezes, monotonic ns
+        self._frozen: collections.deque[tuple[int, int]] = collections.deque(
+            maxlen=FREEZES_KEPT)
+        self._last_tick = 0
+        self._resumed = 0
         self._stop = threading.Event()
         self._tripped_scan = 0
         self._thread = threading.Thread(target=self._run, name="softplc-watchdog",
@@ -146,26 +202,72 @@ class Watchdog:
         self._thread.start()
 
     def stop(self) -> None:
+        self.stop_pinging()
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout=2.0)
 
+    def stop_pinging(self) -> None:
+        """No ping leaves after this returns (the stop: STOPPING=1 is the last word)."""
+        with self._ping_lock:
+            self._ping = None
+
+    def froze_during(self, start: int, end: int) -> int:
+        """How long the process was frozen between monotonic ``start`` and ``end`` (ns),
+        as far as this thread can tell: a freeze it noticed, or its own silence since
+        before ``start`` (it has not run since the process resumed); 0 if none."""
+        for resumed, frozen in reversed(self._frozen):
+            if start < resumed <= end + self.period_ns:
+                return frozen
+        silent = end - self._last_tick
+        if self._last_tick and self._last_tick < start and \
+                silent > self.period_ns + self.watchdog_ns:
+            return silent - self.period_ns
+        return 0
+
     def _run(self) -> None:
-        period = self.watchdog_ns / 4e9
-        sched = self.scheduler
-        while not self._stop.wait(period):
-            now = self.clock()
-            since, beat = sched.scanning_since, sched.last_wake
-            if since and now - since > self.watchdog_ns:
-                stuck_since = since
-            elif beat and now - beat > sched.cycle_ns + self.watchdog_ns:
-                stuck_since = beat
-            else:
-                continue
-            if stuck_since == self._tripped_scan:
-                continue  # one trip per stuck cycle
-            self._tripped_scan = stuck_since
+        clock = self.clock
+        self._last_tick = clock()
+        while True:
+            wait = self.period_ns
+            if self._ping is not None:
+                wait = min(wait, max(0, self._next_ping - clock()))
+            if self._stop.wait(wait / 1e9):
+                return
             try:
-                self.trip(now - stuck_since)
-            except Exception:  # pragma: no cover - the trip must never kill the thread
-                log.exception("watchdog trip failed")
+                self.tick(clock())
+            except Exception:  # pragma: no cover - the thread must never die
+                log.exception("watchdog check failed")
+
+    def tick(self, now: int) -> None:
+        """One look at the scan thread at monotonic ``now``: trip, ping, or nothing."""
+        last, self._last_tick = self._last_tick, now
+        if last and now - last > self.period_ns + self.watchdog_ns:
+            # this thread did not run either: the process was frozen, not the scan stuck
+            self.freezes += 1
+            self._frozen.append((now, now - last - self.period_ns))
+            self._resumed = now
+            return
+        sched = self.scheduler
+        since, beat = sched.scanning_since, sched.last_wake
+        if not beat:
+            return  # the loop is not running: nothing to judge, nothing to vouch for
+        if since and now - max(since, self._resumed) > self.watchdog_ns:
+            stuck_since = since
+        elif now - max(beat, self._resumed) > sched.cycle_ns + self.watchdog_ns:
+            stuck_since = beat
+        else:
+            # after a freeze, vouch for the scan thread only once it has woken since
+            if self._ping is not None and now >= self._next_ping and beat >= self._resumed:
+                with self._ping_lock:
+                    if self._ping is not None:
+                        self._ping()
+                self._next_ping = now + self.ping_interval_ns
+            return
+        if stuck_since == self._tripped_scan:
+            return  # one trip per stuck cycle
+        self._tripped_scan = stuck_since
+        try:
+            self.trip(now - stuck_since)
+        except Exception:  # pragma: no cover - the trip must never kill the thread
+            log.exception("watchdog trip failed")

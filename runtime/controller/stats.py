@@ -42,7 +42,8 @@ def _percentile(sorted_values: list[int], q: float) -> int:
 
 
 class ScanStats:
-    """Scan time and lateness of every cycle, overruns, and idle-time garbage collections."""
+    """Scan time and lateness of every cycle, overruns, freezes of the process, and
+    idle-time garbage collections."""
 
     def __init__(self, window: int = WINDOW) -> None:
         self.window = window
@@ -57,6 +58,8 @@ class ScanStats:
         self.skipped = 0  # deadlines passed over by re-anchoring after overruns
         self.gc_runs = 0
         self.gc_ns = 0
+        self.freezes = 0  # times the process did not run for longer than the watchdog
+        self.freeze_max = 0  # the longest such time, ns
         self.scan_last = self.late_last = 0
         self.scan_min = self.late_min = 1 << 62
         self.scan_max = self.late_max = 0
@@ -81,6 +84,12 @@ class ScanStats:
         if late_ns > self.late_max:
             self.late_max = late_ns
 
+    def record_freeze(self, frozen_ns: int) -> None:
+        """The process did not run for ``frozen_ns`` (SIGSTOP, a paused VM, a suspend)."""
+        self.freezes += 1
+        if frozen_ns > self.freeze_max:
+            self.freeze_max = frozen_ns
+
     def _summary(self, ring: array[int], last: int, lo: int, hi: int, total: int) -> Summary:
         n = min(self.count, self.window)
         values = sorted(ring[:n])
@@ -100,4 +109,5 @@ class ScanStats:
         """Everything, times in µs (what ``stats`` on the console shows)."""
         return {"cycles": self.count, "overruns": self.overruns, "skipped": self.skipped,
                 "scan_us": self.scan().as_dict(), "lateness_us": self.lateness().as_dict(),
-                "gc_runs": self.gc_runs, "gc_ms": round(self.gc_ns / 1e6, 2)}
+                "gc_runs": self.gc_runs, "gc_ms": round(self.gc_ns / 1e6, 2),
+                "freezes": self.freezes, "freeze_max_ms": round(self.freeze_max / 1e6, 1)}
