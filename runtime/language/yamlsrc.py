@@ -1,13 +1,45 @@
-"""YAML loading that keeps where every key and value was written, for error messages."""
+"""YAML loading that keeps where every key and value was written, for error messages.
+
+It is also the one place that reads the project's YAML files (charts, plants, scripts), so
+the limits that keep a hostile file from hanging or exhausting the controller live here:
+a source file is a regular file below ``MAX_FILE_BYTES``, its YAML nests at most
+``MAX_DEPTH`` levels, uses at most ``MAX_ALIASES`` aliases, stands for at most
+``expansion_budget(size)`` nodes and characters once aliases are expanded, and its integers
+fit 64 bits (``INT_MIN`` .. ``INT_MAX``). Each is refused with one ``FILE:LINE:COL`` error.
+"""
 
 from __future__ import annotations
 
+import os
 import re
+import stat
 from typing import Any
 
 import yaml
 
 from runtime.errors import Loc, SourceError
+
+#: the largest chart, plant or script file read, in bytes (4 MiB; hand-written charts are
+#: a few kB, the largest example plant under 10 kB)
+MAX_FILE_BYTES = 4 * 1024 * 1024
+#: mappings and lists inside one another (a plant nests 5 levels, a chart ~3 per macro-step);
+#: far below Python's recursion limit, which the loaders' recursion would otherwise meet
+MAX_DEPTH = 64
+#: aliases (``*name``) in one file: anchors share a few values, they are not a macro system
+MAX_ALIASES = 100
+#: nodes and characters that aliases may add beyond the file's own size
+EXPANSION_ALLOWANCE = 10_000
+#: the integers a file may hold: from LINT's least to ULINT's greatest (64 bits)
+INT_MIN, INT_MAX = -(2**63), 2**64 - 1
+#: longest integer text read (sign, prefix and 64 binary digits), checked before converting
+_INT_TEXT_MAX = 70
+
+
+def expansion_budget(size: int) -> int:
+    """The nodes plus scalar characters a file of ``size`` characters may stand for, aliases
+    expanded: twice its size (more than any file without aliases can reach) plus
+    ``EXPANSION_ALLOWANCE``, so memory stays proportional to the file."""
+    return 2 * size + EXPANSION_ALLOWANCE
 
 
 class YMap(dict[str, Any]):
@@ -66,7 +98,77 @@ class _Loader(yaml.SafeLoader):
 
     YAML 1.1 also reads yes/no/on/off as bools, so an output named ``On`` or a step named
     ``No`` would silently become ``True``/``False``; editors' YAML language servers use 1.2.
+
+    Composing enforces the nesting, alias and expansion limits (raising SourceError at the
+    node or alias that crosses one), and integers are bounded to 64 bits.
     """
+
+    def __init__(self, text: str, path: str = "<yaml>") -> None:
+        super().__init__(text)
+        self.path = path
+        self.budget = expansion_budget(len(text))
+        self.produced = 0  # nodes + scalar characters so far, aliases expanded
+        self.aliases = 0
+        self.open_anchors: list[str | None] = []  # of the nodes being composed, outermost first
+        self.sizes: dict[str, int] = {}  # anchor -> what its node stands for, expanded
+
+    def _refuse(self, mark: Any, message: str) -> SourceError:
+        return SourceError(_mark(self.path, mark), message)
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        event = self.peek_event()  # type: ignore[no-untyped-call]
+        if isinstance(event, yaml.AliasEvent):
+            name = str(event.anchor)
+            if name in self.open_anchors:
+                raise self._refuse(event.start_mark, f"recursive alias '*{name}': it stands "
+                                   "for a node that contains it")
+            node = super().compose_node(parent, index)  # an undefined alias is refused here
+            self.aliases += 1
+            if self.aliases > MAX_ALIASES:
+                raise self._refuse(event.start_mark, f"too many aliases: expected at most "
+                                   f"{MAX_ALIASES} in one file, found '*{name}' beyond them")
+            self._charge(self.sizes.get(name, 1), event.start_mark,
+                         f"alias '*{name}' expands")
+            return node
+        if len(self.open_anchors) >= MAX_DEPTH:
+            raise self._refuse(event.start_mark, f"YAML nested deeper than {MAX_DEPTH} levels "
+                               "(mappings and lists inside one another)")
+        before = self.produced
+        self._charge(1 + len(getattr(event, "value", "") or ""), event.start_mark,
+                     "aliases expand")
+        self.open_anchors.append(event.anchor)
+        try:
+            node = super().compose_node(parent, index)
+        finally:
+            self.open_anchors.pop()
+        if event.anchor is not None:
+            self.sizes[event.anchor] = self.produced - before
+        return node
+
+    def _charge(self, amount: int, mark: Any, what: str) -> None:
+        self.produced += amount
+        if self.produced > self.budget:
+            raise self._refuse(mark, f"{what} the file beyond {self.budget} nodes and "
+                               f"characters (twice its size plus {EXPANSION_ALLOWANCE}): "
+                               "expected anchors that share a few values")
+
+    def construct_yaml_int(self, node: yaml.ScalarNode) -> int:
+        """An integer of at most 64 bits (the language's LINT .. ULINT), refused before
+        converting a long text (Python refuses over 4300 digits, with a traceback)."""
+        text = str(node.value).replace("_", "")
+        value = None
+        if len(text) <= _INT_TEXT_MAX:
+            value = super().construct_yaml_int(node)
+        if value is None or not INT_MIN <= value <= INT_MAX:
+            shown = text if len(text) <= 24 else f"{text[:10]}...{text[-6:]} ({len(text)} " \
+                                                 "characters)"
+            raise yaml.constructor.ConstructorError(
+                None, None, f"integer out of range: expected a 64-bit integer, from "
+                f"{INT_MIN} to {INT_MAX}, found {shown}", node.start_mark)
+        return value
+
+
+_Loader.add_constructor("tag:yaml.org,2002:int", _Loader.construct_yaml_int)
 
 
 _Loader.yaml_implicit_resolvers = {
@@ -164,18 +266,91 @@ def _make_str(value: str, node: yaml.ScalarNode, path: str, text: str) -> YStr:
     return s
 
 
-def load_yaml(path: str, text: str | None = None) -> Any:
-    """Load a YAML file into YMap/YList/YStr/scalars; raise SourceError on bad YAML."""
-    if text is None:
+_KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+          (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+          (stat.S_ISSOCK, "a socket"))
+
+
+def file_problem(mode: int, size: int) -> str | None:
+    """Why a file of this ``st_mode`` and size (bytes) is no source file: not a regular
+    file, or not below MAX_FILE_BYTES; None if it is one."""
+    if not stat.S_ISREG(mode):
+        found = next((what for test, what in _KINDS if test(mode)), "no regular file")
+    elif size >= MAX_FILE_BYTES:
+        found = f"a file of {size} bytes"
+    else:
+        return None
+    return (f"must be a regular file below {MAX_FILE_BYTES // (1024 * 1024)} MiB "
+            f"({MAX_FILE_BYTES} bytes), found {found}")
+
+
+def source_problem(path: str) -> str | None:
+    """Why ``path`` cannot be read as a chart, plant or script (None: it can be tried)."""
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        return f"cannot read file: {exc.strerror}"
+    return file_problem(st.st_mode, st.st_size)
+
+
+def read_source(path: str) -> str:
+    """The text of a chart, plant or script file; SourceError if it is no regular file below
+    MAX_FILE_BYTES or not UTF-8.
+
+    The status is checked before opening (opening a device can have effects of its own), the
+    file is opened non-blocking (a FIFO put in its place meanwhile cannot hang the open) and
+    checked again, and at most MAX_FILE_BYTES are read whatever its size said.
+    """
+    problem = source_problem(path)
+    data = b""
+    if problem is None:
         try:
-            with open(path, encoding="utf-8") as f:
-                text = f.read()
+            fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
         except OSError as exc:
             raise SourceError(Loc(path, 1, 1), f"cannot read file: {exc.strerror}") from None
-        except UnicodeDecodeError as exc:
-            raise SourceError(Loc(path, 1, 1), f"file is not UTF-8: {exc.reason}") from None
+        with os.fdopen(fd, "rb") as f:
+            st = os.fstat(fd)
+            problem = file_problem(st.st_mode, st.st_size)
+            if problem is None:
+                data = f.read(MAX_FILE_BYTES)
+                problem = file_problem(st.st_mode, len(data))  # it grew meanwhile
+    if problem is not None:
+        raise SourceError(Loc(path, 1, 1), problem)
     try:
-        node = yaml.compose(text, Loader=_Loader)
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        good = data[:exc.start].decode("utf-8")
+        raise SourceError(_index_loc(path, good, len(good)), f"file is not UTF-8: byte "
+                          f"0x{data[exc.start]:02X}: {exc.reason}") from None
+
+
+_LINE_BREAK = re.compile("\r\n|[\r\n\x85\u2028\u2029]")
+
+
+def _index_loc(path: str, text: str, index: int) -> Loc:
+    """File place of character ``index`` of ``text``, counting line breaks as YAML does."""
+    line, start = 1, 0
+    for m in _LINE_BREAK.finditer(text, 0, index):
+        line, start = line + 1, m.end()
+    return Loc(path, line, index - start + 1)
+
+
+def load_yaml(path: str, text: str | None = None) -> Any:
+    """Load a YAML file into YMap/YList/YStr/scalars; raise SourceError on bad YAML or a
+    file beyond the limits of the module's docstring."""
+    if text is None:
+        text = read_source(path)
+    try:
+        loader = _Loader(text, path)
+        try:
+            node = loader.get_single_node()
+        finally:
+            loader.dispose()
+    except yaml.reader.ReaderError as exc:
+        raise SourceError(_index_loc(path, text, exc.position), f"character "
+                          f"U+{exc.character:04X} is not allowed in YAML (control characters "
+                          "other than tab and line breaks, U+FFFE and U+FFFF): remove it"
+                          ) from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         loc = _mark(path, mark) if mark else Loc(path, 1, 1)
@@ -186,7 +361,7 @@ def load_yaml(path: str, text: str | None = None) -> Any:
         raise SourceError(loc, f"YAML syntax: {what}{ctx}") from None
     if node is None:
         raise SourceError(Loc(path, 1, 1), "empty file: expected a YAML mapping")
-    constructor = _Loader(text)
+    constructor = _Loader(text, path)
 
     def convert(n: yaml.Node) -> Any:
         if isinstance(n, yaml.MappingNode):
