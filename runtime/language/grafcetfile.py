@@ -37,7 +37,14 @@ from runtime.language.typecheck import (
     Checker,
     looks_temporary,
 )
-from runtime.language.yamlsrc import YList, YMap, YStr, load_yaml, synthetic_str
+from runtime.language.yamlsrc import (
+    TIME_MAX_NS,
+    YList,
+    YMap,
+    YStr,
+    load_yaml,
+    synthetic_str,
+)
 
 T = A.Type
 GRAFCET_KEYS = ("grafcet", "description", "scan", "inputs", "outputs", "memory", "timers",
@@ -71,10 +78,6 @@ def expect_type(value: Any, loc: Loc, types: type | tuple[type, ...], what: str)
             found = "a list"
         raise SourceError(loc, f"expected {what}, found {found}")
     return value
-
-
-#: the longest time a file may give, in ns: the 64-bit LTIME's greatest (about 292 years)
-TIME_MAX_NS = 2**63 - 1
 
 
 def time_value(value: Any, loc: Loc, what: str) -> int:

@@ -29,10 +29,13 @@ MAX_DEPTH = 64
 MAX_ALIASES = 100
 #: nodes and characters that aliases may add beyond the file's own size
 EXPANSION_ALLOWANCE = 10_000
-#: the integers a file may hold: from LINT's least to ULINT's greatest (64 bits)
+#: the integers a file may hold, in YAML or as a literal of an expression: from LINT's
+#: least to ULINT's greatest (64 bits)
 INT_MIN, INT_MAX = -(2**63), 2**64 - 1
-#: longest integer text read (sign, prefix and 64 binary digits), checked before converting
-_INT_TEXT_MAX = 70
+#: the longest time a file may give, in ns: LTIME's greatest (2**63 - 1 ns, about 292 years)
+TIME_MAX_NS = 2**63 - 1
+#: most significant digits of an integer (64 binary digits), checked before converting
+_INT_TEXT_MAX = 64
 
 
 def expansion_budget(size: int) -> int:
@@ -156,8 +159,10 @@ class _Loader(yaml.SafeLoader):
         """An integer of at most 64 bits (the language's LINT .. ULINT), refused before
         converting a long text (Python refuses over 4300 digits, with a traceback)."""
         text = str(node.value).replace("_", "")
+        digits = text.lstrip("+-")
+        digits = digits[2:] if digits[:2] in ("0x", "0b", "0o") else digits
         value = None
-        if len(text) <= _INT_TEXT_MAX:
+        if len(digits.lstrip("0")) <= _INT_TEXT_MAX:
             value = super().construct_yaml_int(node)
         if value is None or not INT_MIN <= value <= INT_MAX:
             shown = text if len(text) <= 24 else f"{text[:10]}...{text[-6:]} ({len(text)} " \

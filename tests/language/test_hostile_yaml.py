@@ -324,3 +324,18 @@ def test_bytes_that_are_not_utf8_are_one_error_line(tmp_path: Path, kind: str) -
     f, args, line, col = _with_bad(kind, b"\xff\xfe", tmp_path)
     got, msg = refused(softplc(tmp_path, *args), f, line, "not UTF-8", "0xFF")
     assert got == col, msg
+
+
+@pytest.mark.parametrize("literal", ["9" * 5000, "16#" + "F" * 5000, "9" * 5000 + "s",
+                                     "18446744073709551616", "2#1" + "0" * 64,
+                                     "106751d23h47m16s854ms775us808ns"])
+def test_a_number_beyond_64_bits_in_an_expression_is_refused(tmp_path: Path,
+                                                              literal: str) -> None:
+    text = CHART.replace("outputs: [oA]", "outputs: [oA]\nmemory:\n  sN: 0\n  sT: 0s").replace(
+        "actions: [oA]", f'actions: [oA, "P1 sN := sN + {literal}"]')
+    if literal.endswith("s"):
+        text = text.replace("sN := sN +", "sT := sT +")
+    f = put(tmp_path, "big.yaml", text)
+    line = line_of(text, "P1 s")
+    col, msg = refused(softplc(tmp_path, "compile", str(f)), f, line, "out of range")
+    assert col == text.splitlines()[line - 1].index(literal[:6]) + 1

@@ -160,3 +160,22 @@ def test_a_list_keeps_working_with_the_composer_limits(tmp_path: Path) -> None:
     doc = load(tmp_path, "l: [a, &b [1, 2], *b]\n")
     assert isinstance(doc, YMap) and isinstance(doc["l"], YList)
     assert doc["l"] == ["a", [1, 2], [1, 2]]
+
+
+def test_leading_zeros_do_not_count_toward_the_integer_limit(tmp_path: Path) -> None:
+    doc = load(tmp_path, f"a: 0x{'0' * 100}ff\nb: -{'0' * 100}7\n")  # YAML 1.1: 0... octal
+    assert isinstance(doc, YMap) and (doc["a"], doc["b"]) == (255, -7)
+
+
+def test_expression_literals_up_to_64_bits_parse_and_one_more_is_refused() -> None:
+    from runtime.language.ast import Lit
+    from tests.language.langkit import expr
+
+    for text, value in [("0" * 100 + "1", 1), ("16#" + "0" * 100 + "FF", 255),
+                        (str(INT_MAX), INT_MAX), ("2#" + "1" * 64, INT_MAX)]:
+        lit = expr(text)
+        assert isinstance(lit, Lit) and lit.value == value
+    for text in [str(INT_MAX + 1), "2#1" + "0" * 64, "16#1" + "0" * 16]:
+        with pytest.raises(SourceError, match="integer out of range") as info:
+            expr(f"x + {text}")
+        assert info.value.loc.col == 5
