@@ -368,6 +368,17 @@ def load_yaml(path: str, text: str | None = None) -> Any:
         raise SourceError(Loc(path, 1, 1), "empty file: expected a YAML mapping")
     constructor = _Loader(text, path)
 
+    def scalar(n: yaml.Node) -> Any:
+        try:
+            return constructor.construct_object(n)
+        except (ValueError, TypeError, KeyError, IndexError, OverflowError) as exc:
+            # a tagged or implicit value the tag cannot hold: '!!int abc', 2001-99-99
+            kind = str(n.tag).rsplit(":", 1)[-1]
+            raw = str(n.value) if isinstance(n.value, str) else "..."
+            shown = raw if len(raw) <= 40 else raw[:37] + "..."
+            raise SourceError(_mark(path, n.start_mark), f"cannot read '{shown}' as a YAML "
+                              f"{kind} ({exc}): quote it to make it a text") from None
+
     def convert(n: yaml.Node) -> Any:
         if isinstance(n, yaml.MappingNode):
             m = YMap()
@@ -376,7 +387,7 @@ def load_yaml(path: str, text: str | None = None) -> Any:
             for kn, vn in n.value:
                 if not isinstance(kn, yaml.ScalarNode):
                     raise SourceError(_mark(path, kn.start_mark), "expected a plain key")
-                key = str(constructor.construct_object(kn))
+                key = str(scalar(kn))
                 if key in m:
                     raise SourceError(_mark(path, kn.start_mark),
                                       f"duplicate key: expected each key once, found "
@@ -396,7 +407,7 @@ def load_yaml(path: str, text: str | None = None) -> Any:
                 lst.append(v)
                 lst.locs.append(v.loc if isinstance(v, YStr) else _mark(path, item.start_mark))
             return lst
-        value = constructor.construct_object(n)
+        value = scalar(n)
         if isinstance(value, str) and isinstance(n, yaml.ScalarNode):
             return _make_str(value, n, path, text)
         return value

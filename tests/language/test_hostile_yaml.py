@@ -339,3 +339,11 @@ def test_a_number_beyond_64_bits_in_an_expression_is_refused(tmp_path: Path,
     line = line_of(text, "P1 s")
     col, msg = refused(softplc(tmp_path, "compile", str(f)), f, line, "out of range")
     assert col == text.splitlines()[line - 1].index(literal[:6]) + 1
+
+
+@pytest.mark.parametrize("value", ["!!timestamp 2001-99-99", "2001-12-14t21:59:43.10-99:00",
+                                   "!!int abc", '!!int ""', "!!bool maybe", "!!float x"])
+def test_a_value_its_tag_cannot_hold_is_one_error_line(tmp_path: Path, value: str) -> None:
+    f = put(tmp_path, "tag.yaml", CHART.replace("steps:", f"memory:\n  sN: {value}\nsteps:"))
+    col, msg = refused(softplc(tmp_path, "compile", str(f)), f, 5, "cannot read", "as a YAML")
+    assert col == 7
