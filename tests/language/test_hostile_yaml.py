@@ -267,7 +267,7 @@ def test_grafcet_path_must_be_a_small_regular_file(tmp_path: Path, what: str,
     target = _special(tmp_path, what)
     plant = plant_of(tmp_path, target)
     refused(softplc(tmp_path, *COMMANDS[command](str(plant))), plant, 4,
-            "must be a regular file below 4 MiB")
+            "must be a regular file below 256 KiB")
 
 
 @pytest.mark.parametrize("command", ["simulate", "run", "check"])
@@ -280,7 +280,7 @@ def test_script_path_must_be_a_small_regular_file(tmp_path: Path, what: str,
     args = {"simulate": ["simulate", str(plant), "--script", str(target)],
             "run": ["run", str(plant), "--sim", "--for", "1s", "--script", str(target)],
             "check": ["check", "-q", "--plant", str(plant), str(target)]}[command]
-    refused(softplc(tmp_path, *args), target, 1, "must be a regular file below 4 MiB")
+    refused(softplc(tmp_path, *args), target, 1, "must be a regular file below 256 KiB")
 
 
 # -- 5. characters YAML forbids, and bytes that are not UTF-8 --------------------------------
@@ -347,3 +347,11 @@ def test_a_value_its_tag_cannot_hold_is_one_error_line(tmp_path: Path, value: st
     f = put(tmp_path, "tag.yaml", CHART.replace("steps:", f"memory:\n  sN: {value}\nsteps:"))
     col, msg = refused(softplc(tmp_path, "compile", str(f)), f, 5, "cannot read", "as a YAML")
     assert col == 7
+
+
+def test_a_file_of_120000_nodes_is_refused_at_the_node_limit(tmp_path: Path) -> None:
+    # below the size limit, but pure-Python YAML needs ~25 µs a node: 3 s and 180 MB before
+    f = put(tmp_path, "many.yaml", "grafcet: T\nsteps: [" + "x," * 120_000 + "x]\n")
+    assert f.stat().st_size < 256 * 1024
+    col, _ = refused(softplc(tmp_path, "compile", str(f)), f, 2, "more than 20000 nodes")
+    assert char_at(f, 2, col) == "x"

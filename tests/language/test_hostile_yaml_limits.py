@@ -11,7 +11,7 @@ import pytest
 
 from runtime.errors import Loc, SourceError
 from runtime.language import yamlsrc
-from runtime.language.grafcetfile import TIME_MAX_NS, time_value
+from runtime.language.grafcetfile import time_value
 from runtime.language.plantfile import load_plant
 from runtime.language.yamlsrc import (
     EXPANSION_ALLOWANCE,
@@ -19,6 +19,8 @@ from runtime.language.yamlsrc import (
     INT_MIN,
     MAX_ALIASES,
     MAX_DEPTH,
+    MAX_NODES,
+    TIME_MAX_NS,
     YList,
     YMap,
     load_yaml,
@@ -63,22 +65,38 @@ def test_aliases_that_share_values_load_as_copies(tmp_path: Path) -> None:
     assert (err.loc.line, err.loc.col) == (MAX_ALIASES + 2, 8)
 
 
-def test_expansion_just_within_the_budget_loads_and_beyond_is_refused(tmp_path: Path) -> None:
-    # one anchored text of n characters, aliased 9 times: 10 copies of n + 1 units
+def test_text_expansion_just_within_the_budget_loads_and_beyond_is_refused(
+        tmp_path: Path) -> None:
+    # one anchored text of n characters, aliased 9 times: 10 copies of it, plus keys a and b
     def doc(n: int) -> str:
         return f"a: &a {'x' * n}\nb: [*a, *a, *a, *a, *a, *a, *a, *a, *a]\n"
 
-    def units(n: int) -> int:  # the root and the list 1 each, keys a, b 2 each, 10 texts
-        return 1 + 1 + 2 + 2 + 10 * (n + 1)
+    def chars(n: int) -> int:
+        return 2 + 10 * n
 
-    def budget(n: int) -> int:
-        return 2 * len(doc(n)) + EXPANSION_ALLOWANCE
-
-    n = next(k for k in range(1000, 2000) if units(k) > budget(k))
+    n = next(k for k in range(1000, 2000) if chars(k) > len(doc(k)) + EXPANSION_ALLOWANCE)
     assert isinstance(load(tmp_path, doc(n - 1)), YMap)
     err = refusal(tmp_path, doc(n))
-    assert "alias '*a' expands the file beyond" in err.message
+    assert "alias '*a' expands the file to more than" in err.message
+    assert "characters of values" in err.message
     assert (err.loc.line, err.loc.col) == (2, 5 + 4 * 8)  # the ninth alias
+
+
+def test_nodes_up_to_the_limit_load_and_one_more_is_refused(tmp_path: Path) -> None:
+    # the root, key 'a', the list: 3 nodes, then one per item
+    items = MAX_NODES - 3
+    doc = load(tmp_path, "a: [" + ",".join(["1"] * items) + "]\n")
+    assert isinstance(doc, YMap) and len(doc["a"]) == items
+    err = refusal(tmp_path, "a: [" + ",".join(["1"] * (items + 1)) + "]\n")
+    assert err.message.startswith(f"the file has more than {MAX_NODES} nodes")
+    assert (err.loc.line, err.loc.col) == (1, 5 + 2 * items)  # the last item
+
+
+def test_nodes_added_by_an_alias_count(tmp_path: Path) -> None:
+    big = "a: &a [" + ",".join(["1"] * (MAX_NODES // 2)) + "]\n"
+    err = refusal(tmp_path, big + "b: *a\n")
+    assert err.message.startswith("alias '*a' expands the file to more than 20000 nodes")
+    assert (err.loc.line, err.loc.col) == (2, 4)
 
 
 def test_an_undefined_alias_is_still_a_yaml_error(tmp_path: Path) -> None:
@@ -147,7 +165,7 @@ def test_a_plant_naming_a_fifo_says_so_at_its_grafcet_line(tmp_path: Path) -> No
     with pytest.raises(SourceError) as info:
         load_plant(str(plant))
     assert str(info.value) == (f"{plant}:3:16: error: grafcet file {fifo}: must be a regular "
-                               "file below 4 MiB (4194304 bytes), found a FIFO (named pipe)")
+                               "file below 256 KiB (262144 bytes), found a FIFO (named pipe)")
 
 
 def test_a_forbidden_character_after_a_crlf_line_is_placed_on_its_line(tmp_path: Path) -> None:
