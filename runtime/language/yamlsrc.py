@@ -32,8 +32,8 @@ MAX_DEPTH = 64
 #: aliases (``*name``) in one file: anchors share a few values, they are not a macro system
 MAX_ALIASES = 100
 #: nodes (mappings, lists and values) of one file, aliases expanded: the largest example has
-#: 340; 20000 load in about 0.5 s
-MAX_NODES = 20_000
+#: 340; 10000 load in about 0.3 s (a plant of 300 instances has about 6000)
+MAX_NODES = 10_000
 #: characters of values that aliases may add beyond the file's own size
 EXPANSION_ALLOWANCE = 10_000
 #: the integers a file may hold, in YAML or as a literal of an expression: from LINT's

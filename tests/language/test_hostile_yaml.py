@@ -357,5 +357,5 @@ def test_a_file_of_120000_nodes_is_refused_at_the_node_limit(tmp_path: Path) -> 
     # below the size limit, but pure-Python YAML needs ~25 µs a node: 3 s and 180 MB before
     f = put(tmp_path, "many.yaml", "grafcet: T\nsteps: [" + "x," * 120_000 + "x]\n")
     assert f.stat().st_size < 256 * 1024
-    col, _ = refused(softplc(tmp_path, "compile", str(f)), f, 2, "more than 20000 nodes")
+    col, _ = refused(softplc(tmp_path, "compile", str(f)), f, 2, "more than 10000 nodes")
     assert char_at(f, 2, col) == "x"
