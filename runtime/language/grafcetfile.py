@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from drivers.durations import parse_literal, strip_time_prefix
+from drivers.durations import format_ns, parse_literal, strip_time_prefix
 from runtime.errors import Diagnostic, Loc, SourceError, suggest
 from runtime.language import ast as A
 from runtime.language.lexer import KEYWORDS, is_name
@@ -37,7 +37,14 @@ from runtime.language.typecheck import (
     Checker,
     looks_temporary,
 )
-from runtime.language.yamlsrc import YList, YMap, YStr, load_yaml, synthetic_str
+from runtime.language.yamlsrc import (
+    TIME_MAX_NS,
+    YList,
+    YMap,
+    YStr,
+    load_yaml,
+    synthetic_str,
+)
 
 T = A.Type
 GRAFCET_KEYS = ("grafcet", "description", "scan", "inputs", "outputs", "memory", "timers",
@@ -74,11 +81,19 @@ def expect_type(value: Any, loc: Loc, types: type | tuple[type, ...], what: str)
 
 
 def time_value(value: Any, loc: Loc, what: str) -> int:
-    """A time given in YAML: ``10s``, ``T#10s``, or 0."""
+    """A time given in YAML: ``10s``, ``T#10s``, or 0; at most TIME_MAX_NS."""
     if value == 0 and not isinstance(value, bool):
         return 0
     if isinstance(value, str):
-        ns = parse_literal(strip_time_prefix(value.strip()))
+        try:
+            ns = parse_literal(strip_time_prefix(value.strip()))
+        except OverflowError:  # a number of thousands of digits: float('inf')
+            ns = TIME_MAX_NS + 1
+        if ns is not None and ns > TIME_MAX_NS:
+            shown = value if len(value) <= 24 else f"{value[:10]}...{value[-6:]}"
+            raise SourceError(loc, f"time out of range for {what}: expected at most "
+                                   f"{format_ns(TIME_MAX_NS)} (64-bit nanoseconds), found "
+                                   f"'{shown}'")
         if ns is not None:
             return ns
     raise SourceError(loc, f"bad time literal '{value}' for {what}: expected e.g. 10s, 250ms, "

@@ -7,8 +7,9 @@ import unicodedata
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from drivers.durations import parse_literal
+from drivers.durations import format_ns, parse_literal
 from runtime.errors import Loc, SourceError
+from runtime.language.yamlsrc import INT_MAX, TIME_MAX_NS
 
 KEYWORDS = {
     "AND", "OR", "XOR", "NOT", "MOD", "RE", "FE", "TRUE", "FALSE", "IF", "THEN", "ELSIF",
@@ -124,9 +125,11 @@ class Lexer:
             while k < n and (text[k].isalnum() or text[k] == "_"):
                 k += 1
             try:
-                return Tok("INT", text[i:k], i, k, int(text[j + 1:k].replace("_", ""), base))
+                digits = text[j + 1:k].replace("_", "")
+                value = int(digits, base) if len(digits.lstrip("0")) <= 64 else INT_MAX + 1
             except ValueError:
                 raise self.error(i, f"bad based integer '{text[i:k]}'") from None
+            return Tok("INT", text[i:k], i, k, self._bounded(i, text[i:k], value))
         is_real = False
         if j + 1 < n and text[j] == "." and text[j + 1].isdigit():
             is_real = True
@@ -146,7 +149,14 @@ class Lexer:
             while k < n and (text[k].isalnum() or text[k] in "._"):
                 k += 1
             lit = text[i:k]
-            ns = parse_literal(lit)
+            try:
+                ns = parse_literal(lit)
+            except OverflowError:  # thousands of digits: float('inf')
+                ns = TIME_MAX_NS + 1
+            if ns is not None and ns > TIME_MAX_NS:
+                raise self.error(i, f"time out of range: expected at most "
+                                    f"{format_ns(TIME_MAX_NS)} (64-bit nanoseconds), found "
+                                    f"'{_short(lit)}'")
             if ns is None:
                 raise self.error(i, f"bad time literal '{lit}': expected a number followed by "
                                     "units in order d h m s ms (e.g. 1m30s, 250ms)")
@@ -154,4 +164,17 @@ class Lexer:
         raw = text[i:j].replace("_", "")
         if is_real:
             return Tok("REAL", text[i:j], i, j, float(raw))
-        return Tok("INT", text[i:j], i, j, int(raw))
+        value = int(raw) if len(raw.lstrip("0")) <= 20 else INT_MAX + 1
+        return Tok("INT", text[i:j], i, j, self._bounded(i, text[i:j], value))
+
+    def _bounded(self, i: int, lit: str, value: int) -> int:
+        """An integer literal of at most 64 bits (ULINT's greatest; a minus sign is an
+        operator), so a 5000-digit number is an error, not a crash of Python's int limit."""
+        if value > INT_MAX:
+            raise self.error(i, f"integer out of range: expected at most {INT_MAX} (64 "
+                                f"bits), found '{_short(lit)}'")
+        return value
+
+
+def _short(lit: str) -> str:
+    return lit if len(lit) <= 24 else f"{lit[:10]}...{lit[-6:]} ({len(lit)} characters)"

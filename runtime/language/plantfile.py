@@ -30,7 +30,7 @@ from runtime.language.model import (
 )
 from runtime.language.runtimedir import expand
 from runtime.language.typecheck import FLAGS_BOOL
-from runtime.language.yamlsrc import YMap, load_yaml
+from runtime.language.yamlsrc import YMap, load_yaml, source_problem
 
 PLANT_KEYS = ("plc", "drivers", "instances", "monitor")
 PLC_KEYS = ("cycle", "watchdog", "retain", "retain_interval", "retain_required", "realtime")
@@ -190,6 +190,9 @@ def load_plant(path: str, load: PlantLoad | None = None) -> PlantDef:
             gpath = _resolve(path, str(spec["grafcet"]))
             if not os.path.exists(gpath):
                 raise SourceError(spec.val_locs["grafcet"], f"grafcet file not found: {gpath}")
+            problem = source_problem(gpath)  # a device, a FIFO or a huge file: said here
+            if problem is not None:
+                raise SourceError(spec.val_locs["grafcet"], f"grafcet file {gpath}: {problem}")
             if gpath not in load.chart_files:
                 load.chart_files.append(gpath)
             g = load.chart(gpath)
