@@ -4,10 +4,12 @@ G102 unreachable step, G103 a transition back to its own source step, G104 unsaf
 G201 OR divergence not exclusive, G202 action that never executes, G203 divergence not
 closed, G204 same level condition on consecutive transitions, G205 counting statement in a
 continuous action, G206 deadlock, G207 bool promoted to a number in a comparison, G208
-transition that never fires, G209 analysis cut by its bounds (docs/check.md). The rules
-that the loader enforces itself (G101, G105, G106) are the loader's diagnostics, printed by
-runtime/checker/check.py. Positions inside a condition or an action come from the model
-(``Transition.at``, ``Action.at``, ``Statement.at``).
+transition that never fires, G209 analysis cut by its bounds, G210 a stored action that
+nothing resets, G211 a timer read stale under ``scan: stable`` (these two in
+runtime/checker/traps.py; docs/check.md). The rules that the loader enforces itself (G101,
+G105, G106) are the loader's diagnostics, printed by runtime/checker/check.py. Positions
+inside a condition or an action come from the model (``Transition.at``, ``Action.at``,
+``Statement.at``).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from drivers.durations import format_ns
 from runtime.checker.diag import Diag, diag
 from runtime.checker.logic import Logic, has_edge
 from runtime.checker.reach import LIMIT, Reach, Unsafe, explore, structural_reach
+from runtime.checker.traps import latched_targets, stale_timer_reads
 from runtime.errors import Loc
 from runtime.language import ast as A
 from runtime.language.model import Grafcet, Qualifier, Step, Transition
@@ -52,6 +55,8 @@ class ChartChecker:
         self.same_condition()
         self.counting()
         self.promotions()
+        self.out += latched_targets(self.g)
+        self.out += stale_timer_reads(self.g, self.logic.defs)
         return self.out
 
     # -- helpers ------------------------------------------------------------------------

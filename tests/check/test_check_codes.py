@@ -318,6 +318,47 @@ CASES: dict[str, tuple[str, int, str]] = {
           - {from: gsA, to: gsB, when: iA}
           - {from: gsB, to: gsA, when: "iB·iC'"}
         """),
+    "G210": (  # S with no R anywhere: latched for good
+        """\
+        steps:
+          gsA: {initial: true}
+          gsB: {actions: ["S oX"]}
+        transitions:
+          - {from: gsA, to: gsB, when: iA}
+          - {from: gsB, to: gsA, when: iB}
+        """, 7,
+        """\
+        steps:
+          gsA: {initial: true, actions: ["R oX"]}
+          gsB: {actions: ["S oX"]}
+        transitions:
+          - {from: gsA, to: gsB, when: iA}
+          - {from: gsB, to: gsA, when: iB}
+        """),
+    "G211": (  # the star-delta start: the star step's own timer, read under scan: stable
+        """\
+        scan: stable
+        timers: [timeStar]
+        steps:
+          gsOff: {initial: true}
+          gsStar: {actions: [oX, "P1 timeStar.Ini(3s)"]}
+          gsDelta: {actions: [oY]}
+        transitions:
+          - {from: gsOff, to: gsStar, when: ↑iA}
+          - {from: gsStar, to: gsDelta, when: timeStar.End()}
+          - {from: gsDelta, to: gsOff, when: iB}
+        """, 13,
+        """\
+        scan: stable
+        steps:
+          gsOff: {initial: true}
+          gsStar: {actions: [oX]}
+          gsDelta: {actions: [oY]}
+        transitions:
+          - {from: gsOff, to: gsStar, when: ↑iA}
+          - {from: gsStar, to: gsDelta, when: gsStar.T >= 3s}
+          - {from: gsDelta, to: gsOff, when: iB}
+        """),
 }
 
 ERRORS = {"G101", "G102", "G103", "G104", "G105", "G106"}
