@@ -1,4 +1,4 @@
-"""Plant files: driver points (G303-G305).
+"""Plant files: driver points (G303-G305) and the binding traps (G306, G307).
 
 Signals left unbound (G301) and physical outputs bound twice (G302) are the plant loader's
 own checks: it reports them as diagnostics (runtime/language/plantfile.py), and
@@ -7,11 +7,12 @@ runtime/checker/check.py prints them.
 
 from __future__ import annotations
 
+import re
 from typing import Any
 
 from runtime.checker.diag import Diag, diag
 from runtime.language import ast as A
-from runtime.language.model import PlantDef
+from runtime.language.model import Binding, PlantDef, VarKind
 
 T = A.Type
 
@@ -38,6 +39,8 @@ def check_plant_model(p: PlantDef) -> list[Diag]:
             drivers[name] = cls(name, dict(d.config))
         except (ConfigError, ValueError, TypeError) as exc:
             out.append(diag(d.loc, "error", "G304", f"driver '{name}' ({d.type}): {exc}"))
+    one_way = {name for name, drv in drivers.items() if drv.ONE_DIRECTION_PER_POINT}
+    out += shared_inputs(p) + outputs_on_inputs(p, one_way)
     noted: set[str] = set()
     for inst in p.instances.values():
         for direction, section in ((Direction.IN, inst.inputs), (Direction.OUT, inst.outputs)):
@@ -73,4 +76,65 @@ def check_plant_model(p: PlantDef) -> list[Diag]:
                     out.append(diag(b.loc, "error", "G303", f"'{b.source}' carries "
                                     f"{'a register (int)' if kind is PointKind.INT else 'a bit'}"
                                     f" but '{inst.name}.{b.signal}' is {var.type}"))
+    return out
+
+
+#: a ``sim`` point named as an input, as the example plants and the bus drivers name them
+SIM_INPUT_POINT = re.compile(r"(?i)(I|IR)\d+")
+
+
+def _point(b: Binding) -> str:
+    return f"{b.driver}.{b.point}"
+
+
+def shared_inputs(p: PlantDef) -> list[Diag]:
+    """G306: one physical input point feeding two inputs of the same instance (a copied
+    binding line, mostly: the chart then sees one contact as two signals). Chart flags and
+    links to other instances are left out; two instances reading one point are fine."""
+    out: list[Diag] = []
+    for inst in p.instances.values():
+        first: dict[str, Binding] = {}
+        for b in inst.inputs.values():
+            var = inst.grafcet.variables.get(b.signal)
+            if b.driver is None or b.point == "ok" or var is None or (
+                    var.kind is not VarKind.INPUT):
+                continue
+            was = first.setdefault(_point(b), b)
+            if was is not b:
+                out.append(diag(b.loc, "warning", "G306", f"input point '{_point(b)}' feeds "
+                                f"both '{inst.name}.{was.signal}' (line {was.loc.line}) and "
+                                f"'{inst.name}.{b.signal}': the chart sees one contact as "
+                                f"two signals; bind '{b.signal}' to its own point (for a "
+                                "signal and its negation, read the negation in the chart)"))
+    return out
+
+
+def outputs_on_inputs(p: PlantDef, one_way: set[str]) -> list[Diag]:
+    """G307: an output bound to an input point: a point the plant also binds as an input,
+    or a ``sim`` point named as one (``I3``, ``IR0``). Drivers whose points have one
+    direction (``one_way``) already refuse the first case (G303)."""
+    read: dict[str, tuple[str, Binding]] = {}
+    for inst in p.instances.values():
+        for b in inst.inputs.values():
+            if b.driver is not None:
+                read.setdefault(_point(b), (inst.name, b))
+    out: list[Diag] = []
+    for inst in p.instances.values():
+        for b in inst.outputs.values():
+            if b.driver is None or b.point in (None, "ok"):
+                continue
+            key = _point(b)
+            why = None
+            if key in read and b.driver not in one_way:
+                who, ib = read[key]
+                why = (f"'{key}' is also bound as input '{who}.{ib.signal}' (line "
+                       f"{ib.loc.line}): the input does not read what the output writes; bind "
+                       "the output to a point of its own")
+            elif p.drivers[b.driver].type == "sim" and SIM_INPUT_POINT.fullmatch(b.point):
+                why = (f"'{key}' is named as an input point (I<n>, IR<n>): a simulation "
+                       "script sets it, the output's value is not read back; name it "
+                       "Q<n>")
+            if why is not None:
+                out.append(diag(b.loc, "warning", "G307", f"output '{inst.name}.{b.signal}' "
+                                f"is bound to an input point: {why}"))
     return out

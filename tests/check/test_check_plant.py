@@ -142,6 +142,80 @@ def test_g305_missing_driver_library(write: Callable[[str, str], str], chart: st
     assert found == ["note G305 6"], found
 
 
+def test_g306_one_input_point_feeds_two_inputs_of_an_instance(
+        write: Callable[[str, str], str], chart: str) -> None:
+    found, status = diags_of(write, """\
+        drivers:
+          sim: {type: sim}
+          exp1: {type: mcp23017, bus: 1, address: 0x20}
+        instances:
+          a:
+            grafcet: small.yaml
+            inputs: {iA: exp1.A2, iB: {from: exp1.A2, invert: true}}
+            outputs: {oX: exp1.B0, oY: exp1.B1}
+          b:
+            grafcet: small.yaml
+            inputs: {iA: sim.I0, iB: sim.I0}
+            outputs: {oX: sim.Q0, oY: sim.Q1}
+        """)
+    assert status == 0  # a warning
+    assert [f for f in found if " G306 " in f] == ["warning G306 7", "warning G306 11"], found
+
+
+def test_g306_near_miss_instances_sharing_an_input(write: Callable[[str, str], str],
+                                                   chart: str) -> None:
+    """A shared push-button read by two instances (each reads it once) is fine."""
+    found, _ = diags_of(write, """\
+        drivers: {sim: {type: sim}}
+        instances:
+          a:
+            grafcet: small.yaml
+            inputs: {iA: sim.I0, iB: sim.I1}
+            outputs: {oX: sim.Q0, oY: sim.Q1}
+          b:
+            grafcet: small.yaml
+            inputs: {iA: sim.I0, iB: sim.I2}
+            outputs: {oX: sim.Q2, oY: sim.Q3}
+        """)
+    assert not [f for f in found if f.split()[0] != "note"], found
+
+
+def test_g307_output_bound_to_an_input_point(write: Callable[[str, str], str],
+                                             chart: str) -> None:
+    path = write("plant.yaml", """\
+        drivers: {sim: {type: sim}}
+        instances:
+          a:
+            grafcet: small.yaml
+            inputs: {iA: sim.I0, iB: sim.I1}
+            outputs: {oX: sim.I1, oY: sim.I7}
+        """)
+    res = check_files([path])
+    g307 = [d for r in res for d in r.diags if d.code == "G307"]
+    assert [(d.severity, d.line) for d in g307] == [("warning", 6), ("warning", 6)], g307
+    assert "'sim.I1' is also bound as input 'a.iB' (line 5)" in g307[0].message
+    assert "'sim.I7' is named as an input point" in g307[1].message
+    assert exit_status(res) == 0
+
+
+def test_g307_near_miss_and_no_double_report_of_g303(write: Callable[[str, str], str],
+                                                     chart: str) -> None:
+    """Outputs on output points are fine; on a hardware driver a point used both ways is
+    already the error G303, not also a warning."""
+    found, status = diags_of(write, """\
+        drivers:
+          sim: {type: sim}
+          exp1: {type: mcp23017, bus: 1, address: 0x20}
+        instances:
+          a:
+            grafcet: small.yaml
+            inputs: {iA: sim.I0, iB: exp1.A0}
+            outputs: {oX: sim.Q0, oY: exp1.A0}
+        """)
+    assert status == 1
+    assert "error G303 8" in found and not [f for f in found if " G307 " in f], found
+
+
 def test_plant_checks_its_charts_once(write: Callable[[str, str], str]) -> None:
     write("bad.yaml", CHART.replace("to: gsA, when", "to: gsB, when"))
     path = write("plant.yaml", """\
