@@ -381,7 +381,7 @@ def test_yaml_reads_hex_addresses_as_ints() -> None:
 
 
 SCRIPT_BAD = {
-    "neither duration nor cycles": "set: [{at: 0ms, t1.iA: 1}]",
+    "nothing to do": "description: no length, no changes",
     "unknown top-level key": "duration: 1s\nevents: []",
     "bad duration": "duration: 2 s",
     "negative cycles": "cycles: -1",
@@ -401,6 +401,8 @@ def test_script_schema_rejects(case: str) -> None:
 
 def test_script_cycles_or_duration() -> None:
     assert not errors("script", {"cycles": 10})
+    # a script meant for `softplc simulate --cycles N` has no length of its own
+    assert not errors("script", {"set": [{"at": "0ms", "t1.iA": 1}]})
     assert not errors("script", {"duration": "1s", "set": [{"at": "0ms", "sim.I0": 1}]})
     assert not errors("script", {"cycles": 5, "set": [{"at": 0, "t1.iA": True,
                                                        "t1.tTemp": 21.5}]})

@@ -15,12 +15,15 @@ transition that never fires, G209 analysis cut by its bounds. Plant files: G300 
 plant not checked further because a chart of it breaks a rule above, G301 unbound
 signal, G302 physical output bound twice, G303 driver point that does not exist (or wrong
 direction or type), G304 bad driver configuration, G305 (note) point not checked because the
-driver's library is missing.
+driver's library is missing, G306 one input point feeding two inputs of an instance, G307 an
+output bound to an input point. Chart warnings also G210 (a stored action nothing resets)
+and G211 (a timer read stale under ``scan: stable``).
 
 A simulation script (``duration:``/``cycles:``, ``set:``) is checked against its plant
 (``--plant``, or the one plant file of its directory), so that ``softplc check
 configs/*/*.yaml`` checks everything: an error in it is a loading error (exit status 2),
-and G400 (note) says when no plant could be found for it.
+G400 (note) says when no plant could be found for it, and G401 (note) that it has no length
+(``duration:``/``cycles:``): ``softplc simulate --cycles N`` runs it.
 
 This module is the command: it loads each file once, with the loaders collecting their rule
 errors as diagnostics (a chart's G101, G105 and G106, a plant's G301 and G302: the loaders
@@ -185,9 +188,13 @@ class CheckRun:
                                           f"script not checked: its plant "
                                           f"{show_path(plant)} ({how}) does not load")])
         try:
-            read_script(path, names)
+            script = read_script(path, names, need_length=False)
         except SourceError as exc:
             return FileResult(path, [], f"{exc} (checked against {show_path(plant)})")
+        if script.duration_ns is None and script.cycles is None:
+            return FileResult(path, [diag(Loc(path, 1, 1), "note", "G401", "the script has "
+                                          "neither 'duration:' nor 'cycles:': run it with "
+                                          "softplc simulate PLANT --script S --cycles N")])
         return FileResult(path, [])
 
     def _grafcet(self, path: str, g: Grafcet | None = None) -> FileResult:

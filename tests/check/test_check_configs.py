@@ -121,3 +121,19 @@ def test_a_file_of_another_kind_is_refused(write: Callable[[str, str], str]) -> 
     (res,) = check_files([write("x.yaml", "foo: 1\n")])
     assert res.failure is not None and "expected a grafcet file" in res.failure
     assert "or a simulation script" in res.failure
+
+
+def test_script_without_length_is_accepted_with_a_note(tmp_path: Path) -> None:
+    """``softplc simulate PLANT --script S --cycles N`` runs a script with neither
+    ``duration:`` nor ``cycles:``, so check accepts it (a note says it needs --cycles), and
+    still checks every name it sets."""
+    story = _copy_drawer(tmp_path)
+    story.write_text("set:\n  - {at: 0ms, tester1.iMarcha: 1}\n", encoding="utf-8")
+    (res,) = check_files([str(story)])
+    assert res.failure is None, res.failure
+    assert [(d.severity, d.code, d.line) for d in res.diags] == [("note", "G401", 1)]
+    assert "softplc simulate PLANT --script S --cycles N" in res.diags[0].message
+    assert exit_status([res]) == 0
+    story.write_text("set:\n  - {at: 0ms, tester1.iMarca: 1}\n", encoding="utf-8")
+    (res,) = check_files([str(story)])
+    assert res.failure is not None and "'tester1.iMarca' is not an input" in res.failure
