@@ -619,3 +619,18 @@ def test_g209_bounded_exploration(write: Callable[[str, str], str],
     args = p.parse_args(["check", "--limit", "50", "-q", path])
     assert args.func(args) == 1  # G102 is an error
     assert "G209" in capsys.readouterr().out
+
+
+def test_every_code_is_in_the_table_of_docs_check_md() -> None:
+    """Each code the checker can print has its row in docs/check.md (severity included)."""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    source = "".join(p.read_text(encoding="utf-8")
+                     for p in (root / "runtime" / "checker").glob("*.py"))
+    found = set(re.findall(r'"(?:warning|note|error)", "(G\d{3})"', source))
+    assert {"G210", "G211", "G306", "G307", "G401"} <= found, found
+    doc = (root / "docs" / "check.md").read_text(encoding="utf-8")
+    rows = set(re.findall(r"^\| (G\d{3}) \| (?:error|warning|note) \|", doc, re.M))
+    assert found <= rows, sorted(found - rows)
