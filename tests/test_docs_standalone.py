@@ -11,6 +11,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 #: references to files that live outside the repository
@@ -144,3 +146,24 @@ def test_the_link_check_finds_what_it_is_meant_to_find() -> None:
     assert OUTSIDE.search("(`shared/spec/console.md`)")
     assert OUTSIDE.search("`../shared/spec/semantics.md`")
     assert not OUTSIDE.search("docs/semantics.md, a bool target shared by two steps")
+
+
+YAML_BLOCK = re.compile(r"^```yaml\n(.*?)^```", re.M | re.S)
+
+
+def test_the_reference_examples_of_each_file_kind_match_their_schema() -> None:
+    """The grafcet, plant and script examples of docs/language.md are files softplc's
+    schemas accept (the same check as every file in configs/)."""
+    pytest.importorskip("jsonschema")
+    from tests.test_schemas import errors, kind_of, read
+
+    text = (ROOT / "docs" / "language.md").read_text(encoding="utf-8")
+    kinds = []
+    for block in YAML_BLOCK.findall(text):
+        doc = read(block, "docs/language.md")
+        kind = kind_of(doc)
+        if kind == "unknown":
+            continue  # a fragment (steps:, pre: ...), not a whole file
+        kinds.append(kind)
+        assert errors(kind, doc) == [], block
+    assert {"grafcet", "plant", "script"} <= set(kinds)
