@@ -167,3 +167,27 @@ def test_the_reference_examples_of_each_file_kind_match_their_schema() -> None:
         kinds.append(kind)
         assert errors(kind, doc) == [], block
     assert {"grafcet", "plant", "script"} <= set(kinds)
+
+
+def test_the_reference_simulation_script_does_what_its_comments_say(tmp_path: Path) -> None:
+    """The script of docs/language.md, run on the plant it names: the NC stop button set
+    physically, the start edge seen at 20 ms, the pause, and the stop written logically
+    and inverted into the physical point."""
+    from runtime.engine.simulate import Simulation
+    from runtime.language.yamlsrc import load_yaml
+
+    text = (ROOT / "docs" / "language.md").read_text(encoding="utf-8")
+    scripts = [b for b in YAML_BLOCK.findall(text)
+               if "set" in (load_yaml("docs/language.md", b) or {})]
+    assert len(scripts) == 1
+    script = tmp_path / "script.yaml"
+    script.write_text(scripts[0], encoding="utf-8")
+    plant = ROOT / "configs" / "drawer_tester" / "plant_sim.yaml"
+    rows = {r["t_ms"]: r for r in Simulation(str(plant), str(script)).run()}
+    assert len(rows) == 200  # duration: 2s at a 10 ms cycle
+    assert (rows[0]["sim.I0"], rows[0]["tester1.iParo"]) == (1, 0)
+    assert rows[10]["tester1.gsParado.X"] == 1
+    assert rows[20]["tester1.gsAbrir.X"] == 1  # the rising edge of iMarcha, at once
+    assert rows[1000]["tester1.SFCPause"] == 1
+    assert rows[1490]["tester1.gsAbrir.T_ms"] == rows[1000]["tester1.gsAbrir.T_ms"]
+    assert (rows[1500]["tester1.iParo"], rows[1500]["sim.I0"]) == (1, 0)
