@@ -148,7 +148,7 @@ def test_config_keys_are_strings(path: Path) -> None:
     assert not bad, f"{path}: non-string keys {bad}"
 
 
-# ------------------------------------------------ the examples of spec/language.md validate
+# ------------------------------------------------ the examples of docs/language.md validate
 
 SPEC_GRAFCET = """\
 grafcet: DrawerTester
