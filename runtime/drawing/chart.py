@@ -30,16 +30,18 @@ from runtime.drawing.layout import (
     BAR_W,
     CHAR_H,
     STEP_H,
+    TIMES_SIZE,
+    TOP,
     Chart,
-    arrange,
     Routes,
+    arrange,
     build_chart,
     dot_order,
     long_links,
     row_h,
 )
 from runtime.drawing.svg import Svg, esc, esc_attr
-from runtime.drawing.text import text_w
+from runtime.drawing.text import equation_lines, step_times, text_w
 from runtime.errors import Loc, SourceError
 from runtime.language.model import Grafcet
 
@@ -58,9 +60,10 @@ def shared_and_drops(c: Chart, r: Routes) -> dict[tuple[str, str], float]:
     their steps (empty here)."""
     out: dict[tuple[str, str], float] = {}
     for t, nd in c.nodes.items():
-        srcs = [s for s in c.fin(t) if (s, t) not in r.and_channel]
         if not t.startswith("t:") or len(c.fin(t)) < 2:
             continue
+        # a link from higher up comes straight down (or by its channel) as before
+        srcs = [s for s in c.fin(t) if nd.layer - c.nodes[s].layer == 1]
         if not any(o != t and len(c.fin(o)) > 1 for s in srcs for o in c.fout(s)):
             continue
         srcs.sort(key=lambda s: c.nodes[s].x)
@@ -273,7 +276,12 @@ class Drawing:
             if st.initial:
                 self.svg.rect(x0 + 3.5, y0 + 3.5, w - 7, STEP_H - 7, fill,
                               extra=' class="initial"')
-            self.svg.text(x, y + 4, st.name, 12, "middle", extra=' class="step-name"')
+            times = step_times(st)
+            self.svg.text(x, y + (-1 if times else 4), st.name, 12, "middle",
+                          extra=' class="step-name"')
+            if times:  # supervision times, as a vendor's SFC editor shows them
+                self.svg.text(x, y + 11, times, TIMES_SIZE, "middle",
+                              extra=' class="step-times"')
             if st.name in self.active:
                 self.svg.add(f'<circle cx="{x:.1f}" cy="{y0 + STEP_H - 5:.1f}" r="2.5" '
                              'fill="black" class="token"/>')
@@ -305,12 +313,36 @@ class Drawing:
         self.svg.add("</g>")
 
 
+    def draw_equations(self) -> None:
+        """pre and post, right of the chart: what runs every scan outside the steps."""
+        g = self.c.g
+        if not g.pre and not g.post:
+            return
+        x, y = self.svg.x1 + 40, TOP
+        for title, stmts in (("pre (every scan, before the chart)", g.pre),
+                             ("post (every scan, after the chart)", g.post)):
+            if not stmts:
+                continue
+            lines = [ln for st in stmts for ln in equation_lines(st)]
+            w = max([text_w(ln, 11) for ln in lines] + [text_w(title, 11)]) + 16
+            h = CHAR_H * len(lines) + 8
+            self.svg.text(x, y + 11, title, 11, extra=' class="equations-title"')
+            self.svg.rect(x, y + 16, w, h, extra=' class="equations"')
+            for i, ln in enumerate(lines):
+                body = ln.lstrip("\u00a0")
+                indent = text_w(ln[:len(ln) - len(body)], 11)
+                self.svg.text(x + 8 + indent, y + 16 + 4 + CHAR_H * (i + 1) - 3, body, 11,
+                              extra=' class="equation"')
+            y += 16 + h + 16
+
+
 def render(c: Chart, r: Routes, active: set[str], title: str) -> str:
     d = Drawing(c, r, active)
     d.draw_frames()
     d.draw_links()
     d.draw_transitions()
     d.draw_steps()
+    d.draw_equations()
     svg = d.svg
     title_svg = (f'<text x="0" y="26" font-size="15" font-weight="bold" class="title">'
                  f'{esc(title or c.g.name)}</text>')

@@ -17,7 +17,7 @@ import subprocess
 from collections import deque
 from dataclasses import dataclass, field
 
-from runtime.drawing.text import action_parts, condition_lines, seed_text, text_w
+from runtime.drawing.text import action_parts, condition_lines, seed_text, step_times, text_w
 from runtime.language.model import Grafcet
 
 
@@ -45,6 +45,7 @@ def _depth(g: Grafcet, name: str) -> int:
 
 # -- the chart as a graph of steps and transitions ------------------------------------------
 CHAR_H = 14.0  # line height of 11-12 px text
+TIMES_SIZE = 9.0  # font size of a step's min/max, under its name
 STEP_H = 34.0
 BAR_W = 34.0
 GAP = 24.0  # between neighbours of a row
@@ -107,7 +108,7 @@ def build_chart(g: Grafcet) -> Chart:
     labels: dict[str, list[str]] = {}
     names: dict[str, str] = {}
     for s in g.leaf_steps():
-        w = max(64.0, text_w(s.name) + 22)
+        w = max(64.0, text_w(s.name) + 22, text_w(step_times(s), TIMES_SIZE) + 16)
         right, height = w / 2, STEP_H
         if s.actions:
             rows = [action_parts(a) for a in s.actions]
