@@ -76,7 +76,7 @@ def test_main_line_is_straight_when_every_step_has_a_stop_link(layout: str,
     assert max(line) - min(line) < 0.5, line
 
 
-NO_CROSSING = [*EXERCISES, *(p for p in CHARTS if p.parent.name != "reactor")]
+NO_CROSSING = [*EXERCISES, *CHARTS]
 
 
 @pytest.mark.parametrize("layout", LAYOUTS)
