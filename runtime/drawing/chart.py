@@ -30,21 +30,46 @@ from runtime.drawing.layout import (
     BAR_W,
     CHAR_H,
     STEP_H,
+    TIMES_SIZE,
+    TOP,
     Chart,
     Routes,
+    arrange,
     build_chart,
     dot_order,
     long_links,
-    place,
-    route,
     row_h,
 )
 from runtime.drawing.svg import Svg, esc, esc_attr
-from runtime.drawing.text import text_w
+from runtime.drawing.text import equation_lines, step_times, text_w
 from runtime.errors import Loc, SourceError
 from runtime.language.model import Grafcet
 
 ACTIVE_FILL = "#ffd54f"
+
+
+#: between the links of an AND convergence that shares its steps with another one, px
+DROP_GAP = 8.0
+
+
+def shared_and_drops(c: Chart, r: Routes) -> dict[tuple[str, str], float]:
+    """(step, transition) -> x where the link reaches the transition's double bar, for the
+    AND convergences that share a step with another transition leaving it: each gets its
+    own short double bar over its transition (IEC 60848: one synchronisation per
+    transition), the links from its steps side by side on it. Other AND convergences span
+    their steps (empty here)."""
+    out: dict[tuple[str, str], float] = {}
+    for t, nd in c.nodes.items():
+        if not t.startswith("t:") or len(c.fin(t)) < 2:
+            continue
+        # a link from higher up comes straight down (or by its channel) as before
+        srcs = [s for s in c.fin(t) if nd.layer - c.nodes[s].layer == 1]
+        if not any(o != t and len(c.fin(o)) > 1 for s in srcs for o in c.fout(s)):
+            continue
+        srcs.sort(key=lambda s: c.nodes[s].x)
+        for i, s in enumerate(srcs):
+            out[(s, t)] = nd.x + (i - (len(srcs) - 1) / 2) * DROP_GAP
+    return out
 
 
 # -- rendering ---------------------------------------------------------------------------------
@@ -55,6 +80,15 @@ class Drawing:
         self.c, self.r, self.active = c, r, active
         self.svg = Svg()
         self.arrivals: dict[str, list[float]] = {}  # step -> x of links reaching its line
+        self.drops = shared_and_drops(c, r)
+        # steps of a row whose divergence lines would run on one y: one below the other
+        self.split_level: dict[str, int] = {}
+        rows: dict[int, list[str]] = {}
+        for s, _ in self.drops:
+            rows.setdefault(c.nodes[s].layer, []).append(s)
+        for steps in rows.values():
+            for k, s in enumerate(sorted(set(steps), key=lambda n: c.nodes[n].x)):
+                self.split_level[s] = k
 
     # geometry -------------------------------------------------------------------------
     def x(self, n: str) -> float:
@@ -79,7 +113,7 @@ class Drawing:
 
     def split_y(self, s: str) -> float:
         """The OR divergence line below a step (below its action block)."""
-        return self.bottom(self.c.nodes[s].layer) + 8
+        return self.bottom(self.c.nodes[s].layer) + 8 + 6 * self.split_level.get(s, 0)
 
     def and_in_y(self, t: str) -> float:
         layer = self.c.nodes[t].layer
@@ -125,13 +159,13 @@ class Drawing:
                                (x, self.and_in_y(t) - 2)], cls="channel")
                 outs.remove(t)
             elif len(c.fin(t)) > 1:
-                ends.append((xs, self.and_in_y(t) - 2))
+                ends.append((self.drops.get((s, t), xs), self.and_in_y(t) - 2))
             else:
                 ends.append((self.x(t), self.mid(t) - 2))
         if not outs:
             return
         y = self.split_y(s)
-        if len(outs) == 1:
+        if len(outs) == 1 and (s, outs[0]) not in self.drops:
             ex, ey = ends[0]
             if abs(ex - xs) < 0.5:
                 self.svg.line([(xs, self.step_bottom(s)), (ex, ey)])
@@ -150,9 +184,11 @@ class Drawing:
         if len(srcs) < 2:
             return
         y = self.and_in_y(t)
-        xs = [self.r.and_channel.get((s, t), self.x(s)) for s in srcs] + [self.x(t)]
+        xs = [self.r.and_channel.get((s, t), self.drops.get((s, t), self.x(s)))
+              for s in srcs] + [self.x(t)]
         for dy in (-2.0, 2.0):
-            self.svg.line([(min(xs) - 12, y + dy), (max(xs) + 12, y + dy)], cls="and")
+            self.svg.line([(min(xs) - 12, y + dy), (max(xs) + 12, y + dy)],
+                          cls="and convergence")
         self.svg.line([(self.x(t), y + 2), (self.x(t), self.mid(t) - 2)])
 
     def transition_out(self, t: str) -> None:
@@ -168,7 +204,8 @@ class Drawing:
             xs = [self.x(d) for d in short] + [xt]
             self.svg.line([(xt, bar + 2), (xt, y - 2)])
             for dy in (-2.0, 2.0):
-                self.svg.line([(min(xs) - 12, y + dy), (max(xs) + 12, y + dy)], cls="and")
+                self.svg.line([(min(xs) - 12, y + dy), (max(xs) + 12, y + dy)],
+                              cls="and divergence")
             for d in short:
                 self.arrive(d, self.x(d), y + 2)
         elif short:
@@ -239,7 +276,12 @@ class Drawing:
             if st.initial:
                 self.svg.rect(x0 + 3.5, y0 + 3.5, w - 7, STEP_H - 7, fill,
                               extra=' class="initial"')
-            self.svg.text(x, y + 4, st.name, 12, "middle", extra=' class="step-name"')
+            times = step_times(st)
+            self.svg.text(x, y + (-1 if times else 4), st.name, 12, "middle",
+                          extra=' class="step-name"')
+            if times:  # supervision times, as a vendor's SFC editor shows them
+                self.svg.text(x, y + 11, times, TIMES_SIZE, "middle",
+                              extra=' class="step-times"')
             if st.name in self.active:
                 self.svg.add(f'<circle cx="{x:.1f}" cy="{y0 + STEP_H - 5:.1f}" r="2.5" '
                              'fill="black" class="token"/>')
@@ -271,12 +313,36 @@ class Drawing:
         self.svg.add("</g>")
 
 
+    def draw_equations(self) -> None:
+        """pre and post, right of the chart: what runs every scan outside the steps."""
+        g = self.c.g
+        if not g.pre and not g.post:
+            return
+        x, y = self.svg.x1 + 40, TOP
+        for title, stmts in (("pre (every scan, before the chart)", g.pre),
+                             ("post (every scan, after the chart)", g.post)):
+            if not stmts:
+                continue
+            lines = [ln for st in stmts for ln in equation_lines(st)]
+            w = max([text_w(ln, 11) for ln in lines] + [text_w(title, 11)]) + 16
+            h = CHAR_H * len(lines) + 8
+            self.svg.text(x, y + 11, title, 11, extra=' class="equations-title"')
+            self.svg.rect(x, y + 16, w, h, extra=' class="equations"')
+            for i, ln in enumerate(lines):
+                body = ln.lstrip("\u00a0")
+                indent = text_w(ln[:len(ln) - len(body)], 11)
+                self.svg.text(x + 8 + indent, y + 16 + 4 + CHAR_H * (i + 1) - 3, body, 11,
+                              extra=' class="equation"')
+            y += 16 + h + 16
+
+
 def render(c: Chart, r: Routes, active: set[str], title: str) -> str:
     d = Drawing(c, r, active)
     d.draw_frames()
     d.draw_links()
     d.draw_transitions()
     d.draw_steps()
+    d.draw_equations()
     svg = d.svg
     title_svg = (f'<text x="0" y="26" font-size="15" font-weight="bold" class="title">'
                  f'{esc(title or c.g.name)}</text>')
@@ -298,8 +364,7 @@ def chart_svg(g: Grafcet, active: set[str] | None = None, title: str = "",
         raise RuntimeError("--layout dot: Graphviz's 'dot' is not installed "
                            "(apt-get install graphviz)")
     hint = dot_order(c, dot) if dot is not None else None
-    place(c, hint)
-    r = route(c)
+    r = arrange(c, hint)
     return render(c, r, active or set(), title), ("dot" if dot is not None else "python")
 
 

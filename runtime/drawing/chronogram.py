@@ -118,7 +118,8 @@ def plant_signals(plant: str, keys: list[str]) -> tuple[list[tuple[str, list[str
             kinds[f"{name}.{s}.X"] = "bool"
         sel = {
             "inputs": [f"{name}.{v.name}" for v in g.inputs],
-            "steps": [f"{name}.{s.name}.X" for s in g.leaf_steps()],
+            # every step, macro-steps included (their .X is true while the expansion runs)
+            "steps": [f"{name}.{s}.X" for s in g.steps],
             "outputs": [f"{name}.{v.name}" for v in g.outputs],
             "memory": [f"{name}.{v.name}" for v in g.variables.values()
                        if v.kind is VarKind.MEMORY],

@@ -17,7 +17,7 @@ import subprocess
 from collections import deque
 from dataclasses import dataclass, field
 
-from runtime.drawing.text import action_parts, condition_lines, seed_text, text_w
+from runtime.drawing.text import action_parts, condition_lines, seed_text, step_times, text_w
 from runtime.language.model import Grafcet
 
 
@@ -45,6 +45,7 @@ def _depth(g: Grafcet, name: str) -> int:
 
 # -- the chart as a graph of steps and transitions ------------------------------------------
 CHAR_H = 14.0  # line height of 11-12 px text
+TIMES_SIZE = 9.0  # font size of a step's min/max, under its name
 STEP_H = 34.0
 BAR_W = 34.0
 GAP = 24.0  # between neighbours of a row
@@ -107,7 +108,7 @@ def build_chart(g: Grafcet) -> Chart:
     labels: dict[str, list[str]] = {}
     names: dict[str, str] = {}
     for s in g.leaf_steps():
-        w = max(64.0, text_w(s.name) + 22)
+        w = max(64.0, text_w(s.name) + 22, text_w(step_times(s), TIMES_SIZE) + 16)
         right, height = w / 2, STEP_H
         if s.actions:
             rows = [action_parts(a) for a in s.actions]
@@ -325,7 +326,7 @@ def _place(c: Chart, hint: dict[str, float] | None, root_x: dict[str, float],
         for p, kids in groups.items():
             pref = {k: float(i) for i, k in enumerate(c.out[p])}
             kids.sort(key=(hint or pref).__getitem__)
-            i0 = kids.index(min(kids, key=pref.__getitem__))
+            i0 = kids.index(_straight(c, kids, pref))
             desired[kids[i0]] = c.nodes[p].x
             # the main line stays straight; a convergence may move (its links bend anyway)
             weight[kids[i0]] = 1000.0 if len(c.fin(kids[i0])) == 1 else 3.0
@@ -368,6 +369,16 @@ def _place(c: Chart, hint: dict[str, float] | None, root_x: dict[str, float],
         for item, x in zip(items, _spread(des, wts, seps), strict=True):
             if isinstance(item, str):
                 c.nodes[item].x = x
+
+
+def _straight(c: Chart, kids: list[str], pref: dict[str, float]) -> str:
+    """The child that goes right under its parent: the first transition whose target goes
+    under it (the main line goes on), not a link back up or aside; else the first."""
+    first = sorted(kids, key=pref.__getitem__)
+    for k in first:
+        if k.startswith("t:") and any(c.primary_pred(d) == k for d in c.fout(k)):
+            return k
+    return first[0]
 
 
 def dot_order(c: Chart, dot: str = "dot") -> dict[str, float]:
@@ -562,6 +573,38 @@ def route(c: Chart) -> Routes:
     place_lanes([v for v in groups if v not in r.lane])
     _rows(c, r, groups)
     return r
+
+
+def arrange(c: Chart, hint: dict[str, float] | None = None) -> Routes:
+    """Place and route; then, if a link back up leaves to a lane on the right of a
+    transition that goes on down (its line would cross that branch), put the transition
+    leading back up right of its neighbours and place and route again."""
+    place(c, hint)
+    r = route(c)
+    moved = False
+    for n in c.nodes:
+        if not n.startswith("s:"):
+            continue
+        kids = c.out[n]
+        right = [t for t in kids if c.is_back_transition(t) and _lane_right(c, r, t)]
+        last = max((c.nodes[k].x for k in kids if k not in right), default=None)
+        late = [t for t in right if last is not None and c.nodes[t].x < last]
+        if not late:
+            continue
+        moved = True
+        c.out[n] = [k for k in kids if k not in late] + late
+        if hint is not None:
+            top = max(hint[k] for k in kids)
+            for i, t in enumerate(late, 1):
+                hint[t] = top + i * 1e-3
+    if not moved:
+        return r
+    place(c, hint)
+    return route(c)
+
+
+def _lane_right(c: Chart, r: Routes, t: str) -> bool:
+    return any(r.lane.get(d, c.nodes[t].x) > c.nodes[t].x for d in c.out[t])
 
 
 def _rows(c: Chart, r: Routes, groups: dict[str, list[str]]) -> None:

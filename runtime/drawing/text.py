@@ -11,7 +11,7 @@ import re
 
 from drivers.durations import format_ns
 from runtime.language import ast as A
-from runtime.language.model import Action, Qualifier
+from runtime.language.model import Action, Qualifier, Statement, Step
 from runtime.language.unparse import unparse
 
 #: the font family of every drawing; the widths below are this font's
@@ -107,6 +107,7 @@ def _kin(child: str | None, parent: str) -> bool:
 _COMMENT = re.compile(r"\(\*.*?\*\)|//[^\n]*", re.DOTALL)
 LINE_CHARS = 44  # characters per line of an action body or a condition
 BODY_LINES = 6
+EQUATION_CHARS = 72  # characters per line of a pre/post equation (beside the chart)
 
 
 def action_parts(a: Action) -> tuple[str, list[str]]:
@@ -114,10 +115,13 @@ def action_parts(a: Action) -> tuple[str, list[str]]:
     ``("↑iPieza", ["sN := sN + 1"])`` for ``on ↑iPieza do sN := sN + 1``; comments are
     left out, a body keeps its line structure (IF ... END_IF) and long lines are wrapped."""
     text = _COMMENT.sub("", a.text).strip()
+    if a.cond is not None and a.target is not None:  # `N x if C`: C as transitions are
+        return "N", body_lines(f"{a.target} if {seed_text(a.cond)}")
     if a.qualifier is Qualifier.EVENT:
         m = re.match(r"on\s+(.*?)\s+do\s+(.*)$", text, re.IGNORECASE | re.DOTALL)
         if m:
-            return " ".join(m.group(1).split()), body_lines(m.group(2))
+            event = seed_text(a.event) if a.event is not None else " ".join(m.group(1).split())
+            return event, body_lines(m.group(2))
         return "on", body_lines(text)
     q = a.qualifier.value
     words = text.split(None, 1)
@@ -130,6 +134,28 @@ def action_parts(a: Action) -> tuple[str, list[str]]:
     if a.time_ns is not None:
         q = f"{q} {format_ns(a.time_ns)}"
     return q, body_lines(body)
+
+
+def step_times(st: Step) -> str:
+    """A step's ``min``/``max`` as written in its box (``min 2s · max 10s``), or ""."""
+    parts = [f"{k} {format_ns(v)}" for k, v in (("min", st.min_ns), ("max", st.max_ns))
+             if v is not None]
+    return " · ".join(parts)
+
+
+def equation_lines(st: Statement) -> list[str]:
+    """A pre/post statement as drawn: assignments, calls and block calls with their
+    expressions in the seed notation; other statements (IF, CASE, FOR) as written, comments
+    left out, line by line."""
+    n = st.node
+    if isinstance(n, A.Assign):
+        return condition_lines(f"{n.target.name} := {seed_text(n.value)}", EQUATION_CHARS)
+    if isinstance(n, A.CallStmt):
+        return condition_lines(seed_text(n.call), EQUATION_CHARS)
+    if isinstance(n, A.FbCall):
+        args = ", ".join(f"{k} := {seed_text(v)}" for k, v in n.args)
+        return condition_lines(f"{n.block}({args})", EQUATION_CHARS)
+    return body_lines(_COMMENT.sub("", st.text), most=8)
 
 
 def body_lines(body: str, width: int = LINE_CHARS, most: int = BODY_LINES) -> list[str]:

@@ -16,6 +16,9 @@ from runtime.drawing import chronogram as chrono
 from runtime.drawing import text as draw_text
 from runtime.errors import SourceError
 from runtime.language.grafcetfile import load_grafcet
+from runtime.language.plantfile import load_plant
+
+ROOT = Path(__file__).resolve().parents[2]
 
 SVG = "{http://www.w3.org/2000/svg}"
 LAYOUTS = ["python"] + (["dot"] if shutil.which("dot") else [])
@@ -127,7 +130,7 @@ def test_draw_macro_and_parallel(write: Callable[[str, str], str], tmp_path: Pat
     root = ET.parse(out).getroot()
     initial = [r for r in root.iter(f"{SVG}rect") if r.get("class") == "initial"]
     assert len(initial) == 1  # gsParado's inner box
-    and_lines = [p for p in root.iter(f"{SVG}polyline") if p.get("class") == "and"]
+    and_lines = [p for p in root.iter(f"{SVG}polyline") if "and" in (p.get("class") or "").split()]
     assert len(and_lines) == 4  # one divergence and one convergence, two lines each
     assert "gsLlenado (macro-step)" in found
     assert len([r for r in root.iter(f"{SVG}rect") if r.get("class") == "macro"]) == 1
@@ -257,3 +260,24 @@ def test_chronogram_cli(trace: str, tmp_path: Path,
     args = p.parse_args(["chronogram", str(tmp_path / "none.jsonl"), "-o",
                          str(tmp_path / "c.svg")])
     assert args.func(args) == 2
+
+
+def test_chronogram_plant_keeps_the_macro_step_row(tmp_path: Path) -> None:
+    """With --plant, a macro-step's .X (true while its expansion runs) has its row among
+    the steps, in file order, as without --plant."""
+    from runtime.engine.simulate import Simulation, write_trace
+
+    plant = ROOT / "configs/reactor/plant_sim.yaml"
+    sim = Simulation(str(plant), str(ROOT / "configs/reactor/story.yaml"))
+    trace = tmp_path / "trace.jsonl"
+    with open(trace, "w", encoding="utf-8") as f:
+        write_trace(iter(list(sim.run(trace=True))), f)
+    inst = next(iter(load_plant(str(plant)).instances))
+    plain, exact = str(tmp_path / "plain.svg"), str(tmp_path / "plant.svg")
+    chrono.chronogram(str(trace), plain)
+    chrono.chronogram(str(trace), exact, plant=str(plant))
+    rows = [k for k, _ in signal_rows(exact)]
+    assert f"{inst}.gsAgitacion.X" in rows
+    steps = [k for k in rows if k.startswith(inst + ".") and k.endswith(".X")]
+    assert steps == [k for k, _ in signal_rows(plain) if k in steps]
+    assert steps.index(f"{inst}.gsAgitacion.X") < steps.index(f"{inst}.eDerecha.X")

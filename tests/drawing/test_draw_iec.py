@@ -1,0 +1,146 @@
+"""``softplc draw`` against IEC 60848 on the course exercises of tests/drawing/charts/ and the
+charts of configs/: a straight main line, no link crossing another, one double bar per AND
+convergence, and everything the file says (pre/post, min/max, action conditions) drawn in
+the seed notation."""
+
+from __future__ import annotations
+
+import itertools
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+
+from runtime.drawing import chart as draw
+from tests.drawing.test_draw_layout import CHARTS, LAYOUTS, ROOT, SVG
+
+HERE = Path(__file__).resolve().parent / "charts"
+EXERCISES = sorted(HERE.glob("*.yaml"))
+
+Point = tuple[float, float]
+Segment = tuple[Point, Point]
+
+
+def _draw(chart: Path, tmp: Path, layout: str) -> ET.Element:
+    out = tmp / f"{chart.stem}_{layout}.svg"
+    draw.draw(str(chart), str(out), layout=layout)
+    return ET.parse(out).getroot()
+
+
+def _classes(e: ET.Element) -> set[str]:
+    return set((e.get("class") or "").split())
+
+
+def _segments(root: ET.Element, skip: set[str]) -> list[Segment]:
+    """The segments of every polyline whose classes are not in ``skip``."""
+    out: list[Segment] = []
+    for pl in root.iter(f"{SVG}polyline"):
+        if _classes(pl) & skip:
+            continue
+        pts = [(float(a), float(b)) for a, b in
+               (xy.split(",") for xy in (pl.get("points") or "").split())]
+        out += list(itertools.pairwise(pts))
+    return out
+
+
+def _crossings(root: ET.Element) -> list[Point]:
+    """Points where a vertical link passes right through a horizontal one (neither ends
+    there): two links crossing, which IEC 60848 asks to avoid."""
+    segs = _segments(root, {"transition", "and"})
+    hs = [s for s in segs if abs(s[0][1] - s[1][1]) < 0.01 and abs(s[0][0] - s[1][0]) > 0.01]
+    vs = [s for s in segs if abs(s[0][0] - s[1][0]) < 0.01 and abs(s[0][1] - s[1][1]) > 0.01]
+    out = []
+    for (a, b), (p, q) in itertools.product(hs, vs):
+        y, x = a[1], p[0]
+        if (min(a[0], b[0]) + 0.5 < x < max(a[0], b[0]) - 0.5
+                and min(p[1], q[1]) + 0.5 < y < max(p[1], q[1]) - 0.5):
+            out.append((x, y))
+    return out
+
+
+def _step_x(root: ET.Element) -> dict[str, float]:
+    return {"".join(t.itertext()): float(t.get("x", "0")) for t in root.iter(f"{SVG}text")
+            if "step-name" in _classes(t)}
+
+
+def _texts(root: ET.Element, cls: str) -> list[str]:
+    return ["".join(t.itertext()) for t in root.iter(f"{SVG}text") if cls in _classes(t)]
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_main_line_is_straight_when_every_step_has_a_stop_link(layout: str,
+                                                                tmp_path: Path) -> None:
+    root = _draw(HERE / "taladro.yaml", tmp_path, layout)
+    xs = _step_x(root)
+    line = [xs[n] for n in ("gsReposo", "gsBajar", "gsTaladrar", "gsSubir")]
+    assert max(line) - min(line) < 0.5, line
+
+
+NO_CROSSING = [*EXERCISES, *CHARTS]
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+@pytest.mark.parametrize("chart", NO_CROSSING, ids=[p.stem for p in NO_CROSSING])
+def test_no_link_crosses_another(chart: Path, layout: str, tmp_path: Path) -> None:
+    """A loop lane goes round a branch, never across it. The press's AND convergence left
+    by two transitions is the one exception: its two steps each feed both double bars, so
+    one crossing cannot be avoided (a plain crossing, no bar crossed)."""
+    root = _draw(chart, tmp_path, layout)
+    allowed = 1 if chart.stem == "prensa" else 0
+    assert len(_crossings(root)) <= allowed, _crossings(root)
+
+
+def _bars(root: ET.Element, kind: str) -> list[tuple[float, float, float]]:
+    """(y, x0, x1) of each double bar of ``kind`` (convergence or divergence)."""
+    lines = [pl for pl in root.iter(f"{SVG}polyline") if {"and", kind} <= _classes(pl)]
+    ys = []
+    for pl in lines:
+        (x0, y), (x1, _) = [(float(a), float(b)) for a, b in
+                            (xy.split(",") for xy in (pl.get("points") or "").split())]
+        ys.append((y, min(x0, x1), max(x0, x1)))
+    pairs: dict[tuple[float, float], list[float]] = {}
+    for y, x0, x1 in ys:
+        pairs.setdefault((x0, x1), []).append(y)
+    bars = []
+    for (x0, x1), both in sorted(pairs.items()):  # the two lines of a bar, 4 px apart
+        assert len(both) == 2 and abs(max(both) - min(both) - 4) < 0.01, (x0, x1, both)
+        bars.append((min(both) + 2, x0, x1))
+    return bars
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_each_and_convergence_has_its_own_double_bar(layout: str, tmp_path: Path) -> None:
+    root = _draw(HERE / "prensa.yaml", tmp_path, layout)
+    bars = _bars(root, "convergence")
+    assert len(bars) == 2, bars  # gsPrensar's and gsExpulsar's
+    (ya, a0, a1), (yb, b0, b1) = bars
+    assert a1 < b0 or b1 < a0, bars  # side by side, not one bar for both
+    # no link runs through a bar: links end on it (from above) or leave it (below)
+    for (p, q), (y, x0, x1) in itertools.product(
+            _segments(root, {"transition", "and"}), bars):
+        if abs(p[0] - q[0]) < 0.01 and x0 < p[0] < x1:
+            assert not min(p[1], q[1]) < y - 2.5 < y + 2.5 < max(p[1], q[1]), (p, q, y)
+    assert len(_bars(root, "divergence")) == 1
+
+
+def test_pre_post_min_max_and_action_conditions_in_the_seed_notation(tmp_path: Path) -> None:
+    root = _draw(HERE / "taladro.yaml", tmp_path, "python")
+    assert _texts(root, "equation") == ["tParo := iParo + iPuerta",
+                                        "oPiloto := gsReposo.X·tParo'"]
+    assert _texts(root, "equations-title") == ["pre (every scan, before the chart)",
+                                               "post (every scan, after the chart)"]
+    assert _texts(root, "step-times") == ["min 2s · max 10s"]
+    actions = _texts(root, "action")
+    assert "oRefrigerar if iPieza·iPuerta'" in actions
+    assert "↑iAbajo" in _texts(root, "qualifier")
+    assert "sPiezas := sPiezas + 1" in actions
+    # the condition of the first transition, for comparison: the same notation
+    assert "↑iMarcha·iPieza·tParo'" in _texts(root, "condition")
+
+
+def test_drawer_tester_equations_are_drawn(tmp_path: Path) -> None:
+    root = _draw(ROOT / "configs/drawer_tester/drawer_tester.yaml", tmp_path, "python")
+    eq = _texts(root, "equation")
+    assert "tParo := iCerrado·(sParo + (sCierres >= 1000))" in eq
+    assert "oParado := gsParado.X + sParo·Clock_1Hz + gsAveria.X·Clock_2Hz" in eq
+    assert "sParo.Set(1, iParo)" in eq
