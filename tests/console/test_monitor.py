@@ -145,6 +145,10 @@ def test_monitor_once_from_the_command_line(rig: Rig, capsys: pytest.CaptureFixt
                                        "such socket or serial port (or HOST:PORT for TCP)\n")
 
 
+def _take_terminal() -> None:
+    fcntl.ioctl(0, termios.TIOCSCTTY, 0)
+
+
 class Pty:
     """A program run in a pseudo-terminal of 100x30, its screen kept by TermScreen."""
 
@@ -152,8 +156,11 @@ class Pty:
         self.master, slave = os.openpty()
         fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 30, 100, 0, 0))
         env = {**os.environ, "TERM": "xterm", "PYTHONPATH": str(ROOT)}
+        # its own session with the pty as controlling terminal, as in a terminal emulator:
+        # Ctrl-C typed there is a SIGINT
         self.proc = subprocess.Popen(argv, stdin=slave, stdout=slave, stderr=slave, env=env,
-                                     start_new_session=True, close_fds=True)
+                                     start_new_session=True, close_fds=True,
+                                     preexec_fn=_take_terminal)
         os.close(slave)
         self.screen = TermScreen(30, 100)
 
