@@ -104,7 +104,10 @@ class SocketLink:
         try:
             self.sock.settimeout(REQUEST_TIMEOUT_S)
             self.sock.sendall(data)
-        except OSError as exc:  # EPIPE, ECONNRESET, a send timeout
+        except (BrokenPipeError, ConnectionResetError):
+            raise ConnectionLost(f"{self.name}: the controller closed the "
+                                 "connection") from None
+        except OSError as exc:  # a send timeout
             raise ConnectionLost(f"{self.name}: {_why(exc)}") from None
 
     def recv(self, timeout: float) -> bytes | None:
@@ -235,6 +238,9 @@ class ConsoleClient:
         self._buf = b""
         self._pending: deque[dict[str, Any]] = deque()
         self.streamed: deque[dict[str, Any]] = deque(maxlen=LOG_LINES)
+        #: the last ``error ...`` text line (what the console says as it closes a
+        #: connection: idle timeout, too many sessions)
+        self.last_error = ""
 
     def start(self, timeout: float = REQUEST_TIMEOUT_S) -> None:
         """Take over the console: drop a half-typed line and any stream (Ctrl-C), then
@@ -296,7 +302,10 @@ class ConsoleClient:
     def _read(self, timeout: float) -> None:
         data = self.link.recv(timeout)
         if data is None:
-            raise ConnectionLost(f"{self.link.name}: the controller closed the connection")
+            self._parse()
+            why = f" ({self.last_error})" if self.last_error else ""
+            raise ConnectionLost(f"{self.link.name}: the controller closed the "
+                                 f"connection{why}")
         self._buf += data
 
     def _parse(self) -> None:
@@ -304,9 +313,12 @@ class ConsoleClient:
         mode session left on the line) is skipped."""
         *lines, self._buf = self._buf.split(b"\n")
         for raw in lines:
+            text = raw.decode("utf-8", "replace").strip()
             try:
-                obj = json.loads(raw.decode("utf-8", "replace").strip() or "null")
+                obj = json.loads(text or "null")
             except ValueError:
+                if text.startswith("error "):
+                    self.last_error = text
                 continue
             if isinstance(obj, dict):
                 self._pending.append(obj)

@@ -17,12 +17,14 @@ import pytest
 from runtime import cli
 from runtime.console import server
 from runtime.console.monitor import (
+    MIN_REFRESH_S,
     RETRY_MAX_S,
     Connection,
     ConsoleClient,
     Monitor,
     Target,
     View,
+    fold,
     open_link,
 )
 from runtime.console.protocol import HELP
@@ -171,6 +173,15 @@ def test_connection_retries_with_back_off_until_the_socket_is_back(rig: Rig,
     conn.close()
 
 
+def ticking(mon: Monitor, cond: Callable[[], bool], what: str) -> None:
+    """Run the monitor's rounds, as its screen does, until ``cond``."""
+    def tick_then() -> bool:
+        mon.tick()
+        return cond()
+
+    wait_for(tick_then, what, DEADLINE_S + 2.0)
+
+
 def test_an_idle_connection_closed_by_the_console_is_opened_again(
         rigs: Callable[..., Rig], monkeypatch: pytest.MonkeyPatch) -> None:
     """A watch sends nothing: an untrusted session is closed after IDLE_TIMEOUT_S. The
@@ -182,15 +193,19 @@ def test_an_idle_connection_closed_by_the_console_is_opened_again(
     mon = Monitor(Target.parse(rig.socket_path), view, refresh_s=0.1)
     mon.connect()
     try:
-        wait_for(lambda: (mon.tick(), "t1" in view.status.get("steps", {}))[1], "a view")
+        ticking(mon, lambda: "t1" in view.status.get("steps", {}), "a view")
         assert mon.enter("watch t1.iMarcha")
         assert mon.streaming
-        wait_for(lambda: (mon.tick(), any("connection lost" in x for x in view.log))[1],
-                 "the idle connection closed", DEADLINE_S + 2.0)
+        ticking(mon, lambda: any("connection lost" in x for x in view.log),
+                "the idle connection closed")
+        lost = next(x for x in view.log if "connection lost" in x)
+        assert lost.endswith("the controller closed the connection (error idle timeout (1 s "
+                             "without input, not unlocked))"), lost
         assert not mon.streaming
-        wait_for(lambda: (mon.tick(), mon.connection.client is not None
-                          and view.problem == "")[1], "the monitor connected again")
-        wait_for(lambda: (mon.tick(), view.refreshes >= 3)[1], "refreshes again")
+        ticking(mon, lambda: mon.connection.client is not None and view.offline is None,
+                "the monitor connected again")
+        done = view.refreshes
+        ticking(mon, lambda: view.refreshes >= done + 3, "refreshes again")
         assert not any("restarted" in x for x in view.log)
     finally:
         mon.close()
@@ -246,3 +261,22 @@ def test_monitor_expands_runtime_dir(rig: Rig, monkeypatch: pytest.MonkeyPatch,
     assert capsys.readouterr().err == (
         "softplc monitor: error: unknown placeholder in '${RUN_DIR}/c.sock': the only one "
         "is ${RUNTIME_DIR}\n")
+
+
+def test_monitor_refuses_to_refresh_faster_than_the_console_allows(
+        rig: Rig, capsys: pytest.CaptureFixture[str]) -> None:
+    """Three lines a refresh: at 0.05 s that is 60 lines/s, over the console's 50."""
+    assert rig.socket_path is not None
+    assert cli.main(["monitor", rig.socket_path, "--interval", "0.05"]) == 2
+    assert capsys.readouterr().err == ("softplc monitor: error: --interval 0.05 is under "
+                                       "0.1 s (the console runs at most 50 lines/s)\n")
+    assert 3 / MIN_REFRESH_S < server.LINES_PER_S
+
+
+def test_fold_breaks_at_spaces_and_cuts_words_longer_than_a_row() -> None:
+    assert fold("short", 20) == ["short"]
+    assert fold("x" * 20, 20) == ["x" * 20]
+    assert fold("alpha beta gamma delta epsilon", 20) == ["alpha beta gamma", "  delta epsilon"]
+    assert fold("a" * 45, 20) == ["a" * 20, "  " + "a" * 18, "  " + "a" * 7]
+    # a space early in the row: the row is filled rather than broken there
+    assert fold("ab " + "c" * 30, 20) == ["ab " + "c" * 17, "  " + "c" * 13]
