@@ -164,8 +164,9 @@ class Pty:
         os.close(slave)
         self.screen = TermScreen(30, 100)
 
-    def expect(self, pred: Callable[[str], bool], what: str) -> str:
-        end = time.monotonic() + DEADLINE_S
+    def expect(self, pred: Callable[[str], bool], what: str,
+               timeout: float = DEADLINE_S) -> str:
+        end = time.monotonic() + timeout
         while time.monotonic() < end:
             ready, _, _ = select.select([self.master], [], [], 0.1)
             if ready:

@@ -18,6 +18,7 @@ from runtime import cli
 from runtime.console import server
 from runtime.console.monitor import (
     MIN_REFRESH_S,
+    REQUEST_TIMEOUT_S,
     RETRY_MAX_S,
     Connection,
     ConsoleClient,
@@ -28,7 +29,7 @@ from runtime.console.monitor import (
     open_link,
 )
 from runtime.console.protocol import HELP
-from tests.console.consolekit import DEADLINE_S, ROOT, Rig, plant_yaml, wait_for
+from tests.console.consolekit import DEADLINE_S, ROOT, NullModem, Rig, plant_yaml, wait_for
 from tests.console.test_monitor import Pty
 
 #: a controller process takes a second or two to start on a loaded machine: a failure
@@ -40,11 +41,11 @@ class Controller:
     """``softplc run PLANT --sim`` with its console on a Unix socket, started and killed
     at will (each start a new process on the same socket path)."""
 
-    def __init__(self) -> None:
+    def __init__(self, serial_port: str | None = None) -> None:
         self.tmp = tempfile.mkdtemp(prefix="mr", dir="/tmp")  # socket paths <= 107
         self.sock = os.path.join(self.tmp, "c.sock")
         self.plant = Path(self.tmp) / "plant.yaml"
-        self.plant.write_text(plant_yaml(None, self.sock), encoding="utf-8")
+        self.plant.write_text(plant_yaml(serial_port, self.sock), encoding="utf-8")
         self.proc: subprocess.Popen[bytes] | None = None
 
     def start(self) -> None:
@@ -117,6 +118,35 @@ def test_monitor_survives_a_kill_and_a_restart_of_the_controller(
         assert term.proc.wait(timeout=DEADLINE_S) == 0
     finally:
         term.close()
+
+
+def test_monitor_on_a_serial_line_survives_a_restart_of_the_controller() -> None:
+    """On a serial line nothing breaks when the controller dies: its silence does (no
+    reply within REQUEST_TIMEOUT_S), and the new controller's session is in text mode
+    until the monitor takes it over again."""
+    modem = NullModem()
+    controller = Controller(modem.daemon_port)
+    term: Pty | None = None
+    try:
+        controller.start()
+        term = Pty([sys.executable, "-m", "runtime.cli", "monitor", modem.peer_port,
+                    "--interval", "0.2"])
+        term.expect(running, "the running controller")
+        controller.kill()
+        term.expect(lambda s: "connection lost" in s.splitlines()[0],
+                    "that the connection was lost", REQUEST_TIMEOUT_S + DEADLINE_S)
+        assert "no reply to" in term.screen.text()
+        controller.start()
+        term.expect(lambda s: "controller restarted" in s and running(s),
+                    "the controller again, and that it restarted", RETRY_MAX_S + DEADLINE_S)
+        term.type("q\r")
+        assert term.proc.wait(timeout=DEADLINE_S) == 0
+        assert "Traceback" not in term.screen.text()
+    finally:
+        if term is not None:
+            term.close()
+        controller.close()
+        modem.close()
 
 
 @pytest.mark.parametrize("key", ["q", "\x03"], ids=["q", "ctrl-c"])
