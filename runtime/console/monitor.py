@@ -163,6 +163,8 @@ class SerialLink:
 
 
 class LinkKind(Enum):
+    """What kind of console a target is."""
+
     SOCKET = "socket"
     TCP = "tcp"
     SERIAL = "serial"
@@ -221,7 +223,7 @@ def open_link(target: str, baudrate: int = 115200) -> Link:
     return Target.parse(target, baudrate).open()
 
 
-def _why(exc: OSError | Exception) -> str:
+def _why(exc: Exception) -> str:
     """An OSError's text without its ``[Errno N]``."""
     return (exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)) or \
         type(exc).__name__
@@ -238,8 +240,8 @@ class ConsoleClient:
         self._buf = b""
         self._pending: deque[dict[str, Any]] = deque()
         self.streamed: deque[dict[str, Any]] = deque(maxlen=LOG_LINES)
-        #: the last ``error ...`` text line (what the console says as it closes a
-        #: connection: idle timeout, too many sessions)
+        #: an ``error ...`` text line after the last JSON line (what the console says as
+        #: it closes a connection: idle timeout, too many sessions)
         self.last_error = ""
 
     def start(self, timeout: float = REQUEST_TIMEOUT_S) -> None:
@@ -320,6 +322,7 @@ class ConsoleClient:
                 if text.startswith("error "):
                     self.last_error = text
                 continue
+            self.last_error = ""  # only what came after the last reply says why
             if isinstance(obj, dict):
                 self._pending.append(obj)
 
