@@ -145,6 +145,10 @@ def test_monitor_once_from_the_command_line(rig: Rig, capsys: pytest.CaptureFixt
                                        "such socket or serial port (or HOST:PORT for TCP)\n")
 
 
+def _take_terminal() -> None:
+    fcntl.ioctl(0, termios.TIOCSCTTY, 0)
+
+
 class Pty:
     """A program run in a pseudo-terminal of 100x30, its screen kept by TermScreen."""
 
@@ -152,13 +156,17 @@ class Pty:
         self.master, slave = os.openpty()
         fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 30, 100, 0, 0))
         env = {**os.environ, "TERM": "xterm", "PYTHONPATH": str(ROOT)}
+        # its own session with the pty as controlling terminal, as in a terminal emulator:
+        # Ctrl-C typed there is a SIGINT
         self.proc = subprocess.Popen(argv, stdin=slave, stdout=slave, stderr=slave, env=env,
-                                     start_new_session=True, close_fds=True)
+                                     start_new_session=True, close_fds=True,
+                                     preexec_fn=_take_terminal)
         os.close(slave)
         self.screen = TermScreen(30, 100)
 
-    def expect(self, pred: Callable[[str], bool], what: str) -> str:
-        end = time.monotonic() + DEADLINE_S
+    def expect(self, pred: Callable[[str], bool], what: str,
+               timeout: float = DEADLINE_S) -> str:
+        end = time.monotonic() + timeout
         while time.monotonic() < end:
             ready, _, _ = select.select([self.master], [], [], 0.1)
             if ready:
