@@ -521,15 +521,16 @@ class Daemon:
                 raise CommandRefused(f"the fault is still there: {cause}")
             for d in plant.drivers.values():
                 d.inhibit(False)
-            log.warning("fault acknowledged (%s): charts restart from their initial "
-                        "situation", self.fault)
+            # the console's ack logs this, naming the console (changing.cmd_ack)
+            log.debug("fault acknowledged (%s): charts restart from their initial "
+                      "situation", self.fault)
             self.fault = None
             self._trip_reason = None
             self._unlatch()
             plant.restart()
             done.append("fault acknowledged: charts restarted from their initial situation")
         if self.halted is not None:
-            log.info("acknowledged: %s", self.halted)
+            log.debug("acknowledged: %s", self.halted)
             self.halted = None
             plant.restart()
             done.append("charts restarted from their initial situation")
@@ -543,7 +544,7 @@ class Daemon:
         forced = plant.forced_names()
         if forced:  # no force survives an ack: the restarted charts start clean
             plant.unforce(None)
-            log.warning("ack released every force: %s", ", ".join(forced))
+            log.debug("ack released every force: %s", ", ".join(forced))
             done.append(f"forces released: {', '.join(forced)}")
         return "; ".join(done)
 

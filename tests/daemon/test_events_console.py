@@ -37,7 +37,8 @@ def test_every_changing_command_is_logged_once_with_its_console(
         ("iocheck on", f"{who}: iocheck on: charts stopped, every output off; released "
                        "forces: t2.iMarcha"),
         ("iocheck off", f"{who}: iocheck off: outputs off until ack"),
-        ("ack", f"{who}: ack: charts restarted from their initial situation"),
+        ("ack", f"{who}: ack (halted: iocheck ended: 'ack' restarts the charts from their "
+                f"initial situation): charts restarted from their initial situation"),
     ]
     for command, line in script:
         caplog.clear()
@@ -66,8 +67,9 @@ def test_unforce_all_and_an_ack_that_releases_forces_say_so(
     s.ok("ack")
     got = console_lines(caplog)
     assert len(got) == 1, got
-    assert ": ack: fault acknowledged (driver rio: rio: no answer): charts restarted " \
-           "from their initial situation; forces released: t1.iMarcha" in got[0], got
+    assert got[0].endswith(": ack (fault: driver rio: rio: no answer): fault acknowledged: "
+                           "charts restarted from their initial situation; forces "
+                           "released: t1.iMarcha"), got
 
 
 def test_a_refused_command_is_not_logged(rig: Rig,  # noqa: F811
