@@ -25,6 +25,10 @@ def lines(caplog: pytest.LogCaptureFixture, part: str = "") -> list[str]:
             if r.name == LOGGER and part in r.getMessage()]
 
 
+def said(caplog: pytest.LogCaptureFixture, part: str) -> bool:
+    return bool(lines(caplog, part))
+
+
 @pytest.fixture(autouse=True)
 def _info(caplog: pytest.LogCaptureFixture) -> None:
     caplog.set_level(logging.INFO)
@@ -35,9 +39,9 @@ def test_log_steps_on_an_instance_logs_every_step_change(
     d, drv = make_daemon(extra="    log: steps\n")
     wait_until(lambda: d.scan_stats.count > 2, what="scans")
     drv.inputs["I0"] = 1
-    wait_until(lambda: lines(caplog, "gsRun activated"), what="the activation line")
+    wait_until(lambda: said(caplog, "gsRun activated"), what="the activation line")
     drv.inputs["I0"] = 0
-    wait_until(lambda: lines(caplog, "gsRun deactivated"), what="the deactivation line")
+    wait_until(lambda: said(caplog, "gsRun deactivated"), what="the deactivation line")
     got = lines(caplog, "step")
     assert [x.split(" at scan ")[0] for x in got] == [
         "m: step gsIdle deactivated", "m: step gsRun activated",
@@ -82,7 +86,7 @@ def test_sfc_error_set_and_cleared_are_logged(make_daemon: MakeDaemon,
                                               caplog: pytest.LogCaptureFixture) -> None:
     d, drv = make_daemon()
     drv.inputs["I0"] = 1  # gsRun has max: 200ms
-    wait_until(lambda: lines(caplog, "SFCError"), what="the SFCError line")
+    wait_until(lambda: said(caplog, "SFCError"), what="the SFCError line")
     got = lines(caplog, "SFCError")
     assert len(got) == 1 and got[0].startswith(
         "m: SFCError: step gsRun active longer than its max 200ms, at scan "), got
@@ -96,15 +100,19 @@ def test_an_overrun_burst_is_one_line_with_its_count(make_daemon: MakeDaemon,
                                                      caplog: pytest.LogCaptureFixture) -> None:
     d, drv = make_daemon(cycle="10ms", watchdog="500ms")
     wait_until(lambda: d.scan_stats.count > 2, what="scans")
-    for _ in range(3):  # three slow reads in a row: 40 ms scans of a 10 ms cycle
-        n = d.scan_stats.overruns
+    for i in range(1, 4):  # three slow reads in a row: 40 ms scans of a 10 ms cycle
         drv.block_s = 0.04
-        wait_until(lambda: d.scan_stats.overruns > n, what="an overrun")
-    wait_until(lambda: lines(caplog, "overran"), timeout=10.0, what="the overrun line")
-    got = lines(caplog, "overran")
-    assert len(got) == 1, got
-    assert got[0].startswith("3 cycles overran the 10 ms cycle between scans "), got
-    assert "the longest took 4" in got[0] and d.fault is None
+        wait_until(lambda: d.scan_stats.overruns >= i, what="an overrun")  # noqa: B023
+
+    def ours() -> list[str]:  # the burst of the slow reads (a loaded machine adds others)
+        return [x for x in lines(caplog, "overran")
+                if float(x.split("the longest took ")[1].split(" ms")[0]) >= 40.0]
+    wait_until(lambda: bool(ours()), timeout=10.0, what="the overrun line")
+    got = ours()
+    assert len(got) == 1, lines(caplog, "overran")
+    count = int(got[0].split(" ")[0])
+    assert count >= 3 and " overran the 10 ms cycle between scans " in got[0], got
+    assert d.fault is None
 
 
 # -- the watcher on a virtual clock ------------------------------------------------------
