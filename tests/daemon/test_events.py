@@ -5,6 +5,10 @@ line per burst. Through a real daemon on simulated I/O, waiting on the log lines
 from __future__ import annotations
 
 import logging
+import os
+import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -160,3 +164,30 @@ def test_a_continuing_burst_is_reported_every_ten_seconds(
         w.close()
     got = lines(caplog, "overran")
     assert [x.split(" cycles")[0] for x in got] == ["1000", "1000", "500"], got
+
+
+TICK = """\
+grafcet: Tick
+outputs: [oLamp]
+steps:
+  s0: {initial: true}
+  s1: {actions: [oLamp]}
+transitions:
+  - {from: s0, to: s1, when: "s0.T >= 100ms"}
+  - {from: s1, to: s0, when: "s1.T >= 100ms"}
+"""
+
+
+def test_softplc_run_writes_the_step_lines_to_its_log(tmp_path: Path) -> None:
+    (tmp_path / "tick.yaml").write_text(TICK, encoding="utf-8")
+    (tmp_path / "plant.yaml").write_text(
+        "plc: {cycle: 10ms, watchdog: 500ms, log: steps}\ndrivers:\n  io: {type: sim}\n"
+        "instances:\n  t:\n    grafcet: tick.yaml\n    outputs: {oLamp: io.Q0}\n",
+        encoding="utf-8")
+    proc = subprocess.run([sys.executable, "-m", "runtime.cli", "run", "--sim",
+                           str(tmp_path / "plant.yaml"), "--for", "1s"],
+                          capture_output=True, text=True, timeout=60,
+                          env={**os.environ, "JOURNAL_STREAM": ""})
+    assert proc.returncode == 0, proc.stderr
+    assert re.search(r" INFO runtime\.controller\.events: t: step s1 activated at scan \d+$",
+                     proc.stderr, re.M), proc.stderr
