@@ -5,6 +5,10 @@ ack. Plain functions ``(session, args) -> Reply``, dispatched through commands.C
 Pause, stepping, iocheck and forces are held by the session that made them: each is
 recorded with ``ConsoleService.hold`` in the same scan-thread call as the plant change, and
 let go in the call that ends it.
+
+Each command that changed the plant leaves one log line naming its console, after the
+change is made (a refused command leaves none): one message template per command, so the
+log's rate limit (logsetup.RateLimit) counts each command on its own.
 """
 
 from __future__ import annotations
@@ -54,6 +58,7 @@ def cmd_set(session: Session, args: list[str]) -> Reply:
                                "'ack'")
         plant.set(name.text, value)
     session.ctl.call(write)
+    log.info("console %s: set %s = %s", session.name, name.text, name.show(value))
     return [f"{name.text} set to {name.show(value)}"]
 
 
@@ -70,6 +75,7 @@ def cmd_force(session: Session, args: list[str]) -> Reply:
         if name.role not in ("point in", "point out"):
             plant.set(name.text, value)  # visible at once, even while paused
     session.ctl.call(force)
+    log.warning("console %s: force %s = %s", session.name, name.text, name.show(value))
     return [f"{name.text} forced to {name.show(value)}"]
 
 
@@ -87,6 +93,7 @@ def cmd_unforce(session: Session, args: list[str]) -> Reply:
         plant.unforce(name.text)
         session.service.let_go(f"force {name.text}")
     session.ctl.call(release)
+    log.info("console %s: force %s released", session.name, name.text)
     return [f"{name.text} released"], {"released": [name.text]}
 
 
@@ -115,8 +122,10 @@ def cmd_pause(session: Session, args: list[str]) -> Reply:
             raise CommandError("iocheck on: the charts are stopped already")
         session.service.hold("pause", session)  # taken again: its time starts again
         return "already paused" if plant.pause() else "paused"
-    return [session.ctl.call(do) + ": charts hold, I/O still scanned; 'cycle N' steps, "
-            "'resume' goes on"]
+    done = session.ctl.call(do)
+    log.info("console %s: pause: charts held%s", session.name,
+             " (already paused)" if done == "already paused" else "")
+    return [done + ": charts hold, I/O still scanned; 'cycle N' steps, 'resume' goes on"]
 
 
 def cmd_resume(session: Session, args: list[str]) -> Reply:
@@ -125,7 +134,10 @@ def cmd_resume(session: Session, args: list[str]) -> Reply:
     def do() -> str:
         session.service.let_go("pause", "cycle")
         return "resumed" if plant.resume() else "not paused"
-    return [session.ctl.call(do)]
+    done = session.ctl.call(do)
+    if done == "resumed":
+        log.info("console %s: resume: charts run", session.name)
+    return [done]
 
 
 def cmd_cycle(session: Session, args: list[str]) -> Reply:
@@ -166,7 +178,10 @@ def cmd_cycle(session: Session, args: list[str]) -> Reply:
     finally:
         session.ctl.remove_listener(on_scan)
         session.service.let_go("cycle")
-    return _cycle_report(session.cat, n, before, images[:n])
+    ran = images[:n]
+    log.info("console %s: cycle %d: ran scans %s", session.name, n,
+             f"{ran[0].scan}..{ran[-1].scan}" if ran else "none")
+    return _cycle_report(session.cat, n, before, ran)
 
 
 def _cycle_report(cat: Catalogue, n: int, before: Image, images: list[Image]) -> Reply:
@@ -228,6 +243,7 @@ def _pulse(session: Session, args: list[str], flag: str) -> Reply:
         plant.pulse(args[0], flag)
         return state
     state = session.ctl.call(do)
+    log.info("console %s: %s %s: %s pulsed", session.name, flag[3:].lower(), args[0], flag)
     when = " at the next scan" if state != "paused" else " at the next scan ('cycle' " \
                                                           "or 'resume': paused now)"
     return [f"{flag} pulsed on {args[0]}{when}"]
@@ -266,6 +282,9 @@ def cmd_iocheck(session: Session, args: list[str]) -> Reply:
             plant.set_iocheck(True)
             return released
         released = session.ctl.call(enter)
+        log.warning("console %s: iocheck on: charts stopped, every output off%s",
+                    session.name, f"; released forces: {', '.join(released)}"
+                    if released else "")
         lines = ["iocheck: charts stopped, every output off. 'set DRIVER.POINT 1' drives "
                  "one output, 'watch' shows physical inputs with their logical value, "
                  "'iocheck off' ends"]
@@ -282,13 +301,20 @@ def cmd_iocheck(session: Session, args: list[str]) -> Reply:
         ctl.require_ack("iocheck ended: 'ack' restarts the charts from their initial "
                         "situation")
     session.ctl.call(leave)
+    log.warning("console %s: iocheck off: outputs off until ack", session.name)
     return ["iocheck off: every output off; 'ack' restarts the charts from their "
             "initial situation"]
 
 
 def cmd_ack(session: Session, args: list[str]) -> Reply:
-    def do() -> str:
+    def do() -> tuple[str, str, str | None]:
+        status = session.ctl.status()  # what is acknowledged, for the log
         done = session.ctl.ack()  # releases every force (Daemon._ack)
         session.service.let_go_forces()
-        return done
-    return [session.ctl.call(do)]
+        return done, str(status["state"]), status.get("fault")
+    done, state, reason = session.ctl.call(do)
+    if reason:
+        log.warning("console %s: ack (%s: %s): %s", session.name, state, reason, done)
+    else:
+        log.info("console %s: ack: %s", session.name, done)
+    return [done]

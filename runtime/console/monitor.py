@@ -494,6 +494,10 @@ class View:
             out.append(f"cycle {st.get('cycle_ms', 0):g} ms   scans {st.get('scans', 0)}   "
                        f"uptime {st.get('uptime_s', 0):.1f} s   "
                        f"overruns {sx.get('overruns', 0)}")
+        # what holds the charts or the outputs (a pause, an instance's SFCPause...),
+        # but the condition the state line names already
+        out += [f"inhibit  {x}" for x in st.get("inhibits", [])
+                if not x.startswith(f"{st.get('state')}: ")]
         for key, label in (("scan_us", "scan    "), ("lateness_us", "lateness")):
             s = sx.get(key)
             if s:

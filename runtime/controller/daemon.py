@@ -26,6 +26,7 @@ from collections.abc import Callable
 from types import FrameType
 from typing import IO, Any, TypeVar
 
+from runtime.controller.events import EventWatcher
 from runtime.controller.notify import Notifier
 from runtime.controller.realtime import lock_memory, reduce_timer_slack, set_fifo_priority
 from runtime.controller.retain import (
@@ -142,6 +143,8 @@ class Daemon:
         self._trace = _TraceWriter(self.plant, trace) if trace is not None else None
         self._switch_was = sys.getswitchinterval()
         self._stats_cache: tuple[int, dict[str, Any]] | None = None
+        #: logs step changes (``log: steps``), SFCError and overrun bursts
+        self.events = EventWatcher(self.plant, self.scan_stats, clock)
 
     # -- life cycle ------------------------------------------------------------------
     def start(self) -> None:
@@ -168,6 +171,8 @@ class Daemon:
                                         daemon=True)
         if self._trace is not None:
             self.add_listener(self._trace)
+        self.events.start()
+        self.add_listener(self.events)
         self._thread.start()
         self.watchdog.start()
         log.info("running %s: %d instance(s), cycle %s ms, watchdog %s ms", self.pdef.path,
@@ -191,6 +196,7 @@ class Daemon:
                 for d in self.plant.drivers.values():
                     d.inhibit(True)
         self.stopped = True
+        self.events.close()  # the scan thread is over: nothing more to watch
         sys.setswitchinterval(self._switch_was)
         self.watchdog.stop()
         self.plant.safe_state()
@@ -515,15 +521,16 @@ class Daemon:
                 raise CommandRefused(f"the fault is still there: {cause}")
             for d in plant.drivers.values():
                 d.inhibit(False)
-            log.warning("fault acknowledged (%s): charts restart from their initial "
-                        "situation", self.fault)
+            # the console's ack logs this, naming the console (changing.cmd_ack)
+            log.debug("fault acknowledged (%s): charts restart from their initial "
+                      "situation", self.fault)
             self.fault = None
             self._trip_reason = None
             self._unlatch()
             plant.restart()
             done.append("fault acknowledged: charts restarted from their initial situation")
         if self.halted is not None:
-            log.info("acknowledged: %s", self.halted)
+            log.debug("acknowledged: %s", self.halted)
             self.halted = None
             plant.restart()
             done.append("charts restarted from their initial situation")
@@ -537,7 +544,7 @@ class Daemon:
         forced = plant.forced_names()
         if forced:  # no force survives an ack: the restarted charts start clean
             plant.unforce(None)
-            log.warning("ack released every force: %s", ", ".join(forced))
+            log.debug("ack released every force: %s", ", ".join(forced))
             done.append(f"forces released: {', '.join(forced)}")
         return "; ".join(done)
 

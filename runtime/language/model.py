@@ -204,6 +204,9 @@ class InstanceDef:
     loc: Loc
     inputs: dict[str, Binding] = field(default_factory=dict)  # inputs and chart flags
     outputs: dict[str, Binding] = field(default_factory=dict)
+    #: log every step activation and deactivation (``log: steps``, of the instance or the
+    #: plant's ``plc:``; docs/daemon.md, "Logging")
+    log_steps: bool = False
 
 
 @dataclass(slots=True)

@@ -33,8 +33,12 @@ from runtime.language.typecheck import FLAGS_BOOL
 from runtime.language.yamlsrc import YMap, load_yaml, source_problem
 
 PLANT_KEYS = ("plc", "drivers", "instances", "monitor")
-PLC_KEYS = ("cycle", "watchdog", "retain", "retain_interval", "retain_required", "realtime")
-INSTANCE_KEYS = ("grafcet", "inputs", "outputs", "description")
+PLC_KEYS = ("cycle", "watchdog", "retain", "retain_interval", "retain_required", "realtime",
+            "log")
+INSTANCE_KEYS = ("grafcet", "inputs", "outputs", "description", "log")
+#: values of ``log:`` (plant-wide under ``plc:``, or per instance) -> whether step changes
+#: are logged
+LOG_VALUES = {"steps": True, "none": False}
 MONITOR_KEYS = ("serial", "socket", "tcp", "pin_hash", "release_forces_on_disconnect",
                 "limits")
 
@@ -126,6 +130,7 @@ def load_plant(path: str, load: PlantLoad | None = None) -> PlantDef:
         raise SourceError(Loc(path, 1, 1), "expected a YAML mapping with 'instances:'")
     check_keys(doc, PLANT_KEYS, "a plant file")
     p = PlantDef(path=path)
+    log_steps = False  # plant-wide ``plc: log``, each instance may say otherwise
     if "plc" in doc:
         plc = expect_type(doc["plc"], doc.val_locs["plc"], YMap, "a mapping")
         check_keys(plc, PLC_KEYS, "plc")
@@ -151,6 +156,8 @@ def load_plant(path: str, load: PlantLoad | None = None) -> PlantDef:
                 p.realtime_priority = expect_type(rt["priority"], rt.val_locs["priority"], int,
                                                   "a SCHED_FIFO priority 1-99")
             p.lock_memory = bool(rt.get("lock_memory", False))
+        if "log" in plc:
+            log_steps = _log_steps(plc["log"], plc.val_locs["log"])
     drivers = doc.get("drivers") or YMap()
     if drivers:
         expect_type(drivers, doc.val_locs["drivers"], YMap, "a mapping of drivers")
@@ -199,7 +206,12 @@ def load_plant(path: str, load: PlantLoad | None = None) -> PlantDef:
         except SourceError as exc:
             load.report(exc)
             continue  # the instance is left out
-        inst = InstanceDef(name, g, loc)
+        inst = InstanceDef(name, g, loc, log_steps=log_steps)
+        if "log" in spec:
+            try:
+                inst.log_steps = _log_steps(spec["log"], spec.val_locs["log"])
+            except SourceError as exc:
+                load.report(exc)
         written: dict[str, YMap] = {}
         for key in ("inputs", "outputs"):
             section = spec.get(key) or YMap()
@@ -295,6 +307,13 @@ def _resolve_bindings(p: PlantDef, load: PlantLoad) -> None:
                     where = list(p.drivers) + (list(p.instances) if key == "inputs" else [])
                     load.report(SourceError(b.loc, f"unknown driver or instance '{head}' in "
                                                    f"'{b.source}'{suggest(head, where)}"))
+
+
+def _log_steps(value: Any, loc: Loc) -> bool:
+    """``log: steps`` (every step change logged) or ``log: none``."""
+    if not isinstance(value, str) or value not in LOG_VALUES:
+        raise SourceError(loc, f"log: expected steps or none, found '{value}'")
+    return LOG_VALUES[value]
 
 
 def _need(m: YMap, key: str, what: str) -> Any:
