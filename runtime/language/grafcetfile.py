@@ -14,7 +14,7 @@ from typing import Any
 from drivers.durations import format_ns, parse_literal, strip_time_prefix
 from runtime.errors import Diagnostic, Loc, SourceError, suggest
 from runtime.language import ast as A
-from runtime.language.lexer import KEYWORDS, is_name
+from runtime.language.lexer import KEYWORDS, is_name, time_space_message
 from runtime.language.model import (
     Action,
     Block,
@@ -69,6 +69,8 @@ def expect_type(value: Any, loc: Loc, types: type | tuple[type, ...], what: str)
         found = "nothing" if value is None else f"{type(value).__name__} {value!r}"
         if isinstance(value, str):
             found = f"the text '{value}'"
+            if bool in (types if isinstance(types, tuple) else (types,)):
+                found += _yaml11_bool_note(value)
         if isinstance(value, YMap):
             found = "a mapping"
             if types is str or (isinstance(types, tuple) and str in types):
@@ -78,6 +80,17 @@ def expect_type(value: Any, loc: Loc, types: type | tuple[type, ...], what: str)
             found = "a list"
         raise SourceError(loc, f"expected {what}, found {found}")
     return value
+
+
+#: what YAML 1.1 read as bools; these files are YAML 1.2, where they are text
+_YAML11_BOOLS = ("yes", "no", "on", "off", "y", "n")
+
+
+def _yaml11_bool_note(text: str) -> str:
+    """Why a yes/no/on/off the user meant as a bool is text here, or nothing."""
+    if text.strip().lower() in _YAML11_BOOLS:
+        return " (yes, no, on and off are text in these files: write false or true)"
+    return ""
 
 
 def time_value(value: Any, loc: Loc, what: str) -> int:
@@ -96,6 +109,9 @@ def time_value(value: Any, loc: Loc, what: str) -> int:
                                    f"'{shown}'")
         if ns is not None:
             return ns
+        spaced = time_space_message(value)
+        if spaced is not None:
+            raise SourceError(loc, f"{spaced} for {what}")
     raise SourceError(loc, f"bad time literal '{value}' for {what}: expected e.g. 10s, 250ms, "
                            "1m30s or T#10s")
 
@@ -533,13 +549,18 @@ def _initial(spec: Any, loc: Loc, name: str) -> tuple[A.Type, object]:
         return T.INT, spec
     if isinstance(spec, float):
         return T.REAL, spec
+    expected = (f"expected an initial value for '{name}': false or true (bool), an integer "
+                "such as 0 (int), a real such as 0.0 (real) or a time such as 10s (time)")
     if isinstance(spec, str):
         text = spec.strip()
         if text.upper() in ("TRUE", "FALSE"):
             return T.BOOL, text.upper() == "TRUE"
-        return T.TIME, time_value(text, loc, f"the initial value of '{name}'")
-    raise SourceError(loc, f"expected an initial value for '{name}' (false, 0, 0.0 or a time "
-                           f"like 10s), found {spec!r}")
+        if text[:1].isdigit() or text.upper().startswith(("T#", "TIME#")):
+            return T.TIME, time_value(text, loc, f"the initial value of '{name}'")
+        raise SourceError(loc, f"{expected}, found the text '{text}'{_yaml11_bool_note(text)}")
+    found = "nothing" if spec is None else "a mapping" if isinstance(spec, YMap) else (
+        "a list" if isinstance(spec, YList) else repr(spec))
+    raise SourceError(loc, f"{expected}, found {found}")
 
 
 def load_grafcet(path: str, diagnostics: list[Diagnostic] | None = None) -> Grafcet:
