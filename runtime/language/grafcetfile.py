@@ -137,6 +137,10 @@ def _identifier(name: str, loc: Loc, what: str) -> str:
     alphabet: gsAvería); not a keyword of the expressions (AND, RE, TO ...)."""
     if not (isinstance(name, str) and is_name(name) and all(c.isalnum() or c == "_"
                                                             for c in name)):
+        if str(name)[:1].isdigit():  # step 1 of a course's chart: a number is no name
+            raise SourceError(loc, f"expected a name for {what} (a letter or '_' first, then "
+                                   f"letters, digits, '_'), found the number '{name}': write "
+                                   f"e.g. GS{name}")
         raise SourceError(loc, f"expected a name for {what} (letters, digits, '_'), found "
                                f"'{name}'")
     if name.upper() in KEYWORDS:

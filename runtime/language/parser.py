@@ -538,6 +538,12 @@ def parse_action(text: str, locate: Callable[[int], Loc]) -> ParsedAction:
             raise p.error(p.peek(), "statements after 'do'")
         check_depth([ev, *body], locate)
         return ParsedAction("EVENT", None, None, None, ev, body, t0.start)
+    if t0.kind == "NAME" and t0.text.upper() == "ACTION" and p.tok(p.i + 1).text == "(" and (
+            p.tok(p.i + 2).text.upper() in QUALIFIERS and p.tok(p.i + 3).text == ")"):
+        raise SourceError(locate(t0.start), "expected an action as 'QUALIFIER statements' "
+                          "(e.g. 'N x := x + 1' or 'P1 x := x + 1'), found an ACTION(...): "
+                          "... END_ACTION block: write the qualifier first, without ACTION and "
+                          "END_ACTION")
     qual, qstart, time_ns = "N", t0.start, None
     known = t0.kind == "NAME" and t0.text.upper() in QUALIFIERS
     k = p.i + 1

@@ -257,3 +257,34 @@ def test_distinct_transition_names_load(tmp_path: Path,
     path = write(tmp_path, "chart.yaml", text)
     assert main(["compile", path]) == 0
     assert ": ok: Arranque1 compiled" in capsys.readouterr().err
+
+
+# -- found writing the course exercises (seed 003: steps by number, ISaGRAF actions) ---------
+def test_step_named_by_a_number(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    text = MOTOR.replace("WHEN", "iParo").replace("  Ini: {initial: true}",
+                                                  "  1: {initial: true}")
+    assert compile_error(tmp_path, capsys, text) == line(
+        tmp_path, text, "1: {", "expected a name for a step (a letter or '_' first, then "
+                                "letters, digits, '_'), found the number '1': write e.g. GS1")
+
+
+def test_isagraf_action_block(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    text = MOTOR.replace("WHEN", "iParo").replace(
+        "outputs: [oMotor]", "outputs: [oMotor]\nmemory: {sN: 0}").replace(
+        "{actions: [oMotor]}", "\n    actions:\n      - |\n        ACTION(N):\n"
+        "          sN := sN + 1;\n        END_ACTION;")
+    assert compile_error(tmp_path, capsys, text) == line(
+        tmp_path, text, "ACTION(N)", "expected an action as 'QUALIFIER statements' (e.g. 'N x "
+                                     ":= x + 1' or 'P1 x := x + 1'), found an ACTION(...): ... "
+                                     "END_ACTION block: write the qualifier first, without "
+                                     "ACTION and END_ACTION")
+
+
+def test_block_named_action_is_still_a_call(tmp_path: Path,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    """Near miss: a function block that happens to be named Action is called as any other."""
+    text = MOTOR.replace("WHEN", "Action.Q").replace(
+        "outputs: [oMotor]", "outputs: [oMotor]\nblocks: {Action: TON}").replace(
+        "{actions: [oMotor]}", "{actions: ['Action(IN := iParo, PT := 2s)']}")
+    path = write(tmp_path, "chart.yaml", text)
+    assert main(["compile", path]) == 0, capsys.readouterr().err
