@@ -14,7 +14,7 @@ from typing import Any
 from drivers.durations import format_ns, parse_literal, strip_time_prefix
 from runtime.errors import Diagnostic, Loc, SourceError, suggest
 from runtime.language import ast as A
-from runtime.language.lexer import KEYWORDS, is_name
+from runtime.language.lexer import KEYWORDS, is_name, time_space_message
 from runtime.language.model import (
     Action,
     Block,
@@ -54,12 +54,22 @@ TRANSITION_KEYS = ("from", "to", "when", "name", "description")
 TYPE_NAMES = {"bool": T.BOOL, "int": T.INT, "real": T.REAL, "time": T.TIME}
 
 
-def check_keys(m: YMap, allowed: tuple[str, ...], what: str) -> None:
-    """Raise on the first key of ``m`` not in ``allowed``, suggesting the closest one."""
+def check_keys(m: YMap, allowed: tuple[str, ...], what: str,
+               misplaced: Callable[[str], str | None] | None = None) -> None:
+    """Raise on the first key of ``m`` not in ``allowed``, suggesting the closest one, or
+    saying where the key belongs if ``misplaced(key)`` knows (a key of another level)."""
     for k in m:
         if k not in allowed:
+            where = misplaced(k) if misplaced is not None else None
+            if where is not None and where.startswith(":"):
+                raise SourceError(m.key_locs[k], f"unknown key '{k}' in {what}{where}")
             raise SourceError(m.key_locs[k], f"unknown key '{k}' in {what}: expected one of "
-                                             f"{', '.join(allowed)}{suggest(k, allowed)}")
+                                             f"{', '.join(allowed)}{suggest(k, allowed)}"
+                                             f"{where or ''}")
+
+
+def _transition_shape(source: str) -> str:
+    return f"- {{from: {source}, to: B, when: CONDITION}}"
 
 
 def expect_type(value: Any, loc: Loc, types: type | tuple[type, ...], what: str) -> Any:
@@ -69,6 +79,8 @@ def expect_type(value: Any, loc: Loc, types: type | tuple[type, ...], what: str)
         found = "nothing" if value is None else f"{type(value).__name__} {value!r}"
         if isinstance(value, str):
             found = f"the text '{value}'"
+            if bool in (types if isinstance(types, tuple) else (types,)):
+                found += _yaml11_bool_note(value)
         if isinstance(value, YMap):
             found = "a mapping"
             if types is str or (isinstance(types, tuple) and str in types):
@@ -78,6 +90,17 @@ def expect_type(value: Any, loc: Loc, types: type | tuple[type, ...], what: str)
             found = "a list"
         raise SourceError(loc, f"expected {what}, found {found}")
     return value
+
+
+#: what YAML 1.1 read as bools; these files are YAML 1.2, where they are text
+_YAML11_BOOLS = ("yes", "no", "on", "off", "y", "n")
+
+
+def _yaml11_bool_note(text: str) -> str:
+    """Why a yes/no/on/off the user meant as a bool is text here, or nothing."""
+    if text.strip().lower() in _YAML11_BOOLS:
+        return " (yes, no, on and off are text in these files: write false or true)"
+    return ""
 
 
 def time_value(value: Any, loc: Loc, what: str) -> int:
@@ -96,6 +119,9 @@ def time_value(value: Any, loc: Loc, what: str) -> int:
                                    f"'{shown}'")
         if ns is not None:
             return ns
+        spaced = time_space_message(value)
+        if spaced is not None:
+            raise SourceError(loc, f"{spaced} for {what}")
     raise SourceError(loc, f"bad time literal '{value}' for {what}: expected e.g. 10s, 250ms, "
                            "1m30s or T#10s")
 
@@ -111,6 +137,10 @@ def _identifier(name: str, loc: Loc, what: str) -> str:
     alphabet: gsAvería); not a keyword of the expressions (AND, RE, TO ...)."""
     if not (isinstance(name, str) and is_name(name) and all(c.isalnum() or c == "_"
                                                             for c in name)):
+        if str(name)[:1].isdigit():  # step 1 of a course's chart: a number is no name
+            raise SourceError(loc, f"expected a name for {what} (a letter or '_' first, then "
+                                   f"letters, digits, '_'), found the number '{name}': write "
+                                   f"e.g. GS{name}")
         raise SourceError(loc, f"expected a name for {what} (letters, digits, '_'), found "
                                f"'{name}'")
     if name.upper() in KEYWORDS:
@@ -129,6 +159,7 @@ class GrafcetLoader:
         self.g = Grafcet(name="", path=path, loc=doc.loc)
         self.units: list[tuple[str, str, Callable[[int], Loc], object]] = []
         self.stmt_index = 0
+        self.transition_names: list[tuple[str, Loc]] = []  # each name given, where
 
     def _rule(self, code: str, loc: Loc, message: str) -> None:
         """A rule error the load can go on after: raised, or recorded if diagnostics are
@@ -139,7 +170,7 @@ class GrafcetLoader:
 
     def load(self) -> Grafcet:
         d, g = self.doc, self.g
-        check_keys(d, GRAFCET_KEYS, "a grafcet file")
+        check_keys(d, GRAFCET_KEYS, "a grafcet file", self._misplaced_at_top)
         if "grafcet" not in d:
             raise SourceError(d.loc, "missing key 'grafcet': expected the chart's name")
         g.name = _identifier(d["grafcet"], d.val_locs["grafcet"], "the grafcet")
@@ -163,7 +194,7 @@ class GrafcetLoader:
         self._timers_blocks()
         if "steps" not in d:
             raise SourceError(d.loc, "missing key 'steps': a chart needs at least one step")
-        steps = expect_type(d["steps"], d.val_locs["steps"], YMap, "a mapping of steps")
+        steps = self._steps_mapping(d["steps"], d.val_locs["steps"])
         top = self._steps(steps, parent=None)
         transitions: list[Transition] = []
         if "transitions" in d:
@@ -171,6 +202,7 @@ class GrafcetLoader:
         for s in g.steps.values():
             if s.macro is not None:
                 transitions += s.macro.transitions
+        self._unique_transition_names()
         transitions.sort(key=lambda t: (t.loc.line, t.loc.col))
         for i, t in enumerate(transitions):
             t.index = i
@@ -192,6 +224,18 @@ class GrafcetLoader:
         self._resolve_macros()
         self._typecheck_temps()
         return g
+
+    def _misplaced_at_top(self, key: str) -> str | None:
+        """Where a key of a step or of a transition written at the top level belongs."""
+        steps = self.doc.get("steps")
+        last = list(steps)[-1] if isinstance(steps, YMap) and steps else "NAME"
+        if key in STEP_KEYS:
+            return (f": '{key}' is a key of a step: indent it under its step in 'steps:' "
+                    f"(steps: {{{last}: {{{key}: [...]}}}})")
+        if key in TRANSITION_KEYS:
+            return (f": '{key}' is a key of a transition: write it under 'transitions:' "
+                    f"({_transition_shape('A')})")
+        return None
 
     # -- declarations ------------------------------------------------------------
     def _declare(self, raw: Any, loc: Loc, what: str) -> str:
@@ -266,17 +310,46 @@ class GrafcetLoader:
                 self.g.blocks[name] = Block(name, kind, loc)
 
     # -- steps and transitions ------------------------------------------------------
+    @staticmethod
+    def _steps_mapping(value: Any, loc: Loc) -> YMap:
+        """The mapping of steps; a list (steps written as '- NAME:' items) is refused with
+        the shape expected."""
+        if isinstance(value, YList):
+            raise SourceError(loc, "expected the steps as a mapping, one step per line "
+                                   "without '- ' (Ini: {initial: true} then Run: {actions: "
+                                   "[oX]}), found a list")
+        return expect_type(value, loc, YMap, "a mapping of steps")  # type: ignore[no-any-return]
+
     def _steps(self, steps: YMap, parent: str | None) -> list[str]:
-        names = []
+        names: list[str] = []
         for name, spec in steps.items():
             loc = steps.key_locs[name]
+            if name in STEP_KEYS and spec is not None and not isinstance(spec, YMap):
+                # a step's key (actions: [...]) indented at the level of the steps
+                above = names[-1] if names else "NAME"
+                raise SourceError(loc, f"expected a step, found '{name}', a key of a step, at "
+                                       f"the level of the steps: indent it under its step, two "
+                                       f"spaces further in than '{above}:' (or write {above}: "
+                                       f"{{{name}: [...]}})")
             self._declare(name, loc, "a step")
             if spec is None:
                 spec = YMap()
                 spec.loc, spec.key_locs, spec.val_locs = loc, {}, {}
+            if isinstance(spec, YList):
+                raise SourceError(steps.val_locs[name], f"expected the definition of step "
+                                  f"'{name}' (a mapping such as {{initial: true, actions: "
+                                  "[oX]}), found a list: put the step's actions under "
+                                  "'actions:'")
             spec = expect_type(spec, steps.val_locs[name], YMap, f"the definition of step "
-                               f"'{name}' (a mapping)")
-            check_keys(spec, STEP_KEYS, f"step '{name}'")
+                               f"'{name}' (a mapping such as {{initial: true, actions: [oX]}})")
+
+            def in_step(key: str, name: str = name) -> str | None:
+                if key in TRANSITION_KEYS:
+                    return (" (a transition is written under 'transitions:' as "
+                            f"{_transition_shape(name)})")
+                return None
+
+            check_keys(spec, STEP_KEYS, f"step '{name}'", in_step)
             st = Step(name, loc, parent=parent, description=str(spec.get("description", "")))
             for flag in ("initial", "entry", "exit"):
                 if flag in spec:
@@ -316,7 +389,7 @@ class GrafcetLoader:
         check_keys(spec, ("steps", "transitions"), f"macro-step '{st.name}'")
         if "steps" not in spec:
             raise SourceError(spec.loc, f"macro-step '{st.name}' needs 'steps'")
-        inner = expect_type(spec["steps"], spec.val_locs["steps"], YMap, "a mapping of steps")
+        inner = self._steps_mapping(spec["steps"], spec.val_locs["steps"])
         names = self._steps(inner, parent=st.name)
         entries = [n for n in names if self.g.steps[n].entry]
         exits = [n for n in names if self.g.steps[n].exit]
@@ -339,6 +412,9 @@ class GrafcetLoader:
             self.g.steps[entries[0]].initial = True
 
     def _transitions(self, items: Any, loc: Loc) -> list[Transition]:
+        if isinstance(items, YMap):
+            raise SourceError(loc, "expected a list of transitions, one per line after '- ' "
+                                   "(- {from: Ini, to: Run, when: iMarcha}), found a mapping")
         items = expect_type(items, loc, YList, "a list of transitions")
         out = []
         for spec, tloc in zip(items, items.locs, strict=True):
@@ -363,8 +439,21 @@ class GrafcetLoader:
                            name=str(spec.get("name", "")), source_locs=src_locs,
                            target_locs=dst_locs, locate=locate if written else None)
             self.units.append(("bool", str(when), locate, cond))
+            if t.name:
+                self.transition_names.append((t.name, spec.val_locs["name"]))
             out.append(t)
         return out
+
+    def _unique_transition_names(self) -> None:
+        """Refuse a transition name given twice in the chart (macro expansions included),
+        at the later one in the file."""
+        first: dict[str, Loc] = {}
+        for name, loc in sorted(self.transition_names, key=lambda n: (n[1].line, n[1].col)):
+            if name in first:
+                raise SourceError(loc, f"expected each transition name once in the chart, "
+                                       f"found '{name}' again (first at line "
+                                       f"{first[name].line})")
+            first[name] = loc
 
     def _step_refs(self, value: Any, loc: Loc, key: str) -> tuple[list[str], list[Loc]]:
         if isinstance(value, str):
@@ -533,13 +622,18 @@ def _initial(spec: Any, loc: Loc, name: str) -> tuple[A.Type, object]:
         return T.INT, spec
     if isinstance(spec, float):
         return T.REAL, spec
+    expected = (f"expected an initial value for '{name}': false or true (bool), an integer "
+                "such as 0 (int), a real such as 0.0 (real) or a time such as 10s (time)")
     if isinstance(spec, str):
         text = spec.strip()
         if text.upper() in ("TRUE", "FALSE"):
             return T.BOOL, text.upper() == "TRUE"
-        return T.TIME, time_value(text, loc, f"the initial value of '{name}'")
-    raise SourceError(loc, f"expected an initial value for '{name}' (false, 0, 0.0 or a time "
-                           f"like 10s), found {spec!r}")
+        if text[:1].isdigit() or text.upper().startswith(("T#", "TIME#")):
+            return T.TIME, time_value(text, loc, f"the initial value of '{name}'")
+        raise SourceError(loc, f"{expected}, found the text '{text}'{_yaml11_bool_note(text)}")
+    found = "nothing" if spec is None else "a mapping" if isinstance(spec, YMap) else (
+        "a list" if isinstance(spec, YList) else repr(spec))
+    raise SourceError(loc, f"{expected}, found {found}")
 
 
 def load_grafcet(path: str, diagnostics: list[Diagnostic] | None = None) -> Grafcet:

@@ -7,7 +7,7 @@ import unicodedata
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from drivers.durations import format_ns, parse_literal
+from drivers.durations import LITERAL_UNITS, format_ns, parse_literal
 from runtime.errors import Loc, SourceError
 from runtime.language.yamlsrc import INT_MAX, TIME_MAX_NS
 
@@ -28,6 +28,27 @@ class Tok:
     start: int
     end: int
     value: object = None
+
+
+def time_space_message(written: str) -> str | None:
+    """The advice for a time literal written with spaces (``5 s``, ``1m 30s``), or None if
+    the text is no time literal once its spaces are taken out."""
+    fixed = "".join(written.split())
+    if fixed == written.strip() or parse_literal(fixed) is None:
+        return None
+    return (f"expected a time literal without a space between the number and its unit "
+            f"({fixed}, or T#{fixed}), found '{written.strip()}'")
+
+
+def spaced_time(text: str, number_start: int, unit: Tok, locate: Callable[[int], Loc]
+                ) -> SourceError | None:
+    """The error for a number followed on the same line by a time unit (``5 s``), placed at
+    the number, or None if ``unit`` is no unit written after it."""
+    between = text[number_start:unit.start]
+    if unit.kind != "NAME" or unit.text not in LITERAL_UNITS or "\n" in between:
+        return None
+    message = time_space_message(text[number_start:unit.end])
+    return None if message is None else SourceError(locate(number_start), message)
 
 
 def is_name(word: str) -> bool:

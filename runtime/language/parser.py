@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 from runtime.errors import Loc, SourceError
 from runtime.language import ast as A
-from runtime.language.lexer import Lexer, Tok
+from runtime.language.lexer import Lexer, Tok, spaced_time
 
 QUALIFIERS = ("N", "S", "R", "L", "D", "P", "P1", "P0", "DS", "SD", "SL")
 TIMED_QUALIFIERS = ("L", "D", "DS", "SD", "SL")
@@ -82,6 +82,9 @@ class Parser:
         return t.kind == kind and (text is None or t.text == text)
 
     def error(self, tok: Tok, expected: str) -> SourceError:
+        spaced = self.spaced_time(tok)
+        if spaced is not None:
+            return spaced
         if tok.kind == "KW" and tok.text in ("WHILE", "REPEAT"):
             return SourceError(self.lexer.locate(tok.start),
                                f"expected {expected}, found {tok.text}: WHILE and REPEAT loops "
@@ -89,6 +92,17 @@ class Parser:
                                "loop")
         return SourceError(self.lexer.locate(tok.start),
                            f"expected {expected}, found {_describe(tok)}")
+
+    def spaced_time(self, tok: Tok) -> SourceError | None:
+        """The error for ``5 s`` when ``tok`` is the unit after a number and a space (the
+        newcomer's time literal), else None."""
+        k = next((i for i, t in enumerate(self.toks) if t is tok), 0)
+        if k == 0:
+            return None
+        number = self.toks[k - 1]
+        if number.kind not in ("INT", "REAL"):
+            return None
+        return spaced_time(self.text, number.start, tok, self.lexer.locate)
 
     def expect(self, kind: str, text: str | None, what: str, skip_nl: bool = False) -> Tok:
         t = self.peek(skip_nl)
@@ -524,6 +538,12 @@ def parse_action(text: str, locate: Callable[[int], Loc]) -> ParsedAction:
             raise p.error(p.peek(), "statements after 'do'")
         check_depth([ev, *body], locate)
         return ParsedAction("EVENT", None, None, None, ev, body, t0.start)
+    if t0.kind == "NAME" and t0.text.upper() == "ACTION" and p.tok(p.i + 1).text == "(" and (
+            p.tok(p.i + 2).text.upper() in QUALIFIERS and p.tok(p.i + 3).text == ")"):
+        raise SourceError(locate(t0.start), "expected an action as 'QUALIFIER statements' "
+                          "(e.g. 'N x := x + 1' or 'P1 x := x + 1'), found an ACTION(...): "
+                          "... END_ACTION block: write the qualifier first, without ACTION and "
+                          "END_ACTION")
     qual, qstart, time_ns = "N", t0.start, None
     known = t0.kind == "NAME" and t0.text.upper() in QUALIFIERS
     k = p.i + 1
@@ -552,6 +572,10 @@ def parse_action(text: str, locate: Callable[[int], Loc]) -> ParsedAction:
             time_ns = int(tt.value)  # type: ignore[call-overload]
             p.skip_nl()
         elif qual in TIMED_QUALIFIERS:
+            if p.peek().kind in ("INT", "REAL"):
+                spaced = p.spaced_time(p.tok(p.i + 1))
+                if spaced is not None:
+                    raise spaced
             raise SourceError(locate(p.peek().start),
                               f"expected a time after qualifier {qual} (e.g. '{qual} 2s oX'), "
                               f"found {_describe(p.peek())}")

@@ -145,7 +145,7 @@ class Checker:
                     raise self.err(n, f"step '{n.obj}' has only .X and .T, found "
                                       f"'.{n.member}'")
                 raise self.err(n, f"unknown function block '{n.obj}'"
-                                  f"{suggest(n.obj, self.g.blocks)}")
+                                  f"{suggest(n.obj, self.g.blocks)}{self._declare_block(n.obj)}")
             members = FB_MEMBERS[blk.kind]
             if n.member not in members:
                 raise self.err(n, f"{blk.kind} '{n.obj}' has no member '{n.member}': expected "
@@ -168,6 +168,14 @@ class Checker:
         if isinstance(n, A.Binary):
             return self._binary(n)
         raise self.err(n, "expected an expression")  # pragma: no cover
+
+    def _declare_block(self, name: str) -> str:
+        """Where an unknown block would be declared: the chart's ``blocks:`` mapping (a
+        type guessed from the name's prefix, TON otherwise)."""
+        kinds = sorted(FB_MEMBERS, key=len, reverse=True)  # CTUD before CTU
+        kind = next((k for k in kinds if name.upper().startswith(k.replace("_", ""))), "TON")
+        return (f": declare it in the chart's mapping of blocks (blocks: {{{name}: "
+                f"{kind}}})")
 
     def _name(self, n: A.Name) -> A.Type:
         v = self.g.variables.get(n.name)
@@ -255,7 +263,10 @@ class Checker:
             return vt
         if n.obj not in self.g.timers:
             if m in TIMER_METHODS:
-                raise self.err(n, f"unknown timer '{n.obj}'{suggest(n.obj, self.g.timers)}")
+                declared = ", ".join([*self.g.timers, n.obj])
+                raise self.err(n, f"unknown timer '{n.obj}'{suggest(n.obj, self.g.timers)}: "
+                                  f"declare it in the chart's list of timers (timers: "
+                                  f"[{declared}])")
             raise self.err(n, f"unknown method '{m}': expected Ini End Reset Val (timers) or "
                               "Set (variables)")
         if m not in TIMER_METHODS:
@@ -330,7 +341,8 @@ class Checker:
             blk = self.g.blocks.get(s.block)
             if blk is None:
                 raise self.err(s, f"unknown function block '{s.block}'"
-                                  f"{suggest(s.block, self.g.blocks)}")
+                                  f"{suggest(s.block, self.g.blocks)}"
+                                  f"{self._declare_block(s.block)}")
             members = FB_MEMBERS[blk.kind]
             for arg, val in s.args:
                 if arg not in members or not members[arg][1]:

@@ -182,9 +182,9 @@ def test_unbalanced_parentheses_in_a_call(tmp_path: Path) -> None:
 ])
 def test_bad_time_literal(tmp_path: Path, cond: str, needle: str) -> None:
     text = when(cond)
-    if needle == "10 s":  # a number followed by a name
-        check(tmp_path, text, needle, "expected an operator or the end of the expression",
-              "found 's'", plus=3)
+    if needle == "10 s":  # a number, a space and a unit: the newcomer's time literal
+        check(tmp_path, text, needle, "expected a time literal without a space", "(10s, or "
+              "T#10s), found '10 s'")
     else:
         check(tmp_path, text, needle, f"bad time literal '{needle}'", "expected",
               "units in order")
