@@ -381,15 +381,20 @@ class ConsoleServer:
 
     def _work(self, until: float) -> None:
         """Lines handed over round-robin, one per connection, until ``until`` (monotonic
-        seconds)."""
+        seconds). The connection served goes to the end of the order, so the next line
+        (in this round or the next) comes from the one served least recently: a line
+        that waits for a scan boundary uses up a round, and restarting each round from
+        the first connection starved the last ones."""
+        conns = self._conns
         while True:
-            ready = [c for c in self._conns if c.line.ready()]
-            if not ready:
+            c = next((c for c in conns if c.line.ready()), None)
+            if c is None:
                 return
-            for c in ready:
-                c.line.step()
-                if time.monotonic() >= until:
-                    return
+            conns.remove(c)
+            conns.append(c)
+            c.line.step()
+            if time.monotonic() >= until:
+                return
 
     def _tick(self) -> None:
         """Streams polled, and idle connections closed (POLL_S apart)."""

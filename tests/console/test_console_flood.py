@@ -141,3 +141,22 @@ def test_eight_tcp_clients_pipelining_do_not_starve_the_scan(
     assert loud["overruns"] <= quiet["overruns"] + 1, msg
     assert loud["cycles"] >= 0.95 * loud["expected"], msg
     assert loud["p99_us"] < max(2 * quiet["p99_us"], quiet["p99_us"] + 2500), msg
+
+
+@pytest.mark.slow
+def test_pipelining_clients_share_the_console_fairly(rigs: Callable[..., Rig]) -> None:
+    """Six clients pipelining ``get`` (each reply waits for a scan boundary) get about
+    the same share of the console: the one connected last is not starved by the first.
+    Found by the 60 s bench of issue 12: the socket thread began every round with the
+    first connection, so while the first ones kept it busy the others got 2 replies/s
+    against 100 for the first, and 155 lines were still unanswered 10 s after the end."""
+    rig = rigs(serial_port=False, manage_gc=True, priority=PRIORITY)
+    server = ConsoleServer(rig.service, [ConsoleEntry("tcp", "127.0.0.1:0")])
+    server.start()
+    try:
+        seen = pipelining([server.addresses[0]] * 6, ["get t1.iMarcha"], SECONDS)()
+    finally:
+        server.stop()
+    ok = sorted(c["ok"] for c in seen)
+    assert all(c["replies"] == c["sent"] for c in seen), seen
+    assert ok[0] >= ok[-1] / 2, f"replies per client {ok}: not a fair share"
