@@ -65,6 +65,10 @@ def cmd_json(session: Session, args: list[str]) -> Reply:
     return []
 
 
+#: chart flags that hold an instance's chart (it does not evolve while one is set)
+HOLD_FLAGS = ("SFCInit", "SFCReset", "SFCPause")
+
+
 def cmd_status(session: Session, args: list[str]) -> Reply:
     plant, cat = session.ctl.plant, session.cat
 
@@ -73,16 +77,21 @@ def cmd_status(session: Session, args: list[str]) -> Reply:
                   for k, v in plant.forced_values().items()}
         return {**session.ctl.status(),
                 "steps": {n: i.active_steps() for n, i in plant.instances.items()},
+                "held": {n: held for n, i in plant.instances.items()
+                         if (held := [f for f in HOLD_FLAGS if i.get(f)])},
                 "forced": forced,
                 "errors": {n: i.get("SFCErrorStep") for n, i in plant.instances.items()
                            if i.get("SFCError")}}
     try:
         data = session.ctl.call(read)
     except TimeoutError:  # say what can be said without the scan thread
-        data = {**session.ctl.status(), "steps": {}, "forced": {}, "errors": {},
+        data = {**session.ctl.status(), "steps": {}, "held": {}, "forced": {}, "errors": {},
                 "note": "the scan thread did not answer"}
     data["faults"] = data.get("faults", [])[-STATUS_FAULTS:]
+    held = data.get("held", {})
     state = data["state"] + (f" ({data['fault']})" if data.get("fault") else "")
+    if held and data["state"] == "running":  # running, yet some charts do not evolve
+        state += " (" + "; ".join(f"{n} held by {', '.join(f)}" for n, f in held.items()) + ")"
     lines = [f"state {state}",
              f"cycle time {data['cycle_ms']:g} ms, scans {data['scans']}, uptime "
              f"{_uptime_text(data['uptime_s'])}"]
@@ -90,7 +99,9 @@ def cmd_status(session: Session, args: list[str]) -> Reply:
         lines.append(data["note"])
     lines += [f"inhibit: {x}" for x in data.get("inhibits", [])
               if not x.startswith(f"{data['state']}: ")]  # the state line says that one
-    lines += [f"{n}: {' '.join(s) or '(no active step)'}" for n, s in data["steps"].items()]
+    lines += [f"{n}: {' '.join(s) or '(no active step)'}"
+              + (f" (held by {', '.join(held[n])})" if n in held else "")
+              for n, s in data["steps"].items()]
     lines += [f"SFCError {n}: step {s}" for n, s in data["errors"].items()]
     lines += [f"forced {k}={v}" for k, v in data["forced"].items()]
     lines += [f"fault at {_clock_text(f['time'])}: {f['reason']}" for f in data["faults"]]

@@ -72,8 +72,9 @@ def test_the_console_status_says_what_holds_an_instance(rig: Rig) -> None:  # no
     s = rig.serial()
     s.ok("set t1.SFCPause 1")
     status = s.ok("status")
-    assert status[0] == "state running"
+    assert status[0] == "state running (t1 held by SFCPause)"  # not a bare "running"
     assert "inhibit: t1: held by SFCPause" in status
+    assert any(ln.startswith("t1: ") and ln.endswith(" (held by SFCPause)") for ln in status)
     s.ok("pause")
     status = s.ok("status")
     assert status[0] == "state paused"
