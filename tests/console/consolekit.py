@@ -145,8 +145,10 @@ class NullModem:
                     continue
                 try:
                     data = os.read(src, 65536)
-                except OSError:
-                    continue  # the other side is not open (yet)
+                except OSError:  # the other side is not open (yet): the master keeps
+                    # reporting that at once, so wait a little instead of spinning a core
+                    select.select([self._stop_r], [], [], 0.02)
+                    continue
                 view = memoryview(data)
                 end = time.monotonic() + 1.0
                 while view and time.monotonic() < end:
