@@ -31,6 +31,8 @@ NS_PER_UNIT: dict[str, int] = {
 LITERAL_UNITS = ("d", "h", "m", "s", "ms", "us", "ns")
 #: nanoseconds per second
 NS_PER_S = 1_000_000_000
+#: the longest duration, ns (about 292 years): a longer text is not a duration
+MAX_NS = 2**63 - 1
 
 
 @dataclass(frozen=True, slots=True)
@@ -59,7 +61,8 @@ def _unit(text: str) -> str:
 def parse_ns(text: str, grammar: Grammar = LITERAL) -> int | None:
     """``text`` -> nanoseconds, or None if it is not a duration of ``grammar``.
 
-    ``_`` is dropped first. Each part is rounded to the nanosecond on its own.
+    ``_`` is dropped first. Each part is rounded to the nanosecond on its own. A total
+    longer than ``MAX_NS`` (``1`` followed by 400 digits, seconds) is not a duration.
     """
     t = text.replace("_", "")
     pos, total, last = 0, 0, -1
@@ -73,7 +76,12 @@ def parse_ns(text: str, grammar: Grammar = LITERAL) -> int | None:
             if idx <= last:
                 return None
             last = idx
-        total += round(float(m.group(1)) * NS_PER_UNIT[unit])
+        part = float(m.group(1)) * NS_PER_UNIT[unit]
+        if part > MAX_NS:  # also an infinity: float() of 400 digits
+            return None
+        total += round(part)
+        if total > MAX_NS:
+            return None
         pos = m.end()
     return total if pos > 0 else None
 
