@@ -174,7 +174,7 @@ BAUDRATES = (50, 75, 110, 134, 150, 200, 300, 600, 1200, 1800, 2400, 4800, 9600,
              1500000, 2000000, 2500000, 3000000, 3500000, 4000000)
 
 MODBUS_RTU_KEYS = ConfigKeys(
-    ConfigKey("port", Kind.TEXT, required=True, minimum=1, pattern=r"/\S+",
+    ConfigKey("port", Kind.TEXT, required=True, pattern=r"/\S+",
               expected="a serial device such as /dev/ttyUSB0 (its full path)"),
     ConfigKey("baudrate", Kind.CHOICE, default=19200, choices=BAUDRATES,
               expected="a standard baud rate such as 9600, 19200 or 115200 (50 to 4000000)"),
