@@ -258,6 +258,6 @@ def parse_duration(value: Any, what: str) -> float:
         return float(value)
     if isinstance(value, str):
         ns = parse_ns(strip_time_prefix(value.strip()), CONFIG)
-        if ns is not None:
+        if ns is not None and ns <= MAX_NS:
             return ns / NS_PER_S
     raise ConfigError(f"{what}: expected a time such as 5ms or 0.005, found {value!r}")

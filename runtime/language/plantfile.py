@@ -268,6 +268,10 @@ def _resolve_bindings(p: PlantDef, load: PlantLoad) -> None:
                         if rest != "ok":
                             check_point(p.drivers[head].type, head, rest, direction,
                                         bound.setdefault(head, {}))
+                        elif direction is Direction.OUT:
+                            raise PointError(f"'{b.source}' is the driver's health, a "
+                                             "read-only input: it cannot be bound as an "
+                                             "output")
                     except PointError as exc:
                         load.report(SourceError(b.loc, f"{exc} (instance '{inst.name}', "
                                                 f"{key[:-1]} '{b.signal}')", "G303"))
