@@ -105,6 +105,9 @@ class ConfigKey:
 
     def refusal(self, value: Any, driver: str, type_name: str) -> ConfigError:
         """The ConfigError that refuses ``value`` for this key of ``driver``."""
+        if "{value!r}" not in self.message and isinstance(value, str) and (
+                not value.isprintable()):  # one line: a newline or a control shown escaped
+            value = repr(value)[1:-1]
         text = self.message.format(key=self.name, value=value, expected=self.describe())
         return ConfigError(f"driver {driver} ({type_name}): {text}", self.name)
 

@@ -158,6 +158,9 @@ def load_plant(path: str, load: PlantLoad | None = None) -> PlantDef:
         expect_type(drivers, doc.val_locs["drivers"], YMap, "a mapping of drivers")
     for name, spec in drivers.items():
         loc = drivers.key_locs[name]
+        if not isinstance(name, str) or not name.isidentifier():
+            raise SourceError(loc, f"expected a driver name (letters, digits and _, as in "
+                                   f"'exp1'), found {name!r}")
         spec = expect_type(spec, drivers.val_locs[name], YMap, f"the driver '{name}' "
                                                                 "({type: ...})")
         if "type" not in spec:
@@ -168,7 +171,7 @@ def load_plant(path: str, load: PlantLoad | None = None) -> PlantDef:
                               f"of {', '.join(DRIVER_KEYS)}{suggest(str(typ), DRIVER_KEYS)}")
         check_keys(spec, ("type", "on_fault", *DRIVER_KEYS[typ]), f"driver '{name}' ({typ})")
         if spec.get("on_fault", "stop") not in ("stop", "hold", "zero"):
-            raise SourceError(spec.val_locs["on_fault"], f"unknown on_fault '{spec['on_fault']}'"
+            raise SourceError(spec.val_locs["on_fault"], f"unknown on_fault {spec['on_fault']!r}"
                                                          ": expected stop, hold or zero")
         config = {k: (str(v) if isinstance(v, str) else v) for k, v in spec.items()
                   if k != "type"}
