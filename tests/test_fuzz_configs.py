@@ -4,8 +4,8 @@ and ``softplc check`` give a clean result or one clean ``FILE:LINE:COL: error:``
 never a traceback nor a hang (each case has a deadline).
 
 The commands run in-process (``runtime.cli.main``) for speed, and a few in a subprocess.
-The default run tries ``FUZZ_EXAMPLES`` cases per strategy (about 10 s in all on an idle machine); the slow
-test tries ten times as many.
+The default run tries ``FUZZ_EXAMPLES`` cases per strategy (about 10 s in all on an idle
+machine); the slow test tries ten times as many.
 """
 
 from __future__ import annotations
@@ -237,7 +237,8 @@ _TIME_TEXTS = ["1" * 400 + "s", "9" * 30 + "h", "1e999s", "0", "0ms", "-1ms", ".
 TIMES = st.one_of(
     st.sampled_from(_TIME_TEXTS[:3]), st.sampled_from(_TIME_TEXTS), st.floats(),
     st.tuples(st.integers(10**300, 10**500), st.sampled_from(["s", "ms", "h", " us", ""])).map(
-        lambda t: f"{t[0]}{t[1]}"), st.integers(-10, 10**25), st.from_regex(r"\A[0-9.]{1,6} ?(us|ms|s|m|h)\Z"))
+        lambda t: f"{t[0]}{t[1]}"),
+    st.integers(-10, 10**25), st.from_regex(r"\A[0-9.]{1,6} ?(us|ms|s|m|h)\Z"))
 
 
 def near(key: ConfigKey) -> st.SearchStrategy[Any]:
