@@ -33,7 +33,6 @@ Points ``I0``-``I63`` (0x6000 sub 1 bit 0 is I0, sub 2 bit 0 is I8, ...), ``Q0``
 from __future__ import annotations
 
 import logging
-import re
 import struct
 import threading
 import time
@@ -46,9 +45,8 @@ import canopen
 from canopen.objectdictionary import ODVariable
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
-from drivers.base import Direction, DriverError, PointError, PointKind, PolledDriver
-from drivers.config import ConfigError
-from drivers.registry import CANOPEN_KEYS
+from drivers.base import Direction, DriverError, PointKind, PolledDriver
+from drivers.registry import CANOPEN_KEYS, POINTS, PdoEntry, pdo_config
 
 log = logging.getLogger(__name__)
 
@@ -64,17 +62,7 @@ NMT_STATE_NAMES = {BOOTUP: "boot-up", STOPPED: "STOPPED", OPERATIONAL: "OPERATIO
                    PRE_OPERATIONAL: "PRE-OPERATIONAL"}
 NMT_START = 0x01
 
-_POINT = re.compile(r"^([IQ])([0-9]{1,2})$")
-_ENTRY = re.compile(r"^(?:0x)?([0-9A-Fa-f]{1,4})(?:sub|:|\.)([0-9A-Fa-f]{1,2})(?:/(\d{1,2}))?$")
-
-
-@dataclass(frozen=True)
-class PdoEntry:
-    """One object mapped into a PDO: index, sub-index and length in bits."""
-
-    index: int
-    subindex: int
-    bits: int
+__all__ = ["CanopenDriver", "PdoEntry"]
 
 
 @dataclass
@@ -113,36 +101,15 @@ class CanopenConfig:
 
     @classmethod
     def from_params(cls, name: str, params: Mapping[str, Any]) -> CanopenConfig:
-        """From driver ``name``'s ``params`` (``ConfigKeys.validate``); ConfigError for a
-        bad ``pdo`` entry."""
+        """From driver ``name``'s ``params``, checked by ``ConfigKeys.validate`` (the ``pdo``
+        mapping too)."""
         tpdos = rpdos = None
         if params["pdo"] is not None:
-            tpdos, rpdos = _pdo_config(name, params["pdo"])
+            tpdos, rpdos = pdo_config(params["pdo"])
         return cls(params["node"], params["interface"], str(params["channel"]),
                    params["bitrate"], params["heartbeat"], params["eds"], params["sync"],
                    tpdos, rpdos)
 
-
-def _pdo_config(name: str, pdo: Mapping[Any, Any]) -> tuple[list[list[PdoEntry]],
-                                                             list[list[PdoEntry]]]:
-    """``{tpdo1: ["6000:1", ...], rpdo1: [...]}`` -> (TPDO maps, RPDO maps) by number."""
-    maps: dict[str, list[list[PdoEntry]]] = {"tpdo": [[] for _ in range(4)],
-                                             "rpdo": [[] for _ in range(4)]}
-    for key, entries in pdo.items():
-        m = re.match(r"^(tpdo|rpdo)([1-4])$", str(key))
-        if m is None or not isinstance(entries, list):
-            raise ConfigError(f"driver {name} (canopen): pdo: '{key}': expected tpdo1-tpdo4 "
-                              "or rpdo1-rpdo4 with a list of mapped objects such as '6000:1'")
-        parsed = []
-        for text in entries:
-            e = _ENTRY.match(str(text))
-            if e is None:
-                raise ConfigError(f"driver {name} (canopen): pdo {key}: '{text}': expected "
-                                  "INDEX:SUB in hex, with /BITS if not 8 (e.g. 6000:1, 2000:0/16)")
-            parsed.append(PdoEntry(int(e.group(1), 16), int(e.group(2), 16),
-                                   int(e.group(3) or 8)))
-        maps[m.group(1)][int(m.group(2)) - 1] = parsed
-    return maps["tpdo"], maps["rpdo"]
 
 
 def _u(data: bytes) -> int:
@@ -197,15 +164,7 @@ class CanopenDriver(PolledDriver):
         self.starts = 0
 
     def _check_point(self, point: str, direction: Direction) -> PointKind:
-        m = _POINT.match(point)
-        if m is None or int(m.group(2)) > 63:
-            raise PointError(f"{self.name}.{point}: a canopen point is I0-I63 (0x6000) or "
-                             "Q0-Q63 (0x6200)")
-        if (m.group(1) == "I") != (direction is Direction.IN):
-            what = "an input (0x6000)" if m.group(1) == "I" else "an output (0x6200)"
-            raise PointError(f"{self.name}.{point} is {what}: it cannot be bound as an "
-                             f"{'output' if direction is Direction.OUT else 'input'}")
-        return PointKind.BOOL
+        return POINTS[self.type_name].check(self.name, point, direction)
 
     def _where(self) -> str:
         return f"node {self.cfg.node} on {self.cfg.interface}:{self.cfg.channel}"

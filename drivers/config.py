@@ -10,18 +10,26 @@ where smbus2, gpiod or canopen are missing.
 from __future__ import annotations
 
 import enum
+import math
+import re
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from drivers.durations import CONFIG, NS_PER_S, parse_ns, strip_time_prefix
+from drivers.durations import CONFIG, MAX_NS, NS_PER_S, parse_ns, strip_time_prefix
 
 
 class ConfigError(ValueError):
     """A driver's configuration has a bad value: ``parity: X``, ``address: 300``, ``bias: up``.
 
-    Raised when the driver is constructed, before anything touches the bus.
+    Raised when the plant is loaded (``runtime.language.plantfile``) and again when the
+    driver is constructed, before anything touches the bus. ``key`` names the config key
+    refused (None: not one key), so the loader can point at its place in the file.
     """
+
+    def __init__(self, message: str, key: str | None = None) -> None:
+        super().__init__(message)
+        self.key = key
 
 
 class Kind(enum.Enum):
@@ -53,9 +61,15 @@ class ConfigKey:
     #: the value when the key is absent (None: no value, or required)
     default: Any = None
     required: bool = False
-    #: inclusive bounds: of the value for INT and I2C_ADDRESS, of the length for TEXT
+    #: inclusive bounds: of the value for INT and I2C_ADDRESS, of the length for TEXT;
+    #: ``maximum`` of a DURATION is in seconds
     minimum: int | None = None
     maximum: int | None = None
+    #: the inclusive ranges an INT or I2C_ADDRESS must fall in, when not one (PCF8574:
+    #: 0x20-0x27 or 0x38-0x3F); ``minimum``/``maximum`` are then their outer bounds
+    ranges: tuple[tuple[int, int], ...] = ()
+    #: a regular expression a TEXT (or the text of a TEXT_OR_INT) must match in full
+    pattern: str | None = None
     #: the values of a CHOICE
     choices: tuple[Any, ...] = ()
     #: a CHOICE read in any case (parity: ``e`` is ``E``)
@@ -69,6 +83,9 @@ class ConfigKey:
     expected: str = ""
     #: the refusal after ``driver NAME (TYPE): ``; fields ``key``, ``value``, ``expected``
     message: str = "{key}: expected {expected}, found {value!r}"
+    #: a further check of a MAPPING's inside: the value -> None, or what is wrong with it
+    #: (the refusal says it after ``driver NAME (TYPE): KEY``)
+    verify: Callable[[Any], str | None] | None = None
 
     def describe(self) -> str:
         """What the value should be, in the words of a refusal."""
@@ -88,20 +105,32 @@ class ConfigKey:
 
     def refusal(self, value: Any, driver: str, type_name: str) -> ConfigError:
         """The ConfigError that refuses ``value`` for this key of ``driver``."""
+        if "{value!r}" not in self.message and isinstance(value, str) and (
+                not value.isprintable()):  # one line: a newline or a control shown escaped
+            value = repr(value)[1:-1]
         text = self.message.format(key=self.name, value=value, expected=self.describe())
-        return ConfigError(f"driver {driver} ({type_name}): {text}")
+        return ConfigError(f"driver {driver} ({type_name}): {text}", self.name)
 
     def check(self, value: Any, driver: str, type_name: str) -> Any:
         """``value`` as the driver uses it (a time in seconds, an I2C address as an int, a
         CHOICE as declared); raises ``refusal`` (or parse_duration's ConfigError)."""
         if self.kind is Kind.DURATION:
-            seconds = parse_duration(value, f"driver {driver} {self.name}")
-            if self.positive and seconds <= 0:
+            try:
+                seconds = parse_duration(value, f"driver {driver} ({type_name}): {self.name}")
+            except ConfigError as exc:
+                raise ConfigError(str(exc), self.name) from None
+            if ((self.positive and seconds <= 0)
+                    or (self.maximum is not None and seconds > self.maximum)):
                 raise self.refusal(value, driver, type_name)
             return seconds
         ok, out = self._convert(value)
         if not ok:
             raise self.refusal(value, driver, type_name)
+        if self.verify is not None:
+            problem = self.verify(out)
+            if problem is not None:
+                raise ConfigError(f"driver {driver} ({type_name}): {self.name}{problem}",
+                                  self.name)
         return out
 
     def _convert(self, value: Any) -> tuple[bool, Any]:
@@ -113,15 +142,22 @@ class ConfigKey:
         if kind is Kind.MAPPING:
             return isinstance(value, Mapping), value
         if kind is Kind.TEXT_OR_INT:
-            return isinstance(value, str) or _is_int(value), value
+            return (_is_int(value) or (isinstance(value, str) and self._matches(value)),
+                    value)
         if kind is Kind.TEXT:
-            return isinstance(value, str) and self._in_range(len(value)), value
+            return (isinstance(value, str) and self._in_range(len(value))
+                    and self._matches(value)), value
         if kind is Kind.I2C_ADDRESS and isinstance(value, str):
             try:
                 value = int(value, 0)
             except ValueError:
                 return False, value
-        return _is_int(value) and self._in_range(value), value
+        ok = _is_int(value) and self._in_range(value) and (
+            not self.ranges or any(low <= value <= high for low, high in self.ranges))
+        return ok, value
+
+    def _matches(self, text: str) -> bool:
+        return self.pattern is None or re.fullmatch(self.pattern, text) is not None
 
     def _choice(self, value: Any) -> tuple[bool, Any]:
         def same(a: Any, b: Any) -> bool:
@@ -153,11 +189,18 @@ def _range_words(low: int | None, high: int | None, show: Callable[[int], str]) 
     return ""
 
 
-class ConfigKeys(Mapping[str, ConfigKey]):
-    """The keys of one driver type, by name, in declaration order (the order messages use)."""
+#: a check across keys: the validated params -> None, or (key, what is wrong), the refusal
+#: then saying ``driver NAME (TYPE): KEY: what is wrong``
+CrossCheck = Callable[[Mapping[str, Any]], "tuple[str, str] | None"]
 
-    def __init__(self, *keys: ConfigKey) -> None:
+
+class ConfigKeys(Mapping[str, ConfigKey]):
+    """The keys of one driver type, by name, in declaration order (the order messages use),
+    and the checks across keys (``cross``: a socketcan channel is a network interface)."""
+
+    def __init__(self, *keys: ConfigKey, cross: tuple[CrossCheck, ...] = ()) -> None:
         self._keys = {k.name: k for k in keys}
+        self._cross = cross
 
     def __getitem__(self, name: str) -> ConfigKey:
         return self._keys[name]
@@ -189,6 +232,11 @@ class ConfigKeys(Mapping[str, ConfigKey]):
                 out[key.name] = None
             else:
                 out[key.name] = key.check(value, driver, type_name)
+        for rule in self._cross:
+            found = rule(out)
+            if found is not None:
+                raise ConfigError(f"driver {driver} ({type_name}): {found[0]}: {found[1]}",
+                                  found[0])
         return out
 
     def __repr__(self) -> str:
@@ -199,17 +247,20 @@ def parse_duration(value: Any, what: str) -> float:
     """A duration from a driver config, in seconds.
 
     Accepts a number of seconds (``0.005``) or a time string (``5ms``, ``1s500ms``,
-    ``250us``, ``T#20ms``; the ``durations.CONFIG`` grammar). Raises ConfigError naming
-    ``what`` otherwise.
+    ``250us``, ``T#20ms``; the ``durations.CONFIG`` grammar), at most ``durations.MAX_NS``
+    (292 years). Raises ConfigError naming ``what`` otherwise (a NaN, an infinity, a time
+    of 400 digits).
     """
     if isinstance(value, bool):
         raise ConfigError(f"{what}: expected a time such as 5ms or 0.005, found {value!r}")
     if isinstance(value, (int, float)):
+        if not math.isfinite(value) or value > MAX_NS / NS_PER_S:
+            raise ConfigError(f"{what}: expected a time such as 5ms or 0.005, found {value!r}")
         if value < 0:
             raise ConfigError(f"{what}: expected a positive time, found {value!r}")
         return float(value)
     if isinstance(value, str):
         ns = parse_ns(strip_time_prefix(value.strip()), CONFIG)
-        if ns is not None:
+        if ns is not None and ns <= MAX_NS:
             return ns / NS_PER_S
     raise ConfigError(f"{what}: expected a time such as 5ms or 0.005, found {value!r}")

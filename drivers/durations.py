@@ -20,8 +20,10 @@ whether it accepts one (``strip_time_prefix``).
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
+from decimal import Decimal
 
 #: nanoseconds per unit
 NS_PER_UNIT: dict[str, int] = {
@@ -31,6 +33,8 @@ NS_PER_UNIT: dict[str, int] = {
 LITERAL_UNITS = ("d", "h", "m", "s", "ms", "us", "ns")
 #: nanoseconds per second
 NS_PER_S = 1_000_000_000
+#: the longest duration a driver's config takes, ns (64-bit: about 292 years)
+MAX_NS = 2**63 - 1
 
 
 @dataclass(frozen=True, slots=True)
@@ -59,7 +63,9 @@ def _unit(text: str) -> str:
 def parse_ns(text: str, grammar: Grammar = LITERAL) -> int | None:
     """``text`` -> nanoseconds, or None if it is not a duration of ``grammar``.
 
-    ``_`` is dropped first. Each part is rounded to the nanosecond on its own.
+    ``_`` is dropped first. Each part is rounded to the nanosecond on its own. The total
+    is not bounded (a number of 400 digits is exact): a caller refuses what is beyond its
+    range (``MAX_NS``, 64-bit nanoseconds, for a driver's config).
     """
     t = text.replace("_", "")
     pos, total, last = 0, 0, -1
@@ -73,7 +79,11 @@ def parse_ns(text: str, grammar: Grammar = LITERAL) -> int | None:
             if idx <= last:
                 return None
             last = idx
-        total += round(float(m.group(1)) * NS_PER_UNIT[unit])
+        part = float(m.group(1)) * NS_PER_UNIT[unit]
+        if math.isfinite(part):
+            total += round(part)
+        else:  # 400 digits: float() is infinite, the exact value is the caller's to judge
+            total += round(Decimal(m.group(1)) * NS_PER_UNIT[unit])
         pos = m.end()
     return total if pos > 0 else None
 

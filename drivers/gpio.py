@@ -21,8 +21,8 @@ import gpiod
 from gpiod.line import Bias, Value
 from gpiod.line import Direction as LineDirection
 
-from drivers.base import Direction, Driver, DriverError, PointError, PointKind, as_bit
-from drivers.registry import GPIO_KEYS
+from drivers.base import Direction, Driver, DriverError, PointKind, as_bit
+from drivers.registry import GPIO_KEYS, POINTS
 
 log = logging.getLogger(__name__)
 
@@ -59,10 +59,7 @@ class GpioDriver(Driver):
         self._last_written: dict[int, int] | None = None
 
     def _check_point(self, point: str, direction: Direction) -> PointKind:
-        if not point.isdigit() or int(point) > self.MAX_OFFSET or str(int(point)) != point:
-            raise PointError(f"{self.name}.{point}: a gpio point is a line offset such as "
-                             f"{self.name}.17")
-        return PointKind.BOOL
+        return POINTS[self.type_name].check(self.name, point, direction)
 
     def _open(self) -> None:
         self._in_points = sorted(self.inputs, key=int)

@@ -32,8 +32,8 @@ from typing import Any
 
 import smbus2
 
-from drivers.base import Direction, Driver, DriverError, PointError, PointKind
-from drivers.registry import MCP23017_KEYS
+from drivers.base import Direction, Driver, DriverError, PointKind
+from drivers.registry import MCP23017_KEYS, POINTS
 
 log = logging.getLogger(__name__)
 
@@ -83,9 +83,7 @@ class Mcp23017Driver(Driver):
         self._next_check_ns = 0
 
     def _check_point(self, point: str, direction: Direction) -> PointKind:
-        if len(point) != 2 or point[0] not in "AB" or point[1] not in "01234567":
-            raise PointError(f"{self.name}.{point}: an mcp23017 point is A0-A7 or B0-B7")
-        return PointKind.BOOL
+        return POINTS[self.type_name].check(self.name, point, direction)
 
     @staticmethod
     def _bit(point: str) -> tuple[int, int]:

@@ -39,7 +39,7 @@ from typing import Any
 
 import serial
 
-from drivers.base import Direction, PointError, PointKind, PolledDriver
+from drivers.base import Direction, PointKind, PolledDriver
 from drivers.modbus_frame import (
     MAX_ITEMS,
     READ_COILS,
@@ -53,7 +53,7 @@ from drivers.modbus_frame import (
     write_coils_request,
     write_registers_request,
 )
-from drivers.registry import MODBUS_RTU_KEYS
+from drivers.registry import MODBUS_RTU_KEYS, POINTS
 from drivers.serial_line import RtuMaster, SerialLine, SerialPorts, SerialSettings, shared_ports
 
 log = logging.getLogger(__name__)
@@ -133,17 +133,7 @@ class ModbusRtuDriver(PolledDriver):
         self._written_seq = 0  # the output image sequence last written to the unit
 
     def _check_point(self, point: str, direction: Direction) -> PointKind:
-        m = _POINT.match(point)
-        if m is None or int(m.group(2)) > 0xFFFF:
-            raise PointError(f"{self.name}.{point}: a modbus_rtu point is I<n> (discrete "
-                             "input), Q<n> (coil), IR<n> (input register) or HR<n> (holding "
-                             "register), n from 0 to 65535")
-        table = m.group(1)
-        if direction is Direction.OUT and table in ("I", "IR"):
-            what = "discrete input" if table == "I" else "input register"
-            raise PointError(f"{self.name}.{point} is a {what}: read-only, it cannot be bound "
-                             "as an output")
-        return PointKind.BOOL if table in ("I", "Q") else PointKind.INT
+        return POINTS[self.type_name].check(self.name, point, direction)
 
     # -- poll plan ------------------------------------------------------------------------
     def _plan(self) -> None:

@@ -26,8 +26,8 @@ from typing import Any
 
 import smbus2
 
-from drivers.base import Direction, Driver, DriverError, PointError, PointKind
-from drivers.registry import PCF8574_KEYS
+from drivers.base import Direction, Driver, DriverError, PointKind
+from drivers.registry import PCF8574_KEYS, POINTS
 
 log = logging.getLogger(__name__)
 
@@ -56,9 +56,7 @@ class Pcf8574Driver(Driver):
         self._out_mask = 0
 
     def _check_point(self, point: str, direction: Direction) -> PointKind:
-        if len(point) != 2 or point[0] != "P" or point[1] not in "01234567":
-            raise PointError(f"{self.name}.{point}: a pcf8574 point is P0-P7")
-        return PointKind.BOOL
+        return POINTS[self.type_name].check(self.name, point, direction)
 
     def _where(self) -> str:
         return f"pcf8574 at 0x{self.address:02x} on /dev/i2c-{self.bus_number}"

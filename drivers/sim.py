@@ -7,7 +7,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from drivers.base import Direction, Driver, PointKind
-from drivers.registry import SIM_KEYS
+from drivers.registry import POINTS, SIM_KEYS
 
 
 class SimDriver(Driver):
@@ -33,7 +33,7 @@ class SimDriver(Driver):
         self.written: dict[str, Any] = {}
 
     def _check_point(self, point: str, direction: Direction) -> PointKind:
-        return PointKind.INT if point.upper().startswith(("IR", "HR")) else PointKind.BOOL
+        return POINTS[self.type_name].check(self.name, point, direction)
 
     def _open(self) -> None:
         pass

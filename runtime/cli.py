@@ -104,18 +104,73 @@ def cmd_run(args: argparse.Namespace) -> int:
         return 2
     trace = open(args.trace, "w", encoding="utf-8") if args.trace else None  # noqa: SIM115
     try:
-        daemon = Daemon(pdef, sim=args.sim, trace=trace)
-        if args.script is not None:
-            from runtime.controller.replay import ScriptPlayer
+        try:
+            if not args.sim:
+                _check_libraries(pdef)
+            daemon = Daemon(pdef, sim=args.sim, trace=trace)
+            if args.script is not None:
+                from runtime.controller.replay import ScriptPlayer
 
-            daemon.add_listener(ScriptPlayer(daemon.plant, args.script))
-        server = _console_server(daemon) if pdef.consoles else None
-        if server is None:
-            return serve(daemon, for_ns)
-        return serve(daemon, for_ns, server.start, server.stop)
+                daemon.add_listener(ScriptPlayer(daemon.plant, args.script))
+            server = _console_server(daemon) if pdef.consoles else None
+
+            def started() -> None:
+                _check_opened(daemon)
+                if server is not None:
+                    server.start()
+            return serve(daemon, for_ns, started, server.stop if server else None)
+        except (SourceError, KeyboardInterrupt):
+            raise
+        except Exception as exc:  # noqa: BLE001 - at start: one line, never a traceback
+            raise _start_error(pdef, exc) from exc
     finally:
         if trace is not None:
             trace.close()
+
+
+def _check_libraries(pdef: Any) -> None:
+    """Every driver's bus library imports; else an error at that driver's plant line."""
+    from drivers.registry import DriverImportError, driver_class
+
+    for name, ddef in pdef.drivers.items():
+        try:
+            driver_class(ddef.type)
+        except DriverImportError as exc:
+            raise SourceError(ddef.loc, f"driver {name} ({ddef.type}): {exc}") from None
+
+
+def _check_opened(daemon: Any) -> None:
+    """At start, after the drivers were opened (every output written off): a driver that
+    could not open (no such port, permission denied, no such CAN interface) is an error at
+    its plant line; ``serve`` then stops the controller in order."""
+    from drivers.base import Health
+
+    for name, d in daemon.plant.drivers.items():
+        if d.health is Health.FAULT:
+            ddef = daemon.pdef.drivers[name]
+            raise SourceError(ddef.loc, f"driver {name} ({ddef.type}): cannot start: "
+                                        f"{d.fault_reason}")
+
+
+def _start_error(pdef: Any, exc: BaseException) -> SourceError:
+    """An unexpected exception while ``run`` starts, as one line at the plant line of the
+    driver it came from (found in its traceback), else at the plant file; the traceback
+    is logged at debug level (``-v``)."""
+    from drivers.base import Driver
+
+    log.debug("while starting", exc_info=exc)
+    name = None
+    tb = exc.__traceback__
+    while tb is not None:
+        owner = tb.tb_frame.f_locals.get("self")
+        if isinstance(owner, Driver) and owner.name in pdef.drivers:
+            name = owner.name  # the innermost driver frame wins
+        tb = tb.tb_next
+    cause = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+    if name is None:
+        return SourceError(Loc(pdef.path, 1, 1), f"cannot start: {cause}")
+    ddef = pdef.drivers[name]
+    return SourceError(ddef.loc, f"driver {name} ({ddef.type}): cannot start: {cause}")
 
 
 def _console_server(daemon: Any) -> Any:

@@ -63,6 +63,7 @@ class SourceError(SoftplcError):
     """
 
     def __init__(self, loc: Loc, message: str, code: str = "") -> None:
+        message = one_line(message)
         super().__init__(f"{loc}: error: {message}")
         self.loc = loc
         self.message = message
@@ -71,6 +72,14 @@ class SourceError(SoftplcError):
     @property
     def diagnostic(self) -> Diagnostic:
         return Diagnostic(self.code, self.loc, self.message)
+
+
+def one_line(text: str) -> str:
+    """``text`` with its newlines and other control characters shown escaped (``\\n``,
+    ``\\x00``): a message quoting a user's text stays one line."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
 def suggest(name: str, candidates: Iterable[str]) -> str:

@@ -56,7 +56,7 @@ SEVERITY_ORDER = {"error": 0, "warning": 1, "note": 2}
 
 # -- loading, with the loader's rule errors as diagnostics --------------------------------
 CHART_RULES = frozenset({"G101", "G105", "G106"})  # found by the grafcet loader
-BINDING_RULES = frozenset({"G301", "G302"})  # found by the plant loader
+BINDING_RULES = frozenset({"G301", "G302", "G303"})  # found by the plant loader
 
 
 @dataclass

@@ -14,7 +14,9 @@ import stat
 from dataclasses import dataclass, field
 from typing import Any
 
-from drivers.registry import DRIVER_KEYS
+from drivers.base import Direction, PointError
+from drivers.config import ConfigError
+from drivers.registry import DRIVER_KEYS, check_config, check_point
 from runtime.errors import Diagnostic, Loc, SourceError, suggest
 from runtime.language import ast as A
 from runtime.language.grafcetfile import check_keys, expect_type, load_grafcet, time_value
@@ -163,6 +165,9 @@ def load_plant(path: str, load: PlantLoad | None = None) -> PlantDef:
         expect_type(drivers, doc.val_locs["drivers"], YMap, "a mapping of drivers")
     for name, spec in drivers.items():
         loc = drivers.key_locs[name]
+        if not isinstance(name, str) or not name.isidentifier():
+            raise SourceError(loc, f"expected a driver name (letters, digits and _, as in "
+                                   f"'exp1'), found {name!r}")
         spec = expect_type(spec, drivers.val_locs[name], YMap, f"the driver '{name}' "
                                                                 "({type: ...})")
         if "type" not in spec:
@@ -173,10 +178,15 @@ def load_plant(path: str, load: PlantLoad | None = None) -> PlantDef:
                               f"of {', '.join(DRIVER_KEYS)}{suggest(str(typ), DRIVER_KEYS)}")
         check_keys(spec, ("type", "on_fault", *DRIVER_KEYS[typ]), f"driver '{name}' ({typ})")
         if spec.get("on_fault", "stop") not in ("stop", "hold", "zero"):
-            raise SourceError(spec.val_locs["on_fault"], f"unknown on_fault '{spec['on_fault']}'"
+            raise SourceError(spec.val_locs["on_fault"], f"unknown on_fault {spec['on_fault']!r}"
                                                          ": expected stop, hold or zero")
         config = {k: (str(v) if isinstance(v, str) else v) for k, v in spec.items()
                   if k != "type"}
+        try:  # the values, as the driver will check them, with no bus library imported
+            check_config(typ, str(name), config)
+        except ConfigError as exc:
+            raise SourceError(spec.val_locs.get(exc.key, spec.loc) if exc.key else spec.loc,
+                              str(exc)) from None
         p.drivers[name] = DriverDef(name, typ, config, loc)
     if "instances" not in doc:
         raise SourceError(doc.loc, "missing key 'instances': a plant runs at least one instance")
@@ -260,6 +270,7 @@ def load_plant(path: str, load: PlantLoad | None = None) -> PlantDef:
 
 def _resolve_bindings(p: PlantDef, load: PlantLoad) -> None:
     driven: dict[str, tuple[str, Binding]] = {}
+    bound: dict[str, dict[str, Direction]] = {}  # driver -> point -> direction
     for inst in p.instances.values():
         for key in ("inputs", "outputs"):
             for b in getattr(inst, key).values():
@@ -267,6 +278,19 @@ def _resolve_bindings(p: PlantDef, load: PlantLoad) -> None:
                 want = inst.grafcet.variables[b.signal].type
                 if head in p.drivers:
                     b.driver, b.point = head, rest
+                    direction = Direction.IN if key == "inputs" else Direction.OUT
+                    try:  # the point, from the driver type's description (G303)
+                        if rest != "ok":
+                            check_point(p.drivers[head].type, head, rest, direction,
+                                        bound.setdefault(head, {}))
+                        elif direction is Direction.OUT:
+                            raise PointError(f"'{b.source}' is the driver's health, a "
+                                             "read-only input: it cannot be bound as an "
+                                             "output")
+                    except PointError as exc:
+                        load.report(SourceError(b.loc, f"{exc} (instance '{inst.name}', "
+                                                f"{key[:-1]} '{b.signal}')", "G303"))
+                        continue
                     if rest == "ok" and want is not A.Type.BOOL:
                         load.report(SourceError(b.loc, f"type error: expected a {want} source "
                                                 f"for '{inst.name}.{b.signal}', found the bool "

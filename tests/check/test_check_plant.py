@@ -102,8 +102,10 @@ def test_g303_points_that_do_not_exist(write: Callable[[str, str], str], chart: 
     assert found.count("error G303 8") == 2, found  # mb.I3 read-only, exp1.ok as output
 
 
-def test_g304_bad_driver_config(write: Callable[[str, str], str], chart: str) -> None:
-    found, status = diags_of(write, """\
+def test_bad_driver_config_is_a_loading_error(write: Callable[[str, str], str],
+                                              chart: str) -> None:
+    """The plant loader refuses it (as compile and run do): one line, exit status 2."""
+    path = write("plant.yaml", """\
         drivers:
           exp1: {type: mcp23017, bus: 1, address: 300}
         instances:
@@ -112,8 +114,11 @@ def test_g304_bad_driver_config(write: Callable[[str, str], str], chart: str) ->
             inputs: {iA: exp1.A0, iB: exp1.A1}
             outputs: {oX: exp1.B0, oY: exp1.B1}
         """)
-    assert status == 1
-    assert "error G304 2" in found, found
+    res = check_files([path])
+    assert exit_status(res) == 2
+    assert [r.failure for r in res] == [f"{path}:2:43: error: driver exp1 (mcp23017): address: "
+                                        "expected an MCP23017 address from 0x20 to 0x27 (pins "
+                                        "A2 A1 A0), found 300"]
 
 
 def test_g305_missing_driver_library(write: Callable[[str, str], str], chart: str,
@@ -135,11 +140,23 @@ def test_g305_missing_driver_library(write: Callable[[str, str], str], chart: st
         instances:
           a:
             grafcet: small.yaml
-            inputs: {iA: exp1.Z9, iB: exp1.A1}
+            inputs: {iA: exp1.A0, iB: exp1.A1}
             outputs: {oX: exp1.B0, oY: exp1.B1}
         """)
     assert status == 0
     assert found == ["note G305 6"], found
+    # the point names are checked all the same, from the type's description (no library)
+    found, status = diags_of(write, """\
+        drivers:
+          exp1: {type: mcp23017, bus: 1, address: 0x20}
+        instances:
+          a:
+            grafcet: small.yaml
+            inputs: {iA: exp1.Z9, iB: exp1.A1}
+            outputs: {oX: exp1.B0, oY: exp1.B1}
+        """)
+    assert status == 1
+    assert found == ["error G303 6"], found
 
 
 def test_g306_one_input_point_feeds_two_inputs_of_an_instance(

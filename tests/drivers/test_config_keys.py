@@ -68,9 +68,10 @@ def _check_kind(key: ConfigKey, prop: dict[str, Any]) -> None:
         enum = node["enum"]
         assert ({v.upper() for v in enum} if key.any_case else set(enum)) == set(key.choices)
     elif key.kind is Kind.I2C_ADDRESS:
-        assert prop["$ref"] == "#/$defs/i2cAddress"
-        (as_int,) = [a for a in node["anyOf"] if a.get("type") == "integer"]
-        assert (as_int["minimum"], as_int["maximum"]) == (key.minimum, key.maximum)
+        assert prop["$ref"].endswith("Address")
+        as_int = [(a["minimum"], a["maximum"]) for a in node["anyOf"]
+                  if a.get("type") == "integer"]
+        assert as_int == list(key.ranges or [(key.minimum, key.maximum)])
     elif key.kind is Kind.TEXT_OR_INT:
         assert sorted(node["type"]) == ["integer", "string"]
     elif key.kind is Kind.MAPPING:

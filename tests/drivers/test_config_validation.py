@@ -28,7 +28,7 @@ def valid_value(key: ConfigKey) -> Any:
     if key.kind in (Kind.INT, Kind.I2C_ADDRESS):
         return key.minimum if key.minimum is not None else 1
     if key.kind is Kind.TEXT:
-        return "x" * max(1, key.minimum or 0)
+        return "/dev/x" if key.pattern else "x" * max(1, key.minimum or 0)
     if key.kind is Kind.CHOICE:
         return key.choices[0]
     raise AssertionError(f"no valid value for required {key}")  # pragma: no cover
@@ -57,6 +57,9 @@ def edges(key: ConfigKey) -> list[tuple[Any, bool, Any]]:
             if key.kind is Kind.I2C_ADDRESS:  # "0x20" as text reads as 0x20
                 out += [(f"0x{inside:02x}", True, inside), (f"0x{outside:02x}", False, None)]
     elif key.kind is Kind.TEXT:
+        if key.pattern is not None:  # a device path: /dev/x, not x nor "/dev/x y"
+            out += [("/dev/x", True, "/dev/x"), ("x", False, None), ("/dev/x y", False, None),
+                    ("", False, None)]
         if low is not None:
             out += [("x" * low, True, "x" * low), ("x" * (low - 1), False, None)]
         if high is not None:
@@ -96,7 +99,8 @@ def test_every_bound_and_choice_is_covered() -> None:
     covered = {(t, k) for t, k, *_ in CASES}
     for t, keys in DRIVER_KEYS.items():
         for k in keys.values():
-            ranged = k.minimum is not None or k.maximum is not None or k.choices
+            ranged = (k.minimum is not None or k.maximum is not None or k.choices
+                      or k.pattern is not None)
             if ranged or k.kind is Kind.DURATION:
                 assert (t, k.name) in covered, (t, k.name)
     assert len(CASES) > 60
@@ -114,7 +118,8 @@ def test_driver_refuses_just_outside_its_declaration(type_name: str, key_name: s
     with pytest.raises(ConfigError) as e:
         make(type_name, **{key_name: value})
     if key.kind is Kind.DURATION and not key.positive:  # below 0: parse_duration's words
-        assert str(e.value) == (f"driver {NAME} {key_name}: expected a positive time, found "
+        assert str(e.value) == (f"driver {NAME} ({type_name}): {key_name}: expected a positive "
+                                f"time, found "
                                 f"{value!r}")
     else:
         assert str(e.value) == str(key.refusal(value, NAME, type_name))
@@ -167,6 +172,11 @@ def test_text_length_matches_the_schema() -> None:
                 assert node.get("maxLength") == key.maximum, (type_name, key.name)
 
 
+MCP_WORDS = ("driver d (mcp23017): address: expected an MCP23017 address from 0x20 to 0x27 "
+             "(pins A2 A1 A0), found ")
+PCF_WORDS = ("driver d (pcf8574): address: expected a PCF8574 address from 0x20 to 0x27 or a "
+             "PCF8574A address from 0x38 to 0x3f (pins A2 A1 A0), found ")
+
 # The words of every refusal, as the drivers said them when each checked its own values.
 MESSAGES = [
     ("gpio", {"bias": "up"},
@@ -174,8 +184,8 @@ MESSAGES = [
     ("gpio", {"bias": None},
      "driver d (gpio): bias 'None': expected one of pull_up, pull_down, none"),
     ("gpio", {"debounce": "5 parsecs"},
-     "driver d debounce: expected a time such as 5ms or 0.005, found '5 parsecs'"),
-    ("gpio", {"debounce": -1}, "driver d debounce: expected a positive time, found -1"),
+     "driver d (gpio): debounce: expected a time such as 5ms or 0.005, found '5 parsecs'"),
+    ("gpio", {"debounce": -1}, "driver d (gpio): debounce: expected a positive time, found -1"),
     ("mcp23017", {"address": 32},
      "driver d (mcp23017): bus: expected the I2C bus number (1 for /dev/i2c-1), found None"),
     ("mcp23017", {"bus": -1, "address": 32},
@@ -183,17 +193,17 @@ MESSAGES = [
     ("mcp23017", {"bus": "one", "address": 32},
      "driver d (mcp23017): bus: expected the I2C bus number (1 for /dev/i2c-1), found 'one'"),
     ("mcp23017", {"bus": 1},
-     "driver d (mcp23017): address: expected a 7-bit I2C address such as 0x20, found None"),
+     MCP_WORDS + "None"),
     ("mcp23017", {"bus": 1, "address": 300},
-     "driver d (mcp23017): address: expected a 7-bit I2C address such as 0x20, found 300"),
+     MCP_WORDS + "300"),
     ("mcp23017", {"bus": 1, "address": "0x78"},
-     "driver d (mcp23017): address: expected a 7-bit I2C address such as 0x20, found '0x78'"),
+     MCP_WORDS + "'0x78'"),
     ("mcp23017", {"bus": 1, "address": "zz"},
-     "driver d (mcp23017): address: expected a 7-bit I2C address such as 0x20, found 'zz'"),
+     MCP_WORDS + "'zz'"),
     ("mcp23017", {"bus": 1, "address": 32, "pull_up": "yes"},
      "driver d (mcp23017): pull_up: expected true or false, found 'yes'"),
     ("pcf8574", {"bus": 1, "address": 120},
-     "driver d (pcf8574): address: expected a 7-bit I2C address such as 0x20, found 120"),
+     PCF_WORDS + "120"),
     ("pcf8574", {"bus": True, "address": 56},
      "driver d (pcf8574): bus: expected the I2C bus number (1 for /dev/i2c-1), found True"),
     ("canopen", {}, "driver d (canopen): node: expected a node-ID 1-127, found None"),
@@ -201,14 +211,16 @@ MESSAGES = [
     ("canopen", {"node": True},
      "driver d (canopen): node: expected a node-ID 1-127, found True"),
     ("canopen", {"node": 5, "bitrate": "fast"},
-     "driver d (canopen): bitrate: expected a bit rate such as 250000, found 'fast'"),
+     "driver d (canopen): bitrate: expected a CAN bit rate: 10000, 20000, 50000, 100000, "
+     "125000, 250000, 500000, 800000, 1000000, found 'fast'"),
     ("canopen", {"node": 5, "heartbeat": "soon"},
-     "driver d heartbeat: expected a time such as 5ms or 0.005, found 'soon'"),
+     "driver d (canopen): heartbeat: expected a time such as 5ms or 0.005, found 'soon'"),
     ("canopen", {"node": 5, "heartbeat": "0ms"},
      "driver d (canopen): heartbeat: expected a positive consumer timeout such as 500ms, "
-     "found '0ms'"),
+     "at most 262s (the node's heartbeat is a quarter of it, in 16-bit ms), found '0ms'"),
     ("canopen", {"node": 5, "sync": 0},
-     "driver d (canopen): sync: expected a positive SYNC period such as 10ms, found 0"),
+     "driver d (canopen): sync: expected a positive SYNC period such as 10ms, at most "
+     "4294s, found 0"),
     ("canopen", {"node": 5, "pdo": [1]},
      "driver d (canopen): pdo: expected a mapping such as {tpdo1: ['6000:1'], "
      "rpdo1: ['6200:1']}"),
@@ -219,26 +231,30 @@ MESSAGES = [
      "driver d (canopen): pdo tpdo1: '6000': expected INDEX:SUB in hex, with /BITS if not 8 "
      "(e.g. 6000:1, 2000:0/16)"),
     ("modbus_rtu", {},
-     "driver d (modbus_rtu): port: expected a serial device such as /dev/ttyUSB0, found None"),
+     "driver d (modbus_rtu): port: expected a serial device such as /dev/ttyUSB0 (its full "
+     "path), found None"),
     ("modbus_rtu", {"port": 5},
-     "driver d (modbus_rtu): port: expected a serial device such as /dev/ttyUSB0, found 5"),
+     "driver d (modbus_rtu): port: expected a serial device such as /dev/ttyUSB0 (its full "
+     "path), found 5"),
     ("modbus_rtu", {"port": "/dev/x", "unit": 248},
      "driver d (modbus_rtu): unit: expected a slave address 1-247, found 248"),
     ("modbus_rtu", {"port": "/dev/x", "baudrate": "fast"},
-     "driver d (modbus_rtu): baudrate: expected a baud rate such as 19200, found 'fast'"),
+     "driver d (modbus_rtu): baudrate: expected a standard baud rate such as 9600, 19200 or "
+     "115200 (50 to 4000000), found 'fast'"),
     ("modbus_rtu", {"port": "/dev/x", "parity": "X"},
      "driver d (modbus_rtu): parity: expected N, E or O, found 'X'"),
     ("modbus_rtu", {"port": "/dev/x", "stopbits": 3},
      "driver d (modbus_rtu): stopbits: expected 1 or 2, found 3"),
     ("modbus_rtu", {"port": "/dev/x", "timeout": "fast"},
-     "driver d timeout: expected a time such as 5ms or 0.005, found 'fast'"),
+     "driver d (modbus_rtu): timeout: expected a time such as 5ms or 0.005, found 'fast'"),
     ("modbus_rtu", {"port": "/dev/x", "timeout": 0},
      "driver d (modbus_rtu): timeout: expected a positive time such as 100ms, found 0"),
     ("modbus_rtu", {"port": "/dev/x", "retries": 11},
      "driver d (modbus_rtu): retries: expected 0-10, found 11"),
     ("sim", {"colour": 1}, "driver d (sim): unknown keys ['colour']"),
     # keys that declare no words of their own: the kind and range say them
-    ("gpio", {"chip": 5}, "driver d (gpio): chip: expected text, found 5"),
+    ("gpio", {"chip": 5}, "driver d (gpio): chip: expected a GPIO character device such as "
+     "/dev/gpiochip0 (its full path), found 5"),
     ("canopen", {"node": 5, "channel": 1.5},
      "driver d (canopen): channel: expected text or an integer, found 1.5"),
 ]
