@@ -650,9 +650,11 @@ def serve(daemon: Daemon, for_ns: int | None = None,
            if not (s is signal.SIGHUP and signal.getsignal(s) is signal.SIG_IGN)}
     status = 0
     try:
+        why[0] = "the start failed"  # until the start is complete
         daemon.start()
         if started is not None:
             started()
+        why[0] = "end of --for"
         end = None if for_ns is None else time.monotonic() + for_ns / 1e9
         while not stop.is_set():
             left = 0.5 if end is None else min(0.5, end - time.monotonic())
