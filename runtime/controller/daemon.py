@@ -654,7 +654,8 @@ def serve(daemon: Daemon, for_ns: int | None = None,
         daemon.start()
         if started is not None:
             started()
-        why[0] = "end of --for"
+        if why[0] == "the start failed":  # (a signal during the start keeps its name)
+            why[0] = "end of --for"
         end = None if for_ns is None else time.monotonic() + for_ns / 1e9
         while not stop.is_set():
             left = 0.5 if end is None else min(0.5, end - time.monotonic())
