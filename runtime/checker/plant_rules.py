@@ -56,8 +56,9 @@ def check_plant_model(p: PlantDef) -> list[Diag]:
                 if b.driver in missing:
                     if b.driver not in noted:
                         noted.add(b.driver)
-                        out.append(diag(b.loc, "note", "G305", f"points of driver "
-                                        f"'{b.driver}' not checked: {missing[b.driver]}"))
+                        out.append(diag(b.loc, "note", "G305", f"driver '{b.driver}': "
+                                        "point names checked, not whether each is a bit or "
+                                        f"a register for its variable: {missing[b.driver]}"))
                     continue
                 drv = drivers.get(b.driver)
                 if drv is None:
