@@ -12,12 +12,15 @@ for a in "$@"; do
   if [ "$a" = "--fast" ]; then fast=1; else args+=("$a"); fi
 done
 # Optional system tools some tests use (systemd-analyze for the unit, graphviz for draw,
-# socat for pty pairs); tests skip with a reason where a tool is missing.
+# socat for pty pairs and, with rlwrap, the console commands docs/console.md gives;
+# setpriv and unshare for the permission and full-disk tests); tests skip with a reason where a tool is missing.
 if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
   missing=""
   command -v systemd-analyze >/dev/null || missing="$missing systemd"
   command -v dot >/dev/null || missing="$missing graphviz"
   command -v socat >/dev/null || missing="$missing socat"
+  command -v rlwrap >/dev/null || missing="$missing rlwrap"
+  command -v setpriv >/dev/null || missing="$missing util-linux"
   command -v ip >/dev/null || missing="$missing iproute2"
   if [ -n "$missing" ]; then
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $missing >/dev/null || \
