@@ -452,6 +452,8 @@ class Daemon:
         the log when the scan thread saw the state change."""
         if not self._ready_sent:
             return  # no cycle yet: READY=1 comes with the first
+        if not self.notifier.enabled and not self._state_changed:
+            return  # nobody to tell: no percentiles computed for nothing
         text = self.summary()
         if not self._ready_told:
             self._ready_told = True
