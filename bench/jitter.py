@@ -20,7 +20,7 @@ sleep and wake-up included, from /proc/self/task/*/schedstat), of the watchdog t
 of the whole process, per cycle over ``--seconds``; and the Python side alone on a virtual
 clock (no sleep): the loop with the daemon's idle work, less the plant cycle itself.
 
-    python -m bench.jitter [--seconds 60] [--quick] [--cpu [--repeat 5]]
+    python -m bench.jitter [--seconds 60] [--quick] [--only LABEL] [--cpu [--repeat 5]]
 """
 
 from __future__ import annotations
@@ -170,6 +170,11 @@ def busy_core() -> subprocess.Popen[bytes]:
     return subprocess.Popen([sys.executable, "-c", "while True: pass"])
 
 
+def _label(n: int, cycle_ms: int, loaded: bool, managed: bool, fifo: bool) -> str:
+    return (f"{n:>3} inst {cycle_ms:>2} ms {'loaded' if loaded else 'idle  '} "
+            f"{'gc:idle  ' if managed else 'gc:python'} {'FIFO' if fifo else '    '}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seconds", type=float, default=60.0, help="measured time per row")
@@ -177,6 +182,8 @@ def main() -> None:
     ap.add_argument("--cpu", action="store_true",
                     help="the controller's CPU per cycle at 1 ms instead of the table")
     ap.add_argument("--repeat", type=int, default=5, help="--cpu: measurements")
+    ap.add_argument("--only", default="", help="rows whose label contains this text, "
+                    "e.g. '2 inst  1 ms loaded gc:idle   FIFO'")
     args = ap.parse_args()
     seconds = 5.0 if args.quick else args.seconds
     if args.cpu:
@@ -192,6 +199,8 @@ def main() -> None:
         combos += [(2, 10, True, False, False), (100, 10, True, False, False),
                    (2, 1, True, True, True), (100, 1, True, True, True)]
         for n, cycle_ms, loaded, managed, fifo in combos:
+            if args.only and args.only not in _label(n, cycle_ms, loaded, managed, fifo):
+                continue
             path = plant_file(tmp, n, cycle_ms, fifo)
             load = busy_core() if loaded else None
             try:
@@ -200,8 +209,7 @@ def main() -> None:
                 if load is not None:
                     load.kill()
                     load.wait()
-            label = (f"{n:>3} inst {cycle_ms:>2} ms {'loaded' if loaded else 'idle  '} "
-                     f"{'gc:idle  ' if managed else 'gc:python'} {'FIFO' if fifo else '    '}")
+            label = _label(n, cycle_ms, loaded, managed, fifo)
             late, scan = r["late"], r["scan"]
             rows.append(label)
             sys.stdout.write(

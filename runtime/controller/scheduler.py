@@ -2,8 +2,9 @@
 
 Per cycle: sleep until the deadline, run the cycle body (read inputs, scan, write
 outputs), record scan time and wake-up lateness, then spend what is left of the period on
-the idle work (console requests, systemd status, retain hand-off, garbage collection),
-never past a guard band before the next deadline.
+the idle work (console requests, noticing state changes, retain hand-off, garbage
+collection), never past a guard band before the next deadline. systemd's STATUS= text
+(percentiles over thousands of cycles) is built by ``Watchdog``'s thread, not here.
 
 Overrun policy: when a cycle ends at or after the next deadline, the overrun is counted,
 the deadlines it passed are counted as skipped, and the schedule is re-anchored one full
