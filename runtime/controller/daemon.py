@@ -452,7 +452,8 @@ class Daemon:
         the log when the scan thread saw the state change."""
         if not self._ready_sent:
             return  # no cycle yet: READY=1 comes with the first
-        if not self.notifier.enabled and not self._state_changed:
+        changed, self._state_changed = self._state_changed, False  # a later one re-flags
+        if not self.notifier.enabled and not changed:
             return  # nobody to tell: no percentiles computed for nothing
         text = self.summary()
         if not self._ready_told:
@@ -460,8 +461,7 @@ class Daemon:
             self.notifier.ready(text)
         else:
             self.notifier.status(text)
-        if self._state_changed:
-            self._state_changed = False
+        if changed:
             log.info("state: %s", text)
 
     def summary(self) -> str:

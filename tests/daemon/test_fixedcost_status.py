@@ -59,3 +59,33 @@ def test_status_percentiles_are_never_computed_in_the_scan_thread(
     assert "softplc-scan" not in computed_in, computed_in
     # sorting the two full windows takes ~1.5-2 ms of CPU: far above this bound
     assert max(idle_cpu) < 400_000, sorted(idle_cpu)[-5:]
+
+
+def test_a_state_change_is_told_at_once_from_the_watchdog_thread(
+        tmp_path: Path, make_daemon: MakeDaemon, caplog: pytest.LogCaptureFixture,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The scan thread only flags the change; STATUS= and the ``state:`` log line still
+    follow it without waiting for the periodic refresh (made an hour here), each once."""
+    monkeypatch.setattr(daemon_module, "STATUS_EVERY_NS", 3600_000 * MS)
+    notify = NotifySocket(tmp_path / "notify.sock")
+    daemon, _ = make_daemon(start=False, cycle="10ms", watchdog="400ms")
+    daemon.notifier = Notifier({"NOTIFY_SOCKET": notify.path})
+    caplog.set_level("INFO", logger="runtime.controller.daemon")
+    try:
+        daemon.start()
+        notify.wait_for("READY=1")
+        daemon.call(daemon.plant.pause)
+        assert notify.wait_for("STATUS=paused (").startswith(
+            "STATUS=paused (paused by the console: charts held);")
+        daemon.call(daemon.plant.resume)
+        notify.wait_for("STATUS=running;")
+        wait_until(lambda: len([r for r in caplog.records
+                                if r.getMessage().startswith("state: ")]) >= 2,
+                   what="the state lines")
+    finally:
+        daemon.stop("end of test")
+        notify.close()
+    lines = [r for r in caplog.records if r.getMessage().startswith("state: ")]
+    assert [r.getMessage().split(";")[0] for r in lines] == [
+        "state: paused (paused by the console: charts held)", "state: running"]
+    assert {r.threadName for r in lines} == {"softplc-watchdog"}
