@@ -14,7 +14,13 @@ and then, so the charts keep evolving (gsAbrir <-> gsCerrar) rather than idling.
 Extra rows: Python's own garbage collector instead of the scheduler's idle-time collection
 (``gc: python``), and SCHED_FIFO (needs root or CAP_SYS_NICE).
 
-    python -m bench.jitter [--seconds 60] [--quick]
+``--cpu`` measures instead the controller's fixed cost per cycle at 1 ms with one tester
+and no drawer model (``run_cpu``): the CPU time of the scan thread (kernel side of the
+sleep and wake-up included, from /proc/self/task/*/schedstat), of the watchdog thread and
+of the whole process, per cycle over ``--seconds``; and the Python side alone on a virtual
+clock (no sleep): the loop with the daemon's idle work, less the plant cycle itself.
+
+    python -m bench.jitter [--seconds 60] [--quick] [--only LABEL] [--cpu [--repeat 5]]
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from typing import Any
 
@@ -93,16 +100,95 @@ def run_one(path: str, n: int, seconds: float, manage_gc: bool) -> dict[str, Any
             "gc_runs": gc_runs, "steps": steps}
 
 
+def _thread_cpu_ns(tid: int) -> int:
+    with open(f"/proc/self/task/{tid}/schedstat", encoding="ascii") as f:
+        return int(f.read().split()[0])
+
+
+def cpu_real(path: str, seconds: float) -> dict[str, float]:
+    """µs of CPU per cycle: scan thread, watchdog thread, whole process (a real clock)."""
+    daemon = Daemon(load_plant(path), sim=True)
+    daemon.start()
+    time.sleep(0.5)  # warm-up, not counted
+    tids = {t.name: t.native_id for t in threading.enumerate()
+            if t.name in ("softplc-scan", "softplc-watchdog") and t.native_id is not None}
+    before = {k: _thread_cpu_ns(v) for k, v in tids.items()}
+    n0, p0 = daemon.scan_stats.count, time.process_time_ns()
+    time.sleep(seconds)
+    after = {k: _thread_cpu_ns(v) for k, v in tids.items()}
+    n1, p1 = daemon.scan_stats.count, time.process_time_ns()
+    daemon.stop("bench")
+    n = max(1, n1 - n0)
+    out = {k.removeprefix("softplc-"): (after[k] - before[k]) / n / 1e3 for k in tids}
+    out["process"] = (p1 - p0) / n / 1e3
+    return out
+
+
+def cpu_virtual(path: str, cycles: int = 50_000) -> dict[str, float]:
+    """µs of CPU per cycle of the Python side on a virtual clock: the scheduler loop with
+    the daemon's idle work and statistics, and the plant cycle alone for comparison."""
+    now = [0]
+
+    def clock() -> int:
+        now[0] += 20_000  # every reading of the clock 20 µs later
+        return now[0]
+
+    def sleep_until(deadline: int) -> None:
+        now[0] = max(now[0], deadline)
+
+    daemon = Daemon(load_plant(path), sim=True, clock=clock)
+    daemon.plant.open()
+    sched = daemon.scheduler
+    sched.sleep_until, sched.boot_clock = sleep_until, None
+    sched.run(1000)  # warm-up
+    t0 = time.process_time_ns()
+    sched.run(cycles)
+    loop = (time.process_time_ns() - t0) / cycles / 1e3
+    cycle = daemon.plant.cycle
+    t0 = time.process_time_ns()
+    for _ in range(cycles):
+        cycle(clock())
+    plant = (time.process_time_ns() - t0) / cycles / 1e3
+    daemon.plant.close()
+    return {"loop": loop, "plant": plant, "fixed": loop - plant}
+
+
+def main_cpu(seconds: float, repeat: int) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        path = plant_file(tmp, 1, 1, False)
+        for _ in range(repeat):
+            v = cpu_virtual(path)
+            sys.stdout.write(f"virtual clock: loop {v['loop']:.2f} us/cycle, plant cycle "
+                             f"{v['plant']:.2f}, controller fixed cost {v['fixed']:.2f}\n")
+            r = cpu_real(path, seconds)
+            sys.stdout.write("real 1 ms: " + ", ".join(
+                f"{k} {x:.1f}" for k, x in r.items()) + " us CPU/cycle\n")
+            sys.stdout.flush()
+
+
 def busy_core() -> subprocess.Popen[bytes]:
     return subprocess.Popen([sys.executable, "-c", "while True: pass"])
+
+
+def _label(n: int, cycle_ms: int, loaded: bool, managed: bool, fifo: bool) -> str:
+    return (f"{n:>3} inst {cycle_ms:>2} ms {'loaded' if loaded else 'idle  '} "
+            f"{'gc:idle  ' if managed else 'gc:python'} {'FIFO' if fifo else '    '}")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seconds", type=float, default=60.0, help="measured time per row")
     ap.add_argument("--quick", action="store_true", help="5 s per row")
+    ap.add_argument("--cpu", action="store_true",
+                    help="the controller's CPU per cycle at 1 ms instead of the table")
+    ap.add_argument("--repeat", type=int, default=5, help="--cpu: measurements")
+    ap.add_argument("--only", default="", help="rows whose label contains this text, "
+                    "e.g. '2 inst  1 ms loaded gc:idle   FIFO'")
     args = ap.parse_args()
     seconds = 5.0 if args.quick else args.seconds
+    if args.cpu:
+        main_cpu(seconds, args.repeat)
+        return
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         combos: list[tuple[int, int, bool, bool, bool]] = []
@@ -113,6 +199,8 @@ def main() -> None:
         combos += [(2, 10, True, False, False), (100, 10, True, False, False),
                    (2, 1, True, True, True), (100, 1, True, True, True)]
         for n, cycle_ms, loaded, managed, fifo in combos:
+            if args.only and args.only not in _label(n, cycle_ms, loaded, managed, fifo):
+                continue
             path = plant_file(tmp, n, cycle_ms, fifo)
             load = busy_core() if loaded else None
             try:
@@ -121,8 +209,7 @@ def main() -> None:
                 if load is not None:
                     load.kill()
                     load.wait()
-            label = (f"{n:>3} inst {cycle_ms:>2} ms {'loaded' if loaded else 'idle  '} "
-                     f"{'gc:idle  ' if managed else 'gc:python'} {'FIFO' if fifo else '    '}")
+            label = _label(n, cycle_ms, loaded, managed, fifo)
             late, scan = r["late"], r["scan"]
             rows.append(label)
             sys.stdout.write(

@@ -114,9 +114,13 @@ class Daemon:
                                    stats=self.scan_stats, manage_gc=manage_gc)
         # systemd's watchdog is fed by the watchdog thread, not by the scan's idle time:
         # a cycle longer than WatchdogSec is valid, only a stuck scan stops the pings
+        # ...and STATUS= (percentiles over 8192 cycles) is built there too, never in the
+        # scan thread (docs/daemon.md, "Timing")
         self.watchdog = Watchdog(self.scheduler, self.plant.watchdog_ns, self._trip, clock,
                                  ping=self.notifier.watchdog,
-                                 ping_interval_ns=self.notifier.watchdog_interval_ns)
+                                 ping_interval_ns=self.notifier.watchdog_interval_ns,
+                                 status=self._report_status,
+                                 status_interval_ns=STATUS_EVERY_NS)
         self.fault: str | None = None
         self.halted: str | None = None
         #: (wall-clock time, reason) of the last faults, oldest first
@@ -130,8 +134,9 @@ class Daemon:
         self._listeners_lock = threading.Lock()
         self._thread: threading.Thread | None = None
         self._loop_alive = False
-        self._ready_sent = False
-        self._next_status = 0
+        self._ready_sent = False  # scan thread: READY requested from the watchdog thread
+        self._ready_told = False  # watchdog thread: READY=1 sent
+        self._state_changed = False  # scan thread -> watchdog thread: log the new state
         self._last_state: State | None = None
         self._trip_reason: str | None = None
         self.retain: RetainStore | None = None
@@ -315,20 +320,17 @@ class Daemon:
             calls.popleft().run()
             if self.clock() >= until:
                 break
-        now = self.clock()
         state = self.state
-        if not self._ready_sent and self.scan_stats.count > 0:
-            self._ready_sent = True
-            self.notifier.ready(self.summary())
-            self._next_status = now + STATUS_EVERY_NS
-        if state is not self._last_state or now >= self._next_status:
-            if self._ready_sent:
-                self.notifier.status(self.summary())
-            self._next_status = now + STATUS_EVERY_NS
+        if state is not self._last_state or not self._ready_sent:
+            # STATUS= and the log line are built by the watchdog thread: no percentile
+            # sort in the scan thread
             if self._last_state is not None and state is not self._last_state:
-                log.info("state: %s", self.summary())
+                self._state_changed = True
             self._last_state = state
-        if self._retain_writer is not None and now >= self._retain_next:
+            if self.scan_stats.count > 0:
+                self._ready_sent = True
+            self.watchdog.request_status()
+        if self._retain_writer is not None and (now := self.clock()) >= self._retain_next:
             self._retain_next = now + self.plant.retain_interval_ns
             snap = self.plant.retain_snapshot()
             if snap != self._retain_last or self._retain_writer.last_error is not None:
@@ -441,22 +443,38 @@ class Daemon:
             out.append(f"stepping by the console: {plant.steps_left} cycle(s) to go")
         elif plant.held:
             out.append("paused by the console: charts held")
-        for name, inst in plant.instances.items():
+        for name, inst in list(plant.instances.items()):  # summary() reads from any thread
             out += [f"{name}: held by {flag}" for flag in HOLD_FLAGS if inst.get(flag)]
         return out
 
+    def _report_status(self) -> None:
+        """Watchdog thread: READY=1 then STATUS= with ``summary()``, and the state line in
+        the log when the scan thread saw the state change."""
+        if not self._ready_sent:
+            return  # no cycle yet: READY=1 comes with the first
+        changed, self._state_changed = self._state_changed, False  # a later one re-flags
+        if not self.notifier.enabled and not changed:
+            return  # nobody to tell: no percentiles computed for nothing
+        text = self.summary()
+        if not self._ready_told:
+            self._ready_told = True
+            self.notifier.ready(text)
+        else:
+            self.notifier.status(text)
+        if changed:
+            log.info("state: %s", text)
+
     def summary(self) -> str:
         """One line: state, what inhibits the plant, cycle figures (systemd's STATUS=,
-        logs)."""
-        lat = self.scan_stats.lateness()
-        scan = self.scan_stats.scan()
+        logs). Safe from any thread: the p99 figures never hold the GIL for long."""
+        scan_p99, late_p99 = self.scan_stats.p99()
         text = self.state.value
         inhibits = [x.removeprefix(f"{text}: ") for x in self.inhibits()]
         if inhibits:
             text += f" ({'; '.join(inhibits)})"
         stats = self.scan_stats
         text += (f"; {len(self.plant.instances)} instance(s); {stats.count} cycles; "
-                 f"scan p99 {scan.p99 / 1e3:.0f} us; lateness p99 {lat.p99 / 1e3:.0f} us; "
+                 f"scan p99 {scan_p99 / 1e3:.0f} us; lateness p99 {late_p99 / 1e3:.0f} us; "
                  f"{stats.overruns} overruns")
         if stats.freezes:
             text += f"; {stats.freezes} freezes"

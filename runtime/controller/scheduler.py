@@ -2,8 +2,9 @@
 
 Per cycle: sleep until the deadline, run the cycle body (read inputs, scan, write
 outputs), record scan time and wake-up lateness, then spend what is left of the period on
-the idle work (console requests, systemd status, retain hand-off, garbage collection),
-never past a guard band before the next deadline.
+the idle work (console requests, noticing state changes, retain hand-off, garbage
+collection), never past a guard band before the next deadline. systemd's STATUS= text
+(percentiles over thousands of cycles) is built by ``Watchdog``'s thread, not here.
 
 Overrun policy: when a cycle ends at or after the next deadline, the overrun is counted,
 the deadlines it passed are counted as skipped, and the schedule is re-anchored one full
@@ -41,6 +42,9 @@ log = logging.getLogger(__name__)
 GUARD_NS = 300_000
 #: young-generation collections run in the idle time once this many objects are pending
 GC_GEN0_THRESHOLD = 700
+#: the pending-object count is looked at every this many cycles (a few cycles late is
+#: harmless; looking costs a call and a tuple)
+GC_CHECK_EVERY = 8
 #: a full collection at most this often, ns, and only when the idle time allows it
 GC_FULL_EVERY_NS = 60_000_000_000
 #: freezes the watchdog thread remembers for ``Watchdog.froze_during``
@@ -91,11 +95,18 @@ class Scheduler:
         self._last_full_gc = 0
 
     def run(self, cycles: int | None = None) -> None:
-        """Run until ``stop_event`` is set (or ``cycles`` cycles, for tests)."""
+        """Run until ``stop_event`` is set (or ``cycles`` cycles, for tests).
+
+        The per-cycle path is kept lean (it is the controller's fixed cost, paid every
+        cycle): bound methods and settings held in locals, the garbage-collection check
+        every GC_CHECK_EVERY cycles only, nothing allocated."""
         clock, cycle, stats, body = self.clock, self.cycle_ns, self.stats, self.body
         stop, boot, watchdog = self.stop_event, self.boot_clock, self.watchdog_ns
+        sleep_until, idle, record = self.sleep_until, self.idle, stats.record
+        on_watchdog, guard, manage_gc = self.on_watchdog, self.guard_ns, self.manage_gc
+        stopped = stop.is_set
         gc_was_enabled = gc.isenabled()
-        if self.manage_gc:
+        if manage_gc:
             gc.collect()
             gc.freeze()  # start-up objects (compiled charts, plant) are never scanned again
             gc.disable()
@@ -104,42 +115,46 @@ class Scheduler:
         #: CLOCK_BOOTTIME - CLOCK_MONOTONIC at the last wake-up: grows by each suspend
         slept = 0 if boot is None else boot() - deadline
         n = 0
+        last = -1 if cycles is None else cycles
         try:
-            while not stop.is_set() and (cycles is None or n < cycles):
-                self.sleep_until(deadline)
+            while n != last and not stopped():
+                sleep_until(deadline)
                 wake = clock()
                 frozen = wake - deadline
                 if boot is not None:
                     was, slept = slept, boot() - wake
                     frozen += slept - was
                 if frozen > watchdog:
-                    stats.record_freeze(frozen)
-                    if self.on_freeze is not None:
-                        self.on_freeze(frozen)
+                    self._froze(frozen)
                 self.scanning_since = self.last_wake = wake
                 body(wake)
                 end = clock()
                 self.scanning_since = 0
                 scan = end - wake
-                stats.record(scan, wake - deadline)
+                record(scan, wake - deadline)
                 n += 1
-                if scan > watchdog and self.on_watchdog is not None:
-                    self.on_watchdog(scan)
+                if scan > watchdog and on_watchdog is not None:
+                    on_watchdog(scan)
                 deadline += cycle
                 if end >= deadline:
                     stats.overruns += 1
                     stats.skipped += (end - deadline) // cycle
                     deadline = end + cycle
-                if self.idle is not None:
-                    self.idle(deadline - self.guard_ns)
-                if self.manage_gc:
-                    self._collect(deadline - self.guard_ns)
+                if idle is not None:
+                    idle(deadline - guard)
+                if manage_gc and not n % GC_CHECK_EVERY:
+                    self._collect(deadline - guard)
         finally:
             self.scanning_since = self.last_wake = 0
-            if self.manage_gc:
+            if manage_gc:
                 gc.unfreeze()
                 if gc_was_enabled:
                     gc.enable()
+
+    def _froze(self, frozen: int) -> None:
+        self.stats.record_freeze(frozen)
+        if self.on_freeze is not None:
+            self.on_freeze(frozen)
 
     def _collect(self, until: int) -> None:
         """Garbage collection in the idle part of the cycle only."""
@@ -170,11 +185,17 @@ class Watchdog:
 
     When the thread itself did not run for longer than the watchdog, the whole process was
     frozen: that is counted (``freezes``), remembered for ``froze_during`` and not blamed
-    on the scan thread, which gets a full watchdog time from the resumption to wake up."""
+    on the scan thread, which gets a full watchdog time from the resumption to wake up.
+
+    ``status()`` (the work behind systemd's STATUS=: percentiles over thousands of cycles)
+    runs in this thread, never in the scan thread: every ``status_interval_ns``, and soon
+    after ``request_status()`` (which the scan thread calls when its state changes).
+    ``stop_pinging()`` ends it too."""
 
     def __init__(self, scheduler: Scheduler, watchdog_ns: int,
                  trip: Callable[[int], None], clock: Callable[[], int] = time.monotonic_ns,
-                 *, ping: Callable[[], object] | None = None, ping_interval_ns: int = 0
+                 *, ping: Callable[[], object] | None = None, ping_interval_ns: int = 0,
+                 status: Callable[[], object] | None = None, status_interval_ns: int = 0
                  ) -> None:
         self.scheduler = scheduler
         self.watchdog_ns = watchdog_ns
@@ -186,6 +207,11 @@ class Watchdog:
         self._ping = ping if ping_interval_ns > 0 else None
         self._ping_lock = threading.Lock()
         self._next_ping = 0
+        self.status_interval_ns = status_interval_ns
+        self._status = status
+        self._next_status = 0
+        self._status_due = False
+        self._wake = threading.Event()  # stop() or request_status()
         #: freezes of the whole process this thread noticed
         self.freezes = 0
         #: (resumed at, frozen for) of the last freezes, monotonic ns
@@ -204,13 +230,20 @@ class Watchdog:
     def stop(self) -> None:
         self.stop_pinging()
         self._stop.set()
+        self._wake.set()
         if self._thread.is_alive():
             self._thread.join(timeout=2.0)
 
     def stop_pinging(self) -> None:
         """No ping leaves after this returns (the stop: STOPPING=1 is the last word)."""
         with self._ping_lock:
-            self._ping = None
+            self._ping = self._status = None
+
+    def request_status(self) -> None:
+        """Have ``status()`` run soon in this thread (from the scan thread: a flag and an
+        event set, no formatting)."""
+        self._status_due = True
+        self._wake.set()
 
     def froze_during(self, start: int, end: int) -> int:
         """How long the process was frozen between monotonic ``start`` and ``end`` (ns),
@@ -228,16 +261,39 @@ class Watchdog:
     def _run(self) -> None:
         clock = self.clock
         self._last_tick = clock()
+        self._next_status = self._last_tick + self.status_interval_ns
         while True:
             wait = self.period_ns
+            now = clock()
             if self._ping is not None:
-                wait = min(wait, max(0, self._next_ping - clock()))
-            if self._stop.wait(wait / 1e9):
+                wait = min(wait, max(0, self._next_ping - now))
+            if self._status is not None and self.status_interval_ns > 0:
+                wait = min(wait, max(0, self._next_status - now))
+            self._wake.wait(wait / 1e9)
+            self._wake.clear()
+            if self._stop.is_set():
                 return
+            now = clock()
             try:
-                self.tick(clock())
+                self.tick(now)
             except Exception:  # pragma: no cover - the thread must never die
                 log.exception("watchdog check failed")
+            self.report(now)
+
+    def report(self, now: int) -> None:
+        """Run ``status()`` if it is due (requested, or its interval has passed)."""
+        if self._status is None or not (
+                self._status_due or
+                (self.status_interval_ns > 0 and now >= self._next_status)):
+            return
+        self._status_due = False
+        self._next_status = now + self.status_interval_ns
+        try:
+            with self._ping_lock:
+                if self._status is not None:
+                    self._status()
+        except Exception:  # pragma: no cover - the thread must never die
+            log.exception("status report failed")
 
     def tick(self, now: int) -> None:
         """One look at the scan thread at monotonic ``now``: trip, ping, or nothing."""

@@ -1,9 +1,11 @@
 """Cycle statistics of the scan loop: scan time and wake-up lateness, in a fixed-size store.
 
 ``record()`` runs once per cycle in the scan thread: a few integer stores into
-preallocated arrays, no container grows. Percentiles are computed on demand, off the hot
-path, over the last ``window`` cycles; min, mean, max and the overrun count cover the
-whole run.
+preallocated arrays, no container grows, nothing is allocated. Percentiles are computed on
+demand, off the hot path, over the last ``window`` cycles; min, mean, max and the overrun
+count cover the whole run. ``p99()`` (systemd's STATUS= line) finds the two p99 figures
+without sorting a whole window in one call: another thread computing it never holds the
+GIL for more than a chunk's sort (~50 µs), so the scan thread is never stalled by it.
 """
 
 from __future__ import annotations
@@ -14,6 +16,8 @@ from typing import Any
 
 #: cycles kept for percentiles (p99.9 needs at least 1000)
 WINDOW = 8192
+#: values sorted per call by ``p99()``: the longest the GIL is held at once
+CHUNK = 512
 
 
 @dataclass(frozen=True, slots=True)
@@ -34,11 +38,30 @@ class Summary:
                 for k in ("last", "min", "mean", "p50", "p99", "p999", "max")}
 
 
+def _rank(n: int, q: float) -> int:
+    """Index of the ``q`` quantile in ``n`` sorted values."""
+    return min(n - 1, max(0, int(round(q * (n - 1)))))
+
+
 def _percentile(sorted_values: list[int], q: float) -> int:
     if not sorted_values:
         return 0
-    i = min(len(sorted_values) - 1, max(0, int(round(q * (len(sorted_values) - 1)))))
-    return sorted_values[i]
+    return sorted_values[_rank(len(sorted_values), q)]
+
+
+def high_percentile(values: array[int], n: int, q: float) -> int:
+    """The ``q`` quantile (q >= 0.5) of ``values[:n]``, equal to ``_percentile`` of the
+    sorted values, found from the top ``k`` of each CHUNK-sized slice: no single call
+    sorts more than CHUNK values (or the k * chunks candidates)."""
+    if n <= 0:
+        return 0
+    k = n - _rank(n, q)  # the answer is the k-th largest value
+    top: list[int] = []
+    for start in range(0, n, CHUNK):
+        chunk = sorted(values[start:min(n, start + CHUNK)])
+        top += chunk[-k:]
+    top.sort()
+    return top[-k]
 
 
 class ScanStats:
@@ -49,6 +72,8 @@ class ScanStats:
         self.window = window
         self._scan = array("q", bytes(8 * window))
         self._late = array("q", bytes(8 * window))
+        #: ``count & _mask`` is the ring index when the window is a power of two
+        self._mask = window - 1 if window & (window - 1) == 0 else -1
         self.reset()
 
     def reset(self) -> None:
@@ -60,19 +85,17 @@ class ScanStats:
         self.gc_ns = 0
         self.freezes = 0  # times the process did not run for longer than the watchdog
         self.freeze_max = 0  # the longest such time, ns
-        self.scan_last = self.late_last = 0
         self.scan_min = self.late_min = 1 << 62
         self.scan_max = self.late_max = 0
         self.scan_sum = self.late_sum = 0
 
     def record(self, scan_ns: int, late_ns: int) -> None:
         """One cycle: how long the scan took and how late it started (ns)."""
-        i = self.count % self.window
+        n = self.count
+        i = n & self._mask if self._mask >= 0 else n % self.window
         self._scan[i] = scan_ns
         self._late[i] = late_ns
-        self.count += 1
-        self.scan_last = scan_ns
-        self.late_last = late_ns
+        self.count = n + 1
         self.scan_sum += scan_ns
         self.late_sum += late_ns
         if scan_ns < self.scan_min:
@@ -83,6 +106,16 @@ class ScanStats:
             self.late_min = late_ns
         if late_ns > self.late_max:
             self.late_max = late_ns
+
+    @property
+    def scan_last(self) -> int:
+        """The last cycle's scan time, ns (0 before the first)."""
+        return self._scan[(self.count - 1) % self.window] if self.count else 0
+
+    @property
+    def late_last(self) -> int:
+        """The last cycle's wake-up lateness, ns (0 before the first)."""
+        return self._late[(self.count - 1) % self.window] if self.count else 0
 
     def record_freeze(self, frozen_ns: int) -> None:
         """The process did not run for ``frozen_ns`` (SIGSTOP, a paused VM, a suspend)."""
@@ -104,6 +137,13 @@ class ScanStats:
     def lateness(self) -> Summary:
         return self._summary(self._late, self.late_last, self.late_min, self.late_max,
                              self.late_sum)
+
+    def p99(self) -> tuple[int, int]:
+        """(scan p99, lateness p99) over the window, ns, as ``scan()`` and ``lateness()``
+        give them, never holding the GIL for a whole window's sort (safe to call from
+        another thread while the scan runs; a cycle recorded meanwhile may count or not)."""
+        n = min(self.count, self.window)
+        return (high_percentile(self._scan, n, 0.99), high_percentile(self._late, n, 0.99))
 
     def as_dict(self) -> dict[str, Any]:
         """Everything, times in µs (what ``stats`` on the console shows)."""

@@ -3,12 +3,15 @@ watchdog callback, idle work bounded by the guard band, cycle statistics."""
 
 from __future__ import annotations
 
+import random
 import threading
+import time
 
 import pytest
 
 from runtime.controller.scheduler import Scheduler, Watchdog
 from runtime.controller.stats import ScanStats, Summary
+from tests.daemon.daemonkit import wait_until
 
 MS = 1_000_000
 
@@ -192,3 +195,34 @@ def test_stats_storage_does_not_grow() -> None:
     for i in range(10_000):
         st.record(i, i)
     assert (len(st._scan), len(st._late)) == before
+
+
+@pytest.mark.parametrize("window,count", [(8192, 8192), (8192, 20_000), (8192, 700),
+                                          (100, 250), (8192, 1), (8192, 0)])
+def test_stats_p99_equals_the_sorted_window_percentile(window: int, count: int) -> None:
+    """``p99()`` (STATUS=) picks chunk tops instead of sorting the window: same figures."""
+    st = ScanStats(window=window)
+    rng = random.Random(count)
+    for _ in range(count):
+        st.record(rng.randrange(10_000_000), rng.choice((0, rng.randrange(3_000_000))))
+    assert st.p99() == (st.scan().p99, st.lateness().p99)
+    if count:
+        assert st.scan_last == st._scan[(count - 1) % window]
+
+
+def test_watchdog_builds_the_status_in_its_thread_when_asked_and_every_interval() -> None:
+    threads: list[str] = []
+    s = Scheduler(lambda now: None, 5 * MS, 400 * MS, manage_gc=False)
+    wd = Watchdog(s, 400 * MS, lambda ns: None, status_interval_ns=10_000 * MS,
+                  status=lambda: threads.append(threading.current_thread().name))
+    wd.start()
+    try:
+        wd.request_status()  # long before the interval (10 s) or the period (100 ms)
+        wait_until(lambda: bool(threads), timeout=10.0, what="the status")
+        assert threads == ["softplc-watchdog"]
+        wd.stop_pinging()
+        wd.request_status()
+        wd.report(time.monotonic_ns() + 20_000 * MS)  # due by time too: still nothing
+        assert threads == ["softplc-watchdog"]
+    finally:
+        wd.stop()
