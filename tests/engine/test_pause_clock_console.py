@@ -49,6 +49,8 @@ def test_cycle_1_after_a_long_pause_moves_the_step_time_by_one_cycle(rig: Rig) -
     resumed_at = rig.daemon.clock()
     s.ok("resume")
     wait_for(lambda: rig.read("t1.gsAbrir.T") > frozen + 10 * MS, "t1 running again")
-    since = rig.daemon.clock() - resumed_at
+    t = rig.read("t1.gsAbrir.T")
+    since = rig.daemon.clock() - resumed_at  # measured after the read: a scan may run
+    # between two reads (a loaded run once read .T again after measuring, 0.24 ms over)
     # no jump: one cycle for the first scan after resume, then the clock's own time
-    assert rig.read("t1.gsAbrir.T") <= frozen + 20 * MS + since
+    assert t <= frozen + 20 * MS + since
