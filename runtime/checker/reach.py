@@ -54,6 +54,7 @@ class Reach:
     back_to_initial: bool = False  # the initial situation has a predecessor
     complete: bool = True
     why_incomplete: str = ""
+    tested: int = 0  # (situation, transition) pairs tested for being enabled (a work count)
     unsafe: list[Unsafe] = field(default_factory=list)
     groups: list[int] = field(default_factory=list)  # masks of simple sequences
 
@@ -192,6 +193,7 @@ def explore(g: Grafcet, never: set[int] | None = None, limit: int = LIMIT) -> Re
     candidates = [k for k in range(len(trans)) if k not in never]
     while queue:
         x = queue.popleft()
+        r.tested += len(candidates)
         enabled = [k for k in candidates if src[k] & x == src[k]]
         if not enabled:
             r.dead.append(x)
