@@ -180,8 +180,14 @@ def explore(g: Grafcet, never: set[int] | None = None, limit: int = LIMIT) -> Re
         reported.add(key)
         r.unsafe.append(Unsafe(kind, names, before, fired))
 
+    group_of = [0] * len(steps)
+    for gm in r.groups:
+        for i in active(gm):
+            group_of[i] = gm
+
     def group_check(mask: int, before: int, fired: tuple[int, ...]) -> None:
-        for gm in r.groups:
+        for gm in sorted({group_of[i] for i in active(mask) if group_of[i]},
+                         key=r.groups.index):
             both = mask & gm
             if both & (both - 1):
                 names = tuple(r.names(both))
@@ -190,11 +196,20 @@ def explore(g: Grafcet, never: set[int] | None = None, limit: int = LIMIT) -> Re
 
     group_check(initial, initial, ())
     queue = deque([initial])
-    candidates = [k for k in range(len(trans)) if k not in never]
+    # the transitions that may fire, by source step (source transitions: always enabled)
+    always = [k for k in range(len(trans)) if k not in never and not src[k]]
+    leaving: list[list[int]] = [[] for _ in steps]
+    for k in range(len(trans)):
+        if k not in never:
+            for s in set(trans[k].src_steps):
+                leaving[index[s]].append(k)
     while queue:
         x = queue.popleft()
+        candidates = set(always)
+        for i in active(x):
+            candidates.update(leaving[i])
         r.tested += len(candidates)
-        enabled = [k for k in candidates if src[k] & x == src[k]]
+        enabled = [k for k in sorted(candidates) if src[k] & x == src[k]]
         if not enabled:
             r.dead.append(x)
             continue
@@ -239,14 +254,34 @@ def structural_reach(g: Grafcet, never: set[int] | None = None) -> set[str]:
     over-approximation of the reachable steps, used when the exploration is cut)."""
     never = never or set()
     reach = {s.name for s in g.leaf_steps() if s.initial}
-    changed = True
-    while changed:
-        changed = False
-        for k, t in enumerate(g.transitions):
-            if k in never or not set(t.src_steps) <= reach:
-                continue
-            new = set(t.dst_steps) - reach
-            if new:
-                reach |= new
-                changed = True
+    missing: dict[int, int] = {}  # transition -> its source steps not reached yet
+    waiting: dict[str, list[int]] = {}  # step -> the transitions it is missing for
+    todo: list[int] = []
+    for k, t in enumerate(g.transitions):
+        if k in never:
+            continue
+        srcs = set(t.src_steps) - reach
+        missing[k] = len(srcs)
+        for s in srcs:
+            waiting.setdefault(s, []).append(k)
+        if not srcs:
+            todo.append(k)
+    while todo:
+        for d in g.transitions[todo.pop()].dst_steps:
+            if d not in reach:
+                reach.add(d)
+                for j in waiting.get(d, []):
+                    missing[j] -= 1
+                    if not missing[j]:
+                        todo.append(j)
     return reach
+
+
+def active(mask: int) -> list[int]:
+    """Indexes of the bits set in ``mask``."""
+    out = []
+    while mask:
+        low = mask & -mask
+        out.append(low.bit_length() - 1)
+        mask ^= low
+    return out
