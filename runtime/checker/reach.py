@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from runtime.language.model import Grafcet, Transition
 
 LIMIT = 100_000
+FULL_FIRST = 10_000  # situations explored in full before the reduced exploration is tried
 UNSAFE_REPORTS = 5  # root causes reported per chart
 
 
@@ -55,6 +56,7 @@ class Reach:
     complete: bool = True
     why_incomplete: str = ""
     tested: int = 0  # (situation, transition) pairs tested for being enabled (a work count)
+    reduced: bool = False  # explored with the reduction of explore(reduce=True)
     unsafe: list[Unsafe] = field(default_factory=list)
     groups: list[int] = field(default_factory=list)  # masks of simple sequences
 
@@ -149,8 +151,31 @@ def simple_sequences(g: Grafcet, index: dict[str, int]) -> list[int]:
     return [m for m in groups.values() if m & (m - 1)]
 
 
-def explore(g: Grafcet, never: set[int] | None = None, limit: int = LIMIT) -> Reach:
-    """Breadth-first exploration of the reachable situations (at most ``limit``)."""
+def reachable(g: Grafcet, never: set[int] | None = None, limit: int = LIMIT) -> Reach:
+    """The exploration ``softplc check`` reports on: in full (every interleaving, shortest
+    sequences) when the chart has at most ``FULL_FIRST`` situations; beyond, the reduced
+    exploration when it completes within ``limit``; else the full one cut at ``limit``."""
+    r = explore(g, never, min(limit, FULL_FIRST))
+    if r.complete:
+        return r
+    red = explore(g, never, limit, reduce=True)
+    if red.complete or limit <= FULL_FIRST:
+        return red if red.complete else r
+    return explore(g, never, limit)
+
+
+def explore(g: Grafcet, never: set[int] | None = None, limit: int = LIMIT,
+            reduce: bool = False) -> Reach:
+    """Breadth-first exploration of the reachable situations (at most ``limit``).
+
+    ``reduce``: where an enabled transition is a link inside a simple sequence (one source
+    step that no other transition leaves, one target step that no other transition enters,
+    not active), fire it alone: it stays enabled whatever else fires and commutes with
+    every other firing, so the other orders reach nothing more (steps, deadlocks, unsafe
+    evolutions: a step activated again while its sequence moved on is two steps of one
+    simple sequence active together). Parallel branches then advance one at a time, not
+    in every interleaving. Not when the next situation was already seen (a branch looping
+    alone would starve the others): all the enabled transitions then fire."""
     steps = [s.name for s in g.leaf_steps()]
     index = {s: i for i, s in enumerate(steps)}
     trans = list(g.transitions)
@@ -196,6 +221,19 @@ def explore(g: Grafcet, never: set[int] | None = None, limit: int = LIMIT) -> Re
 
     group_check(initial, initial, ())
     queue = deque([initial])
+    outs_n: dict[int, int] = {}
+    ins_n: dict[int, int] = {}
+    for k in range(len(trans)):
+        for i in active(src[k]):
+            outs_n[i] = outs_n.get(i, 0) + 1
+        for i in active(dst[k]):
+            ins_n[i] = ins_n.get(i, 0) + 1
+    # links inside simple sequences: one source step left only by it, one target step
+    # entered only by it
+    simple = [k not in never and len(active(src[k])) == 1 and len(active(dst[k])) == 1
+              and src[k] != dst[k] and outs_n[active(src[k])[0]] == 1
+              and ins_n[active(dst[k])[0]] == 1 for k in range(len(trans))]
+    r.reduced = reduce
     # the transitions that may fire, by source step (source transitions: always enabled)
     always = [k for k in range(len(trans)) if k not in never and not src[k]]
     leaving: list[list[int]] = [[] for _ in steps]
@@ -225,6 +263,11 @@ def explore(g: Grafcet, never: set[int] | None = None, limit: int = LIMIT) -> Re
                         for n in r.names(both):
                             record("twice", (n,), x, (k2, k))
             seen |= dst[k]
+        if reduce:
+            alone = next((k for k in enabled if simple[k] and not dst[k] & x
+                          and (x & ~src[k]) | dst[k] not in r.parent), None)
+            if alone is not None:
+                enabled = [alone]
         # one transition at a time is enough (see the module's docstring)
         for k in enabled:
             bad = x in tainted

@@ -20,7 +20,7 @@ from typing import Any
 from drivers.durations import format_ns
 from runtime.checker.diag import Diag, diag
 from runtime.checker.logic import Logic, has_edge
-from runtime.checker.reach import LIMIT, Reach, Unsafe, explore, structural_reach
+from runtime.checker.reach import LIMIT, Reach, Unsafe, reachable, structural_reach
 from runtime.checker.traps import latched_targets, stale_timer_reads
 from runtime.errors import Loc
 from runtime.language import ast as A
@@ -102,7 +102,7 @@ class ChartChecker:
     # -- G102 G104 G206 G209 --------------------------------------------------------------
     def reachability(self) -> None:
         g = self.g
-        r = self.reach = explore(g, self.never, self.limit)
+        r = self.reach = reachable(g, self.never, self.limit)
         if r.complete:
             reached = r.reachable_steps
         else:

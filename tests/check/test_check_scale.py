@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from typing import Any
 
-from bench.compile import chart_text
+from bench.compile import chart_text, parallel_text
 from runtime.checker import reach
 from runtime.checker.rules import check_grafcet
 from runtime.language.grafcetfile import load_grafcet
@@ -73,3 +73,48 @@ def test_the_reachability_tests_a_bounded_number_of_transitions_per_situation(
         assert r.complete and not r.unsafe
         work[n] = r.tested
     assert_linear(work)
+
+
+def test_parallel_branches_are_explored_without_their_product(
+        write: Callable[[str, str], str]) -> None:
+    """Three parallel branches of 50 steps: 50^3 situations if every interleaving is
+    enumerated, over the default bound; the reduced exploration decides the chart."""
+    g = load_grafcet(write("parallel.yaml", parallel_text(3, 50)))
+    diags = check_grafcet(g)
+    assert not [d for d in diags if d.code in ("G102", "G104", "G206", "G209")], diags
+    r = reach.reachable(g)
+    assert r.complete and r.reduced and len(r.parent) < 10_000
+    assert r.reachable_steps == {s.name for s in g.leaf_steps()}
+
+
+LOOPS = """\
+grafcet: Loops
+inputs: [iA]
+outputs: [oX]
+steps:
+  a0: {initial: true}
+  a1: {}
+  b0: {initial: true}
+  b1: {}
+  c0: {}
+  c1: {}
+transitions:
+  - {from: a0, to: a1, when: iA}
+  - {from: a1, to: a0, when: iA'}
+  - {from: b0, to: b1, when: iA}
+  - {from: b0, to: c0, when: iA'}
+  - {from: b1, to: b0, when: iA'}
+  - {from: c0, to: c1, when: iA}
+"""
+
+
+def test_the_reduction_neither_starves_a_branch_nor_drops_a_choice(
+        write: Callable[[str, str], str]) -> None:
+    """Branch a loops alone on links of a simple sequence: it must not be the only one to
+    move. b0 -> b1 is not fired alone: b0 has a second way out, to c0."""
+    g = load_grafcet(write("loops.yaml", LOOPS))
+    full = reach.explore(g)
+    red = reach.explore(g, reduce=True)
+    assert full.reachable_steps == {"a0", "a1", "b0", "b1", "c0", "c1"}
+    assert red.reachable_steps == full.reachable_steps
+    assert bool(red.dead) == bool(full.dead)

@@ -17,7 +17,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from runtime.checker.logic import has_edge
-from runtime.checker.reach import structural_reach
+from runtime.checker.reach import explore, structural_reach
 from runtime.checker.rules import ChartChecker
 from runtime.errors import SourceError
 from runtime.language import ast as A
@@ -157,3 +157,28 @@ def test_g203_g204_and_the_structural_reach_are_the_plain_rules(text: str) -> No
     assert [(ln, col) for ln, col, _ in got204] == [
         (ln, col) for ln, col, _ in plain_g204(c)], text
     assert structural_reach(g, never) == plain_structural(g, never), text
+
+
+@settings(max_examples=400, deadline=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
+@given(text=charts())
+def test_the_reduced_exploration_finds_what_the_full_one_finds(text: str) -> None:
+    """Same reachable steps, a deadlock exactly when there is one, an unsafe evolution
+    exactly when there is one (its kind may differ: see explore's docstring)."""
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "c.yaml"
+        path.write_text(text, encoding="utf-8")
+        try:
+            g = load_grafcet(str(path))
+        except SourceError:
+            assume(False)
+            return
+    c = ChartChecker(g)
+    c.dead_transitions()
+    full = explore(g, c.never)
+    red = explore(g, c.never, reduce=True)
+    assert full.complete and red.complete
+    assert red.reachable_steps == full.reachable_steps, text
+    assert bool(red.dead) == bool(full.dead), text
+    assert bool(red.unsafe) == bool(full.unsafe), text
+    assert set(red.parent) <= set(full.parent)
