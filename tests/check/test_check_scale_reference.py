@@ -181,4 +181,5 @@ def test_the_reduced_exploration_finds_what_the_full_one_finds(text: str) -> Non
     assert red.reachable_steps == full.reachable_steps, text
     assert bool(red.dead) == bool(full.dead), text
     assert bool(red.unsafe) == bool(full.unsafe), text
+    assert red.back_to_initial == full.back_to_initial, text
     assert set(red.parent) <= set(full.parent)
