@@ -53,6 +53,36 @@ def charts(draw: st.DrawFn) -> str:
     return "\n".join(lines) + "\n"
 
 
+@st.composite
+def parallel_charts(draw: st.DrawFn) -> str:
+    """Parallel branches of simple sequences (what the reduced exploration reduces), and a
+    few random transitions between any steps (what it must not be fooled by)."""
+    branches = draw(st.integers(2, 3))
+    lengths = [draw(st.integers(1, 4)) for _ in range(branches)]
+    names = [f"b{b}_{k}" for b in range(branches) for k in range(lengths[b])]
+    lines = ["grafcet: P", "inputs: [iA, iB, iC]", "outputs: [oX]", "steps:",
+             "  s0: {initial: true}"]
+    lines += [f"  {n}: {{{'initial: true' if draw(st.integers(0, 9)) == 0 else ''}}}"
+              for n in names]
+    lines.append("transitions:")
+    heads = ", ".join(f"b{b}_0" for b in range(branches))
+    tails = ", ".join(f"b{b}_{lengths[b] - 1}" for b in range(branches))
+    lines.append(f"  - {{from: s0, to: [{heads}], when: iA}}")
+    for b in range(branches):
+        for k in range(lengths[b] - 1):
+            lines.append(f"  - {{from: b{b}_{k}, to: b{b}_{k + 1}, when: iB}}")
+    if draw(st.booleans()):
+        lines.append(f"  - {{from: [{tails}], to: s0, when: iC}}")
+    steps = ["s0", *names]
+    for _ in range(draw(st.integers(0, 3))):
+        src = draw(st.lists(st.sampled_from(steps), max_size=2, unique=True))
+        dst = draw(st.lists(st.sampled_from(steps), max_size=2, unique=True))
+        if src or dst:
+            lines.append(f"  - {{from: [{', '.join(src)}], to: [{', '.join(dst)}], "
+                         f"when: \"{draw(st.sampled_from(CONDS))}\"}}")
+    return "\n".join(lines) + "\n"
+
+
 # -- the plain rules -------------------------------------------------------------------------
 def outgoing(g: Grafcet, step: str) -> list[int]:
     return [k for k, t in enumerate(g.transitions) if step in t.src_steps]
@@ -161,10 +191,12 @@ def test_g203_g204_and_the_structural_reach_are_the_plain_rules(text: str) -> No
 
 @settings(max_examples=400, deadline=None,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
-@given(text=charts())
+@given(text=st.one_of(charts(), parallel_charts()))
 def test_the_reduced_exploration_finds_what_the_full_one_finds(text: str) -> None:
     """Same reachable steps, a deadlock exactly when there is one, an unsafe evolution
-    exactly when there is one (its kind may differ: see explore's docstring)."""
+    exactly when there is one (its kind may differ: see explore's docstring). Not always
+    the return to the initial situation (docs/check.md: G206 needs it among the firings
+    explored)."""
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "c.yaml"
         path.write_text(text, encoding="utf-8")
@@ -181,5 +213,4 @@ def test_the_reduced_exploration_finds_what_the_full_one_finds(text: str) -> Non
     assert red.reachable_steps == full.reachable_steps, text
     assert bool(red.dead) == bool(full.dead), text
     assert bool(red.unsafe) == bool(full.unsafe), text
-    assert red.back_to_initial == full.back_to_initial, text
     assert set(red.parent) <= set(full.parent)
