@@ -40,16 +40,18 @@ import sys
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 from runtime.checker.diag import Diag, diag, from_loader, show_path
 from runtime.checker.plant_rules import check_plant_model
 from runtime.checker.reach import LIMIT
 from runtime.checker.rules import check_grafcet
 from runtime.errors import Diagnostic, Loc, SourceError
-from runtime.language.filekind import file_kind
-from runtime.language.grafcetfile import load_grafcet
+from runtime.language.filekind import doc_kind
+from runtime.language.grafcetfile import GrafcetLoader, load_grafcet
 from runtime.language.model import Grafcet, PlantDef
 from runtime.language.plantfile import PlantLoad, load_plant
+from runtime.language.yamlsrc import YMap, load_yaml
 
 SEVERITY_ORDER = {"error": 0, "warning": 1, "note": 2}
 
@@ -71,13 +73,15 @@ class Loaded:
         return {d.code for d in self.diags}
 
 
-def load_grafcet_checked(path: str) -> Loaded:
+def load_grafcet_checked(path: str, doc: Any = None) -> Loaded:
     """Load a grafcet, its rule errors of seed 000 (G101, G105, G106) as diagnostics: the
     loader leaves out what breaks a rule and goes on, so that every such error is reported
-    and the rest of the checks still run. Any other error is the failure."""
+    and the rest of the checks still run. Any other error is the failure. ``doc``: the
+    file's YAML document if already read (not read again)."""
     found: list[Diagnostic] = []
     try:
-        g: Grafcet | None = load_grafcet(path, found)
+        g: Grafcet | None = (GrafcetLoader(path, doc, found).load() if isinstance(doc, YMap)
+                             else load_grafcet(path, found))
     except SourceError as exc:
         if not exc.code:
             return Loaded(None, [from_loader(d) for d in found], exc)
@@ -109,11 +113,17 @@ class CheckRun:
         self.paths = list(paths)  # every file of the command line (plants for scripts)
         self.charts_done: set[str] = set()
         self._kinds: dict[str, str] = {}
+        self._charts: dict[str, Any] = {}  # a chart's document, read to tell its kind
 
     def kind(self, path: str) -> str:
+        """The file's kind (read once per run; a chart's document is kept for its check,
+        so that a chart is parsed once)."""
         real = os.path.realpath(path)
         if real not in self._kinds:
-            self._kinds[real] = file_kind(path)
+            doc = load_yaml(path)
+            self._kinds[real] = doc_kind(doc)
+            if self._kinds[real] == "grafcet" and real not in self.charts_done:
+                self._charts[real] = doc
         return self._kinds[real]
 
     def check_path(self, path: str) -> list[FileResult]:
@@ -199,8 +209,10 @@ class CheckRun:
 
     def _grafcet(self, path: str, g: Grafcet | None = None) -> FileResult:
         """Check one chart; ``g``: the chart already loaded without error (by its plant)."""
-        self.charts_done.add(os.path.realpath(path))
-        loaded = Loaded(g, []) if g is not None else load_grafcet_checked(path)
+        real = os.path.realpath(path)
+        self.charts_done.add(real)
+        doc = self._charts.pop(real, None)
+        loaded = Loaded(g, []) if g is not None else load_grafcet_checked(path, doc)
         diags = list(loaded.diags)
         if loaded.g is not None:
             diags += check_grafcet(loaded.g, self.limit, loaded.repaired)

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from runtime.language.model import Grafcet, Transition
 
 LIMIT = 100_000
+FULL_FIRST = 10_000  # situations explored in full before the reduced exploration is tried
 UNSAFE_REPORTS = 5  # root causes reported per chart
 
 
@@ -54,6 +55,8 @@ class Reach:
     back_to_initial: bool = False  # the initial situation has a predecessor
     complete: bool = True
     why_incomplete: str = ""
+    tested: int = 0  # (situation, transition) pairs tested for being enabled (a work count)
+    reduced: bool = False  # explored with the reduction of explore(reduce=True)
     unsafe: list[Unsafe] = field(default_factory=list)
     groups: list[int] = field(default_factory=list)  # masks of simple sequences
 
@@ -148,8 +151,31 @@ def simple_sequences(g: Grafcet, index: dict[str, int]) -> list[int]:
     return [m for m in groups.values() if m & (m - 1)]
 
 
-def explore(g: Grafcet, never: set[int] | None = None, limit: int = LIMIT) -> Reach:
-    """Breadth-first exploration of the reachable situations (at most ``limit``)."""
+def reachable(g: Grafcet, never: set[int] | None = None, limit: int = LIMIT) -> Reach:
+    """The exploration ``softplc check`` reports on: in full (every interleaving, shortest
+    sequences) when the chart has at most ``FULL_FIRST`` situations; beyond, the reduced
+    exploration when it completes within ``limit``; else the full one cut at ``limit``."""
+    r = explore(g, never, min(limit, FULL_FIRST))
+    if r.complete:
+        return r
+    red = explore(g, never, limit, reduce=True)
+    if red.complete or limit <= FULL_FIRST:
+        return red if red.complete else r
+    return explore(g, never, limit)
+
+
+def explore(g: Grafcet, never: set[int] | None = None, limit: int = LIMIT,
+            reduce: bool = False) -> Reach:
+    """Breadth-first exploration of the reachable situations (at most ``limit``).
+
+    ``reduce``: where an enabled transition is a link inside a simple sequence (one source
+    step that no other transition leaves, one target step that no other transition enters,
+    not active), fire it alone: it stays enabled whatever else fires and commutes with
+    every other firing, so the other orders reach nothing more (steps, deadlocks, unsafe
+    evolutions: a step activated again while its sequence moved on is two steps of one
+    simple sequence active together). Parallel branches then advance one at a time, not
+    in every interleaving. Not when the next situation was already seen (a branch looping
+    alone would starve the others): all the enabled transitions then fire."""
     steps = [s.name for s in g.leaf_steps()]
     index = {s: i for i, s in enumerate(steps)}
     trans = list(g.transitions)
@@ -179,8 +205,14 @@ def explore(g: Grafcet, never: set[int] | None = None, limit: int = LIMIT) -> Re
         reported.add(key)
         r.unsafe.append(Unsafe(kind, names, before, fired))
 
+    group_of = [0] * len(steps)
+    for gm in r.groups:
+        for i in active(gm):
+            group_of[i] = gm
+
     def group_check(mask: int, before: int, fired: tuple[int, ...]) -> None:
-        for gm in r.groups:
+        for gm in sorted({group_of[i] for i in active(mask) if group_of[i]},
+                         key=r.groups.index):
             both = mask & gm
             if both & (both - 1):
                 names = tuple(r.names(both))
@@ -189,10 +221,33 @@ def explore(g: Grafcet, never: set[int] | None = None, limit: int = LIMIT) -> Re
 
     group_check(initial, initial, ())
     queue = deque([initial])
-    candidates = [k for k in range(len(trans)) if k not in never]
+    outs_n: dict[int, int] = {}
+    ins_n: dict[int, int] = {}
+    for k in range(len(trans)):
+        for i in active(src[k]):
+            outs_n[i] = outs_n.get(i, 0) + 1
+        for i in active(dst[k]):
+            ins_n[i] = ins_n.get(i, 0) + 1
+    # links inside simple sequences: one source step left only by it, one target step
+    # entered only by it
+    simple = [k not in never and len(active(src[k])) == 1 and len(active(dst[k])) == 1
+              and src[k] != dst[k] and outs_n[active(src[k])[0]] == 1
+              and ins_n[active(dst[k])[0]] == 1 for k in range(len(trans))]
+    r.reduced = reduce
+    # the transitions that may fire, by source step (source transitions: always enabled)
+    always = [k for k in range(len(trans)) if k not in never and not src[k]]
+    leaving: list[list[int]] = [[] for _ in steps]
+    for k in range(len(trans)):
+        if k not in never:
+            for s in set(trans[k].src_steps):
+                leaving[index[s]].append(k)
     while queue:
         x = queue.popleft()
-        enabled = [k for k in candidates if src[k] & x == src[k]]
+        candidates = set(always)
+        for i in active(x):
+            candidates.update(leaving[i])
+        r.tested += len(candidates)
+        enabled = [k for k in sorted(candidates) if src[k] & x == src[k]]
         if not enabled:
             r.dead.append(x)
             continue
@@ -208,6 +263,11 @@ def explore(g: Grafcet, never: set[int] | None = None, limit: int = LIMIT) -> Re
                         for n in r.names(both):
                             record("twice", (n,), x, (k2, k))
             seen |= dst[k]
+        if reduce:
+            alone = next((k for k in enabled if simple[k] and not dst[k] & x
+                          and (x & ~src[k]) | dst[k] not in r.parent), None)
+            if alone is not None:
+                enabled = [alone]
         # one transition at a time is enough (see the module's docstring)
         for k in enabled:
             bad = x in tainted
@@ -237,14 +297,34 @@ def structural_reach(g: Grafcet, never: set[int] | None = None) -> set[str]:
     over-approximation of the reachable steps, used when the exploration is cut)."""
     never = never or set()
     reach = {s.name for s in g.leaf_steps() if s.initial}
-    changed = True
-    while changed:
-        changed = False
-        for k, t in enumerate(g.transitions):
-            if k in never or not set(t.src_steps) <= reach:
-                continue
-            new = set(t.dst_steps) - reach
-            if new:
-                reach |= new
-                changed = True
+    missing: dict[int, int] = {}  # transition -> its source steps not reached yet
+    waiting: dict[str, list[int]] = {}  # step -> the transitions it is missing for
+    todo: list[int] = []
+    for k, t in enumerate(g.transitions):
+        if k in never:
+            continue
+        srcs = set(t.src_steps) - reach
+        missing[k] = len(srcs)
+        for s in srcs:
+            waiting.setdefault(s, []).append(k)
+        if not srcs:
+            todo.append(k)
+    while todo:
+        for d in g.transitions[todo.pop()].dst_steps:
+            if d not in reach:
+                reach.add(d)
+                for j in waiting.get(d, []):
+                    missing[j] -= 1
+                    if not missing[j]:
+                        todo.append(j)
     return reach
+
+
+def active(mask: int) -> list[int]:
+    """Indexes of the bits set in ``mask``."""
+    out = []
+    while mask:
+        low = mask & -mask
+        out.append(low.bit_length() - 1)
+        mask ^= low
+    return out

@@ -20,7 +20,7 @@ from typing import Any
 from drivers.durations import format_ns
 from runtime.checker.diag import Diag, diag
 from runtime.checker.logic import Logic, has_edge
-from runtime.checker.reach import LIMIT, Reach, Unsafe, explore, structural_reach
+from runtime.checker.reach import LIMIT, Reach, Unsafe, reachable, structural_reach
 from runtime.checker.traps import latched_targets, stale_timer_reads
 from runtime.errors import Loc
 from runtime.language import ast as A
@@ -40,6 +40,15 @@ class ChartChecker:
         self.logic = Logic(g)
         self.never: set[int] = set()
         self.reach: Reach | None = None
+        self.visits = 0  # transitions followed by G203's searches (a work count)
+        # indexes built once: the transitions leaving / entering each step, in file order
+        self._out: dict[str, list[int]] = {}
+        self._in: dict[str, list[int]] = {}
+        for k, t in enumerate(g.transitions):
+            for s in dict.fromkeys(t.src_steps):
+                self._out.setdefault(s, []).append(k)
+            for s in dict.fromkeys([*t.dst_steps, *t.targets]):
+                self._in.setdefault(s, []).append(k)
 
     def add(self, loc: Loc, severity: str, code: str, message: str) -> None:
         self.out.append(diag(loc, severity, code, message))
@@ -66,7 +75,9 @@ class ChartChecker:
         return f"{t.name + ' ' if t.name else ''}{src} → {dst}"
 
     def outgoing(self, step: str) -> list[int]:
-        return [k for k, t in enumerate(self.g.transitions) if step in t.src_steps]
+        """Indexes of the transitions leaving ``step`` (one of their source steps), in file
+        order."""
+        return self._out.get(step, [])
 
     # -- G103 ---------------------------------------------------------------------------
     def self_loops(self) -> None:
@@ -91,7 +102,7 @@ class ChartChecker:
     # -- G102 G104 G206 G209 --------------------------------------------------------------
     def reachability(self) -> None:
         g = self.g
-        r = self.reach = explore(g, self.never, self.limit)
+        r = self.reach = reachable(g, self.never, self.limit)
         if r.complete:
             reached = r.reachable_steps
         else:
@@ -148,8 +159,8 @@ class ChartChecker:
             while e.macro is not None:
                 targets.add(e.macro.entry)
                 e = g.steps[e.macro.entry]
-        incoming = [(k, t) for k, t in enumerate(g.transitions)
-                    if set(t.dst_steps) & targets or set(t.targets) & targets]
+        incoming = [(k, g.transitions[k]) for k in sorted(
+            {k for n in targets for k in self._in.get(n, [])})]
         if not incoming:
             return ": no transition leads to it"
         lines = ", ".join(str(t.loc.line) for _, t in incoming)
@@ -261,68 +272,157 @@ class ChartChecker:
         return None
 
     # -- G203 ---------------------------------------------------------------------------
-    def _forward(self, starts: Iterable[str], stop: str | None = None,
-                 skip: int | None = None) -> set[str]:
-        g = self.g
-        seen: set[str] = set()
-        todo = list(starts)
-        while todo:
-            n = todo.pop()
-            if n in seen:
-                continue
-            seen.add(n)
-            if n == stop:
-                continue
-            for k in self.outgoing(n):
-                if k != skip:
-                    todo.extend(g.transitions[k].dst_steps)
-        return seen
-
     def unclosed(self) -> None:
+        """G203. An OR divergence after step S is closed when some step with two or more
+        incoming transitions can be reached from every branch (not passing S); an AND
+        divergence T is closed when some other AND convergence has a source step reached
+        by every branch (not firing T again). Every branch of every divergence is searched
+        at once: each step carries a bit set (a Python int), one bit per branch, and the
+        bits flow along the transitions (not out of S for S's bits, not along T for T's)
+        until nothing changes. The passes follow the links in depth-first order, so a chart
+        settles in a few passes (one more per nesting of loops), each reading every
+        transition once: linear in the chart for a bounded nesting, where searching each
+        divergence alone walked the whole chart for each loop back."""
         g = self.g
         incoming: dict[str, int] = {}
         for t in g.transitions:
             for d in set(t.dst_steps):
                 incoming[d] = incoming.get(d, 0) + 1
-        for s in g.leaf_steps():
-            outs = [k for k in self.outgoing(s.name) if k not in self.never
-                    and s.name not in g.transitions[k].dst_steps]
-            if len(outs) < 2:
-                continue
-            reach = [self._forward(g.transitions[k].dst_steps, stop=s.name) for k in outs]
-            common = set.intersection(*reach) if reach else set()
-            if not any(incoming.get(c, 0) >= 2 for c in common):
+        ors: list[tuple[Step, list[int]]] = []
+        for st in g.leaf_steps():
+            outs = [k for k in self.outgoing(st.name) if k not in self.never
+                    and st.name not in g.transitions[k].dst_steps]
+            if len(outs) >= 2:
+                ors.append((st, outs))
+        ands = [k for k, t in enumerate(g.transitions) if len(set(t.dst_steps)) >= 2]
+        if not ors and not ands:
+            return
+        width = max([len(o) for _, o in ors] + [len(g.transitions[k].dst_steps) for k in ands])
+        blocks = len(ors) + len(ands)  # block i: bits i*width .. i*width + width - 1
+        fill = 0  # the bits of the slots a divergence with fewer branches leaves unused
+        marks: dict[str, int] = {}
+        stop_at: dict[str, int] = {}  # OR divergence S: its bits do not leave S
+        stop_on: dict[int, int] = {}  # AND divergence T: its bits do not pass T
+        block_mask = (1 << width) - 1
+        for i, (st, outs) in enumerate(ors):
+            base = i * width
+            fill |= (block_mask >> len(outs) << len(outs)) << base
+            stop_at[st.name] = stop_at.get(st.name, 0) | block_mask << base
+            for b, k in enumerate(outs):
+                for d in g.transitions[k].dst_steps:
+                    marks[d] = marks.get(d, 0) | 1 << (base + b)
+        for i, k in enumerate(ands, len(ors)):
+            base = i * width
+            dst = g.transitions[k].dst_steps
+            fill |= (block_mask >> len(dst) << len(dst)) << base
+            stop_on[k] = block_mask << base
+            for b, d in enumerate(dst):
+                marks[d] = marks.get(d, 0) | 1 << (base + b)
+        self._flow(marks, stop_at, stop_on)
+        starts = sum(1 << (i * width) for i in range(blocks))
+
+        def complete(x: int) -> int:
+            """The first bit of each block whose bits are all set in ``x`` (or unused)."""
+            x |= fill
+            y = x
+            for j in range(1, width):
+                y &= x >> j
+            return y & starts
+
+        met = 0
+        for n, c in incoming.items():
+            if c >= 2:
+                met |= complete(marks.get(n, 0))
+        for i, (st, outs) in enumerate(ors):
+            if not met >> (i * width) & 1:
                 lines = ", ".join(str(g.transitions[k].loc.line) for k in outs)
-                self.add(s.loc, "warning", "G203", f"OR divergence after step '{s.name}' "
+                self.add(st.loc, "warning", "G203", f"OR divergence after step '{st.name}' "
                          f"(transitions at line {lines}) is not closed by an OR convergence: "
                          "its branches never meet again (seed 000 recommends closing every "
                          "OR divergence with an OR convergence)")
-        for k, t in enumerate(g.transitions):
-            if len(set(t.dst_steps)) < 2:
+        synced = 0
+        for j, u in enumerate(g.transitions):
+            if len(set(u.src_steps)) < 2:
                 continue
-            branches = [self._forward([d], skip=k) for d in t.dst_steps]
-            closed = any(
-                len(set(u.src_steps)) >= 2 and j != k
-                and all(set(u.src_steps) & b for b in branches)
-                for j, u in enumerate(g.transitions))
-            if not closed:
+            x = 0
+            for n in set(u.src_steps):
+                x |= marks.get(n, 0)
+            synced |= complete(x) & ~stop_on.get(j, 0)  # another convergence than T itself
+        for i, k in enumerate(ands, len(ors)):
+            if not synced >> (i * width) & 1:
+                t = g.transitions[k]
                 self.add(t.loc, "warning", "G203", f"AND divergence {self.tname(t)} is not "
                          "closed by an AND convergence: its parallel branches never "
                          "synchronise again (seed 000 recommends closing every AND "
                          "divergence with an AND convergence)")
 
+    def _flow(self, marks: dict[str, int], stop_at: dict[str, int],
+              stop_on: dict[int, int]) -> None:
+        """Let the bits of ``marks`` flow forward along the transitions until nothing
+        changes (``stop_at``: bits that do not leave a step, ``stop_on``: bits a
+        transition does not carry)."""
+        g = self.g
+        order: list[str] = []  # reverse postorder of a depth-first search over the steps
+        seen: set[str] = set()
+        names = [*marks, *g.steps]
+        for root in names:
+            if root in seen:
+                continue
+            seen.add(root)
+            none: list[str] = []
+            stack: list[tuple[str, Iterator[int], Iterator[str]]] = [
+                (root, iter(self._out.get(root, [])), iter(none))]
+            while stack:
+                n, ks, ds = stack[-1]
+                d = next(ds, None)
+                if d is None:
+                    k = next(ks, None)
+                    if k is None:
+                        order.append(n)
+                        stack.pop()
+                        continue
+                    stack[-1] = (n, ks, iter(g.transitions[k].dst_steps))
+                    continue
+                if d not in seen:
+                    seen.add(d)
+                    stack.append((d, iter(self._out.get(d, [])), iter(none)))
+        order.reverse()
+        changed = True
+        while changed:
+            changed = False
+            for n in order:
+                m = marks.get(n, 0) & ~stop_at.get(n, 0)
+                if not m:
+                    continue
+                for k in self._out.get(n, []):
+                    self.visits += 1
+                    carried = m & ~stop_on.get(k, 0)
+                    for d in g.transitions[k].dst_steps:
+                        old = marks.get(d, 0)
+                        if carried & ~old:
+                            marks[d] = old | carried
+                            changed = True
+
     # -- G204 ---------------------------------------------------------------------------
     def same_condition(self) -> None:
         g = self.g
-        for a in g.transitions:
-            key = unparse(a.cond)
+        keys: dict[int, str] = {}
+
+        def key(k: int) -> str:
+            if k not in keys:
+                keys[k] = unparse(g.transitions[k].cond)
+            return keys[k]
+
+        for i, a in enumerate(g.transitions):
             if has_edge(a.cond) or self.logic.const(a.cond) is not None or isinstance(
                     a.cond, A.Lit):
                 continue
-            for b in g.transitions:
-                if b is a or not set(a.dst_steps) & set(b.src_steps):
+            following = sorted({j for d in a.dst_steps for j in self._out.get(d, [])})
+            for j in following:
+                b = g.transitions[j]
+                if j == i:
                     continue
-                if unparse(b.cond) == key:
+                if key(j) == key(i):
                     mid = sorted(set(a.dst_steps) & set(b.src_steps))[0]
                     self.add(b.loc, "warning", "G204", f"transitions {self.tname(a)} (line "
                              f"{a.loc.line}) and {self.tname(b)} have the same level "

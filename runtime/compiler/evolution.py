@@ -98,9 +98,25 @@ class Evolution:
     def apply_fired(self, out: Emitter) -> None:
         """Deactivate sources, then activate targets, of the transitions that fired."""
         g = self.g
+        # the fired flags leaving / entering each step and macro-step, in file order (one
+        # pass over the transitions, not one per step)
+        leaves: dict[str, list[str]] = {}
+        enters: dict[str, list[str]] = {}
+        leaves_macro: dict[str, list[str]] = {}
+        enters_macro: dict[str, list[str]] = {}
+        for t in g.transitions:
+            f = self.fired_name(t)
+            for n in dict.fromkeys(t.src_steps):
+                leaves.setdefault(n, []).append(f)
+            for n in dict.fromkeys(t.dst_steps):
+                enters.setdefault(n, []).append(f)
+            for n in self._left_macros(t):
+                leaves_macro.setdefault(n, []).append(f)
+            for n in self._entered_macros(t):
+                enters_macro.setdefault(n, []).append(f)
         for st in self.leaf:
-            leaving = [self.fired_name(t) for t in g.transitions if st.name in t.src_steps]
-            entering = [self.fired_name(t) for t in g.transitions if st.name in t.dst_steps]
+            leaving = leaves.get(st.name, [])
+            entering = enters.get(st.name, [])
             x, t0 = ident("x", st.name), ident("t0", st.name)
             if leaving and entering:
                 out(f"if {' or '.join(leaving)}:")
@@ -119,10 +135,8 @@ class Evolution:
             x, t0, tk = (ident(p, m.name) for p in ("x", "t0", "tk"))
             a, lft = ident("a", m.name), ident("l", m.name)
             inner = [ident("x", s) for s in m.macro.steps if g.steps[s].macro is None]
-            entering = [self.fired_name(t) for t in g.transitions
-                        if m.name in self._entered_macros(t)]
-            leaving = [self.fired_name(t) for t in g.transitions
-                       if m.name in self._left_macros(t)]
+            entering = enters_macro.get(m.name, [])
+            leaving = leaves_macro.get(m.name, [])
             out(f"_nx = {' or '.join(inner)}")
             if entering:
                 # entered: its .T restarts if it was inactive, or left and re-entered now

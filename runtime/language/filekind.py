@@ -3,7 +3,7 @@ or a simulation script. The one place that tells them apart (compile, check, dra
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from runtime.language.yamlsrc import YMap, load_yaml
 
@@ -16,7 +16,11 @@ FileKind = Literal["grafcet", "plant", "script", "other"]
 def file_kind(path: str) -> FileKind:
     """'grafcet', 'plant', 'script' (a simulation script) or 'other', from the top-level
     keys (SourceError if the file is not YAML)."""
-    doc = load_yaml(path)
+    return doc_kind(load_yaml(path))
+
+
+def doc_kind(doc: Any) -> FileKind:
+    """The kind of an already loaded document (``load_yaml``'s result), as ``file_kind``."""
     if isinstance(doc, YMap):
         if "grafcet" in doc or "steps" in doc:
             return "grafcet"

@@ -1,4 +1,5 @@
-"""``softplc check`` loads each file once for its checks (besides telling its kind): the
+"""``softplc check`` reads a chart once (its kind is told from the document it loads), and
+loads each other file once for its checks (besides telling its kind): the
 loaders' diagnostics carry the codes and positions, so nothing is patched and reloaded."""
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ from typing import Any
 
 import pytest
 
+import runtime.checker.check as check
 import runtime.language.filekind as filekind
 import runtime.language.grafcetfile as grafcetfile
 import runtime.language.plantfile as plantfile
@@ -45,7 +47,7 @@ instances:
 def reads(monkeypatch: pytest.MonkeyPatch) -> Counter[str]:
     """How many times each file is read as YAML."""
     count: Counter[str] = Counter()
-    for module in (filekind, grafcetfile, plantfile):
+    for module in (check, filekind, grafcetfile, plantfile):
         real = module.load_yaml
 
         def counting(path: str, *args: Any, real: Any = real) -> Any:
@@ -56,13 +58,13 @@ def reads(monkeypatch: pytest.MonkeyPatch) -> Counter[str]:
     return count
 
 
-def test_a_chart_with_several_rule_errors_is_read_twice(
+def test_a_chart_with_several_rule_errors_is_read_once(
         write: Callable[[str, str], str], reads: Counter[str]) -> None:
     res = check_files([write("small.yaml", CHART)])
     codes = [d.code for r in res for d in r.diags]
     assert codes.count("G105") == 2 and codes.count("G106") == 1 and "G101" in codes
     assert "G205" in codes  # the rest of the chart was checked
-    assert reads == {"small.yaml": 2}  # its kind, then one load
+    assert reads == {"small.yaml": 1}  # its kind told from the document that is loaded
 
 
 def test_a_plant_with_binding_errors_is_read_twice(
