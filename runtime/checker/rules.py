@@ -128,6 +128,13 @@ class ChartChecker:
                      f"{self._why_unreachable(s.name, structural)} (seed-000 rule I.4)")
         for u in r.unsafe:
             self._unsafe(r, u)
+        if r.complete and r.reduced and r.dead and not r.back_to_initial:
+            self.add(g.loc, "note", "G212", f"the reduced exploration ({len(r.parent)} "
+                     f"situations) found {len(r.dead)} situation(s) where no transition can "
+                     f"fire, e.g. {r.situation(r.dead[0])}, but did not see the chart come "
+                     "back to its initial situation: whether that is a deadlock (G206) is "
+                     "not decided; raise --limit above the number of situations to explore "
+                     "them all")
         if r.complete and r.back_to_initial:
             for dead in r.dead[:3]:
                 path = r.path(dead)

@@ -118,3 +118,17 @@ def test_the_reduction_neither_starves_a_branch_nor_drops_a_choice(
     assert full.reachable_steps == {"a0", "a1", "b0", "b1", "c0", "c1"}
     assert red.reachable_steps == full.reachable_steps
     assert bool(red.dead) == bool(full.dead)
+
+
+def test_a_reduced_exploration_that_never_saw_the_way_back_says_g206_is_undecided(
+        write: Callable[[str, str], str]) -> None:
+    """Past 10 000 situations the reduced exploration may miss the way back to the initial
+    situation; G206 needs that way back, so dead situations found without it are a note
+    (G212), never silence. Here the three branches have no way back at all."""
+    text = parallel_text(3, 50).rsplit("  - {from: [", 1)[0]
+    g = load_grafcet(write("oneway.yaml", text))
+    r = reach.reachable(g)
+    assert r.complete and r.reduced and r.dead and not r.back_to_initial
+    notes = [d for d in check_grafcet(g) if d.code == "G212"]
+    assert len(notes) == 1 and notes[0].severity == "note", notes
+    assert "b0_49, b1_49, b2_49" in notes[0].message or "b0_49" in notes[0].message
