@@ -4,12 +4,14 @@ It is also the one place that reads the project's YAML files (charts, plants, sc
 the limits that keep a hostile file from hanging or exhausting the controller live here:
 a source file is a regular file below ``MAX_FILE_BYTES``, its YAML nests at most
 ``MAX_DEPTH`` levels, uses at most ``MAX_ALIASES`` aliases, and once aliases are expanded
-holds at most ``MAX_NODES`` nodes and ``text_budget(size)`` characters of values; its
+holds at most ``node_budget(size)`` nodes and ``text_budget(size)`` characters of values; its
 integers fit 64 bits (``INT_MIN`` .. ``INT_MAX``). Each is refused with one
 ``FILE:LINE:COL`` error. Loading costs about 25 µs and 1.5 kB per node and 0.8 µs and
 220 bytes per character of text (pure-Python YAML and the places kept for messages,
-measured on a loaded 2-core machine), so the limits also bound a load to well under a
-second and about 60 MB.
+measured on a loaded 2-core machine): a file of ordinary density loads in about 0.3 s per
+10 000 nodes; the densest file the limits let through (1 MiB of one-character flow items)
+takes about 7 s and 400 MB, which is the price of loading a 1000-instance plant from one
+file.
 """
 
 from __future__ import annotations
@@ -23,17 +25,20 @@ import yaml
 
 from runtime.errors import Loc, SourceError
 
-#: the largest chart, plant or script file read, in bytes (256 KiB: the example charts and
-#: plants are under 7 kB; a file of one 256 KiB text loads in about 0.2 s and 56 MB)
-MAX_FILE_BYTES = 256 * 1024
+#: the largest chart, plant or script file read, in bytes (1 MiB: the example charts and
+#: plants are under 7 kB, a plant of 1000 drawer testers is 300 kB; a file of one 1 MiB
+#: text loads in about 0.8 s and 225 MB)
+MAX_FILE_BYTES = 1024 * 1024
 #: mappings and lists inside one another (a plant nests 5 levels, a chart ~3 per macro-step);
 #: far below Python's recursion limit, which the loaders' recursion would otherwise meet
 MAX_DEPTH = 64
 #: aliases (``*name``) in one file: anchors share a few values, they are not a macro system
 MAX_ALIASES = 100
-#: nodes (mappings, lists and values) of one file, aliases expanded: the largest example has
-#: 340; 10000 load in about 0.3 s (a plant of 300 instances has about 6000)
-MAX_NODES = 10_000
+#: nodes (mappings, lists and values) a file may hold beyond a quarter of its size in bytes,
+#: aliases expanded (``node_budget``): the largest example has 340; a file written by hand or
+#: by a generator needs more than 4 bytes a node, so only aliases (or a file of one-letter
+#: flow items) reach the budget
+NODE_ALLOWANCE = 10_000
 #: characters of values that aliases may add beyond the file's own size
 EXPANSION_ALLOWANCE = 10_000
 #: the integers a file may hold, in YAML or as a literal of an expression: from LINT's
@@ -43,6 +48,11 @@ INT_MIN, INT_MAX = -(2**63), 2**64 - 1
 TIME_MAX_NS = 2**63 - 1
 #: most significant digits of an integer (64 binary digits), checked before converting
 _INT_TEXT_MAX = 64
+
+
+def node_budget(size: int) -> int:
+    """The nodes a file of ``size`` characters may hold, aliases expanded."""
+    return NODE_ALLOWANCE + size // 4
 
 
 def text_budget(size: int) -> int:
@@ -116,6 +126,7 @@ class _Loader(yaml.SafeLoader):
         super().__init__(text)
         self.path = path
         self.text_budget = text_budget(len(text))
+        self.node_budget = node_budget(len(text))
         self.nodes = 0  # so far, aliases expanded
         self.chars = 0  # of scalar values so far, aliases expanded
         self.aliases = 0
@@ -158,9 +169,10 @@ class _Loader(yaml.SafeLoader):
     def _charge(self, nodes: int, chars: int, mark: Any, what: str) -> None:
         self.nodes += nodes
         self.chars += chars
-        if self.nodes > MAX_NODES:
-            raise self._refuse(mark, f"{what} more than {MAX_NODES} nodes (mappings, lists and "
-                               "values, aliases expanded)")
+        if self.nodes > self.node_budget:
+            raise self._refuse(mark, f"{what} more than {self.node_budget} nodes (mappings, "
+                               f"lists and values, aliases expanded; {NODE_ALLOWANCE} plus a "
+                               "quarter of its size)")
         if self.chars > self.text_budget:
             raise self._refuse(mark, f"{what} more than {self.text_budget} characters of "
                                f"values (its size plus {EXPANSION_ALLOWANCE}, aliases "
