@@ -65,10 +65,6 @@ def cmd_json(session: Session, args: list[str]) -> Reply:
     return []
 
 
-#: chart flags that hold an instance's chart (it does not evolve while one is set)
-HOLD_FLAGS = ("SFCInit", "SFCReset", "SFCPause")
-
-
 def cmd_status(session: Session, args: list[str]) -> Reply:
     plant, cat = session.ctl.plant, session.cat
 
@@ -77,15 +73,13 @@ def cmd_status(session: Session, args: list[str]) -> Reply:
                   for k, v in plant.forced_values().items()}
         return {**session.ctl.status(),
                 "steps": {n: i.active_steps() for n, i in plant.instances.items()},
-                "held": {n: held for n, i in plant.instances.items()
-                         if (held := [f for f in HOLD_FLAGS if i.get(f)])},
                 "forced": forced,
                 "errors": {n: i.get("SFCErrorStep") for n, i in plant.instances.items()
                            if i.get("SFCError")}}
     try:
         data = session.ctl.call(read)
     except TimeoutError:  # say what can be said without the scan thread
-        data = {**session.ctl.status(), "steps": {}, "held": {}, "forced": {}, "errors": {},
+        data = {**session.ctl.status(), "steps": {}, "forced": {}, "errors": {},
                 "note": "the scan thread did not answer"}
     data["faults"] = data.get("faults", [])[-STATUS_FAULTS:]
     held = data.get("held", {})

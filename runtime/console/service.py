@@ -39,7 +39,7 @@ class Controller(Protocol):
         """Run ``fn`` in the scan thread at the next scan boundary; return its result."""
 
     def status(self) -> dict[str, Any]:
-        """state, fault, scans, uptime_s, cycle_ms, faults."""
+        """state, fault, inhibits, held, scans, uptime_s, cycle_ms, freezes, faults, retain."""
 
     def stats(self) -> dict[str, Any]:
         """Cycle statistics (us) and per-driver health."""

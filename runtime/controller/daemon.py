@@ -443,9 +443,18 @@ class Daemon:
             out.append(f"stepping by the console: {plant.steps_left} cycle(s) to go")
         elif plant.held:
             out.append("paused by the console: charts held")
-        for name, inst in list(plant.instances.items()):  # summary() reads from any thread
-            out += [f"{name}: held by {flag}" for flag in HOLD_FLAGS if inst.get(flag)]
+        for name, flags in self.held().items():
+            out += [f"{name}: held by {flag}" for flag in flags]
         return out
+
+    def held(self) -> dict[str, list[str]]:
+        """The instances held by one of their chart flags (HOLD_FLAGS) -> those flags."""
+        held = {}
+        for name, inst in list(self.plant.instances.items()):  # read from any thread
+            flags = [flag for flag in HOLD_FLAGS if inst.get(flag)]
+            if flags:
+                held[name] = flags
+        return held
 
     def _report_status(self) -> None:
         """Watchdog thread: READY=1 then STATUS= with ``summary()``, and the state line in
@@ -486,7 +495,7 @@ class Daemon:
     def status(self) -> dict[str, Any]:
         """State, fault, ``inhibits`` (see ``inhibits()``), counts and the last faults."""
         return {"state": self.state.value, "fault": self.fault or self.halted,
-                "inhibits": self.inhibits(),
+                "inhibits": self.inhibits(), "held": self.held(),
                 "scans": self.scan_stats.count, "uptime_s": round(self.uptime_s(), 3),
                 "cycle_ms": self.plant.cycle_ns / 1e6, "freezes": self.scan_stats.freezes,
                 "faults": [{"time": t, "reason": r} for t, r in self.faults],
