@@ -108,10 +108,7 @@ def time_value(value: Any, loc: Loc, what: str) -> int:
     if value == 0 and not isinstance(value, bool):
         return 0
     if isinstance(value, str):
-        try:
-            ns = parse_literal(strip_time_prefix(value.strip()))
-        except OverflowError:  # a number of thousands of digits: float('inf')
-            ns = TIME_MAX_NS + 1
+        ns = parse_literal(strip_time_prefix(value.strip()))  # exact, however long
         if ns is not None and ns > TIME_MAX_NS:
             shown = value if len(value) <= 24 else f"{value[:10]}...{value[-6:]}"
             raise SourceError(loc, f"time out of range for {what}: expected at most "

@@ -170,10 +170,7 @@ class Lexer:
             while k < n and (text[k].isalnum() or text[k] in "._"):
                 k += 1
             lit = text[i:k]
-            try:
-                ns = parse_literal(lit)
-            except OverflowError:  # thousands of digits: float('inf')
-                ns = TIME_MAX_NS + 1
+            ns = parse_literal(lit)  # exact, however long
             if ns is not None and ns > TIME_MAX_NS:
                 raise self.error(i, f"time out of range: expected at most "
                                     f"{format_ns(TIME_MAX_NS)} (64-bit nanoseconds), found "

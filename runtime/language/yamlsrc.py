@@ -23,6 +23,7 @@ from typing import Any
 
 import yaml
 
+from drivers.durations import MAX_NS
 from runtime.errors import Loc, SourceError
 
 #: the largest chart, plant or script file read, in bytes (1 MiB: the example charts and
@@ -44,8 +45,9 @@ EXPANSION_ALLOWANCE = 10_000
 #: the integers a file may hold, in YAML or as a literal of an expression: from LINT's
 #: least to ULINT's greatest (64 bits)
 INT_MIN, INT_MAX = -(2**63), 2**64 - 1
-#: the longest time a file may give, in ns: LTIME's greatest (2**63 - 1 ns, about 292 years)
-TIME_MAX_NS = 2**63 - 1
+#: the longest time a file may give, in ns: LTIME's greatest (2**63 - 1 ns, about 292 years),
+#: the bound of drivers' durations too
+TIME_MAX_NS = MAX_NS
 #: most significant digits of an integer (64 binary digits), checked before converting
 _INT_TEXT_MAX = 64
 
