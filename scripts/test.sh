@@ -21,6 +21,8 @@ if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
   command -v socat >/dev/null || missing="$missing socat"
   command -v rlwrap >/dev/null || missing="$missing rlwrap"
   command -v setpriv >/dev/null || missing="$missing util-linux"
+  # the system Python loads an installed plant as the service's uid in one test
+  python3 -c "import yaml" 2>/dev/null || missing="$missing python3-yaml"
   command -v ip >/dev/null || missing="$missing iproute2"
   if [ -n "$missing" ]; then
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $missing >/dev/null || \
