@@ -16,26 +16,26 @@ log = logging.getLogger("softplc")
 
 def cmd_compile(args: argparse.Namespace) -> int:
     from runtime.compiler.codegen import compile_grafcet
-    from runtime.language.filekind import file_kind
+    from runtime.language.filekind import read_document
     from runtime.language.grafcetfile import load_grafcet
     from runtime.language.model import Grafcet
     from runtime.language.plantfile import load_plant
 
     for path in args.files:
         t0 = time.perf_counter()
-        kind = file_kind(path)
+        kind, doc = read_document(path)
         if kind not in ("grafcet", "plant"):
             raise SourceError(Loc(path, 1, 1), "expected a grafcet file ('grafcet:' and "
                                                "'steps:') or a plant file ('instances:')")
         if kind == "plant":
-            pdef = load_plant(path)
+            pdef = load_plant(path, doc=doc)
             charts: list[Grafcet] = []  # each chart once: instances of one plant share it
             for idef in pdef.instances.values():
                 if not any(g is idef.grafcet for g in charts):
                     charts.append(idef.grafcet)
             programs = [compile_grafcet(g) for g in charts]
         else:
-            programs = [compile_grafcet(load_grafcet(path))]
+            programs = [compile_grafcet(load_grafcet(path, doc=doc))]
         ms = (time.perf_counter() - t0) * 1000
         if args.show:
             for p in programs:

@@ -113,17 +113,18 @@ class CheckRun:
         self.paths = list(paths)  # every file of the command line (plants for scripts)
         self.charts_done: set[str] = set()
         self._kinds: dict[str, str] = {}
-        self._charts: dict[str, Any] = {}  # a chart's document, read to tell its kind
+        #: a chart's or a plant's document, read to tell its kind, kept for its check
+        self._docs: dict[str, Any] = {}
 
     def kind(self, path: str) -> str:
-        """The file's kind (read once per run; a chart's document is kept for its check,
-        so that a chart is parsed once)."""
+        """The file's kind (read once per run; a chart's or a plant's document is kept for
+        its check, so that each file is parsed once)."""
         real = os.path.realpath(path)
         if real not in self._kinds:
             doc = load_yaml(path)
             self._kinds[real] = doc_kind(doc)
-            if self._kinds[real] == "grafcet" and real not in self.charts_done:
-                self._charts[real] = doc
+            if self._kinds[real] in ("grafcet", "plant") and real not in self.charts_done:
+                self._docs[real] = doc
         return self._kinds[real]
 
     def check_path(self, path: str) -> list[FileResult]:
@@ -211,7 +212,7 @@ class CheckRun:
         """Check one chart; ``g``: the chart already loaded without error (by its plant)."""
         real = os.path.realpath(path)
         self.charts_done.add(real)
-        doc = self._charts.pop(real, None)
+        doc = self._docs.pop(real, None)
         loaded = Loaded(g, []) if g is not None else load_grafcet_checked(path, doc)
         diags = list(loaded.diags)
         if loaded.g is not None:
@@ -229,7 +230,7 @@ class CheckRun:
         fatal: SourceError | None = None
         p: PlantDef | None = None
         try:
-            p = load_plant(path, load)
+            p = load_plant(path, load, doc=self._docs.pop(os.path.realpath(path), None))
         except SourceError as exc:
             fatal = exc
         first = found[0] if found else fatal.diagnostic if fatal is not None else None

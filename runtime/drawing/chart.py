@@ -409,19 +409,20 @@ def active_from_trace(g: Grafcet, trace: str, cycle: int,
 # -- command line ------------------------------------------------------------------------------
 def load_chart(path: str, instance: str | None) -> tuple[Grafcet, str | None]:
     """The grafcet of FILE (a grafcet file, or a plant file's instance)."""
-    from runtime.language.filekind import file_kind
+    from runtime.language.filekind import read_document
     from runtime.language.grafcetfile import load_grafcet
     from runtime.language.plantfile import load_plant
 
-    if file_kind(path) == "plant":
-        p = load_plant(path)
+    kind, doc = read_document(path)
+    if kind == "plant":
+        p = load_plant(path, doc=doc)
         if instance is None:
             instance = next(iter(p.instances))
         if instance not in p.instances:
             raise SourceError(Loc(path, 1, 1), f"no instance '{instance}' in the plant "
                                                f"(instances: {', '.join(p.instances)})")
         return p.instances[instance].grafcet, instance
-    return load_grafcet(path), instance
+    return load_grafcet(path, doc=doc), instance
 
 
 def draw(path: str, out: str, trace: str | None = None, cycle: int | None = None,

@@ -19,6 +19,13 @@ def file_kind(path: str) -> FileKind:
     return doc_kind(load_yaml(path))
 
 
+def read_document(path: str) -> tuple[FileKind, Any]:
+    """The file's kind and its document, read once: pass the document on to
+    ``load_grafcet(path, doc=...)`` or ``load_plant(path, doc=...)``."""
+    doc = load_yaml(path)
+    return doc_kind(doc), doc
+
+
 def doc_kind(doc: Any) -> FileKind:
     """The kind of an already loaded document (``load_yaml``'s result), as ``file_kind``."""
     if isinstance(doc, YMap):

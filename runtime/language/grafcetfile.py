@@ -633,12 +633,15 @@ def _initial(spec: Any, loc: Loc, name: str) -> tuple[A.Type, object]:
     raise SourceError(loc, f"{expected}, found {found}")
 
 
-def load_grafcet(path: str, diagnostics: list[Diagnostic] | None = None) -> Grafcet:
-    """Load and type-check one grafcet file; each call reads the file anew.
+def load_grafcet(path: str, diagnostics: list[Diagnostic] | None = None, *,
+                 doc: Any = None) -> Grafcet:
+    """Load and type-check one grafcet file; each call reads the file anew, unless ``doc``
+    gives its document as ``load_yaml(path)`` returned it (a caller that already read it).
 
     With ``diagnostics``, the rule errors the load can go on after are appended to it
     instead of raised (see the module's docstring); any other error is raised."""
-    doc = load_yaml(path)
+    if doc is None:
+        doc = load_yaml(path)
     if not isinstance(doc, YMap):
         raise SourceError(Loc(path, 1, 1), "expected a YAML mapping with 'grafcet:' and 'steps:'")
     return GrafcetLoader(path, doc, diagnostics).load()

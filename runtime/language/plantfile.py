@@ -121,13 +121,15 @@ def _binding(signal: str, spec: Any, loc: Loc) -> Binding:
     return Binding(signal, str(source), loc, invert)
 
 
-def load_plant(path: str, load: PlantLoad | None = None) -> PlantDef:
+def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> PlantDef:
     """Load a plant file and every grafcet it names; bindings fully checked.
 
     ``load``: a ``PlantLoad`` with a list of diagnostics to collect them (see the module's
-    docstring); by default, a load of its own that raises the first error."""
+    docstring); by default, a load of its own that raises the first error. ``doc``: the
+    plant file's document as ``load_yaml(path)`` returned it, when the caller read it."""
     load = PlantLoad() if load is None else load
-    doc = load_yaml(path)
+    if doc is None:
+        doc = load_yaml(path)
     if not isinstance(doc, YMap):
         raise SourceError(Loc(path, 1, 1), "expected a YAML mapping with 'instances:'")
     check_keys(doc, PLANT_KEYS, "a plant file")

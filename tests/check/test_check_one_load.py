@@ -67,15 +67,54 @@ def test_a_chart_with_several_rule_errors_is_read_once(
     assert reads == {"small.yaml": 1}  # its kind told from the document that is loaded
 
 
-def test_a_plant_with_binding_errors_is_read_twice(
+def test_a_plant_with_binding_errors_is_read_once(
         write: Callable[[str, str], str], reads: Counter[str]) -> None:
     write("small.yaml", CHART.replace('"P1 oX", "on ↑iA do oY", "N oX if ↑iB", ', "").replace(
         "gsA: {", "gsA: {initial: true, "))
     res = check_files([write("plant.yaml", PLANT)])
     assert [(d.code, d.line) for d in res[0].diags] == [("G301", 5), ("G302", 10)]
     assert exit_status(res) == 1
-    # the plant: its kind and one load; its chart: once for the plant, once to check it
-    assert reads == {"plant.yaml": 2, "small.yaml": 2}
+    # the plant: once (its kind is told from the document its load uses); its chart: once
+    # for the plant, once to check it (the plant's load did not give it)
+    assert reads == {"plant.yaml": 1, "small.yaml": 2}
+
+
+GOOD_PLANT = """\
+drivers: {sim: {type: sim}}
+instances:
+  a:
+    grafcet: small.yaml
+    inputs: {iA: sim.I0, iB: sim.I1}
+    outputs: {oX: sim.Q0, oY: sim.Q1}
+  b:
+    grafcet: small.yaml
+    inputs: {iA: sim.I2, iB: sim.I3}
+    outputs: {oX: sim.Q2, oY: sim.Q3}
+"""
+
+
+@pytest.mark.parametrize("command", ["compile", "draw"])
+def test_compile_and_draw_read_each_file_once(
+        write: Callable[[str, str], str], reads: Counter[str], tmp_path: Any,
+        command: str) -> None:
+    from runtime import cli
+    from runtime.drawing import chart
+
+    chart_text = CHART.replace('"P1 oX", "on ↑iA do oY", "N oX if ↑iB", ', "").replace(
+        "gsA: {", "gsA: {initial: true, ")
+    write("small.yaml", chart_text)
+    plant = write("plant.yaml", GOOD_PLANT)
+    if command == "compile":
+        assert cli.main(["compile", plant]) == 0
+    else:
+        chart.load_chart(plant, None)
+    assert reads == {"plant.yaml": 1, "small.yaml": 1}
+    reads.clear()
+    if command == "compile":
+        assert cli.main(["compile", str(tmp_path / "small.yaml")]) == 0
+    else:
+        chart.load_chart(str(tmp_path / "small.yaml"), None)
+    assert reads == {"small.yaml": 1}
 
 
 def test_check_run_is_the_checker_session() -> None:
