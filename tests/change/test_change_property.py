@@ -7,7 +7,6 @@ chart, its state handed over by hand by name; the engine side is prepare + apply
 from __future__ import annotations
 
 import copy
-import dataclasses
 import itertools
 
 import pytest
