@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import copy
 import itertools
+from typing import Any
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -49,8 +50,10 @@ def edits(draw: st.DrawFn, chart: RefChart) -> tuple[str, RefChart]:
             new.min_ns[s] = draw(st.sampled_from([5, 15, 25, 50])) * MS
     elif kind == "action":
         stmts = [a for a in new.actions if a.target is None]
-        if stmts and draw(st.booleans()):
-            draw(st.sampled_from(stmts)).k = draw(st.integers(100, 200))
+        change_one: bool = draw(st.booleans())
+        if stmts and change_one:
+            one: Assoc = draw(st.sampled_from(stmts))
+            one.k = draw(st.integers(100, 200))
         else:
             s = draw(st.sampled_from(chart.steps))
             at = max([i + 1 for i, a in enumerate(new.actions) if a.step == s]
@@ -74,8 +77,10 @@ def hand_over(old: Reference, chart: RefChart) -> Reference:
     ref.X = set(old.X)
     ref.t_act.update(old.t_act)
     ref.t_kept.update(old.t_kept)
-    for mine, theirs, acts in ((ref.ff, old.ff, "all"), (ref.ff_start, old.ff_start, "all"),
-                               (ref.codesys_q, old.codesys_q, "stmt")):
+    pairs: list[tuple[dict[int, Any], dict[int, Any], str]] = [
+        (ref.ff, old.ff, "all"), (ref.ff_start, old.ff_start, "all"),
+        (ref.codesys_q, old.codesys_q, "stmt")]
+    for mine, theirs, acts in pairs:
         new_ids, old_ids = _ids(chart, acts), _ids(old.c, acts)
         for i, v in theirs.items():
             if old_ids[i] in new_ids:
