@@ -9,6 +9,7 @@ from runtime.change.diff import chart_plant
 from runtime.change.plan import apply, prepare
 from runtime.engine.plant import Plant
 from runtime.language.grafcetfile import load_grafcet
+from tests.change.changekit import state
 
 MS = 1_000_000
 
@@ -105,3 +106,62 @@ def test_an_edge_keeps_its_memory_when_an_edge_is_inserted_before_it(tmp_path):
     run = swap(old, new)
     scan(run, 2, a=True)
     assert run.instances["Small"].active_steps() == ["s1"]
+
+
+BLOCKS = """\
+grafcet: Small
+inputs: [a, b]
+outputs: [o]
+timers: [timeX]
+blocks: {ton1: TON, cnt: CTU}
+pre:
+  - ton1(IN := s1.X, PT := 100ms)
+  - cnt(CU := a, R := FALSE, PV := 3)
+steps:
+  s0: {initial: true, actions: ["P1 timeX.Ini(70ms)"]}
+  s1: {actions: [o]}
+  s2: {}
+  s3: {}
+transitions:
+  - {from: s0, to: s1, when: "timeX.End()"}
+  - {from: s1, to: s2, when: ton1.Q}
+  - {from: s2, to: s3, when: cnt.Q}
+EXTRA"""
+
+
+def trail(p: Plant, ks: range, a_at: set[int]) -> list[tuple[int, list[str]]]:
+    out = []
+    for k in ks:
+        scan(p, k, a=k in a_at, b=False)
+        out.append((k, p.instances["Small"].active_steps()))
+    return out
+
+
+def test_timers_and_counters_go_on_across_the_swap(tmp_path):
+    """A seed timer and a TON running, a CTU counting: after the swap each ends in the very
+    scan it would have ended in without the change, and the old plant's blocks are not
+    shared with the new one."""
+    pulses = {3, 5, 12, 14, 16}
+    ref = plant(tmp_path, "ref", BLOCKS.replace("EXTRA", ""))
+    want = trail(ref, range(0, 30), pulses)
+    for k_swap in (4, 9, 13):
+        old = plant(tmp_path, "old", BLOCKS.replace("EXTRA", ""))
+        got = trail(old, range(0, k_swap), pulses)
+        new = plant(tmp_path, "new", BLOCKS.replace("EXTRA", "  - {from: s3, to: s0, when: b}\n"))
+        run = swap(old, new)
+        before = state(old)
+        got += trail(run, range(k_swap, 30), pulses)
+        assert got == want, k_swap
+        assert state(old) == before
+
+
+def test_a_block_of_another_kind_starts_afresh(tmp_path):
+    old = plant(tmp_path, "old", BLOCKS.replace("EXTRA", ""))
+    trail(old, range(0, 12), {3, 5})
+    new = plant(tmp_path, "new", BLOCKS.replace("EXTRA", "").replace("cnt: CTU", "cnt: CTD")
+                .replace("cnt(CU := a, R := FALSE, PV := 3)", "cnt(CD := a, LD := FALSE, PV := 3)"))
+    prep = prepare(old, new.pdef)
+    res = apply(old, prep)
+    assert "Small: block cnt starts from its initial state (was CTU)" in res.lines
+    inst = prep.plant.instances["Small"]
+    assert type(inst.m[inst.index["cnt"]]).__name__ == "CTD"
