@@ -162,3 +162,69 @@ def test_carry_then_scan_is_the_new_chart_from_that_state(tmp_path, model, data)
     chart = data.draw(charts(model))
     edit = data.draw(edits(chart))
     check(tmp_path, chart, edit, data.draw(scans), data.draw(scans))
+
+
+def _without(c: object, step: str) -> object:
+    """Condition ``c`` with every mention of ``step`` replaced by a constant."""
+    assert isinstance(c, tuple)
+    if c[0] in ("X", "T") and c[1] == step:
+        return ("k", False)
+    if c[0] == "not":
+        return ("not", _without(c[1], step))
+    if c[0] in ("and", "or"):
+        return (c[0], _without(c[1], step), _without(c[2], step))
+    return c
+
+
+@st.composite
+def removals(draw: st.DrawFn, chart: RefChart) -> RefChart:
+    """``chart`` with one step (not s0) gone, and what names it."""
+    step = draw(st.sampled_from(chart.steps[1:]))
+    new = copy.deepcopy(chart)
+    new.steps.remove(step)
+    new.initial.discard(step)
+    new.min_ns.pop(step, None)
+    new.trans = [Trans(t.src, t.dst, _without(t.cond, step)) for t in new.trans
+                 if step not in t.src and step not in t.dst]
+    kept = []
+    for a in new.actions:
+        if a.step == step:
+            continue
+        if a.cond is not None:
+            a.cond = _without(a.cond, step)
+        if a.event is not None:
+            a.event = _without(a.event, step)
+        kept.append(a)
+    new.actions = kept
+    if not new.trans:  # a chart has at least one transition
+        new.trans = [Trans(["s0"], ["s0"], ("k", False))]
+    return new
+
+
+@pytest.mark.parametrize("model", ["immediate", "codesys", "stable"])
+@SETTINGS
+@given(data=st.data())
+def test_a_refused_change_leaves_both_plants_untouched(tmp_path, model, data):
+    """Remove a random step: refused exactly when it is active (or, CODESYS, when the
+    pending evolution goes with it), and then neither plant's state has moved."""
+    chart = data.draw(charts(model))
+    new_chart = data.draw(removals(chart))
+    old, _ = plant_of(tmp_path, chart)
+    if run(old, Reference(chart), data.draw(scans), 0, "before") is None:
+        return
+    new, _ = plant_of(tmp_path, new_chart)
+    prep = prepare(old, new.pdef)
+    was, fresh = state(old), state(prep.plant)
+    gone = (set(chart.steps) - set(new_chart.steps)).pop()
+    active = gone in old.instances["Rnd"].active_steps()
+    res = apply(old, prep)
+    if active:
+        assert res.refusals[0] == (f"Rnd: step {gone} removed while it is active "
+                                   f"(--restart Rnd restarts that instance)")
+    if res.refusals:
+        assert state(old) == was
+        assert state(prep.plant) == fresh
+        assert res.lines == [] and res.restarted == []
+    else:
+        assert not active
+        assert state(old) == was

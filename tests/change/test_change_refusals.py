@@ -89,3 +89,21 @@ def test_apply_twice_is_refused():
     assert apply(story.plant, prep).refusals == []
     assert apply(story.plant, prep).refusals == ["this change was applied already: prepare "
                                                  "it again"]
+
+
+def test_forced_an_active_step_removed_is_dropped_and_said(tmp_path):
+    path = removed_active_step(tmp_path)
+    story = story_at(60)
+    prep = prepare(story.plant, load_plant(path))
+    res = apply(story.plant, prep, force=True)
+    assert res.refusals == []
+    assert "tester1: active step gsAbrir dropped (forced)" in res.lines
+    assert prep.plant.instances["tester1"].active_steps() == []
+    assert prep.plant.instances["tester2"].active_steps() == ["gsParado"]
+
+
+def test_restart_of_an_unknown_instance_is_refused():
+    story = story_at(10)
+    prep = prepare(story.plant, load_plant(data_plant("timeout")))
+    assert apply(story.plant, prep, restart=["tester9"]).refusals == [
+        "--restart tester9: no such instance in the new plant"]
