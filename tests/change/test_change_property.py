@@ -20,7 +20,7 @@ from runtime.compiler.evolution import UnstableChart
 from runtime.engine.plant import Plant
 from runtime.language.grafcetfile import load_grafcet
 from tests.change.changekit import state
-from tests.engine.engine_reference import Assoc, RefChart, Reference, Trans, Unstable
+from tests.engine.engine_reference import Assoc, Cond, RefChart, Reference, Trans, Unstable
 from tests.engine.enginekit import BOOT, MS
 from tests.engine.test_engine_property import charts, conditions, scans
 
@@ -164,9 +164,8 @@ def test_carry_then_scan_is_the_new_chart_from_that_state(tmp_path, model, data)
     check(tmp_path, chart, edit, data.draw(scans), data.draw(scans))
 
 
-def _without(c: object, step: str) -> object:
+def _without(c: Cond, step: str) -> Cond:
     """Condition ``c`` with every mention of ``step`` replaced by a constant."""
-    assert isinstance(c, tuple)
     if c[0] in ("X", "T") and c[1] == step:
         return ("k", False)
     if c[0] == "not":
