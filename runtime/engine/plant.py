@@ -519,9 +519,9 @@ class Plant:
     # -- online change (runtime/change) ---------------------------------------------
     def take_over(self, old: Plant, rename: Callable[[str], str | None]) -> list[str]:
         """Go on from ``old``'s plant-level state: program time and start, scans, pause,
-        stepping, iocheck, forces. ``rename`` gives the new name of an old forced name
-        (None: it is gone). Returns one line per force released (name gone, value no
-        longer of its type). Between two cycles only (no pulse or stashed input pending)."""
+        stepping, iocheck, forces, a flag pulse not yet run. ``rename`` gives the new name
+        of an old forced name (None: it is gone). Returns one line per force released (name
+        gone, value no longer of its type). Between two cycles only."""
         self.start, self.last_up, self.offset_ns = old.start, old.last_up, old.offset_ns
         self._last_scan, self._stood_still = old._last_scan, old._stood_still
         self.hold, self.steps_left, self.iocheck = old.hold, old.steps_left, old.iocheck
@@ -538,4 +538,8 @@ class Plant:
             except (BindingError, ValueError, TypeError) as exc:
                 released.append(f"force {name} released: {exc}")
         self._rebuild_instance_forces()
+        for inst, idx in old._pulses:  # a flag pulse asked for since the last cycle
+            if inst in self.instances:
+                flag = old.instances[inst].program.slots[idx].name
+                self._pulses.append((inst, self.instances[inst].program.var_index(flag)))
         return released

@@ -156,3 +156,15 @@ def test_a_scan_model_change_waits_for_a_pending_evolution(tmp_path):
     res = apply(old, prep)
     assert res.refusals == []
     assert "tester1: scan model codesys -> immediate" in res.lines
+
+
+def test_a_flag_pulse_asked_for_before_the_swap_runs_in_the_swap_scan():
+    story = opening()
+    old = story.plant
+    old.pulse("tester1", "SFCInit")
+    prep = prepare(old, load_plant(data_plant("timeout")))
+    assert apply(old, prep).refusals == []
+    story.bind(prep.plant)
+    row = story.run(1)[0]
+    assert row["tester1.gsParado.X"] and not row["tester1.gsAbrir.X"]
+    assert row["sim.Q0"] == 0
