@@ -140,7 +140,36 @@ def _old_key(s: Slot, ic: InstanceChange) -> str | None:
     if s.kind in (SlotKind.STEP_X, SlotKind.STEP_START, SlotKind.STEP_LAST):
         was = ic.steps.get(s.name)
         return None if was is None else was + s.key[len(s.name):]
-    return s.key
+    return _renamed_key(s.key, ic)
+
+
+def _renamed_key(key: str, ic: InstanceChange) -> str:
+    """The old program's key of the scan memory ``key``, its steps and target variable
+    named as the old chart named them (``renamed_from:``): ``#pending:A,B->C``,
+    ``#edge:WHERE:[TEXT]``, ``#cq:STEP:Q``, ``#SD:STEP:TARGET``, ``#S.TARGET``."""
+    steps = {n: o for n, o in ic.steps.items() if n != o}
+    var = {n: o for n, o in ic.variables.items() if n != o}
+    if not (steps or var) or not key.startswith("#"):
+        return key
+    if key.startswith("#S."):
+        return "#S." + var.get(key[3:], key[3:])
+    head, sep, rest = key.partition(":")
+    if not sep:
+        return key
+    where, colon, tail = rest.partition(":")
+    if head == "#edge":  # WHERE:[TEXT]...: the text is kept as written
+        pass
+    elif head not in ("#pending", "#cq") and colon:  # #SD:STEP:TARGET[#n][.F|.T]
+        target, dot, suffix = tail.partition(".")
+        name, hash_, num = target.partition("#")
+        tail = var.get(name, name) + hash_ + num + dot + suffix
+    suffix = ""
+    if not colon:  # #pending:WHERE[#n]
+        where, hash_, num = where.partition("#")
+        suffix = hash_ + num
+    arrow = where.split("->")
+    where = "->".join(",".join(steps.get(x, x) for x in side.split(",")) for side in arrow)
+    return f"{head}:{where}{suffix}{colon}{tail}"
 
 
 def _carry(ic: InstanceChange, old: Instance, new: Instance) -> _Carry:

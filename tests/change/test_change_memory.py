@@ -165,3 +165,42 @@ def test_a_block_of_another_kind_starts_afresh(tmp_path):
     assert "Small: block cnt starts from its initial state (was CTU)" in res.lines
     inst = prep.plant.instances["Small"]
     assert type(inst.m[inst.index["cnt"]]).__name__ == "CTD"
+
+
+def test_the_memory_of_a_renamed_step_follows_it(tmp_path):
+    """CODESYS: s0 -> S1 decided; the edit renames S1 to S9 (``renamed_from: S1``) and the
+    stored memory M to N: the pending evolution, the edge of the transition leaving it and
+    the S action's memory (of M, renamed N) follow the new names."""
+    text = """\
+        grafcet: Small
+        scan: codesys
+        inputs: [a, b]
+        outputs: [o]
+        memory: {M: false}
+        steps:
+          s0: {initial: true, actions: ["S M"]}
+          S1: {actions: [o]}
+          s2: {actions: ["R M"]}
+        transitions:
+          - {from: s0, to: S1, when: a}
+          - {from: S1, to: s2, when: "RE b"}
+        """
+    old = plant(tmp_path, "old", text)
+    scan(old, 0, b=True)
+    scan(old, 1, a=True, b=True)
+    assert old.instances["Small"].get("M") is True
+    new_text = (text.replace("to: S1", "to: S9").replace("from: S1", "from: S9")
+                .replace("S1: {actions: [o]}", "S9: {actions: [o], renamed_from: S1}")
+                .replace("memory: {M: false}", "memory: {N: {init: false, renamed_from: M}}")
+                .replace('"S M"', '"S N"').replace('"R M"', '"R N"'))
+    new = plant(tmp_path, "new", new_text)
+    prep = prepare(old, new.pdef)
+    res = apply(old, prep)
+    assert res.refusals == []
+    run = prep.plant
+    scan(run, 2, a=False, b=True)  # the pending s0 -> S9 is taken; b held: no edge
+    inst = run.instances["Small"]
+    assert inst.active_steps() == ["S9"]
+    assert inst.get("N") is True  # stored: S in s0 left, still set
+    scan(run, 3, b=True)
+    assert inst.active_steps() == ["S9"]  # RE b: b was already 1 (its memory followed)
