@@ -112,6 +112,19 @@ def diff_plants(old: PlantDef, new: PlantDef) -> ChangeSet:
         add(f"plant: cycle {old.cycle_ns // 1_000_000} ms -> {new.cycle_ns // 1_000_000} ms")
         cs.refusals.append(Refusal("plant: the cycle time changed: restart the controller",
                                    False))
+    for what, a, b in (("watchdog", old.watchdog_ns, new.watchdog_ns),
+                       ("retain file", old.retain_path, new.retain_path),
+                       ("retain interval", old.retain_interval_ns, new.retain_interval_ns),
+                       ("retain_required", old.retain_required, new.retain_required),
+                       ("realtime priority", old.realtime_priority, new.realtime_priority),
+                       ("lock_memory", old.lock_memory, new.lock_memory),
+                       ("consoles", old.consoles, new.consoles),
+                       ("console PIN", old.pin_hash, new.pin_hash),
+                       ("release_forces_on_disconnect", old.release_forces_on_disconnect,
+                        new.release_forces_on_disconnect),
+                       ("console limits", old.console_limits, new.console_limits)):
+        if a != b:
+            add(f"plant: {what} changed")
     _drivers(cs)
     for name, idef in new.instances.items():
         if name not in old.instances:

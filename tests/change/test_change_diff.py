@@ -198,3 +198,12 @@ def test_renamed_from_must_be_a_name(tmp_path):
     (tmp_path / "c.yaml").write_text(CHART.replace("  s2: {}", "  s2: {renamed_from: 3x}"))
     with pytest.raises(SourceError, match="renamed_from"):
         load_grafcet(str(tmp_path / "c.yaml"))
+
+
+def test_plant_settings(tmp_path):
+    base = plant_text()
+    got, refused = plants(tmp_path, base, base.replace("watchdog: 200ms", "watchdog: 300ms"))
+    assert (got, refused) == (["plant: watchdog changed"], [])
+    got, refused = plants(tmp_path, base, base.replace("cycle: 20ms", "cycle: 10ms"))
+    assert got == ["plant: cycle 20 ms -> 10 ms"]
+    assert refused == ["plant: the cycle time changed: restart the controller"]
