@@ -222,9 +222,9 @@ def test_transition_keys_inside_a_step(tmp_path: Path,
         "{actions: [oMotor]}", "{actions: [oMotor], to: Ini}")
     assert compile_error(tmp_path, capsys, text) == line(
         tmp_path, text, "to:", "unknown key 'to' in step 'Arranque': expected one of initial, "
-                               "actions, min, max, macro, entry, exit, description (a "
-                               "transition is written under 'transitions:' as - {from: "
-                               "Arranque, to: B, when: CONDITION})")
+                               "actions, min, max, macro, entry, exit, description, "
+                               "renamed_from (a transition is written under 'transitions:' "
+                               "as - {from: Arranque, to: B, when: CONDITION})")
 
 
 # -- duplicate transition names ----------------------------------------------------------------
