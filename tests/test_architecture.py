@@ -18,6 +18,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PARTS = (
     "runtime.cli", "runtime.errors", "runtime.language", "runtime.compiler", "runtime.engine",
     "runtime.controller", "runtime.console", "runtime.checker", "runtime.drawing", "drivers",
+    "runtime.change",
 )
 
 #: drivers modules with no bus library (the driver contract, lookup by type, durations, and
@@ -35,14 +36,17 @@ ALLOWED: dict[str, frozenset[str]] = {
     "runtime.engine": frozenset({"runtime.errors", "runtime.language", "runtime.compiler",
                                  "drivers.contract"}),
     "runtime.controller": frozenset({"runtime.errors", "runtime.language", "runtime.compiler",
-                                     "runtime.engine", "drivers"}),
+                                     "runtime.engine", "runtime.change", "drivers"}),
     "runtime.console": frozenset({"runtime.errors", "runtime.language", "runtime.compiler",
-                                  "runtime.engine", "runtime.controller", "drivers.contract"}),
+                                  "runtime.engine", "runtime.change", "runtime.controller",
+                                  "drivers.contract"}),
     "runtime.checker": frozenset({"runtime.errors", "runtime.language", "runtime.compiler",
                                   "runtime.engine.names", "runtime.engine.script",
                                   "drivers.contract"}),
     "runtime.drawing": frozenset({"runtime.errors", "runtime.language", "drivers.contract"}),
     "runtime.cli": frozenset({"*"}),
+    "runtime.change": frozenset({"runtime.errors", "runtime.language", "runtime.compiler",
+                                 "runtime.engine", "drivers.contract"}),
 }
 
 

@@ -11,6 +11,7 @@ from runtime.compiler.emit import ident
 from runtime.compiler.program import Slot, SlotKind
 from runtime.language import ast as A
 from runtime.language.model import Action, Grafcet, Qualifier, ScanModel, Step, VarKind
+from runtime.language.unparse import unparse
 
 T = A.Type
 
@@ -86,10 +87,13 @@ class StateLayout:
             self.slot(key, local, init)
         if g.scan is ScanModel.CODESYS:
             for t in g.transitions:
-                self.slot(f"#pending{t.index}", f"pf{t.index}", False)
+                self.slot(self._stable(f"#pending:{t.name or ','.join(t.sources) + '->'}"
+                                       f"{'' if t.name else ','.join(t.targets)}"),
+                          f"pf{t.index}", False)
             for a in g.actions():  # Q of the last scan, for the final scan of L/D actions
                 if a.body is not None and a.qualifier in (Qualifier.L, Qualifier.D):
-                    self.slot(f"#cq{a.index}.F", f"cq{a.index}", False)
+                    self.slot(self._stable(f"#cq:{a.step}:{a.qualifier.value}") + ".F",
+                              f"cq{a.index}", False)
         for target, assocs in bool_targets(g).items():
             quals = {a.qualifier for a in assocs}
             if Qualifier.S in quals:
@@ -97,24 +101,41 @@ class StateLayout:
             for k, a in enumerate(assocs):
                 if a.qualifier in (Qualifier.SD, Qualifier.SL, Qualifier.DS):
                     tag = f"{a.qualifier.value.lower()}{k}_{target}"
-                    self.slot(f"#{tag}.F", f"f{tag}", False)
-                    self.slot(f"#{tag}.T", f"t{tag}", 0)
+                    key = self._stable(f"#{a.qualifier.value}:{a.step}:{target}")
+                    self.slot(f"{key}.F", f"f{tag}", False)
+                    self.slot(f"{key}.T", f"t{tag}", 0)
         # edges: every RE/FE node of the chart
-        for n in self._all_nodes():
+        for where, n in self._all_nodes():
             if isinstance(n, A.Unary) and n.op in ("RE", "FE"):
                 k = len(self.edge_nodes)
                 self.edges[id(n)] = k
                 self.edge_nodes.append(n)
-                self.slot(f"#edge{k}.prev", f"ep{k}", n.op == "RE")
-                self.slot(f"#edge{k}", f"e{k}", False)
+                key = self._stable(f"#edge:{where}:[{unparse(n)}]")
+                self.slot(f"{key}.prev", f"ep{k}", n.op == "RE")
+                self.slot(key, f"e{k}", False)
+                self.index[f"#edge{k}"] = self.index[key]
 
-    def _all_nodes(self) -> Iterator[A.Node]:
+    def _stable(self, key: str) -> str:
+        """``key``, numbered if it is taken: the keys of the scan's own memory are made of
+        what they belong to (a transition's steps, an action's step, an edge's text), not
+        of sequence numbers, so that an edited chart keeps them (online change)."""
+        n, out = 1, key
+        while out in self.index or f"{out}.F" in self.index or f"{out}.prev" in self.index:
+            n += 1
+            out = f"{key}#{n}"
+        return out
+
+    def _all_nodes(self) -> Iterator[tuple[str, A.Node]]:
+        """Every node of the chart's expressions, with where it is: "pre", "post", the
+        transition's steps or the action's step."""
         g = self.g
-        roots: list[A.Node] = [st.node for st in g.pre]
-        roots += [t.cond for t in g.transitions]
+        roots: list[tuple[str, A.Node]] = [("pre", st.node) for st in g.pre]
+        roots += [(t.name or f"{','.join(t.sources)}->{','.join(t.targets)}", t.cond)
+                  for t in g.transitions]
         for a in g.actions():
-            roots += [x for x in (a.cond, a.event) if x is not None]
-            roots += a.body or []
-        roots += [st.node for st in g.post]
-        for r in roots:
-            yield from A.walk(r)
+            roots += [(a.step, x) for x in (a.cond, a.event) if x is not None]
+            roots += [(a.step, x) for x in a.body or []]
+        roots += [("post", st.node) for st in g.post]
+        for where, r in roots:
+            for n in A.walk(r):
+                yield where, n

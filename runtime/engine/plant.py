@@ -89,6 +89,8 @@ class Plant:
             name: Instance(name, self._program(idef.grafcet))
             for name, idef in pdef.instances.items()}
         self.drivers: dict[str, Driver] = {}
+        #: drivers handed over open (online change): their declared points are kept
+        self._handed = set(drivers or ())
         for name, ddef in pdef.drivers.items():
             if drivers and name in drivers:
                 self.drivers[name] = drivers[name]
@@ -139,6 +141,9 @@ class Plant:
                     if b.driver is None or b.point == "ok":
                         continue
                     d = self.drivers[b.driver]
+                    if b.driver in self._handed and (b.point or "") in (
+                            d.inputs if direction is Direction.IN else d.outputs):
+                        continue
                     d.add_point(b.point or "", direction)
 
     def _input_expr(self, b: Binding, vtype: A.Type) -> str:
@@ -510,3 +515,27 @@ class Plant:
             else:
                 self._stash.append((d, f.point, d.inputs[f.point]))
                 d.inputs[f.point] = f.value
+
+    # -- online change (runtime/change) ---------------------------------------------
+    def take_over(self, old: Plant, rename: Callable[[str], str | None]) -> list[str]:
+        """Go on from ``old``'s plant-level state: program time and start, scans, pause,
+        stepping, iocheck, forces. ``rename`` gives the new name of an old forced name
+        (None: it is gone). Returns one line per force released (name gone, value no
+        longer of its type). Between two cycles only (no pulse or stashed input pending)."""
+        self.start, self.last_up, self.offset_ns = old.start, old.last_up, old.offset_ns
+        self._last_scan, self._stood_still = old._last_scan, old._stood_still
+        self.hold, self.steps_left, self.iocheck = old.hold, old.steps_left, old.iocheck
+        self.scans = old.scans
+        self.forced.clear()
+        self.forced_points.clear()
+        released = []
+        for name, value in old.forced_values().items():
+            new = rename(name)
+            try:
+                if new is None:
+                    raise BindingError("no longer in the plant")
+                self.force(new, value)
+            except (BindingError, ValueError, TypeError) as exc:
+                released.append(f"force {name} released: {exc}")
+        self._rebuild_instance_forces()
+        return released

@@ -49,7 +49,8 @@ from runtime.language.yamlsrc import (
 T = A.Type
 GRAFCET_KEYS = ("grafcet", "description", "scan", "inputs", "outputs", "memory", "timers",
                 "blocks", "pre", "steps", "transitions", "post")
-STEP_KEYS = ("initial", "actions", "min", "max", "macro", "entry", "exit", "description")
+STEP_KEYS = ("initial", "actions", "min", "max", "macro", "entry", "exit", "description",
+             "renamed_from")
 TRANSITION_KEYS = ("from", "to", "when", "name", "description")
 TYPE_NAMES = {"bool": T.BOOL, "int": T.INT, "real": T.REAL, "time": T.TIME}
 
@@ -278,15 +279,20 @@ class GrafcetLoader:
             loc = mem.key_locs[name]
             self._declare(name, loc, "a memory variable")
             retain = False
+            was: str | None = None
             vloc = mem.val_locs[name]
             if isinstance(spec, YMap):
-                check_keys(spec, ("init", "retain"), f"memory '{name}'")
+                check_keys(spec, ("init", "retain", "renamed_from"), f"memory '{name}'")
                 retain = expect_type(spec.get("retain", False), spec.val_locs.get("retain", loc),
                                      bool, "true or false for retain")
+                if "renamed_from" in spec:
+                    was = _identifier(spec["renamed_from"], spec.val_locs["renamed_from"],
+                                      "the former name (renamed_from)")
                 vloc = spec.val_locs.get("init", vloc)
                 spec = spec.get("init", False)
             typ, init = _initial(spec, vloc, name)
-            self.g.variables[name] = Variable(name, VarKind.MEMORY, typ, init, loc, retain)
+            self.g.variables[name] = Variable(name, VarKind.MEMORY, typ, init, loc, retain,
+                                              renamed_from=was)
 
     def _timers_blocks(self) -> None:
         d = self.doc
@@ -356,6 +362,9 @@ class GrafcetLoader:
                 key = "entry" if st.entry else "exit"
                 raise SourceError(spec.key_locs[key], f"'{key}' is for steps inside a macro-step "
                                   "expansion")
+            if "renamed_from" in spec:
+                st.renamed_from = _identifier(spec["renamed_from"], spec.val_locs["renamed_from"],
+                                              "the former name (renamed_from)")
             for key in ("min", "max"):
                 if key in spec:
                     setattr(st, f"{key}_ns", time_value(spec[key], spec.val_locs[key],

@@ -57,6 +57,8 @@ class Variable:
     init: Any
     loc: Loc
     retain: bool = False
+    #: the name this variable had before an edit (``renamed_from:``, online change)
+    renamed_from: str | None = None
 
 
 @dataclass(slots=True)
@@ -91,6 +93,8 @@ class Step:
     exit: bool = False
     parent: str | None = None  # enclosing macro-step
     description: str = ""
+    #: the name this step had before an edit (``renamed_from:``, online change)
+    renamed_from: str | None = None
 
 
 @dataclass(slots=True)

@@ -1,0 +1,319 @@
+"""What an edit of a plant (or of one chart) changes, instance by instance: pure, no state.
+
+A step or a variable is the same thing in both versions when it has the same name, or when
+the new one says ``renamed_from:`` the old name (never guessed). Transitions are the same
+when they have the same name, else the same source and target steps (in file order when
+several join the same steps). ``ChangeSet.lines()`` is what ``softplc diff`` prints;
+``static_refusals()`` are the reasons, known without any state, that the change cannot be
+applied to a running controller.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from runtime.language.model import Binding, Grafcet, InstanceDef, PlantDef, Transition
+
+
+@dataclass(frozen=True, slots=True)
+class Refusal:
+    """One reason not to apply a change; ``forceable``: ``force=True`` overrides it."""
+
+    line: str
+    forceable: bool = True
+
+
+@dataclass
+class InstanceChange:
+    """How one instance present in both plants changed (names of the NEW chart unless
+    told)."""
+
+    name: str
+    old: Grafcet
+    new: Grafcet
+    #: new step name -> old step name, for every step present in both (renames included)
+    steps: dict[str, str] = field(default_factory=dict)
+    steps_added: list[str] = field(default_factory=list)
+    steps_removed: list[str] = field(default_factory=list)  # old names
+    #: new variable name -> old name, for every variable present in both
+    variables: dict[str, str] = field(default_factory=dict)
+    vars_added: list[str] = field(default_factory=list)
+    vars_removed: list[str] = field(default_factory=list)  # old names
+    #: new name -> (old type, new type) for the variables whose type changed
+    types_changed: dict[str, tuple[str, str]] = field(default_factory=dict)
+    scan_changed: bool = False
+    lines: list[str] = field(default_factory=list)
+
+    @property
+    def unchanged(self) -> bool:
+        return not self.lines
+
+
+@dataclass
+class ChangeSet:
+    """Every change between two plant definitions."""
+
+    old: PlantDef
+    new: PlantDef
+    instances: dict[str, InstanceChange] = field(default_factory=dict)  # in both plants
+    instances_added: list[str] = field(default_factory=list)
+    instances_removed: list[str] = field(default_factory=list)
+    #: driver -> what changed ("type", config keys) for drivers present in both
+    drivers_changed: dict[str, list[str]] = field(default_factory=dict)
+    drivers_added: list[str] = field(default_factory=list)
+    drivers_removed: list[str] = field(default_factory=list)
+    #: driver -> points bound in the new plant that the old one did not use (with their
+    #: direction): the driver must be reopened to declare them
+    new_points: dict[str, list[str]] = field(default_factory=dict)
+    _lines: list[str] = field(default_factory=list)
+    refusals: list[Refusal] = field(default_factory=list)
+
+    def lines(self) -> list[str]:
+        """One human line per change, e.g. ``tester1: step gsX added``."""
+        return list(self._lines)
+
+    def static_refusals(self) -> list[str]:
+        """The refusals known without state, e.g. ``driver mb: port changed``."""
+        return [r.line for r in self.refusals]
+
+    @property
+    def empty(self) -> bool:
+        return not self._lines
+
+
+def chart_plant(g: Grafcet) -> PlantDef:
+    """A one-instance plant (named after the chart) around chart ``g``, with no binding:
+    how ``softplc diff`` compares two chart files."""
+    p = PlantDef(path=g.path)
+    p.instances[g.name] = InstanceDef(g.name, g, g.loc)
+    return p
+
+
+def diff_plants(old: PlantDef, new: PlantDef) -> ChangeSet:
+    """Every change from ``old`` to ``new``; pure (reads both, keeps nothing)."""
+    cs = ChangeSet(old, new)
+    add = cs._lines.append
+    if old.cycle_ns != new.cycle_ns:
+        add(f"plant: cycle {old.cycle_ns // 1_000_000} ms -> {new.cycle_ns // 1_000_000} ms")
+        cs.refusals.append(Refusal("plant: the cycle time changed: restart the controller",
+                                   False))
+    _drivers(cs)
+    for name, idef in new.instances.items():
+        if name not in old.instances:
+            cs.instances_added.append(name)
+            add(f"{name}: instance added (chart {idef.grafcet.name}, starts from its "
+                f"initial situation)")
+    for name in old.instances:
+        if name not in new.instances:
+            cs.instances_removed.append(name)
+            add(f"{name}: instance removed (its outputs go off)")
+    for name, idef in new.instances.items():
+        oidef = old.instances.get(name)
+        if oidef is None:
+            continue
+        ic = _instance(name, oidef, idef, cs)
+        cs.instances[name] = ic
+        cs._lines += ic.lines
+    return cs
+
+
+# -- drivers -------------------------------------------------------------------------------
+def _points(p: PlantDef) -> dict[str, set[str]]:
+    """driver -> its bound points, as "in:I0" / "out:Q0" (the ``ok`` pseudo-point left out)."""
+    out: dict[str, set[str]] = {d: set() for d in p.drivers}
+    for idef in p.instances.values():
+        for way, section in (("in", idef.inputs), ("out", idef.outputs)):
+            for b in section.values():
+                if b.driver is not None and b.point != "ok":
+                    out.setdefault(b.driver, set()).add(f"{way}:{b.point}")
+    return out
+
+
+def _drivers(cs: ChangeSet) -> None:
+    old, new, add = cs.old, cs.new, cs._lines.append
+    opoints, npoints = _points(old), _points(new)
+    for name, d in new.drivers.items():
+        od = old.drivers.get(name)
+        if od is None:
+            cs.drivers_added.append(name)
+            add(f"driver {name}: added ({d.type})")
+            cs.refusals.append(Refusal(f"driver {name}: added: it must be opened"))
+            continue
+        what = []
+        if od.type != d.type:
+            what.append("type")
+        keys = sorted(set(od.config) | set(d.config))
+        what += [k for k in keys if od.config.get(k) != d.config.get(k)]
+        if what:
+            cs.drivers_changed[name] = what
+            add(f"driver {name}: {', '.join(what)} changed")
+            cs.refusals.append(Refusal(f"driver {name}: {', '.join(what)} changed: the bus "
+                                       f"must be reopened"))
+            continue
+        grown = sorted(npoints.get(name, set()) - opoints.get(name, set()))
+        if grown:
+            cs.new_points[name] = grown
+            pts = ", ".join(p.split(":", 1)[1] + f" ({p.split(':', 1)[0]}put)" for p in grown)
+            add(f"driver {name}: new points {pts}")
+            cs.refusals.append(Refusal(f"driver {name}: new points {pts}: the driver must be "
+                                       f"reopened"))
+    for name in old.drivers:
+        if name not in new.drivers:
+            cs.drivers_removed.append(name)
+            add(f"driver {name}: removed (closed, its outputs off)")
+
+
+# -- one instance ----------------------------------------------------------------------
+def _pairs(old_names: list[str], new_items: list[tuple[str, str | None]]
+           ) -> tuple[dict[str, str], list[str], list[str], list[tuple[str, str]]]:
+    """Match names: (new -> old, added, removed old names, renames (old, new))."""
+    same: dict[str, str] = {}
+    added: list[str] = []
+    renames: list[tuple[str, str]] = []
+    olds = set(old_names)
+    news = {n for n, _ in new_items}
+    for name, was in new_items:
+        if name in olds:
+            same[name] = name
+        elif was is not None and was in olds and was not in news:
+            same[name] = was
+            renames.append((was, name))
+        else:
+            added.append(name)
+    taken = set(same.values())
+    removed = [n for n in old_names if n not in taken]
+    return same, added, removed, renames
+
+
+def _tkey(t: Transition, rename: dict[str, str]) -> str:
+    if t.name:
+        return t.name
+    src = ",".join(rename.get(s, s) for s in t.sources)
+    return f"{src} -> {','.join(rename.get(s, s) for s in t.targets)}"
+
+
+def _transitions(g: Grafcet, rename: dict[str, str]) -> dict[str, Transition]:
+    out: dict[str, Transition] = {}
+    for t in g.transitions:
+        key = _tkey(t, rename)
+        n = 1
+        while (key if n == 1 else f"{key} #{n}") in out:
+            n += 1
+        out[key if n == 1 else f"{key} #{n}"] = t
+    return out
+
+
+def _short(text: str) -> str:
+    one = " ".join(text.split())
+    return one if len(one) <= 60 else one[:57] + "..."
+
+
+def _instance(name: str, oidef: InstanceDef, idef: InstanceDef, cs: ChangeSet
+              ) -> InstanceChange:
+    og, ng = oidef.grafcet, idef.grafcet
+    ic = InstanceChange(name, og, ng)
+    add = ic.lines.append
+    if og.scan is not ng.scan:
+        ic.scan_changed = True
+        add(f"{name}: scan model {og.scan.value} -> {ng.scan.value}")
+    # steps
+    steps, ic.steps_added, ic.steps_removed, renames = _pairs(
+        list(og.steps), [(s.name, s.renamed_from) for s in ng.steps.values()])
+    ic.steps = steps
+    for was, now in renames:
+        add(f"{name}: step {now} renamed from {was}")
+    for s in ic.steps_added:
+        add(f"{name}: step {s} added")
+    for s in ic.steps_removed:
+        add(f"{name}: step {s} removed")
+    for s, was in steps.items():
+        a, b = og.steps[was], ng.steps[s]
+        if (a.initial, a.min_ns, a.max_ns) != (b.initial, b.min_ns, b.max_ns):
+            add(f"{name}: step {s}: initial/min/max changed")
+        if (a.macro is None) != (b.macro is None):
+            add(f"{name}: step {s}: macro-step changed")
+        oa = Counter(x.text.strip() for x in a.actions)
+        na = Counter(x.text.strip() for x in b.actions)
+        for text in (oa - na):
+            add(f"{name}: step {s}: action '{_short(text)}' removed")
+        for text in (na - oa):
+            add(f"{name}: step {s}: action '{_short(text)}' added")
+    # transitions (keys in the old chart's step names)
+    back = {now: was for now, was in steps.items()}
+    ot, nt = _transitions(og, {}), _transitions(ng, back)
+    for key, t in nt.items():
+        if key not in ot:
+            add(f"{name}: transition {key} added")
+        elif " ".join(ot[key].text.split()) != " ".join(t.text.split()):
+            add(f"{name}: transition {key}: condition '{_short(ot[key].text)}' -> "
+                f"'{_short(t.text)}'")
+    for key in ot:
+        if key not in nt:
+            add(f"{name}: transition {key} removed")
+    if [s.text for s in og.pre] != [s.text for s in ng.pre]:
+        add(f"{name}: pre equations changed")
+    if [s.text for s in og.post] != [s.text for s in ng.post]:
+        add(f"{name}: post equations changed")
+    # variables
+    ovars = [v.name for v in og.variables.values()]
+    nvars = [(v.name, v.renamed_from) for v in ng.variables.values()]
+    ic.variables, ic.vars_added, ic.vars_removed, vren = _pairs(ovars, nvars)
+    for was, now in vren:
+        add(f"{name}: variable {now} renamed from {was}")
+    for v in ic.vars_added:
+        nv = ng.variables[v]
+        add(f"{name}: variable {v} added ({nv.kind.value} {nv.type.value}, starts at "
+            f"{nv.init!r})")
+    for v in ic.vars_removed:
+        add(f"{name}: variable {v} removed")
+    for v, was in ic.variables.items():
+        va, vb = og.variables[was], ng.variables[v]
+        if va.type is not vb.type:
+            ic.types_changed[v] = (va.type.value, vb.type.value)
+            add(f"{name}: variable {v}: type {va.type.value} -> {vb.type.value}")
+            if va.retain:
+                cs.refusals.append(Refusal(
+                    f"{name}: retained variable {v} changes type {va.type.value} -> "
+                    f"{vb.type.value}", forceable=False))
+        if va.kind is not vb.kind:
+            add(f"{name}: variable {v}: {va.kind.value} -> {vb.kind.value}")
+        if va.retain != vb.retain:
+            add(f"{name}: variable {v}: {'now' if vb.retain else 'no longer'} retained")
+        if va.init != vb.init and va.type is vb.type:
+            add(f"{name}: variable {v}: init {va.init!r} -> {vb.init!r} (the running value "
+                f"is kept)")
+    # timers and function blocks
+    oblocks = {**{t: "timer" for t in og.timers}, **{x.name: x.kind for x in og.blocks.values()}}
+    nblocks = {**{t: "timer" for t in ng.timers}, **{x.name: x.kind for x in ng.blocks.values()}}
+    for bn, kind in nblocks.items():
+        if bn not in oblocks:
+            add(f"{name}: block {bn} added ({kind})")
+        elif oblocks[bn] != kind:
+            add(f"{name}: block {bn}: {oblocks[bn]} -> {kind} (starts from its initial state)")
+    for bn in oblocks:
+        if bn not in nblocks:
+            add(f"{name}: block {bn} removed")
+    # bindings
+    for way, oold, onew in (("input", oidef.inputs, idef.inputs),
+                            ("output", oidef.outputs, idef.outputs)):
+        _bindings(name, way, oold, onew, add)
+    return ic
+
+
+def _btext(b: Binding) -> str:
+    return b.source + (" inverted" if b.invert else "")
+
+
+def _bindings(name: str, way: str, old: dict[str, Binding], new: dict[str, Binding],
+              add: Callable[[str], None]) -> None:
+    for sig, b in new.items():
+        ob = old.get(sig)
+        if ob is None:
+            add(f"{name}: {way} {sig} bound to {_btext(b)}")
+        elif _btext(ob) != _btext(b):
+            add(f"{name}: {way} {sig}: {_btext(ob)} -> {_btext(b)}")
+    for sig, ob in old.items():
+        if sig not in new:
+            add(f"{name}: {way} {sig} no longer bound (was {_btext(ob)})")

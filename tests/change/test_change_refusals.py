@@ -1,0 +1,91 @@
+"""What apply refuses, with its one line each, and what a refusal leaves: nothing changed."""
+
+from __future__ import annotations
+
+from runtime.change.plan import apply, prepare
+from runtime.language.plantfile import load_plant
+from tests.change.changekit import DRAWER_PLANT, Story, data_plant, sim_plant, state
+
+
+def story_at(k: int) -> Story:
+    story = Story(sim_plant(DRAWER_PLANT))
+    story.run(k)
+    return story
+
+
+def test_a_retained_type_change_is_refused_even_forced():
+    story = story_at(100)
+    old = story.plant
+    before = state(old)
+    prep = prepare(old, load_plant(data_plant("retained_type")))
+    for force in (False, True):
+        res = apply(old, prep, force=force)
+        assert res.refusals == ["tester1: retained variable sCierres changes type int -> real",
+                                "tester2: retained variable sCierres changes type int -> real"]
+        assert res.lines == [] and res.restarted == [] and res.reopened == []
+    assert state(old) == before
+    # and the old plant runs on as if nothing happened
+    rows = story.run(10)
+    assert rows[-1]["tester1.gsAbrir.X"] == (old.instances["tester1"].active_steps() == ["gsAbrir"])
+
+
+def removed_active_step(tmp_path):
+    """The drawer chart with gsAbrir renamed without ``renamed_from``: the old gsAbrir is
+    removed, and it is active in tester1 at 600 ms."""
+    from tests.change.changekit import ROOT
+    src = (ROOT / "configs/drawer_tester/drawer_tester.yaml").read_text()
+    (tmp_path / "chart.yaml").write_text(src.replace("gsAbrir", "gsOpen"))
+    plant = (ROOT / "configs/drawer_tester/plant_sim.yaml").read_text()
+    (tmp_path / "plant.yaml").write_text(plant.replace("drawer_tester.yaml", "chart.yaml"))
+    return str(tmp_path / "plant.yaml")
+
+
+def test_an_active_step_removed_is_refused_and_restart_restarts_that_instance_only(tmp_path):
+    path = removed_active_step(tmp_path)
+    story = story_at(60)
+    old = story.plant
+    assert old.instances["tester1"].active_steps() == ["gsAbrir"]
+    assert old.instances["tester2"].active_steps() == ["gsParado"]
+    before = state(old)
+    prep = prepare(old, load_plant(path))
+    res = apply(old, prep)
+    assert res.refusals == ["tester1: step gsAbrir removed while it is active "
+                            "(--restart tester1 restarts that instance)"]
+    assert state(old) == before
+    assert state(prep.plant) == state(sim_plant(path))  # the new plant untouched too
+    res = apply(old, prep, restart=["tester1"])
+    assert res.refusals == [] and res.restarted == ["tester1"]
+    new = prep.plant
+    assert new.instances["tester1"].active_steps() == ["gsParado"]
+    assert new.instances["tester2"].active_steps() == ["gsParado"]
+    assert new.instances["tester2"].m[new.instances["tester2"].program.var_index("sParo")] \
+        == old.instances["tester2"].m[old.instances["tester2"].program.var_index("sParo")]
+
+
+def test_a_rename_with_renamed_from_carries_the_active_step(tmp_path):
+    from tests.change.changekit import ROOT
+    src = (ROOT / "configs/drawer_tester/drawer_tester.yaml").read_text()
+    src = src.replace("gsAbrir", "gsOpen").replace(
+        "  gsOpen:\n    description: Opening the drawer\n",
+        "  gsOpen:\n    renamed_from: gsAbrir\n    description: Opening the drawer\n")
+    (tmp_path / "chart.yaml").write_text(src)
+    plant = (ROOT / "configs/drawer_tester/plant_sim.yaml").read_text()
+    (tmp_path / "plant.yaml").write_text(plant.replace("drawer_tester.yaml", "chart.yaml"))
+    story = story_at(60)
+    old = story.plant
+    t_before = old.instances["tester1"].step_time("gsAbrir")
+    prep = prepare(old, load_plant(str(tmp_path / "plant.yaml")))
+    assert "tester1: step gsOpen renamed from gsAbrir" in prep.changes.lines()
+    res = apply(old, prep)
+    assert res.refusals == []
+    new = prep.plant.instances["tester1"]
+    assert new.active_steps() == ["gsOpen"]
+    assert new.step_time("gsOpen") == t_before == 90_000_000  # from 500 ms to 590 ms
+
+
+def test_apply_twice_is_refused():
+    story = story_at(10)
+    prep = prepare(story.plant, load_plant(data_plant("timeout")))
+    assert apply(story.plant, prep).refusals == []
+    assert apply(story.plant, prep).refusals == ["this change was applied already: prepare "
+                                                 "it again"]
