@@ -26,7 +26,6 @@ from collections.abc import Callable, Collection
 from types import FrameType
 from typing import IO, Any, TypeVar
 
-from drivers.base import Driver
 from runtime.controller.events import EventWatcher
 from runtime.controller.notify import Notifier
 from runtime.controller.realtime import lock_memory, reduce_timer_slack, set_fifo_priority
@@ -154,8 +153,6 @@ class Daemon:
         self.events = EventWatcher(self.plant, self.scan_stats, clock)
         #: online change (``reload``): its flow and history (runtime/controller/reload.py)
         self.reloader = Reloader(self)
-        #: drivers of the plant before the last reload, to be closed by the reloader
-        self.retired_drivers: list[Driver] = []
         #: while a reload reopens drivers: no scan, no driver read or written
         self._gap = False
 
@@ -627,8 +624,6 @@ class Daemon:
 
     def switch_plant(self, plant: Plant, pdef: PlantDef) -> None:
         """Scan thread, at the swap: ``plant`` runs from the next cycle on."""
-        kept = set(map(id, plant.drivers.values()))
-        self.retired_drivers = [d for d in self.plant.drivers.values() if id(d) not in kept]
         self.plant, self.pdef = plant, pdef
 
     def set_gap(self, on: bool) -> None:

@@ -22,7 +22,6 @@ untouched and the result says why, one line per reason (each also logged).
 from __future__ import annotations
 
 import collections
-import hashlib
 import logging
 import threading
 import time
@@ -30,7 +29,7 @@ from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from runtime.change.plan import Applied, Prepared, apply, prepare
+from runtime.change.plan import Applied, Prepared, apply, file_hashes, prepare
 from runtime.engine.plant import Plant
 from runtime.errors import SoftplcError
 from runtime.language.model import PlantDef
@@ -164,9 +163,10 @@ class Reloader:
             for line in result.refusals:
                 log.warning("reload refused: %s", line)
             return result
+        # back: the files on disk are the changed ones, the hashes kept are the program's
+        hashes = dict(self.previous[1]) if back and self.previous else dict(prepared.hashes)
         self.previous = (old_pdef, self.hashes)
-        self.hashes = result.hashes = dict(prepared.hashes)
-        self._after_swap(prepared.plant, result)
+        self.hashes = result.hashes = hashes
         self.history.append(Change(time.time(), result.summary, result.hashes, back))
         log.warning("reload%s applied in %.1f ms (prepared in %.0f ms): %s; %s",
                     " --back" if back else "", result.swap_ms, prepare_ms, result.summary,
@@ -180,8 +180,7 @@ class Reloader:
         """What the daemon itself cannot change while it runs (the plant's own settings),
         and ``--restart`` names that are no instance."""
         out = []
-        for what, a, b in (("plc: cycle", old.cycle_ns, new.cycle_ns),
-                           ("plc: watchdog", old.watchdog_ns, new.watchdog_ns),
+        for what, a, b in (("plc: watchdog", old.watchdog_ns, new.watchdog_ns),
                            ("plc: retain", old.retain_path, new.retain_path),
                            ("plc: realtime", (old.realtime_priority, old.lock_memory),
                             (new.realtime_priority, new.lock_memory))):
@@ -242,6 +241,8 @@ class Reloader:
                 t0 = time.perf_counter_ns()
                 applied = apply(old, prepared, restart=restart, force=force)
                 if not applied.refusals:
+                    if applied.reopened or applied.closed:
+                        daemon.set_gap(True)  # no cycle before they are closed/opened
                     daemon.switch_plant(prepared.plant, new_pdef)
                     for commit in commits:
                         commit()
@@ -265,37 +266,29 @@ class Reloader:
         if applied.refusals:
             return ReloadResult(False, lines=lines, refusals=list(applied.refusals),
                                 swap_ms=swap_ms)
+        if applied.reopened or applied.closed:
+            self._reopen(old, prepared.plant, applied.closed, applied.reopened)
         return ReloadResult(True, lines=lines, restarted=list(applied.restarted),
                             reopened=list(applied.reopened), summary=_summary(lines),
                             swap_ms=swap_ms)
 
-    def _after_swap(self, new: Plant, result: ReloadResult) -> None:
-        """Outside the scan: drivers no longer used off and closed, drivers to reopen
-        reopened."""
+    def _reopen(self, old: Plant, new: Plant, closed: list[str], opened: list[str]) -> None:
+        """Outside the scan, during the daemon's ``gap`` (set at the swap: the cycles
+        neither scan nor touch a driver): the old plant's drivers that are gone or
+        replaced put off and closed, then the new ones opened and written off (as at the
+        start). The other drivers' outputs stay as they were for the gap."""
         daemon = self.daemon
-        old_drivers = daemon.retired_drivers
-        daemon.retired_drivers = []
-        for d in old_drivers:
-            if d not in new.drivers.values():
-                try:
-                    d.close()  # outputs off first
-                except Exception:  # noqa: BLE001 - the others are still closed
-                    log.exception("reload: driver %s not closed", d.name)
-        if result.reopened:
-            self._reopen(new, result.reopened)
-
-    def _reopen(self, new: Plant, names: list[str]) -> None:
-        """Drivers whose bus settings changed: while they are reopened, the charts stand
-        still and no driver is read or written (the daemon's ``gap``); the reopened ones
-        are written off by their open, the others keep their outputs for the gap."""
-        daemon = self.daemon
-        daemon.call(lambda: daemon.set_gap(True), timeout=SWAP_TIMEOUT_S)
         try:
-            for name in names:
+            for name in closed:
+                try:
+                    old.drivers[name].close()  # outputs off first
+                except Exception:  # noqa: BLE001 - the others are still closed
+                    log.exception("reload: driver %s not closed", name)
+            for name in opened:
                 d = new.drivers[name]
                 d.open()
                 d.safe_state()
-                log.warning("reload: driver %s reopened (%s)", name, d.health.value)
+                log.warning("reload: driver %s opened (%s)", name, d.health.value)
         finally:
             daemon.call(lambda: daemon.set_gap(False), timeout=SWAP_TIMEOUT_S)
 
@@ -316,20 +309,3 @@ def _summary(lines: list[str]) -> str:
     head = "; ".join(lines[:3])
     more = f"; ... ({len(lines) - 3} more)" if len(lines) > 3 else ""
     return f"{len(lines)} change{'s' if len(lines) != 1 else ''}: {head}{more}"
-
-
-def file_hashes(pdef: PlantDef) -> dict[str, str]:
-    """sha256 of the files of ``pdef`` as they are on disk now: the plant, then each
-    chart once (a file that cannot be read is left out)."""
-    files = [pdef.path]
-    for idef in pdef.instances.values():
-        if idef.grafcet.path not in files:
-            files.append(idef.grafcet.path)
-    out = {}
-    for f in files:
-        try:
-            with open(f, "rb") as fh:
-                out[f] = hashlib.sha256(fh.read()).hexdigest()
-        except OSError:
-            continue
-    return out
