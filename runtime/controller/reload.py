@@ -142,12 +142,10 @@ class Reloader:
                                       "applied since the start)"], back)
             new_pdef, _ = self.previous
         else:
-            try:
-                new_pdef = load_plant(files or old_pdef.path)
-            except SoftplcError as exc:
-                return self._refused([f"load error: {exc}"], back)
-            except OSError as exc:
-                return self._refused([f"load error: {exc}"], back)
+            loaded = self._in_worker(lambda: _load(files or old_pdef.path))
+            if isinstance(loaded, str):
+                return self._refused([loaded], back)
+            new_pdef = loaded
         refusals = self._static_refusals(old_pdef, new_pdef, restart)
         if refusals:
             return self._refused(refusals, back)
@@ -300,6 +298,14 @@ class Reloader:
     def last(self) -> dict[str, Any] | None:
         """The last applied change (``status``), None if none."""
         return self.history[-1].as_dict() if self.history else None
+
+
+def _load(path: str) -> PlantDef | str:
+    """The plant file at ``path`` with its charts, or the one line saying why not."""
+    try:
+        return load_plant(path)
+    except (SoftplcError, OSError) as exc:
+        return f"load error: {exc}"
 
 
 def _summary(lines: list[str]) -> str:

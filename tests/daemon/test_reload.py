@@ -80,9 +80,26 @@ def no_stop_since(drv: RecordingDriver, index: int) -> None:
 def counts_on(daemon: Daemon, since: int, more: int = 3) -> None:
     """sN goes on from ``since`` (never back) by at least ``more``."""
     seen = [sn(daemon)]
-    wait_until(lambda: seen.append(sn(daemon)) or seen[-1] >= since + more, 10.0,
-               "the count to go on")
+
+    def on() -> bool:
+        seen.append(sn(daemon))
+        return seen[-1] >= since + more
+    wait_until(on, 10.0, "the count to go on")
     assert min(seen) >= since and seen == sorted(seen), seen
+
+
+def distinct_counts(daemon: Daemon, k: int) -> list[int]:
+    """The first ``k`` distinct values of sN from now on (polled every few ms: a step of
+    the count is 60 ms)."""
+    seen = [sn(daemon)]
+
+    def more() -> bool:
+        v = sn(daemon)
+        if v != seen[-1]:
+            seen.append(v)
+        return len(seen) >= k
+    wait_until(more, 10.0, f"{k} values of the count")
+    return seen
 
 
 def edit(path: Path, old: str, new: str) -> None:
@@ -115,11 +132,8 @@ def test_action_change_is_what_the_new_program_does(make_daemon: MakeDaemon,
     edit(chart, "P1 sN := sN + 1", "P1 sN := sN + 2")
     result = daemon.reload()
     assert result.applied, result.refusals
-    s0 = sn(daemon)
-    assert s0 >= n0
-    seen = [s0]
-    wait_until(lambda: (v := sn(daemon)) == seen[-1] or seen.append(v) or len(seen) >= 4,
-               10.0, "three more counts")
+    seen = distinct_counts(daemon, 4)
+    assert seen[0] >= n0
     assert all((b - a) == 2 for a, b in pairwise(seen)), seen  # +2 from the swap on
     no_stop_since(drv, before)
 
@@ -197,9 +211,7 @@ def test_back_returns_to_the_previous_program(make_daemon: MakeDaemon,
     result = daemon.reload(back=True)
     assert result.applied and result.back, result.refusals
     assert daemon.pdef is pdef0 and result.hashes == hashes0
-    seen = [sn(daemon)]
-    wait_until(lambda: (v := sn(daemon)) == seen[-1] or seen.append(v) or len(seen) >= 3,
-               10.0, "two more counts")
+    seen = distinct_counts(daemon, 3)
     assert all((b - a) == 1 for a, b in pairwise(seen)), seen  # +1 again
     # and back again: the two programs toggle
     assert daemon.reload(back=True).applied and daemon.pdef is pdef1

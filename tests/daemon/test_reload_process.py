@@ -76,8 +76,13 @@ class RecordingPeer(ModbusPeer):
 
 @pytest.fixture
 def line() -> Iterator[tuple[PtyBridge, RecordingPeer]]:
-    with PtyBridge() as bridge, RecordingPeer(bridge.peer_port) as peer:
-        yield bridge, peer
+    with PtyBridge() as bridge:
+        peer = RecordingPeer(bridge.peer_port)
+        peer.start()
+        try:
+            yield bridge, peer
+        finally:
+            peer.stop()
 
 
 def plant(tmp: Path, port: str) -> Path:
