@@ -6,7 +6,8 @@ model, so the charts keep moving) at a 10 ms cycle, and changes the chart's time
 (``gsAbrir.T >= 10s`` <-> ``11s``, every instance affected) ``--repeat`` times with
 ``Daemon.reload``. For each reload:
 
-- prepare: load, diff, compile and build the new plant, in the reload's worker thread;
+- load: the plant file and its charts, parsed in a child process (``load_apart``);
+- prepare: diff, compile and build the new plant, in the reload's worker thread;
 - apply: ``runtime.change.apply`` plus the switch of every holder, in the scan thread
   between two cycles (``ReloadResult.swap_ms``);
 - the swap cycle: the first cycle of the new program, woken after the apply: its wake-up
@@ -125,6 +126,7 @@ def main() -> int:
             f"{len(results)} reloads, {len(rec.cycles)} cycles recorded, "
             f"{overruns} overruns in all")
         out(f"{'(ms)':36}{'median':>9}{'p99':>9}{'max':>9}")
+        row("load (child process)", [r.load_ms for r in results])
         row("prepare (worker thread)", [r.prepare_ms for r in results])
         row("apply + switch (scan thread)", [r.swap_ms for r in results])
         row("swap cycle: lateness", [v[1] / 1e6 for v in swap])

@@ -368,8 +368,8 @@ def cmd_reload(session: Session, args: list[str]) -> Reply:
                     "; ".join(result.refusals))
         raise ReloadRefused(result.refusals, [f"  {x}" for x in result.lines], data)
     log.warning("console %s: %s applied: %s", session.name, what, result.summary)
-    lines = [f"{what} applied in {result.swap_ms:.1f} ms (prepared in "
-             f"{result.prepare_ms:.0f} ms): {len(result.lines)} change(s)"]
+    lines = [f"{what} applied in {result.swap_ms:.1f} ms (loaded in {result.load_ms:.0f} ms, "
+             f"prepared in {result.prepare_ms:.0f} ms): {len(result.lines)} change(s)"]
     lines += [f"  {x}" for x in result.lines]
     lines += [f"restarted from its initial situation: {x}" for x in result.restarted]
     lines += [f"driver reopened (its outputs were off meanwhile): {x}"

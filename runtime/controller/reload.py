@@ -23,6 +23,10 @@ from __future__ import annotations
 
 import collections
 import logging
+import os
+import pickle
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable, Collection
@@ -47,6 +51,10 @@ HISTORY_KEPT = 20
 SWAP_TIMEOUT_S = 30.0
 #: what a reload asked while another runs is told
 IN_PROGRESS = "reload in progress"
+#: the longest the child process loading the plant may take, s
+LOAD_TIMEOUT_S = 120.0
+#: the directory holding the ``runtime`` package (for the child process)
+_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 #: a holder of the plant (the console): called in the worker thread with the new plant,
 #: returns what to run in the scan thread at the swap (cheap: assignments)
@@ -67,7 +75,9 @@ class ReloadResult:
     #: file -> sha256 of the program now running
     hashes: dict[str, str] = field(default_factory=dict)
     back: bool = False
-    #: time the change took: prepare (worker thread) and apply+switch (scan thread), ms
+    #: time the change took, ms: the load (a child process), the prepare (worker
+    #: thread) and the apply with the switch (scan thread, between two cycles)
+    load_ms: float = 0.0
     prepare_ms: float = 0.0
     swap_ms: float = 0.0
 
@@ -75,7 +85,8 @@ class ReloadResult:
         return {"applied": self.applied, "lines": self.lines, "refusals": self.refusals,
                 "restarted": self.restarted, "reopened": self.reopened,
                 "summary": self.summary, "hashes": self.hashes, "back": self.back,
-                "prepare_ms": round(self.prepare_ms, 3), "swap_ms": round(self.swap_ms, 3)}
+                "load_ms": round(self.load_ms, 3), "prepare_ms": round(self.prepare_ms, 3),
+                "swap_ms": round(self.swap_ms, 3)}
 
 
 @dataclass(frozen=True)
@@ -136,16 +147,18 @@ class Reloader:
                 back: bool) -> ReloadResult:
         daemon = self.daemon
         old_pdef = daemon.pdef
+        t_load = time.perf_counter()
         if back:
             if self.previous is None:
                 return self._refused(["no previous program to go back to (no change was "
                                       "applied since the start)"], back)
             new_pdef, _ = self.previous
         else:
-            loaded = self._in_worker(lambda: _load(files or old_pdef.path))
+            loaded = self._in_worker(lambda: load_apart(files or old_pdef.path))
             if isinstance(loaded, str):
                 return self._refused([loaded], back)
             new_pdef = loaded
+        load_ms = (time.perf_counter() - t_load) * 1e3
         refusals = self._static_refusals(old_pdef, new_pdef, restart)
         if refusals:
             return self._refused(refusals, back)
@@ -156,7 +169,7 @@ class Reloader:
             return self._refused([built], back)
         prepared, commits = built
         result = self._swap(prepared, new_pdef, commits, restart, force)
-        result.back, result.prepare_ms = back, prepare_ms
+        result.back, result.load_ms, result.prepare_ms = back, load_ms, prepare_ms
         if not result.applied:
             for line in result.refusals:
                 log.warning("reload refused: %s", line)
@@ -166,8 +179,9 @@ class Reloader:
         self.previous = (old_pdef, self.hashes)
         self.hashes = result.hashes = hashes
         self.history.append(Change(time.time(), result.summary, result.hashes, back))
-        log.warning("reload%s applied in %.1f ms (prepared in %.0f ms): %s; %s",
-                    " --back" if back else "", result.swap_ms, prepare_ms, result.summary,
+        log.warning("reload%s applied in %.1f ms (loaded in %.0f ms, prepared in %.0f ms): "
+                    "%s; %s", " --back" if back else "", result.swap_ms, load_ms,
+                    prepare_ms, result.summary,
                     ", ".join(f"{f} sha256 {h}" for f, h in result.hashes.items()))
         for line in result.lines:
             log.info("reload: %s", line)
@@ -308,6 +322,29 @@ def _load(path: str) -> PlantDef | str:
         return f"load error: {exc}"
 
 
+def load_apart(path: str) -> PlantDef | str:
+    """``_load`` in a child process (``python -m runtime.controller.reload PATH``), the
+    result handed back pickled: the YAML parser holds the GIL for tens of ms at a time on
+    a large plant (measured 64 ms for 100 testers on a loaded machine), which would make
+    the scan thread that much late; unpickling holds it ~2 ms. If the child fails, the
+    plant is loaded in this process after all (one log line)."""
+    try:
+        child = subprocess.run([sys.executable, "-m", "runtime.controller.reload", path],
+                               capture_output=True, timeout=LOAD_TIMEOUT_S, check=False,
+                               env={**os.environ, "PYTHONPATH": _ROOT + os.pathsep
+                                    + os.environ.get("PYTHONPATH", "")})
+        if child.returncode == 0:
+            result: PlantDef | str = pickle.loads(child.stdout)  # noqa: S301 - our child
+            return result
+        why = child.stderr.decode(errors="replace").strip().splitlines()[-1:] or ["?"]
+        log.warning("reload: the plant was not loaded apart (exit %d: %s): loaded here",
+                    child.returncode, why[0])
+    except (OSError, subprocess.SubprocessError, pickle.UnpicklingError, EOFError,
+            AttributeError, ImportError) as exc:
+        log.warning("reload: the plant was not loaded apart (%s): loaded here", exc)
+    return _load(path)
+
+
 def _summary(lines: list[str]) -> str:
     """One line for the log and ``status``: the count and the first changes."""
     if not lines:
@@ -315,3 +352,7 @@ def _summary(lines: list[str]) -> str:
     head = "; ".join(lines[:3])
     more = f"; ... ({len(lines) - 3} more)" if len(lines) > 3 else ""
     return f"{len(lines)} change{'s' if len(lines) != 1 else ''}: {head}{more}"
+
+
+if __name__ == "__main__":  # the child of ``load_apart``: the PlantDef, pickled, on stdout
+    sys.stdout.buffer.write(pickle.dumps(_load(sys.argv[1])))
