@@ -247,6 +247,43 @@ def cmd_reload(args: argparse.Namespace) -> int:
     return 1
 
 
+def cmd_diff(args: argparse.Namespace) -> int:
+    """What loading NEW into a controller running OLD would do; 1 if it cannot be applied
+    online (static refusals), 0 if it can (state checks listed)."""
+    from runtime.change.diff import chart_plant, diff_plants
+    from runtime.language.filekind import file_kind
+    from runtime.language.grafcetfile import load_grafcet
+    from runtime.language.plantfile import load_plant
+
+    kinds = [file_kind(args.old), file_kind(args.new)]
+    for path, kind in zip((args.old, args.new), kinds, strict=True):
+        if kind not in ("grafcet", "plant"):
+            raise SourceError(Loc(path, 1, 1), "expected a grafcet file ('grafcet:' and "
+                                               "'steps:') or a plant file ('instances:')")
+    if kinds[0] != kinds[1]:
+        raise SourceError(Loc(args.new, 1, 1), f"expected a {kinds[0]} file like {args.old}, "
+                                               f"found a {kinds[1]} file")
+    if kinds[0] == "plant":
+        old, new = load_plant(args.old), load_plant(args.new)
+    else:
+        g = load_grafcet(args.old)
+        old, new = chart_plant(g), chart_plant(load_grafcet(args.new), g.name)
+    cs = diff_plants(old, new)
+    out = sys.stdout.write
+    for line in cs.lines() or ["no change"]:
+        out(line + "\n")
+    refusals = cs.static_refusals()
+    if refusals:
+        out("cannot be applied online:\n")
+        for line in refusals:
+            out(f"  {line}\n")
+        return 1
+    out("can be applied online\n")
+    for line in cs.state_checks():
+        out(f"  {line}\n")
+    return 0
+
+
 def package_version() -> str:
     """The installed package's version (importlib.metadata), or a word saying it is not
     installed (run from a source tree without ``pip install``)."""
@@ -317,6 +354,12 @@ def build_parser() -> argparse.ArgumentParser:
     h = sub.add_parser("hash-pin", help="print the hash of a console PIN for the plant file")
     h.add_argument("pin", nargs="?", help="the PIN (asked without echo if omitted)")
     h.set_defaults(func=cmd_hash_pin)
+
+    d = sub.add_parser("diff", help="what loading a changed chart or plant into a running "
+                                    "controller would do (online change)")
+    d.add_argument("old", help="the running chart or plant file")
+    d.add_argument("new", help="the changed one")
+    d.set_defaults(func=cmd_diff)
 
     for extra in EXTRA_COMMANDS:
         extra(sub)

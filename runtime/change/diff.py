@@ -78,16 +78,29 @@ class ChangeSet:
         """The refusals known without state, e.g. ``driver mb: port changed``."""
         return [r.line for r in self.refusals]
 
+    def state_checks(self) -> list[str]:
+        """What ``apply`` will refuse depending on the running state, one line each."""
+        out = []
+        for name, ic in self.instances.items():
+            for step in ic.steps_removed:
+                out.append(f"{name}: step {step} removed: refused while it is active "
+                           f"(--restart {name} restarts that instance)")
+            if ic.scan_changed and ic.old.scan.value == "codesys":
+                out.append(f"{name}: refused while an evolution is pending (scan model "
+                           f"codesys -> {ic.new.scan.value})")
+        return out
+
     @property
     def empty(self) -> bool:
         return not self._lines
 
 
-def chart_plant(g: Grafcet) -> PlantDef:
-    """A one-instance plant (named after the chart) around chart ``g``, with no binding:
-    how ``softplc diff`` compares two chart files."""
+def chart_plant(g: Grafcet, instance: str | None = None) -> PlantDef:
+    """A one-instance plant around chart ``g``, with no binding (the instance named
+    ``instance``, else after the chart): how ``softplc diff`` compares two chart files."""
+    name = instance or g.name
     p = PlantDef(path=g.path)
-    p.instances[g.name] = InstanceDef(g.name, g, g.loc)
+    p.instances[name] = InstanceDef(name, g, g.loc)
     return p
 
 
@@ -252,10 +265,9 @@ def _instance(name: str, oidef: InstanceDef, idef: InstanceDef, cs: ChangeSet
     for key in ot:
         if key not in nt:
             add(f"{name}: transition {key} removed")
-    if [s.text for s in og.pre] != [s.text for s in ng.pre]:
-        add(f"{name}: pre equations changed")
-    if [s.text for s in og.post] != [s.text for s in ng.post]:
-        add(f"{name}: post equations changed")
+    for part in ("pre", "post"):
+        _equations(name, part, [" ".join(x.text.split()) for x in getattr(og, part)],
+                   [" ".join(x.text.split()) for x in getattr(ng, part)], add)
     # variables
     ovars = [v.name for v in og.variables.values()]
     nvars = [(v.name, v.renamed_from) for v in ng.variables.values()]
@@ -300,6 +312,20 @@ def _instance(name: str, oidef: InstanceDef, idef: InstanceDef, cs: ChangeSet
                             ("output", oidef.outputs, idef.outputs)):
         _bindings(name, way, oold, onew, add)
     return ic
+
+
+def _equations(name: str, part: str, old: list[str], new: list[str],
+               add: Callable[[str], None]) -> None:
+    """One line per pre/post statement changed (same place), removed or added."""
+    if len(old) == len(new):
+        for a, b in zip(old, new, strict=True):
+            if a != b:
+                add(f"{name}: {part} '{_short(a)}' -> '{_short(b)}'")
+        return
+    for text in Counter(old) - Counter(new):
+        add(f"{name}: {part} '{_short(text)}' removed")
+    for text in Counter(new) - Counter(old):
+        add(f"{name}: {part} '{_short(text)}' added")
 
 
 def _btext(b: Binding) -> str:

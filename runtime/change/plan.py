@@ -23,7 +23,7 @@ from runtime.change.diff import ChangeSet, InstanceChange, diff_plants
 from runtime.compiler.program import Program, Slot, SlotKind
 from runtime.engine.instance import Instance
 from runtime.engine.plant import Plant
-from runtime.language.model import PlantDef
+from runtime.language.model import PlantDef, VarKind
 
 
 @dataclass
@@ -43,6 +43,10 @@ class _Carry:
     lost_pending: list[tuple[int, str]] = field(default_factory=list)
     #: what starts at its initial value (reported when applied)
     reset: list[str] = field(default_factory=list)
+    #: (new index of an edge's memory, new index of its input) for the edges the old
+    #: chart had not, on a chart input: the memory takes the input's value of the last
+    #: scan, so that the edge is seen exactly as a running chart would have seen it
+    new_edges: list[tuple[int, int]] = field(default_factory=list)
 
 
 @dataclass
@@ -146,6 +150,9 @@ def _carry(ic: InstanceChange, old: Instance, new: Instance) -> _Carry:
         key = _old_key(s, ic)
         o = oslots.get(key) if key is not None else None
         if o is None:
+            edge_input = _edge_input(s, new)
+            if edge_input is not None:
+                c.new_edges.append((s.index, edge_input))
             continue
         if s.kind is SlotKind.VARIABLE and s.name in ic.types_changed:
             c.reset.append(f"{ic.name}: variable {s.name} starts at its init value (type "
@@ -167,6 +174,18 @@ def _carry(ic: InstanceChange, old: Instance, new: Instance) -> _Carry:
         if o.key.startswith("#pending") and o.index not in carried:
             c.lost_pending.append((o.index, o.key[len("#pending:"):]))
     return c
+
+
+def _edge_input(s: Slot, inst: Instance) -> int | None:
+    """The slot of the chart input whose edge ``s`` remembers (``#edge:WHERE:[↑iX].prev``),
+    None if ``s`` is no such memory."""
+    if not (s.key.startswith("#edge:") and s.key.endswith(".prev")):
+        return None
+    text = s.key[s.key.find("[") + 1:s.key.rfind("]")]
+    v = inst.grafcet.variables.get(text[1:])
+    if text[:1] not in ("↑", "↓") or v is None or v.kind is not VarKind.INPUT:
+        return None
+    return inst.program.var_index(v.name)
 
 
 def apply(old: Plant, prepared: Prepared, *, restart: Collection[str] = (),
@@ -225,6 +244,8 @@ def apply(old: Plant, prepared: Prepared, *, restart: Collection[str] = (),
         for ni, oi, block in c.copies:
             v: Any = om[oi]
             nm[ni] = copy.copy(v) if block else v
+        for ni, vi in c.new_edges:
+            nm[ni] = bool(nm[vi])
         res.lines += c.reset
         for ix, step in c.removed_steps:
             if om[ix]:

@@ -1,0 +1,158 @@
+"""Plant-level state across an online change: drivers handed over untouched, forces, pause,
+program time, outputs nothing drives any more, drivers to reopen."""
+
+from __future__ import annotations
+
+import textwrap
+
+from runtime.change.plan import apply, prepare
+from runtime.engine.plant import Plant
+from runtime.language.plantfile import load_plant
+from tests.change.changekit import DRAWER_PLANT, ROOT, Story, data_plant, sim_plant, state
+
+CHART = str(ROOT / "configs/drawer_tester/drawer_tester.yaml")
+
+
+def drawer_text() -> str:
+    return (ROOT / "configs/drawer_tester/plant_sim.yaml").read_text().replace(
+        "grafcet: drawer_tester.yaml", f"grafcet: {CHART}")
+
+
+def opening() -> Story:
+    """tester1 in gsAbrir (oAbrir on, sim.Q0 = 1) at 600 ms."""
+    story = Story(sim_plant(DRAWER_PLANT))
+    story.run(60)
+    assert story.plant.drivers["sim"].outputs["Q0"] == 1
+    return story
+
+
+def test_prepare_leaves_the_running_drivers_alone():
+    """The new plant is built on the running sim driver object; building it must not
+    declare the points again (that zeroes the images the running scan reads and writes)."""
+    story = opening()
+    old = story.plant
+    d = old.drivers["sim"]
+    images = (dict(d.inputs), dict(d.outputs))
+    prep = prepare(old, load_plant(data_plant("timeout")))
+    assert prep.plant.drivers["sim"] is d
+    assert (dict(d.inputs), dict(d.outputs)) == images
+
+
+def test_forces_pause_and_program_time_carry_and_a_force_on_a_gone_name_is_released(tmp_path):
+    story = opening()
+    old = story.plant
+    old.force("tester1.oTest", 0)
+    old.force("tester2.sParo", 1)
+    old.force("sim.Q5", 1)
+    old.pause()
+    old.cycle(60 * 10_000_000 + 5_000_000)  # held: the charts' time stands still
+    src = open(CHART).read().replace("sParo", "sStop")
+    (tmp_path / "c.yaml").write_text(src)
+    (tmp_path / "p.yaml").write_text(drawer_text().replace(CHART, str(tmp_path / "c.yaml")))
+    prep = prepare(old, load_plant(str(tmp_path / "p.yaml")))
+    res = apply(old, prep)
+    assert res.refusals == []
+    new = prep.plant
+    assert new.forced_values() == {"tester1.oTest": False, "sim.Q5": 1}
+    assert "force tester2.sParo released: no longer in the plant" in res.lines
+    assert new.held and new.scans == old.scans and new.start == old.start
+    assert (new.offset_ns, new.last_up) == (old.offset_ns, old.last_up)
+    # resumed, the next scan comes one cycle after the last, as it would have
+    new.resume()
+    new.cycle(10**10)
+    assert new.instances["tester1"].step_time("gsAbrir") == 100_000_000
+    assert new.drivers["sim"].outputs["Q3"] == 0  # oTest forced off
+    assert new.drivers["sim"].outputs["Q5"] == 1
+
+
+def test_an_output_nothing_drives_any_more_goes_off(tmp_path):
+    """The edit makes oAbrir a memory variable of the chart (its bindings go): the points
+    it drove, sim.Q0 on at 600 ms, go off; the others keep what the chart decides."""
+    story = opening()
+    old = story.plant
+    src = open(CHART).read().replace("outputs: [oAbrir, ", "outputs: [").replace(
+        "memory:\n", "memory:\n  oAbrir: false\n")
+    (tmp_path / "c.yaml").write_text(src)
+    text = drawer_text().replace(CHART, str(tmp_path / "c.yaml"))
+    text = text.replace("      oAbrir:  sim.Q0\n", "").replace("      oAbrir:  sim.Q4\n", "")
+    (tmp_path / "p.yaml").write_text(text)
+    prep = prepare(old, load_plant(str(tmp_path / "p.yaml")))
+    res = apply(old, prep)
+    assert res.refusals == []
+    assert res.lines[-2:] == ["sim.Q0: no longer driven: off", "sim.Q4: no longer driven: off"]
+    new = prep.plant
+    assert new.drivers["sim"].outputs["Q0"] == 0
+    story.bind(new)
+    row = story.run(1)[0]
+    assert (row["sim.Q0"], row["sim.Q3"], row["tester1.oAbrir"]) == (0, 1, True)
+
+
+def test_an_instance_removed_leaves_its_outputs_off(tmp_path):
+    story = Story(sim_plant(DRAWER_PLANT))
+    story.run(120)  # tester2 in gsAbrir from 1000 ms: sim.Q4 on
+    old = story.plant
+    assert old.drivers["sim"].outputs["Q4"] == 1
+    text = drawer_text()
+    text = text[:text.index("  tester2:")] + text[text.index("monitor:"):]
+    (tmp_path / "p.yaml").write_text(text)
+    prep = prepare(old, load_plant(str(tmp_path / "p.yaml")))
+    res = apply(old, prep)
+    assert res.refusals == []
+    assert "tester2: instance removed (its outputs go off)" in res.lines
+    assert "sim.Q4: no longer driven: off" in res.lines
+    new = prep.plant
+    new.cycle(120 * 10_000_000)
+    assert new.drivers["sim"].outputs["Q4"] == 0
+    assert new.drivers["sim"].outputs["Q0"] == old.drivers["sim"].outputs["Q0"]
+
+
+def test_a_changed_driver_is_refused_then_reopened_when_forced(tmp_path):
+    text = textwrap.dedent(f"""\
+        drivers:
+          sim: {{type: sim}}
+          io: {{type: sim, on_fault: stop}}
+        instances:
+          t:
+            grafcet: {CHART}
+            inputs: {{iParo: sim.I0, iMarcha: sim.I1, iAbierto: sim.I2, iCerrado: io.I3}}
+            outputs: {{oAbrir: sim.Q0, oCerrar: sim.Q1, oParado: sim.Q2, oTest: io.Q3}}
+        """)
+    (tmp_path / "a.yaml").write_text(text)
+    (tmp_path / "b.yaml").write_text(text.replace("on_fault: stop", "on_fault: hold"))
+    old = Plant(load_plant(str(tmp_path / "a.yaml")), sim=True, virtual=True)
+    old.open()
+    old.cycle(0)
+    before = state(old)
+    prep = prepare(old, load_plant(str(tmp_path / "b.yaml")))
+    res = apply(old, prep)
+    assert res.refusals == ["driver io: on_fault changed: the bus must be reopened"]
+    assert state(old) == before
+    res = apply(old, prep, force=True)
+    assert res.refusals == []
+    assert res.reopened == ["io"] and res.closed == ["io"]
+    assert prep.plant.drivers["io"] is not old.drivers["io"]
+    assert prep.plant.drivers["sim"] is old.drivers["sim"]
+
+
+def test_a_scan_model_change_waits_for_a_pending_evolution(tmp_path):
+    src = open(CHART).read()
+    (tmp_path / "cs.yaml").write_text(src.replace("scan: immediate", "scan: codesys"))
+    (tmp_path / "a.yaml").write_text(drawer_text().replace(CHART, str(tmp_path / "cs.yaml")))
+    old = Plant(load_plant(str(tmp_path / "a.yaml")), sim=True, virtual=True)
+    old.open()
+    old.set("sim.I0", 1)
+    old.set("sim.I4", 1)
+    old.cycle(0)
+    old.set("sim.I1", 1)
+    old.cycle(10_000_000)  # decides gsParado -> gsAbrir for the next scan
+    prep = prepare(old, load_plant(DRAWER_PLANT))
+    assert prep.changes.state_checks() == [
+        "tester1: refused while an evolution is pending (scan model codesys -> immediate)",
+        "tester2: refused while an evolution is pending (scan model codesys -> immediate)"]
+    res = apply(old, prep)
+    assert res.refusals == ["tester1: the pending evolution gsParado->gsAbrir would be lost"]
+    old.cycle(20_000_000)
+    assert old.instances["tester1"].active_steps() == ["gsAbrir"]
+    res = apply(old, prep)
+    assert res.refusals == []
+    assert "tester1: scan model codesys -> immediate" in res.lines
