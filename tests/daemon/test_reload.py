@@ -322,3 +322,22 @@ def test_retain_follows_the_new_chart(make_daemon: MakeDaemon, tmp_path: Path) -
         assert sn(again) == n and n > 0
     finally:
         again.stop("end of test")
+
+
+def test_a_changed_driver_is_reopened_in_a_gap(make_daemon: MakeDaemon,
+                                               tmp_path: Path) -> None:
+    """A driver's settings changed: refused, then forced: the old driver is put off and
+    closed, the new one opened, while no cycle touches a driver; the charts go on."""
+    daemon, drv, chart = running(make_daemon, tmp_path)
+    plant_file = Path(daemon.pdef.path)
+    edit(plant_file, "{type: sim, on_fault: stop}", "{type: sim, on_fault: zero}")
+    refused = daemon.reload()
+    assert not refused.applied and any("io" in r for r in refused.refusals), refused
+    n0 = sn(daemon)
+    result = daemon.reload(force=True)
+    assert result.applied and result.reopened == ["io"], result
+    assert drv.last()[0] == "safe" and drv.health.value == "closed"
+    new = daemon.plant.drivers["io"]
+    assert new is not drv and new.health.value == "ok" and not daemon._gap
+    counts_on(daemon, n0)
+    assert daemon.status()["state"] == "running"
