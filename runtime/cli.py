@@ -201,6 +201,52 @@ def cmd_hash_pin(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_reload(args: argparse.Namespace) -> int:
+    """Online change through the console of a running controller (docs/online-change.md):
+    exit 0 applied, 1 refused (each reason on stderr), 2 cannot connect."""
+    from runtime.console.monitor import ConsoleClient, MonitorError, Target
+    from runtime.language.runtimedir import expand
+
+    def fail(text: str, status: int) -> int:
+        sys.stderr.write(f"softplc reload: {text}\n")
+        return status
+    try:
+        address = expand(args.target, Loc("SOCKET|PORT", 1, 1))
+        client = ConsoleClient(Target.parse(address, args.baudrate).open())
+    except (SourceError, MonitorError) as exc:
+        return fail(f"error: {exc.message if isinstance(exc, SourceError) else exc}", 2)
+    line = "reload" + (" --force" if args.force else "") + (" --back" if args.back else "")
+    line += "".join(f" --restart {name}" for name in args.restart)
+    try:
+        try:
+            client.start()
+        except MonitorError as exc:
+            return fail(f"error: {exc}", 2)
+        if args.pin_file:
+            try:
+                with open(args.pin_file, encoding="utf-8") as f:
+                    pin = f.readline().strip()
+            except OSError as exc:
+                return fail(f"error: --pin-file: {exc.strerror or exc}", 2)
+            reply = client.request(f"unlock {pin}")
+            if not reply.get("ok"):
+                return fail(f"unlock refused: {reply.get('error')}", 1)
+        reply = client.request(line, timeout=args.timeout)
+    except MonitorError as exc:
+        return fail(f"error: {exc}", 2)
+    finally:
+        client.close()
+    if reply.get("ok"):
+        sys.stdout.write("".join(f"{x}\n" for x in reply.get("text", [])))
+        return 0
+    for x in reply.get("lines", []):
+        sys.stderr.write(f"  {x}\n")
+    refusals = reply.get("refusals") or [reply.get("error", "refused")]
+    for x in refusals:
+        sys.stderr.write(f"softplc reload: refused: {x}\n")
+    return 1
+
+
 def cmd_diff(args: argparse.Namespace) -> int:
     """What loading NEW into a controller running OLD would do; 1 if it cannot be applied
     online (static refusals), 0 if it can (state checks listed)."""
@@ -282,6 +328,28 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--script", metavar="S.yaml",
                    help="with --sim: play this simulation script's input changes in real time")
     r.set_defaults(func=cmd_run)
+
+    rl = sub.add_parser("reload", help="load the changed plant and charts into a running "
+                                       "controller (online change)",
+                        description="Ask a running controller, through its console, to load "
+                                    "its plant file and charts again and swap the programs "
+                                    "between two scans, state carried over "
+                                    "(docs/online-change.md). Exit 0 applied, 1 refused, 2 "
+                                    "cannot connect.")
+    rl.add_argument("target", metavar="SOCKET|PORT",
+                    help="/run/softplc/console.sock, 127.0.0.1:5020 or /dev/ttyUSB0")
+    rl.add_argument("--force", action="store_true",
+                    help="apply what is refused unless forced (docs/online-change.md)")
+    rl.add_argument("--restart", action="append", default=[], metavar="INSTANCE",
+                    help="restart this instance from its initial situation (repeatable)")
+    rl.add_argument("--back", action="store_true",
+                    help="return to the program that ran before the last change")
+    rl.add_argument("--pin-file", metavar="FILE",
+                    help="unlock the console with the PIN on this file's first line")
+    rl.add_argument("--baudrate", type=int, default=115200, help="serial speed (115200)")
+    rl.add_argument("--timeout", type=float, default=60.0, metavar="S",
+                    help="how long to wait for the controller's answer (60)")
+    rl.set_defaults(func=cmd_reload)
 
     h = sub.add_parser("hash-pin", help="print the hash of a console PIN for the plant file")
     h.add_argument("pin", nargs="?", help="the PIN (asked without echo if omitted)")

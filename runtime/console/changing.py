@@ -1,6 +1,6 @@
 """The console commands that change the plant (marked * in help; they need ``unlock PIN``
 or a trusted console): set, force, unforce, pause, resume, cycle, init, reset, iocheck,
-ack. Plain functions ``(session, args) -> Reply``, dispatched through commands.COMMANDS.
+ack, reload. Plain functions ``(session, args) -> Reply``, dispatched through commands.COMMANDS.
 
 Pause, stepping, iocheck and forces are held by the session that made them: each is
 recorded with ``ConsoleService.hold`` in the same scan-thread call as the plant change, and
@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from typing import TYPE_CHECKING, Any
 
 from runtime.console.protocol import CYCLE_DETAIL_LINES, MAX_CYCLE, Reply
@@ -318,3 +319,65 @@ def cmd_ack(session: Session, args: list[str]) -> Reply:
     else:
         log.info("console %s: ack: %s", session.name, done)
     return [done]
+
+
+class ReloadRefused(CommandError):
+    """``reload`` did not change anything: the reply lists each reason on its own line
+    (``refused: ...``) before its error line; JSON: ``refusals`` and ``lines``."""
+
+    def __init__(self, reasons: list[str], lines: list[str], data: dict[str, Any]) -> None:
+        if len(reasons) == 1:
+            super().__init__(f"reload refused: {reasons[0]}")
+            self.lines = lines
+        else:
+            super().__init__(f"reload refused ({len(reasons)} reasons): nothing changed")
+            self.lines = lines + [f"refused: {r}" for r in reasons]
+        self.data = data
+
+
+def _reload_args(args: list[str]) -> tuple[bool, bool, list[str]]:
+    """``[--force] [--restart INSTANCE]... [--back]`` -> force, back, restart."""
+    usage = "usage: reload [--force] [--restart INSTANCE]... [--back]"
+    force = back = False
+    restart: list[str] = []
+    words = iter(args)
+    for w in words:
+        if w == "--force":
+            force = True
+        elif w == "--back":
+            back = True
+        elif w == "--restart":
+            name = next(words, None)
+            if name is None:
+                raise CommandError(f"{usage}; --restart names an instance")
+            restart.append(name)
+        else:
+            raise CommandError(f"{usage}; not '{printable(w)}'")
+    return force, back, restart
+
+
+def cmd_reload(session: Session, args: list[str]) -> Reply:
+    """Online change: the controller loads its plant and charts again and swaps the
+    programs between two scans (docs/online-change.md). Blocks this session until done."""
+    force, back, restart = _reload_args(args)
+    result = session.ctl.reload(restart=restart, force=force, back=back)
+    data = result.as_dict()
+    what = "reload --back" if back else "reload"
+    if not result.applied:
+        log.warning("console %s: %s refused: %s", session.name, what,
+                    "; ".join(result.refusals))
+        raise ReloadRefused(result.refusals, [f"  {x}" for x in result.lines], data)
+    log.warning("console %s: %s applied: %s", session.name, what, result.summary)
+    lines = [f"{what} applied in {result.swap_ms:.1f} ms (loaded in {result.load_ms:.0f} ms, "
+             f"prepared in {result.prepare_ms:.0f} ms): {len(result.lines)} change(s)"]
+    lines += [f"  {x}" for x in result.lines]
+    lines += [f"restarted from its initial situation: {x}" for x in result.restarted]
+    lines += [f"driver reopened (its outputs were off meanwhile): {x}"
+              for x in result.reopened]
+    return lines, data
+
+
+def last_reload_text(last: dict[str, Any]) -> str:
+    """``status``'s line for the last applied change."""
+    when = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(last["time"]))
+    return f"last reload{' (--back)' if last['back'] else ''} at {when}: {last['summary']}"

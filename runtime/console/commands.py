@@ -99,6 +99,8 @@ def cmd_status(session: Session, args: list[str]) -> Reply:
     lines += [f"SFCError {n}: step {s}" for n, s in data["errors"].items()]
     lines += [f"forced {k}={v}" for k, v in data["forced"].items()]
     lines += [f"fault at {_clock_text(f['time'])}: {f['reason']}" for f in data["faults"]]
+    if data.get("reload"):
+        lines.append(changing.last_reload_text(data["reload"]))
     if data.get("retain") and data["retain"]["state"] != "ok":
         lines.append(f"retain {data['retain']['state']}: {data['retain']['text']}")
     return lines, data
@@ -239,5 +241,5 @@ COMMANDS: dict[str, Command] = {
     "set": changing.cmd_set, "force": changing.cmd_force, "unforce": changing.cmd_unforce,
     "pause": changing.cmd_pause, "resume": changing.cmd_resume, "cycle": changing.cmd_cycle,
     "init": changing.cmd_init, "reset": changing.cmd_reset, "iocheck": changing.cmd_iocheck,
-    "ack": changing.cmd_ack,
+    "ack": changing.cmd_ack, "reload": changing.cmd_reload,
 }

@@ -46,7 +46,7 @@ READ_ONLY = ("help", "status", "stats", "get", "watch", "trace", "why", "json", 
              "lock")
 #: commands that change the plant: they need ``unlock PIN`` or a trusted console
 CHANGING = ("set", "force", "unforce", "pause", "resume", "cycle", "init", "reset",
-            "iocheck", "ack")
+            "iocheck", "ack", "reload")
 HELP = {
     "help": "help [COMMAND] : lists commands",
     "status": "state, cycle time, scan count, uptime, active steps, forced values, faults",
@@ -71,6 +71,9 @@ HELP = {
                "DRIVER.POINT drives one output *",
     "ack": "acknowledge a fault, a halt (end of iocheck, of a session holding a pause or "
            "forces), or SFCError; releases every force *",
+    "reload": "reload [--force] [--restart INSTANCE]... [--back] : load the changed plant "
+              "and charts into the running controller between two scans (online change; "
+              "--back: the program before the last change) *",
     "unlock": "unlock PIN : allow the commands marked *",
     "lock": "forbid them again; releases every force",
     "json": "json on|off : replies as one JSON object per line",

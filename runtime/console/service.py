@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
@@ -54,6 +54,10 @@ class Controller(Protocol):
         """Call ``fn(cycle_number)`` in the scan thread after each cycle."""
 
     def remove_listener(self, fn: Callable[[int], None]) -> None: ...
+
+    def reload(self, files: str | None = None, *, restart: Collection[str] = (),
+               force: bool = False, back: bool = False) -> Any:
+        """Online change (Daemon.reload): a ReloadResult (applied, lines, refusals...)."""
 
 
 #: what a session may hold besides forces ("force NAME"), in the order they are reported
@@ -112,6 +116,24 @@ class ConsoleService:
         self._ending: set[Session] = set()
         self._end_failed: set[Session] = set()
         self.lock = threading.Lock()
+        on_reload = getattr(controller, "on_reload", None)
+        if on_reload is not None:  # a reload gives the sessions the new plant's names
+            on_reload(self._reloaded)
+
+    def _reloaded(self, plant: Plant) -> Callable[[], None]:
+        """Reload worker thread: the new plant's names, built now; the returned function
+        (scan thread, at the swap) makes them the sessions' names and lets go of the
+        forces the change released. A running watch or trace then ends ("reloaded")."""
+        catalogue = Catalogue(plant)
+
+        def commit() -> None:
+            self.catalogue = catalogue
+            forced = set(plant.forced_names())
+            with self.lock:
+                for w in [w for w in self._holds if w.startswith("force ")
+                          and w[len("force "):] not in forced]:
+                    del self._holds[w]
+        return commit
 
     def session(self, name: str, trusted: bool = False, peer: str | None = None) -> Session:
         """A new session of this console. ``name`` says where it is (for the log),

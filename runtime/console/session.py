@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 from typing import Any
 
 from runtime.console.commands import COMMANDS
@@ -28,7 +29,7 @@ from runtime.console.protocol import (
 from runtime.console.service import ConsoleService
 from runtime.console.streams import Stream
 from runtime.engine.commands import CommandRefused
-from runtime.engine.names import CommandError, printable
+from runtime.engine.names import Catalogue, CommandError, printable
 from runtime.engine.plant import BindingError
 from runtime.errors import suggest
 
@@ -48,7 +49,6 @@ class Session:
                  peer: str | None = None) -> None:
         self.service = service
         self.ctl = service.controller
-        self.cat = service.catalogue
         #: where the session is (``serial:/dev/ttyS0``), for the log
         self.name = name
         #: who is at the other end (``serial:/dev/ttyS0``, ``uid:1000``, ``tcp``): wrong
@@ -67,6 +67,11 @@ class Session:
         self.stream: Stream | None = None
         self._framer = LineFramer(name, service.clock)
         self._listening = False
+
+    @property
+    def cat(self) -> Catalogue:
+        """The plant's names (a new catalogue after each reload)."""
+        return self.service.catalogue
 
     @property
     def _buf(self) -> bytes:
@@ -114,7 +119,8 @@ class Session:
         if cmd not in READ_ONLY and cmd not in CHANGING:
             return self._reply_error(f"unknown command '{printable(words[0])}' (try help)"
                                      f"{suggest(cmd, HELP)}")
-        if cmd in CHANGING and not self.may_change():
+        if cmd in CHANGING and not self.may_change() and not (
+                cmd == "reload" and self.service_account()):
             if self.service.pin_hash is None:
                 return self._reply_error("changing commands are disabled on this console: "
                                          "no pin_hash in the plant file and the console is "
@@ -123,7 +129,9 @@ class Session:
         try:
             result = COMMANDS[cmd](self, args)
         except (CommandError, CommandRefused, BindingError) as exc:
-            return self._reply_error(str(exc))
+            # a refusal with reasons (reload) lists them before its error line
+            return self._reply_error(str(exc), getattr(exc, "lines", []),
+                                     getattr(exc, "data", {}))
         except TimeoutError:
             return self._reply_error("the scan did not answer in time")
         except Exception as exc:  # noqa: BLE001 - a bug must not end the session
@@ -131,6 +139,13 @@ class Session:
             return self._reply_error(f"internal error: {type(exc).__name__}: {exc}")
         lines, data = result if isinstance(result, tuple) else (result, {})
         return self._reply_ok(lines, data)
+
+    def service_account(self) -> bool:
+        """Whether the peer is root or the controller's own user on a Unix socket: they
+        may ``reload`` without a PIN (systemd's ExecReload runs as the service's user;
+        docs/online-change.md)."""
+        return self.name.startswith("socket:") and self.peer in ("uid:0",
+                                                                 f"uid:{os.getuid()}")
 
     def may_change(self) -> bool:
         """May this session run the changing commands (marked * in help)?"""
@@ -142,10 +157,12 @@ class Session:
             return [json.dumps({"ok": True, **data, "text": lines}, ensure_ascii=False)]
         return [*lines, "ok"]
 
-    def _reply_error(self, reason: str) -> list[str]:
+    def _reply_error(self, reason: str, lines: list[str] | None = None,
+                     data: dict[str, Any] | None = None) -> list[str]:
         if self.json:
-            return [json.dumps({"ok": False, "error": reason}, ensure_ascii=False)]
-        return [f"error {reason}"]
+            return [json.dumps({"ok": False, **(data or {}), "error": reason},
+                               ensure_ascii=False)]
+        return [*(lines or []), f"error {reason}"]
 
     # -- streams -----------------------------------------------------------------------
     def start_stream(self, stream: Stream) -> None:
@@ -183,6 +200,9 @@ class Session:
         stream = self.stream
         if stream is not None:
             out += stream.poll(self.service.clock, self.json)
+            if stream.catalogue is not self.service.catalogue:  # the plant was reloaded
+                self._stop_stream()
+                out.append(json.dumps({"notice": "reloaded"}) if self.json else "reloaded")
         return out
 
     def close(self, reason: str = "connection closed") -> None:

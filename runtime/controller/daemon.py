@@ -22,13 +22,14 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from types import FrameType
 from typing import IO, Any, TypeVar
 
 from runtime.controller.events import EventWatcher
 from runtime.controller.notify import Notifier
 from runtime.controller.realtime import lock_memory, reduce_timer_slack, set_fifo_priority
+from runtime.controller.reload import Reloader, ReloadHook, ReloadResult
 from runtime.controller.retain import (
     RetainedVars,
     RetainLost,
@@ -150,6 +151,10 @@ class Daemon:
         self._stats_cache: tuple[int, dict[str, Any]] | None = None
         #: logs step changes (``log: steps``), SFCError and overrun bursts
         self.events = EventWatcher(self.plant, self.scan_stats, clock)
+        #: online change (``reload``): its flow and history (runtime/controller/reload.py)
+        self.reloader = Reloader(self)
+        #: while a reload reopens drivers: no scan, no driver read or written
+        self._gap = False
 
     # -- life cycle ------------------------------------------------------------------
     def start(self) -> None:
@@ -251,6 +256,8 @@ class Daemon:
     def _cycle(self, now: int) -> None:
         if self.started_ns is None:
             self.started_ns = now
+        if self._gap:
+            return
         try:
             if self.fault is not None or self.halted is not None:
                 self.plant.exchange(zero_outputs=True)
@@ -499,7 +506,7 @@ class Daemon:
                 "scans": self.scan_stats.count, "uptime_s": round(self.uptime_s(), 3),
                 "cycle_ms": self.plant.cycle_ns / 1e6, "freezes": self.scan_stats.freezes,
                 "faults": [{"time": t, "reason": r} for t, r in self.faults],
-                "retain": self.retain_status()}
+                "retain": self.retain_status(), "reload": self.reloader.last()}
 
     def retain_status(self) -> dict[str, Any] | None:
         """``status``'s ``retain`` entry: state ok | failing | lost, since (wall time), text;
@@ -581,6 +588,48 @@ class Daemon:
             self.halted = reason
             self.plant.safe_state()
         self.call(halt)
+
+    # -- online change (runtime/controller/reload.py) ----------------------------------------
+    def reload(self, files: str | None = None, *, restart: Collection[str] = (),
+               force: bool = False, back: bool = False) -> ReloadResult:
+        """Load the plant file again (or ``files``), or go ``back`` to the program that
+        ran before the last change, and apply it between two cycles without a stop
+        (docs/online-change.md). Any thread but the scan thread; one at a time."""
+        if self._thread is not None and threading.current_thread() is self._thread:
+            raise RuntimeError("reload is never run in the scan thread")
+        return self.reloader.reload(files, restart=restart, force=force, back=back)
+
+    def on_reload(self, hook: ReloadHook) -> None:
+        """Have ``hook`` follow the plant across reloads (the console's names)."""
+        self.reloader.add_hook(hook)
+
+    def prepare_switch(self, plant: Plant, pdef: PlantDef) -> Callable[[], None]:
+        """Reload worker thread: what the daemon's own holders of the plant need (trace
+        columns, event watcher, retained variables), built now; the returned function
+        switches them in the scan thread."""
+        commit_events = self.events.prepare_switch(plant)
+        trace = self._trace
+        columns = trace_columns(plant) if trace is not None else []
+        retained = RetainedVars.of(pdef)
+
+        def commit() -> None:
+            commit_events()
+            if trace is not None:
+                trace.plant, trace.columns = plant, columns
+            if self.retain is not None:
+                self.retain.plant = retained
+                self._retain_last = None  # saved at the next idle time, with its charts
+                self._retain_next = 0
+        return commit
+
+    def switch_plant(self, plant: Plant, pdef: PlantDef) -> None:
+        """Scan thread, at the swap: ``plant`` runs from the next cycle on."""
+        self.plant, self.pdef = plant, pdef
+
+    def set_gap(self, on: bool) -> None:
+        """Scan thread: while on, cycles neither scan nor touch a driver (a reload
+        reopening drivers)."""
+        self._gap = on
 
     def add_listener(self, fn: Callable[[int], None]) -> None:
         """Call ``fn(cycle_number)`` in the scan thread after every cycle (keep it tiny)."""

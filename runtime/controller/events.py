@@ -114,6 +114,19 @@ class EventWatcher:
         if changed:
             self._wake.set()
 
+    def prepare_switch(self, plant: Plant) -> Callable[[], None]:
+        """Online change: the watched flags of ``plant``, built now (any thread); the
+        returned function (scan thread, at the swap) watches them from then on, their
+        carried values taken as the last seen (the swap itself is no event)."""
+        watched = [_Watched(plant, name, idef.log_steps)
+                   for name, idef in plant.pdef.instances.items() if name in plant.instances]
+
+        def commit() -> None:
+            for w in watched:
+                w.prev = w.get(w.m)
+            self.plant, self._watched = plant, watched
+        return commit
+
     def _put(self, event: tuple[Any, ...]) -> None:
         if len(self._queue) >= QUEUE_MAX:
             self.dropped += 1

@@ -112,6 +112,8 @@ def unit_text(softplc: str, plant: str, groups: tuple[str, ...] = GROUPS) -> str
     for line in text.splitlines():
         if line.startswith("ExecStart="):
             line = f"ExecStart={softplc} run {plant}"
+        elif line.startswith("ExecReload="):
+            line = line.replace("/opt/softplc/venv/bin/softplc", softplc, 1)
         elif line.startswith("SupplementaryGroups="):
             line = "SupplementaryGroups=" + " ".join(groups)
         out.append(line)

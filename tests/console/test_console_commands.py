@@ -19,7 +19,7 @@ def test_help_lists_every_command_of_the_spec(rig: Rig) -> None:
     s = rig.serial()
     out = s.ok("help")
     spec = ("help status stats get watch trace why set force unforce pause resume cycle "
-            "init reset iocheck ack unlock lock json").split()
+            "init reset iocheck ack reload unlock lock json").split()
     assert [line.split()[0] for line in out[:len(spec)]] == list(HELP) and set(spec) == set(HELP)
     assert s.ok("help cycle")[0].startswith("cycle    cycle [N]")
     assert s.error("help nope") == "no command 'nope'"

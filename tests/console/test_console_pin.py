@@ -19,7 +19,7 @@ PIN = "4711"
 #: a cheap hash for the tests (the CLI's default costs ~0.2 s and 32 MiB per try on purpose)
 HASH = hash_pin(PIN, n=16, r=1, p=1)
 CHANGES = ["set t1.sCierres 3", "force t1.iMarcha 1", "unforce all", "pause", "resume",
-           "cycle", "init t1", "reset t1", "iocheck on", "ack"]
+           "cycle", "init t1", "reset t1", "iocheck on", "ack", "reload"]
 
 
 def test_every_changing_command_of_the_spec_is_guarded() -> None:

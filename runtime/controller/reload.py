@@ -1,0 +1,358 @@
+"""Online change of a running controller: ``Daemon.reload`` (docs/online-change.md).
+
+The flow, one reload at a time:
+
+1. load the plant file again (its charts from disk), or take the program that ran before
+   the last change (``back``);
+2. in a worker thread, never the scan thread: ``runtime.change.prepare`` (compile, build
+   the new Plant on the open drivers) and what each holder of the plant needs built in
+   advance (the console's names, the trace columns, the event watcher's flags, the
+   retained variables);
+3. in the scan thread, between two cycles, in ONE call: ``runtime.change.apply`` (all or
+   nothing), and on success every holder switched to the new plant (cheap assignments);
+4. outside the scan: drivers that ``apply`` asks to reopen are closed and opened again
+   (the charts stand still meanwhile, see ``_reopen``), drivers no longer in the plant are
+   put off and closed, the change is logged with the sha256 of every file and kept in the
+   history.
+
+A load or compile error, a refusal, or a scan that does not answer: the running program is
+untouched and the result says why, one line per reason (each also logged).
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import os
+import pickle
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Collection
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from runtime.change.plan import Applied, Prepared, apply, file_hashes, prepare
+from runtime.engine.plant import Plant
+from runtime.errors import SoftplcError
+from runtime.language.model import PlantDef
+from runtime.language.plantfile import load_plant
+
+if TYPE_CHECKING:
+    from runtime.controller.daemon import Daemon
+
+log = logging.getLogger(__name__)
+
+#: applied changes remembered (``status``, ``Reloader.history``); the log keeps them all
+HISTORY_KEPT = 20
+#: how long the scan thread may take to get to the swap, s (it runs between two cycles:
+#: a scan that does not get there in this time is stuck, and the watchdog acts on it)
+SWAP_TIMEOUT_S = 30.0
+#: what a reload asked while another runs is told
+IN_PROGRESS = "reload in progress"
+#: the longest the child process loading the plant may take, s
+LOAD_TIMEOUT_S = 120.0
+#: the directory holding the ``runtime`` package (for the child process)
+_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+#: a holder of the plant (the console): called in the worker thread with the new plant,
+#: returns what to run in the scan thread at the swap (cheap: assignments)
+ReloadHook = Callable[[Plant], Callable[[], None]]
+
+
+@dataclass
+class ReloadResult:
+    """What a reload did: ``applied``, or why not (``refusals``, one line per reason)."""
+
+    applied: bool
+    lines: list[str] = field(default_factory=list)
+    refusals: list[str] = field(default_factory=list)
+    restarted: list[str] = field(default_factory=list)
+    reopened: list[str] = field(default_factory=list)
+    #: one line: what changed ("3 changes: tester1: ...")
+    summary: str = ""
+    #: file -> sha256 of the program now running
+    hashes: dict[str, str] = field(default_factory=dict)
+    back: bool = False
+    #: time the change took, ms: the load (a child process), the prepare (worker
+    #: thread) and the apply with the switch (scan thread, between two cycles)
+    load_ms: float = 0.0
+    prepare_ms: float = 0.0
+    swap_ms: float = 0.0
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"applied": self.applied, "lines": self.lines, "refusals": self.refusals,
+                "restarted": self.restarted, "reopened": self.reopened,
+                "summary": self.summary, "hashes": self.hashes, "back": self.back,
+                "load_ms": round(self.load_ms, 3), "prepare_ms": round(self.prepare_ms, 3),
+                "swap_ms": round(self.swap_ms, 3)}
+
+
+@dataclass(frozen=True)
+class Change:
+    """One applied change, as the history keeps it."""
+
+    time: float  # wall clock, s
+    summary: str
+    hashes: dict[str, str]
+    back: bool
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"time": self.time, "summary": self.summary, "hashes": self.hashes,
+                "back": self.back}
+
+
+class Reloader:
+    """The reload flow and history of one daemon (see the module docstring).
+
+    One level of ``back``: the PlantDef that ran before the last applied change (and its
+    file hashes) is kept; ``back`` prepares it again and applies it by the same path, and
+    then the program it replaced becomes the one ``back`` returns to (two ``back`` in a
+    row toggle between the two programs)."""
+
+    def __init__(self, daemon: Daemon) -> None:
+        self.daemon = daemon
+        self.history: collections.deque[Change] = collections.deque(maxlen=HISTORY_KEPT)
+        #: the program ``back`` returns to, with the hashes of its files
+        self.previous: tuple[PlantDef, dict[str, str]] | None = None
+        #: the sha256 of the running program's files (at the start: as they were on disk
+        #: when the daemon was made)
+        self.hashes: dict[str, str] = file_hashes(daemon.pdef)
+        self._lock = threading.Lock()
+        self._hooks: list[ReloadHook] = []
+
+    def add_hook(self, hook: ReloadHook) -> None:
+        """Have ``hook`` follow the plant across reloads (see ReloadHook)."""
+        self._hooks.append(hook)
+
+    @property
+    def busy(self) -> bool:
+        return self._lock.locked()
+
+    def reload(self, files: str | None = None, *, restart: Collection[str] = (),
+               force: bool = False, back: bool = False) -> ReloadResult:
+        """Load the plant again (``files``: another plant file; default the one the
+        daemon runs) or go ``back`` to the previous program, and apply it between two
+        cycles. Never raises for a refused change: see ReloadResult."""
+        if not self._lock.acquire(blocking=False):
+            return self._refused([IN_PROGRESS], back)
+        try:
+            return self._reload(files, tuple(restart), force, back)
+        finally:
+            self._lock.release()
+
+    # -- the flow ------------------------------------------------------------------------
+    def _reload(self, files: str | None, restart: tuple[str, ...], force: bool,
+                back: bool) -> ReloadResult:
+        daemon = self.daemon
+        old_pdef = daemon.pdef
+        t_load = time.perf_counter()
+        if back:
+            if self.previous is None:
+                return self._refused(["no previous program to go back to (no change was "
+                                      "applied since the start)"], back)
+            new_pdef, _ = self.previous
+        else:
+            loaded = self._in_worker(lambda: load_apart(files or old_pdef.path))
+            if isinstance(loaded, str):
+                return self._refused([loaded], back)
+            new_pdef = loaded
+        load_ms = (time.perf_counter() - t_load) * 1e3
+        refusals = self._static_refusals(old_pdef, new_pdef, restart)
+        if refusals:
+            return self._refused(refusals, back)
+        t0 = time.perf_counter()
+        built = self._in_worker(lambda: self._build(daemon.plant, new_pdef))
+        prepare_ms = (time.perf_counter() - t0) * 1e3
+        if isinstance(built, str):
+            return self._refused([built], back)
+        prepared, commits = built
+        result = self._swap(prepared, new_pdef, commits, restart, force)
+        result.back, result.load_ms, result.prepare_ms = back, load_ms, prepare_ms
+        if not result.applied:
+            for line in result.refusals:
+                log.warning("reload refused: %s", line)
+            return result
+        # back: the files on disk are the changed ones, the hashes kept are the program's
+        hashes = dict(self.previous[1]) if back and self.previous else dict(prepared.hashes)
+        self.previous = (old_pdef, self.hashes)
+        self.hashes = result.hashes = hashes
+        self.history.append(Change(time.time(), result.summary, result.hashes, back))
+        log.warning("reload%s applied in %.1f ms (loaded in %.0f ms, prepared in %.0f ms): "
+                    "%s; %s", " --back" if back else "", result.swap_ms, load_ms,
+                    prepare_ms, result.summary,
+                    ", ".join(f"{f} sha256 {h}" for f, h in result.hashes.items()))
+        for line in result.lines:
+            log.info("reload: %s", line)
+        return result
+
+    def _static_refusals(self, old: PlantDef, new: PlantDef,
+                         restart: tuple[str, ...]) -> list[str]:
+        """What the daemon itself cannot change while it runs (the plant's own settings),
+        and ``--restart`` names that are no instance."""
+        out = []
+        for what, a, b in (("plc: watchdog", old.watchdog_ns, new.watchdog_ns),
+                           ("plc: retain", old.retain_path, new.retain_path),
+                           ("plc: realtime", (old.realtime_priority, old.lock_memory),
+                            (new.realtime_priority, new.lock_memory))):
+            if a != b:
+                out.append(f"{what} changed: it takes effect only at a restart of the "
+                           "controller")
+        out += [f"--restart {name}: no instance {name} in the new plant"
+                for name in restart if name not in new.instances]
+        if self.daemon.plant.iocheck:
+            out.append("iocheck on: end it first ('iocheck off', then 'ack')")
+        return out
+
+    def _build(self, old: Plant, new_pdef: PlantDef
+               ) -> tuple[Prepared, list[Callable[[], None]]]:
+        """Worker thread: the new plant, and each holder's switch, built in advance."""
+        prepared = prepare(old, new_pdef)
+        commits = [self.daemon.prepare_switch(prepared.plant, new_pdef)]
+        commits += [hook(prepared.plant) for hook in self._hooks]
+        return prepared, commits
+
+    def _in_worker(self, fn: Callable[[], Any]) -> Any:
+        """Run ``fn`` in a thread of its own (never the scan thread, whoever calls reload);
+        an exception comes back as its one-line text."""
+        box: list[Any] = []
+
+        def run() -> None:
+            try:
+                box.append(fn())
+            except SoftplcError as exc:
+                box.append(f"compile error: {exc}")
+            except Exception as exc:  # noqa: BLE001 - a bug: said in one line, logged
+                log.exception("reload: preparing the new program failed")
+                box.append(f"cannot prepare the new program: {type(exc).__name__}: {exc}")
+        t = threading.Thread(target=run, name="softplc-reload", daemon=True)
+        t.start()
+        t.join()
+        return box[0]
+
+    def _swap(self, prepared: Prepared, new_pdef: PlantDef,
+              commits: list[Callable[[], None]], restart: tuple[str, ...],
+              force: bool) -> ReloadResult:
+        """Scan thread, between two cycles: apply, and on success switch every holder. If
+        the scan does not get to it in SWAP_TIMEOUT_S, it is cancelled untouched (or, if
+        it had begun, waited for)."""
+        daemon = self.daemon
+        old = daemon.plant
+        gate = threading.Lock()
+        began, cancelled = threading.Event(), [False]
+        done = threading.Event()
+        out: list[tuple[Applied, float]] = []
+
+        def swap() -> None:
+            with gate:
+                if cancelled[0]:
+                    return
+                began.set()
+            try:
+                t0 = time.perf_counter_ns()
+                applied = apply(old, prepared, restart=restart, force=force)
+                if not applied.refusals:
+                    if applied.reopened or applied.closed:
+                        daemon.set_gap(True)  # no cycle before they are closed/opened
+                    daemon.switch_plant(prepared.plant, new_pdef)
+                    for commit in commits:
+                        commit()
+                out.append((applied, (time.perf_counter_ns() - t0) / 1e6))
+            finally:
+                done.set()
+        try:
+            daemon.call(swap, timeout=SWAP_TIMEOUT_S)
+        except TimeoutError:
+            with gate:
+                if not began.is_set():
+                    cancelled[0] = True
+                    return ReloadResult(False, refusals=[
+                        "the scan did not answer in time: nothing changed"])
+            done.wait()
+        if not out:  # apply itself raised: nothing was switched (all or nothing)
+            return ReloadResult(False, refusals=["the change could not be applied (see the "
+                                                 "log): nothing changed"])
+        applied, swap_ms = out[0]
+        lines = list(applied.lines)
+        if applied.refusals:
+            return ReloadResult(False, lines=lines, refusals=list(applied.refusals),
+                                swap_ms=swap_ms)
+        if applied.reopened or applied.closed:
+            self._reopen(old, prepared.plant, applied.closed, applied.reopened)
+        return ReloadResult(True, lines=lines, restarted=list(applied.restarted),
+                            reopened=list(applied.reopened), summary=_summary(lines),
+                            swap_ms=swap_ms)
+
+    def _reopen(self, old: Plant, new: Plant, closed: list[str], opened: list[str]) -> None:
+        """Outside the scan, during the daemon's ``gap`` (set at the swap: the cycles
+        neither scan nor touch a driver): the old plant's drivers that are gone or
+        replaced put off and closed, then the new ones opened and written off (as at the
+        start). The other drivers' outputs stay as they were for the gap."""
+        daemon = self.daemon
+        try:
+            for name in closed:
+                try:
+                    old.drivers[name].close()  # outputs off first
+                except Exception:  # noqa: BLE001 - the others are still closed
+                    log.exception("reload: driver %s not closed", name)
+            for name in opened:
+                d = new.drivers[name]
+                d.open()
+                d.safe_state()
+                log.warning("reload: driver %s opened (%s)", name, d.health.value)
+        finally:
+            daemon.call(lambda: daemon.set_gap(False), timeout=SWAP_TIMEOUT_S)
+
+    def _refused(self, reasons: list[str], back: bool) -> ReloadResult:
+        for line in reasons:
+            log.warning("reload%s refused: %s", " --back" if back else "", line)
+        return ReloadResult(False, refusals=reasons, back=back)
+
+    def last(self) -> dict[str, Any] | None:
+        """The last applied change (``status``), None if none."""
+        return self.history[-1].as_dict() if self.history else None
+
+
+def _load(path: str) -> PlantDef | str:
+    """The plant file at ``path`` with its charts, or the one line saying why not."""
+    try:
+        return load_plant(path)
+    except (SoftplcError, OSError) as exc:
+        return f"load error: {exc}"
+
+
+def load_apart(path: str) -> PlantDef | str:
+    """``_load`` in a child process (``python -m runtime.controller.reload PATH``), the
+    result handed back pickled: the YAML parser holds the GIL for tens of ms at a time on
+    a large plant (measured 64 ms for 100 testers on a loaded machine), which would make
+    the scan thread that much late; unpickling holds it ~2 ms. If the child fails, the
+    plant is loaded in this process after all (one log line)."""
+    try:
+        child = subprocess.run([sys.executable, "-m", "runtime.controller.reload", path],
+                               capture_output=True, timeout=LOAD_TIMEOUT_S, check=False,
+                               env={**os.environ, "PYTHONPATH": _ROOT + os.pathsep
+                                    + os.environ.get("PYTHONPATH", "")})
+        if child.returncode == 0:
+            result: PlantDef | str = pickle.loads(child.stdout)  # noqa: S301 - our child
+            return result
+        why = child.stderr.decode(errors="replace").strip().splitlines()[-1:] or ["?"]
+        log.warning("reload: the plant was not loaded apart (exit %d: %s): loaded here",
+                    child.returncode, why[0])
+    except (OSError, subprocess.SubprocessError, pickle.UnpicklingError, EOFError,
+            AttributeError, ImportError) as exc:
+        log.warning("reload: the plant was not loaded apart (%s): loaded here", exc)
+    return _load(path)
+
+
+def _summary(lines: list[str]) -> str:
+    """One line for the log and ``status``: the count and the first changes."""
+    if not lines:
+        return "no change"
+    head = "; ".join(lines[:3])
+    more = f"; ... ({len(lines) - 3} more)" if len(lines) > 3 else ""
+    return f"{len(lines)} change{'s' if len(lines) != 1 else ''}: {head}{more}"
+
+
+if __name__ == "__main__":  # the child of ``load_apart``: the PlantDef, pickled, on stdout
+    sys.stdout.buffer.write(pickle.dumps(_load(sys.argv[1])))
