@@ -251,11 +251,12 @@ def cmd_diff(args: argparse.Namespace) -> int:
     """What loading NEW into a controller running OLD would do; 1 if it cannot be applied
     online (static refusals), 0 if it can (state checks listed)."""
     from runtime.change.diff import chart_plant, diff_plants
-    from runtime.language.filekind import file_kind
+    from runtime.language.filekind import read_document
     from runtime.language.grafcetfile import load_grafcet
     from runtime.language.plantfile import load_plant
 
-    kinds = [file_kind(args.old), file_kind(args.new)]
+    (old_kind, old_doc), (new_kind, new_doc) = read_document(args.old), read_document(args.new)
+    kinds = [old_kind, new_kind]
     for path, kind in zip((args.old, args.new), kinds, strict=True):
         if kind not in ("grafcet", "plant"):
             raise SourceError(Loc(path, 1, 1), "expected a grafcet file ('grafcet:' and "
@@ -264,10 +265,10 @@ def cmd_diff(args: argparse.Namespace) -> int:
         raise SourceError(Loc(args.new, 1, 1), f"expected a {kinds[0]} file like {args.old}, "
                                                f"found a {kinds[1]} file")
     if kinds[0] == "plant":
-        old, new = load_plant(args.old), load_plant(args.new)
+        old, new = load_plant(args.old, doc=old_doc), load_plant(args.new, doc=new_doc)
     else:
-        g = load_grafcet(args.old)
-        old, new = chart_plant(g), chart_plant(load_grafcet(args.new), g.name)
+        g = load_grafcet(args.old, doc=old_doc)
+        old, new = chart_plant(g), chart_plant(load_grafcet(args.new, doc=new_doc), g.name)
     cs = diff_plants(old, new)
     out = sys.stdout.write
     for line in cs.lines() or ["no change"]:
