@@ -20,7 +20,8 @@ Messages, one JSON object per line (``"\\n"``):
 - ``{"f": [scan, wall_s, values]}``: a whole frame (first after the schema), values in
   schema order; ``{"d": [scan, wall_s, [i, v, i, v, ...]]}``: only the values that changed
   since the previous frame. ``scan`` is the trace's ``cycle`` number; times are in ns;
-- ``{"c": {...}}``: the controller's status (state, fault, overruns, uptime_s, cycle_ms,
+- ``{"c": {...}}``: the controller's status (state, fault, overruns, skipped, freezes,
+  uptime_s, cycle_ms,
   drivers: name -> [health, fault reason, ok], lateness_us: p50, p99, max), before the
   frame it goes with, only when it changed (the scan count is the frame's scan + 1);
 - ``{"r": [id, ok, text]}``: the answer to a ``set``;
@@ -321,7 +322,8 @@ class FeedServer:
             late = d.scan_stats.lateness().as_dict()
             self._stats = {k: late[k] for k in ("p50", "p99", "max")}
         return {"state": d.state.value, "fault": d.fault or d.halted,
-                "overruns": d.scan_stats.overruns, "uptime_s": round(d.uptime_s()),
+                "overruns": d.scan_stats.overruns, "skipped": d.scan_stats.skipped,
+                "freezes": d.scan_stats.freezes, "uptime_s": round(d.uptime_s()),
                 "cycle_ms": d.plant.cycle_ns / 1e6, "lateness_us": self._stats,
                 "drivers": {name: [drv.health.value, drv.fault_reason or "", drv.ok]
                             for name, drv in d.plant.drivers.items()}}

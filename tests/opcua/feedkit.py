@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 import socket
 import threading
@@ -13,7 +14,9 @@ from typing import Any
 
 from runtime.controller.daemon import Daemon
 from runtime.controller.feed import FeedServer, FeedState, set_request
+from runtime.language.model import PlantDef
 from runtime.language.plantfile import load_plant
+from runtime.opcua.server import PlantServer, serve
 from tests.opcua.kit import write_plant
 
 
@@ -27,10 +30,10 @@ def wait_until(pred: Callable[[], bool], timeout: float = 10.0, what: str = "") 
 
 
 @contextmanager
-def controller(tmp: Path, trace: bool = True, **plant: Any
+def controller(tmp: Path, trace: bool = True, port: int = 4840, **plant: Any
                ) -> Iterator[tuple[Daemon, FeedServer, Path]]:
     """A running Daemon on sim I/O with its FeedServer; (daemon, feed, trace path)."""
-    path = write_plant(tmp, port=4840, **plant)
+    path = write_plant(tmp, port=port, **plant)
     pdef = load_plant(str(path))
     assert pdef.opcua is not None
     trace_path = tmp / "trace.jsonl"
@@ -105,3 +108,56 @@ class FeedReader:
         self.sock.close()
         if self._thread is not None:
             self._thread.join(timeout=5.0)
+
+
+class ServerThread:
+    """``PlantServer`` in a thread of its own with its own event loop (the fast cases;
+    test_process.py runs the real ``softplc opcua``)."""
+
+    def __init__(self, pdef: PlantDef) -> None:
+        self.pdef = pdef
+        self.ps: PlantServer | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._stop: asyncio.Event | None = None
+        self._ready = threading.Event()
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="opcua-test-server",
+                                        daemon=True)
+
+    def __enter__(self) -> ServerThread:
+        self._thread.start()
+        if not self._ready.wait(30.0):
+            raise AssertionError("the OPC UA server did not start")
+        if self.error is not None:
+            raise self.error
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._loop is not None and self._stop is not None:
+            self._loop.call_soon_threadsafe(self._stop.set)
+        self._thread.join(timeout=30.0)
+
+    def _run(self) -> None:
+        async def main() -> None:
+            self._loop = asyncio.get_running_loop()
+            self._stop = asyncio.Event()
+
+            def ready(ps: PlantServer) -> None:
+                self.ps = ps
+                self._ready.set()
+            await serve(self.pdef, ready=ready, stop=self._stop)
+        try:
+            asyncio.run(main())
+        except BaseException as exc:  # handed to the test
+            self.error = exc
+            self._ready.set()
+
+    def call(self, coro: Any, timeout: float = 10.0) -> Any:
+        """Run ``coro`` in the server's event loop and return its result."""
+        assert self._loop is not None
+        return asyncio.run_coroutine_threadsafe(coro, self._loop).result(timeout)
+
+    @property
+    def url(self) -> str:
+        assert self.pdef.opcua is not None
+        return self.pdef.opcua.endpoint

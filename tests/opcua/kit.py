@@ -22,7 +22,7 @@ steps:
   gsJam: {max: 50ms}
 transitions:
   - {from: gsA, to: gsJam, when: sJam}
-  - {from: gsA, to: gsB, when: "gsA.T >= 40ms · sStop'"}
+  - {from: gsA, to: gsB, when: "(gsA.T >= 40ms) · sStop'"}
   - {from: gsB, to: gsA, when: "gsB.T >= 40ms"}
   - {from: gsJam, to: gsA, when: "sJam'"}
 """
@@ -41,7 +41,7 @@ def write_plant(tmp: Path, *, port: int, cycle: str = "10ms", sample: str = "50m
     (tmp / "blink.yaml").write_text(CHART, encoding="utf-8")
     plant = tmp / "plant.yaml"
     plant.write_text(
-        f"plc: {{cycle: {cycle}, watchdog: 500ms}}\n"
+        f"plc: {{cycle: {cycle}, watchdog: 5s}}\n"
         "drivers:\n  io: {type: sim}\n"
         "instances:\n"
         "  t1:\n    grafcet: blink.yaml\n    inputs: {iGo: io.I0}\n"
