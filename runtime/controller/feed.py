@@ -21,9 +21,9 @@ Messages, one JSON object per line (``"\\n"``):
   schema order; ``{"d": [scan, wall_s, [i, v, i, v, ...]]}``: only the values that changed
   since the previous frame. ``scan`` is the trace's ``cycle`` number; times are in ns;
 - ``{"c": {...}}``: the controller's status (state, fault, overruns, skipped, freezes,
-  uptime_s, cycle_ms,
-  drivers: name -> [health, fault reason, ok], lateness_us: p50, p99, max), before the
-  frame it goes with, only when it changed (the scan count is the frame's scan + 1);
+  uptime_s, cycle_ms, drivers: name -> [health, fault reason, ok], lateness_us: p50, p99,
+  max), before the frame it goes with, only when it changed (the scan count is the
+  frame's scan + 1);
 - ``{"r": [id, ok, text]}``: the answer to a ``set``;
 - client -> server ``{"set": [id, name, value]}`` (value in the name's type; times in ns).
 """

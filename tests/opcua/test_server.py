@@ -55,7 +55,7 @@ def test_browse_the_tree_names_types_and_node_ids(tmp_path: Path) -> None:
                     for n in await t1.get_children()}
                 assert folders == {
                     "Inputs": ["iGo"], "Outputs": ["oLamp"],
-                    "Memory": ["sN", "sStop", "sJam", "sRate"],
+                    "Memory": ["sN", "sStop", "sJam", "sRate", "sDiv", "sQ"],
                     "Flags": ["SFCInit", "SFCReset", "SFCPause", "SFCError", "SFCEnableLimit",
                               "SFCQuitError", "SFCTipMode", "SFCTip", "SFCErrorStep",
                               "SFCCurrentStep"],
@@ -334,3 +334,31 @@ def test_a_frame_is_written_without_a_suspension_point(tmp_path: Path) -> None:
                 await sub.delete()
                 return results
         assert asyncio.run(main()) == [True] * 20
+
+
+def test_a_controller_fault_and_its_ack_are_events_of_the_controller(tmp_path: Path) -> None:
+    ctl, port = started(tmp_path, trace=False)
+    with ctl as (d, feed, _), ServerThread(d.pdef) as srv:
+        wait_until(lambda: srv.ps is not None and srv.ps.frames > 0, what="a first frame")
+        handler = Collect()
+
+        async def main() -> None:
+            async with Client(srv.url) as c:
+                sub = await c.create_subscription(100, handler)
+                await sub.subscribe_events(c.get_node("ns=2;s=controller"))
+                await c.get_node("ns=2;s=t1.sDiv").write_value(0)  # 100 / 0 in a scan
+                await _until(lambda: bool(handler.events), what="the fault event")
+                state = c.get_node("ns=2;s=controller.state")
+                await _until(lambda: _value_is(state, "fault"), what="state fault")
+                # memory is written between scans whatever the state; then the ack
+                await c.get_node("ns=2;s=t1.sDiv").write_value(1)
+                await asyncio.to_thread(d.ack)
+                await _until(lambda: len(handler.events) >= 2, what="the ack event")
+                await _until(lambda: _value_is(state, "running"), what="running again")
+                await sub.delete()
+        asyncio.run(main())
+    texts = [(e.Message.Text, e.Severity, e.SourceName) for e in handler.events]
+    assert texts == [
+        ("controller fault: exception in scan: ZeroDivisionError: integer division or "
+         "modulo by zero", 900, "Controller"),
+        ("controller: fault acknowledged, now running", 300, "Controller")]
