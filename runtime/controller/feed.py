@@ -95,9 +95,10 @@ class FeedServer:
         self.window = ScanWindow(cycle_ns / 1e9)
         self._cat = Catalogue(daemon.plant)
         self._next = 0
-        #: the mailbox: (scan, wall seconds, image), written by the scan thread only
-        self._slot: tuple[int, float, Image] | None = None
-        self._taken: tuple[int, float, Image] | None = None
+        #: the mailbox: (scan, wall seconds, image, the catalogue that took it), written
+        #: by the scan thread only
+        self._slot: tuple[int, float, Image, Catalogue] | None = None
+        self._taken: tuple[int, float, Image, Catalogue] | None = None
         self._stop = threading.Event()
         self._replaced = False
         self._sock: socket.socket | None = None
@@ -165,7 +166,8 @@ class FeedServer:
         if n < self._next:
             return
         self._next = n + self.every
-        self._slot = (n - 1, self.wall(), self._cat.capture(n - 1))
+        cat = self._cat
+        self._slot = (n - 1, self.wall(), cat.capture(n - 1), cat)
 
     # -- the feed thread ------------------------------------------------------------
     def _run(self) -> None:
@@ -180,8 +182,9 @@ class FeedServer:
                 slot = self._slot
                 if slot is not None and slot is not self._taken and self._clients:
                     self._taken = slot
-                    self._publish(*slot)
-                    self._flush()
+                    if slot[3] is self._cat:  # not an image of a replaced plant
+                        self._publish(*slot[:3])
+                        self._flush()
         except Exception:  # noqa: BLE001 - the feed dies, never the controller
             log.exception("feed thread failed: OPC UA clients see no more values")
 
