@@ -97,8 +97,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         sys.stderr.write("softplc run: error: --script plays simulated inputs: add --sim\n")
         return 2
     pdef = load_plant(args.plant)
+    feed_path = [pdef.opcua.feed] if pdef.opcua is not None else []  # the OPC UA feed
     try:
-        prepare(plant_files(pdef))  # its own directories, before anything is written
+        prepare(plant_files(pdef) + feed_path)  # its own directories, before anything is written
     except PathError as exc:
         sys.stderr.write(f"softplc run: error: {exc}\n")
         return 2
@@ -113,12 +114,21 @@ def cmd_run(args: argparse.Namespace) -> int:
 
                 daemon.add_listener(ScriptPlayer(daemon.plant, args.script))
             server = _console_server(daemon) if pdef.consoles else None
+            feed = _feed_server(daemon) if pdef.opcua is not None else None
 
             def started() -> None:
                 _check_opened(daemon)
                 if server is not None:
                     server.start()
-            return serve(daemon, for_ns, started, server.stop if server else None)
+                if feed is not None:
+                    feed.start()
+
+            def stopping() -> None:
+                if feed is not None:
+                    feed.stop()
+                if server is not None:
+                    server.stop()
+            return serve(daemon, for_ns, started, stopping)
         except (SourceError, KeyboardInterrupt):
             raise
         except Exception as exc:  # noqa: BLE001 - at start: one line, never a traceback
@@ -180,6 +190,40 @@ def _console_server(daemon: Any) -> Any:
     pdef = daemon.pdef
     service = ConsoleService(daemon, pdef.pin_hash, pdef.release_forces_on_disconnect)
     return ConsoleServer(service, pdef.consoles)
+
+
+def _feed_server(daemon: Any) -> Any:
+    """The OPC UA server's feed (runtime/controller/feed.py), served by the controller."""
+    from runtime.controller.feed import FeedServer
+
+    return FeedServer(daemon, daemon.pdef.opcua)
+
+
+def cmd_opcua(args: argparse.Namespace) -> int:
+    """The OPC UA server of a plant, fed by its running controller (docs/opcua.md)."""
+    import asyncio
+    import signal
+
+    from runtime.language.plantfile import load_plant
+
+    pdef = load_plant(args.plant)
+    if pdef.opcua is None:
+        raise SourceError(Loc(pdef.path, 1, 1), "no 'opcua:' section: add one to serve "
+                                                "this plant over OPC UA (docs/opcua.md)")
+    try:
+        from runtime.opcua.server import serve
+    except ImportError as exc:
+        raise ImportError(f"{exc}: install the opcua extra (pip install "
+                          "'softplc[opcua]')") from None
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for s in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+            loop.add_signal_handler(s, stop.set)
+        await serve(pdef, args.endpoint, args.feed, stop=stop)
+    asyncio.run(main())
+    return 0
 
 
 def cmd_hash_pin(args: argparse.Namespace) -> int:
@@ -361,6 +405,12 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("old", help="the running chart or plant file")
     d.add_argument("new", help="the changed one")
     d.set_defaults(func=cmd_diff)
+
+    o = sub.add_parser("opcua", help="serve a running plant over OPC UA (its own process)")
+    o.add_argument("plant")
+    o.add_argument("--endpoint", help="override opcua: endpoint (opc.tcp://HOST:PORT)")
+    o.add_argument("--feed", help="override opcua: feed (the controller's feed socket)")
+    o.set_defaults(func=cmd_opcua)
 
     for extra in EXTRA_COMMANDS:
         extra(sub)
