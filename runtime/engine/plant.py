@@ -22,6 +22,7 @@ from drivers.base import Direction, Driver, FaultPolicy, Health
 from drivers.registry import driver_class
 from drivers.sim import SimDriver
 from runtime.compiler.codegen import compile_grafcet
+from runtime.compiler.layout import SLOW_FLAGS
 from runtime.compiler.program import Program
 from runtime.engine.instance import Instance, StepWhy, coerce
 from runtime.engine.names import Owner, PlantNames, UnknownName
@@ -116,9 +117,12 @@ class Plant:
         env: dict[str, Any] = {}
         self._env = env
         self._bind_env(env)
-        self.source = self._generate(sorted(env))
+        self.source = self._generate()
         exec(compile(self.source, "<plant cycle>", "exec"), env)  # noqa: S102 - generated
-        self._cycle: Callable[[int, int], Driver | None] = env["cycle"]
+        #: the cycle with no force and no pulse (semantics unchanged, less to do)
+        self._cycle_fast: Callable[[int, int], Driver | None] = env["cycle"]
+        #: the cycle with forces and pulses applied around each scan
+        self._cycle: Callable[[int, int], Driver | None] = env["cycle_slow"]
         self._copy_outputs: Callable[[], None] = env["copy_outputs"]
 
     # -- construction ----------------------------------------------------------------
@@ -141,7 +145,9 @@ class Plant:
                     d = self.drivers[b.driver]
                     d.add_point(b.point or "", direction)
 
-    def _input_expr(self, b: Binding, vtype: A.Type) -> str:
+    def _input_expr(self, b: Binding, vtype: A.Type, live: bool) -> str:
+        """The value of an input binding in the cycle's code. ``live``: another
+        instance's slot read through its cell (the fast cycle), else through its view."""
         if b.driver is not None:
             if b.point == "ok":
                 val = f"D[{b.driver!r}].health is OK"
@@ -155,22 +161,86 @@ class Plant:
         if ref_name.endswith(".T") and ref_name[:-2] in other.grafcet.steps:
             val = f"ST_{other.name}({ref_name[:-2]!r})"
         else:
-            val = f"M_{other.name}[{other.program.index_of(ref_name)}]"
+            idx = other.program.index_of(ref_name)
+            val = self._cell(other.name, idx) if live else f"M_{other.name}[{idx}]"
         return f"(not {val})" if b.invert else val
 
-    def _generate(self, names: list[str]) -> str:
-        """The cycle as Python source. Every name of the environment is bound as a
-        default argument, so the cycle reads locals, not globals."""
-        defaults = ", ".join(f"{n}={n}" for n in names)
-        lines = [f"def cycle(now, up, {defaults}):"]
+    def _cell(self, inst: str, idx: int) -> str:
+        """``C_inst_idx.cell_contents``: slot ``idx`` of ``inst``, its cell bound in the
+        cycle's environment."""
+        name = f"C_{inst}_{idx}"
+        self._env[name] = self.instances[inst].m.cells[idx]
+        return f"{name}.cell_contents"
+
+    def _generate(self) -> str:
+        """The cycles as Python source: ``cycle`` (the fast one: no force, no pulse),
+        ``cycle_slow`` (forces and pulses applied around each scan) and ``copy_outputs``.
+        Every name of the environment is bound as a default argument, so a cycle reads
+        locals, not globals."""
+        fast, slow = self._fast_body(), self._slow_body()
+        copy = ["    if FI: force_instance({name!r}, M_{name})".format(name=name)
+                for name in self.instances] + (self._output_copy() or ["    pass"])
+        defaults = ", ".join(f"{n}={n}" for n in sorted(self._env))
+        return "\n".join([f"def cycle(now, up, {defaults}):", *fast, "",
+                          f"def cycle_slow(now, up, {defaults}):", *slow, "",
+                          # while the charts are held (console pause), forced chart
+                          # outputs still reach their points: the copy after the forces
+                          f"def copy_outputs({defaults}):", *copy]) + "\n"
+
+    def _reads(self) -> list[str]:
+        """The drivers' reads and the stop on a fault, first lines of both cycles."""
+        lines = []
+        if not self.virtual:
+            lines += [f"    R_{name}()" for name in self.drivers]
+            lines += [f"    if DV_{name}.health is FAULT: return DV_{name}"
+                      for name, d in self.drivers.items()
+                      if d.on_fault is FaultPolicy.STOP]  # a fault: no scan, no write
+        return lines
+
+    def _fast_body(self) -> list[str]:
+        """One unrolled sequence: per instance, its scan called with the input bindings
+        as arguments, the outputs it returns kept in locals; then the output copy."""
+        lines = self._reads()
         add = lines.append
-        exchange = not self.virtual
-        for name in self.drivers:
-            if exchange:
-                add(f"    R_{name}()")
-        for name, d in self.drivers.items():
-            if exchange and d.on_fault is FaultPolicy.STOP:  # a fault: no scan, no write
-                add(f"    if DV_{name}.health is FAULT: return DV_{name}")
+        copy = []
+        for name, inst in self.instances.items():
+            idef = self.pdef.instances[name]
+            g, prog = inst.grafcet, inst.program
+            add(f"    # instance {name} ({g.name})")
+            args = []
+            for sig in prog.inputs:
+                b = idef.inputs.get(sig)
+                args.append(self._cell(name, prog.var_index(sig)) if b is None
+                            else self._input_expr(b, g.variables[sig].type, live=True))
+            for sig, b in idef.inputs.items():  # bound, not a declared input
+                if sig not in prog.inputs:
+                    add(f"    {self._cell(name, prog.var_index(sig))} = _v = "
+                        f"{self._input_expr(b, g.variables[sig].type, live=True)}")
+                    if sig in SLOW_FLAGS:  # a chart flag set: the scan's slow path
+                        self._env[f"SL_{name}"] = inst.m.slow
+                        add(f"    if _v: SL_{name}.cell_contents = True")
+            call = f"S_{name}(now, up{''.join(f', {a}' for a in args)})"
+            targets = [f"q_{name}_{sig}" if sig in idef.outputs else "_"
+                       for sig in prog.outputs]
+            add(f"    {', '.join(targets)}, = {call}" if any(t != "_" for t in targets)
+                else f"    {call}")
+            for sig, b in idef.outputs.items():
+                val = (f"q_{name}_{sig}" if sig in prog.outputs
+                       else self._cell(name, prog.var_index(sig)))
+                if b.invert:
+                    val = f"not {val}"
+                copy.append(f"    O_{b.driver}[{b.point!r}] = {val}  # {name}.{sig}")
+        lines += copy
+        if not self.virtual:
+            lines += [f"    W_{name}()" for name in self.drivers]
+        add("    return None")
+        return lines
+
+    def _slow_body(self) -> list[str]:
+        """The cycle with forces and pulses: bindings written into the state, the
+        instance's forces applied before and after its scan, the forced points masked."""
+        lines = self._reads()
+        add = lines.append
         add("    if FP: force_points(False)")
         for name, inst in self.instances.items():
             idef = self.pdef.instances[name]
@@ -180,30 +250,22 @@ class Plant:
             for sig, b in idef.inputs.items():
                 v = g.variables[sig]
                 slot = inst.program.var_index(sig)
-                add(f"    m[{slot}] = {self._input_expr(b, v.type)}  # {sig} <- "
+                add(f"    m[{slot}] = {self._input_expr(b, v.type, live=False)}  # {sig} <- "
                     f"{b.source}{' inverted' if b.invert else ''}")
             add(f"    if FI: force_instance({name!r}, m)")
-            add(f"    S_{name}(m, now, up)")
+            add(f"    SS_{name}(now, up)")
             add(f"    if FI: force_instance({name!r}, m)")
-        copy = self._output_copy()
-        lines += copy
+        lines += self._output_copy()
         add("    if FP: force_points(True)")
-        for name in self.drivers:
-            if exchange:
-                add(f"    W_{name}()")
+        if not self.virtual:
+            lines += [f"    W_{name}()" for name in self.drivers]
         add("    if FP: force_points(None)")
         add("    return None")
-        # while the charts are held (console pause), forced chart outputs still reach
-        # their points: the same copy, after the forces, with no scan
-        add("")
-        add(f"def copy_outputs({defaults}):")
-        for name in self.instances:
-            add(f"    if FI: force_instance({name!r}, M_{name})")
-        lines += copy or ["    pass"]
-        return "\n".join(lines) + "\n"
+        return lines
 
     def _output_copy(self) -> list[str]:
-        """Generated lines copying every instance output through its binding."""
+        """Generated lines copying every instance output (read in its state) through its
+        binding."""
         lines = []
         for name, inst in self.instances.items():
             idef = self.pdef.instances[name]
@@ -230,7 +292,8 @@ class Plant:
             env[f"DV_{name}"] = d
         for name, inst in self.instances.items():
             env[f"M_{name}"] = inst.m
-            env[f"S_{name}"] = inst.program.scan
+            env[f"S_{name}"] = inst.scan_in
+            env[f"SS_{name}"] = inst.scan
             env[f"ST_{name}"] = inst.step_time
 
     # -- the cycle -----------------------------------------------------------------
@@ -277,8 +340,10 @@ class Plant:
                 self.instances[inst].m[idx] = False
             self._pulses.clear()
             self._rebuild_instance_forces()
-        else:
+        elif self._forced_by_inst or self.forced_points:
             stopped = self._cycle(pnow, up)
+        else:
+            stopped = self._cycle_fast(pnow, up)
         if stopped is not None:
             return f"driver {stopped.name}: {stopped.fault_reason}"
         self.scans += 1
