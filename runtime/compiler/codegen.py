@@ -68,8 +68,10 @@ class Compiler:
         if ins:
             out("; ".join(f"{v} = {ident('in', v[2:])}" for v in ins))
         out("# chart clock: advances unless the chart was paused during the last interval")
+        out("# (`slow` false: not the first scan, the last one not paused, no flag set)")
         L = self.state.let  # noqa: N806 - short: many emitted lines
-        out(f"if first: {L('ct', value='0')}")
+        out(f"if not slow: {self.state.add('ct', 'now - lastnow')}")
+        out(f"elif first: {L('ct', value='0')}")
         out(f"elif not wp: {self.state.add('ct', 'now - lastnow')}")
         out(L("lastnow", value="now"))
         steps = list(g.steps.values())
@@ -124,8 +126,6 @@ class Compiler:
         out.dedent()
         out(f"{L('resetprev', value='v_SFCReset')}; {L('quitprev', value='v_SFCQuitError')}")
         out(f"tip = v_SFCTip and not tipprev; {L('tipprev', value='v_SFCTip')}")
-        flags = [ident("v", f) for f in SLOW_FLAGS] + list(SLOW_MEMORY)
-        out(f"slow = {' or '.join(flags)}")
         out.dedent()
         if self.codesys:
             if g.transitions:
@@ -147,6 +147,8 @@ class Compiler:
                 self.exprs.sample_edges(out, [s.node])
                 self.stmts.stmt(out, s.node)
         out(f"{L('first', value='False')}; {L('wp', value='paused')}")
+        flags = ["wp", *(ident("v", f) for f in SLOW_FLAGS), *SLOW_MEMORY]
+        out(f"if slow: slow = {' or '.join(flags)}")
         out.lines[marks:marks + 2] = self.marks(steps, out.lines)
         outs = "".join(f"{ident('v', v)}, " for v in self.outputs())
         out(f"return ({outs})" if outs else "return None")

@@ -316,6 +316,17 @@ class Plant:
         output images are left to the technician (every output off on entry). The
         charts see the program's time (``_program_time``), which stands still while
         they are not scanned."""
+        if not (self.iocheck or self.hold or self._stood_still or self._pulses
+                or self._forced_by_inst or self.forced_points) and self.start is not None:
+            # the usual cycle: running, nothing forced (what follows, made short)
+            pnow = now - self.offset_ns
+            self.last_up = up = pnow - self.start
+            self._last_scan = pnow
+            stopped = self._cycle_fast(pnow, up)
+            if stopped is not None:
+                return f"driver {stopped.name}: {stopped.fault_reason}"
+            self.scans += 1
+            return None
         if self.iocheck or (self.hold and self.steps_left <= 0):
             if self._last_scan is not None:
                 self._stood_still = True
