@@ -27,6 +27,16 @@ within the file limits of ``runtime.language.yamlsrc`` (1 MiB; 10 000 nodes plus
 of the size).
 
     python -m bench.scan [--counts 1 10 100 1000] [--cycles N] [--repeat 5]
+
+The whole-process comparison (``softplc simulate`` against the inline loop, each a fresh
+Python process, timed with ``time``): ``--write DIR`` writes the plant and script of
+``--counts N`` testers (the script's input story over ``--story`` cycles: a script file is
+limited to 1 MiB) and exits; ``--inline-process`` runs the inline loop once on the same
+story and exits:
+
+    python -m bench.scan --write /tmp/sim --counts 100 --story 36000
+    time softplc simulate /tmp/sim/plant.yaml --script /tmp/sim/script.yaml --cycles 100000
+    time python -m bench.scan --inline-process --counts 100 --cycles 100000 --story 36000
 """
 
 from __future__ import annotations
@@ -212,7 +222,19 @@ def main() -> int:
     ap.add_argument("--cycles", type=int, default=0, help="cycles per run (default: scaled)")
     ap.add_argument("--counts", type=int, nargs="+", default=[1, 10, 100, 1000])
     ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--write", metavar="DIR", help="write plant.yaml and script.yaml, exit")
+    ap.add_argument("--inline-process", action="store_true",
+                    help="run the inline loop once (for `time`), exit")
+    ap.add_argument("--story", type=int, default=36000,
+                    help="cycles of input story for --write / --inline-process")
     args = ap.parse_args()
+    if args.write:
+        out(" ".join(write_files(args.write, args.counts[0], args.story)))
+        return 0
+    if args.inline_process:
+        n = args.counts[0]
+        run_inline(n, args.cycles or 100_000, changes(n, args.story), None, None)
+        return 0
     ct = compile_times(20)
     out(f"compile {os.path.relpath(CHART, ROOT)} (load + check + compile, in process, 20 runs): "
         f"min {min(ct) * 1e3:.1f} ms, median {statistics.median(ct) * 1e3:.1f} ms")

@@ -131,8 +131,8 @@ class Program:
         """A new scan closure whose state is ``m`` (its cells bound into ``m``), starting
         from ``init`` (default :meth:`new_state`); returns ``(scan, scan_state)``."""
         scan, scan_state = self.factory(m, self.new_state() if init is None else init)
-        code = scan.__code__  # type: ignore[attr-defined]
-        cells = dict(zip(code.co_freevars, scan.__closure__ or (), strict=True))  # type: ignore[attr-defined]
+        code = scan.__code__
+        cells = dict(zip(code.co_freevars, scan.__closure__ or (), strict=True))
         m.cells = [cells[s.local] for s in self.slots]
         m.slow = cells["slow"]
         return scan, scan_state

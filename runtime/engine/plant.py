@@ -178,7 +178,7 @@ class Plant:
         Every name of the environment is bound as a default argument, so a cycle reads
         locals, not globals."""
         fast, slow = self._fast_body(), self._slow_body()
-        copy = ["    if FI: force_instance({name!r}, M_{name})".format(name=name)
+        copy = [f"    if FI: force_instance({name!r}, M_{name})"
                 for name in self.instances] + (self._output_copy() or ["    pass"])
         defaults = ", ".join(f"{n}={n}" for n in sorted(self._env))
         return "\n".join([f"def cycle(now, up, {defaults}):", *fast, "",
