@@ -14,6 +14,7 @@ plant cycle (semantics.md, "Program time").
 from __future__ import annotations
 
 import logging
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -180,12 +181,15 @@ class Plant:
         fast, slow = self._fast_body(), self._slow_body()
         copy = [f"    if FI: force_instance({name!r}, M_{name})"
                 for name in self.instances] + (self._output_copy() or ["    pass"])
-        defaults = ", ".join(f"{n}={n}" for n in sorted(self._env))
-        return "\n".join([f"def cycle(now, up, {defaults}):", *fast, "",
-                          f"def cycle_slow(now, up, {defaults}):", *slow, "",
+        def defaults(body: list[str]) -> str:  # the names of the environment it uses
+            used = set(re.findall(r"[A-Za-z_]\w*", "\n".join(body))) & self._env.keys()
+            return ", ".join(f"{n}={n}" for n in sorted(used))
+
+        return "\n".join([f"def cycle(now, up, {defaults(fast)}):", *fast, "",
+                          f"def cycle_slow(now, up, {defaults(slow)}):", *slow, "",
                           # while the charts are held (console pause), forced chart
                           # outputs still reach their points: the copy after the forces
-                          f"def copy_outputs({defaults}):", *copy]) + "\n"
+                          f"def copy_outputs({defaults(copy)}):", *copy]) + "\n"
 
     def _reads(self) -> list[str]:
         """The drivers' reads and the stop on a fault, first lines of both cycles."""
