@@ -52,8 +52,8 @@ import gc
 import os
 import signal
 import socket
-import subprocess
 import statistics
+import subprocess
 import sys
 import tempfile
 import time

@@ -1,7 +1,8 @@
 """Compiles a Grafcet model into Python source: one factory of scan closures per grafcet.
 
 ``make(m, init)`` is called once per instance with the instance's state view ``m`` and the
-initial value of every slot (``init``, in slot order); it returns ``(scan, scan_state)``.
+initial value of every slot (``init``, in slot order); it returns ``(scan, scan_state,
+values)``, ``values()`` being every slot's value as a new list.
 Every slot is a local of ``make`` that ``scan`` declares ``nonlocal``: the instance's state
 lives in the closure's cells, read and written by the scan as fast as locals, with no
 unpacking at the start and no store-back at the end; outside code reads and writes the
@@ -154,7 +155,9 @@ class Compiler:
         out(f"return ({outs})" if outs else "return None")
         tail = ["    def scan_state(now, up):",
                 f"        return scan(now, up{''.join(f', {v}' for v in ins)})",
-                "    return scan, scan_state"]
+                "    def values():",
+                f"        return [{locals_}]",
+                "    return scan, scan_state, values"]
         return "\n".join(head + out.lines + tail) + "\n"
 
     @staticmethod

@@ -75,7 +75,7 @@ class State:
     closure, so a read sees the last scan's value and a write is seen by the next scan;
     use it between scans (the scan thread's owner decides when)."""
 
-    __slots__ = ("cells", "slow")
+    __slots__ = ("cells", "slow", "values")
 
     def __init__(self) -> None:
         #: the cell of each slot, in slot order (set by :meth:`Program.instantiate`)
@@ -83,12 +83,13 @@ class State:
         #: the cell of the scan's ``slow`` flag: set by every write, so that the next
         #: scan takes its slow path (the chart flags tested, then the flag recomputed)
         self.slow: Any = None
+        #: every slot's value as a new list, read by the closure itself (``m[:]``)
+        self.values: Callable[[], list[Any]] = list
 
     def __getitem__(self, i: Any) -> Any:
-        try:
-            return self.cells[i].cell_contents
-        except AttributeError:  # a slice: the cells' values, as a new list
-            return [c.cell_contents for c in self.cells[i]]
+        if i.__class__ is slice:  # the values, as a new list
+            return self.values()[i]
+        return self.cells[i].cell_contents
 
     def __setitem__(self, i: int, value: Any) -> None:
         self.cells[i].cell_contents = value
@@ -98,7 +99,7 @@ class State:
         return len(self.cells)
 
     def __iter__(self) -> Iterator[Any]:
-        return (c.cell_contents for c in self.cells)
+        return iter(self.values())
 
     def __repr__(self) -> str:
         return f"State({self[:]!r})"
@@ -114,7 +115,7 @@ class Program:
 
     grafcet: Grafcet
     source: str
-    factory: Callable[[State, list[Any]], tuple[Scan, ScanState]]
+    factory: Callable[[State, list[Any]], tuple[Scan, ScanState, Callable[[], list[Any]]]]
     slots: list[Slot]
     probes: dict[int, list[Probe]] = field(default_factory=dict)  # transition -> sub-terms
     inputs: list[str] = field(default_factory=list)  # scan's arguments after ``up``
@@ -130,7 +131,8 @@ class Program:
                     ) -> tuple[Scan, ScanState]:
         """A new scan closure whose state is ``m`` (its cells bound into ``m``), starting
         from ``init`` (default :meth:`new_state`); returns ``(scan, scan_state)``."""
-        scan, scan_state = self.factory(m, self.new_state() if init is None else init)
+        scan, scan_state, m.values = self.factory(m, self.new_state() if init is None
+                                                  else init)
         code = scan.__code__
         cells = dict(zip(code.co_freevars, scan.__closure__ or (), strict=True))
         m.cells = [cells[s.local] for s in self.slots]
