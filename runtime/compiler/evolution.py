@@ -260,7 +260,7 @@ class Evolution:
             guard += [f"(ct - {ident('t0', st.name)}) >= {st.min_ns}" for st in min_timed(g, t)]
             groups.setdefault(tuple(guard), []).append(self.exprs.ex(t.cond))
         out = []
-        for guard, conds in groups.items():
+        for terms, conds in groups.items():
             cond = conds[0] if len(conds) == 1 else f"({' or '.join(conds)})"
-            out.append(f"({' and '.join([*guard, cond])})")
+            out.append(f"({' and '.join([*terms, cond])})")
         return " or ".join(out)
