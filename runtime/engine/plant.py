@@ -3,8 +3,11 @@
 One cycle (semantics.md, "The cycle of the controller"): every driver's ``read()``; for
 each instance in plant order, copy its inputs through the bindings (``invert`` applied
 here and only here), scan it; copy every output through the bindings into the drivers'
-output images; every driver's ``write()``. The copy is generated as Python code once, so
-a cycle is one function call with no interpretation of the bindings.
+output images; every driver's ``write()``. The cycle is generated as Python code once, so
+it is one function call with no interpretation of the bindings: the usual one (nothing
+forced or pulsed) one unrolled sequence of scan calls, each instance's input bindings as
+its arguments and its outputs copied from what it returns; the slow one (forces, pulses)
+writes the bindings into the instances' state and applies the forces around each scan.
 
 The charts are scanned on the program's time, not the raw clock: it stands still while
 they are not scanned (console pause, iocheck) and each stepped cycle counts exactly one
