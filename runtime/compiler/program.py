@@ -69,6 +69,9 @@ Scan = Callable[..., "tuple[Any, ...] | None"]
 ScanState = Callable[[int, int], "tuple[Any, ...] | None"]
 
 
+_WHOLE = slice(None)
+
+
 class State:
     """An instance's state, as a list of slots: ``m[i]``, ``m[i] = v``, ``len(m)``,
     iteration, and ``m[:]`` (a list copy). The values are the cells of the instance's scan
@@ -88,7 +91,8 @@ class State:
 
     def __getitem__(self, i: Any) -> Any:
         if i.__class__ is slice:  # the values, as a new list
-            return self.values()[i]
+            values = self.values()
+            return values if i == _WHOLE else values[i]
         return self.cells[i].cell_contents
 
     def __setitem__(self, i: int, value: Any) -> None:
