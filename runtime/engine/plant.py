@@ -16,6 +16,7 @@ plant cycle (semantics.md, "Program time").
 
 from __future__ import annotations
 
+import itertools
 import logging
 import re
 from collections.abc import Callable
@@ -210,6 +211,7 @@ class Plant:
         lines = self._reads()
         add = lines.append
         copy = []
+        numbers = itertools.count()
         for name, inst in self.instances.items():
             idef = self.pdef.instances[name]
             g, prog = inst.grafcet, inst.program
@@ -227,12 +229,12 @@ class Plant:
                         self._env[f"SL_{name}"] = inst.m.slow
                         add(f"    if _v: SL_{name}.cell_contents = True")
             call = f"S_{name}(now, up{''.join(f', {a}' for a in args)})"
-            targets = [f"q_{name}_{sig}" if sig in idef.outputs else "_"
-                       for sig in prog.outputs]
+            held = {sig: f"q{next(numbers)}" for sig in prog.outputs}  # kept to the copy
+            targets = [held[sig] if sig in idef.outputs else "_" for sig in prog.outputs]
             add(f"    {', '.join(targets)}, = {call}" if any(t != "_" for t in targets)
                 else f"    {call}")
             for sig, b in idef.outputs.items():
-                val = (f"q_{name}_{sig}" if sig in prog.outputs
+                val = (held[sig] if sig in prog.outputs
                        else self._cell(name, prog.var_index(sig)))
                 if b.invert:
                     val = f"not {val}"
