@@ -147,9 +147,10 @@ class Compiler:
             for s in g.post:
                 self.exprs.sample_edges(out, [s.node])
                 self.stmts.stmt(out, s.node)
-        out(f"{L('first', value='False')}; {L('wp', value='paused')}")
+        # not slow: first and wp are false already, paused too
         flags = ["wp", *(ident("v", f) for f in SLOW_FLAGS), *SLOW_MEMORY]
-        out(f"if slow: slow = {' or '.join(flags)}")
+        out(f"if slow: {L('first', value='False')}; {L('wp', value='paused')}; "
+            f"slow = {' or '.join(flags)}")
         out.lines[marks:marks + 2] = self.marks(steps, out.lines)
         outs = "".join(f"{ident('v', v)}, " for v in self.outputs())
         out(f"return ({outs})" if outs else "return None")
