@@ -27,6 +27,22 @@ within the file limits of ``runtime.language.yamlsrc`` (1 MiB; 10 000 nodes plus
 of the size).
 
     python -m bench.scan [--counts 1 10 100 1000] [--cycles N] [--repeat 5]
+
+The whole-process comparison (``softplc simulate`` against the inline loop, each a fresh
+Python process, timed with ``time``): ``--write DIR`` writes the plant and script of
+``--counts N`` testers (the script's input story over ``--story`` cycles: a script file is
+limited to 1 MiB) and exits; ``--inline-process`` runs the inline loop once on the same
+story and exits:
+
+    python -m bench.scan --write /tmp/sim --counts 100 --story 36000
+    time softplc simulate /tmp/sim/plant.yaml --script /tmp/sim/script.yaml --cycles 100000
+    time python -m bench.scan --inline-process --counts 100 --cycles 100000 --story 36000
+
+``--startup`` measures the daemon's start-up to READY for ``--counts N`` testers: ``softplc
+run`` of the plant (sim drivers, with a retain file) started ``--repeat`` times, the time
+from the process start to the ``READY=1`` datagram on its ``$NOTIFY_SOCKET``:
+
+    python -m bench.scan --startup --counts 100 --repeat 5
 """
 
 from __future__ import annotations
@@ -34,7 +50,10 @@ from __future__ import annotations
 import argparse
 import gc
 import os
+import signal
+import socket
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -207,12 +226,66 @@ def compile_times(runs: int) -> list[float]:
     return times
 
 
+def ready_time(plant: str, notify: str) -> float:
+    """Seconds from starting ``softplc run plant`` to its READY=1 on ``notify``."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as sock:
+        sock.bind(notify)
+        sock.settimeout(30)
+        env = {**os.environ, "NOTIFY_SOCKET": notify, "PYTHONPATH": ROOT}
+        env.pop("JOURNAL_STREAM", None)
+        t0 = time.perf_counter()
+        proc = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", plant],
+                                cwd=os.path.dirname(plant), env=env,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            while not sock.recv(4096).startswith(b"READY=1"):
+                pass
+            took = time.perf_counter() - t0
+        finally:
+            proc.send_signal(signal.SIGTERM)
+            proc.wait(30)
+        os.unlink(notify)
+    return took
+
+
+def startup(n: int, repeat: int) -> int:
+    """Print the start-up to READY of ``n`` testers, ``repeat`` runs."""
+    with tempfile.TemporaryDirectory() as d:
+        ppath, _ = write_files(d, n, 1)
+        with open(ppath, encoding="utf-8") as f:
+            text = f.read()
+        with open(ppath, "w", encoding="utf-8") as f:
+            f.write(text.replace("plc: {cycle: 10ms, watchdog: 100ms}",
+                                 f"plc: {{cycle: 10ms, watchdog: 100ms, "
+                                 f"retain: {d}/retain.json}}"))
+        times = [ready_time(ppath, os.path.join(d, "notify.sock")) for _ in range(repeat)]
+    out(f"start-up to READY=1, {n} testers, {repeat} runs: min {min(times):.3f} s, "
+        f"median {statistics.median(times):.3f} s, max {max(times):.3f} s")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--cycles", type=int, default=0, help="cycles per run (default: scaled)")
     ap.add_argument("--counts", type=int, nargs="+", default=[1, 10, 100, 1000])
     ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--write", metavar="DIR", help="write plant.yaml and script.yaml, exit")
+    ap.add_argument("--inline-process", action="store_true",
+                    help="run the inline loop once (for `time`), exit")
+    ap.add_argument("--startup", action="store_true",
+                    help="time `softplc run` of the plant from start to READY=1, exit")
+    ap.add_argument("--story", type=int, default=36000,
+                    help="cycles of input story for --write / --inline-process")
     args = ap.parse_args()
+    if args.write:
+        out(" ".join(write_files(args.write, args.counts[0], args.story)))
+        return 0
+    if args.startup:
+        return startup(args.counts[0], args.repeat)
+    if args.inline_process:
+        n = args.counts[0]
+        run_inline(n, args.cycles or 100_000, changes(n, args.story), None, None)
+        return 0
     ct = compile_times(20)
     out(f"compile {os.path.relpath(CHART, ROOT)} (load + check + compile, in process, 20 runs): "
         f"min {min(ct) * 1e3:.1f} ms, median {statistics.median(ct) * 1e3:.1f} ms")

@@ -232,9 +232,35 @@ class Evolution:
             out.dedent()
             out.dedent()
         else:
+            can = self.may_fire()
+            if can is not None:
+                out(f"if {can}:  # some transition fires: each one's, by priority")
+                out.indent()
             self.evaluate_transitions(out)
             out(f"if {fired}:")
             out.indent()
             self.apply_fired(out)
             out.dedent()
+            if can is not None:
+                out.dedent()
         out.dedent()
+
+    def may_fire(self) -> str | None:
+        """An expression true exactly when some transition fires, cheaper than evaluating
+        them all: per set of source steps, its activity and min times, then the conditions
+        of its transitions in file order (a transition that loses to an earlier one on a
+        shared step means that one fires). None where a condition calls a block method
+        (not to be called twice when a transition fires)."""
+        g = self.g
+        groups: dict[tuple[str, ...], list[str]] = {}
+        for t in g.transitions:
+            if any(isinstance(n, A.MethodCall) for n in A.walk(t.cond)):
+                return None
+            guard = [ident("x", s) for s in t.src_steps]
+            guard += [f"(ct - {ident('t0', st.name)}) >= {st.min_ns}" for st in min_timed(g, t)]
+            groups.setdefault(tuple(guard), []).append(self.exprs.ex(t.cond))
+        out = []
+        for terms, conds in groups.items():
+            cond = conds[0] if len(conds) == 1 else f"({' or '.join(conds)})"
+            out.append(f"({' and '.join([*terms, cond])})")
+        return " or ".join(out)

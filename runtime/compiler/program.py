@@ -1,15 +1,17 @@
-"""A compiled grafcet: its scan function, the layout of its state list, and the accessors.
+"""A compiled grafcet: its scan factory, the layout of its state, and the accessors.
 
-The state list ``m`` of an instance holds every variable, each step's ``X``, the times its
-``.T`` is made of, every function block and the scan's own memory. Only the compiler knows
-the layout; everything else reads and writes through a Program's methods, by the names a
-person uses (``iMarcha``, a step's X and T).
+The state ``m`` of an instance holds every variable, each step's ``X``, the times its
+``.T`` is made of, every function block and the scan's own memory. It lives in the cells
+of the instance's scan closure; :class:`State` is the view of it that outside code reads
+and writes by slot index, between scans, like a list. Only the compiler knows the layout;
+everything else reads and writes through a Program's methods, by the names a person uses
+(``iMarcha``, a step's X and T).
 """
 
 from __future__ import annotations
 
 import enum
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -58,24 +60,88 @@ class Probe:
 
     text: str
     depth: int
-    fn: Callable[[list[Any], int, int], Any]
+    fn: Callable[[Memory, int, int], Any]
+
+
+#: ``scan(now, up, *inputs)`` -> the outputs (a tuple), or None for a chart without any
+Scan = Callable[..., "tuple[Any, ...] | None"]
+#: ``scan_state(now, up)``: one scan with the inputs as they are in the state
+ScanState = Callable[[int, int], "tuple[Any, ...] | None"]
+
+
+_WHOLE = slice(None)
+
+
+class State:
+    """An instance's state, as a list of slots: ``m[i]``, ``m[i] = v``, ``len(m)``,
+    iteration, and ``m[:]`` (a list copy). The values are the cells of the instance's scan
+    closure, so a read sees the last scan's value and a write is seen by the next scan;
+    use it between scans (the scan thread's owner decides when)."""
+
+    __slots__ = ("cells", "slow", "values")
+
+    def __init__(self) -> None:
+        #: the cell of each slot, in slot order (set by :meth:`Program.instantiate`)
+        self.cells: list[Any] = []
+        #: the cell of the scan's ``slow`` flag: set by every write, so that the next
+        #: scan takes its slow path (the chart flags tested, then the flag recomputed)
+        self.slow: Any = None
+        #: every slot's value as a new list, read by the closure itself (``m[:]``)
+        self.values: Callable[[], list[Any]] = list
+
+    def __getitem__(self, i: Any) -> Any:
+        if i.__class__ is slice:  # the values, as a new list
+            values = self.values()
+            return values if i == _WHOLE else values[i]
+        return self.cells[i].cell_contents
+
+    def __setitem__(self, i: int, value: Any) -> None:
+        self.cells[i].cell_contents = value
+        self.slow.cell_contents = True
+
+    def __len__(self) -> int:
+        return len(self.cells)
+
+    def __iter__(self) -> Iterator[Any]:
+        return iter(self.values())
+
+    def __repr__(self) -> str:
+        return f"State({self[:]!r})"
+
+
+#: an instance's state (its live view) or a copy of it (a list, ``m[:]``)
+Memory = State | list[Any]
 
 
 @dataclass
 class Program:
-    """A compiled grafcet: generated source, scan function, state layout and accessors."""
+    """A compiled grafcet: generated source, scan factory, state layout and accessors."""
 
     grafcet: Grafcet
     source: str
-    scan: Callable[[list[Any], int, int], None]
+    factory: Callable[[State, list[Any]], tuple[Scan, ScanState, Callable[[], list[Any]]]]
     slots: list[Slot]
     probes: dict[int, list[Probe]] = field(default_factory=dict)  # transition -> sub-terms
+    inputs: list[str] = field(default_factory=list)  # scan's arguments after ``up``
+    outputs: list[str] = field(default_factory=list)  # what a scan returns, in order
     _by_key: dict[str, int] = field(init=False, repr=False)
-    _step_times: dict[str, Callable[[list[Any]], int]] = field(init=False, repr=False)
+    _step_times: dict[str, Callable[[Memory], int]] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self._by_key = {s.key: s.index for s in self.slots}
         self._step_times = {}
+
+    def instantiate(self, m: State, init: list[Any] | None = None
+                    ) -> tuple[Scan, ScanState]:
+        """A new scan closure whose state is ``m`` (its cells bound into ``m``), starting
+        from ``init`` (default :meth:`new_state`); returns ``(scan, scan_state)``."""
+        scan, scan_state, m.values = self.factory(m, self.new_state() if init is None
+                                                  else init)
+        code = scan.__code__
+        cells = dict(zip(code.co_freevars, scan.__closure__ or (), strict=True))
+        m.cells = [cells[s.local] for s in self.slots]
+        m.slow = cells["slow"]
+        return scan, scan_state
 
     def new_state(self) -> list[Any]:
         """A fresh state list: initial values, one new object per function block."""
@@ -125,23 +191,23 @@ class Program:
         return out
 
     # -- reading and writing a state list -------------------------------------------
-    def read(self, m: list[Any], name: str) -> Any:
+    def read(self, m: Memory, name: str) -> Any:
         """Value of variable ``name`` in state list ``m``."""
         return m[self.var_index(name)]
 
-    def write(self, m: list[Any], name: str, value: Any) -> None:
+    def write(self, m: Memory, name: str, value: Any) -> None:
         """Store ``value`` (already of the variable's type) into variable ``name``."""
         m[self.var_index(name)] = value
 
-    def step_active(self, m: list[Any], step: str) -> bool:
+    def step_active(self, m: Memory, step: str) -> bool:
         """``step.X`` in ``m``."""
         return bool(m[self.x_index(step)])
 
-    def step_time(self, m: list[Any], step: str) -> int:
+    def step_time(self, m: Memory, step: str) -> int:
         """``step.T`` (ns) in ``m``, as the chart sees it (kept after deactivation)."""
         return self.step_time_reader(step)(m)
 
-    def step_time_reader(self, step: str) -> Callable[[list[Any]], int]:
+    def step_time_reader(self, step: str) -> Callable[[Memory], int]:
         """A function of a state list giving ``step.T`` (ns); built once per step."""
         fn = self._step_times.get(step)
         if fn is None:
@@ -152,10 +218,10 @@ class Program:
             self._step_times[step] = fn
         return fn
 
-    def scan_time(self, m: list[Any]) -> int:
+    def scan_time(self, m: Memory) -> int:
         """Monotonic time (ns) of the last scan of ``m``."""
         return int(m[self._by_key["#last"]])
 
-    def chart_paused(self, m: list[Any]) -> bool:
+    def chart_paused(self, m: Memory) -> bool:
         """Whether the last scan of ``m`` was paused (SFCPause/SFCQuitError)."""
         return bool(m[self._by_key["#paused"]])

@@ -22,6 +22,7 @@ from collections.abc import Callable
 from typing import Any
 
 from drivers.durations import format_ns
+from runtime.compiler.program import Memory
 from runtime.controller.stats import ScanStats
 from runtime.engine.plant import Plant
 
@@ -51,7 +52,7 @@ class _Watched:
         self.max_ns = {s.name: s.max_ns for s in inst.grafcet.steps.values()}
         slots = [prog.x_index(s) for s in self.steps]
         slots += [prog.var_index("SFCError"), prog.var_index("SFCErrorStep")]
-        self.get: Callable[[list[Any]], tuple[Any, ...]] = operator.itemgetter(*slots)
+        self.get: Callable[[Memory], tuple[Any, ...]] = operator.itemgetter(*slots)
         self.prev = self.get(self.m)
         # one template per step: the rate limit counts each step on its own
         safe = name.replace("%", "%%")

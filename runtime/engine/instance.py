@@ -1,8 +1,9 @@
 """Instances: a compiled program with its own state, scanned on an injected clock.
 
-An Instance is what a Siemens DB is to an FB: the grafcet's code is shared, the state list
-is the instance's own. ``scan(now, up)`` runs one scan (semantics.md) at monotonic time
-``now`` (ns), ``up`` ns after the controller started.
+An Instance is what a Siemens DB is to an FB: the grafcet's code is shared, the state is
+the instance's own (the cells of its scan closure, seen by outside code through ``m``, a
+list-like view by slot index). ``scan(now, up)`` runs one scan (semantics.md) at monotonic
+time ``now`` (ns), ``up`` ns after the controller started.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from typing import Any
 
 from drivers.durations import format_ns, parse_literal
 from runtime.compiler.evolution import min_timed
-from runtime.compiler.program import Program
+from runtime.compiler.program import Program, State
 from runtime.language import ast as A
 from runtime.language.model import Step, Transition, VarKind
 from runtime.language.unparse import transition_text
@@ -52,8 +53,10 @@ class Instance:
         self.name = name
         self.program = program
         self.grafcet = program.grafcet
-        self.m: list[Any] = program.new_state()
-        self._scan = program.scan
+        #: the state, slot by slot (the same view for the instance's whole life)
+        self.m = State()
+        #: ``scan_in(now, up, *inputs) -> outputs``, the plant's fast call (Program.Scan)
+        self.scan_in, self._scan = program.instantiate(self.m)
         #: slot of each variable, ``step.X`` and function block (for tests and tools)
         self.index = program.public_index()
         self.last_up = 0
@@ -65,7 +68,7 @@ class Instance:
     def scan(self, now: int, up: int) -> None:
         """One scan at monotonic time ``now`` (ns); ``up`` ns since the controller started."""
         self.last_up = up
-        self._scan(self.m, now, up)
+        self._scan(now, up)
 
     # -- reading and writing -------------------------------------------------------
     def step_time(self, step: str) -> int:
@@ -128,7 +131,9 @@ class Instance:
     def restart(self) -> None:
         """Back to the initial situation, as at power-up; retained memory is kept."""
         kept = self.retain_snapshot()
-        self.m[:] = self.program.new_state()
+        m = self.m
+        for i, value in enumerate(self.program.new_state()):
+            m[i] = value
         self.restore_retain(kept)
 
     # -- explain ---------------------------------------------------------------------

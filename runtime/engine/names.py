@@ -21,6 +21,7 @@ from runtime.language import ast as A
 from runtime.language.model import Binding, PlantDef, Variable, VarKind
 
 if TYPE_CHECKING:
+    from runtime.compiler.program import Memory
     from runtime.engine.plant import Plant
 
 
@@ -127,7 +128,7 @@ class Image:
     """The process image after one cycle: state lists, driver images, driver health."""
 
     scan: int
-    m: list[list[Any]]
+    m: list[Memory]
     inputs: list[dict[str, Any]]
     outputs: list[dict[str, Any]]
     ok: list[bool]
@@ -280,7 +281,7 @@ def _slot_reader(i: int, idx: int) -> Callable[[Image], Any]:
     return lambda img: img.m[i][idx]
 
 
-def _step_time_reader(i: int, step_time: Callable[[list[Any]], int]
+def _step_time_reader(i: int, step_time: Callable[[Memory], int]
                       ) -> Callable[[Image], Any]:
     return lambda img: step_time(img.m[i])
 

@@ -3,8 +3,11 @@
 One cycle (semantics.md, "The cycle of the controller"): every driver's ``read()``; for
 each instance in plant order, copy its inputs through the bindings (``invert`` applied
 here and only here), scan it; copy every output through the bindings into the drivers'
-output images; every driver's ``write()``. The copy is generated as Python code once, so
-a cycle is one function call with no interpretation of the bindings.
+output images; every driver's ``write()``. The cycle is generated as Python code once, so
+it is one function call with no interpretation of the bindings: the usual one (nothing
+forced or pulsed) one unrolled sequence of scan calls, each instance's input bindings as
+its arguments and its outputs copied from what it returns; the slow one (forces, pulses)
+writes the bindings into the instances' state and applies the forces around each scan.
 
 The charts are scanned on the program's time, not the raw clock: it stands still while
 they are not scanned (console pause, iocheck) and each stepped cycle counts exactly one
@@ -13,7 +16,9 @@ plant cycle (semantics.md, "Program time").
 
 from __future__ import annotations
 
+import itertools
 import logging
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -22,6 +27,7 @@ from drivers.base import Direction, Driver, FaultPolicy, Health
 from drivers.registry import driver_class
 from drivers.sim import SimDriver
 from runtime.compiler.codegen import compile_grafcet
+from runtime.compiler.layout import SLOW_FLAGS
 from runtime.compiler.program import Program
 from runtime.engine.instance import Instance, StepWhy, coerce
 from runtime.engine.names import Owner, PlantNames, UnknownName
@@ -118,9 +124,12 @@ class Plant:
         env: dict[str, Any] = {}
         self._env = env
         self._bind_env(env)
-        self.source = self._generate(sorted(env))
+        self.source = self._generate()
         exec(compile(self.source, "<plant cycle>", "exec"), env)  # noqa: S102 - generated
-        self._cycle: Callable[[int, int], Driver | None] = env["cycle"]
+        #: the cycle with no force and no pulse (semantics unchanged, less to do)
+        self._cycle_fast: Callable[[int, int], Driver | None] = env["cycle"]
+        #: the cycle with forces and pulses applied around each scan
+        self._cycle: Callable[[int, int], Driver | None] = env["cycle_slow"]
         self._copy_outputs: Callable[[], None] = env["copy_outputs"]
 
     # -- construction ----------------------------------------------------------------
@@ -146,7 +155,9 @@ class Plant:
                         continue
                     d.add_point(b.point or "", direction)
 
-    def _input_expr(self, b: Binding, vtype: A.Type) -> str:
+    def _input_expr(self, b: Binding, vtype: A.Type, live: bool) -> str:
+        """The value of an input binding in the cycle's code. ``live``: another
+        instance's slot read through its cell (the fast cycle), else through its view."""
         if b.driver is not None:
             if b.point == "ok":
                 val = f"D[{b.driver!r}].health is OK"
@@ -160,22 +171,90 @@ class Plant:
         if ref_name.endswith(".T") and ref_name[:-2] in other.grafcet.steps:
             val = f"ST_{other.name}({ref_name[:-2]!r})"
         else:
-            val = f"M_{other.name}[{other.program.index_of(ref_name)}]"
+            idx = other.program.index_of(ref_name)
+            val = self._cell(other.name, idx) if live else f"M_{other.name}[{idx}]"
         return f"(not {val})" if b.invert else val
 
-    def _generate(self, names: list[str]) -> str:
-        """The cycle as Python source. Every name of the environment is bound as a
-        default argument, so the cycle reads locals, not globals."""
-        defaults = ", ".join(f"{n}={n}" for n in names)
-        lines = [f"def cycle(now, up, {defaults}):"]
+    def _cell(self, inst: str, idx: int) -> str:
+        """``C_inst_idx.cell_contents``: slot ``idx`` of ``inst``, its cell bound in the
+        cycle's environment."""
+        name = f"C_{inst}_{idx}"
+        self._env[name] = self.instances[inst].m.cells[idx]
+        return f"{name}.cell_contents"
+
+    def _generate(self) -> str:
+        """The cycles as Python source: ``cycle`` (the fast one: no force, no pulse),
+        ``cycle_slow`` (forces and pulses applied around each scan) and ``copy_outputs``.
+        Every name of the environment is bound as a default argument, so a cycle reads
+        locals, not globals."""
+        fast, slow = self._fast_body(), self._slow_body()
+        copy = [f"    if FI: force_instance({name!r}, M_{name})"
+                for name in self.instances] + (self._output_copy() or ["    pass"])
+        def defaults(body: list[str]) -> str:  # the names of the environment it uses
+            used = set(re.findall(r"[A-Za-z_]\w*", "\n".join(body))) & self._env.keys()
+            return ", ".join(f"{n}={n}" for n in sorted(used))
+
+        return "\n".join([f"def cycle(now, up, {defaults(fast)}):", *fast, "",
+                          f"def cycle_slow(now, up, {defaults(slow)}):", *slow, "",
+                          # while the charts are held (console pause), forced chart
+                          # outputs still reach their points: the copy after the forces
+                          f"def copy_outputs({defaults(copy)}):", *copy]) + "\n"
+
+    def _reads(self) -> list[str]:
+        """The drivers' reads and the stop on a fault, first lines of both cycles."""
+        lines = []
+        if not self.virtual:
+            lines += [f"    R_{name}()" for name in self.drivers]
+            lines += [f"    if DV_{name}.health is FAULT: return DV_{name}"
+                      for name, d in self.drivers.items()
+                      if d.on_fault is FaultPolicy.STOP]  # a fault: no scan, no write
+        return lines
+
+    def _fast_body(self) -> list[str]:
+        """One unrolled sequence: per instance, its scan called with the input bindings
+        as arguments, the outputs it returns kept in locals; then the output copy."""
+        lines = self._reads()
         add = lines.append
-        exchange = not self.virtual
-        for name in self.drivers:
-            if exchange:
-                add(f"    R_{name}()")
-        for name, d in self.drivers.items():
-            if exchange and d.on_fault is FaultPolicy.STOP:  # a fault: no scan, no write
-                add(f"    if DV_{name}.health is FAULT: return DV_{name}")
+        copy = []
+        numbers = itertools.count()
+        for name, inst in self.instances.items():
+            idef = self.pdef.instances[name]
+            g, prog = inst.grafcet, inst.program
+            add(f"    # instance {name} ({g.name})")
+            args = []
+            for sig in prog.inputs:
+                b = idef.inputs.get(sig)
+                args.append(self._cell(name, prog.var_index(sig)) if b is None
+                            else self._input_expr(b, g.variables[sig].type, live=True))
+            for sig, b in idef.inputs.items():  # bound, not a declared input
+                if sig not in prog.inputs:
+                    add(f"    {self._cell(name, prog.var_index(sig))} = _v = "
+                        f"{self._input_expr(b, g.variables[sig].type, live=True)}")
+                    if sig in SLOW_FLAGS:  # a chart flag set: the scan's slow path
+                        self._env[f"SL_{name}"] = inst.m.slow
+                        add(f"    if _v: SL_{name}.cell_contents = True")
+            call = f"S_{name}(now, up{''.join(f', {a}' for a in args)})"
+            held = {sig: f"q{next(numbers)}" for sig in prog.outputs}  # kept to the copy
+            targets = [held[sig] if sig in idef.outputs else "_" for sig in prog.outputs]
+            add(f"    {', '.join(targets)}, = {call}" if any(t != "_" for t in targets)
+                else f"    {call}")
+            for sig, b in idef.outputs.items():
+                val = (held[sig] if sig in prog.outputs
+                       else self._cell(name, prog.var_index(sig)))
+                if b.invert:
+                    val = f"not {val}"
+                copy.append(f"    O_{b.driver}[{b.point!r}] = {val}  # {name}.{sig}")
+        lines += copy
+        if not self.virtual:
+            lines += [f"    W_{name}()" for name in self.drivers]
+        add("    return None")
+        return lines
+
+    def _slow_body(self) -> list[str]:
+        """The cycle with forces and pulses: bindings written into the state, the
+        instance's forces applied before and after its scan, the forced points masked."""
+        lines = self._reads()
+        add = lines.append
         add("    if FP: force_points(False)")
         for name, inst in self.instances.items():
             idef = self.pdef.instances[name]
@@ -185,30 +264,22 @@ class Plant:
             for sig, b in idef.inputs.items():
                 v = g.variables[sig]
                 slot = inst.program.var_index(sig)
-                add(f"    m[{slot}] = {self._input_expr(b, v.type)}  # {sig} <- "
+                add(f"    m[{slot}] = {self._input_expr(b, v.type, live=False)}  # {sig} <- "
                     f"{b.source}{' inverted' if b.invert else ''}")
             add(f"    if FI: force_instance({name!r}, m)")
-            add(f"    S_{name}(m, now, up)")
+            add(f"    SS_{name}(now, up)")
             add(f"    if FI: force_instance({name!r}, m)")
-        copy = self._output_copy()
-        lines += copy
+        lines += self._output_copy()
         add("    if FP: force_points(True)")
-        for name in self.drivers:
-            if exchange:
-                add(f"    W_{name}()")
+        if not self.virtual:
+            lines += [f"    W_{name}()" for name in self.drivers]
         add("    if FP: force_points(None)")
         add("    return None")
-        # while the charts are held (console pause), forced chart outputs still reach
-        # their points: the same copy, after the forces, with no scan
-        add("")
-        add(f"def copy_outputs({defaults}):")
-        for name in self.instances:
-            add(f"    if FI: force_instance({name!r}, M_{name})")
-        lines += copy or ["    pass"]
-        return "\n".join(lines) + "\n"
+        return lines
 
     def _output_copy(self) -> list[str]:
-        """Generated lines copying every instance output through its binding."""
+        """Generated lines copying every instance output (read in its state) through its
+        binding."""
         lines = []
         for name, inst in self.instances.items():
             idef = self.pdef.instances[name]
@@ -235,7 +306,8 @@ class Plant:
             env[f"DV_{name}"] = d
         for name, inst in self.instances.items():
             env[f"M_{name}"] = inst.m
-            env[f"S_{name}"] = inst.program.scan
+            env[f"S_{name}"] = inst.scan_in
+            env[f"SS_{name}"] = inst.scan
             env[f"ST_{name}"] = inst.step_time
 
     # -- the cycle -----------------------------------------------------------------
@@ -258,6 +330,17 @@ class Plant:
         output images are left to the technician (every output off on entry). The
         charts see the program's time (``_program_time``), which stands still while
         they are not scanned."""
+        if not (self.iocheck or self.hold or self._stood_still or self._pulses
+                or self._forced_by_inst or self.forced_points) and self.start is not None:
+            # the usual cycle: running, nothing forced (what follows, made short)
+            pnow = now - self.offset_ns
+            self.last_up = up = pnow - self.start
+            self._last_scan = pnow
+            stopped = self._cycle_fast(pnow, up)
+            if stopped is not None:
+                return f"driver {stopped.name}: {stopped.fault_reason}"
+            self.scans += 1
+            return None
         if self.iocheck or (self.hold and self.steps_left <= 0):
             if self._last_scan is not None:
                 self._stood_still = True
@@ -282,8 +365,10 @@ class Plant:
                 self.instances[inst].m[idx] = False
             self._pulses.clear()
             self._rebuild_instance_forces()
-        else:
+        elif self._forced_by_inst or self.forced_points:
             stopped = self._cycle(pnow, up)
+        else:
+            stopped = self._cycle_fast(pnow, up)
         if stopped is not None:
             return f"driver {stopped.name}: {stopped.fault_reason}"
         self.scans += 1

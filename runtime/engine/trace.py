@@ -11,6 +11,7 @@ from collections.abc import Callable, Iterator
 from typing import IO, Any
 
 from drivers.base import Driver
+from runtime.compiler.program import Memory
 from runtime.engine.instance import Instance
 from runtime.engine.plant import Plant
 from runtime.language import ast as A
@@ -58,7 +59,7 @@ def driver_columns(plant: Plant) -> list[tuple[str, Callable[[], Any]]]:
     return cols
 
 
-def _slot(m: list[Any], i: int, kind: str) -> Callable[[], Any]:
+def _slot(m: Memory, i: int, kind: str) -> Callable[[], Any]:
     """Getter of state slot ``i``: a bool as 0/1, a time (ns) as whole ms, else as is."""
     if kind == "bool":
         return lambda: 1 if m[i] else 0
@@ -67,7 +68,7 @@ def _slot(m: list[Any], i: int, kind: str) -> Callable[[], Any]:
     return lambda: m[i]
 
 
-def _member(m: list[Any], i: int, member: str, mtype: A.Type) -> Callable[[], Any]:
+def _member(m: Memory, i: int, member: str, mtype: A.Type) -> Callable[[], Any]:
     """Getter of a function block's output: bools as 0/1, times in whole ms."""
     if mtype is T.BOOL:
         return lambda: 1 if getattr(m[i], member) else 0
