@@ -15,14 +15,12 @@ from __future__ import annotations
 
 import collections
 import logging
-import operator
 import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
 from drivers.durations import format_ns
-from runtime.compiler.program import Memory
 from runtime.controller.stats import ScanStats
 from runtime.engine.plant import Plant
 
@@ -41,19 +39,19 @@ POLL_S = 0.5
 class _Watched:
     """One instance: where its flags are and how they were at the last look."""
 
-    __slots__ = ("name", "m", "get", "prev", "steps", "max_ns", "on_msg", "off_msg")
+    __slots__ = ("name", "get", "prev", "steps", "max_ns", "on_msg", "off_msg")
 
     def __init__(self, plant: Plant, name: str, log_steps: bool) -> None:
         inst = plant.instances[name]
         prog = inst.program
         self.name = name
-        self.m = inst.m  # the instance's state list: the same list for its whole life
         self.steps = [s.name for s in inst.grafcet.leaf_steps()] if log_steps else []
         self.max_ns = {s.name: s.max_ns for s in inst.grafcet.steps.values()}
         slots = [prog.x_index(s) for s in self.steps]
         slots += [prog.var_index("SFCError"), prog.var_index("SFCErrorStep")]
-        self.get: Callable[[Memory], tuple[Any, ...]] = operator.itemgetter(*slots)
-        self.prev = self.get(self.m)
+        #: the watched slots' values, read straight from the instance's scan closure
+        self.get: Callable[[], tuple[Any, ...]] = inst.m.getter(slots)
+        self.prev = self.get()
         # one template per step: the rate limit counts each step on its own
         safe = name.replace("%", "%%")
         self.on_msg = [f"{safe}: step {s.replace('%', '%%')} activated at scan %d"
@@ -105,7 +103,7 @@ class EventWatcher:
         """After cycle ``n``: queue what changed (no formatting here)."""
         changed = False
         for w in self._watched:
-            cur = w.get(w.m)
+            cur = w.get()
             if cur != w.prev:
                 self._put((n, w, w.prev, cur))
                 w.prev = cur
@@ -124,7 +122,7 @@ class EventWatcher:
 
         def commit() -> None:
             for w in watched:
-                w.prev = w.get(w.m)
+                w.prev = w.get()
             self.plant, self._watched = plant, watched
         return commit
 

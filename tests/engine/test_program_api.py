@@ -43,3 +43,16 @@ def test_accessors_read_and_write_a_state_list(chart):  # type: ignore[no-untype
     assert prog.step_active(m, "s1") and not prog.step_active(m, "s0")
     assert prog.step_time(m, "s1") == c.inst.get("s1.T") == 30_000_000
     assert prog.step_time_reader("s0")(m) == 10_000_000  # kept after deactivation
+
+
+def test_a_state_getter_follows_scans_and_outside_writes(chart):  # type: ignore[no-untyped-def]
+    c = chart(CHART)
+    prog, m = c.inst.program, c.inst.m
+    get = m.getter([prog.var_index("n"), prog.x_index("s0"), prog.x_index("s1")])
+    assert get() == (3, True, False)
+    c.scan().scan(go=1)
+    assert get() == (3, False, True)  # the scan's own stores are seen
+    prog.write(m, "n", 7)
+    assert get() == (7, False, True)  # and a write between scans
+    assert get() == tuple(m[i] for i in (prog.var_index("n"), prog.x_index("s0"),
+                                         prog.x_index("s1")))
