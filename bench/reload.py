@@ -75,6 +75,15 @@ def row(label: str, values: list[float]) -> None:
     out(f"{label:36}{statistics.median(s):9.3f}{p99:9.3f}{s[-1]:9.3f}")
 
 
+def rss_kib() -> int:
+    """This process's resident memory (KiB, /proc/self/status VmRSS)."""
+    with open("/proc/self/status", encoding="ascii") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1])
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -99,6 +108,7 @@ def main() -> int:
         time.sleep(2.0)  # warm-up
         daemon.add_listener(rec)
         results = []
+        rss_before = rss_kib()
         for i in range(args.repeat):
             time.sleep(args.seconds)
             with open(chart, encoding="utf-8") as f:
@@ -113,6 +123,7 @@ def main() -> int:
                 return 1
             results.append(r)
         time.sleep(args.seconds)
+        rss_after = rss_kib()
         stats = daemon.scan_stats
         overruns = stats.overruns
         daemon.stop("bench")
@@ -135,6 +146,9 @@ def main() -> int:
         row(f"cycles during prepare ({len(prep)}): scan", [v[0] / 1e6 for v in prep])
         row(f"other cycles ({len(quiet)}): lateness", [v[1] / 1e6 for v in quiet])
         row(f"other cycles ({len(quiet)}): scan", [v[0] / 1e6 for v in quiet])
+        out(f"resident memory: {rss_before / 1024:.1f} MiB before the first reload, "
+            f"{rss_after / 1024:.1f} MiB after the last "
+            f"({(rss_after - rss_before) / max(1, len(results)):.0f} KiB per reload)")
         return 0
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -20,6 +20,7 @@ from typing import Any
 
 from drivers.sim import SimDriver
 from runtime.change.diff import ChangeSet, InstanceChange, diff_plants
+from runtime.compiler.codebook import CodeBook
 from runtime.compiler.program import Program, Slot, SlotKind
 from runtime.engine.instance import Instance
 from runtime.engine.plant import Plant
@@ -112,13 +113,15 @@ def _is_sim(plant: Plant) -> bool:
         for n, d in plant.drivers.items())
 
 
-def prepare(old: Plant, new_pdef: PlantDef) -> Prepared:
+def prepare(old: Plant, new_pdef: PlantDef, book: CodeBook | None = None) -> Prepared:
     """Diff, compile and build the new plant, and work out how its state carries. Any
-    thread: reads the old plant's definition and programs, never its state."""
+    thread: reads the old plant's definition and programs, never its state. ``book``: the
+    code objects compiled apart (runtime/compiler/codebook.py), so that no long compile
+    holds the GIL here."""
     cs = diff_plants(old.pdef, new_pdef)
     keep = {n: d for n, d in old.drivers.items()
             if n in new_pdef.drivers and n not in cs.drivers_changed and n not in cs.new_points}
-    plant = Plant(new_pdef, sim=_is_sim(old), drivers=keep, virtual=old.virtual)
+    plant = Plant(new_pdef, sim=_is_sim(old), drivers=keep, virtual=old.virtual, book=book)
     prep = Prepared(cs, plant, file_hashes(new_pdef))
     prep._fresh = [n for n in plant.drivers if n not in keep]
     prep._dropped = [n for n in old.drivers if n not in keep]

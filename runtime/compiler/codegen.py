@@ -25,6 +25,7 @@ import re
 from typing import Any
 
 from runtime.compiler.actions import ActionEmitter
+from runtime.compiler.codebook import CodeBook, compile_code
 from runtime.compiler.emit import Emitter, ident
 from runtime.compiler.evolution import Evolution, unstable_chart
 from runtime.compiler.expressions import HELPERS, ExprEmitter
@@ -206,13 +207,14 @@ class Compiler:
         return out
 
 
-def compile_grafcet(g: Grafcet) -> Program:
-    """Compile ``g`` into a Program (source, scan factory, state layout)."""
+def compile_grafcet(g: Grafcet, book: CodeBook | None = None) -> Program:
+    """Compile ``g`` into a Program (source, scan factory, state layout); ``book``: code
+    compiled in another process, used when it holds this source (codebook.py)."""
     c = Compiler(g)
     source = c.generate()
     digest = hashlib.sha1(source.encode()).hexdigest()[:8]
     env: dict[str, Any] = {**HELPERS, "_Unstable": unstable_chart}
-    code = compile(source, f"<grafcet {g.name} {digest}>", "exec")
+    code = compile_code(source, f"<grafcet {g.name} {digest}>", book)
     exec(code, env)  # noqa: S102 - generated from the checked model
     return Program(g, source, env["make"], c.state.slots, c.probes(), c.inputs(), c.outputs())
 

@@ -22,6 +22,7 @@ untouched and the result says why, one line per reason (each also logged).
 from __future__ import annotations
 
 import collections
+import gc
 import logging
 import os
 import pickle
@@ -34,6 +35,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from runtime.change.plan import Applied, Prepared, apply, file_hashes, prepare
+from runtime.compiler.codebook import CodeBook
 from runtime.engine.plant import Plant
 from runtime.errors import SoftplcError
 from runtime.language.model import PlantDef
@@ -153,17 +155,19 @@ class Reloader:
                 return self._refused(["no previous program to go back to (no change was "
                                       "applied since the start)"], back)
             new_pdef, _ = self.previous
+            pdef = new_pdef
+            loaded = self._in_worker(lambda: compile_apart(pdef))
         else:
             loaded = self._in_worker(lambda: load_apart(files or old_pdef.path))
-            if isinstance(loaded, str):
-                return self._refused([loaded], back)
-            new_pdef = loaded
+        if isinstance(loaded, str):
+            return self._refused([loaded], back)
+        new_pdef, book = loaded
         load_ms = (time.perf_counter() - t_load) * 1e3
         refusals = self._static_refusals(old_pdef, new_pdef, restart)
         if refusals:
             return self._refused(refusals, back)
         t0 = time.perf_counter()
-        built = self._in_worker(lambda: self._build(daemon.plant, new_pdef))
+        built = self._in_worker(lambda: self._build(daemon.plant, new_pdef, book))
         prepare_ms = (time.perf_counter() - t0) * 1e3
         if isinstance(built, str):
             return self._refused([built], back)
@@ -205,10 +209,22 @@ class Reloader:
             out.append("iocheck on: end it first ('iocheck off', then 'ack')")
         return out
 
-    def _build(self, old: Plant, new_pdef: PlantDef
+    def _build(self, old: Plant, new_pdef: PlantDef, book: CodeBook | None
                ) -> tuple[Prepared, list[Callable[[], None]]]:
         """Worker thread: the new plant, and each holder's switch, built in advance."""
-        prepared = prepare(old, new_pdef)
+        sched = self.daemon.scheduler
+        sched.gc_held = True
+        try:
+            prepared = prepare(old, new_pdef, book)
+        finally:
+            # the new plant lives until the next change: out of the collector's sight,
+            # like the first plant at start-up (a splice of lists, not a collection)
+            if not gc.isenabled():
+                gc.freeze()
+            sched.gc_held = False
+        if book is not None:
+            log.debug("reload: %d code objects from the child, %d compiled here", book.hits,
+                      book.misses)
         commits = [self.daemon.prepare_switch(prepared.plant, new_pdef)]
         commits += [hook(prepared.plant) for hook in self._hooks]
         return prepared, commits
@@ -267,19 +283,25 @@ class Reloader:
             with gate:
                 if not began.is_set():
                     cancelled[0] = True
+                    prepared.plant.dispose()
                     return ReloadResult(False, refusals=[
                         "the scan did not answer in time: nothing changed"])
             done.wait()
         if not out:  # apply itself raised: nothing was switched (all or nothing)
+            prepared.plant.dispose()
             return ReloadResult(False, refusals=["the change could not be applied (see the "
                                                  "log): nothing changed"])
         applied, swap_ms = out[0]
         lines = list(applied.lines)
         if applied.refusals:
+            prepared.plant.dispose()
             return ReloadResult(False, lines=lines, refusals=list(applied.refusals),
                                 swap_ms=swap_ms)
         if applied.reopened or applied.closed:
             self._reopen(old, prepared.plant, applied.closed, applied.reopened)
+        # the old plant is dropped by every holder now: freed by reference counting (it
+        # was frozen, out of the collector's sight, at the start or by the last reload)
+        old.dispose()
         return ReloadResult(True, lines=lines, restarted=list(applied.restarted),
                             reopened=list(applied.reopened), summary=_summary(lines),
                             swap_ms=swap_ms)
@@ -322,27 +344,69 @@ def _load(path: str) -> PlantDef | str:
         return f"load error: {exc}"
 
 
-def load_apart(path: str) -> PlantDef | str:
-    """``_load`` in a child process (``python -m runtime.controller.reload PATH``), the
-    result handed back pickled: the YAML parser holds the GIL for tens of ms at a time on
-    a large plant (measured 64 ms for 100 testers on a loaded machine), which would make
-    the scan thread that much late; unpickling holds it ~2 ms. If the child fails, the
-    plant is loaded in this process after all (one log line)."""
+#: what the child of ``load_apart``/``compile_apart`` hands back: the plant (or the line
+#: saying why it did not load) and the code objects compiled for it
+Loaded = tuple[PlantDef, CodeBook | None]
+
+
+def load_apart(path: str) -> Loaded | str:
+    """Load the plant file at ``path`` and compile its code in a child process
+    (``python -m runtime.controller.reload PATH``), the results handed back pickled and
+    marshalled: the YAML parser and ``compile()`` hold the GIL for tens of ms at a time on a
+    large plant (measured 64 ms and 16 ms for 100 testers), which would make the scan
+    thread that much late; unpickling holds it ~3 ms, unmarshalling the code under 1 ms.
+    If the child fails, the plant is loaded in this process after all (one log line)."""
+    return _apart([path], None) or _loaded_here(path)
+
+
+def compile_apart(pdef: PlantDef) -> Loaded | str:
+    """The code of ``pdef`` compiled in a child process (``reload --back``: the previous
+    program, already loaded, is handed to the child pickled); in this process if that
+    fails (the book is then empty, and the prepare compiles). The plant returned is
+    ``pdef`` itself, not the child's copy of it."""
+    got = _apart([], pickle.dumps(pdef))
+    return (pdef, got[1]) if isinstance(got, tuple) else (pdef, None)
+
+
+def _apart(args: list[str], stdin: bytes | None) -> Loaded | str | None:
+    """The child's answer, None when there is none (said in one log line)."""
     try:
-        child = subprocess.run([sys.executable, "-m", "runtime.controller.reload", path],
-                               capture_output=True, timeout=LOAD_TIMEOUT_S, check=False,
-                               env={**os.environ, "PYTHONPATH": _ROOT + os.pathsep
-                                    + os.environ.get("PYTHONPATH", "")})
+        child = subprocess.run([sys.executable, "-m", "runtime.controller.reload", *args],
+                               input=stdin, capture_output=True, timeout=LOAD_TIMEOUT_S,
+                               check=False, env={**os.environ, "PYTHONPATH": _ROOT + os.pathsep
+                                                 + os.environ.get("PYTHONPATH", "")})
         if child.returncode == 0:
-            result: PlantDef | str = pickle.loads(child.stdout)  # noqa: S301 - our child
-            return result
+            pdef, blobs = pickle.loads(child.stdout)  # noqa: S301 - our child
+            if isinstance(pdef, str):
+                return pdef
+            return pdef, CodeBook(blobs)
         why = child.stderr.decode(errors="replace").strip().splitlines()[-1:] or ["?"]
         log.warning("reload: the plant was not loaded apart (exit %d: %s): loaded here",
                     child.returncode, why[0])
     except (OSError, subprocess.SubprocessError, pickle.UnpicklingError, EOFError,
-            AttributeError, ImportError) as exc:
+            AttributeError, ImportError, ValueError, TypeError) as exc:
         log.warning("reload: the plant was not loaded apart (%s): loaded here", exc)
-    return _load(path)
+    return None
+
+
+def _loaded_here(path: str) -> Loaded | str:
+    pdef = _load(path)
+    return pdef if isinstance(pdef, str) else (pdef, None)
+
+
+def _child(args: list[str]) -> bytes:
+    """The child: load the plant (or read it pickled on stdin), build it on simulated I/O
+    recording every code object compiled, and answer ``(PlantDef or error line, blobs)``.
+    The code is compiled from the same generated sources as the controller's plant will
+    be: a source that comes out otherwise is compiled by the controller (codebook.py)."""
+    pdef = _load(args[0]) if args else pickle.loads(sys.stdin.buffer.read())  # noqa: S301
+    book = CodeBook(record=True)
+    if not isinstance(pdef, str):
+        try:
+            Plant(pdef, sim=True, book=book)
+        except Exception:  # noqa: BLE001 - the controller's own prepare says what is wrong
+            log.debug("reload child: the plant did not build", exc_info=True)
+    return pickle.dumps((pdef, book.blobs))
 
 
 def _summary(lines: list[str]) -> str:
@@ -354,5 +418,5 @@ def _summary(lines: list[str]) -> str:
     return f"{len(lines)} change{'s' if len(lines) != 1 else ''}: {head}{more}"
 
 
-if __name__ == "__main__":  # the child of ``load_apart``: the PlantDef, pickled, on stdout
-    sys.stdout.buffer.write(pickle.dumps(_load(sys.argv[1])))
+if __name__ == "__main__":  # the child of ``load_apart`` and ``compile_apart``
+    sys.stdout.buffer.write(_child(sys.argv[1:]))

@@ -7,7 +7,9 @@ program; paused, faulted and iocheck controllers (docs/online-change.md)."""
 
 from __future__ import annotations
 
+import gc
 import threading
+import weakref
 from collections.abc import Callable
 from itertools import pairwise
 from pathlib import Path
@@ -341,3 +343,35 @@ def test_a_changed_driver_is_reopened_in_a_gap(make_daemon: MakeDaemon,
     assert new is not drv and new.health.value == "ok" and not daemon._gap
     counts_on(daemon, n0)
     assert daemon.status()["state"] == "running"
+
+
+def test_a_reload_frees_the_plant_it_replaces_without_a_collection(
+        make_daemon: MakeDaemon, tmp_path: Path) -> None:
+    """The controller's collector runs in the scan's idle time and never sees the plant
+    (frozen at the start and at each reload): a replaced plant, or a prepared one that
+    was refused, must be freed by reference counting alone, or each reload would leave
+    it behind (1.5 MB at 100 testers) or cost a long collection."""
+    daemon, _drv, chart = running(make_daemon, tmp_path)
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        old = weakref.ref(daemon.plant)
+        edit(chart, "gsA.T >= 30ms", "gsA.T >= 40ms")
+        assert daemon.reload().applied
+        assert old() is None, "the replaced plant is kept alive by a reference cycle"
+        kept = daemon.plant
+        # a refusal after the new plant was built: the active step (gsA or gsB) removed
+        prepared: list[weakref.ref[Plant]] = []
+
+        def hook(plant: Plant) -> Callable[[], None]:
+            prepared.append(weakref.ref(plant))
+            return lambda: None
+        daemon.on_reload(hook)
+        chart.write_text(CYCLER.replace("gsA", "gsZ").replace("gsB", "gsY"),
+                         encoding="utf-8")
+        assert not daemon.reload().applied
+        assert prepared and prepared[0]() is None, "the refused plant is kept alive"
+        assert daemon.plant is kept
+    finally:
+        if was:
+            gc.enable()
