@@ -186,7 +186,7 @@ def cmd_hash_pin(args: argparse.Namespace) -> int:
     """Print the hash of a console PIN for the plant file's ``monitor: pin_hash:``."""
     import getpass
 
-    from runtime.console.pin import hash_pin
+    from runtime.controller.pin import hash_pin
 
     pin = args.pin
     if pin is None:

@@ -17,7 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
-from runtime.console.pin import check_pin
+from runtime.controller.pin import check_pin
 from runtime.console.protocol import LOCKOUT_MAX_S, LOCKOUT_MIN_S, MAX_PIN_TRIES
 from runtime.engine.names import Catalogue, CommandError
 from runtime.engine.plant import Plant

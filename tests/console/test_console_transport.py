@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from runtime.console.pin import hash_pin
+from runtime.controller.pin import hash_pin
 from runtime.console.server import (
     BURST_LINES,
     EVICT_IDLE_S,
