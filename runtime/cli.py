@@ -97,8 +97,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         sys.stderr.write("softplc run: error: --script plays simulated inputs: add --sim\n")
         return 2
     pdef = load_plant(args.plant)
+    feed_path = [pdef.opcua.feed] if pdef.opcua is not None else []  # the OPC UA feed
     try:
-        prepare(plant_files(pdef))  # its own directories, before anything is written
+        prepare(plant_files(pdef) + feed_path)  # its own directories, before anything is written
     except PathError as exc:
         sys.stderr.write(f"softplc run: error: {exc}\n")
         return 2
@@ -113,12 +114,21 @@ def cmd_run(args: argparse.Namespace) -> int:
 
                 daemon.add_listener(ScriptPlayer(daemon.plant, args.script))
             server = _console_server(daemon) if pdef.consoles else None
+            feed = _feed_server(daemon) if pdef.opcua is not None else None
 
             def started() -> None:
                 _check_opened(daemon)
                 if server is not None:
                     server.start()
-            return serve(daemon, for_ns, started, server.stop if server else None)
+                if feed is not None:
+                    feed.start()
+
+            def stopping() -> None:
+                if feed is not None:
+                    feed.stop()
+                if server is not None:
+                    server.stop()
+            return serve(daemon, for_ns, started, stopping)
         except (SourceError, KeyboardInterrupt):
             raise
         except Exception as exc:  # noqa: BLE001 - at start: one line, never a traceback
@@ -180,6 +190,13 @@ def _console_server(daemon: Any) -> Any:
     pdef = daemon.pdef
     service = ConsoleService(daemon, pdef.pin_hash, pdef.release_forces_on_disconnect)
     return ConsoleServer(service, pdef.consoles)
+
+
+def _feed_server(daemon: Any) -> Any:
+    """The OPC UA server's feed (runtime/controller/feed.py), served by the controller."""
+    from runtime.controller.feed import FeedServer
+
+    return FeedServer(daemon, daemon.pdef.opcua)
 
 
 def cmd_hash_pin(args: argparse.Namespace) -> int:

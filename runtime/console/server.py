@@ -39,6 +39,13 @@ from typing import Any
 
 from runtime.console.service import ConsoleService
 from runtime.console.session import Session
+from runtime.controller.window import (  # noqa: F401 - the console's names for them
+    QUIET_BEFORE_S,
+    ROUND_BUDGET_S,
+    WINDOW_POLL_S,
+    WINDOW_SHARE,
+    ScanWindow,
+)
 from runtime.language.model import ConsoleEntry
 
 log = logging.getLogger(__name__)
@@ -63,15 +70,6 @@ EVICT_IDLE_S = 10.0
 #: lines a session may run per second, and at once after a pause
 LINES_PER_S = 50.0
 BURST_LINES = 100
-#: console work per round of the socket thread before it looks for I/O again, seconds
-ROUND_BUDGET_S = 0.002
-#: console work stops this long before the next scan is due, until that scan has ended,
-#: seconds (at most WINDOW_SHARE of the cycle): the longest line handled (``stats``, ~1 ms)
-#: fits in it with room to spare
-QUIET_BEFORE_S = 0.005
-WINDOW_SHARE = 0.5
-#: the shortest sleep waiting for the next window, seconds
-WINDOW_POLL_S = 0.0002
 #: a serial port that cannot be opened is tried again after this delay, doubling up to
 #: the maximum, seconds
 REOPEN_MIN_S = 0.5
@@ -104,39 +102,6 @@ class Throttle:
     def next_token(self) -> float:
         """When the next token comes (clock seconds)."""
         return self.last + max(0.0, 1.0 - self.tokens) / self.rate
-
-
-class ScanWindow:
-    """When console work may hold the GIL: from the end of a scan until QUIET_BEFORE_S
-    (at most half the cycle) before the next one is due, so that the scan thread, waking
-    at its deadline, finds the GIL free (a thread holding it delays the scan by up to the
-    switch interval). When no scan has ended for two cycles (the scan is stuck, or
-    stopped), at any time: the console must still answer."""
-
-    def __init__(self, cycle_s: float, clock: Callable[[], float] = time.monotonic,
-                 sleep: Callable[[float], None] = time.sleep) -> None:
-        self.cycle_s = cycle_s
-        self.clock = clock
-        self.sleep = sleep
-        #: clock seconds at the end of the last scan (written by the scan thread)
-        self.scan_end = 0.0
-
-    def on_scan(self, scan: int) -> None:
-        """Scan thread, after each cycle: one float stored."""
-        self.scan_end = self.clock()
-
-    def until(self) -> float:
-        """Wait for a window; return when it closes (monotonic seconds)."""
-        cycle = self.cycle_s
-        open_s = cycle - min(WINDOW_SHARE * cycle, QUIET_BEFORE_S)
-        while True:
-            now = self.clock()
-            end = self.scan_end + open_s
-            if now < end:
-                return end
-            if now - self.scan_end > 2 * cycle:
-                return now + ROUND_BUDGET_S
-            self.sleep(max(WINDOW_POLL_S, self.scan_end + cycle - now))
 
 
 class Line:

@@ -225,6 +225,41 @@ class ConsoleEntry:
     trusted: bool = False
 
 
+#: OPC UA security policies a plant may list (``opcua: security: policies:``)
+OPCUA_POLICIES = ("None", "Basic256Sha256_Sign", "Basic256Sha256_SignAndEncrypt")
+
+
+@dataclass(slots=True)
+class OpcuaSecurity:
+    """``opcua: security:`` (docs/opcua.md): what the server offers and whom it lets in."""
+
+    policies: list[str] = field(default_factory=lambda: ["Basic256Sha256_SignAndEncrypt"])
+    certificate: str | None = None
+    private_key: str | None = None
+    #: a directory of trusted client certificates (DER)
+    trusted_clients: str | None = None
+    #: what a client without a user may do: "read" or "none"
+    anonymous: str = "read"
+    #: user -> password hash (``softplc hash-pin`` format)
+    users: dict[str, str] = field(default_factory=dict)
+    loc: Loc | None = None
+
+
+@dataclass(slots=True)
+class OpcuaDef:
+    """``opcua:`` of a plant file: the OPC UA server (``softplc opcua``) and its feed."""
+
+    endpoint: str = "opc.tcp://127.0.0.1:4840"
+    #: how often the controller sends a snapshot of its image to the feed, ns
+    sample_ns: int = 50_000_000
+    #: the feed's local socket (the controller serves it, the server connects)
+    feed: str = ""
+    #: ``instance.name`` of the variables and chart flags OPC UA clients may write
+    writable: list[str] = field(default_factory=list)
+    security: OpcuaSecurity = field(default_factory=OpcuaSecurity)
+    loc: Loc | None = None
+
+
 @dataclass(slots=True)
 class ConsoleLimits:
     """How long console holds may last, seconds (``monitor: limits:``, console.md)."""
@@ -257,3 +292,5 @@ class PlantDef:
     pin_hash: str | None = None
     release_forces_on_disconnect: bool = False
     console_limits: ConsoleLimits = field(default_factory=ConsoleLimits)
+    #: the OPC UA server's section (``opcua:``), None without one
+    opcua: OpcuaDef | None = None

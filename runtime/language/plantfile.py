@@ -30,11 +30,12 @@ from runtime.language.model import (
     PlantDef,
     VarKind,
 )
+from runtime.language.opcuaconf import load_opcua
 from runtime.language.runtimedir import expand
 from runtime.language.typecheck import FLAGS_BOOL
 from runtime.language.yamlsrc import YMap, load_yaml, source_problem
 
-PLANT_KEYS = ("plc", "drivers", "instances", "monitor")
+PLANT_KEYS = ("plc", "drivers", "instances", "monitor", "opcua")
 PLC_KEYS = ("cycle", "watchdog", "retain", "retain_interval", "retain_required", "realtime",
             "log")
 INSTANCE_KEYS = ("grafcet", "inputs", "outputs", "description", "log")
@@ -265,6 +266,8 @@ def load_plant(path: str, load: PlantLoad | None = None) -> PlantDef:
     _resolve_bindings(p, load)
     if "monitor" in doc and doc["monitor"] is not None:
         _monitor(p, doc["monitor"], doc.val_locs["monitor"])
+    if "opcua" in doc and doc["opcua"] is not None:
+        p.opcua = load_opcua(p, doc["opcua"], doc.val_locs["opcua"])
     return p
 
 

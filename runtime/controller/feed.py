@@ -1,0 +1,435 @@
+"""The feed: snapshots of the process image for a process beside the controller (the OPC UA
+server, ``softplc opcua``), over a local socket, without costing the scan its cycle.
+
+Controller side (``FeedServer``): every ``sample`` ns the scan thread, at the end of a
+cycle, stores a copy of the image (``Catalogue.capture``: a few list copies) with its scan
+number and wall-clock time in a one-slot mailbox; nothing more. The feed thread takes it,
+reads every name from it, and sends inside the console's scan window (``ScanWindow``): to
+each client the schema once, then one JSON line per snapshot with the values that changed.
+A client whose unsent output passes OUT_MAX (it stopped reading) is dropped: the scan and
+the other clients never wait for it. Writes come back on the same socket (``set``): only
+names of the plant's ``opcua: writable:`` list, applied between two scans as the console's
+``set`` is (``Daemon.call``), each answered ok or error.
+
+Client side (``FeedState``): the schema and the values of the last frame, decoded.
+
+Messages, one JSON object per line (``"\\n"``):
+
+- server -> client ``{"schema": {...}}`` once: ``names`` ([name, type, role] in value
+  order), ``instances``, ``drivers``, ``writable``, ``cycle_ms``, ``sample_ms``;
+- ``{"f": [scan, wall_s, values]}``: a whole frame (first after the schema), values in
+  schema order; ``{"d": [scan, wall_s, [i, v, i, v, ...]]}``: only the values that changed
+  since the previous frame. ``scan`` is the trace's ``cycle`` number; times are in ns;
+- ``{"c": {...}}``: the controller's status (state, fault, overruns, uptime_s, cycle_ms,
+  drivers: name -> [health, fault reason, ok], lateness_us: p50, p99, max), before the
+  frame it goes with, only when it changed (the scan count is the frame's scan + 1);
+- ``{"r": [id, ok, text]}``: the answer to a ``set``;
+- client -> server ``{"set": [id, name, value]}`` (value in the name's type; times in ns).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import selectors
+import socket
+import struct
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from runtime.controller.window import ScanWindow
+from runtime.engine.instance import coerce
+from runtime.engine.names import Catalogue, Image
+from runtime.language import ast as A
+from runtime.language.model import OpcuaDef
+
+if TYPE_CHECKING:
+    from runtime.controller.daemon import Daemon
+
+log = logging.getLogger(__name__)
+
+#: unsent bytes a client may have before it is dropped (it stopped reading)
+OUT_MAX = 1 << 20
+#: bytes of client input waiting to be handled before the client is dropped
+IN_MAX = 65536
+#: bytes read from a client at a time
+READ_CHUNK = 4096
+#: connections served at once
+MAX_CLIENTS = 8
+#: the controller's lateness percentiles are refreshed this often, ns
+STATS_EVERY_NS = 1_000_000_000
+#: how long the feed thread waits for I/O when there is nothing to do, seconds
+POLL_S = 0.05
+#: a write not applied by the scan thread in this long is answered with an error, seconds
+SET_TIMEOUT_S = 2.0
+
+
+@dataclass(slots=True)
+class _Client:
+    sock: socket.socket
+    peer: str
+    out: bytearray = field(default_factory=bytearray)
+    inbuf: bytearray = field(default_factory=bytearray)
+    #: the next frame it gets is a whole one (it has none yet)
+    fresh: bool = True
+    status: dict[str, Any] | None = None
+
+
+class FeedServer:
+    """Serves the feed of ``daemon`` on ``opc.feed`` until ``stop()``."""
+
+    def __init__(self, daemon: Daemon, opc: OpcuaDef,
+                 wall: Callable[[], float] = time.time) -> None:
+        self.daemon = daemon
+        self.opc = opc
+        self.path = opc.feed
+        self.wall = wall
+        cycle_ns = daemon.plant.cycle_ns
+        #: a snapshot every this many scans
+        self.every = max(1, opc.sample_ns // cycle_ns)
+        self.window = ScanWindow(cycle_ns / 1e9)
+        self._cat = Catalogue(daemon.plant)
+        self._next = 0
+        #: the mailbox: (scan, wall seconds, image), written by the scan thread only
+        self._slot: tuple[int, float, Image] | None = None
+        self._taken: tuple[int, float, Image] | None = None
+        self._stop = threading.Event()
+        self._replaced = False
+        self._sock: socket.socket | None = None
+        self._sel: selectors.BaseSelector | None = None
+        self._thread: threading.Thread | None = None
+        self._clients: list[_Client] = []
+        self._values: list[Any] | None = None
+        self._schema_line = b""
+        self._stats: dict[str, Any] = {}
+        self._stats_at = 0
+        #: counters (tests, logs): frames built, clients dropped for not reading
+        self.frames = 0
+        self.dropped = 0
+
+    # -- life cycle ----------------------------------------------------------------
+    def start(self) -> None:
+        """Bind the socket (errors raised here), hook into the scan, start the thread."""
+        path = self.path
+        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+        if os.path.exists(path):
+            os.unlink(path)  # left by a previous run
+        srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        srv.bind(path)
+        os.chmod(path, 0o660)
+        srv.listen(MAX_CLIENTS)
+        srv.setblocking(False)
+        self._sock = srv
+        self._sel = selectors.DefaultSelector()
+        self._sel.register(srv, selectors.EVENT_READ, None)
+        self._schema_line = self._schema()
+        self.daemon.add_listener(self.window.on_scan)
+        self.daemon.add_listener(self.on_scan)
+        self._thread = threading.Thread(target=self._run, name="softplc-feed", daemon=True)
+        self._thread.start()
+        log.info("feed listening on %s (a snapshot every %d scan(s))", path, self.every)
+
+    def stop(self) -> None:
+        """Unhook from the scan, close every client and the socket. Idempotent."""
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        self.daemon.remove_listener(self.on_scan)
+        self.daemon.remove_listener(self.window.on_scan)
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        for c in list(self._clients):
+            self._drop(c, None)
+        if self._sock is not None:
+            self._sock.close()
+            try:
+                os.unlink(self.path)
+            except OSError:
+                pass
+        if self._sel is not None:
+            self._sel.close()
+
+    def plant_replaced(self) -> None:
+        """The controller's plant object was replaced (an online change): every client is
+        dropped, to reconnect and read the new schema. Any thread."""
+        self._replaced = True
+
+    # -- the scan thread -------------------------------------------------------------
+    def on_scan(self, n: int) -> None:
+        """Scan thread, after cycle ``n``: every ``every`` scans, the image into the slot."""
+        if n < self._next:
+            return
+        self._next = n + self.every
+        self._slot = (n - 1, self.wall(), self._cat.capture(n - 1))
+
+    # -- the feed thread ------------------------------------------------------------
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                closes = self.window.until()
+                if self._stop.is_set():
+                    break
+                if self._replaced:
+                    self._reload()
+                self._io(max(0.0, min(closes - time.monotonic(), POLL_S)))
+                slot = self._slot
+                if slot is not None and slot is not self._taken and self._clients:
+                    self._taken = slot
+                    self._publish(*slot)
+                    self._flush()
+        except Exception:  # noqa: BLE001 - the feed dies, never the controller
+            log.exception("feed thread failed: OPC UA clients see no more values")
+
+    def _reload(self) -> None:
+        self._replaced = False
+        self._cat = Catalogue(self.daemon.plant)
+        self._schema_line = self._schema()
+        self._values = None
+        for c in list(self._clients):
+            self._drop(c, "the plant was replaced")
+        log.info("feed: plant replaced, clients dropped to read the new schema")
+
+    def _io(self, timeout: float) -> None:
+        assert self._sel is not None
+        for key, mask in self._sel.select(timeout):
+            c = key.data
+            if c is None:
+                self._accept()
+            elif isinstance(c, _Client):
+                if mask & selectors.EVENT_READ:
+                    self._read(c)
+                if mask & selectors.EVENT_WRITE and c in self._clients:
+                    self._send(c)
+
+    def _accept(self) -> None:
+        assert self._sock is not None and self._sel is not None
+        try:
+            conn, _ = self._sock.accept()
+        except (BlockingIOError, InterruptedError):
+            return
+        cred = conn.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, struct.calcsize("3i"))
+        pid, uid, _gid = struct.unpack("3i", cred)
+        if uid not in (0, os.geteuid()):
+            log.warning("feed: connection from uid %d refused (only uid %d or root)", uid,
+                        os.geteuid())
+            conn.close()
+            return
+        if len(self._clients) >= MAX_CLIENTS:
+            log.warning("feed: connection from pid %d refused: %d clients already", pid,
+                        MAX_CLIENTS)
+            conn.close()
+            return
+        conn.setblocking(False)
+        c = _Client(conn, f"pid {pid} uid {uid}")
+        c.out += self._schema_line
+        self._clients.append(c)
+        self._sel.register(conn, selectors.EVENT_READ, c)
+        log.info("feed: client connected (%s)", c.peer)
+        self._send(c)
+
+    def _read(self, c: _Client) -> None:
+        try:
+            data = c.sock.recv(READ_CHUNK)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError as exc:
+            self._drop(c, str(exc))
+            return
+        if not data:
+            self._drop(c, None)
+            return
+        c.inbuf += data
+        while b"\n" in c.inbuf:
+            line, _, rest = bytes(c.inbuf).partition(b"\n")
+            c.inbuf = bytearray(rest)
+            self._request(c, line)
+            if c not in self._clients:
+                return
+        if len(c.inbuf) > IN_MAX:
+            self._drop(c, "a line too long")
+
+    def _request(self, c: _Client, line: bytes) -> None:
+        try:
+            msg = json.loads(line)
+            ident, name, value = msg["set"]
+        except (ValueError, KeyError, TypeError):
+            self._drop(c, "a malformed request")
+            return
+        ok, text = self.apply_set(str(name), value)
+        self._queue(c, _line({"r": [ident, ok, text]}))
+
+    def apply_set(self, name: str, value: Any) -> tuple[bool, str]:
+        """A client's write: only a name of ``opcua: writable:``, applied between two scans
+        as the console's ``set`` (the scan thread runs it). (ok, text)."""
+        if name not in self.opc.writable:
+            return False, f"{name} is not writable over OPC UA (opcua: writable)"
+        sig = self._cat.names.get(name)
+        if sig is None:
+            return False, f"unknown name '{name}'"
+        try:
+            if sig.type is A.Type.BOOL and isinstance(value, float):
+                raise ValueError(f"expected a bool, found {value!r}")
+            v = coerce(sig.type, value)
+        except (ValueError, TypeError) as exc:
+            return False, f"bad value for {name}: {exc}"
+        plant = self.daemon.plant
+        try:
+            self.daemon.call(lambda: plant.set(name, v), timeout=SET_TIMEOUT_S)
+        except TimeoutError:
+            return False, "the scan did not answer in time"
+        except Exception as exc:  # noqa: BLE001 - the client gets the reason
+            return False, str(exc)
+        log.info("opcua: set %s = %s", name, sig.show(v))
+        return True, f"{name} set to {sig.show(v)}"
+
+    def _publish(self, scan: int, wall: float, img: Image) -> None:
+        """One frame to every client: whole to new ones, the changes to the others."""
+        values = [s.read(img) for s in self._cat.names.values()]
+        prev = self._values
+        self._values = values
+        delta = None
+        if prev is not None:
+            changes: list[Any] = []
+            for i, v in enumerate(values):
+                if v != prev[i] or type(v) is not type(prev[i]):
+                    changes += (i, v)
+            delta = _line({"d": [scan, wall, changes]})
+        whole = None
+        status = self._status(scan)
+        self.frames += 1
+        for c in self._clients:
+            if status != c.status:
+                c.status = status
+                self._queue(c, _line({"c": status}))
+            if c.fresh or delta is None:
+                if whole is None:
+                    whole = _line({"f": [scan, wall, values]})
+                c.fresh = False
+                self._queue(c, whole)
+            else:
+                self._queue(c, delta)
+
+    def _status(self, scan: int) -> dict[str, Any]:
+        d = self.daemon
+        now = time.monotonic_ns()
+        if now - self._stats_at >= STATS_EVERY_NS:
+            self._stats_at = now
+            late = d.scan_stats.lateness().as_dict()
+            self._stats = {k: late[k] for k in ("p50", "p99", "max")}
+        return {"state": d.state.value, "fault": d.fault or d.halted,
+                "overruns": d.scan_stats.overruns, "uptime_s": round(d.uptime_s()),
+                "cycle_ms": d.plant.cycle_ns / 1e6, "lateness_us": self._stats,
+                "drivers": {name: [drv.health.value, drv.fault_reason or "", drv.ok]
+                            for name, drv in d.plant.drivers.items()}}
+
+    def _queue(self, c: _Client, data: bytes) -> None:
+        c.out += data
+        if len(c.out) > OUT_MAX:
+            self.dropped += 1
+            self._drop(c, f"it took no data for too long ({len(c.out)} bytes waiting)")
+
+    def _flush(self) -> None:
+        for c in list(self._clients):
+            if c.out:
+                self._send(c)
+
+    def _send(self, c: _Client) -> None:
+        assert self._sel is not None
+        try:
+            n = c.sock.send(c.out)
+        except (BlockingIOError, InterruptedError):
+            n = 0
+        except OSError as exc:
+            self._drop(c, str(exc))
+            return
+        del c.out[:n]
+        events = selectors.EVENT_READ | (selectors.EVENT_WRITE if c.out else 0)
+        self._sel.modify(c.sock, events, c)
+
+    def _drop(self, c: _Client, why: str | None) -> None:
+        if c in self._clients:
+            self._clients.remove(c)
+        if self._sel is not None:
+            try:
+                self._sel.unregister(c.sock)
+            except (KeyError, ValueError):
+                pass
+        c.sock.close()
+        if why is None:
+            log.info("feed: client gone (%s)", c.peer)
+        else:
+            log.warning("feed: client dropped (%s): %s", c.peer, why)
+
+    def _schema(self) -> bytes:
+        pdef = self.daemon.pdef
+        return _line({"schema": {
+            "plant": pdef.path,
+            "names": [[s.text, s.type.value, s.role] for s in self._cat.names.values()],
+            "instances": {n: i.grafcet.name for n, i in pdef.instances.items()},
+            "drivers": list(self.daemon.plant.drivers),
+            "writable": list(self.opc.writable),
+            "cycle_ms": self.daemon.plant.cycle_ns / 1e6,
+            "sample_ms": self.every * self.daemon.plant.cycle_ns / 1e6}})
+
+    @property
+    def clients(self) -> int:
+        return len(self._clients)
+
+
+def _line(msg: dict[str, Any]) -> bytes:
+    return (json.dumps(msg, separators=(",", ":"), ensure_ascii=False) + "\n").encode()
+
+
+@dataclass(slots=True)
+class FeedState:
+    """Client side: the schema and the last frame, decoded line by line (``apply``)."""
+
+    names: list[str] = field(default_factory=list)
+    types: list[str] = field(default_factory=list)
+    roles: list[str] = field(default_factory=list)
+    index: dict[str, int] = field(default_factory=dict)
+    schema: dict[str, Any] = field(default_factory=dict)
+    values: list[Any] = field(default_factory=list)
+    status: dict[str, Any] = field(default_factory=dict)
+    scan: int = -1
+    wall: float = 0.0
+
+    def apply(self, line: bytes) -> str:
+        """Decode one line: returns its kind (schema, frame, status, reply) and keeps the
+        state; a reply's (id, ok, text) is in ``reply``. ValueError if malformed."""
+        msg = json.loads(line)
+        if "f" in msg:
+            self.scan, self.wall, self.values = msg["f"]
+            return "frame"
+        if "d" in msg:
+            self.scan, self.wall, changes = msg["d"]
+            vals = self.values
+            for k in range(0, len(changes), 2):
+                vals[changes[k]] = changes[k + 1]
+            return "frame"
+        if "c" in msg:
+            self.status = msg["c"]
+            return "status"
+        if "schema" in msg:
+            self.schema = msg["schema"]
+            self.names = [n[0] for n in self.schema["names"]]
+            self.types = [n[1] for n in self.schema["names"]]
+            self.roles = [n[2] for n in self.schema["names"]]
+            self.index = {n: i for i, n in enumerate(self.names)}
+            self.values = []
+            return "schema"
+        if "r" in msg:
+            return "reply"
+        raise ValueError(f"unknown feed message: {line[:80]!r}")
+
+    def get(self, name: str) -> Any:
+        return self.values[self.index[name]]
+
+
+def set_request(ident: int, name: str, value: Any) -> bytes:
+    """A client's write request, as one line."""
+    return _line({"set": [ident, name, value]})
