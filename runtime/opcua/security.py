@@ -56,15 +56,14 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
-from asyncua import Server, ua
+from asyncua import ua
 from asyncua.common.utils import ServiceError
 from asyncua.crypto import cert_gen
-from asyncua.crypto.permission_rules import (
-    USER_TYPES,
-    PermissionRuleset,
-    User,
-    UserRole,
-)
+from asyncua.crypto.permission_rules import USER_TYPES, SimpleRoleRuleset, User, UserRole
+from asyncua.server.server import Server
+from asyncua.server.user_managers import UserManager
+from asyncua.ua.object_ids import ObjectIds
+from asyncua.ua.status_codes import StatusCodes
 from cryptography import x509
 from cryptography.hazmat.primitives import serialization
 from cryptography.x509.oid import ExtendedKeyUsageOID
@@ -89,12 +88,17 @@ POLICIES: dict[str, ua.SecurityPolicyType] = {
     "Basic256Sha256_Sign": ua.SecurityPolicyType.Basic256Sha256_Sign,
     "Basic256Sha256_SignAndEncrypt": ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
 }
+
+
+def _ids(numbers: Iterable[int]) -> frozenset[ua.NodeId]:
+    return frozenset(ua.NodeId(ua.Int32(n)) for n in numbers)
+
+
 #: services that change something: a reader may not call them
-_CHANGING = frozenset(ua.NodeId(i) for i in (
-    ua.ObjectIds.WriteRequest_Encoding_DefaultBinary,
-    ua.ObjectIds.CallRequest_Encoding_DefaultBinary,
-))
-_WRITER_IDS = frozenset(ua.NodeId(i) for i in USER_TYPES)
+_CHANGING = _ids((ObjectIds.WriteRequest_Encoding_DefaultBinary,
+                  ObjectIds.CallRequest_Encoding_DefaultBinary))
+#: every service of a session (asyncua's list for its User role: no node management)
+_WRITER_IDS = _ids(USER_TYPES)
 _READER_IDS = _WRITER_IDS - _CHANGING
 #: the plant file position used when the model has none (a model built by a test)
 _NOWHERE = Loc("<plant>", 0, 0)
@@ -105,7 +109,7 @@ def secured(sec: OpcuaSecurity) -> bool:
     return any(p != "None" for p in sec.policies)
 
 
-class Rules(PermissionRuleset):  # type: ignore[misc]
+class Rules(SimpleRoleRuleset):
     """Which services each role may call: writers every service of a session, readers all
     but Write and Call, anyone else nothing (asyncua answers BadUserAccessDenied)."""
 
@@ -165,7 +169,7 @@ def _der(data: bytes) -> bytes:
     return cert.public_bytes(serialization.Encoding.DER)
 
 
-class Users:
+class Users(UserManager):
     """asyncua's user manager: the role of a session from its channel certificate, its
     user token and the plant's ``security:`` (module docstring)."""
 
@@ -250,7 +254,8 @@ async def apply(server: Server, sec: OpcuaSecurity) -> None:
         except (OSError, ValueError) as exc:
             raise SourceError(loc, f"opcua security: cannot load the certificate or key "
                                    f"({exc})") from exc
-    server.set_security_policy([POLICIES[p] for p in sec.policies], permission_ruleset=Rules())
+    rules = Rules()  # type: ignore[no-untyped-call]
+    server.set_security_policy([POLICIES[p] for p in sec.policies], permission_ruleset=rules)
     # the client certificate is the application's identity; no X509 *user* tokens
     server.set_identity_tokens([ua.AnonymousIdentityToken, ua.UserNameIdentityToken])
     users = Users(sec)
@@ -267,7 +272,7 @@ def _validator(trusted: TrustedClients) -> Callable[[x509.Certificate, Any], Any
 
     async def validate(cert: x509.Certificate, app: Any) -> None:
         if not trusted.trusts(cert.public_bytes(serialization.Encoding.DER)):
-            raise ServiceError(ua.StatusCodes.BadCertificateUntrusted)
+            raise ServiceError(StatusCodes.BadCertificateUntrusted)
 
     return validate
 
@@ -279,8 +284,8 @@ def make_certificate(directory: str, days: int = 3650, hosts: Iterable[str] = ()
     path, key path).
     ``hosts``: DNS names or IP addresses clients reach the server by (default this machine's
     name, localhost and 127.0.0.1). ``client``: a client certificate (``client-...``,
-    ClientAuth, :data:`CLIENT_URI`) instead, for tests and scripts. FileExistsError naming the path if either
-    file exists: nothing is overwritten."""
+    ClientAuth, :data:`CLIENT_URI`) instead, for tests and scripts. FileExistsError naming
+    the path if either file exists: nothing is overwritten."""
     prefix = "client" if client else "server"
     cert_path = os.path.join(directory, f"{prefix}-cert.der")
     key_path = os.path.join(directory, f"{prefix}-key.pem")

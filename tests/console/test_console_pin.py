@@ -10,9 +10,9 @@ import pytest
 import yaml
 
 from runtime import cli
+from runtime.console.protocol import CHANGING, LOCKOUT_MIN_S
 from runtime.controller import pin as pinmod
 from runtime.controller.pin import check_pin, hash_pin
-from runtime.console.protocol import CHANGING, LOCKOUT_MIN_S
 from tests.console.consolekit import FakeClock, Rig
 
 PIN = "4711"
