@@ -199,6 +199,33 @@ def _feed_server(daemon: Any) -> Any:
     return FeedServer(daemon, daemon.pdef.opcua)
 
 
+def cmd_opcua(args: argparse.Namespace) -> int:
+    """The OPC UA server of a plant, fed by its running controller (docs/opcua.md)."""
+    import asyncio
+    import signal
+
+    from runtime.language.plantfile import load_plant
+
+    pdef = load_plant(args.plant)
+    if pdef.opcua is None:
+        raise SourceError(Loc(pdef.path, 1, 1), "no 'opcua:' section: add one to serve "
+                                                "this plant over OPC UA (docs/opcua.md)")
+    try:
+        from runtime.opcua.server import serve
+    except ImportError as exc:
+        raise ImportError(f"{exc}: install the opcua extra (pip install "
+                          "'softplc[opcua]')") from None
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for s in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+            loop.add_signal_handler(s, stop.set)
+        await serve(pdef, args.endpoint, args.feed, stop=stop)
+    asyncio.run(main())
+    return 0
+
+
 def cmd_hash_pin(args: argparse.Namespace) -> int:
     """Print the hash of a console PIN for the plant file's ``monitor: pin_hash:``."""
     import getpass
@@ -300,6 +327,12 @@ def build_parser() -> argparse.ArgumentParser:
                     help="make a client certificate (DIR/client-cert.der, client-key.pem) "
                          "instead, e.g. for a Python client")
     oc.set_defaults(func=cmd_opcua_cert)
+
+    o = sub.add_parser("opcua", help="serve a running plant over OPC UA (its own process)")
+    o.add_argument("plant")
+    o.add_argument("--endpoint", help="override opcua: endpoint (opc.tcp://HOST:PORT)")
+    o.add_argument("--feed", help="override opcua: feed (the controller's feed socket)")
+    o.set_defaults(func=cmd_opcua)
 
     for extra in EXTRA_COMMANDS:
         extra(sub)

@@ -18,6 +18,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PARTS = (
     "runtime.cli", "runtime.errors", "runtime.language", "runtime.compiler", "runtime.engine",
     "runtime.controller", "runtime.console", "runtime.checker", "runtime.drawing", "drivers",
+    "runtime.opcua",
 )
 
 #: drivers modules with no bus library (the driver contract, lookup by type, durations, and
@@ -42,6 +43,9 @@ ALLOWED: dict[str, frozenset[str]] = {
                                   "runtime.engine.names", "runtime.engine.script",
                                   "drivers.contract"}),
     "runtime.drawing": frozenset({"runtime.errors", "runtime.language", "drivers.contract"}),
+    "runtime.opcua": frozenset({"runtime.errors", "runtime.language", "runtime.engine.names",
+                                "runtime.controller.feed", "runtime.controller.pin",
+                                "drivers.contract"}),
     "runtime.cli": frozenset({"*"}),
 }
 
@@ -158,6 +162,8 @@ def test_no_import_cycle_between_parts() -> None:
     ("runtime.controller.daemon", "runtime.console.session"),
     ("runtime.language.model", "runtime.compiler.codegen"),
     ("runtime.checker.check", "runtime.engine.plant"),
+    ("runtime.opcua.server", "runtime.controller.daemon"),
+    ("runtime.controller.feed", "runtime.opcua.server"),
 ])
 def test_the_rules_catch_a_forbidden_import(src: str, dst: str) -> None:
     """The checker of the rules is itself checked: each of these edges is refused."""

@@ -109,7 +109,7 @@ def secured(sec: OpcuaSecurity) -> bool:
     return any(p != "None" for p in sec.policies)
 
 
-class Rules(SimpleRoleRuleset):
+class Rules(SimpleRoleRuleset):  # type: ignore[misc]  # asyncua is Any to mypy
     """Which services each role may call: writers every service of a session, readers all
     but Write and Call, anyone else nothing (asyncua answers BadUserAccessDenied)."""
 
@@ -169,7 +169,7 @@ def _der(data: bytes) -> bytes:
     return cert.public_bytes(serialization.Encoding.DER)
 
 
-class Users(UserManager):
+class Users(UserManager):  # type: ignore[misc]  # asyncua is Any to mypy
     """asyncua's user manager: the role of a session from its channel certificate, its
     user token and the plant's ``security:`` (module docstring)."""
 
@@ -254,7 +254,7 @@ async def apply(server: Server, sec: OpcuaSecurity) -> None:
         except (OSError, ValueError) as exc:
             raise SourceError(loc, f"opcua security: cannot load the certificate or key "
                                    f"({exc})") from exc
-    rules = Rules()  # type: ignore[no-untyped-call]
+    rules = Rules()
     server.set_security_policy([POLICIES[p] for p in sec.policies], permission_ruleset=rules)
     # the client certificate is the application's identity; no X509 *user* tokens
     server.set_identity_tokens([ua.AnonymousIdentityToken, ua.UserNameIdentityToken])

@@ -288,7 +288,7 @@ def test_opcua_cert_never_overwrites(tmp_path: Path,
 
 
 def test_rules_let_readers_read_and_writers_write() -> None:
-    rules = security.Rules()  # type: ignore[no-untyped-call]
+    rules = security.Rules()
     wr = ua.NodeId(ua.Int32(ua.ObjectIds.WriteRequest_Encoding_DefaultBinary))
     rd = ua.NodeId(ua.Int32(ua.ObjectIds.ReadRequest_Encoding_DefaultBinary))
     add = ua.NodeId(ua.Int32(ua.ObjectIds.AddNodesRequest_Encoding_DefaultBinary))

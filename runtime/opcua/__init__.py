@@ -1,0 +1,1 @@
+"""The OPC UA server (``softplc opcua PLANT``): its own process, fed by the controller."""

@@ -1,0 +1,57 @@
+"""Test parts for the OPC UA tests: a chart that changes by itself, its plant with an
+``opcua:`` section, free ports, and a polling helper."""
+
+from __future__ import annotations
+
+import socket
+from pathlib import Path
+
+CHART = """\
+grafcet: Blink
+description: A blinker that jams on request (OPC UA tests)
+inputs: [iGo]
+outputs: [oLamp]
+memory:
+  sN: 0
+  sStop: false
+  sJam: false
+  sRate: 1.5
+steps:
+  gsA: {initial: true}
+  gsB: {actions: [oLamp, "P1 sN := sN + 1"]}
+  gsJam: {max: 50ms}
+transitions:
+  - {from: gsA, to: gsJam, when: sJam}
+  - {from: gsA, to: gsB, when: "gsA.T >= 40ms · sStop'"}
+  - {from: gsB, to: gsA, when: "gsB.T >= 40ms"}
+  - {from: gsJam, to: gsA, when: "sJam'"}
+"""
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def write_plant(tmp: Path, *, port: int, cycle: str = "10ms", sample: str = "50ms",
+                writable: str = "[t1.sStop, t1.sJam, t1.sRate, t1.SFCQuitError]",
+                extra: str = "") -> Path:
+    """chart + plant (two instances, a sim driver) in ``tmp``; the plant's path."""
+    (tmp / "blink.yaml").write_text(CHART, encoding="utf-8")
+    plant = tmp / "plant.yaml"
+    plant.write_text(
+        f"plc: {{cycle: {cycle}, watchdog: 500ms}}\n"
+        "drivers:\n  io: {type: sim}\n"
+        "instances:\n"
+        "  t1:\n    grafcet: blink.yaml\n    inputs: {iGo: io.I0}\n"
+        "    outputs: {oLamp: io.Q0}\n"
+        "  t2:\n    grafcet: blink.yaml\n    inputs: {iGo: io.I1}\n"
+        "    outputs: {oLamp: io.Q1}\n"
+        "opcua:\n"
+        f"  endpoint: opc.tcp://127.0.0.1:{port}\n"
+        f"  sample: {sample}\n"
+        f"  feed: {tmp}/feed.sock\n"
+        f"  writable: {writable}\n"
+        "  security: {policies: [None]}\n" + extra, encoding="utf-8")
+    return plant
