@@ -8,9 +8,11 @@ The rules (docs/opcua.md, "Security"):
   them, naming the key and ``softplc opcua-cert``.
 - **Client certificates**: a client application that opens a signed channel shows its
   certificate; it must be one of the files of ``trusted_clients`` (byte for byte, and within
-  its dates), else the session is refused (``BadCertificateUntrusted`` at CreateSession,
-  ``BadUserAccessDenied`` at ActivateSession). The directory is read again at each session,
-  so trusting a client needs no restart.
+  its dates), else the session is refused (``BadCertificateUntrusted`` at CreateSession
+  when ``None`` is not offered, ``BadUserAccessDenied`` at ActivateSession in any case).
+  The certificate a client names in CreateSession on a ``None`` channel (node-opcua and
+  UaExpert do) is not checked: nothing proves it, and it grants nothing. The directory is
+  read again at each session, so trusting a client needs no restart.
 - **Roles**: a session on a signed channel (trusted certificate) is a *writer* unless
   ``None`` is listed too (below); a user
   whose password matches its hash in ``users`` (``softplc hash-pin`` format) is a writer; a
@@ -260,7 +262,10 @@ async def apply(server: Server, sec: OpcuaSecurity) -> None:
     server.set_identity_tokens([ua.AnonymousIdentityToken, ua.UserNameIdentityToken])
     users = Users(sec)
     server.iserver.set_user_manager(users)
-    server.set_certificate_validator(_validator(users.trusted))
+    if not users.allow_none:
+        # clients name their certificate in CreateSession on None channels too (node-opcua,
+        # UaExpert), where it proves nothing: checked there only when None is not offered
+        server.set_certificate_validator(_validator(users.trusted))
     if sec.users and not any(p == "Basic256Sha256_SignAndEncrypt" for p in sec.policies):
         log.warning("opcua: users are set but no SignAndEncrypt policy is listed: their "
                     "passwords may cross the network readable")
