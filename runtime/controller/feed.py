@@ -20,9 +20,10 @@ Messages, one JSON object per line (``"\\n"``):
 - ``{"f": [scan, wall_s, values]}``: a whole frame (first after the schema), values in
   schema order; ``{"d": [scan, wall_s, [i, v, i, v, ...]]}``: only the values that changed
   since the previous frame. ``scan`` is the trace's ``cycle`` number; times are in ns;
-- ``{"c": {...}}``: the controller's status (state, fault, overruns, uptime_s, cycle_ms,
-  drivers: name -> [health, fault reason, ok], lateness_us: p50, p99, max), before the
-  frame it goes with, only when it changed (the scan count is the frame's scan + 1);
+- ``{"c": {...}}``: the controller's status (state, fault, overruns, skipped, freezes,
+  uptime_s, cycle_ms, drivers: name -> [health, fault reason, ok], lateness_us: p50, p99,
+  max), before the frame it goes with, only when it changed (the scan count is the
+  frame's scan + 1);
 - ``{"r": [id, ok, text]}``: the answer to a ``set``;
 - client -> server ``{"set": [id, name, value]}`` (value in the name's type; times in ns).
 """
@@ -94,9 +95,10 @@ class FeedServer:
         self.window = ScanWindow(cycle_ns / 1e9)
         self._cat = Catalogue(daemon.plant)
         self._next = 0
-        #: the mailbox: (scan, wall seconds, image), written by the scan thread only
-        self._slot: tuple[int, float, Image] | None = None
-        self._taken: tuple[int, float, Image] | None = None
+        #: the mailbox: (scan, wall seconds, image, the catalogue that took it), written
+        #: by the scan thread only
+        self._slot: tuple[int, float, Image, Catalogue] | None = None
+        self._taken: tuple[int, float, Image, Catalogue] | None = None
         self._stop = threading.Event()
         self._replaced = False
         self._sock: socket.socket | None = None
@@ -164,7 +166,8 @@ class FeedServer:
         if n < self._next:
             return
         self._next = n + self.every
-        self._slot = (n - 1, self.wall(), self._cat.capture(n - 1))
+        cat = self._cat
+        self._slot = (n - 1, self.wall(), cat.capture(n - 1), cat)
 
     # -- the feed thread ------------------------------------------------------------
     def _run(self) -> None:
@@ -179,8 +182,9 @@ class FeedServer:
                 slot = self._slot
                 if slot is not None and slot is not self._taken and self._clients:
                     self._taken = slot
-                    self._publish(*slot)
-                    self._flush()
+                    if slot[3] is self._cat:  # not an image of a replaced plant
+                        self._publish(*slot[:3])
+                        self._flush()
         except Exception:  # noqa: BLE001 - the feed dies, never the controller
             log.exception("feed thread failed: OPC UA clients see no more values")
 
@@ -321,7 +325,8 @@ class FeedServer:
             late = d.scan_stats.lateness().as_dict()
             self._stats = {k: late[k] for k in ("p50", "p99", "max")}
         return {"state": d.state.value, "fault": d.fault or d.halted,
-                "overruns": d.scan_stats.overruns, "uptime_s": round(d.uptime_s()),
+                "overruns": d.scan_stats.overruns, "skipped": d.scan_stats.skipped,
+                "freezes": d.scan_stats.freezes, "uptime_s": round(d.uptime_s()),
                 "cycle_ms": d.plant.cycle_ns / 1e6, "lateness_us": self._stats,
                 "drivers": {name: [drv.health.value, drv.fault_reason or "", drv.ok]
                             for name, drv in d.plant.drivers.items()}}

@@ -16,15 +16,19 @@ memory:
   sStop: false
   sJam: false
   sRate: 1.5
+  sDiv: 1
+  sQ: 0
 steps:
   gsA: {initial: true}
   gsB: {actions: [oLamp, "P1 sN := sN + 1"]}
   gsJam: {max: 50ms}
 transitions:
   - {from: gsA, to: gsJam, when: sJam}
-  - {from: gsA, to: gsB, when: "gsA.T >= 40ms · sStop'"}
+  - {from: gsA, to: gsB, when: "(gsA.T >= 40ms) · sStop'"}
   - {from: gsB, to: gsA, when: "gsB.T >= 40ms"}
   - {from: gsJam, to: gsA, when: "sJam'"}
+post:
+  - sQ := 100 / sDiv
 """
 
 
@@ -35,13 +39,13 @@ def free_port() -> int:
 
 
 def write_plant(tmp: Path, *, port: int, cycle: str = "10ms", sample: str = "50ms",
-                writable: str = "[t1.sStop, t1.sJam, t1.sRate, t1.SFCQuitError]",
-                extra: str = "") -> Path:
+                writable: str = "[t1.sStop, t1.sJam, t1.sRate, t1.sDiv, t1.SFCQuitError]",
+                extra: str = "", plc: str = "") -> Path:
     """chart + plant (two instances, a sim driver) in ``tmp``; the plant's path."""
     (tmp / "blink.yaml").write_text(CHART, encoding="utf-8")
     plant = tmp / "plant.yaml"
     plant.write_text(
-        f"plc: {{cycle: {cycle}, watchdog: 500ms}}\n"
+        f"plc: {{cycle: {cycle}, watchdog: 5s{plc}}}\n"
         "drivers:\n  io: {type: sim}\n"
         "instances:\n"
         "  t1:\n    grafcet: blink.yaml\n    inputs: {iGo: io.I0}\n"

@@ -131,3 +131,15 @@ def test_the_schema_accepts_the_section_and_rejects_a_typo(tmp_path: Path) -> No
     doc["opcua"]["security"]["policies"] = ["Basic128"]
     doc["opcua"]["sampel"] = "1s"
     assert len(list(v.iter_errors(doc))) == 2
+
+
+def test_softplc_opcua_needs_the_section(tmp_path: Path,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    from runtime.cli import main
+
+    path = write_plant(tmp_path, port=4840)
+    text = path.read_text(encoding="utf-8")
+    path.write_text(text[:text.index("opcua:")], encoding="utf-8")
+    assert main(["opcua", str(path)]) == 2
+    assert capsys.readouterr().err == (f"{path}:1:1: error: no 'opcua:' section: add one to "
+                                       "serve this plant over OPC UA (docs/opcua.md)\n")

@@ -1,0 +1,163 @@
+"""A controller with its feed, in this process, and a feed client reading in a thread."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from runtime.controller.daemon import Daemon
+from runtime.controller.feed import FeedServer, FeedState, set_request
+from runtime.language.model import PlantDef
+from runtime.language.plantfile import load_plant
+from runtime.opcua.server import PlantServer, serve
+from tests.opcua.kit import write_plant
+
+
+def wait_until(pred: Callable[[], bool], timeout: float = 10.0, what: str = "") -> None:
+    """Poll ``pred`` until it holds; fail after ``timeout`` s (generous: a loaded machine)."""
+    end = time.monotonic() + timeout
+    while not pred():
+        if time.monotonic() > end:
+            raise AssertionError(f"timed out waiting for {what or pred}")
+        time.sleep(0.005)
+
+
+@contextmanager
+def controller(tmp: Path, trace: bool = True, port: int = 4840, **plant: Any
+               ) -> Iterator[tuple[Daemon, FeedServer, Path]]:
+    """A running Daemon on sim I/O with its FeedServer; (daemon, feed, trace path)."""
+    path = write_plant(tmp, port=port, **plant)
+    pdef = load_plant(str(path))
+    assert pdef.opcua is not None
+    trace_path = tmp / "trace.jsonl"
+    out = open(trace_path, "w", encoding="utf-8") if trace else None  # noqa: SIM115
+    d = Daemon(pdef, sim=True, trace=out, manage_gc=False)
+    d.start()
+    feed = FeedServer(d, pdef.opcua)
+    feed.start()
+    try:
+        yield d, feed, trace_path
+    finally:
+        feed.stop()
+        d.stop()
+        if out is not None:
+            out.close()
+
+
+def read_trace(path: Path) -> dict[int, dict[str, Any]]:
+    rows = [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines()]
+    return {r["cycle"]: r for r in rows}
+
+
+class FeedReader:
+    """A feed client: every frame kept as (scan, wall, values copy), replies by id."""
+
+    def __init__(self, path: str, read: bool = True) -> None:
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self.sock.connect(path)
+        self.state = FeedState()
+        self.frames: list[tuple[int, float, list[Any]]] = []
+        self.statuses: list[dict[str, Any]] = []
+        self.replies: dict[int, tuple[bool, str]] = {}
+        self.closed = threading.Event()
+        self._ids = 0
+        self._thread: threading.Thread | None = None
+        if read:
+            self._thread = threading.Thread(target=self._run, daemon=True)
+            self._thread.start()
+
+    def _run(self) -> None:
+        buf = b""
+        try:
+            while True:
+                data = self.sock.recv(1 << 16)
+                if not data:
+                    break
+                buf += data
+                while b"\n" in buf:
+                    line, buf = buf.split(b"\n", 1)
+                    kind = self.state.apply(line)
+                    if kind == "frame":
+                        st = self.state
+                        self.frames.append((st.scan, st.wall, list(st.values)))
+                    elif kind == "status":
+                        self.statuses.append(dict(self.state.status))
+                    elif kind == "reply":
+                        ident, ok, text = json.loads(line)["r"]
+                        self.replies[ident] = (ok, text)
+        except OSError:
+            pass
+        finally:
+            self.closed.set()
+
+    def set(self, name: str, value: Any, timeout: float = 10.0) -> tuple[bool, str]:
+        self._ids += 1
+        ident = self._ids
+        self.sock.sendall(set_request(ident, name, value))
+        wait_until(lambda: ident in self.replies, timeout, f"the answer to set {name}")
+        return self.replies[ident]
+
+    def close(self) -> None:
+        self.sock.close()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+
+
+class ServerThread:
+    """``PlantServer`` in a thread of its own with its own event loop (the fast cases;
+    test_process.py runs the real ``softplc opcua``)."""
+
+    def __init__(self, pdef: PlantDef) -> None:
+        self.pdef = pdef
+        self.ps: PlantServer | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._stop: asyncio.Event | None = None
+        self._ready = threading.Event()
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="opcua-test-server",
+                                        daemon=True)
+
+    def __enter__(self) -> ServerThread:
+        self._thread.start()
+        if not self._ready.wait(30.0):
+            raise AssertionError("the OPC UA server did not start")
+        if self.error is not None:
+            raise self.error
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._loop is not None and self._stop is not None:
+            self._loop.call_soon_threadsafe(self._stop.set)
+        self._thread.join(timeout=30.0)
+
+    def _run(self) -> None:
+        async def main() -> None:
+            self._loop = asyncio.get_running_loop()
+            self._stop = asyncio.Event()
+
+            def ready(ps: PlantServer) -> None:
+                self.ps = ps
+                self._ready.set()
+            await serve(self.pdef, ready=ready, stop=self._stop)
+        try:
+            asyncio.run(main())
+        except BaseException as exc:  # handed to the test
+            self.error = exc
+            self._ready.set()
+
+    def call(self, coro: Any, timeout: float = 10.0) -> Any:
+        """Run ``coro`` in the server's event loop and return its result."""
+        assert self._loop is not None
+        return asyncio.run_coroutine_threadsafe(coro, self._loop).result(timeout)
+
+    @property
+    def url(self) -> str:
+        assert self.pdef.opcua is not None
+        return self.pdef.opcua.endpoint

@@ -1,0 +1,148 @@
+"""The controller's feed (runtime/controller/feed.py) against a real Daemon on sim I/O and
+real AF_UNIX clients: frames equal the trace of the same run, writes only to the writable
+names and between two scans, a client that stops reading is dropped without the scan
+noticing, a replaced plant drops every client, and the peer's uid is checked."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from runtime.controller import feed as feedmod
+from tests.opcua.feedkit import FeedReader, controller, read_trace, wait_until
+
+
+def as_traced(name: str, ptype: str, role: str, value: Any) -> tuple[str, Any]:
+    """A feed value -> (trace key, the trace's form of it)."""
+    if role == "step time":
+        return name[:-2] + ".T_ms", value // 1_000_000
+    if ptype == "bool":
+        return name, int(value)
+    return name, value
+
+
+def test_every_frame_is_one_scan_of_the_trace(tmp_path: Path) -> None:
+    with controller(tmp_path) as (d, feed, trace):
+        r = FeedReader(feed.path)
+        t0 = time.time()
+        wait_until(lambda: len(r.frames) >= 30, what="30 frames")
+        r.close()
+        t1 = time.time()
+    rows = read_trace(trace)
+    st = r.state
+    assert st.schema["sample_ms"] == 50.0 and feed.every == 5
+    scans = [f[0] for f in r.frames]
+    assert all(b - a == 5 for a, b in zip(scans, scans[1:], strict=False)), scans
+    changed = 0
+    for scan, wall, values in r.frames:
+        assert t0 - 1 <= wall <= t1
+        row = rows[scan]
+        for name, ptype, role, value in zip(st.names, st.types, st.roles, values, strict=True):
+            key, traced = as_traced(name, ptype, role, value)
+            assert row[key] == traced, (scan, name, value, row[key])
+        changed += values != r.frames[0][2]
+    assert changed > 10  # the blinker moved: the comparison compared something
+
+
+def test_writes_only_to_writable_names_between_two_scans(tmp_path: Path) -> None:
+    with controller(tmp_path) as (d, feed, trace):
+        r = FeedReader(feed.path)
+        wait_until(lambda: len(r.frames) >= 1)
+        before = d.scan_stats.count
+        assert r.set("t1.sStop", True) == (True, "t1.sStop set to 1")
+        after = d.scan_stats.count
+        assert r.set("t1.sRate", 2) == (True, "t1.sRate set to 2.0")
+        assert r.set("t1.oLamp", True) == (
+            False, "t1.oLamp is not writable over OPC UA (opcua: writable)")
+        assert r.set("io.Q0", 1)[0] is False
+        assert r.set("t2.sStop", True)[0] is False  # t2 is not listed
+        ok, text = r.set("t1.sStop", 2.5)
+        assert not ok and text.startswith("bad value for t1.sStop")
+        wait_until(lambda: r.state.get("t1.sStop") is True and r.state.get("t1.sRate") == 2.0)
+        r.close()
+        d.stop()
+    rows = read_trace(trace)
+    # applied in the scan thread between two scans: every scan up to the request's shows
+    # the old value, every scan from the one after the answer shows the new one
+    first = min(c for c, row in rows.items() if row["t1.sStop"] == 1)
+    assert before - 1 <= first <= after
+    assert all(row["t1.sStop"] == (1 if c >= first else 0) for c, row in rows.items())
+    assert all(row["t2.sStop"] == 0 for row in rows.values())
+
+
+def test_a_client_that_stops_reading_is_dropped_without_the_scan_noticing(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(feedmod, "OUT_MAX", 16384)
+    with controller(tmp_path, trace=False, cycle="10ms", sample="10ms") as (d, feed, _):
+        good = FeedReader(feed.path)
+        stalled = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        stalled.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        stalled.connect(feed.path)  # ...and never reads
+        # a third floods requests without reading the answers
+        flood = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        flood.connect(feed.path)
+        flood.setblocking(False)
+        start = d.scan_stats.count
+        while feed.dropped < 2:
+            try:
+                flood.send(b'{"set":[1,"t1.oLamp",1]}\n' * 50)
+            except (BlockingIOError, BrokenPipeError, ConnectionResetError):
+                pass
+            assert d.scan_stats.count - start < 3000, "not dropped after 30 s of scans"
+            time.sleep(0.001)
+        n = len(good.frames)
+        wait_until(lambda: len(good.frames) >= n + 20, what="frames after the drops")
+        assert feed.clients == 1
+        assert d.scan_stats.overruns == 0
+        late = d.scan_stats.lateness()
+        good.close()
+        stalled.close()
+        flood.close()
+    sys.stderr.write(f"lateness with a stalled and a flooding client: p99 {late.p99 / 1e3:.0f} "
+                     f"us, max {late.max / 1e3:.0f} us\n")
+
+
+def test_a_replaced_plant_drops_its_clients(tmp_path: Path) -> None:
+    with controller(tmp_path, trace=False) as (d, feed, _):
+        r = FeedReader(feed.path)
+        wait_until(lambda: len(r.frames) >= 1)
+        feed.plant_replaced()
+        assert r.closed.wait(10.0)
+        again = FeedReader(feed.path)
+        wait_until(lambda: len(again.frames) >= 1)
+        assert again.state.names == r.state.names
+        again.close()
+        r.close()
+
+
+SYSTEM_PYTHON = "/usr/bin/python3"  # one that uid 65534 may run
+
+
+@pytest.mark.skipif(os.geteuid() != 0 or not os.path.exists(SYSTEM_PYTHON),
+                    reason="needs root (to connect as another uid) and /usr/bin/python3")
+def test_another_uid_is_refused() -> None:
+    pub = Path(tempfile.mkdtemp(prefix="softplc-feed-"))  # a path uid 65534 can reach
+    try:
+        pub.chmod(0o777)
+        with controller(pub, trace=False) as (d, feed, _):
+            os.chmod(feed.path, 0o666)  # the kernel lets it connect: the feed must refuse
+            code = ("import socket,sys; s=socket.socket(socket.AF_UNIX); "
+                    "s.connect(sys.argv[1]); s.settimeout(10); print(len(s.recv(100)))")
+            out = subprocess.run([SYSTEM_PYTHON, "-c", code, feed.path], capture_output=True,
+                                 text=True, timeout=30, user=65534, cwd="/")
+            assert out.returncode == 0, out.stderr
+            assert out.stdout.strip() == "0"  # closed at once, not even the schema
+            mine = FeedReader(feed.path)
+            wait_until(lambda: bool(mine.state.names))
+            mine.close()
+    finally:
+        shutil.rmtree(pub)
