@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -91,8 +92,9 @@ async def wait_serving(url: str, deadline: float) -> None:
 def start(tmp: Path, security_yaml: str) -> Running:
     port = free_port()
     plant = write_plant(tmp, port=port, cycle="10ms", sample="50ms")
-    text = plant.read_text(encoding="utf-8").replace("  security: {policies: [None]}\n",
-                                                      security_yaml)
+    text = re.sub(r"^  security:.*\n", lambda m: security_yaml,
+                  plant.read_text(encoding="utf-8"), count=1, flags=re.M)
+    assert security_yaml in text
     plant.write_text(text, encoding="utf-8")
     run = softplc("run", "--sim", str(plant), "--trace", str(tmp / "trace.jsonl"),
                   "--for", "120s", log=tmp / "run.log")
