@@ -21,11 +21,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import yaml
 from asyncua import Client
 
 from runtime.controller.pin import hash_pin
 from runtime.opcua import security
-from tests.opcua.kit import free_port, write_plant
+from tests.opcua.kit import CHART, free_port, write_plant
 from tests.opcua.seckit import Certs, make_certs
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -203,9 +204,9 @@ def test_node_opcua_browses_reads_and_sees_the_trace(open_plant: Running,
         "t1": nid("t1"), "t2": nid("t2"), "io": nid("driver.io"),
         "Controller": nid("controller")}
     assert set(browse[nid("t1")]) == {"Inputs", "Outputs", "Memory", "Steps", "Flags"}
-    assert browse[nid("t1/Memory")] == {n: nid(f"t1.{n}") for n in
-                                        ("sN", "sStop", "sJam", "sRate")}
-    assert set(browse[nid("t1/Steps")]) == {"gsA", "gsB", "gsJam"}
+    chart = yaml.safe_load(CHART)
+    assert browse[nid("t1/Memory")] == {n: nid(f"t1.{n}") for n in chart["memory"]}
+    assert set(browse[nid("t1/Steps")]) == set(chart["steps"])
 
     reads = {r["read"]: r for r in out if "read" in r}
     # 2.5: written by the user in the test before
