@@ -234,19 +234,22 @@ def _subject(der: Any) -> str:
         return "an unreadable certificate"
 
 
-async def apply(server: Server, sec: OpcuaSecurity) -> None:
+async def apply(server: Server, sec: OpcuaSecurity, where: Loc | None = None) -> None:
     """Set up ``server``'s endpoints, certificate, trusted clients and users from ``sec``;
     call after ``await server.init()`` and before ``await server.start()``. SourceError
-    (at the plant's ``security:``) if a secured policy has no certificate or key file."""
-    loc = sec.loc or _NOWHERE
+    (at the plant's ``security:``, else at ``where``: its ``opcua:``) if a secured policy
+    has no certificate or key file."""
+    loc = sec.loc or where or _NOWHERE
     await server.set_application_uri(APPLICATION_URI)
     if secured(sec):
         for key in ("certificate", "private_key"):
             path = getattr(sec, key)
             if not path:
-                raise SourceError(loc, f"opcua security: policies {', '.join(sec.policies)} "
-                                       f"need a server certificate: no '{key}' key (make "
-                                       "one with 'softplc opcua-cert', docs/opcua.md)")
+                default = "" if sec.loc else " (the default: no 'security:' section)"
+                raise SourceError(loc, f"opcua security: policies {', '.join(sec.policies)}"
+                                       f"{default} need a server certificate: no '{key}' "
+                                       "key (make one with 'softplc opcua-cert', or list "
+                                       "policies: [None]: docs/opcua.md)")
             if not os.path.isfile(path):
                 raise SourceError(loc, f"opcua security {key}: no file {path} (make one "
                                        "with 'softplc opcua-cert', docs/opcua.md)")

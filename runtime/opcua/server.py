@@ -124,7 +124,7 @@ class PlantServer:
         except ModuleNotFoundError:
             security = None
         if security is not None:
-            await security.apply(self.server, self.opc.security)
+            await security.apply(self.server, self.opc.security, self.opc.loc)
             return
         if "None" not in self.opc.security.policies:
             raise RuntimeError("opcua security: only policy None is available in this build: "

@@ -16,7 +16,7 @@ from cryptography import x509
 
 from runtime.cli import main
 from runtime.controller.pin import hash_pin
-from runtime.errors import SourceError
+from runtime.errors import Loc, SourceError
 from runtime.language.model import OpcuaSecurity
 from runtime.opcua import security
 from tests.opcua.seckit import Certs, ServerThread, make_certs, read, session, write
@@ -254,10 +254,13 @@ def test_secured_policy_without_certificate_refuses_to_start(certs: Certs,
         server = Server()
         await server.init()
         await security.apply(server, sec(certs, ["Basic256Sha256_SignAndEncrypt"],
-                                         **{missing: None}))
+                                         **{missing: None}), Loc("plant.yaml", 14, 3))
     with pytest.raises(SourceError) as err:
         run(go())
-    assert f"no '{missing}' key" in str(err.value) and "softplc opcua-cert" in str(err.value)
+    text = str(err.value)
+    # no security: section (no position of its own): the error is at the opcua: section
+    assert text.startswith("plant.yaml:14:3: error: ")
+    assert f"no '{missing}' key" in text and "softplc opcua-cert" in text
 
 
 def test_opcua_cert_writes_der_and_a_private_key(tmp_path: Path,
