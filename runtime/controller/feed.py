@@ -157,7 +157,8 @@ class FeedServer:
 
     def plant_replaced(self) -> None:
         """The controller's plant object was replaced (an online change): every client is
-        dropped, to reconnect and read the new schema. Any thread."""
+        dropped, to reconnect and read the new schema. Any thread. (The feed thread also
+        notices by itself when ``daemon.plant`` is another object.)"""
         self._replaced = True
 
     # -- the scan thread -------------------------------------------------------------
@@ -176,7 +177,7 @@ class FeedServer:
                 closes = self.window.until()
                 if self._stop.is_set():
                     break
-                if self._replaced:
+                if self._replaced or self.daemon.plant is not self._cat.plant:
                     self._reload()
                 self._io(max(0.0, min(closes - time.monotonic(), POLL_S)))
                 slot = self._slot
@@ -190,6 +191,8 @@ class FeedServer:
 
     def _reload(self) -> None:
         self._replaced = False
+        if self.daemon.pdef.opcua is not None:  # the new plant file's writable names
+            self.opc.writable = list(self.daemon.pdef.opcua.writable)
         self._cat = Catalogue(self.daemon.plant)
         self._schema_line = self._schema()
         self._values = None

@@ -239,7 +239,10 @@ class PlantServer:
             pass
 
     def stop(self) -> None:
+        """End ``run()``: the feed connection is closed (a read waiting on it ends)."""
         self._stop.set()
+        if self._writer is not None:
+            self._writer.close()
 
     async def _follow(self, reader: asyncio.StreamReader) -> None:
         st = self.state

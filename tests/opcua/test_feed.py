@@ -146,3 +146,26 @@ def test_another_uid_is_refused() -> None:
             mine.close()
     finally:
         shutil.rmtree(pub)
+
+
+def test_a_plant_object_swapped_under_the_feed_is_noticed(tmp_path: Path) -> None:
+    """An online change swaps ``daemon.plant`` (Daemon.switch_plant, in the scan thread):
+    the feed notices without being told and its clients read the new schema."""
+    from runtime.engine.plant import Plant
+
+    with controller(tmp_path, trace=False) as (d, feed, _):
+        r = FeedReader(feed.path)
+        wait_until(lambda: len(r.frames) >= 1)
+        new = Plant(d.pdef, sim=True)
+        new.open()
+
+        def swap() -> None:
+            d.plant.close()
+            d.plant = new
+        d.call(swap)
+        assert r.closed.wait(10.0)
+        again = FeedReader(feed.path)
+        wait_until(lambda: len(again.frames) >= 3)
+        assert again.state.names == r.state.names
+        again.close()
+        r.close()
