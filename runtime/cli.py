@@ -230,7 +230,7 @@ def cmd_hash_pin(args: argparse.Namespace) -> int:
     """Print the hash of a console PIN for the plant file's ``monitor: pin_hash:``."""
     import getpass
 
-    from runtime.console.pin import hash_pin
+    from runtime.controller.pin import hash_pin
 
     pin = args.pin
     if pin is None:
@@ -329,6 +329,24 @@ def cmd_diff(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_opcua_cert(args: argparse.Namespace) -> int:
+    """Write the OPC UA server's self-signed certificate and key (docs/opcua.md)."""
+    from runtime.opcua.security import APPLICATION_URI, make_certificate
+
+    try:
+        cert, key = make_certificate(args.dir, args.days, args.host, client=args.client)
+    except FileExistsError as exc:
+        sys.stderr.write(f"softplc opcua-cert: error: {exc} exists: not overwritten (move "
+                         "it away to make a new one)\n")
+        return 2
+    except OSError as exc:
+        sys.stderr.write(f"softplc opcua-cert: error: {args.dir}: {exc.strerror}\n")
+        return 2
+    sys.stdout.write(f"certificate {cert}\nprivate key {key} (mode 0600)\n"
+                     f"application URI {APPLICATION_URI}\n")
+    return 0
+
+
 def package_version() -> str:
     """The installed package's version (importlib.metadata), or a word saying it is not
     installed (run from a source tree without ``pip install``)."""
@@ -405,6 +423,21 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("old", help="the running chart or plant file")
     d.add_argument("new", help="the changed one")
     d.set_defaults(func=cmd_diff)
+    oc = sub.add_parser("opcua-cert", help="make the OPC UA server's certificate and key",
+                        description="Write a self-signed certificate (DIR/server-cert.der) "
+                                    "and its private key (DIR/server-key.pem, mode 0600) "
+                                    "for the OPC UA server; existing files are never "
+                                    "overwritten.")
+    oc.add_argument("--dir", default="/etc/softplc/opcua", help="where to write them "
+                    "(default /etc/softplc/opcua)")
+    oc.add_argument("--days", type=int, default=3650, help="validity (default 3650)")
+    oc.add_argument("--host", action="append", default=[], metavar="H",
+                    help="a DNS name or IP address clients use to reach the server "
+                         "(repeatable; default this machine's name, localhost, 127.0.0.1)")
+    oc.add_argument("--client", action="store_true",
+                    help="make a client certificate (DIR/client-cert.der, client-key.pem) "
+                         "instead, e.g. for a Python client")
+    oc.set_defaults(func=cmd_opcua_cert)
 
     o = sub.add_parser("opcua", help="serve a running plant over OPC UA (its own process)")
     o.add_argument("plant")

@@ -30,6 +30,16 @@ if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
   fi
 fi
 scripts/setup.sh test
+# an OPC UA client not built on asyncua (node-opcua, pinned by tests/opcua/node's lock file)
+# for tests/opcua/test_foreign_client.py: Node.js and npm from Debian when missing
+if ! command -v npm >/dev/null && command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq nodejs npm >/dev/null || \
+    echo "test.sh: could not install nodejs npm (the node-opcua tests will skip)" >&2
+fi
+if command -v npm >/dev/null && [ ! -d tests/opcua/node/node_modules/node-opcua-client ]; then
+  (cd tests/opcua/node && npm ci --no-audit --no-fund --loglevel=error) || \
+    echo "test.sh: npm ci in tests/opcua/node failed (the node-opcua tests will skip)" >&2
+fi
 PY=.venv/bin/python
 # style: any finding fails the run
 echo "test.sh: ruff check runtime drivers tests bench" >&2

@@ -17,8 +17,8 @@ from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
-from runtime.console.pin import check_pin
 from runtime.console.protocol import LOCKOUT_MAX_S, LOCKOUT_MIN_S, MAX_PIN_TRIES
+from runtime.controller.pin import check_pin
 from runtime.engine.names import Catalogue, CommandError
 from runtime.engine.plant import Plant
 from runtime.language.model import ConsoleLimits

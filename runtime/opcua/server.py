@@ -97,7 +97,7 @@ class PlantServer:
         await srv.init()
         srv.set_endpoint(self.endpoint)
         srv.set_server_name(f"softplc {self.pdef.path}")
-        self._security()
+        await self._security()
         idx = await srv.register_namespace(NAMESPACE)
         if idx != NS:
             raise RuntimeError(f"namespace {NAMESPACE} got index {idx}, expected {NS}")
@@ -116,7 +116,7 @@ class PlantServer:
         await srv.start()
         log.info("OPC UA server on %s (feed %s)", self.endpoint, self.feed_path)
 
-    def _security(self) -> None:
+    async def _security(self) -> None:
         """Only policy None until the security module is there (runtime/opcua/security.py);
         with it, ``apply`` sets the policies, certificates and users."""
         try:
@@ -124,7 +124,7 @@ class PlantServer:
         except ModuleNotFoundError:
             security = None
         if security is not None:
-            security.apply(self, self.opc.security)
+            await security.apply(self.server, self.opc.security, self.opc.loc)
             return
         if "None" not in self.opc.security.policies:
             raise RuntimeError("opcua security: only policy None is available in this build: "

@@ -6,9 +6,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-from runtime.console.pin import hash_pin
 from runtime.console.protocol import LOCKOUT_MAX_S, LOCKOUT_MIN_S, MAX_PIN_TRIES
 from runtime.console.server import ConsoleServer
+from runtime.controller.pin import hash_pin
 from runtime.language.model import ConsoleEntry
 from tests.console.consolekit import (
     FakeClock,

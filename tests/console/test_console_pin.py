@@ -10,9 +10,9 @@ import pytest
 import yaml
 
 from runtime import cli
-from runtime.console import pin as pinmod
-from runtime.console.pin import check_pin, hash_pin
 from runtime.console.protocol import CHANGING, LOCKOUT_MIN_S
+from runtime.controller import pin as pinmod
+from runtime.controller.pin import check_pin, hash_pin
 from tests.console.consolekit import FakeClock, Rig
 
 PIN = "4711"
@@ -132,7 +132,7 @@ def test_hash_pin_makes_a_slow_memory_hard_hash(capsys: pytest.CaptureFixture[st
 def test_old_pbkdf2_hashes_still_verify_with_a_warning(caplog: pytest.LogCaptureFixture) -> None:
     old = hash_pin(PIN, iterations=1000)
     assert old.startswith("pbkdf2_sha256$1000$")
-    with caplog.at_level("WARNING", logger="runtime.console.pin"):
+    with caplog.at_level("WARNING", logger="runtime.controller.pin"):
         assert check_pin(PIN, old)
         assert not check_pin("4712", old)
     assert "old pbkdf2_sha256 format" in caplog.text and "softplc hash-pin" in caplog.text

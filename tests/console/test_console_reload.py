@@ -10,7 +10,7 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
-from runtime.console.pin import hash_pin
+from runtime.controller.pin import hash_pin
 from tests.console.consolekit import CHART, Rig
 
 PIN = "4711"

@@ -14,7 +14,6 @@ from pathlib import Path
 
 import pytest
 
-from runtime.console.pin import hash_pin
 from runtime.console.server import (
     BURST_LINES,
     EVICT_IDLE_S,
@@ -22,6 +21,7 @@ from runtime.console.server import (
     MAX_CONNECTIONS,
     ConsoleServer,
 )
+from runtime.controller.pin import hash_pin
 from runtime.language.model import ConsoleEntry
 from tests.console.consolekit import (
     FakeClock,

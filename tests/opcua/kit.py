@@ -6,6 +6,23 @@ from __future__ import annotations
 import socket
 from pathlib import Path
 
+from asyncua import Client
+
+from runtime.controller.pin import hash_pin
+
+#: the user the writing tests log in as (runtime/opcua/security.py: anonymous sessions
+#: read only); a cheap hash, the cost is tested in tests/console/test_console_pin.py
+WRITER, WRITER_PASSWORD = "tester", "tester-pass"
+WRITER_HASH = hash_pin(WRITER_PASSWORD, n=16, r=1, p=1)
+
+
+def writer(url: str) -> Client:
+    """An asyncua client that logs in as :data:`WRITER` (may write the writable names)."""
+    client = Client(url)
+    client.set_user(WRITER)
+    client.set_password(WRITER_PASSWORD)
+    return client
+
 CHART = """\
 grafcet: Blink
 description: A blinker that jams on request (OPC UA tests)
@@ -57,5 +74,6 @@ def write_plant(tmp: Path, *, port: int, cycle: str = "10ms", sample: str = "50m
         f"  sample: {sample}\n"
         f"  feed: {tmp}/feed.sock\n"
         f"  writable: {writable}\n"
-        "  security: {policies: [None]}\n" + extra, encoding="utf-8")
+        f"  security: {{policies: [None], users: {{{WRITER}: '{WRITER_HASH}'}}}}\n" + extra,
+        encoding="utf-8")
     return plant

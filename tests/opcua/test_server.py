@@ -15,7 +15,7 @@ from asyncua.common.subscription import Subscription
 
 from runtime.language.plantfile import load_plant
 from tests.opcua.feedkit import ServerThread, controller, read_trace, wait_until
-from tests.opcua.kit import free_port
+from tests.opcua.kit import free_port, writer
 
 
 async def _until(pred: Any, timeout: float = 15.0, what: str = "") -> None:
@@ -200,7 +200,7 @@ def test_writes_allowed_refused_and_applied_between_scans(tmp_path: Path) -> Non
             return (await c.uaclient.write(params))[0]
 
         async def main() -> tuple[int, int]:
-            async with Client(srv.url) as c:
+            async with writer(srv.url) as c:
                 b = ua.VariantType.Boolean
                 before = d.scan_stats.count
                 good = await write(c, "t1.sStop", ua.Variant(True, b))
@@ -281,7 +281,7 @@ def test_sfcerror_set_and_cleared_are_events_of_the_instance(tmp_path: Path) -> 
         handler = Collect()
 
         async def main() -> None:
-            async with Client(srv.url) as c:
+            async with writer(srv.url) as c:
                 sub = await c.create_subscription(100, handler)
                 await sub.subscribe_events(c.get_node("ns=2;s=t1"))
                 await c.get_node("ns=2;s=t1.sJam").write_value(True)
@@ -343,7 +343,7 @@ def test_a_controller_fault_and_its_ack_are_events_of_the_controller(tmp_path: P
         handler = Collect()
 
         async def main() -> None:
-            async with Client(srv.url) as c:
+            async with writer(srv.url) as c:
                 sub = await c.create_subscription(100, handler)
                 await sub.subscribe_events(c.get_node("ns=2;s=controller"))
                 await c.get_node("ns=2;s=t1.sDiv").write_value(0)  # 100 / 0 in a scan

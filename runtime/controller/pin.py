@@ -1,4 +1,5 @@
-"""Console PINs: stored as a salted scrypt hash in the plant file, never in clear.
+"""Console PINs and OPC UA user passwords: stored as a salted scrypt hash in the plant file,
+never in clear (one home: the console and the OPC UA server both check them here).
 
 A PIN is short, so whoever can read the plant file can try every PIN offline: the hash is
 made slow and memory-hard on purpose. scrypt with N=2**15, r=8, p=4 uses 32 MiB and takes

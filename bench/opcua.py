@@ -1,0 +1,361 @@
+"""Benchmark: what the OPC UA server costs the scan (issue 15). Not a test: prints a table.
+
+The controller runs in this process as in bench/jitter.py (the same Daemon, Scheduler and
+generated plant cycle as ``softplc run --sim``; the garbage collector in the scan's idle
+time, as in production), with ``--testers`` drawer testers (default 100) whose drawers
+move, at a 10 ms cycle. Phases, each ``--seconds`` long:
+
+- ``no feed``: the plant without its ``opcua:`` section (no feed socket, no server);
+- ``feed only``: the controller's feed served (a snapshot every ``sample``), no server;
+- ``server + N clients``: ``softplc opcua PLANT`` in its own process (as its systemd unit
+  runs it) and ``--clients`` client processes (asyncua, at nice 10), each subscribed to
+  every variable of the plant (ns=2) at a 100 ms publishing interval.
+
+Per phase: the scan's wake-up lateness (p50, p99, max) and overruns over the window, and
+the controller's faults (watchdog, freeze: a fault stops the charts until ``ack``);
+for the server phase, the data-change notifications the clients received per second
+(all clients together), the server process's CPU (utime + stime from /proc/PID/stat over
+the window, percent of one core) and its resident memory (VmRSS at the end, VmHWM peak,
+from /proc/PID/status). All processes share this machine's cores: on a controller the
+clients run elsewhere, so the server row here is the harder case.
+
+Clients subscribe one after the other; one that cannot (its requests time out: the server
+does not keep up) is left out, and the row says how many did.
+
+    python -m bench.opcua [--seconds 60] [--testers 100] [--clients 10] [--secure] [--fifo]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from typing import Any
+
+from bench.jitter import DrawerModel, plant_file
+from runtime.controller.daemon import Daemon
+from runtime.controller.feed import FeedServer
+from runtime.language.plantfile import load_plant
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+#: how long the server may take to serve its first frame, s (3500 nodes on a loaded core)
+START_S = 180.0
+#: the clients' health probe period and time-out, s (asyncua's default: 1 s)
+WATCHDOG_S = 30.0
+#: clock ticks per second of /proc/PID/stat times
+TICKS = os.sysconf("SC_CLK_TCK")
+
+
+def out(line: str) -> None:
+    sys.stdout.write(line + "\n")
+    sys.stdout.flush()
+
+
+def opcua_plant(directory: str, testers: int, port: int, secure: bool,
+                pki: dict[str, str] | None, fifo: bool = False) -> str:
+    """bench/jitter.py's plant of ``testers`` testers at 10 ms (SCHED_FIFO 50 with
+    ``fifo``), plus an ``opcua:`` section (policy None, or SignAndEncrypt with ``pki``)."""
+    path = plant_file(directory, testers, 10, fifo)
+    sec = "  security: {policies: [None]}\n"
+    if secure:
+        assert pki is not None
+        sec = ("  security:\n    policies: [Basic256Sha256_SignAndEncrypt]\n"
+               f"    certificate: {pki['server_cert']}\n"
+               f"    private_key: {pki['server_key']}\n"
+               f"    trusted_clients: {pki['trusted_dir']}\n")
+    with open(path, "a", encoding="utf-8") as f:
+        f.write(f"opcua:\n  endpoint: opc.tcp://127.0.0.1:{port}\n  sample: 50ms\n"
+                f"  feed: {directory}/feed.sock\n{sec}")
+    return path
+
+
+def window(daemon: Daemon, seconds: float) -> dict[str, Any]:
+    """Cycle statistics over ``seconds`` (reset in the scan thread at the start), and the
+    controller's faults since it started (watchdog, freeze)."""
+    stats = daemon.scan_stats
+    daemon.call(stats.reset)
+    time.sleep(seconds)
+    count, overruns = daemon.call(lambda: (stats.count, stats.overruns))
+    late = stats.lateness()
+    return {"cycles": count, "overruns": overruns, "p50": late.p50 / 1e3,
+            "p99": late.p99 / 1e3, "max": late.max / 1e3, "faults": len(daemon.faults)}
+
+
+def proc_cpu_s(pid: int) -> float:
+    with open(f"/proc/{pid}/stat", encoding="ascii") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / TICKS  # utime, stime
+
+
+def proc_mem_mib(pid: int) -> tuple[float, float]:
+    """(VmRSS, VmHWM) of ``pid``, MiB."""
+    mem = {}
+    with open(f"/proc/{pid}/status", encoding="ascii") as f:
+        for line in f:
+            key, _, rest = line.partition(":")
+            if key in ("VmRSS", "VmHWM"):
+                mem[key] = int(rest.split()[0]) / 1024
+    return mem["VmRSS"], mem["VmHWM"]
+
+
+# -- the client processes --------------------------------------------------------------
+
+
+def client_args(url: str, nodes_file: str, seconds: float, pki: dict[str, str] | None
+                ) -> list[str]:
+    cfg = {"url": url, "nodes": nodes_file, "seconds": seconds, "pki": pki}
+    return ["nice", "-n", "10", sys.executable, "-m", "bench.opcua", "--client",
+            json.dumps(cfg)]
+
+
+async def _session(cfg: dict[str, Any]) -> Any:
+    from asyncua import Client, ua
+    from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+
+    from runtime.opcua.security import CLIENT_URI
+
+    # asyncua's client probes the server every watchdog_intervall (default 1 s) and drops
+    # the connection when a probe is not answered in that time: the server's event loop
+    # stalls longer than that while thousands of monitored items are created (seen here)
+    client = Client(cfg["url"], timeout=60, watchdog_intervall=WATCHDOG_S)
+    pki = cfg.get("pki")
+    if pki:
+        client.application_uri = CLIENT_URI
+        await client.set_security(SecurityPolicyBasic256Sha256, pki["client_cert"],
+                                  pki["client_key"], server_certificate=pki["server_cert"],
+                                  mode=ua.MessageSecurityMode.SignAndEncrypt)
+    await client.connect()
+    return client
+
+
+async def run_client(cfg: dict[str, Any]) -> None:
+    """One client: subscribe to every node of the file at 100 ms, say "ready", wait for
+    "go", count notifications for ``seconds``, print the count."""
+    client = await _session(cfg)
+    with open(cfg["nodes"], encoding="utf-8") as f:
+        ids = json.load(f)
+    counter = {"n": 0, "counting": False}
+
+    class Handler:
+        def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+            if counter["counting"]:
+                counter["n"] += 1
+
+        def status_change_notification(self, status: Any) -> None:
+            sys.stderr.write(f"client: subscription status {status}\n")
+
+    sub = await client.create_subscription(100, Handler())
+    nodes = [client.get_node(i) for i in ids]
+    for k in range(0, len(nodes), 500):
+        await sub.subscribe_data_change(nodes[k:k + 500], queuesize=1)
+    sys.stdout.write("ready\n")
+    sys.stdout.flush()
+    loop = asyncio.get_running_loop()
+    await loop.run_in_executor(None, sys.stdin.readline)
+    counter["counting"] = True
+    t0 = time.monotonic()
+    await asyncio.sleep(cfg["seconds"])
+    counter["counting"] = False
+    sys.stdout.write(json.dumps({"notifications": counter["n"],
+                                 "seconds": time.monotonic() - t0}) + "\n")
+    sys.stdout.flush()
+    await client.disconnect()
+
+
+async def variable_ids(url: str, pki: dict[str, str] | None) -> list[str]:
+    """Every Variable NodeId of namespace 2, found by browsing from Objects."""
+    from asyncua import ua
+
+    client = await _session({"url": url, "pki": pki})
+    found: list[str] = []
+    try:
+        todo = [client.nodes.objects]
+        while todo:
+            node = todo.pop()
+            for child in await node.get_children():
+                if child.nodeid.NamespaceIndex != 2:
+                    continue
+                if await child.read_node_class() == ua.NodeClass.Variable:
+                    found.append(child.nodeid.to_string())
+                else:
+                    todo.append(child)
+    finally:
+        await client.disconnect()
+    return sorted(set(found))
+
+
+async def wait_serving(url: str, pki: dict[str, str] | None, deadline: float) -> None:
+    while True:
+        try:
+            client = await _session({"url": url, "pki": pki})
+            try:
+                dv = await client.get_node("ns=2;s=controller.scan").read_data_value(
+                    raise_on_bad_status=False)
+                if dv.StatusCode.is_good():
+                    return
+            finally:
+                await client.disconnect()
+        except (OSError, TimeoutError):
+            pass
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"{url}: not serving after {START_S} s")
+        await asyncio.sleep(0.5)
+
+
+# -- the phases --------------------------------------------------------------------------
+
+
+def make_pki(directory: str) -> dict[str, str]:
+    import shutil
+
+    from runtime.opcua.security import make_certificate
+
+    sc, sk = make_certificate(os.path.join(directory, "server"), hosts=["127.0.0.1"])
+    cc, ck = make_certificate(os.path.join(directory, "client"), hosts=["localhost"],
+                              client=True)
+    trusted = os.path.join(directory, "trusted")
+    os.makedirs(trusted)
+    shutil.copy(cc, trusted)
+    return {"server_cert": sc, "server_key": sk, "client_cert": cc, "client_key": ck,
+            "trusted_dir": trusted}
+
+
+def start_daemon(path: str, testers: int, feed: bool) -> tuple[Daemon, FeedServer | None]:
+    pdef = load_plant(path)
+    if not feed:
+        pdef.opcua = None
+    daemon = Daemon(pdef, sim=True, manage_gc=True)
+    daemon.add_listener(DrawerModel(daemon, testers))
+    fs = None
+    if pdef.opcua is not None:
+        fs = FeedServer(daemon, pdef.opcua)
+        fs.start()
+    daemon.start()
+    time.sleep(1.0)  # warm-up, not counted
+    return daemon, fs
+
+
+def stop_daemon(daemon: Daemon, fs: FeedServer | None) -> None:
+    if fs is not None:
+        fs.stop()
+    daemon.stop("bench")
+
+
+def phase_server(path: str, testers: int, clients: int, seconds: float, url: str,
+                 tmp: str, pki: dict[str, str] | None) -> dict[str, Any]:
+    daemon, fs = start_daemon(path, testers, True)
+    server = subprocess.Popen([sys.executable, "-m", "runtime.cli", "opcua", path],
+                              cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    procs: list[subprocess.Popen[str]] = []
+    try:
+        t0 = time.monotonic()
+        asyncio.run(wait_serving(url, pki, t0 + START_S))
+        ids = asyncio.run(variable_ids(url, pki))
+        nodes_file = os.path.join(tmp, "nodes.json")
+        with open(nodes_file, "w", encoding="utf-8") as f:
+            json.dump(ids, f)
+        # one client subscribes at a time: ten clients creating 3500 monitored items each
+        # at once overload asyncua's event loop until they time out (seen here); a client
+        # that cannot subscribe (its requests time out) is left out and counted
+        for k in range(clients):
+            p = subprocess.Popen(client_args(url, nodes_file, seconds, pki), cwd=ROOT,
+                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                                 stderr=subprocess.DEVNULL)
+            assert p.stdout is not None
+            line = p.stdout.readline()
+            if line.strip() != "ready":
+                out(f"(client {k + 1} could not subscribe after {time.monotonic() - t0:.0f}"
+                    " s: the server does not keep up; going on with the others)")
+                p.kill()
+                p.wait()
+                break
+            procs.append(p)
+            out(f"(client {k + 1} subscribed at {time.monotonic() - t0:.0f} s)")
+        ready_s = time.monotonic() - t0
+        cpu0 = proc_cpu_s(server.pid)
+        for p in procs:
+            assert p.stdin is not None
+            p.stdin.write("go\n")
+            p.stdin.flush()
+        w = window(daemon, seconds)
+        cpu = proc_cpu_s(server.pid) - cpu0
+        rss, hwm = proc_mem_mib(server.pid)
+        total = 0
+        for p in procs:
+            assert p.stdout is not None
+            line = p.stdout.readline()
+            total += json.loads(line)["notifications"] if line else 0
+        w.update(nodes=len(ids), notif_s=total / seconds, cpu_pct=100 * cpu / seconds,
+                 rss=rss, hwm=hwm, ready_s=ready_s, subscribed=len(procs),
+                 faults=len(daemon.faults))
+        return w
+    finally:
+        for p in procs:
+            p.wait(60)
+        server.send_signal(signal.SIGTERM)
+        try:
+            server.wait(60)
+        except subprocess.TimeoutExpired:
+            server.kill()
+        stop_daemon(daemon, fs)
+
+
+def row(label: str, r: dict[str, Any]) -> str:
+    extra = " | | | | |"
+    if "notif_s" in r:
+        extra = (f" | {r['nodes']} | {r['notif_s']:.0f} | {r['cpu_pct']:.0f} % | "
+                 f"{r['rss']:.0f} ({r['hwm']:.0f}) |")
+    return (f"| {label} | {r['cycles']} | {r['overruns']} | {r['faults']} | {r['p50']:.0f} | "
+            f"{r['p99']:.0f} | {r['max']:.0f}{extra}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seconds", type=float, default=60.0)
+    ap.add_argument("--testers", type=int, default=100)
+    ap.add_argument("--clients", type=int, default=10)
+    ap.add_argument("--secure", action="store_true",
+                    help="Basic256Sha256 SignAndEncrypt with trusted client certificates")
+    ap.add_argument("--fifo", action="store_true",
+                    help="the scan at SCHED_FIFO 50 (plc: realtime: needs root)")
+    ap.add_argument("--client", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    import logging
+    logging.basicConfig(level=logging.ERROR)
+    if args.client:
+        asyncio.run(run_client(json.loads(args.client)))
+        return
+    from tests.opcua.kit import free_port
+
+    tmp = tempfile.mkdtemp(prefix="bo", dir="/tmp")
+    port = free_port()
+    pki = make_pki(tmp) if args.secure else None
+    path = opcua_plant(tmp, args.testers, port, args.secure, pki, args.fifo)
+    url = f"opc.tcp://127.0.0.1:{port}"
+    out(f"{args.testers} drawer testers, cycle 10 ms, sample 50 ms, {args.seconds:g} s per "
+        f"phase, {os.cpu_count()} cores, policy "
+        f"{'Basic256Sha256_SignAndEncrypt' if args.secure else 'None'}, scan "
+        f"{'SCHED_FIFO 50' if args.fifo else 'SCHED_OTHER'}")
+    out("| phase | cycles | overruns | faults | lateness p50 us | p99 us | max us | nodes | "
+        "notifications/s | server CPU | server RSS MiB (peak) |")
+    out("|---|---|---|---|---|---|---|---|---|---|---|")
+    for label, feed in (("no feed", False), ("feed only", True)):
+        daemon, fs = start_daemon(path, args.testers, feed)
+        try:
+            out(row(label, window(daemon, args.seconds)))
+        finally:
+            stop_daemon(daemon, fs)
+    r = phase_server(path, args.testers, args.clients, args.seconds, url, tmp, pki)
+    out(row(f"server + {r['subscribed']} clients", r))
+    out(f"({r['subscribed']} of {args.clients} clients subscribed to every variable, "
+        f"{r['ready_s']:.0f} s after the server started)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,323 @@
+"""Who may connect to the OPC UA server and what each may do (``opcua: security:``).
+
+The rules (docs/opcua.md, "Security"):
+
+- **Endpoints**: the plant's ``policies`` and only those. ``Basic256Sha256_SignAndEncrypt``
+  is the default; ``None`` (no signature, no encryption) is offered only when listed. A
+  secured policy needs the server's certificate and key: the server refuses to start without
+  them, naming the key and ``softplc opcua-cert``.
+- **Client certificates**: a client application that opens a signed channel shows its
+  certificate; it must be one of the files of ``trusted_clients`` (byte for byte, and within
+  its dates), else the session is refused (``BadCertificateUntrusted`` at CreateSession
+  when ``None`` is not offered, ``BadUserAccessDenied`` at ActivateSession in any case).
+  The certificate a client names in CreateSession on a ``None`` channel (node-opcua and
+  UaExpert do) is not checked: nothing proves it, and it grants nothing. The directory is
+  read again at each session, so trusting a client needs no restart.
+- **Roles**: a session on a signed channel (trusted certificate) is a *writer* unless
+  ``None`` is listed too (below); a user
+  whose password matches its hash in ``users`` (``softplc hash-pin`` format) is a writer; a
+  wrong password or an unknown user is refused; an anonymous session without a certificate
+  (only possible on a ``None`` endpoint) is a *reader* with ``anonymous: read`` (the
+  default) and refused with ``anonymous: none``. A reader may browse, read and subscribe;
+  its writes (and method calls) fail with ``BadUserAccessDenied``. Nobody is administrator:
+  no client adds or deletes nodes.
+
+Why the certificate is checked in the user manager and not only by asyncua's certificate
+validator (asyncua 2.1): the validator sees the certificate the client *names* in
+CreateSession, which a hostile client may leave empty (the validator is then skipped) or
+set to another's certificate; the user manager sees the one the channel was opened with,
+whose signature the channel has verified. And why a session without a certificate is
+refused unless ``None`` is listed: asyncua starts every connection on a ``None`` channel
+with no permission checks and lets a client ask for ``None`` even when no ``None``
+endpoint is offered (``SecureConnection.select_policy`` keeps the current policy when its
+URI matches); such a channel carries no certificate, so the user manager closes it. When
+``None`` *is* listed, a client may name any certificate on its unsigned channel (the
+certificates are public) and asyncua does not tell the user manager which channel a
+session came by: so with ``None`` listed a certificate alone makes nobody a writer (a user
+with a password still does).
+
+A password check costs one scrypt hash (about 0.2 s: ``runtime/controller/pin.py``) and
+asyncua calls the user manager synchronously in its event loop: after a failed check,
+checks are refused without hashing for :data:`FAIL_HOLD_S`, so a client guessing passwords
+stalls the server's publishing at most that share of the time; a successful check is
+remembered (as an HMAC under a key drawn at start, never the password) so a client that
+reconnects does not pay it again.
+"""
+
+from __future__ import annotations
+
+import datetime
+import hashlib
+import hmac
+import ipaddress
+import logging
+import os
+import socket
+import time
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Any
+
+from asyncua import ua
+from asyncua.common.utils import ServiceError
+from asyncua.crypto import cert_gen
+from asyncua.crypto.permission_rules import USER_TYPES, SimpleRoleRuleset, User, UserRole
+from asyncua.server.server import Server
+from asyncua.server.user_managers import UserManager
+from asyncua.ua.object_ids import ObjectIds
+from asyncua.ua.status_codes import StatusCodes
+from cryptography import x509
+from cryptography.hazmat.primitives import serialization
+from cryptography.x509.oid import ExtendedKeyUsageOID
+
+from runtime.controller.pin import check_pin
+from runtime.errors import Loc, SourceError
+from runtime.language.model import OpcuaSecurity
+
+log = logging.getLogger(__name__)
+
+#: the server's ApplicationUri: the server announces it and its certificate must carry it
+#: (SubjectAltName URI); clients such as UaExpert check that the two match
+APPLICATION_URI = "urn:softplc:opcua:server"
+#: the ApplicationUri of a client certificate made by ``softplc opcua-cert --client``: the
+#: client must announce the same (asyncua: ``client.application_uri``)
+CLIENT_URI = "urn:softplc:opcua:client"
+#: after a failed password check, further checks are refused without hashing this long, s
+FAIL_HOLD_S = 1.0
+#: plant policy name -> asyncua's endpoint type
+POLICIES: dict[str, ua.SecurityPolicyType] = {
+    "None": ua.SecurityPolicyType.NoSecurity,
+    "Basic256Sha256_Sign": ua.SecurityPolicyType.Basic256Sha256_Sign,
+    "Basic256Sha256_SignAndEncrypt": ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
+}
+
+
+def _ids(numbers: Iterable[int]) -> frozenset[ua.NodeId]:
+    return frozenset(ua.NodeId(ua.Int32(n)) for n in numbers)
+
+
+#: services that change something: a reader may not call them
+_CHANGING = _ids((ObjectIds.WriteRequest_Encoding_DefaultBinary,
+                  ObjectIds.CallRequest_Encoding_DefaultBinary))
+#: every service of a session (asyncua's list for its User role: no node management)
+_WRITER_IDS = _ids(USER_TYPES)
+_READER_IDS = _WRITER_IDS - _CHANGING
+#: the plant file position used when the model has none (a model built by a test)
+_NOWHERE = Loc("<plant>", 0, 0)
+
+
+def secured(sec: OpcuaSecurity) -> bool:
+    """True if ``sec`` offers an endpoint that signs (so needs a certificate and key)."""
+    return any(p != "None" for p in sec.policies)
+
+
+class Rules(SimpleRoleRuleset):  # type: ignore[misc]  # asyncua is Any to mypy
+    """Which services each role may call: writers every service of a session, readers all
+    but Write and Call, anyone else nothing (asyncua answers BadUserAccessDenied)."""
+
+    def check_validity(self, user: User, action_type_id: ua.NodeId, body: Any) -> bool:
+        if user.role is UserRole.User:
+            return action_type_id in _WRITER_IDS
+        if user.role is UserRole.Anonymous:
+            return action_type_id in _READER_IDS
+        return False
+
+
+class TrustedClients:
+    """The client certificates of a directory (DER or PEM files), read again at each look-up
+    (a few files: trusting a client needs no restart)."""
+
+    def __init__(self, directory: str | None) -> None:
+        self.directory = directory
+
+    def certificates(self) -> list[bytes]:
+        """DER of every readable certificate of the directory (an unreadable file is
+        logged and skipped: it trusts nobody)."""
+        if not self.directory:
+            return []
+        out: list[bytes] = []
+        try:
+            names = sorted(os.listdir(self.directory))
+        except OSError as exc:
+            log.error("opcua trusted_clients %s: %s: no client certificate is trusted",
+                      self.directory, exc.strerror)
+            return []
+        for name in names:
+            path = os.path.join(self.directory, name)
+            if not os.path.isfile(path):
+                continue
+            try:
+                out.append(_der(Path(path).read_bytes()))
+            except (OSError, ValueError) as exc:
+                log.warning("opcua trusted_clients: %s is not a certificate (%s): skipped",
+                            path, exc)
+        return out
+
+    def trusts(self, der: bytes) -> bool:
+        """True if ``der`` is one of the directory's certificates and within its dates."""
+        if der not in self.certificates():
+            return False
+        cert = x509.load_der_x509_certificate(der)
+        now = datetime.datetime.now(datetime.UTC)
+        return cert.not_valid_before_utc <= now <= cert.not_valid_after_utc
+
+
+def _der(data: bytes) -> bytes:
+    """A certificate file's content (DER or PEM) as DER; ValueError if it is neither."""
+    if data.lstrip().startswith(b"-----BEGIN"):
+        cert = x509.load_pem_x509_certificate(data)
+    else:
+        cert = x509.load_der_x509_certificate(data)
+    return cert.public_bytes(serialization.Encoding.DER)
+
+
+class Users(UserManager):  # type: ignore[misc]  # asyncua is Any to mypy
+    """asyncua's user manager: the role of a session from its channel certificate, its
+    user token and the plant's ``security:`` (module docstring)."""
+
+    def __init__(self, sec: OpcuaSecurity, clock: Callable[[], float] = time.monotonic) -> None:
+        self.sec = sec
+        self.trusted = TrustedClients(sec.trusted_clients)
+        self.allow_none = "None" in sec.policies
+        self._clock = clock
+        self._key = os.urandom(32)
+        self._known: set[bytes] = set()
+        self._hold_until = 0.0
+
+    def get_user(self, iserver: Any, username: str | None = None,
+                 password: str | None = None, certificate: Any = None) -> User | None:
+        """The session's User, or None to refuse it (BadUserAccessDenied)."""
+        if not certificate:  # asyncua passes b"" for a channel without a certificate
+            certificate = None
+            if not self.allow_none:
+                log.warning("opcua: refused a session on a channel without security (the "
+                            "plant lists no None policy)")
+                return None
+        elif not self.trusted.trusts(bytes(certificate)):
+            log.warning("opcua: refused a client certificate not in trusted_clients (%s)",
+                        _subject(certificate))
+            return None
+        if username is not None:
+            if self._password_ok(username, password or ""):
+                return User(role=UserRole.User, name=username)
+            log.warning("opcua: refused user '%s': wrong password or unknown user", username)
+            return None
+        if certificate is not None and not self.allow_none:
+            return User(role=UserRole.User, name=_subject(certificate))
+        if self.sec.anonymous == "read":
+            return User(role=UserRole.Anonymous)
+        log.warning("opcua: refused an anonymous session (anonymous: none)")
+        return None
+
+    def _password_ok(self, username: str, password: str) -> bool:
+        stored = self.sec.users.get(username)
+        if stored is None:
+            return False
+        tag = hmac.new(self._key, f"{username}\0{password}\0{stored}".encode(),
+                       hashlib.sha256).digest()
+        if tag in self._known:
+            return True
+        now = self._clock()
+        if now < self._hold_until:
+            return False
+        if check_pin(password, stored):
+            self._known.add(tag)
+            return True
+        self._hold_until = self._clock() + FAIL_HOLD_S
+        return False
+
+
+def _subject(der: Any) -> str:
+    try:
+        return x509.load_der_x509_certificate(bytes(der)).subject.rfc4514_string()
+    except ValueError:
+        return "an unreadable certificate"
+
+
+async def apply(server: Server, sec: OpcuaSecurity, where: Loc | None = None) -> None:
+    """Set up ``server``'s endpoints, certificate, trusted clients and users from ``sec``;
+    call after ``await server.init()`` and before ``await server.start()``. SourceError
+    (at the plant's ``security:``, else at ``where``: its ``opcua:``) if a secured policy
+    has no certificate or key file."""
+    loc = sec.loc or where or _NOWHERE
+    await server.set_application_uri(APPLICATION_URI)
+    if secured(sec):
+        for key in ("certificate", "private_key"):
+            path = getattr(sec, key)
+            if not path:
+                default = "" if sec.loc else " (the default: no 'security:' section)"
+                raise SourceError(loc, f"opcua security: policies {', '.join(sec.policies)}"
+                                       f"{default} need a server certificate: no '{key}' "
+                                       "key (make one with 'softplc opcua-cert', or list "
+                                       "policies: [None]: docs/opcua.md)")
+            if not os.path.isfile(path):
+                raise SourceError(loc, f"opcua security {key}: no file {path} (make one "
+                                       "with 'softplc opcua-cert', docs/opcua.md)")
+        try:
+            await server.load_certificate(str(sec.certificate))
+            await server.load_private_key(str(sec.private_key))
+        except (OSError, ValueError) as exc:
+            raise SourceError(loc, f"opcua security: cannot load the certificate or key "
+                                   f"({exc})") from exc
+    rules = Rules()
+    server.set_security_policy([POLICIES[p] for p in sec.policies], permission_ruleset=rules)
+    # the client certificate is the application's identity; no X509 *user* tokens
+    server.set_identity_tokens([ua.AnonymousIdentityToken, ua.UserNameIdentityToken])
+    users = Users(sec)
+    server.iserver.set_user_manager(users)
+    if not users.allow_none:
+        # clients name their certificate in CreateSession on None channels too (node-opcua,
+        # UaExpert), where it proves nothing: checked there only when None is not offered
+        server.set_certificate_validator(_validator(users.trusted))
+    if sec.users and not any(p == "Basic256Sha256_SignAndEncrypt" for p in sec.policies):
+        log.warning("opcua: users are set but no SignAndEncrypt policy is listed: their "
+                    "passwords may cross the network readable")
+
+
+def _validator(trusted: TrustedClients) -> Callable[[x509.Certificate, Any], Any]:
+    """asyncua's certificate validator: BadCertificateUntrusted at CreateSession for a
+    client certificate not in ``trusted`` (the user manager checks the channel's own)."""
+
+    async def validate(cert: x509.Certificate, app: Any) -> None:
+        if not trusted.trusts(cert.public_bytes(serialization.Encoding.DER)):
+            raise ServiceError(StatusCodes.BadCertificateUntrusted)
+
+    return validate
+
+
+def make_certificate(directory: str, days: int = 3650, hosts: Iterable[str] = (),
+                     client: bool = False) -> tuple[str, str]:
+    """Write a self-signed certificate (``server-cert.der``) and its RSA 2048 key
+    (``server-key.pem``, mode 0600) for :data:`APPLICATION_URI` into ``directory``; (cert
+    path, key path).
+    ``hosts``: DNS names or IP addresses clients reach the server by (default this machine's
+    name, localhost and 127.0.0.1). ``client``: a client certificate (``client-...``,
+    ClientAuth, :data:`CLIENT_URI`) instead, for tests and scripts. FileExistsError naming
+    the path if either file exists: nothing is overwritten."""
+    prefix = "client" if client else "server"
+    cert_path = os.path.join(directory, f"{prefix}-cert.der")
+    key_path = os.path.join(directory, f"{prefix}-key.pem")
+    for path in (cert_path, key_path):
+        if os.path.lexists(path):
+            raise FileExistsError(path)
+    names = list(hosts) or [socket.gethostname(), "localhost", "127.0.0.1"]
+    uri = CLIENT_URI if client else APPLICATION_URI
+    alt: list[x509.GeneralName] = [x509.UniformResourceIdentifier(uri)]
+    for name in names:
+        try:
+            alt.append(x509.IPAddress(ipaddress.ip_address(name)))
+        except ValueError:
+            alt.append(x509.DNSName(name))
+    key = cert_gen.generate_private_key()
+    usage = ExtendedKeyUsageOID.CLIENT_AUTH if client else ExtendedKeyUsageOID.SERVER_AUTH
+    cert = cert_gen.generate_self_signed_app_certificate(
+        key, f"softplc {prefix} {names[0]}", {}, alt, [usage], days=days)
+    os.makedirs(directory, mode=0o755, exist_ok=True)
+    # the key first, created 0600 and exclusively: never readable by others, even briefly
+    fd = os.open(key_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "wb") as f:
+        f.write(cert_gen.dump_private_key_as_pem(key))
+    fd = os.open(cert_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+    with os.fdopen(fd, "wb") as f:
+        f.write(cert.public_bytes(serialization.Encoding.DER))
+    return cert_path, key_path
