@@ -215,6 +215,9 @@ def cmd_opcua(args: argparse.Namespace) -> int:
     except ImportError as exc:
         raise ImportError(f"{exc}: install the opcua extra (pip install "
                           "'softplc[opcua]')") from None
+    if not logging.getLogger().isEnabledFor(logging.DEBUG):
+        # asyncua logs every request at INFO: the journal gets its warnings and errors
+        logging.getLogger("asyncua").setLevel(logging.WARNING)
 
     async def main() -> None:
         stop = asyncio.Event()

@@ -240,8 +240,10 @@ class OpcuaSecurity:
     policies: list[str] = field(default_factory=lambda: ["Basic256Sha256_SignAndEncrypt"])
     certificate: str | None = None
     private_key: str | None = None
-    #: a directory of trusted client certificates (DER)
+    #: a directory of trusted client certificates (DER or PEM): their sessions may write
     trusted_clients: str | None = None
+    #: a directory of client certificates let in to read only (an HMI, a historian)
+    trusted_readers: str | None = None
     #: what a client without a user may do: "read" or "none"
     anonymous: str = "read"
     #: user -> password hash (``softplc hash-pin`` format)

@@ -16,8 +16,8 @@ from runtime.language.runtimedir import PLACEHOLDER, expand
 from runtime.language.yamlsrc import YMap
 
 OPCUA_KEYS = ("endpoint", "sample", "feed", "writable", "security")
-SECURITY_KEYS = ("policies", "certificate", "private_key", "trusted_clients", "anonymous",
-                 "users")
+SECURITY_KEYS = ("policies", "certificate", "private_key", "trusted_clients",
+                 "trusted_readers", "anonymous", "users")
 #: the snapshot period when the plant does not say (never below the cycle), ns
 DEFAULT_SAMPLE_NS = 50_000_000
 DEFAULT_FEED = f"{PLACEHOLDER}/feed.sock"
@@ -128,7 +128,7 @@ def _security(value: Any, loc: Loc) -> OpcuaSecurity:
                                   f"{suggest(text, OPCUA_POLICIES)}")
             if text not in sec.policies:
                 sec.policies.append(text)
-    for key in ("certificate", "private_key", "trusted_clients"):
+    for key in ("certificate", "private_key", "trusted_clients", "trusted_readers"):
         if key in m:
             vloc = m.val_locs[key]
             setattr(sec, key, expand(str(expect_type(m[key], vloc, str, "a path")), vloc))

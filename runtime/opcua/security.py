@@ -7,14 +7,16 @@ The rules (docs/opcua.md, "Security"):
   secured policy needs the server's certificate and key: the server refuses to start without
   them, naming the key and ``softplc opcua-cert``.
 - **Client certificates**: a client application that opens a signed channel shows its
-  certificate; it must be one of the files of ``trusted_clients`` (byte for byte, and within
-  its dates), else the session is refused (``BadCertificateUntrusted`` at CreateSession
-  when ``None`` is not offered, ``BadUserAccessDenied`` at ActivateSession in any case).
-  The certificate a client names in CreateSession on a ``None`` channel (node-opcua and
-  UaExpert do) is not checked: nothing proves it, and it grants nothing. The directory is
-  read again at each session, so trusting a client needs no restart.
-- **Roles**: a session on a signed channel (trusted certificate) is a *writer* unless
-  ``None`` is listed too (below); a user
+  certificate; it must be one of the files of ``trusted_clients`` or ``trusted_readers``
+  (byte for byte, and within its dates), else the session is refused
+  (``BadCertificateUntrusted`` at CreateSession when ``None`` is not offered,
+  ``BadUserAccessDenied`` at ActivateSession in any case). The certificate a client
+  names in CreateSession on a ``None`` channel (node-opcua and UaExpert do) is not
+  checked: nothing proves it, and it grants nothing. The directories are read again at
+  each session, so trusting a client needs no restart.
+- **Roles**: a session on a signed channel with a certificate of ``trusted_clients`` is a
+  *writer* unless ``None`` is listed too (below), one with a certificate of
+  ``trusted_readers`` a *reader*; a user
   whose password matches its hash in ``users`` (``softplc hash-pin`` format) is a writer; a
   wrong password or an unknown user is refused; an anonymous session without a certificate
   (only possible on a ``None`` endpoint) is a *reader* with ``anonymous: read`` (the
@@ -178,6 +180,7 @@ class Users(UserManager):  # type: ignore[misc]  # asyncua is Any to mypy
     def __init__(self, sec: OpcuaSecurity, clock: Callable[[], float] = time.monotonic) -> None:
         self.sec = sec
         self.trusted = TrustedClients(sec.trusted_clients)
+        self.readers = TrustedClients(sec.trusted_readers)
         self.allow_none = "None" in sec.policies
         self._clock = clock
         self._key = os.urandom(32)
@@ -193,17 +196,20 @@ class Users(UserManager):  # type: ignore[misc]  # asyncua is Any to mypy
                 log.warning("opcua: refused a session on a channel without security (the "
                             "plant lists no None policy)")
                 return None
-        elif not self.trusted.trusts(bytes(certificate)):
-            log.warning("opcua: refused a client certificate not in trusted_clients (%s)",
-                        _subject(certificate))
+        writer = bool(certificate) and self.trusted.trusts(bytes(certificate))
+        if certificate and not writer and not self.readers.trusts(bytes(certificate)):
+            log.warning("opcua: refused a client certificate in neither trusted_clients nor "
+                        "trusted_readers (%s)", _subject(certificate))
             return None
         if username is not None:
             if self._password_ok(username, password or ""):
                 return User(role=UserRole.User, name=username)
             log.warning("opcua: refused user '%s': wrong password or unknown user", username)
             return None
-        if certificate is not None and not self.allow_none:
+        if writer and not self.allow_none:
             return User(role=UserRole.User, name=_subject(certificate))
+        if certificate is not None and not self.allow_none:  # a trusted reader
+            return User(role=UserRole.Anonymous, name=_subject(certificate))
         if self.sec.anonymous == "read":
             return User(role=UserRole.Anonymous)
         log.warning("opcua: refused an anonymous session (anonymous: none)")
@@ -268,18 +274,19 @@ async def apply(server: Server, sec: OpcuaSecurity, where: Loc | None = None) ->
     if not users.allow_none:
         # clients name their certificate in CreateSession on None channels too (node-opcua,
         # UaExpert), where it proves nothing: checked there only when None is not offered
-        server.set_certificate_validator(_validator(users.trusted))
+        server.set_certificate_validator(_validator(users.trusted, users.readers))
     if sec.users and not any(p == "Basic256Sha256_SignAndEncrypt" for p in sec.policies):
         log.warning("opcua: users are set but no SignAndEncrypt policy is listed: their "
                     "passwords may cross the network readable")
 
 
-def _validator(trusted: TrustedClients) -> Callable[[x509.Certificate, Any], Any]:
+def _validator(*trusted: TrustedClients) -> Callable[[x509.Certificate, Any], Any]:
     """asyncua's certificate validator: BadCertificateUntrusted at CreateSession for a
-    client certificate not in ``trusted`` (the user manager checks the channel's own)."""
+    client certificate in none of ``trusted`` (the user manager checks the channel's own)."""
 
     async def validate(cert: x509.Certificate, app: Any) -> None:
-        if not trusted.trusts(cert.public_bytes(serialization.Encoding.DER)):
+        der = cert.public_bytes(serialization.Encoding.DER)
+        if not any(t.trusts(der) for t in trusted):
             raise ServiceError(StatusCodes.BadCertificateUntrusted)
 
     return validate

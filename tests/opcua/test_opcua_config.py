@@ -65,7 +65,7 @@ def test_the_full_section(tmp_path: Path) -> None:
         "  feed: /tmp/x/feed.sock\n  writable: [t1.sStop, t2.SFCQuitError, t1.sStop]\n"
         "  security:\n    policies: [None, Basic256Sha256_SignAndEncrypt]\n"
         "    certificate: /etc/c.der\n    private_key: /etc/k.pem\n"
-        "    trusted_clients: /etc/t\n    anonymous: none\n"
+        "    trusted_clients: /etc/t\n    trusted_readers: /etc/r\n    anonymous: none\n"
         "    users: {operator: 'scrypt$16384$8$1$c2FsdA$aGFzaA'}\n"))))
     o = pdef.opcua
     assert o is not None
@@ -74,8 +74,8 @@ def test_the_full_section(tmp_path: Path) -> None:
     assert o.writable == ["t1.sStop", "t2.SFCQuitError"]
     s = o.security
     assert s.policies == ["None", "Basic256Sha256_SignAndEncrypt"]
-    assert (s.certificate, s.private_key, s.trusted_clients, s.anonymous) == (
-        "/etc/c.der", "/etc/k.pem", "/etc/t", "none")
+    assert (s.certificate, s.private_key, s.trusted_clients, s.trusted_readers,
+            s.anonymous) == ("/etc/c.der", "/etc/k.pem", "/etc/t", "/etc/r", "none")
     assert list(s.users) == ["operator"]
 
 

@@ -108,6 +108,25 @@ def test_trusted_certificate_signandencrypt_is_a_writer(secure_only: ServerThrea
     assert run(go()) is True
 
 
+def test_a_trusted_reader_certificate_reads_but_may_not_write(certs: Certs,
+                                                             tmp_path: Path) -> None:
+    """``trusted_readers``: an HMI or a historian on an encrypted channel, read only."""
+    readers = tmp_path / "readers"
+    readers.mkdir()
+    (readers / "hmi.der").write_bytes(Path(certs.stranger_cert).read_bytes())
+
+    async def go() -> object:
+        async with session(srv.url, certs, cert=certs.stranger_cert,
+                           key=certs.stranger_key) as c:
+            value = await read(c, "tester1.iMarcha")
+            with pytest.raises(uaerrors.BadUserAccessDenied):
+                await write(c, "tester1.sParo", True)
+            return value
+    with ServerThread(sec(certs, ["Basic256Sha256_SignAndEncrypt"],
+                          trusted_readers=str(readers))) as srv:
+        assert run(go()) is True
+
+
 def test_untrusted_certificate_is_refused(secure_only: ServerThread, certs: Certs) -> None:
     async def go() -> None:
         async with session(secure_only.url, certs, cert=certs.stranger_cert,
