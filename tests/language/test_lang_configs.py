@@ -35,7 +35,8 @@ def test_show_prints_the_scan_with_the_charts_names(path: Path,
     assert main(["compile", str(path), "--show"]) == 0
     src = capsys.readouterr().out
     g = load_grafcet(str(path))
-    assert src.count("def scan(m, now, up):") == 1
+    # one factory per chart, one scan closure per instance (docs/semantics.md)
+    assert src.count("def make(m, init):") == 1 and src.count("    def scan(now, up") == 1
     assert f"grafcet {g.name}" in src
     for step in g.steps:
         assert step in src
