@@ -39,6 +39,7 @@ from typing import Any
 
 from runtime.console.service import ConsoleService
 from runtime.console.session import Session
+from runtime.controller.paths import unix_listener
 from runtime.controller.window import (  # noqa: F401 - the console's names for them
     QUIET_BEFORE_S,
     ROUND_BUDGET_S,
@@ -262,12 +263,7 @@ class ConsoleServer:
     def _listen(self, e: ConsoleEntry) -> socket.socket:
         if e.kind == "socket":
             path = e.address
-            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-            if os.path.exists(path):
-                os.unlink(path)  # left by a previous run
-            srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-            srv.bind(path)
-            os.chmod(path, 0o660)
+            srv = unix_listener(path)
             self._socket_paths.append(path)
             self.addresses.append(path)
         else:

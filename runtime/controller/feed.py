@@ -42,6 +42,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from runtime.controller.paths import unix_listener
 from runtime.controller.window import ScanWindow
 from runtime.engine.instance import coerce
 from runtime.engine.names import Catalogue, Image
@@ -116,13 +117,7 @@ class FeedServer:
     # -- life cycle ----------------------------------------------------------------
     def start(self) -> None:
         """Bind the socket (errors raised here), hook into the scan, start the thread."""
-        path = self.path
-        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-        if os.path.exists(path):
-            os.unlink(path)  # left by a previous run
-        srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        srv.bind(path)
-        os.chmod(path, 0o660)
+        srv = unix_listener(self.path)
         srv.listen(MAX_CLIENTS)
         srv.setblocking(False)
         self._sock = srv
@@ -133,7 +128,7 @@ class FeedServer:
         self.daemon.add_listener(self.on_scan)
         self._thread = threading.Thread(target=self._run, name="softplc-feed", daemon=True)
         self._thread.start()
-        log.info("feed listening on %s (a snapshot every %d scan(s))", path, self.every)
+        log.info("feed listening on %s (a snapshot every %d scan(s))", self.path, self.every)
 
     def stop(self) -> None:
         """Unhook from the scan, close every client and the socket. Idempotent."""

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import os
+import socket
 import stat
 from collections.abc import Iterable
 
@@ -112,3 +113,21 @@ def check_dir(directory: str, for_file: str) -> None:
     if st.st_mode & stat.S_IWOTH:
         what = "would be created in" if existing != directory else "is in"
         raise PathError(f"{for_file} {what} {existing}, writable by every user: {hint}")
+
+
+def unix_listener(path: str) -> socket.socket:
+    """A listening-ready AF_UNIX stream socket bound at ``path`` (the console's and the
+    feed's): its directory made if missing, a socket file left by a previous run
+    replaced, the socket 0660 (its owner and group: the directory's mode decides who
+    reaches it). OSError if it cannot be bound."""
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    if os.path.exists(path):
+        os.unlink(path)  # left by a previous run
+    srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        srv.bind(path)
+        os.chmod(path, 0o660)
+    except OSError:
+        srv.close()
+        raise
+    return srv
