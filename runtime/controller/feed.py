@@ -15,8 +15,10 @@ Client side (``FeedState``): the schema and the values of the last frame, decode
 
 Messages, one JSON object per line (``"\\n"``):
 
-- server -> client ``{"schema": {...}}`` once: ``names`` ([name, type, role] in value
-  order), ``instances``, ``drivers``, ``writable``, ``cycle_ms``, ``sample_ms``;
+- server -> client ``{"schema": {...}}`` first, and again after an online change replaced
+  the plant (the client rebuilds what it shows; the next frame is a whole one): ``names``
+  ([name, type, role] in value order), ``instances``, ``drivers``, ``writable``,
+  ``cycle_ms``, ``sample_ms``;
 - ``{"f": [scan, wall_s, values]}``: a whole frame (first after the schema), values in
   schema order; ``{"d": [scan, wall_s, [i, v, i, v, ...]]}``: only the values that changed
   since the previous frame. ``scan`` is the trace's ``cycle`` number; times are in ns;
@@ -151,9 +153,9 @@ class FeedServer:
             self._sel.close()
 
     def plant_replaced(self) -> None:
-        """The controller's plant object was replaced (an online change): every client is
-        dropped, to reconnect and read the new schema. Any thread. (The feed thread also
-        notices by itself when ``daemon.plant`` is another object.)"""
+        """The controller's plant object was replaced (an online change): every client gets
+        the new schema, then a whole frame, on the connection it has. Any thread. (The
+        feed thread also notices by itself when ``daemon.plant`` is another object.)"""
         self._replaced = True
 
     # -- the scan thread -------------------------------------------------------------
@@ -192,8 +194,10 @@ class FeedServer:
         self._schema_line = self._schema()
         self._values = None
         for c in list(self._clients):
-            self._drop(c, "the plant was replaced")
-        log.info("feed: plant replaced, clients dropped to read the new schema")
+            c.fresh, c.status = True, None
+            self._queue(c, self._schema_line)
+        log.info("feed: plant replaced: the new schema sent to %d client(s)",
+                 len(self._clients))
 
     def _io(self, timeout: float) -> None:
         assert self._sel is not None

@@ -65,6 +65,8 @@ class FeedReader:
         self.state = FeedState()
         self.frames: list[tuple[int, float, list[Any]]] = []
         self.statuses: list[dict[str, Any]] = []
+        #: how many schemas came (one at the start, one more after each online change)
+        self.schemas = 0
         self.replies: dict[int, tuple[bool, str]] = {}
         self.closed = threading.Event()
         self._ids = 0
@@ -87,6 +89,8 @@ class FeedReader:
                     if kind == "frame":
                         st = self.state
                         self.frames.append((st.scan, st.wall, list(st.values)))
+                    elif kind == "schema":
+                        self.schemas += 1
                     elif kind == "status":
                         self.statuses.append(dict(self.state.status))
                     elif kind == "reply":
