@@ -216,17 +216,18 @@ class Reloader:
         sched.gc_held = True
         try:
             prepared = prepare(old, new_pdef, book)
-        finally:
-            # the new plant lives until the next change: out of the collector's sight,
-            # like the first plant at start-up (a splice of lists, not a collection)
+            commits = [self.daemon.prepare_switch(prepared.plant, new_pdef)]
+            commits += [hook(prepared.plant) for hook in self._hooks]
             if not gc.isenabled():
+                # the new plant and its holders live until the next change: out of the
+                # collector's sight, like the first plant at start-up (a splice of
+                # lists, not a collection); a failed prepare's objects are not frozen
                 gc.freeze()
+        finally:
             sched.gc_held = False
         if book is not None:
             log.debug("reload: %d code objects from the child, %d compiled here", book.hits,
                       book.misses)
-        commits = [self.daemon.prepare_switch(prepared.plant, new_pdef)]
-        commits += [hook(prepared.plant) for hook in self._hooks]
         return prepared, commits
 
     def _in_worker(self, fn: Callable[[], Any]) -> Any:
