@@ -43,12 +43,11 @@ from runtime.language.yamlsrc import YMap, load_yaml
 
 log = logging.getLogger(__name__)
 
-#: the unit file: systemd/ of the source tree, or share/softplc/ of an installed package
+#: the unit files: systemd/ of the source tree, or share/softplc/ of an installed package
 _SOURCE_TREE = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-UNIT_CANDIDATES = (
-    os.path.join(_SOURCE_TREE, "systemd", "softplc.service"),
-    os.path.join(sys.prefix, "share", "softplc", "softplc.service"),
-)
+UNIT_DIRS = (os.path.join(_SOURCE_TREE, "systemd"), os.path.join(sys.prefix, "share", "softplc"))
+#: the console socket ExecReload= talks to when the plant names none under /run/softplc
+DEFAULT_RELOAD_SOCKET = "/run/softplc/console.sock"
 USER = "softplc"
 GROUPS = ("gpio", "i2c", "dialout")
 STATE_DIR = "/var/lib/softplc"
@@ -101,23 +100,36 @@ class Plan:
     warnings: list[str] = field(default_factory=list)
 
 
-def unit_text(softplc: str, plant: str, groups: tuple[str, ...] = GROUPS) -> str:
-    """The unit of systemd/softplc.service with ExecStart and SupplementaryGroups set."""
-    template = next((c for c in UNIT_CANDIDATES if os.path.exists(c)), None)
+def _template(name: str) -> str:
+    """The text of unit ``name`` as the project ships it."""
+    candidates = [os.path.join(d, name) for d in UNIT_DIRS]
+    template = next((c for c in candidates if os.path.exists(c)), None)
     if template is None:
-        raise InstallError("systemd/softplc.service not found in " + ", ".join(UNIT_CANDIDATES))
+        raise InstallError(f"systemd/{name} not found in " + ", ".join(candidates))
     with open(template, encoding="utf-8") as f:
-        text = f.read()
+        return f.read()
+
+
+def unit_text(softplc: str, plant: str, groups: tuple[str, ...] = GROUPS,
+              reload_socket: str = DEFAULT_RELOAD_SOCKET) -> str:
+    """The unit of systemd/softplc.service with ExecStart, ExecReload (``softplc reload``
+    on ``reload_socket``, the plant's console socket) and SupplementaryGroups set."""
     out = []
-    for line in text.splitlines():
+    for line in _template("softplc.service").splitlines():
         if line.startswith("ExecStart="):
             line = f"ExecStart={softplc} run {plant}"
         elif line.startswith("ExecReload="):
-            line = line.replace("/opt/softplc/venv/bin/softplc", softplc, 1)
+            line = f"ExecReload={softplc} reload {reload_socket}"
         elif line.startswith("SupplementaryGroups="):
             line = "SupplementaryGroups=" + " ".join(groups)
         out.append(line)
     return "\n".join(out) + "\n"
+
+
+def opcua_unit_text(softplc: str, plant: str) -> str:
+    """The unit of systemd/softplc-opcua.service with ExecStart set."""
+    return "".join(f"ExecStart={softplc} opcua {plant}\n" if line.startswith("ExecStart=")
+                   else line + "\n" for line in _template("softplc-opcua.service").splitlines())
 
 
 def _rewrite_grafcet_paths(plant_path: str, names: dict[str, str]) -> str:
@@ -171,13 +183,26 @@ def plan(plant_path: str, softplc: str, etc: str = "/etc/softplc",
     plant_target = os.path.join(etc, "plant.yaml")
     p.files[plant_target] = Entry(CONFIG_FILE_MODE, Owner.CONFIG,
                                   _rewrite_grafcet_paths(plant_path, names).encode())
+    mine = runtime_dir()  # ${RUNTIME_DIR} here; /run/softplc under the service
+    sockets = [RUNTIME_DIR + c.address[len(mine):] if c.address.startswith(mine + "/")
+               else c.address for c in pdef.consoles if c.kind == "socket"]
+    served = [s for s in sockets if s.startswith(RUNTIME_DIR + "/")]
     p.files[os.path.join(unit_dir, "softplc.service")] = Entry(
-        UNIT_MODE, Owner.ROOT, unit_text(softplc, plant_target).encode())
+        UNIT_MODE, Owner.ROOT, unit_text(softplc, plant_target, reload_socket=(
+            served[0] if served else DEFAULT_RELOAD_SOCKET)).encode())
+    units = ["softplc.service"]
+    if pdef.opcua is not None:
+        p.files[os.path.join(unit_dir, "softplc-opcua.service")] = Entry(
+            UNIT_MODE, Owner.ROOT, opcua_unit_text(softplc, plant_target).encode())
+        units.append("softplc-opcua.service")
+    if not served:
+        p.warnings.append("monitor: no console socket under /run/softplc: `systemctl reload "
+                          "softplc` (online change) needs one; add monitor: socket: {path: "
+                          "'${RUNTIME_DIR}/console.sock'}")
     if pdef.retain_path and not pdef.retain_path.startswith(STATE_DIR + "/"):
         p.warnings.append(f"plc: retain: {pdef.retain_path} is outside {STATE_DIR}: the "
                           "service may not write there (ProtectSystem=strict); use "
                           f"{STATE_DIR}/retain.json")
-    mine = runtime_dir()  # ${RUNTIME_DIR} here; /run/softplc under the service
     for c in pdef.consoles:
         if c.kind == "socket" and not c.address.startswith((RUNTIME_DIR + "/", mine + "/")):
             p.warnings.append(f"monitor: socket: {c.address} is outside {RUNTIME_DIR}: "
@@ -191,8 +216,7 @@ def plan(plant_path: str, softplc: str, etc: str = "/etc/softplc",
     p.user_commands = _user_commands()
     p.commands.append(["systemctl", "daemon-reload"])
     if enable:
-        p.commands.append(["systemctl", "enable", *(["--now"] if start else []),
-                           "softplc.service"])
+        p.commands.append(["systemctl", "enable", *(["--now"] if start else []), *units])
     return p
 
 

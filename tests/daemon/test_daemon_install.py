@@ -116,3 +116,37 @@ def test_cli_refuses_a_broken_plant(tmp_path: Path) -> None:
     assert r.returncode == 2
     assert "plant.yaml:2:16: error: grafcet file not found" in r.stderr
     assert not (tmp_path / "r").exists()
+
+
+def test_exec_reload_talks_to_the_plants_own_console_socket() -> None:
+    p = plan(str(ROOT / "configs" / "drawer_tester" / "plant_sim.yaml"), SOFTPLC)
+    data = p.files["/etc/systemd/system/softplc.service"].data
+    assert data is not None
+    unit = data.decode()
+    # ${RUNTIME_DIR}/drawer.sock is /run/softplc/drawer.sock under the service
+    assert f"ExecReload={SOFTPLC} reload /run/softplc/drawer.sock" in unit.splitlines()
+    assert not any("systemctl reload" in w for w in p.warnings)
+    assert "/etc/systemd/system/softplc-opcua.service" not in p.files
+
+
+def test_a_plant_with_opcua_gets_the_opcua_unit_too(tmp_path: Path) -> None:
+    """And a plant with no console socket is told that `systemctl reload` needs one."""
+    from tests.opcua.kit import write_plant
+    plant = write_plant(tmp_path, port=4840)
+    p = plan(str(plant), SOFTPLC)
+    data = p.files["/etc/systemd/system/softplc-opcua.service"].data
+    assert data is not None
+    unit = data.decode()
+    assert f"ExecStart={SOFTPLC} opcua /etc/softplc/plant.yaml" in unit.splitlines()
+    assert ["systemctl", "enable", "softplc.service", "softplc-opcua.service"] in p.commands
+    assert any("systemctl reload" in w and "console.sock" in w for w in p.warnings)
+    data = p.files["/etc/systemd/system/softplc.service"].data
+    assert data is not None
+    main = data.decode()
+    assert f"ExecReload={SOFTPLC} reload /run/softplc/console.sock" in main.splitlines()
+    if shutil.which("systemd-analyze"):
+        staged = tmp_path / "softplc-opcua.service"
+        staged.write_text(unit, encoding="utf-8")
+        r = subprocess.run(["systemd-analyze", "verify", str(staged)], capture_output=True,
+                           text=True, timeout=60)
+        assert r.returncode == 0 and r.stderr.strip() == "", r.stderr
