@@ -13,9 +13,14 @@ from typing import Any
 from asyncua import Client, ua
 from asyncua.common.subscription import Subscription
 
+from drivers.base import DriverError
+from runtime.controller.daemon import Daemon
+from runtime.controller.feed import FeedServer
+from runtime.engine.plant import Plant
 from runtime.language.plantfile import load_plant
+from tests.daemon.daemonkit import RecordingDriver
 from tests.opcua.feedkit import ServerThread, controller, read_trace, wait_until
-from tests.opcua.kit import free_port, writer
+from tests.opcua.kit import free_port, write_plant, writer
 
 
 async def _until(pred: Any, timeout: float = 15.0, what: str = "") -> None:
@@ -362,3 +367,38 @@ def test_a_controller_fault_and_its_ack_are_events_of_the_controller(tmp_path: P
         ("controller fault: exception in scan: ZeroDivisionError: integer division or "
          "modulo by zero", 900, "Controller"),
         ("controller: fault acknowledged, now running", 300, "Controller")]
+
+
+def test_a_driver_fault_and_its_recovery_are_events_of_the_driver(tmp_path: Path) -> None:
+    """A real driver object that fails and comes back (the recording driver of the daemon
+    tests, on_fault: hold so the controller runs on): the driver object's events."""
+    pdef = load_plant(str(write_plant(tmp_path, port=free_port())))
+    assert pdef.opcua is not None
+    drv = RecordingDriver("io", {"on_fault": "hold"})
+    d = Daemon(pdef, plant=Plant(pdef, drivers={"io": drv}), manage_gc=False)
+    d.start()
+    feed = FeedServer(d, pdef.opcua)
+    feed.start()
+    handler = Collect()
+    try:
+        with ServerThread(d.pdef) as srv:
+            wait_until(lambda: srv.ps is not None and srv.ps.frames > 0,
+                       what="a first frame")
+
+            async def main() -> None:
+                async with Client(srv.url) as c:
+                    sub = await c.create_subscription(100, handler)
+                    await sub.subscribe_events(c.get_node("ns=2;s=driver.io"))
+                    drv.fail_with = DriverError("bus gone")
+                    await _until(lambda: bool(handler.events), what="the fault event")
+                    drv.fail_with = None
+                    await _until(lambda: len(handler.events) >= 2, what="the recovery")
+                    await sub.delete()
+            asyncio.run(main())
+    finally:
+        feed.stop()
+        d.stop("end of test")
+    texts = [(e.Message.Text, e.Severity, e.SourceName) for e in handler.events]
+    assert texts[0][1:] == (800, "io") and texts[0][0].startswith("driver io: fault: ")
+    assert "bus gone" in texts[0][0]
+    assert texts[1] == ("driver io: recovered (ok)", 300, "io")
