@@ -43,7 +43,7 @@ def _two(session: Session, args: list[str], usage: str) -> tuple[Signal, Any]:
 
 def cmd_set(session: Session, args: list[str]) -> Reply:
     name, value = _two(session, args, "set NAME VALUE")
-    plant = session.ctl.plant
+    plant = session.plant
     if name.binding.startswith("<-"):
         raise CommandError(f"{name.text} is copied from {name.binding[3:]} before every "
                            f"scan: set that point, or force {name.text}")
@@ -58,7 +58,7 @@ def cmd_set(session: Session, args: list[str]) -> Reply:
             raise CommandError(f"the controller is {state}: outputs are held off until "
                                "'ack'")
         plant.set(name.text, value)
-    session.ctl.call(write)
+    session.call(write)
     log.info("console %s: set %s = %s", session.name, name.text, name.show(value))
     return [f"{name.text} set to {name.show(value)}"]
 
@@ -68,14 +68,14 @@ def cmd_force(session: Session, args: list[str]) -> Reply:
     if name.role in ("step", "step time", "driver health") or name.type is A.Type.STRING:
         raise CommandError(f"{name.text} cannot be forced (a {name.role}); force "
                            "inputs, outputs and variables")
-    plant = session.ctl.plant
+    plant = session.plant
 
     def force() -> None:
         session.service.hold(f"force {name.text}", session)
         plant.force(name.text, value)
         if name.role not in ("point in", "point out"):
             plant.set(name.text, value)  # visible at once, even while paused
-    session.ctl.call(force)
+    session.call(force)
     log.warning("console %s: force %s = %s", session.name, name.text, name.show(value))
     return [f"{name.text} forced to {name.show(value)}"]
 
@@ -88,26 +88,26 @@ def cmd_unforce(session: Session, args: list[str]) -> Reply:
         return [f"released {', '.join(released)}" if released else "nothing was forced"
                 ], {"released": released}
     name = session.cat.resolve(args[0])
-    plant = session.ctl.plant
+    plant = session.plant
 
     def release() -> None:
         plant.unforce(name.text)
         session.service.let_go(f"force {name.text}")
-    session.ctl.call(release)
+    session.call(release)
     log.info("console %s: force %s released", session.name, name.text)
     return [f"{name.text} released"], {"released": [name.text]}
 
 
 def unforce_all(session: Session) -> list[str]:
     """Release every force (``unforce all``, ``lock``); the names released."""
-    plant = session.ctl.plant
+    plant = session.plant
 
     def release() -> list[str]:
         names = plant.forced_names()
         plant.unforce(None)
         session.service.let_go_forces()
         return names
-    released = session.ctl.call(release)
+    released = session.call(release)
     if released:
         log.warning("console %s: every force released (%s)", session.name,
                     ", ".join(released))
@@ -115,7 +115,7 @@ def unforce_all(session: Session) -> list[str]:
 
 
 def cmd_pause(session: Session, args: list[str]) -> Reply:
-    plant = session.ctl.plant
+    plant = session.plant
 
     def do() -> str:
         state = _state(session)
@@ -123,19 +123,19 @@ def cmd_pause(session: Session, args: list[str]) -> Reply:
             raise CommandError("iocheck on: the charts are stopped already")
         session.service.hold("pause", session)  # taken again: its time starts again
         return "already paused" if plant.pause() else "paused"
-    done = session.ctl.call(do)
+    done = session.call(do)
     log.info("console %s: pause: charts held%s", session.name,
              " (already paused)" if done == "already paused" else "")
     return [done + ": charts hold, I/O still scanned; 'cycle N' steps, 'resume' goes on"]
 
 
 def cmd_resume(session: Session, args: list[str]) -> Reply:
-    plant = session.ctl.plant
+    plant = session.plant
 
     def do() -> str:
         session.service.let_go("pause", "cycle")
         return "resumed" if plant.resume() else "not paused"
-    done = session.ctl.call(do)
+    done = session.call(do)
     if done == "resumed":
         log.info("console %s: resume: charts run", session.name)
     return [done]
@@ -151,7 +151,7 @@ def cmd_cycle(session: Session, args: list[str]) -> Reply:
                            "scans") from None
     if not 1 <= n <= MAX_CYCLE:
         raise CommandError(f"bad value {n}: cycle N runs 1 to {MAX_CYCLE} scans")
-    plant, cat = session.ctl.plant, session.cat
+    plant, cat = session.plant, session.cat
     images: list[Image] = []
     done = threading.Event()
 
@@ -170,10 +170,10 @@ def cmd_cycle(session: Session, args: list[str]) -> Reply:
         plant.step(n)
         session.ctl.add_listener(on_scan)
         return cat.capture(-1)
-    before = session.ctl.call(start)
+    before = session.call(start)
     try:
         if not done.wait(2.0 + 2 * n * plant.cycle_ns / 1e9):
-            session.ctl.call(lambda: plant.step(0))
+            session.call(lambda: plant.step(0))
             raise CommandError(f"the scans did not run (controller {_state(session)}); "
                                "stepping cancelled")
     finally:
@@ -231,7 +231,7 @@ def _changes(cat: Catalogue, changed: dict[str, Any], before: dict[str, Any],
 
 
 def _pulse(session: Session, args: list[str], flag: str) -> Reply:
-    plant = session.ctl.plant
+    plant = session.plant
     if len(args) != 1 or args[0] not in plant.instances:
         given = f"; no instance '{printable(args[0])}'" if args else ""
         raise CommandError(f"usage: {flag[3:].lower()} INSTANCE{given} (one of "
@@ -243,7 +243,7 @@ def _pulse(session: Session, args: list[str], flag: str) -> Reply:
             raise CommandError("iocheck on: the charts are stopped")
         plant.pulse(args[0], flag)
         return state
-    state = session.ctl.call(do)
+    state = session.call(do)
     log.info("console %s: %s %s: %s pulsed", session.name, flag[3:].lower(), args[0], flag)
     when = " at the next scan" if state != "paused" else " at the next scan ('cycle' " \
                                                           "or 'resume': paused now)"
@@ -261,7 +261,7 @@ def cmd_reset(session: Session, args: list[str]) -> Reply:
 def cmd_iocheck(session: Session, args: list[str]) -> Reply:
     if args not in (["on"], ["off"]):
         raise CommandError("usage: iocheck on|off")
-    plant, ctl = session.ctl.plant, session.ctl
+    plant, ctl = session.plant, session.ctl
     if args[0] == "on":
         def enter() -> list[str]:
             state = _state(session)
@@ -282,7 +282,7 @@ def cmd_iocheck(session: Session, args: list[str]) -> Reply:
             session.service.let_go("pause", "cycle")
             plant.set_iocheck(True)
             return released
-        released = session.ctl.call(enter)
+        released = session.call(enter)
         log.warning("console %s: iocheck on: charts stopped, every output off%s",
                     session.name, f"; released forces: {', '.join(released)}"
                     if released else "")
@@ -301,7 +301,7 @@ def cmd_iocheck(session: Session, args: list[str]) -> Reply:
         # the same boundary: no scan may run the charts between the two
         ctl.require_ack("iocheck ended: 'ack' restarts the charts from their initial "
                         "situation")
-    session.ctl.call(leave)
+    session.call(leave)
     log.warning("console %s: iocheck off: outputs off until ack", session.name)
     return ["iocheck off: every output off; 'ack' restarts the charts from their "
             "initial situation"]
@@ -313,7 +313,7 @@ def cmd_ack(session: Session, args: list[str]) -> Reply:
         done = session.ctl.ack()  # releases every force (Daemon._ack)
         session.service.let_go_forces()
         return done, str(status["state"]), status.get("fault")
-    done, state, reason = session.ctl.call(do)
+    done, state, reason = session.call(do)
     if reason:
         log.warning("console %s: ack (%s: %s): %s", session.name, state, reason, done)
     else:

@@ -66,7 +66,7 @@ def cmd_json(session: Session, args: list[str]) -> Reply:
 
 
 def cmd_status(session: Session, args: list[str]) -> Reply:
-    plant, cat = session.ctl.plant, session.cat
+    plant, cat = session.plant, session.cat
 
     def read() -> dict[str, Any]:
         forced = {k: cat.names[k].plain(v) if k in plant.forced else v
@@ -77,7 +77,7 @@ def cmd_status(session: Session, args: list[str]) -> Reply:
                 "errors": {n: i.get("SFCErrorStep") for n, i in plant.instances.items()
                            if i.get("SFCError")}}
     try:
-        data = session.ctl.call(read)
+        data = session.call(read)
     except TimeoutError:  # say what can be said without the scan thread
         data = {**session.ctl.status(), "steps": {}, "forced": {}, "errors": {},
                 "note": "the scan thread did not answer"}
@@ -125,14 +125,14 @@ def cmd_get(session: Session, args: list[str]) -> Reply:
     if not args:
         raise CommandError("usage: get NAME...")
     names = session.cat.expand(args)
-    plant, cat = session.ctl.plant, session.cat
+    plant, cat = session.plant, session.cat
 
     def read() -> tuple[dict[str, Any], dict[str, Any]]:
         img = cat.live()
         values = {n.text: n.read(img) for n in names}
         forced = {k: v for k, v in plant.forced_values().items() if k in values}
         return values, forced
-    values, forced = session.ctl.call(read)
+    values, forced = session.call(read)
     lines, shown = [], {}
     for n in names:
         v = values[n.text]
@@ -181,13 +181,13 @@ def cmd_trace(session: Session, args: list[str]) -> Reply:
 
 
 def cmd_why(session: Session, args: list[str]) -> Reply:
-    plant = session.ctl.plant
+    plant = session.plant
     if len(args) != 1 or args[0] not in plant.instances:
         given = f" '{printable(args[0])}'" if args else ""
         raise CommandError(f"usage: why INSTANCE; no instance{given} (one of "
                            f"{' '.join(plant.instances)})")
     name = args[0]
-    whys = session.ctl.call(lambda: plant.explain(name))
+    whys = session.call(lambda: plant.explain(name))
     lines, data = [], []
     for sw in whys:
         lines.append(f"{sw.step} active for {round_times(format_ns(sw.time_ns))}")

@@ -224,10 +224,10 @@ class ConsoleService:
         boundary: release its forces; if it held the pause, stepping or iocheck (or
         forces, unless release_forces_on_disconnect), end them and halt the controller,
         outputs off, until ``ack``. On the daemon's orderly stop, forces only."""
-        plant = self.controller.plant
         why = f"console {session.name} ended ({reason})"
 
         def react() -> tuple[list[str], bool]:
+            plant = self.controller.plant  # here: an online change may have replaced it
             held = self._take(session)
             forces = [w[len("force "):] for w in held if w.startswith("force ")]
             for name in forces:
@@ -325,10 +325,10 @@ class ConsoleService:
 
     def _expire(self, what: str, h: Hold) -> None:
         """A pause or a force reached its maximum time: end it at a scan boundary."""
-        plant = self.controller.plant
         lim = self.limits
 
         def end() -> str | None:
+            plant = self.controller.plant  # here: an online change may have replaced it
             with self.lock:
                 if self._holds.get(what) is not h:
                     return None  # released or taken again meanwhile

@@ -14,7 +14,8 @@ from __future__ import annotations
 import json
 import logging
 import os
-from typing import Any
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 from runtime.console.commands import COMMANDS
 from runtime.console.protocol import (
@@ -30,10 +31,12 @@ from runtime.console.service import ConsoleService
 from runtime.console.streams import Stream
 from runtime.engine.commands import CommandRefused
 from runtime.engine.names import Catalogue, CommandError, printable
-from runtime.engine.plant import BindingError
+from runtime.engine.plant import BindingError, Plant
 from runtime.errors import suggest
 
 log = logging.getLogger(__name__)
+
+R = TypeVar("R")
 
 
 class Session:
@@ -67,6 +70,23 @@ class Session:
         self.stream: Stream | None = None
         self._framer = LineFramer(name, service.clock)
         self._listening = False
+        #: the plant the running command acts on: read when the command starts, checked
+        #: again in the scan thread by ``call`` (an online change may replace it meanwhile)
+        self.plant: Plant = self.ctl.plant
+
+    def call(self, fn: Callable[[], R]) -> R:
+        """Run ``fn`` in the scan thread between two cycles, on the plant the command read
+        (``self.plant``): if an online change replaced it since the command started,
+        nothing runs and the command fails ("try again"), so that no force, pause or
+        iocheck lands on a plant that no longer runs."""
+        plant, ctl = self.plant, self.ctl
+
+        def guarded() -> R:
+            if ctl.plant is not plant:
+                raise CommandError("the program was reloaded meanwhile: nothing done; "
+                                   "try again")
+            return fn()
+        return ctl.call(guarded)
 
     @property
     def cat(self) -> Catalogue:
@@ -127,6 +147,7 @@ class Session:
                                          "not trusted")
             return self._reply_error("locked: 'unlock PIN' first")
         try:
+            self.plant = self.ctl.plant
             result = COMMANDS[cmd](self, args)
         except (CommandError, CommandRefused, BindingError) as exc:
             # a refusal with reasons (reload) lists them before its error line

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from runtime.controller.pin import hash_pin
 from tests.console.consolekit import CHART, Rig
@@ -70,3 +71,72 @@ def test_reload_over_the_pty_and_the_socket(rigs: Callable[..., Rig]) -> None:
     assert out[0].startswith("reload --back applied in "), out
     assert rig.daemon.pdef.instances["t1"].grafcet.path == str(CHART)
     assert rig.steps("t1") == ["gsParado"] and rig.state() == "running"
+
+
+def _swap_queued_then(tmp_path: Path, line: bytes, first: bytes | None = None
+                      ) -> tuple[list[str], Any, Any, Any]:
+    """A console command typed while a reload's swap waits for the scan (a 300 ms cycle
+    makes the window wide): (its reply, daemon, service, session)."""
+    import threading
+    import time
+
+    from runtime.console.service import ConsoleService
+    from runtime.controller.daemon import Daemon
+    from runtime.engine.plant import Plant
+    from runtime.language.plantfile import load_plant
+    from tests.daemon.daemonkit import RecordingDriver, plant_yaml, wait_until
+    from tests.daemon.test_reload import CYCLER
+
+    (tmp_path / "runner.yaml").write_text(CYCLER, encoding="utf-8")
+    (tmp_path / "plant.yaml").write_text(plant_yaml(cycle="300ms", watchdog="1s"),
+                                         encoding="utf-8")
+    pdef = load_plant(str(tmp_path / "plant.yaml"))
+    d = Daemon(pdef, plant=Plant(pdef, drivers={"io": RecordingDriver("io")}),
+               manage_gc=False)
+    d.start()
+    svc = ConsoleService(d, pin_hash=None)
+    s = svc.session("tcp:127.0.0.1:5000", trusted=True)
+    if first is not None:
+        assert s.handle(first)[-1] == "ok"
+    (tmp_path / "runner.yaml").write_text(CYCLER.replace("gsA.T >= 30ms", "gsA.T >= 40ms"),
+                                          encoding="utf-8")
+    done: list[Any] = []
+    t = threading.Thread(target=lambda: done.append(d.reload()))
+    t.start()
+    end = time.monotonic() + 30.0
+    while not d._calls and not done:  # the swap queued for the scan's idle time
+        assert time.monotonic() < end, "the swap was never queued"
+        time.sleep(0.0005)
+    reply = s.handle(line)
+    t.join()
+    assert done and done[0].applied, done
+    wait_until(lambda: d.plant is not None, 1.0, "the plant")
+    return reply, d, svc, s
+
+
+def test_a_command_racing_a_reload_is_refused_not_applied_to_the_old_plant(
+        tmp_path: Path) -> None:
+    """An 'unforce' that reached the scan after the swap acted on the replaced plant: the
+    console said 'released' while the running plant kept the output forced, owned by
+    nobody (a review of the online change found it). Now it is refused, nothing done."""
+    reply, d, svc, s = _swap_queued_then(tmp_path, b"unforce io.Q1", first=b"force io.Q1 1")
+    try:
+        # the swap was queued first: the command reaches the scan after it
+        assert "reloaded meanwhile" in reply[-1], reply
+        assert d.plant.is_forced("io.Q1") and "force io.Q1" in svc.holdings()
+        assert s.handle(b"unforce io.Q1")[-1] == "ok"  # again: on the running plant
+        assert not d.plant.is_forced("io.Q1") and "force io.Q1" not in svc.holdings()
+    finally:
+        s.close("end of test")
+        d.stop("end of test")
+
+
+def test_iocheck_racing_a_reload_never_leaves_the_charts_running_unsaid(
+        tmp_path: Path) -> None:
+    reply, d, svc, s = _swap_queued_then(tmp_path, b"iocheck on")
+    try:
+        assert "reloaded meanwhile" in reply[-1], reply
+        assert not d.plant.iocheck and "iocheck" not in svc.holdings()
+    finally:
+        s.close("end of test")
+        d.stop("end of test")
