@@ -112,19 +112,30 @@ def diff_plants(old: PlantDef, new: PlantDef) -> ChangeSet:
         add(f"plant: cycle {old.cycle_ns // 1_000_000} ms -> {new.cycle_ns // 1_000_000} ms")
         cs.refusals.append(Refusal("plant: the cycle time changed: restart the controller",
                                    False))
-    for what, a, b in (("watchdog", old.watchdog_ns, new.watchdog_ns),
-                       ("retain file", old.retain_path, new.retain_path),
-                       ("retain interval", old.retain_interval_ns, new.retain_interval_ns),
-                       ("retain_required", old.retain_required, new.retain_required),
-                       ("realtime priority", old.realtime_priority, new.realtime_priority),
-                       ("lock_memory", old.lock_memory, new.lock_memory),
-                       ("consoles", old.consoles, new.consoles),
-                       ("console PIN", old.pin_hash, new.pin_hash),
-                       ("release_forces_on_disconnect", old.release_forces_on_disconnect,
-                        new.release_forces_on_disconnect),
-                       ("console limits", old.console_limits, new.console_limits)):
+    # what the running controller set up at its start (its watchdog, retained data file,
+    # real-time scheduling, the consoles it listens on): refused, never forceable, so that
+    # ``softplc diff`` and ``reload`` say the same
+    for what, a, b in (("plc: watchdog", old.watchdog_ns, new.watchdog_ns),
+                       ("plc: retain", old.retain_path, new.retain_path),
+                       ("plc: retain_required", old.retain_required, new.retain_required),
+                       ("plc: realtime", (old.realtime_priority, old.lock_memory),
+                        (new.realtime_priority, new.lock_memory)),
+                       ("monitor: consoles", old.consoles, new.consoles)):
         if a != b:
             add(f"plant: {what} changed")
+            cs.refusals.append(Refusal(f"{what} changed: it takes effect only at a restart "
+                                       "of the controller", False))
+    # what the new plant brings with it (the retain interval is read at each save; the
+    # console's PIN, limits and forces policy are applied at the swap, console/service.py)
+    brought: tuple[tuple[str, object, object], ...] = (
+        ("retain interval", old.retain_interval_ns, new.retain_interval_ns),
+        ("console PIN", old.pin_hash, new.pin_hash),
+        ("release_forces_on_disconnect", old.release_forces_on_disconnect,
+         new.release_forces_on_disconnect),
+        ("console limits", old.console_limits, new.console_limits))
+    for setting, was, now in brought:
+        if was != now:
+            add(f"plant: {setting} changed")
     _drivers(cs)
     for name, idef in new.instances.items():
         if name not in old.instances:

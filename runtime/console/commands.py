@@ -218,7 +218,7 @@ def cmd_unlock(session: Session, args: list[str]) -> Reply:
     if len(args) != 1:
         raise CommandError("usage: unlock PIN")
     svc.try_pin(args[0], session.name, session.peer)
-    session.unlocked = True
+    session.unlocked, session.unlocked_with = True, svc.pin_generation
     log.info("console %s unlocked", session.name)
     return ["unlocked"]
 

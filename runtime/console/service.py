@@ -104,6 +104,9 @@ class ConsoleService:
         self.controller = controller
         self.catalogue = Catalogue(controller.plant)
         self.pin_hash = pin_hash
+        #: counts the PIN changes (an online change of ``pin_hash``): a session unlocked
+        #: with an older PIN is locked again
+        self.pin_generation = 0
         #: a session that held only forces: release them without halting (plant key)
         self.release_on_disconnect = release_forces_on_disconnect
         self.limits = limits if limits is not None else controller.plant.pdef.console_limits
@@ -122,12 +125,20 @@ class ConsoleService:
 
     def _reloaded(self, plant: Plant) -> Callable[[], None]:
         """Reload worker thread: the new plant's names, built now; the returned function
-        (scan thread, at the swap) makes them the sessions' names and lets go of the
-        forces the change released. A running watch or trace then ends ("reloaded")."""
+        (scan thread, at the swap) makes them the sessions' names, takes the new plant
+        file's PIN, limits and forces policy (a new PIN locks the sessions unlocked with
+        the old one), and lets go of the forces the change released. A running watch or
+        trace then ends ("reloaded")."""
         catalogue = Catalogue(plant)
+        pdef = plant.pdef
 
         def commit() -> None:
             self.catalogue = catalogue
+            if pdef.pin_hash != self.pin_hash:
+                self.pin_hash = pdef.pin_hash
+                self.pin_generation += 1
+            self.release_on_disconnect = pdef.release_forces_on_disconnect
+            self.limits = pdef.console_limits
             forced = set(plant.forced_names())
             with self.lock:
                 for w in [w for w in self._holds if w.startswith("force ")

@@ -60,6 +60,8 @@ class Session:
         #: a trusted console may change the plant without a PIN
         self.trusted = trusted
         self.unlocked = False
+        #: the service's ``pin_generation`` when the session was unlocked
+        self.unlocked_with = 0
         #: service clock seconds of the last byte fed (the idle time counts from it)
         self.last_input = service.clock()
         #: set by ``close``: the session takes nothing more, and why it ended
@@ -170,7 +172,8 @@ class Session:
 
     def may_change(self) -> bool:
         """May this session run the changing commands (marked * in help)?"""
-        return self.trusted or self.unlocked
+        return self.trusted or (self.unlocked
+                                and self.unlocked_with == self.service.pin_generation)
 
     # -- replies ---------------------------------------------------------------------
     def _reply_ok(self, lines: list[str], data: dict[str, Any]) -> list[str]:

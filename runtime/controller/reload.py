@@ -193,16 +193,10 @@ class Reloader:
 
     def _static_refusals(self, old: PlantDef, new: PlantDef,
                          restart: tuple[str, ...]) -> list[str]:
-        """What the daemon itself cannot change while it runs (the plant's own settings),
-        and ``--restart`` names that are no instance."""
-        out = []
-        for what, a, b in (("plc: watchdog", old.watchdog_ns, new.watchdog_ns),
-                           ("plc: retain", old.retain_path, new.retain_path),
-                           ("plc: realtime", (old.realtime_priority, old.lock_memory),
-                            (new.realtime_priority, new.lock_memory))):
-            if a != b:
-                out.append(f"{what} changed: it takes effect only at a restart of the "
-                           "controller")
+        """``--restart`` names that are no instance, and iocheck on. (The plant settings a
+        running controller cannot change are refused by ``runtime.change``'s diff, so
+        that ``softplc diff`` says the same.)"""
+        out: list[str] = []
         out += [f"--restart {name}: no instance {name} in the new plant"
                 for name in restart if name not in new.instances]
         if self.daemon.plant.iocheck:

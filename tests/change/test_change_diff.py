@@ -203,7 +203,9 @@ def test_renamed_from_must_be_a_name(tmp_path):
 def test_plant_settings(tmp_path):
     base = plant_text()
     got, refused = plants(tmp_path, base, base.replace("watchdog: 200ms", "watchdog: 300ms"))
-    assert (got, refused) == (["plant: watchdog changed"], [])
+    # what the controller set up at its start: refused, as `reload` refuses it
+    assert (got, refused) == (["plant: plc: watchdog changed"], [
+        "plc: watchdog changed: it takes effect only at a restart of the controller"])
     got, refused = plants(tmp_path, base, base.replace("cycle: 20ms", "cycle: 10ms"))
     assert got == ["plant: cycle 20 ms -> 10 ms"]
     assert refused == ["plant: the cycle time changed: restart the controller"]

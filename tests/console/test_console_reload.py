@@ -140,3 +140,57 @@ def test_iocheck_racing_a_reload_never_leaves_the_charts_running_unsaid(
     finally:
         s.close("end of test")
         d.stop("end of test")
+
+
+def test_a_new_pin_takes_effect_at_the_reload_and_locks_the_old_sessions(
+        tmp_path: Path) -> None:
+    """Rotating a leaked PIN by editing the plant file and reloading: the new PIN unlocks,
+    the old one no longer does, and a session unlocked with the old one is locked again
+    (before, the reload said 'console PIN changed' and the old PIN went on working)."""
+    from runtime.console.service import ConsoleService
+    from runtime.controller.daemon import Daemon
+    from runtime.engine.plant import Plant
+    from runtime.language.plantfile import load_plant
+    from tests.daemon.daemonkit import RecordingDriver, plant_yaml
+    from tests.daemon.test_reload import CYCLER
+
+    old, new = hash_pin("1111", n=16, r=1, p=1), hash_pin("2222", n=16, r=1, p=1)
+    (tmp_path / "runner.yaml").write_text(CYCLER, encoding="utf-8")
+    plant = tmp_path / "plant.yaml"
+    plant.write_text(plant_yaml(extra=f"monitor:\n  pin_hash: '{old}'\n"), encoding="utf-8")
+    pdef = load_plant(str(plant))
+    d = Daemon(pdef, plant=Plant(pdef, drivers={"io": RecordingDriver("io")}),
+               manage_gc=False)
+    d.start()
+    svc = ConsoleService(d, pin_hash=pdef.pin_hash)
+    before, other = svc.session("tcp:a"), svc.session("tcp:b", peer="tcp:b")
+    try:
+        assert before.handle(b"unlock 1111")[-1] == "ok"
+        plant.write_text(plant_yaml(extra=f"monitor:\n  pin_hash: '{new}'\n"),
+                         encoding="utf-8")
+        assert before.handle(b"reload")[-1] == "ok"
+        assert before.handle(b"set m.sMaint 1")[-1] == "error locked: 'unlock PIN' first"
+        assert other.handle(b"unlock 1111")[-1].startswith("error wrong PIN")
+        assert other.handle(b"unlock 2222")[-1] == "ok"
+        assert other.handle(b"set m.sMaint 1")[-1] == "ok"
+    finally:
+        before.close("end of test")
+        other.close("end of test")
+        d.stop("end of test")
+
+
+def test_diff_refuses_what_reload_refuses(tmp_path: Path,
+                                          capsys: Any) -> None:
+    """`softplc diff` and `reload` say the same of a plant setting the running controller
+    set up at its start (before, diff said 'can be applied online' and reload refused)."""
+    from runtime.cli import main
+    from tests.daemon.daemonkit import plant_yaml
+    from tests.daemon.test_reload import CYCLER
+
+    (tmp_path / "runner.yaml").write_text(CYCLER, encoding="utf-8")
+    (tmp_path / "a.yaml").write_text(plant_yaml(), encoding="utf-8")
+    (tmp_path / "b.yaml").write_text(plant_yaml(watchdog="200ms"), encoding="utf-8")
+    assert main(["diff", str(tmp_path / "a.yaml"), str(tmp_path / "b.yaml")]) == 1
+    out = capsys.readouterr().out
+    assert "cannot be applied online" in out
+    assert "plc: watchdog changed: it takes effect only at a restart" in out
