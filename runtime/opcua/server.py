@@ -77,8 +77,12 @@ class PlantServer:
         self.server = Server()
         self.space = Space()
         self.state = FeedState()
-        #: may this session's user write? (runtime/opcua/security.py sets it)
-        self.may_write: Callable[[User], bool] = lambda user: True
+        #: may this session's user write? Only a writer (UserRole.User: a user with its
+        #: password, or a trusted client certificate, runtime/opcua/security.py), checked
+        #: here whatever the channel: asyncua skips its own permission rules on a channel
+        #: a client never opened (HEL, then CreateSession), where any anonymous session
+        #: could otherwise write
+        self.may_write: Callable[[User], bool] = lambda user: user.role is UserRole.User
         self.connected = asyncio.Event()
         #: frames applied (tests wait on it)
         self.frames = 0
@@ -172,7 +176,7 @@ class PlantServer:
         if i is None or self.space.names[i] not in self.opc.writable:
             return ua.StatusCode(Status.BadNotWritable)
         name = self.space.names[i]
-        if user.role is not UserRole.Admin and not self.may_write(user):
+        if not self.may_write(user):
             return ua.StatusCode(Status.BadUserAccessDenied)
         try:
             value = from_ua(self.space.types[i], wv.Value.Value)

@@ -402,3 +402,32 @@ def test_a_driver_fault_and_its_recovery_are_events_of_the_driver(tmp_path: Path
     assert texts[0][1:] == (800, "io") and texts[0][0].startswith("driver io: fault: ")
     assert "bus gone" in texts[0][0]
     assert texts[1] == ("driver io: recovered (ok)", 300, "io")
+
+
+def test_an_anonymous_write_is_refused_even_on_a_channel_never_opened(tmp_path: Path
+                                                                       ) -> None:
+    """asyncua keeps its permission rules with the secure channel: a client that skips
+    OpenSecureChannel (HEL, then CreateSession) had none, and its anonymous write reached
+    the controller (a review found it). The server checks the writer itself."""
+    ctl, port = started(tmp_path)
+    with ctl as (d, feed, trace), ServerThread(d.pdef) as srv:
+        wait_until(lambda: srv.ps is not None and srv.ps.frames > 0, what="a first frame")
+
+        async def attempt(skip_open: bool) -> str:
+            c = Client(srv.url, timeout=20)
+            if skip_open:
+                async def no_open(renew: bool = False) -> None:
+                    return None
+                c.open_secure_channel = no_open  # type: ignore[method-assign]
+            await c.connect()
+            try:
+                await c.get_node("ns=2;s=t1.sStop").write_value(
+                    ua.DataValue(ua.Variant(True, ua.VariantType.Boolean)))
+                return "written"
+            except ua.UaStatusCodeError as exc:
+                return type(exc).__name__
+            finally:
+                await c.disconnect()
+        assert asyncio.run(attempt(False)) == "BadUserAccessDenied"
+        assert asyncio.run(attempt(True)) == "BadUserAccessDenied"
+        assert d.plant.instances["t1"].get("sStop") is False
