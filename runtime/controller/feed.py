@@ -185,6 +185,12 @@ class FeedServer:
                         self._flush()
         except Exception:  # noqa: BLE001 - the feed dies, never the controller
             log.exception("feed thread failed: OPC UA clients see no more values")
+            # said to the clients too: their connection ends, so that a server shows its
+            # values as BadNoCommunication instead of the last ones as good
+            for c in list(self._clients):
+                self._drop(c, "the feed failed")
+            if self._sock is not None:
+                self._sock.close()
 
     def _reload(self) -> None:
         self._replaced = False
@@ -252,7 +258,12 @@ class FeedServer:
         while b"\n" in c.inbuf:
             line, _, rest = bytes(c.inbuf).partition(b"\n")
             c.inbuf = bytearray(rest)
-            self._request(c, line)
+            try:
+                self._request(c, line)
+            except Exception as exc:  # noqa: BLE001 - one client's line never ends the feed
+                log.warning("feed: a request of %s failed (%s: %s): client dropped", c.peer,
+                            type(exc).__name__, exc)
+                self._drop(c, "a request that failed")
             if c not in self._clients:
                 return
         if len(c.inbuf) > IN_MAX:
@@ -262,7 +273,7 @@ class FeedServer:
         try:
             msg = json.loads(line)
             ident, name, value = msg["set"]
-        except (ValueError, KeyError, TypeError):
+        except (ValueError, KeyError, TypeError, RecursionError):
             self._drop(c, "a malformed request")
             return
         ok, text = self.apply_set(str(name), value)
@@ -280,11 +291,12 @@ class FeedServer:
             if sig.type is A.Type.BOOL and isinstance(value, float):
                 raise ValueError(f"expected a bool, found {value!r}")
             v = coerce(sig.type, value)
-        except (ValueError, TypeError) as exc:
+        except (ValueError, TypeError, OverflowError) as exc:
             return False, f"bad value for {name}: {exc}"
-        plant = self.daemon.plant
+        daemon = self.daemon
         try:
-            self.daemon.call(lambda: plant.set(name, v), timeout=SET_TIMEOUT_S)
+            # the running plant, read in the scan thread: an online change may replace it
+            daemon.call(lambda: daemon.plant.set(name, v), timeout=SET_TIMEOUT_S)
         except TimeoutError:
             return False, "the scan did not answer in time"
         except Exception as exc:  # noqa: BLE001 - the client gets the reason

@@ -171,3 +171,25 @@ def test_a_plant_object_swapped_under_the_feed_is_noticed(tmp_path: Path) -> Non
         wait_until(lambda: len(r.frames) >= n + 3)
         assert not r.closed.is_set()
         r.close()
+
+
+@pytest.mark.parametrize("line", [b"[" * 20000 + b"\n",  # RecursionError in the decoder
+                                  b'{"set": [1, "t1.sRate", 1e999]}\n',  # inf: a real
+                                  b'{"set": [1, "t1.sRate", "x"]}\n'])
+def test_a_hostile_line_costs_its_client_only(tmp_path: Path, line: bytes) -> None:
+    """A local process with the controller's uid sends a line the decoder chokes on:
+    before, a deeply nested one killed the feed thread for good (the other clients kept a
+    silent connection, a server showed its last values as good)."""
+    with controller(tmp_path, trace=False) as (d, feed, _):
+        good = FeedReader(feed.path)
+        wait_until(lambda: len(good.frames) >= 1)
+        bad = FeedReader(feed.path)
+        wait_until(lambda: len(bad.frames) >= 1)
+        bad.sock.sendall(line)
+        n = len(good.frames)
+        wait_until(lambda: len(good.frames) >= n + 3, what="frames after the hostile line")
+        assert not good.closed.is_set()
+        again = FeedReader(feed.path)
+        wait_until(lambda: len(again.frames) >= 1, what="a new client served")
+        for r in (good, bad, again):
+            r.close()
