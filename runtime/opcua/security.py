@@ -40,8 +40,10 @@ with a password still does).
 
 A password check costs one scrypt hash (about 0.2 s: ``runtime/controller/pin.py``) and
 asyncua calls the user manager synchronously in its event loop: after a failed check,
-checks are refused without hashing for :data:`FAIL_HOLD_S`, so a client guessing passwords
-stalls the server's publishing at most that share of the time; a successful check is
+checks of that user are refused without hashing for :data:`FAIL_HOLD_S` (other users are
+checked as usual), so a client guessing one user's password stalls the server's
+publishing at most that share of the time (one hash per user and per second when it
+guesses at every user name of the plant); a successful check is
 remembered (as an HMAC under a key drawn at start, never the password) so a client that
 reconnects does not pay it again.
 """
@@ -185,7 +187,9 @@ class Users(UserManager):  # type: ignore[misc]  # asyncua is Any to mypy
         self._clock = clock
         self._key = os.urandom(32)
         self._known: set[bytes] = set()
-        self._hold_until = 0.0
+        #: user -> clock seconds until which its password is not checked (a wrong one
+        #: holds that user only: guessing one user's password never locks out another)
+        self._hold_until: dict[str, float] = {}
 
     def get_user(self, iserver: Any, username: str | None = None,
                  password: str | None = None, certificate: Any = None) -> User | None:
@@ -223,13 +227,12 @@ class Users(UserManager):  # type: ignore[misc]  # asyncua is Any to mypy
                        hashlib.sha256).digest()
         if tag in self._known:
             return True
-        now = self._clock()
-        if now < self._hold_until:
+        if self._clock() < self._hold_until.get(username, 0.0):
             return False
         if check_pin(password, stored):
             self._known.add(tag)
             return True
-        self._hold_until = self._clock() + FAIL_HOLD_S
+        self._hold_until[username] = self._clock() + FAIL_HOLD_S
         return False
 
 

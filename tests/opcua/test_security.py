@@ -22,7 +22,8 @@ from runtime.opcua import security
 from tests.opcua.seckit import Certs, ServerThread, make_certs, read, session, write
 
 #: cheap hashes: the cost is not what is tested here (tests/console/test_console_pin.py)
-USERS = {"operator": hash_pin("right-pass", n=16, r=1, p=1)}
+USERS = {"operator": hash_pin("right-pass", n=16, r=1, p=1),
+         "second": hash_pin("second-pass", n=16, r=1, p=1)}
 #: what a refused session raises in the client, whichever step refused it
 REFUSED = (uaerrors.BadUserAccessDenied, uaerrors.BadCertificateUntrusted,
            uaerrors.BadIdentityTokenRejected, uaerrors.BadSecurityPolicyRejected)
@@ -253,6 +254,10 @@ def test_failed_checks_hold_further_checks_without_hashing(certs: Certs) -> None
         assert users.get_user(None, "operator", "guess1") is None
         assert users.get_user(None, "operator", "right-pass") is None  # held: not hashed
         assert calls == ["guess1"]
+        # another user is not held by the guesses at "operator"
+        assert users.get_user(None, "second", "second-pass") is not None
+        assert calls == ["guess1", "second-pass"]
+        del calls[1:]
         now[0] += security.FAIL_HOLD_S
         assert users.get_user(None, "operator", "right-pass") is not None
         assert users.get_user(None, "operator", "right-pass") is not None  # remembered
