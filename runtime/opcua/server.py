@@ -41,7 +41,6 @@ from runtime.opcua.space import (
     Space,
     build_fixed,
     build_names,
-    clear_names,
     from_ua,
     nid,
     to_ua,
@@ -89,7 +88,7 @@ class PlantServer:
         self._writer: asyncio.StreamWriter | None = None
         self._pending: dict[int, asyncio.Future[tuple[bool, str]]] = {}
         self._ids = itertools.count(1)
-        self._names_built: list[str] | None = None
+        self._names_built: list[tuple[str, ...]] | None = None
         self._events: dict[str, Any] = {}
         self._prev: dict[str, Any] = {}
         self._stop = asyncio.Event()
@@ -266,11 +265,10 @@ class PlantServer:
                     fut.set_result((ok, text))
 
     async def _schema(self, schema: dict[str, Any]) -> None:
-        names = [n[0] for n in schema["names"]]
-        if names != self._names_built:
-            if self._names_built is not None:
-                await clear_names(self.server, self.space)
-            await build_names(schema, self.space, lambda n: n in self.opc.writable)
+        names = [tuple(n) for n in schema["names"]]
+        if names != self._names_built:  # names, types and roles: an online change
+            await build_names(schema, self.space, lambda n: n in self.opc.writable,
+                              self.server)
             self._names_built = names
             log.info("address space: %d plant names", len(names))
         self.connected.set()

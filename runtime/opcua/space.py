@@ -101,8 +101,11 @@ class Space:
     instances: dict[str, Node] = field(default_factory=dict)
     drivers: dict[str, Node] = field(default_factory=dict)
     controller: Node | None = None
-    #: nodes created for the schema (removed when it changes)
-    created: list[Node] = field(default_factory=list)
+    #: the plant-name variables created, name -> (type, role), and the folders and step
+    #: objects holding them: an online change adds and removes only what changed
+    built: dict[str, tuple[str, str]] = field(default_factory=dict)
+    folders: dict[str, Node] = field(default_factory=dict)
+    steps: dict[str, Node] = field(default_factory=dict)
 
 
 async def _var(parent: Node, text: str, leaf: str, ptype: str, space: Space,
@@ -144,67 +147,78 @@ async def build_fixed(server: Server, pdef: PlantDef, space: Space) -> None:
 
 
 async def build_names(schema: dict[str, Any], space: Space,
-                      writable: Callable[[str], bool]) -> None:
-    """The plant names of the feed's schema under their instance or driver objects."""
-    folders: dict[str, Node] = {}
-    steps: dict[str, Node] = {}
-    space.names, space.types, space.nodes, space.by_node = [], [], [], {}
-    for text, ptype, role in schema["names"]:
-        head, _, rest = text.partition(".")
-        space.names.append(text)
-        space.types.append(ptype)
-        node_id = nid(text)
-        space.nodes.append(node_id)
-        space.by_node[node_id] = len(space.nodes) - 1
-        if head in space.drivers and role in ("point in", "point out", "driver health"):
-            parent = space.drivers[head]
-            if role != "driver health":
-                key = f"driver.{head}/{'Inputs' if role == 'point in' else 'Outputs'}"
-                parent = await _folder(space.drivers[head], key, key.rsplit("/", 1)[1],
-                                       folders, space)
-            await _var(parent, text, rest, ptype, space)
-            continue
-        inst = space.instances.get(head)
-        if inst is None:
-            continue  # not in this plant file (a newer schema): left out
-        if role in ("step", "step time"):
-            step, leaf = rest.rsplit(".", 1)
-            fold = await _folder(inst, f"{head}/Steps", "Steps", folders, space)
-            obj = steps.get(f"{head}.{step}")
-            if obj is None:
-                obj = await fold.add_object(nid(f"{head}.{step}"), qname(step))
-                steps[f"{head}.{step}"] = obj
-            await _var(obj, text, leaf, ptype, space,
-                       "step active" if leaf == "X" else "time the step has been active, ms")
-            continue
-        fname = FOLDERS.get(role, "Memory")
-        fold = await _folder(inst, f"{head}/{fname}", fname, folders, space)
-        node = await _var(fold, text, rest, ptype, space)
-        if writable(text):
-            await node.set_writable(True)
+                      writable: Callable[[str], bool], server: Server | None = None) -> None:
+    """The plant names of the feed's schema under their instance or driver objects, in
+    feed order. Called again with a new schema (an online change): the variables of names
+    gone, or whose type or role changed, get the status BadNodeIdUnknown (what a
+    subscription to them shows last) and are deleted; new ones are added; every other
+    node stays as it is, with its subscriptions."""
+    entries = [(str(t), str(p), str(r)) for t, p, r in schema["names"]]
+    want = {t: (p, r) for t, p, r in entries}
+    gone = [t for t, pr in space.built.items() if want.get(t) != pr]
+    if gone and server is not None:
+        await _remove(server, space, gone)
+    space.names = [t for t, _, _ in entries]
+    space.types = [p for _, p, _ in entries]
+    space.nodes = [nid(t) for t in space.names]
+    space.by_node = {node_id: i for i, node_id in enumerate(space.nodes)}
+    for text, ptype, role in entries:
+        if text not in space.built and await _add(space, text, ptype, role, writable):
+            space.built[text] = (ptype, role)
 
 
-async def _folder(parent: Node, key: str, name: str, folders: dict[str, Node],
-                  space: Space) -> Node:
-    f = folders.get(key)
+async def _add(space: Space, text: str, ptype: str, role: str,
+               writable: Callable[[str], bool]) -> bool:
+    """The variable of one plant name; False if its instance is not in this plant file."""
+    head, _, rest = text.partition(".")
+    if head in space.drivers and role in ("point in", "point out", "driver health"):
+        parent = space.drivers[head]
+        if role != "driver health":
+            key = f"driver.{head}/{'Inputs' if role == 'point in' else 'Outputs'}"
+            parent = await _folder(space.drivers[head], key, key.rsplit("/", 1)[1], space)
+        await _var(parent, text, rest, ptype, space)
+        return True
+    inst = space.instances.get(head)
+    if inst is None:
+        return False  # not in this plant file (a newer schema): left out
+    if role in ("step", "step time"):
+        step, leaf = rest.rsplit(".", 1)
+        fold = await _folder(inst, f"{head}/Steps", "Steps", space)
+        obj = space.steps.get(f"{head}.{step}")
+        if obj is None:
+            obj = await fold.add_object(nid(f"{head}.{step}"), qname(step))
+            space.steps[f"{head}.{step}"] = obj
+        await _var(obj, text, leaf, ptype, space,
+                   "step active" if leaf == "X" else "time the step has been active, ms")
+        return True
+    fname = FOLDERS.get(role, "Memory")
+    fold = await _folder(inst, f"{head}/{fname}", fname, space)
+    node = await _var(fold, text, rest, ptype, space)
+    if writable(text):
+        await node.set_writable(True)
+    return True
+
+
+async def _remove(server: Server, space: Space, names: list[str]) -> None:
+    """Delete the variables of ``names`` (and a step's object once neither its X nor its
+    T is left), after a last BadNodeIdUnknown for their subscribers."""
+    gone = ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadNodeIdUnknown))
+    for text in names:
+        node = server.get_node(nid(text))
+        await node.write_attribute(ua.AttributeIds.Value, gone)
+    await server.delete_nodes([server.get_node(nid(t)) for t in names], recursive=True)
+    for text in names:
+        space.all_vars.pop(nid(text), None)
+        del space.built[text]
+    left = {t.rsplit(".", 1)[0] for t, (_, role) in space.built.items()
+            if role in ("step", "step time")}
+    for key in [k for k in space.steps if k not in left]:
+        await server.delete_nodes([space.steps.pop(key)], recursive=True)
+
+
+async def _folder(parent: Node, key: str, name: str, space: Space) -> Node:
+    f = space.folders.get(key)
     if f is None:
         f = await parent.add_folder(nid(key), qname(name))
-        folders[key] = f
-        space.created.append(f)
+        space.folders[key] = f
     return f
-
-
-async def clear_names(server: Server, space: Space) -> None:
-    """Remove what ``build_names`` made (the schema changed)."""
-    if space.created:
-        await server.delete_nodes(space.created, recursive=True)
-    for node_id in space.nodes:
-        space.all_vars.pop(node_id, None)
-    space.created = []
-    for dname, obj in space.drivers.items():
-        for child in await obj.get_children():
-            if child.nodeid.Identifier not in (f"driver.{dname}.health",
-                                               f"driver.{dname}.fault") and (
-                    child.nodeid in space.by_node):
-                await server.delete_nodes([child], recursive=True)
-    space.names, space.types, space.nodes, space.by_node = [], [], [], {}

@@ -431,3 +431,50 @@ def test_an_anonymous_write_is_refused_even_on_a_channel_never_opened(tmp_path: 
         assert asyncio.run(attempt(False)) == "BadUserAccessDenied"
         assert asyncio.run(attempt(True)) == "BadUserAccessDenied"
         assert d.plant.instances["t1"].get("sStop") is False
+
+
+def test_an_online_change_keeps_the_unchanged_nodes_and_their_subscriptions(
+        tmp_path: Path) -> None:
+    """A reload that adds a variable and changes another's type: the subscription to an
+    unchanged variable goes on (before, every node was deleted and made again, and such a
+    subscription froze at its last good value); the changed one's subscribers see
+    BadNodeIdUnknown, then the node is there again with its new type."""
+    ctl, port = started(tmp_path, trace=False)
+    with ctl as (d, feed, _), ServerThread(d.pdef) as srv:
+        wait_until(lambda: srv.ps is not None and srv.ps.frames > 0, what="a first frame")
+        handler = Collect()
+
+        async def main() -> tuple[Any, Any]:
+            async with Client(srv.url) as c:
+                sub = await c.create_subscription(100, handler)
+                await sub.subscribe_data_change([c.get_node("ns=2;s=t1.sN"),
+                                                 c.get_node("ns=2;s=t1.sRate")])
+                await _until(lambda: _count(handler, "t1.sN") >= 2, what="sN before")
+                chart = tmp_path / "blink.yaml"
+                chart.write_text(chart.read_text(encoding="utf-8").replace(
+                    "  sQ: 0\n", "  sQ: 0\n  sExtra: 7\n").replace("sRate: 1.5", "sRate: 2"),
+                    encoding="utf-8")
+                result = await asyncio.to_thread(d.reload)
+                assert result.applied, result.refusals
+                n = _count(handler, "t1.sN")
+                await _until(lambda: _count(handler, "t1.sN") >= n + 3, what="sN after")
+                await _until(lambda: _node_has(c, "t1.sExtra"), what="the new node")
+                extra = await c.get_node("ns=2;s=t1.sExtra").read_value()
+                rate = await c.get_node("ns=2;s=t1.sRate").read_data_value()
+                await sub.delete()
+                return extra, rate
+        extra, rate = asyncio.run(main())
+    assert extra == 7
+    assert rate.Value.Value == 2 and rate.Value.VariantType == ua.VariantType.Int64
+    assert all(v.StatusCode.is_good() for n, v in handler.items if n == "t1.sN")
+    last_rate = [v for n, v in handler.items if n == "t1.sRate"][-1]
+    assert last_rate.StatusCode.name == "BadNodeIdUnknown"
+
+
+def _count(h: Collect, name: str) -> int:
+    return sum(1 for n, _ in h.items if n == name)
+
+
+async def _node_has(c: Client, name: str) -> bool:
+    dv = await c.get_node(f"ns=2;s={name}").read_data_value(raise_on_bad_status=False)
+    return bool(dv.StatusCode.is_good())
