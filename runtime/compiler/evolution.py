@@ -250,11 +250,15 @@ class Evolution:
         them all: per set of source steps, its activity and min times, then the conditions
         of its transitions in file order (a transition that loses to an earlier one on a
         shared step means that one fires). None where a condition calls a block method
-        (not to be called twice when a transition fires)."""
+        (not to be called twice when a transition fires) or divides (it could then raise
+        where the evaluation by priority never evaluates it: a lower-priority transition
+        on a shared step whose condition divides by zero)."""
         g = self.g
         groups: dict[tuple[str, ...], list[str]] = {}
         for t in g.transitions:
-            if any(isinstance(n, A.MethodCall) for n in A.walk(t.cond)):
+            if any(isinstance(n, A.MethodCall)
+                   or (isinstance(n, A.Binary) and n.op in ("DIV", "MOD"))
+                   for n in A.walk(t.cond)):
                 return None
             guard = [ident("x", s) for s in t.src_steps]
             guard += [f"(ct - {ident('t0', st.name)}) >= {st.min_ns}" for st in min_timed(g, t)]

@@ -227,14 +227,23 @@ class Plant:
             g, prog = inst.grafcet, inst.program
             add(f"    # instance {name} ({g.name})")
             args = []
+            bound_in: dict[str, str] = {}  # a declared input with a binding -> its value
             for sig in prog.inputs:
                 b = idef.inputs.get(sig)
                 args.append(self._cell(name, prog.var_index(sig)) if b is None
                             else self._input_expr(b, g.variables[sig].type, live=True))
+                if b is not None:
+                    bound_in[sig] = args[-1]
             for sig, b in idef.inputs.items():  # bound, not a declared input
                 if sig not in prog.inputs:
-                    add(f"    {self._cell(name, prog.var_index(sig))} = _v = "
-                        f"{self._input_expr(b, g.variables[sig].type, live=True)}")
+                    if b.instance == name and (b.ref or "") in bound_in:
+                        # its own bound input: this cycle's value, as the slow cycle sees
+                        # it (there the declared inputs are written first)
+                        val = bound_in[b.ref or ""]
+                        val = f"(not {val})" if b.invert else val
+                    else:
+                        val = self._input_expr(b, g.variables[sig].type, live=True)
+                    add(f"    {self._cell(name, prog.var_index(sig))} = _v = {val}")
                     if sig in SLOW_FLAGS:  # a chart flag set: the scan's slow path
                         self._env[f"SL_{name}"] = inst.m.slow
                         add(f"    if _v: SL_{name}.cell_contents = True")
@@ -266,7 +275,11 @@ class Plant:
             g = inst.grafcet
             add(f"    # instance {name} ({g.name})")
             add(f"    m = M_{name}")
-            for sig, b in idef.inputs.items():
+            # the declared inputs first: a chart flag bound to one of them (its own
+            # instance's ``A.stop``) reads this cycle's value, whatever the file's order
+            declared = set(inst.program.inputs)
+            ordered = sorted(idef.inputs.items(), key=lambda kv: kv[0] not in declared)
+            for sig, b in ordered:
                 v = g.variables[sig]
                 slot = inst.program.var_index(sig)
                 add(f"    m[{slot}] = {self._input_expr(b, v.type, live=False)}  # {sig} <- "

@@ -20,6 +20,7 @@ from drivers.registry import DRIVER_KEYS, check_config, check_point
 from runtime.errors import Diagnostic, Loc, SourceError, suggest
 from runtime.language import ast as A
 from runtime.language.grafcetfile import check_keys, expect_type, load_grafcet, time_value
+from runtime.language.lexer import is_name
 from runtime.language.model import (
     Binding,
     ConsoleEntry,
@@ -168,9 +169,9 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
         expect_type(drivers, doc.val_locs["drivers"], YMap, "a mapping of drivers")
     for name, spec in drivers.items():
         loc = drivers.key_locs[name]
-        if not isinstance(name, str) or not name.isidentifier():
+        if not isinstance(name, str) or not is_name(name):
             raise SourceError(loc, f"expected a driver name (letters, digits and _, as in "
-                                   f"'exp1'), found {name!r}")
+                                   f"'exp1', in canonical form), found {name!r}")
         spec = expect_type(spec, drivers.val_locs[name], YMap, f"the driver '{name}' "
                                                                 "({type: ...})")
         if "type" not in spec:
@@ -197,8 +198,11 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
                             "a mapping of instances")
     for name, spec in instances.items():
         loc = instances.key_locs[name]
-        if not str(name).isidentifier():
-            load.report(SourceError(loc, f"expected an instance name, found '{name}'"))
+        if not is_name(str(name)):
+            # a name Python would normalise (NFKC: 'nº1' is 'no1') would collide with
+            # another once compiled into the plant cycle
+            load.report(SourceError(loc, f"expected an instance name (letters, digits and "
+                                         f"_, in canonical form), found '{name}'"))
         try:  # an error here leaves the instance out (when collected)
             spec = expect_type(spec, instances.val_locs[name], YMap, f"instance '{name}'")
             try:  # an unknown key does not

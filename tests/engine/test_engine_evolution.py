@@ -5,6 +5,8 @@ Every chart runs on a virtual clock (conftest.Chart): scan k at k·10 ms unless 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 MODELS = ["immediate", "codesys", "stable"]
@@ -646,3 +648,41 @@ def test_step_time_is_read_where_it_is_read_pre_before_the_evolution_actions_and
     assert (c["tPre"], c["tPost"]) == (30_000_000, 30_000_000)
     c.scan(go=1)  # 70 ms: activated again
     assert (c["tPre"], c["tAct"], c["tPost"]) == (30_000_000, 0, 0)
+
+
+PRIORITY_DIV = """\
+grafcet: Prio
+scan: {model}
+inputs: [a, b]
+outputs: [o2, o3, o4]
+memory: {{parts: 0, count: 0}}
+steps:
+  s0: {{initial: true}}
+  s1: {{initial: true}}
+  s2: {{actions: [o2]}}
+  s3: {{actions: [o3]}}
+  s4: {{actions: [o4]}}
+transitions:
+  - {{from: s0, to: s2, when: a}}
+  - {{from: [s0, s1], to: s3, when: b}}
+  - {{from: s0, to: s4, when: "count / parts > 2"}}
+"""
+
+
+@pytest.mark.parametrize("model", ["immediate", "stable", "codesys"])
+def test_a_condition_priority_never_evaluates_cannot_fault_the_scan(
+        tmp_path: Path, model: str) -> None:
+    """t1 fires, so t2 (lower priority on the shared step s0) is not evaluated: its
+    division by zero must not fault the scan. The immediate model's "does anything fire?"
+    pre-test evaluated it (a review of the scan closures found it)."""
+    from runtime.compiler.codegen import compile_grafcet
+    from runtime.engine.instance import Instance
+    from runtime.language.grafcetfile import load_grafcet
+
+    path = tmp_path / "c.yaml"
+    path.write_text(PRIORITY_DIV.format(model=model), encoding="utf-8")
+    inst = Instance("i", compile_grafcet(load_grafcet(str(path))))
+    for k in range(3):
+        inst.set("b", k >= 1)
+        inst.scan(1_000_000_000 + k * 10_000_000, k * 10_000_000)
+    assert inst.active_steps() == ["s3"]

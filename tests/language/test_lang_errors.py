@@ -532,3 +532,18 @@ def test_yaml_1_2_booleans_yes_no_on_off_are_text(tmp_path: Path) -> None:
     assert g.steps["s0"].actions[0].target == "No"
     check(tmp_path, HEAD.replace("retain: true", "retain: yes") + STEPS, "yes",
           "expected true or false for retain", "found the text 'yes'")
+
+
+def test_an_instance_name_python_would_normalise_is_a_source_error(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """'probador_nº1' is 'probador_no1' to Python (NFKC): the plant cycle failed with a
+    NameError at start-up; now the plant file says so at the instance's line."""
+    from runtime.errors import SourceError
+    from runtime.language.plantfile import load_plant
+
+    root = Path(__file__).resolve().parents[2] / "configs" / "drawer_tester"
+    text = (root / "plant_sim.yaml").read_text(encoding="utf-8").replace(
+        "grafcet: ", f"grafcet: {root}/").replace("tester1:", "probador_nº1:")
+    (tmp_path / "p.yaml").write_text(text, encoding="utf-8")
+    with pytest.raises(SourceError, match="canonical form") as err:
+        load_plant(str(tmp_path / "p.yaml"))
+    assert "probador_nº1" in str(err.value)
