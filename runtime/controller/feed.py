@@ -98,10 +98,10 @@ class FeedServer:
         self.window = ScanWindow(cycle_ns / 1e9)
         self._cat = Catalogue(daemon.plant)
         self._next = 0
-        #: the mailbox: (scan, wall seconds, image, the catalogue that took it), written
-        #: by the scan thread only
-        self._slot: tuple[int, float, Image, Catalogue] | None = None
-        self._taken: tuple[int, float, Image, Catalogue] | None = None
+        #: the mailbox: (scan, wall seconds, image, the catalogue that took it, the
+        #: controller's and drivers' state at that scan), written by the scan thread only
+        self._slot: tuple[int, float, Image, Catalogue, tuple[Any, ...]] | None = None
+        self._taken: tuple[int, float, Image, Catalogue, tuple[Any, ...]] | None = None
         self._stop = threading.Event()
         self._replaced = False
         self._sock: socket.socket | None = None
@@ -164,8 +164,14 @@ class FeedServer:
         if n < self._next:
             return
         self._next = n + self.every
-        cat = self._cat
-        self._slot = (n - 1, self.wall(), cat.capture(n - 1), cat)
+        cat, d = self._cat, self.daemon
+        st = d.scan_stats
+        # the state of that scan too (a few attributes), so that a frame never shows the
+        # image of one scan beside the controller's or a driver's state of a later one
+        live = (d.state.value, d.fault or d.halted, st.overruns, st.skipped, st.freezes,
+                {name: [drv.health.value, drv.fault_reason or "", drv.ok]
+                 for name, drv in d.plant.drivers.items()})
+        self._slot = (n - 1, self.wall(), cat.capture(n - 1), cat, live)
 
     # -- the feed thread ------------------------------------------------------------
     def _run(self) -> None:
@@ -176,13 +182,15 @@ class FeedServer:
                     break
                 if self._replaced or self.daemon.plant is not self._cat.plant:
                     self._reload()
-                self._io(max(0.0, min(closes - time.monotonic(), POLL_S)))
+                # the new snapshot first, while the window is young (a scan has just
+                # ended): never built in the quiet time before the next scan
                 slot = self._slot
                 if slot is not None and slot is not self._taken and self._clients:
                     self._taken = slot
                     if slot[3] is self._cat:  # not an image of a replaced plant
-                        self._publish(*slot[:3])
+                        self._publish(slot[0], slot[1], slot[2], slot[4])
                         self._flush()
+                self._io(max(0.0, min(closes - time.monotonic(), POLL_S)))
         except Exception:  # noqa: BLE001 - the feed dies, never the controller
             log.exception("feed thread failed: OPC UA clients see no more values")
             # said to the clients too: their connection ends, so that a server shows its
@@ -304,7 +312,7 @@ class FeedServer:
         log.info("opcua: set %s = %s", name, sig.show(v))
         return True, f"{name} set to {sig.show(v)}"
 
-    def _publish(self, scan: int, wall: float, img: Image) -> None:
+    def _publish(self, scan: int, wall: float, img: Image, live: tuple[Any, ...]) -> None:
         """One frame to every client: whole to new ones, the changes to the others."""
         values = [s.read(img) for s in self._cat.names.values()]
         prev = self._values
@@ -317,7 +325,7 @@ class FeedServer:
                     changes += (i, v)
             delta = _line({"d": [scan, wall, changes]})
         whole = None
-        status = self._status(scan)
+        status = self._status(live)
         self.frames += 1
         for c in self._clients:
             if status != c.status:
@@ -331,19 +339,22 @@ class FeedServer:
             else:
                 self._queue(c, delta)
 
-    def _status(self, scan: int) -> dict[str, Any]:
+    def _status(self, live: tuple[Any, ...]) -> dict[str, Any]:
+        """The controller's status with a frame: its state, fault, counters and drivers
+        as they were at the frame's scan (``live``, taken with the image); the lateness
+        percentiles (of the last scans, sorted here, every STATS_EVERY_NS) and the uptime
+        as they are now."""
         d = self.daemon
         now = time.monotonic_ns()
         if now - self._stats_at >= STATS_EVERY_NS:
             self._stats_at = now
             late = d.scan_stats.lateness().as_dict()
             self._stats = {k: late[k] for k in ("p50", "p99", "max")}
-        return {"state": d.state.value, "fault": d.fault or d.halted,
-                "overruns": d.scan_stats.overruns, "skipped": d.scan_stats.skipped,
-                "freezes": d.scan_stats.freezes, "uptime_s": round(d.uptime_s()),
+        state, fault, overruns, skipped, freezes, drivers = live
+        return {"state": state, "fault": fault, "overruns": overruns, "skipped": skipped,
+                "freezes": freezes, "uptime_s": round(d.uptime_s()),
                 "cycle_ms": d.plant.cycle_ns / 1e6, "lateness_us": self._stats,
-                "drivers": {name: [drv.health.value, drv.fault_reason or "", drv.ok]
-                            for name, drv in d.plant.drivers.items()}}
+                "drivers": drivers}
 
     def _queue(self, c: _Client, data: bytes) -> None:
         c.out += data

@@ -226,6 +226,7 @@ class PlantServer:
                 self._writer = None
                 writer.close()
                 self.connected.clear()
+                self._prev = {}  # the next frame is a state, not a change from this one
                 for fut in self._pending.values():
                     if not fut.done():
                         fut.set_exception(ConnectionError("feed lost"))
