@@ -31,6 +31,7 @@ from __future__ import annotations
 import abc
 import enum
 import logging
+import sys
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -144,6 +145,9 @@ class Driver(abc.ABC):
 
     def add_point(self, point: str, direction: Direction) -> PointKind:
         """Declare a point used by a binding; returns its kind. Raises PointError."""
+        # interned, the image's key is the very string the plant's generated cycle holds
+        # as a constant: a lookup matches it by identity (about 10 ns less per access)
+        point = sys.intern(point)
         if self.ONE_DIRECTION_PER_POINT:
             other = self.outputs if direction is Direction.IN else self.inputs
             if point in other:

@@ -148,8 +148,9 @@ class ActionEmitter:
                     f"{self.state.let('v_SFCErrorStep', value=repr(s.name))}")
             out.dedent()
 
-    def section(self, out: Emitter) -> None:
-        """The actions of one scan, on the situation as it is now."""
+    def section(self, out: Emitter, folded: bool = False) -> None:
+        """The actions of one scan, on the situation as it is now. ``folded``: the fast
+        path's body (no chart flag set: the actions run, no ``SFCInit`` branch)."""
         g = self.g
         out("# 4-5. actions on the new situation, then supervision")
         roots: list[A.Node] = []
@@ -157,7 +158,7 @@ class ActionEmitter:
             roots += [x for x in (a.cond, a.event) if x is not None]
             roots += a.body or []
         self.exprs.sample_edges(out, roots)
-        out("if run and not paused:")
+        out("if True:" if folded else "if run and not paused:")
         out.indent()
         before = len(out.lines)
         self.ordered_actions(out)
@@ -165,7 +166,7 @@ class ActionEmitter:
             out("pass")
         out.dedent()
         targets = list(bool_targets(self.g))
-        if targets:
+        if targets and not folded:
             out("elif not paused:  # SFCInit: no action executes, bool targets are off")
             out.indent()
             out(self.state.let(*(ident("v", t) for t in targets), value="False"))

@@ -48,17 +48,19 @@ class Compiler:
         self.stmts = StmtEmitter(g, self.state, self.exprs)
         self.evolution = Evolution(g, self.state, self.exprs)
         self.actions = ActionEmitter(g, self.state, self.exprs, self.stmts)
+        #: the fast path's body, unindented (set by ``generate``)
+        self.fast: list[str] = []
 
     def generate(self) -> str:
-        """The source of the scan function: clock, pre, chart flags, evolution and actions
-        in the scan model's order, post."""
+        """The source of the factory: the scan closure, whose body is the fast path (no
+        chart flag or outside write pending: ``slow`` false) and then the full one."""
         g = self.g
         self.state.build()
-        out = Emitter()
-        out.level = 2
         locals_ = ", ".join(s.local for s in self.state.slots)
         ins = [ident("v", v) for v in self.inputs()]
         params = "".join(f", {ident('in', v)}" for v in self.inputs())
+        outs = "".join(f"{ident('v', v)}, " for v in self.outputs())
+        ret = f"return ({outs})" if outs else "return None"
         head = [f"# softplc: generated scan of grafcet {g.name} ({g.path})",
                 f"# scan model: {g.scan.value}; {len(self.evolution.leaf)} steps, "
                 f"{len(g.transitions)} transitions, {len(self.state.slots)} state slots",
@@ -68,13 +70,43 @@ class Compiler:
                 f"    def scan(now, up{params}):",
                 f"        nonlocal m, slow, {locals_}"]
         if ins:
-            out("; ".join(f"{v} = {ident('in', v[2:])}" for v in ins))
-        out("# chart clock: advances unless the chart was paused during the last interval")
-        out("# (`slow` false: not the first scan, the last one not paused, no flag set)")
+            head.append("        " + "; ".join(f"{v} = {ident('in', v[2:])}" for v in ins))
+        self.fast = [line[12:] for line in self.body(fast=True)]
+        head.append("        if not slow:  # the usual scan: the fast path")
+        head += ["            " + line for line in self.fast]
+        head.append(f"            {ret}")
+        body = self.body(fast=False)
+        body.append(f"        {ret}")
+        tail = ["    def scan_state(now, up):",
+                f"        return scan(now, up{''.join(f', {v}' for v in ins)})",
+                "    def values():",
+                f"        return [{locals_}]",
+                "    return scan, scan_state, values"]
+        return "\n".join(head + body + tail) + "\n"
+
+    def body(self, fast: bool) -> list[str]:
+        """The scan's body after the inputs, indented for the scan function (the fast
+        path's one level more): clock, pre, chart flags, evolution and actions in the scan
+        model's order, post.
+
+        ``fast``: the body for a scan that starts with ``slow`` false: not the first scan,
+        the last one not paused, no chart flag set. Unless a pre equation can set a flag,
+        the flags' section is left out and the evolution and actions run unguarded; the
+        ``slow`` flag is left set by a chart that sets a flag (the next scan takes the full
+        body, which recomputes it)."""
+        g = self.g
+        out = Emitter()
+        out.level = 3 if fast else 2
         L = self.state.let  # noqa: N806 - short: many emitted lines
-        out(f"if not slow: {self.state.add('ct', 'now - lastnow')}")
-        out(f"elif first: {L('ct', value='0')}")
-        out(f"elif not wp: {self.state.add('ct', 'now - lastnow')}")
+        if fast:
+            out(self.state.add("ct", "now - lastnow"))
+        else:
+            out("# chart clock: advances unless the chart was paused during the last "
+                "interval")
+            out("# (`slow` false: not the first scan, the last one not paused, no flag set)")
+            out(f"if not slow: {self.state.add('ct', 'now - lastnow')}")
+            out(f"elif first: {L('ct', value='0')}")
+            out(f"elif not wp: {self.state.add('ct', 'now - lastnow')}")
         out(L("lastnow", value="now"))
         steps = list(g.steps.values())
         marks = len(out.lines)  # the entered/left marks: filled in once the body is known
@@ -85,6 +117,40 @@ class Compiler:
             for s in g.pre:
                 self.exprs.sample_edges(out, [s.node])
                 self.stmts.stmt(out, s.node)
+        # a pre equation that sets a chart flag sets `slow`: the flags are then tested
+        folded = fast and not any("slow = slow or" in line for line in out.lines[marks:])
+        if not folded:
+            self.flags(out, steps)
+        if self.codesys:
+            if g.transitions:
+                out("# 3. CODESYS: the situation decided by the last scan becomes current "
+                    "(held while paused)")
+                pending = " or ".join(f"pf{t.index}" for t in g.transitions)
+                out(f"if {pending}:" if folded else f"if not frozen and ({pending}):")
+                out.indent()
+                self.evolution.apply_fired(out)
+                out.dedent()
+            self.actions.section(out, folded)
+            self.evolution.section(out, folded)
+        else:
+            self.evolution.section(out, folded)
+            self.actions.section(out, folded)
+        if g.post:
+            out("# 6. post equations")
+            for s in g.post:
+                self.exprs.sample_edges(out, [s.node])
+                self.stmts.stmt(out, s.node)
+        if not fast:  # on the fast path first and wp are false already, paused too
+            flags = ["wp", *(ident("v", f) for f in SLOW_FLAGS), *SLOW_MEMORY]
+            out(f"if slow: {L('first', value='False')}; {L('wp', value='paused')}; "
+                f"slow = {' or '.join(flags)}")
+        out.lines[marks:marks + 2] = self.marks(steps, out.lines, out.level)
+        return out.lines
+
+    def flags(self, out: Emitter, steps: list[Step]) -> None:
+        """The chart flags' section: tested only while ``slow`` is set."""
+        g = self.g
+        L = self.state.let  # noqa: N806 - short: many emitted lines
         out("# 2. chart flags: one test of `slow`, false while none is set (the usual scan)")
         out("frozen = paused = tip = False; run = True")
         out("if slow:")
@@ -129,49 +195,19 @@ class Compiler:
         out(f"{L('resetprev', value='v_SFCReset')}; {L('quitprev', value='v_SFCQuitError')}")
         out(f"tip = v_SFCTip and not tipprev; {L('tipprev', value='v_SFCTip')}")
         out.dedent()
-        if self.codesys:
-            if g.transitions:
-                out("# 3. CODESYS: the situation decided by the last scan becomes current "
-                    "(held while paused)")
-                pending = " or ".join(f"pf{t.index}" for t in g.transitions)
-                out(f"if not frozen and ({pending}):")
-                out.indent()
-                self.evolution.apply_fired(out)
-                out.dedent()
-            self.actions.section(out)
-            self.evolution.section(out)
-        else:
-            self.evolution.section(out)
-            self.actions.section(out)
-        if g.post:
-            out("# 6. post equations")
-            for s in g.post:
-                self.exprs.sample_edges(out, [s.node])
-                self.stmts.stmt(out, s.node)
-        # not slow: first and wp are false already, paused too
-        flags = ["wp", *(ident("v", f) for f in SLOW_FLAGS), *SLOW_MEMORY]
-        out(f"if slow: {L('first', value='False')}; {L('wp', value='paused')}; "
-            f"slow = {' or '.join(flags)}")
-        out.lines[marks:marks + 2] = self.marks(steps, out.lines)
-        outs = "".join(f"{ident('v', v)}, " for v in self.outputs())
-        out(f"return ({outs})" if outs else "return None")
-        tail = ["    def scan_state(now, up):",
-                f"        return scan(now, up{''.join(f', {v}' for v in ins)})",
-                "    def values():",
-                f"        return [{locals_}]",
-                "    return scan, scan_state, values"]
-        return "\n".join(head + out.lines + tail) + "\n"
 
     @staticmethod
-    def marks(steps: list[Step], body: list[str]) -> list[str]:
+    def marks(steps: list[Step], body: list[str], level: int) -> list[str]:
         """The two lines clearing the entered (``a_``) and left (``l_``) marks at the
-        start of a scan: only the marks the body reads (the others are only written)."""
+        start of a scan (indented ``level``): only the marks the body reads (the others
+        are only written)."""
         text = "\n".join(body)
         read = set(re.findall(r"\b([al]_\w+)\b(?!\s*=[^=])", text))
         out = []
         for p in ("a", "l"):
             names = [n for n in (ident(p, s.name) for s in steps) if n in read]
-            out.append("        " + (" = ".join(names) + " = False" if names else "pass"))
+            if names:
+                out.append("    " * level + " = ".join(names) + " = False")
         return out
 
     def inputs(self) -> list[str]:
@@ -216,7 +252,8 @@ def compile_grafcet(g: Grafcet, book: CodeBook | None = None) -> Program:
     env: dict[str, Any] = {**HELPERS, "_Unstable": unstable_chart}
     code = compile_code(source, f"<grafcet {g.name} {digest}>", book)
     exec(code, env)  # noqa: S102 - generated from the checked model
-    return Program(g, source, env["make"], c.state.slots, c.probes(), c.inputs(), c.outputs())
+    return Program(g, source, env["make"], c.state.slots, c.probes(), c.inputs(), c.outputs(),
+                   c.fast)
 
 
 __all__ = ["Compiler", "compile_grafcet"]

@@ -183,9 +183,12 @@ class Evolution:
             out("; ".join(self.state.let(f"pf{t.index}", value="False") for t in self.g.transitions)
                 or "pass")
 
-    def section(self, out: Emitter) -> None:
-        """The evolution of one scan, per scan model (CODESYS: decided for the next scan)."""
+    def section(self, out: Emitter, folded: bool = False) -> None:
+        """The evolution of one scan, per scan model (CODESYS: decided for the next scan).
+        ``folded``: the fast path's body, where no chart flag is set (nothing frozen or
+        paused, no tip mode): the guard is ``if True:``, which Python compiles to nothing."""
         g = self.g
+        guard = "if True:" if folded else "if not frozen and (not v_SFCTipMode or tip):"
         if self.codesys:
             out("# 5b. CODESYS: the transitions decide the next scan's situation")
         else:
@@ -194,17 +197,19 @@ class Evolution:
         if not g.transitions:
             return
         if self.codesys:
-            out("if not frozen and (not v_SFCTipMode or tip):")
+            out(guard)
             out.indent()
             self.evaluate_transitions(out)
             out.dedent()
+            if folded:
+                return
             out("elif not paused:  # a pending evolution waits for the end of a pause")
             out.indent()
             out(self.state.let(*(f"pf{t.index}" for t in g.transitions), value="False"))
             out.dedent()
             return
         fired = " or ".join(f"f{t.index}" for t in g.transitions)
-        out("if not frozen and (not v_SFCTipMode or tip):")
+        out(guard)
         out.indent()
         if self.stable:
             out("rounds = 0")

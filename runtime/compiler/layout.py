@@ -16,7 +16,7 @@ from runtime.language.unparse import unparse
 T = A.Type
 
 #: the chart flags that, once set, make the scans take the slow path (program.State)
-SLOW_FLAGS = ("SFCInit", "SFCReset", "SFCQuitError", "SFCPause", "SFCTip")
+SLOW_FLAGS = ("SFCInit", "SFCReset", "SFCQuitError", "SFCPause", "SFCTip", "SFCTipMode")
 #: the scan's own memory of those flags (set: the slow path too)
 SLOW_MEMORY = ("initpend", "resetprev", "quitprev", "tipprev")
 

@@ -134,6 +134,9 @@ class Program:
     probes: dict[int, list[Probe]] = field(default_factory=dict)  # transition -> sub-terms
     inputs: list[str] = field(default_factory=list)  # scan's arguments after ``up``
     outputs: list[str] = field(default_factory=list)  # what a scan returns, in order
+    #: the scan's fast path (``slow`` false at its start), unindented, after the inputs'
+    #: stores and before the return: the body the plant's cycle inlines (plant.py)
+    fast: list[str] = field(default_factory=list)
     _by_key: dict[str, int] = field(init=False, repr=False)
     _step_times: dict[str, Callable[[Memory], int]] = field(init=False, repr=False)
 

@@ -56,7 +56,8 @@ class Instance:
         #: the state, slot by slot (the same view for the instance's whole life)
         self.m = State()
         #: ``scan_in(now, up, *inputs) -> outputs``, the plant's fast call (Program.Scan)
-        self.scan_in, self._scan = program.instantiate(self.m)
+        self.scan_in, self.scan_state = program.instantiate(self.m)
+        self._scan = self.scan_state
         #: slot of each variable, ``step.X`` and function block (for tests and tools)
         self.index = program.public_index()
         self.last_up = 0

@@ -16,11 +16,12 @@ plant cycle (semantics.md, "Program time").
 
 from __future__ import annotations
 
-import itertools
 import logging
 import re
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
+from types import FrameType
 from typing import Any
 
 from drivers.base import Direction, Driver, FaultPolicy, Health
@@ -28,8 +29,12 @@ from drivers.registry import driver_class
 from drivers.sim import SimDriver
 from runtime.compiler.codebook import CodeBook, compile_code
 from runtime.compiler.codegen import compile_grafcet
+from runtime.compiler.evolution import unstable_chart
+from runtime.compiler.expressions import HELPERS
 from runtime.compiler.layout import SLOW_FLAGS
 from runtime.compiler.program import Program
+from runtime.engine.inline import FILENAME as INLINE_FILE
+from runtime.engine.inline import Inliner
 from runtime.engine.instance import Instance, StepWhy, coerce
 from runtime.engine.names import Owner, PlantNames, UnknownName
 from runtime.errors import SoftplcError
@@ -160,32 +165,32 @@ class Plant:
                         continue
                     d.add_point(b.point or "", direction)
 
-    def _input_expr(self, b: Binding, vtype: A.Type, live: bool) -> str:
-        """The value of an input binding in the cycle's code. ``live``: another
-        instance's slot read through its cell (the fast cycle), else through its view."""
+    def _input_expr(self, b: Binding, vtype: A.Type, ref: Callable[[Instance, int], str],
+                    const: Callable[[Any], str] = repr) -> str:
+        """The value of an input binding in the cycle's code; ``ref(instance, slot)``
+        writes another instance's slot (a cell in the usual cycle, else its view),
+        ``const(value)`` a key or function (a literal, or a name bound to it)."""
         if b.driver is not None:
             if b.point == "ok":
-                val = f"D[{b.driver!r}].health is OK"
+                val = f"D[{const(b.driver)}].health is OK"
                 return f"not ({val})" if b.invert else f"({val})"
-            ref = f"I_{b.driver}[{b.point!r}]"
+            ref_ = f"I_{b.driver}[{const(sys.intern(b.point or ''))}]"
             if vtype is A.Type.BOOL:
-                return f"({ref} == 0)" if b.invert else f"({ref} != 0)"
-            return ref
+                return f"({ref_} == 0)" if b.invert else f"({ref_} != 0)"
+            return ref_
         other = self.instances[b.instance or ""]
         ref_name = b.ref or ""
         if ref_name.endswith(".T") and ref_name[:-2] in other.grafcet.steps:
-            val = f"ST_{other.name}({ref_name[:-2]!r})"
+            fn = "ST_" + other.name if const is repr else const(other.step_time)
+            val = f"{fn}({const(ref_name[:-2])})"
         else:
-            idx = other.program.index_of(ref_name)
-            val = self._cell(other.name, idx) if live else f"M_{other.name}[{idx}]"
+            val = ref(other, other.program.index_of(ref_name))
         return f"(not {val})" if b.invert else val
 
-    def _cell(self, inst: str, idx: int) -> str:
-        """``C_inst_idx.cell_contents``: slot ``idx`` of ``inst``, its cell bound in the
-        cycle's environment."""
-        name = f"C_{inst}_{idx}"
-        self._env[name] = self.instances[inst].m.cells[idx]
-        return f"{name}.cell_contents"
+    @staticmethod
+    def _view(inst: Instance, idx: int) -> str:
+        """Slot ``idx`` of ``inst`` read through its state view (the slow cycle)."""
+        return f"M_{inst.name}[{idx}]"
 
     def _generate(self) -> str:
         """The cycles as Python source: ``cycle`` (the fast one: no force, no pulse),
@@ -216,53 +221,46 @@ class Plant:
         return lines
 
     def _fast_body(self) -> list[str]:
-        """One unrolled sequence: per instance, its scan called with the input bindings
-        as arguments, the outputs it returns kept in locals; then the output copy."""
+        """The drivers' reads, a call of each group of inlined scans (inline.py: per
+        instance its bindings stored into its cells, its fast path or, its ``slow`` cell
+        set, its whole scan, its outputs copied), the drivers' writes."""
         lines = self._reads()
-        add = lines.append
-        copy = []
-        numbers = itertools.count()
+        inl = self._inliner = Inliner(self._env, list(self.instances.values()))
         for name, inst in self.instances.items():
+            inl.begin(inst)
             idef = self.pdef.instances[name]
             g, prog = inst.grafcet, inst.program
-            add(f"    # instance {name} ({g.name})")
-            args = []
-            bound_in: dict[str, str] = {}  # a declared input with a binding -> its value
-            for sig in prog.inputs:
-                b = idef.inputs.get(sig)
-                args.append(self._cell(name, prog.var_index(sig)) if b is None
-                            else self._input_expr(b, g.variables[sig].type, live=True))
-                if b is not None:
-                    bound_in[sig] = args[-1]
-            for sig, b in idef.inputs.items():  # bound, not a declared input
-                if sig not in prog.inputs:
-                    if b.instance == name and (b.ref or "") in bound_in:
-                        # its own bound input: this cycle's value, as the slow cycle sees
-                        # it (there the declared inputs are written first)
-                        val = bound_in[b.ref or ""]
-                        val = f"(not {val})" if b.invert else val
-                    else:
-                        val = self._input_expr(b, g.variables[sig].type, live=True)
-                    add(f"    {self._cell(name, prog.var_index(sig))} = _v = {val}")
-                    if sig in SLOW_FLAGS:  # a chart flag set: the scan's slow path
-                        self._env[f"SL_{name}"] = inst.m.slow
-                        add(f"    if _v: SL_{name}.cell_contents = True")
-            call = f"S_{name}(now, up{''.join(f', {a}' for a in args)})"
-            held = {sig: f"q{next(numbers)}" for sig in prog.outputs}  # kept to the copy
-            targets = [held[sig] if sig in idef.outputs else "_" for sig in prog.outputs]
-            add(f"    {', '.join(targets)}, = {call}" if any(t != "_" for t in targets)
-                else f"    {call}")
+            # the declared inputs first: a chart flag bound to one of them (its own
+            # instance's ``A.stop``) reads this cycle's value, whatever the file's order
+            declared = set(prog.inputs)
+            ins = []
+            for sig, b in sorted(idef.inputs.items(), key=lambda kv: kv[0] not in declared):
+                val = self._input_expr(b, g.variables[sig].type, inl.cell, inl.const)
+                cell = inl.cell(inst, prog.var_index(sig))
+                if sig in SLOW_FLAGS:  # a chart flag set: the scan's slow path
+                    ins += [f"{cell} = _v = {val}", f"if _v: {inl.slow(inst)} = True"]
+                else:
+                    ins.append(f"{cell} = {val}")
+            outs = []
             for sig, b in idef.outputs.items():
-                val = (held[sig] if sig in prog.outputs
-                       else self._cell(name, prog.var_index(sig)))
-                if b.invert:
-                    val = f"not {val}"
-                copy.append(f"    O_{b.driver}[{b.point!r}] = {val}  # {name}.{sig}")
-        lines += copy
+                val = inl.cell(inst, prog.var_index(sig))
+                key = inl.const(sys.intern(b.point or ""))
+                outs.append(f"O_{b.driver}[{key}] = {'not ' if b.invert else ''}{val}")
+            inl.add(inst, ins, outs)
+        for j, fn in enumerate(inl.build(self._book)):
+            self._env[f"G{j}"] = fn
+            lines.append(f"    G{j}(now, up)")
         if not self.virtual:
             lines += [f"    W_{name}()" for name in self.drivers]
-        add("    return None")
+        lines.append("    return None")
         return lines
+
+    def instance_at(self, frame: FrameType, lineno: int) -> str | None:
+        """The instance whose inlined scan is at line ``lineno`` of ``frame`` (a frame of
+        a fault's traceback), None if it is not an inlined scan."""
+        if frame.f_code.co_filename != INLINE_FILE:
+            return None
+        return self._inliner.owner(frame, lineno)
 
     def _slow_body(self) -> list[str]:
         """The cycle with forces and pulses: bindings written into the state, the
@@ -282,7 +280,7 @@ class Plant:
             for sig, b in ordered:
                 v = g.variables[sig]
                 slot = inst.program.var_index(sig)
-                add(f"    m[{slot}] = {self._input_expr(b, v.type, live=False)}  # {sig} <- "
+                add(f"    m[{slot}] = {self._input_expr(b, v.type, self._view)}  # {sig} <- "
                     f"{b.source}{' inverted' if b.invert else ''}")
             add(f"    if FI: force_instance({name!r}, m)")
             add(f"    SS_{name}(now, up)")
@@ -316,6 +314,8 @@ class Plant:
         env["FI"] = self._forced_by_inst
         env["force_points"] = self._apply_point_forces
         env["force_instance"] = self._apply_instance_forces
+        env.update(HELPERS)  # what the inlined scans call (inline.py)
+        env["_Unstable"] = unstable_chart
         for name, d in self.drivers.items():
             env[f"R_{name}"] = d.read
             env[f"W_{name}"] = d.write

@@ -99,6 +99,8 @@ class Simulation:
             if frame.f_code.co_filename.startswith("<grafcet "):
                 m = frame.f_locals.get("m")
                 name = next((n for n, i in self.plant.instances.items() if i.m is m), name)
+            else:  # a scan inlined in the plant's cycle
+                name = self.plant.instance_at(frame, tb.tb_lineno) or name
             tb = tb.tb_next
         what = str(exc) if isinstance(exc, UnstableChart) else f"{type(exc).__name__}: {exc}"
         if name is None:

@@ -1,13 +1,19 @@
 """The plant's generated cycles: the fast one keeps each instance's outputs apart whatever
-the instance and variable names, and the usual cycle takes the fast path."""
+the instance and variable names, the usual cycle takes the fast path, and the scans it
+inlines (runtime/engine/inline.py) work on the instances' own state and name the instance
+of a fault."""
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 
 import pytest
 
+from runtime.engine import inline
+from runtime.engine.inline import renamed
 from runtime.engine.plant import Plant
+from runtime.engine.simulate import ScanFault, Simulation
 from runtime.language.plantfile import load_plant
 
 ON = """\
@@ -94,3 +100,94 @@ def test_a_flag_bound_to_its_own_input_sees_this_cycles_value_in_both_cycles(
                 (0, 1, False, 1), (0, 1, False, 1)]
     assert run(True) == expected
     assert run(False) == expected
+
+
+DIVIDES = """\
+grafcet: U
+inputs: [d]
+memory: {q: 0}
+pre: ["q := 10 / (1 - d)"]
+steps:
+  s: {initial: true}
+"""
+
+
+def test_a_fault_in_an_inlined_scan_names_its_instance(
+        write: Callable[[str, str], str]) -> None:
+    """The usual cycle runs the instances' scans inlined in its own functions: a fault
+    there (a division by zero driven by a physical input, in a fast scan) is still
+    reported at the instance whose scan raised, not at the first of the plant."""
+    write("u.yaml", DIVIDES)
+    plant = write("p.yaml", "plc: {cycle: 10ms}\ndrivers: {sim: {type: sim}}\n"
+                  "instances:\n" + "".join(f"  u{k}: {{grafcet: u.yaml, inputs: {{d: sim.I{k}}}}}\n"
+                                           for k in range(20)))
+    script = write("s.yaml", "cycles: 10\nset:\n  - {at: 30ms, sim.I17: 1}\n")
+    sim = Simulation(plant, script)
+    with pytest.raises(ScanFault) as err:
+        for _ in sim.run(trace=False):
+            pass
+    assert "the scan of instance 'u17'" in str(err.value)
+    assert "in cycle 3 (t = 30 ms)" in str(err.value)
+    assert not sim.plant.instances["u17"].m.slow.cell_contents  # it was a fast scan
+    assert err.value.loc.line == 21
+
+
+def test_the_inlined_scans_work_on_the_instances_own_state(
+        write: Callable[[str, str], str]) -> None:
+    """What the inlined scans write is what the instance's state view reads, and a write
+    through the view is what the next scan sees (it takes the instance's whole scan)."""
+    write("on.yaml", SELF)
+    plant = Plant(load_plant(write(
+        "p.yaml", "plc: {cycle: 10ms}\ndrivers: {sim: {type: sim}}\ninstances:\n"
+        "  A: {grafcet: on.yaml, inputs: {go: sim.I0, stop: sim.I1}, outputs: {run: sim.Q0}}\n")),
+        sim=True, virtual=True)
+    plant.open()
+    sim, a = plant.drivers["sim"], plant.instances["A"]
+    for k in range(3):
+        sim.inputs["I0"] = int(k >= 1)
+        assert plant.cycle(k * 10_000_000) is None
+        assert a.m.slow.cell_contents is False
+    assert a.active_steps() == ["s1"] and a.get("run") is True and sim.outputs["Q0"]
+    assert a.step_time("s1") == 10_000_000
+    a.set("go", False)  # written between cycles: the next scan is the whole one
+    assert a.m.slow.cell_contents is True
+    sim.inputs["I0"] = 0
+    plant.cycle(30_000_000)
+    assert a.active_steps() == ["s0"] and sim.outputs["Q0"] == 0
+    assert a.m.slow.cell_contents is False  # and back to the fast path
+
+
+def test_renaming_leaves_attributes_keywords_strings_and_comments() -> None:
+    lines = ["x = b_t.q + f(IN=x, PT='x')  # x", "if x: y = {'x': x}[\"x\"]"]
+    assert renamed(lines, lambda n: "i0_" + n if n in ("x", "y") else None) == [
+        "i0_x = b_t.q + f(IN=i0_x, PT='x')  # x", "if i0_x: i0_y = {'x': i0_x}[\"x\"]"]
+
+
+def test_links_across_groups_read_the_same_as_within_one(
+        write: Callable[[str, str], str], monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each group of inlined scans has its own copy of the cells it names: a link to an
+    instance of another group, earlier or later in the plant, reads the same values as
+    one inside a group (every slot of every instance compared, cycle by cycle)."""
+    write("c.yaml", SELF)
+    path = write("p.yaml", "plc: {cycle: 10ms}\ndrivers: {sim: {type: sim}}\ninstances:\n"
+                 "  A: {grafcet: c.yaml, inputs: {go: sim.I0, stop: B.run}, "
+                 "outputs: {run: sim.Q0}}\n"
+                 "  B: {grafcet: c.yaml, inputs: {go: A.run, stop: sim.I1, SFCPause: C.run},"
+                 " outputs: {run: sim.Q1}}\n"
+                 "  C: {grafcet: c.yaml, inputs: {go: {from: B.run, invert: true}, "
+                 "stop: sim.I2}, outputs: {run: sim.Q2}}\n")
+
+    def run(group: int) -> list[list[object]]:
+        monkeypatch.setattr(inline, "GROUP", group)
+        pl = Plant(load_plant(path), sim=True, virtual=True)
+        assert len([n for n in pl._env if re.fullmatch(r"G\d+", n)]) == 3 // group
+        pl.open()
+        sim, out = pl.drivers["sim"], []
+        for k in range(40):
+            sim.inputs["I0"] = int(k % 7 < 4)
+            sim.inputs["I1"] = int(k % 11 == 3)
+            pl.cycle(k * 10_000_000)
+            out.append([v for i in pl.instances.values() for v in i.m[:]]
+                       + [sim.outputs[q] for q in ("Q0", "Q1", "Q2")])
+        return out
+    assert run(1) == run(3)
