@@ -91,9 +91,11 @@ class Compiler:
 
         ``fast``: the body for a scan that starts with ``slow`` false: not the first scan,
         the last one not paused, no chart flag set. Unless a pre equation can set a flag,
-        the flags' section is left out and the evolution and actions run unguarded; the
-        ``slow`` flag is left set by a chart that sets a flag (the next scan takes the full
-        body, which recomputes it)."""
+        the flags' section is left out, the evolution is guarded by tip mode only and the
+        actions run unguarded; the ``slow`` flag is left set by a chart that sets a flag in
+        its actions or post equations (the next scan takes the full body, which recomputes
+        it). A pre equation that can set a flag keeps the flags' section and the end of
+        scan that records a pause (``wp``) and recomputes ``slow``."""
         g = self.g
         out = Emitter()
         out.level = 3 if fast else 2
@@ -140,7 +142,7 @@ class Compiler:
             for s in g.post:
                 self.exprs.sample_edges(out, [s.node])
                 self.stmts.stmt(out, s.node)
-        if not fast:  # on the fast path first and wp are false already, paused too
+        if not folded:  # folded, first and wp are false already, and nothing paused
             flags = ["wp", *(ident("v", f) for f in SLOW_FLAGS), *SLOW_MEMORY]
             out(f"if slow: {L('first', value='False')}; {L('wp', value='paused')}; "
                 f"slow = {' or '.join(flags)}")

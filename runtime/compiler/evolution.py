@@ -185,10 +185,12 @@ class Evolution:
 
     def section(self, out: Emitter, folded: bool = False) -> None:
         """The evolution of one scan, per scan model (CODESYS: decided for the next scan).
-        ``folded``: the fast path's body, where no chart flag is set (nothing frozen or
-        paused, no tip mode): the guard is ``if True:``, which Python compiles to nothing."""
+        ``folded``: the fast path's body, where no chart flag was set when the scan
+        began (nothing frozen or paused, no tip pulse): only tip mode is tested, which a
+        CODESYS chart's actions, run before its evolution, may have set in this scan."""
         g = self.g
-        guard = "if True:" if folded else "if not frozen and (not v_SFCTipMode or tip):"
+        guard = ("if not v_SFCTipMode:" if folded
+                 else "if not frozen and (not v_SFCTipMode or tip):")
         if self.codesys:
             out("# 5b. CODESYS: the transitions decide the next scan's situation")
         else:
@@ -201,9 +203,8 @@ class Evolution:
             out.indent()
             self.evaluate_transitions(out)
             out.dedent()
-            if folded:
-                return
-            out("elif not paused:  # a pending evolution waits for the end of a pause")
+            out("else:  # tip mode: nothing decided" if folded
+                else "elif not paused:  # a pending evolution waits for the end of a pause")
             out.indent()
             out(self.state.let(*(f"pf{t.index}" for t in g.transitions), value="False"))
             out.dedent()

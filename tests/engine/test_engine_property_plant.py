@@ -1,10 +1,11 @@
 """Property tests of the plant's cycle: two instances of a random chart (all three scan
 models) run by a Plant agree, cycle by cycle, with engine_reference.py, on the fast path
-(inputs passed to the scan, outputs returned, nothing written from outside) and off it:
+(the instances' fast paths inlined in the cycle, nothing written from outside) and off it:
 a link between the instances (an input and a chart flag read in the other instance),
 forced variables and forced points (the slow cycle), chart flags and a memory written
 between cycles, and scans that raise mid-way (a division by zero in a pre equation,
-driven by a physical input, so that it also happens in a fast scan) before going on.
+driven by a physical input, so that it also happens in a fast scan) before going on; with
+A and B inlined in one group function of the plant's usual cycle, and in two.
 
 A scan that raises is, for the reference, a scan that did not happen (the fault comes
 before anything but the chart clock is touched, and the clock of the next scan is the
@@ -16,11 +17,13 @@ from __future__ import annotations
 import itertools
 from pathlib import Path
 from typing import Any
+from unittest import mock
 
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from runtime.engine import inline
 from runtime.engine.plant import Plant
 from runtime.language.plantfile import load_plant
 from tests.engine.engine_reference import RefChart, Reference, Unstable
@@ -152,11 +155,16 @@ SETTINGS = settings(max_examples=100, deadline=None,
                                            HealthCheck.function_scoped_fixture])
 
 
+@pytest.mark.parametrize("group", [inline.GROUP, 1])
 @pytest.mark.parametrize("model", ["immediate", "codesys", "stable"])
-def test_plant_cycle_agrees_with_the_reference(tmp_path: Path, model: str) -> None:
+def test_plant_cycle_agrees_with_the_reference(tmp_path: Path, model: str,
+                                               group: int) -> None:
+    """``group`` 1: A and B inlined in two group functions, B's link to A (an input and a
+    chart flag) read across them."""
     @SETTINGS
     @given(chart=charts(model), seq=cycles)
     def run(chart: RefChart, seq: list[Any]) -> None:
         check(tmp_path, chart, seq)
 
-    run()
+    with mock.patch.object(inline, "GROUP", group):
+        run()
