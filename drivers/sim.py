@@ -42,7 +42,7 @@ class SimDriver(Driver):
         pass
 
     def _write(self) -> None:
-        self.written.update(self.outputs)
+        self.written.update(self.outputs.items())  # pairs by zip, no lookup per point
 
     def _close(self) -> None:
         pass
