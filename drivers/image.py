@@ -34,13 +34,16 @@ class Image(MutableMapping[str, Any]):
     rebind ``vals`` or ``index`` (the plant's cycle holds the very list): change values
     in place (``vals[i] = v``, :meth:`fill`)."""
 
-    __slots__ = ("vals", "index")
+    __slots__ = ("vals", "index", "_items", "_values")
 
     def __init__(self, data: Mapping[str, Any] | Iterable[tuple[str, Any]] = ()) -> None:
         #: values by position; never rebound
         self.vals: list[Any] = []
         #: point -> position; append-only
         self.index: dict[str, int] = {}
+        # the views, made once (they are live): items() costs no object per call
+        self._items = _Items(self)
+        self._values = _Values(self)
         if data:
             self.update(data)
 
@@ -78,10 +81,10 @@ class Image(MutableMapping[str, Any]):
         return self.index.keys()
 
     def items(self) -> _ItemsView[str, Any]:
-        return _Items(self)
+        return self._items
 
     def values(self) -> ValuesView[Any]:
-        return _Values(self)
+        return self._values
 
     def update(self, other: Any = (), /, **kw: Any) -> None:
         """As dict.update; points already in the image are stored without a method call
