@@ -41,9 +41,10 @@ class Image(MutableMapping[str, Any]):
         self.vals: list[Any] = []
         #: point -> position; append-only
         self.index: dict[str, int] = {}
-        # the views, made once (they are live): items() costs no object per call
-        self._items = _Items(self)
-        self._values = _Values(self)
+        # the views, made once (live, on the tables, not on the image: no reference
+        # cycle, an image is freed by reference counting): items() makes no object
+        self._items = _Items(self.index, self.vals)
+        self._values = _Values(self.index, self.vals)
         if data:
             self.update(data)
 
@@ -125,33 +126,45 @@ class Image(MutableMapping[str, Any]):
 
 
 class _Items(_ItemsView[str, Any]):
-    """``Image.items()``: iterates ``zip(index, vals)`` in C."""
+    """``Image.items()``: iterates ``zip(index, vals)`` in C. It holds the image's tables
+    (its base's mapping is the index: same points, same length), never the image."""
 
-    __slots__ = ()
-    _mapping: Image
+    __slots__ = ("_index", "_vals")
+
+    def __init__(self, index: dict[str, int], vals: list[Any]) -> None:
+        super().__init__(index)
+        self._index, self._vals = index, vals
 
     def __iter__(self) -> Iterator[tuple[str, Any]]:
-        m = self._mapping
-        return zip(m.index, m.vals, strict=True)
+        return zip(self._index, self._vals, strict=True)
 
     def __contains__(self, item: object) -> bool:
         if not isinstance(item, tuple) or len(item) != 2:
             return False
-        i = self._mapping.index.get(item[0])
+        i = self._index.get(item[0])
         if i is None:
             return False
-        v = self._mapping.vals[i]
+        v = self._vals[i]
         return v is item[1] or bool(v == item[1])
+
+    def __repr__(self) -> str:
+        return f"image_items({list(self)!r})"
 
 
 class _Values(ValuesView[Any]):
     """``Image.values()``: iterates the ``vals`` list itself."""
 
-    __slots__ = ()
-    _mapping: Image
+    __slots__ = ("_index", "_vals")
+
+    def __init__(self, index: dict[str, int], vals: list[Any]) -> None:
+        super().__init__(index)
+        self._index, self._vals = index, vals
 
     def __iter__(self) -> Iterator[Any]:
-        return iter(self._mapping.vals)
+        return iter(self._vals)
 
     def __contains__(self, value: object) -> bool:
-        return value in self._mapping.vals
+        return value in self._vals
+
+    def __repr__(self) -> str:
+        return f"image_values({self._vals!r})"

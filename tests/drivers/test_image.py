@@ -156,3 +156,26 @@ def test_a_drivers_images_are_images_with_positions_in_declaration_order() -> No
     outs = d.outputs.vals
     d.safe_state()
     assert d.outputs.vals is outs and outs == [0, 0] and d.written == {"Q1": 0, "Q0": 0}
+
+
+def test_an_image_is_freed_by_reference_counting() -> None:
+    """No reference cycle (its views hold its tables, not the image): a dropped driver's
+    image goes at once, never left to the cyclic collector (see Plant.dispose)."""
+    import gc
+    import weakref
+
+    class Box(dict[str, int]):  # a value that can be weakly referenced
+        pass
+
+    img = Image({"a": 1})
+    img["b"] = 2
+    box = Box()
+    img["c"] = box
+    list(img.items()), list(img.values())  # noqa: B018 - the views used
+    ref = weakref.ref(box)
+    gc.disable()
+    try:
+        del img, box
+        assert ref() is None
+    finally:
+        gc.enable()
