@@ -492,7 +492,8 @@ class PolledDriver(Driver):
     def _write(self) -> None:
         with self._lock:
             changed = False
-            for p, v in self.outputs.items():
+            out = self.outputs
+            for p, v in zip(out.index, out.vals, strict=True):  # the tables: no view
                 bit = int(v)
                 if self._out_buf.get(p) != bit:
                     self._out_buf[p] = bit

@@ -107,7 +107,8 @@ class GpioDriver(Driver):
         if last is None:
             return
         changed = {}
-        for point, v in self.outputs.items():
+        out = self.outputs
+        for point, v in zip(out.index, out.vals, strict=True):  # the tables: no view
             bit = as_bit(v)
             off = int(point)
             if last.get(off) != bit:

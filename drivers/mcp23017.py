@@ -138,7 +138,8 @@ class Mcp23017Driver(Driver):
         olat = [0, 0]
         if self.inhibited:  # a set-up again (power glitch, reconnect) must not energise
             return olat
-        for point, value in self.outputs.items():
+        out = self.outputs
+        for point, value in zip(out.index, out.vals, strict=True):  # no view
             if value:
                 port, bit = self._bit(point)
                 olat[port] |= 1 << bit

@@ -67,7 +67,8 @@ class Pcf8574Driver(Driver):
         latch = 0xFF & ~self._out_mask  # inputs and unbound pins: 1 (weak pull-up)
         if self.inhibited:  # a latch rewrite (power glitch, reconnect) must not energise
             return latch
-        for point, value in self.outputs.items():
+        out = self.outputs
+        for point, value in zip(out.index, out.vals, strict=True):  # no view
             if value:
                 latch |= 1 << int(point[1])
         return latch
