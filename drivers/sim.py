@@ -44,7 +44,7 @@ class SimDriver(Driver):
 
     def _write(self) -> None:
         out, written = self.outputs, self.written
-        if len(written) == len(out):  # the usual case: one list copy, no lookup per point
+        if len(written.vals) == len(out.vals):  # the usual case: one list copy, no lookup
             written.vals[:] = out.vals
         else:  # points added since the last write: appended in the same order
             written.update(zip(out.index, out.vals, strict=True))
