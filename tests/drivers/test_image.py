@@ -179,3 +179,20 @@ def test_an_image_is_freed_by_reference_counting() -> None:
         assert ref() is None
     finally:
         gc.enable()
+
+
+def test_update_takes_what_dict_update_takes() -> None:
+    """A dict, an Image, another mapping (anything with keys()), pairs, keywords."""
+    from types import MappingProxyType
+    img, d = Image({"a": 0}), {"a": 0}
+    for arg, kw in (({"b": 1}, {}), (Image({"a": 2, "c": 3}), {}),
+                    (MappingProxyType({"d": 4}), {}), (zip("ef", (5, 6), strict=True), {}),
+                    ([("a", 7)], {"g": 8})):
+        if isinstance(arg, zip):
+            pairs = list(arg)
+            img.update(iter(pairs), **kw)
+            d.update(iter(pairs), **kw)
+        else:
+            img.update(arg, **kw)
+            d.update(arg, **kw)
+        assert img.copy() == d and list(img) == list(d)
