@@ -65,21 +65,26 @@ class DrawerModel:
 
     def __init__(self, daemon: Daemon, n: int) -> None:
         sim = daemon.plant.drivers["sim"]
-        self.inp, self.out, self.n = sim.inputs, sim.outputs, n
+        self.n = n
         for i in range(n):
-            self.inp[f"I{8 * i}"] = 1
-            self.inp[f"I{8 * i + 3}"] = 1
+            sim.inputs[f"I{8 * i}"] = 1
+            sim.inputs[f"I{8 * i + 3}"] = 1
+        # the images' value lists by the points' positions (drivers/image.py), as the
+        # plant's cycle reads them: no lookup by name per cycle
+        self.inp, self.out = sim.inputs.vals, sim.outputs.vals
+        at, qt = sim.inputs.index, sim.outputs.index
+        self.pos = [(at[f"I{8 * i + 1}"], at[f"I{8 * i + 2}"], at[f"I{8 * i + 3}"],
+                     qt[f"Q{8 * i}"], qt[f"Q{8 * i + 1}"]) for i in range(n)]
 
     def __call__(self, cycle: int) -> None:
         inp, out = self.inp, self.out
         press = 1 if cycle % 200 < 5 else 0
-        for i in range(self.n):
-            b = 8 * i
-            inp[f"I{b + 1}"] = press
-            if out[f"Q{b}"]:
-                inp[f"I{b + 2}"], inp[f"I{b + 3}"] = 1, 0
-            elif out[f"Q{b + 1}"]:
-                inp[f"I{b + 2}"], inp[f"I{b + 3}"] = 0, 1
+        for marcha, open_, closed, q_open, q_close in self.pos:
+            inp[marcha] = press
+            if out[q_open]:
+                inp[open_], inp[closed] = 1, 0
+            elif out[q_close]:
+                inp[open_], inp[closed] = 0, 1
 
 
 def run_one(path: str, n: int, seconds: float, manage_gc: bool) -> dict[str, Any]:

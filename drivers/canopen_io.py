@@ -478,12 +478,14 @@ class CanopenDriver(PolledDriver):
         send_all, self._send_all = self._send_all, False
         if self.cfg.sync_s is None:
             send_all = True  # every cycle
+        index, vals = self.outputs.index, self.outputs.vals  # by position: no call per point
         for pdo in self._rpdos:
             if not pdo.bits:
                 continue
             data = bytearray(pdo.length)
             for byte, bit, point in pdo.bits:
-                if self.outputs.get(point):
+                i = index.get(point)
+                if i is not None and vals[i]:
                     data[byte] |= 1 << bit
             payload = bytes(data)
             if send_all or self._sent.get(pdo.cob_id) != payload:

@@ -56,6 +56,7 @@ class GpioDriver(Driver):
         self._request: Any = None
         self._in_offsets: list[int] = []
         self._in_points: list[str] = []
+        self._in_pos: list[int] = []  # the input points' positions in the image
         self._last_written: dict[int, int] | None = None
 
     def _check_point(self, point: str, direction: Direction) -> PointKind:
@@ -64,6 +65,7 @@ class GpioDriver(Driver):
     def _open(self) -> None:
         self._in_points = sorted(self.inputs, key=int)
         self._in_offsets = [int(p) for p in self._in_points]
+        self._in_pos = [self.inputs.index[p] for p in self._in_points]
         out_offsets = sorted(int(p) for p in self.outputs)
         config: dict[Iterable[int | str] | int | str, gpiod.LineSettings | None] = {}
         if self._in_offsets:
@@ -96,15 +98,17 @@ class GpioDriver(Driver):
         if not self._in_offsets:
             return
         values = self._request.get_values(self._in_offsets)
-        for point, v in zip(self._in_points, values, strict=True):
-            self.inputs[point] = 1 if v is Value.ACTIVE else 0
+        vals = self.inputs.vals
+        for i, v in zip(self._in_pos, values, strict=True):
+            vals[i] = 1 if v is Value.ACTIVE else 0
 
     def _write(self) -> None:
         last = self._last_written
         if last is None:
             return
         changed = {}
-        for point, v in self.outputs.items():
+        out = self.outputs
+        for point, v in zip(out.index, out.vals, strict=True):  # the tables: no view
             bit = as_bit(v)
             off = int(point)
             if last.get(off) != bit:

@@ -80,6 +80,8 @@ class Mcp23017Driver(Driver):
         self._iodir = [0xFF, 0xFF]
         self._gppu = [0, 0]
         self._olat: list[int] | None = None
+        #: per input point: (its position in the image, port, bit), set by _open()
+        self._in_bits: list[tuple[int, int, int]] = []
         self._next_check_ns = 0
 
     def _check_point(self, point: str, direction: Direction) -> PointKind:
@@ -97,8 +99,10 @@ class Mcp23017Driver(Driver):
         for point in self.outputs:
             port, bit = self._bit(point)
             iodir[port] &= ~(1 << bit) & 0xFF
-        for point in self.inputs:
+        self._in_bits.clear()
+        for point, i in self.inputs.index.items():
             port, bit = self._bit(point)
+            self._in_bits.append((i, port, bit))
             if self.pull_up:
                 gppu[port] |= 1 << bit
         self._iodir, self._gppu = iodir, gppu
@@ -134,7 +138,8 @@ class Mcp23017Driver(Driver):
         olat = [0, 0]
         if self.inhibited:  # a set-up again (power glitch, reconnect) must not energise
             return olat
-        for point, value in self.outputs.items():
+        out = self.outputs
+        for point, value in zip(out.index, out.vals, strict=True):  # no view
             if value:
                 port, bit = self._bit(point)
                 olat[port] |= 1 << bit
@@ -163,12 +168,12 @@ class Mcp23017Driver(Driver):
                             self._expected())
                 self.reinits += 1
                 self._setup()
-        if not self.inputs:
+        if not self._in_bits:
             return
         gpio = self._bus.read_i2c_block_data(self.address, GPIOA, 2)
-        for point in self.inputs:
-            port, bit = self._bit(point)
-            self.inputs[point] = (gpio[port] >> bit) & 1
+        vals = self.inputs.vals
+        for i, port, bit in self._in_bits:
+            vals[i] = (gpio[port] >> bit) & 1
 
     def _transfer_outputs(self) -> None:
         if not self.outputs:

@@ -54,6 +54,8 @@ class Pcf8574Driver(Driver):
         self._bus: Any = None
         self._latch: int | None = None
         self._out_mask = 0
+        #: per input point: (its position in the image, its pin), set by _open()
+        self._in_bits: list[tuple[int, int]] = []
 
     def _check_point(self, point: str, direction: Direction) -> PointKind:
         return POINTS[self.type_name].check(self.name, point, direction)
@@ -65,7 +67,8 @@ class Pcf8574Driver(Driver):
         latch = 0xFF & ~self._out_mask  # inputs and unbound pins: 1 (weak pull-up)
         if self.inhibited:  # a latch rewrite (power glitch, reconnect) must not energise
             return latch
-        for point, value in self.outputs.items():
+        out = self.outputs
+        for point, value in zip(out.index, out.vals, strict=True):  # no view
             if value:
                 latch |= 1 << int(point[1])
         return latch
@@ -74,6 +77,7 @@ class Pcf8574Driver(Driver):
         self._out_mask = 0
         for point in self.outputs:
             self._out_mask |= 1 << int(point[1])
+        self._in_bits = [(i, int(p[1])) for p, i in self.inputs.index.items()]
         try:
             self._bus = smbus2.SMBus(self.bus_number)
             self._latch = None
@@ -105,8 +109,9 @@ class Pcf8574Driver(Driver):
                 self.reinits += 1
                 self._latch = None
                 self._transfer_outputs()
-        for point in self.inputs:
-            self.inputs[point] = (pins >> int(point[1])) & 1
+        vals = self.inputs.vals
+        for i, bit in self._in_bits:
+            vals[i] = (pins >> bit) & 1
 
     def _transfer_outputs(self) -> None:
         latch = self._image()

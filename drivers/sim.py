@@ -7,6 +7,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from drivers.base import Direction, Driver, PointKind
+from drivers.image import Image
 from drivers.registry import POINTS, SIM_KEYS
 
 
@@ -29,8 +30,8 @@ class SimDriver(Driver):
         clock: Callable[[], int] = time.monotonic_ns,
     ) -> None:
         super().__init__(name, config, clock=clock)
-        #: the outputs as last written, point -> value
-        self.written: dict[str, Any] = {}
+        #: the outputs as last written, point -> value (positions as in ``outputs``)
+        self.written = Image()
 
     def _check_point(self, point: str, direction: Direction) -> PointKind:
         return POINTS[self.type_name].check(self.name, point, direction)
@@ -42,7 +43,11 @@ class SimDriver(Driver):
         pass
 
     def _write(self) -> None:
-        self.written.update(self.outputs)
+        out, written = self.outputs, self.written
+        if len(written.vals) == len(out.vals):  # the usual case: one list copy, no lookup
+            written.vals[:] = out.vals
+        else:  # points added since the last write: appended in the same order
+            written.update(zip(out.index, out.vals, strict=True))
 
     def _close(self) -> None:
         pass

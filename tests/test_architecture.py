@@ -24,7 +24,7 @@ PARTS = (
 #: drivers modules with no bus library (the driver contract, lookup by type, durations, and
 #: the in-memory driver of simulations): what a layer below the controller may use
 DRIVER_CONTRACT = frozenset({"drivers", "drivers.base", "drivers.config", "drivers.registry",
-                             "drivers.durations", "drivers.sim"})
+                             "drivers.durations", "drivers.sim", "drivers.image"})
 
 #: part -> the parts it may import (itself always allowed). "drivers.contract" means only the
 #: modules of DRIVER_CONTRACT; "drivers" means any driver module.

@@ -125,12 +125,15 @@ class PlantNames:
 
 @dataclass(slots=True)
 class Image:
-    """The process image after one cycle: state lists, driver images, driver health."""
+    """The process image after one cycle: state lists, driver images, driver health.
+
+    A driver's image is its value list (``drivers.image.Image.vals``), read by the point's
+    position: a capture is a list copy per driver, no lookup per point."""
 
     scan: int
     m: list[Memory]
-    inputs: list[dict[str, Any]]
-    outputs: list[dict[str, Any]]
+    inputs: list[list[Any]]
+    outputs: list[list[Any]]
     ok: list[bool]
 
 
@@ -194,10 +197,10 @@ class Catalogue:
         for j, (dname, d) in enumerate(plant.drivers.items()):
             pts = []
             for direction, points in (("in", d.inputs), ("out", d.outputs)):
-                for p in points:
+                for p, pos in points.index.items():
                     typ = A.Type.BOOL if d.kinds.get(p) is PointKind.BOOL else A.Type.INT
                     text = f"{dname}.{p}"
-                    self.names[text] = Signal(text, typ, _point_reader(direction, j, p),
+                    self.names[text] = Signal(text, typ, _point_reader(direction, j, pos),
                                             f"point {direction}",
                                             tuple(feeds.get(text, ())))
                     pts.append(text)
@@ -264,16 +267,16 @@ class Catalogue:
         """A copy of the process image (scan thread, between cycles: a few list copies)."""
         p = self.plant
         return Image(scan, [inst.m[:] for inst in p.instances.values()],
-                     [dict(d.inputs) for d in p.drivers.values()],
-                     [dict(d.outputs) for d in p.drivers.values()],
+                     [d.inputs.vals[:] for d in p.drivers.values()],
+                     [d.outputs.vals[:] for d in p.drivers.values()],
                      [d.ok for d in p.drivers.values()])
 
     def live(self) -> Image:
         """The process image itself, without copies (read it at a scan boundary only)."""
         p = self.plant
         return Image(-1, [inst.m for inst in p.instances.values()],
-                     [d.inputs for d in p.drivers.values()],
-                     [d.outputs for d in p.drivers.values()],
+                     [d.inputs.vals for d in p.drivers.values()],
+                     [d.outputs.vals for d in p.drivers.values()],
                      [d.ok for d in p.drivers.values()])
 
 
@@ -295,10 +298,11 @@ def _current_step_reader(i: int, leaf: tuple[tuple[str, int], ...]
     return read
 
 
-def _point_reader(direction: str, j: int, point: str) -> Callable[[Image], Any]:
+def _point_reader(direction: str, j: int, pos: int) -> Callable[[Image], Any]:
+    """Reader of the point at position ``pos`` of driver ``j``'s input or output image."""
     if direction == "in":
-        return lambda img: img.inputs[j][point]
-    return lambda img: img.outputs[j][point]
+        return lambda img: img.inputs[j][pos]
+    return lambda img: img.outputs[j][pos]
 
 
 def _ok_reader(j: int) -> Callable[[Image], Any]:

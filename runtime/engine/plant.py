@@ -8,6 +8,9 @@ it is one function call with no interpretation of the bindings: the usual one (n
 forced or pulsed) one unrolled sequence of scan calls, each instance's input bindings as
 its arguments and its outputs copied from what it returns; the slow one (forces, pulses)
 writes the bindings into the instances' state and applies the forces around each scan.
+Both read and write the drivers' images by position (``IL_sim[3]``, ``OL_sim[7] = ...``
+on the images' value lists, drivers/image.py): the positions are resolved when the cycle
+is generated and never change.
 
 The charts are scanned on the program's time, not the raw clock: it stands still while
 they are not scanned (console pause, iocheck) and each stepped cycle counts exactly one
@@ -18,7 +21,6 @@ from __future__ import annotations
 
 import logging
 import re
-import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from types import FrameType
@@ -174,7 +176,9 @@ class Plant:
             if b.point == "ok":
                 val = f"D[{const(b.driver)}].health is OK"
                 return f"not ({val})" if b.invert else f"({val})"
-            ref_ = f"I_{b.driver}[{const(sys.intern(b.point or ''))}]"
+            # the point's position in the driver's image (fixed for the image's life)
+            pos = self.drivers[b.driver].inputs.index[b.point or ""]
+            ref_ = f"IL_{b.driver}[{const(pos)}]"
             if vtype is A.Type.BOOL:
                 return f"({ref_} == 0)" if b.invert else f"({ref_} != 0)"
             return ref_
@@ -244,8 +248,8 @@ class Plant:
             outs = []
             for sig, b in idef.outputs.items():
                 val = inl.cell(inst, prog.var_index(sig))
-                key = inl.const(sys.intern(b.point or ""))
-                outs.append(f"O_{b.driver}[{key}] = {'not ' if b.invert else ''}{val}")
+                pos = inl.const(self.drivers[b.driver or ""].outputs.index[b.point or ""])
+                outs.append(f"OL_{b.driver}[{pos}] = {'not ' if b.invert else ''}{val}")
             inl.add(inst, ins, outs)
         for j, fn in enumerate(inl.build(self._book)):
             self._env[f"G{j}"] = fn
@@ -303,7 +307,9 @@ class Plant:
                 val = f"M_{name}[{inst.program.var_index(sig)}]"
                 if b.invert:
                     val = f"not {val}"
-                lines.append(f"    O_{b.driver}[{b.point!r}] = {val}  # {name}.{sig}")
+                pos = self.drivers[b.driver or ""].outputs.index[b.point or ""]
+                lines.append(f"    OL_{b.driver}[{pos}] = {val}  # {name}.{sig} -> "
+                             f"{b.driver}.{b.point}")
         return lines
 
     def _bind_env(self, env: dict[str, Any]) -> None:
@@ -319,8 +325,9 @@ class Plant:
         for name, d in self.drivers.items():
             env[f"R_{name}"] = d.read
             env[f"W_{name}"] = d.write
-            env[f"I_{name}"] = d.inputs
-            env[f"O_{name}"] = d.outputs
+            # the images' value lists, indexed by the points' positions
+            env[f"IL_{name}"] = d.inputs.vals
+            env[f"OL_{name}"] = d.outputs.vals
             env[f"DV_{name}"] = d
         for name, inst in self.instances.items():
             env[f"M_{name}"] = inst.m
@@ -415,8 +422,7 @@ class Plant:
             d.read()
         if zero_outputs:
             for d in self.drivers.values():
-                for p in d.outputs:
-                    d.outputs[p] = 0
+                d.outputs.fill(0)
                 d.write()
             return
         if self.forced_points:

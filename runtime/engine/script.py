@@ -130,6 +130,9 @@ def _apply(plant: Plant, c: Change) -> Callable[[], None]:
         phys = (not logical if t.invert else logical) if t.variable.type is T.BOOL else logical
         value = int(phys) if isinstance(phys, bool) else phys
 
+    # by position in the driver's input image (resolved once, fixed for its life)
+    vals, pos = drv.inputs.vals, drv.inputs.index[point]
+
     def apply_point() -> None:
-        drv.inputs[point] = value
+        vals[pos] = value
     return apply_point

@@ -11,6 +11,7 @@ from collections.abc import Callable, Iterator
 from typing import IO, Any
 
 from drivers.base import Driver
+from drivers.image import Image
 from runtime.compiler.program import Memory
 from runtime.engine.instance import Instance
 from runtime.engine.plant import Plant
@@ -51,10 +52,10 @@ def driver_columns(plant: Plant) -> list[tuple[str, Callable[[], Any]]]:
     """(key, getter) for every driver point (the process image) and every ``driver.ok``."""
     cols: list[tuple[str, Callable[[], Any]]] = []
     for dname, d in plant.drivers.items():
-        for p in d.inputs:
-            cols.append((f"{dname}.{p}", _point(d.inputs, p)))
-        for p in d.outputs:
-            cols.append((f"{dname}.{p}", _point(d.outputs, p)))
+        for p, i in d.inputs.index.items():
+            cols.append((f"{dname}.{p}", _point(d.inputs, i)))
+        for p, i in d.outputs.index.items():
+            cols.append((f"{dname}.{p}", _point(d.outputs, i)))
         cols.append((f"{dname}.ok", _driver_ok(d)))
     return cols
 
@@ -81,8 +82,10 @@ def _step_ms(inst: Instance, step: str) -> Callable[[], int]:
     return lambda: inst.step_time(step) // 1_000_000
 
 
-def _point(image: dict[str, Any], point: str) -> Callable[[], Any]:
-    return lambda: _num(image[point])
+def _point(image: Image, pos: int) -> Callable[[], Any]:
+    """Getter of the point at position ``pos`` of a driver's image (its value list)."""
+    vals = image.vals
+    return lambda: _num(vals[pos])
 
 
 def _driver_ok(d: Driver) -> Callable[[], int]:

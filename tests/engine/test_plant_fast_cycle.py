@@ -10,6 +10,7 @@ from collections.abc import Callable
 
 import pytest
 
+from drivers.sim import SimDriver
 from runtime.engine import inline
 from runtime.engine.inline import renamed
 from runtime.engine.plant import Plant
@@ -191,3 +192,101 @@ def test_links_across_groups_read_the_same_as_within_one(
                        + [sim.outputs[q] for q in ("Q0", "Q1", "Q2")])
         return out
     assert run(1) == run(3)
+
+
+COPY = """\
+grafcet: Copy
+inputs: [i, j]
+outputs: [x, y]
+pre: ["x := i", "y := i AND NOT j"]
+steps:
+  s0: {initial: true}
+"""
+
+#: per instance: (i's driver.point, j's, j inverted, y's driver.point, x's, x inverted);
+#: bound out of order (outputs before inputs of lower numbers, y before x), across two
+#: drivers and more instances than a group holds, so that positions differ from numbers
+WIRING = [(f"{'ab'[k % 2]}.I{(7 * k) % 23}", f"{'ba'[k % 3 == 0]}.I{(5 * k + 11) % 23}",
+           k % 4 == 1, f"{'ab'[k % 3 == 1]}.Q{(11 * k + 3) % 20}",
+           f"{'ba'[k % 3 == 1]}.Q{(11 * k + 3) % 20}", k % 2 == 1) for k in range(20)]
+
+
+def _binding(src: str, invert: bool) -> str:
+    return f"{{from: {src}, invert: true}}" if invert else src
+
+
+def test_the_cycle_reads_and_writes_the_bound_points_by_position(
+        write: Callable[[str, str], str]) -> None:
+    """The cycles read ``IL_d[k]`` and write ``OL_d[k] = ...`` on the images' lists, with
+    positions resolved when the cycle is generated: every instance reads its own points and
+    writes its own, whatever the binding order, inversions and drivers, in the fast cycle
+    and in the slow one (checked by name against a model of the wiring, cycle by cycle)."""
+    write("c.yaml", COPY)
+    lines = ["plc: {cycle: 10ms}", "drivers: {a: {type: sim}, b: {type: sim}}",
+             "instances:"]
+    for k, (i, j, jinv, y, x, xinv) in enumerate(WIRING):
+        lines.append(f"  k{k}: {{grafcet: c.yaml, inputs: {{j: {_binding(j, jinv)}, i: {i}}}, "
+                     f"outputs: {{y: {y}, x: {_binding(x, xinv)}}}}}")
+    path = write("p.yaml", "\n".join(lines) + "\n")
+    ins = sorted({p for w in WIRING for p in w[:2]})
+    for fast in (True, False):
+        plant = Plant(load_plant(path), sim=True, virtual=True)
+        plant.open()
+        drv = plant.drivers
+        # positions are in declaration order, not the points' numbers
+        assert list(drv["a"].inputs.index.values()) == list(range(len(drv["a"].inputs)))
+        assert list(drv["a"].inputs) != sorted(drv["a"].inputs, key=lambda p: int(p[1:]))
+        assert "IL_a[" in plant.source and "OL_b[" in plant.source
+        for c in range(12):
+            # a fixed pseudo-random pattern of the inputs, another every cycle
+            phys = {p: ((n * 2654435761 + c * 40503) >> 7) & 1 for n, p in enumerate(ins)}
+            for p, v in phys.items():
+                d, point = p.split(".")
+                drv[d].inputs[point] = v
+            if fast:
+                assert plant.cycle(c * 10_000_000) is None
+            else:
+                plant._cycle(c * 10_000_000, c * 10_000_000)
+            for k, (i, j, jinv, y, x, xinv) in enumerate(WIRING):
+                vi, vj = bool(phys[i]), bool(phys[j]) != jinv
+                d, q = y.split(".")
+                assert bool(drv[d].outputs[q]) == (vi and not vj), (k, c, y)
+                d, q = x.split(".")
+                assert bool(drv[d].outputs[q]) == (vi != xinv), (k, c, x)
+
+
+def test_a_handed_driver_keeps_its_points_positions_when_a_point_is_added(
+        write: Callable[[str, str], str]) -> None:
+    """An online change hands the open drivers to the new plant
+    (``Plant(..., drivers=...)``). A point the new plant binds is appended to the handed
+    driver's images: the old points keep their positions, so the old plant's captures
+    and the new plant's cycle both read and write the right points."""
+    write("c.yaml", COPY)
+    head = "plc: {cycle: 10ms}\ndrivers: {sim: {type: sim}}\ninstances:\n"
+    old = Plant(load_plant(write("p1.yaml", head +
+                                 "  A: {grafcet: c.yaml, inputs: {i: sim.I4, j: sim.I2}, "
+                                 "outputs: {x: sim.Q3, y: sim.Q1}}\n")), sim=True)
+    old.open()
+    sim = old.drivers["sim"]
+    assert isinstance(sim, SimDriver)
+    vals_in, vals_out = sim.inputs.vals, sim.outputs.vals
+    sim.inputs.update({"I4": 1, "I2": 0})
+    assert old.cycle(0) is None and sim.outputs.copy() == {"Q3": True, "Q1": True}
+    # the new plant: a new instance B on new points I0 and Q0, declared before A's
+    new = Plant(load_plant(write("p2.yaml", head +
+                                 "  B: {grafcet: c.yaml, inputs: {i: sim.I0, j: sim.I4}, "
+                                 "outputs: {x: sim.Q0, y: sim.Q3}}\n"
+                                 "  A: {grafcet: c.yaml, inputs: {i: sim.I4, j: sim.I2}, "
+                                 "outputs: {x: sim.Q2, y: sim.Q1}}\n")),
+                sim=True, drivers={"sim": sim})
+    assert new.drivers["sim"] is sim
+    assert sim.inputs.vals is vals_in and sim.outputs.vals is vals_out
+    assert sim.inputs.index == {"I4": 0, "I2": 1, "I0": 2}
+    assert sim.outputs.index == {"Q3": 0, "Q1": 1, "Q0": 2, "Q2": 3}
+    old.dispose()
+    sim.inputs.update({"I0": 1, "I4": 0, "I2": 0})
+    for k in (1, 2):
+        assert new.cycle(k * 10_000_000) is None
+        # B: x = I0, y = I0 and not I4; A: x = I4 (Q2), y = I4 and not I2 (Q1)
+        assert sim.outputs.copy() == {"Q3": True, "Q1": False, "Q2": False, "Q0": True}
+        assert sim.written == sim.outputs.copy()
