@@ -99,6 +99,7 @@ class Template:
     text: str
     slots: list[int]  # the state slots the body names, by index
     slow: bool  # whether it names the ``slow`` flag
+    helpers: set[str]  # the module names it calls (``_idiv``, ``_Unstable``)
 
 
 #: where an instance's prefix goes in a template (a character no Python source holds)
@@ -111,6 +112,7 @@ def template(prog: Program, code: types.CodeType) -> Template:
     state = {s.local: i for i, s in enumerate(prog.slots)}
     temps = set(code.co_varnames[code.co_argcount:])
     used: set[int] = set()
+    helpers: set[str] = set()
     slow = False
 
     def rename(name: str) -> str | None:
@@ -120,14 +122,17 @@ def template(prog: Program, code: types.CodeType) -> Template:
         elif name == "slow":
             slow = True
         elif name not in temps:
-            if name in ("now", "up") or name in _GLOBALS or name in _BUILTINS:
+            if name in _GLOBALS:
+                helpers.add(name)
+                return None
+            if name in ("now", "up") or name in _BUILTINS:
                 return None
             raise LookupError(f"{name!r} in the scan of chart {prog.grafcet.name}: not a "
                               "state slot, a temporary or a helper")
         return MARK + name
 
     text = "\n".join("    " + line for line in renamed(prog.fast, rename))
-    return Template(text, sorted(used), slow)
+    return Template(text, sorted(used), slow, helpers)
 
 
 class Inliner:
@@ -155,6 +160,7 @@ class Inliner:
         self._free: list[dict[str, Any]] = []  # per group: free name -> its cell
         self._consts: list[dict[str, Any]] = []  # per group: default name -> its value
         self._links: list[dict[tuple[int, int], str]] = []  # (id(cell), 0) -> L name
+        self._used: list[set[str]] = []  # per group: the words its lines name
         self._templates: dict[int, Template] = {}
         #: per distinct code: the position (in the group) of each line of its source
         self._lines: dict[types.CodeType, list[int]] = {}
@@ -199,6 +205,7 @@ class Inliner:
             self._free.append({})
             self._consts.append({"_group": g})
             self._links.append({})
+            self._used.append(set())
 
     def add(self, inst: Instance, inputs: list[str], outputs: list[str]) -> None:
         """Inline ``inst``'s scan into the current group, after its input lines and
@@ -210,6 +217,7 @@ class Inliner:
             tpl = self._templates[id(prog)] = template(prog, scan_code(inst))
         for i in tpl.slots:
             self.cell(inst, i)
+        self._used[-1] |= tpl.helpers | set(_WORD.findall("\n".join(inputs + outputs)))
         self._texts[-1].append("\n".join([
             f"# instance {j} of the group ({inst.grafcet.name})", *inputs,
             f"if {self.slow(inst)}: {self.const(inst.scan_state)}(now, up)", "else:",
@@ -219,10 +227,8 @@ class Inliner:
         """The group functions, in plant order, on the instances' own cells."""
         codes: dict[str, types.CodeType] = {}
         out: list[Callable[[int, int], None]] = []
-        for texts, free, consts in zip(self._texts, self._free, self._consts, strict=True):
-            used: set[str] = set()
-            for text in texts:
-                used |= set(_WORD.findall(text))
+        for texts, free, consts, used in zip(self._texts, self._free, self._consts,
+                                             self._used, strict=True):
             params = sorted(consts) + sorted(used & self.env.keys())
             names = sorted(free)
             head = ["def _outer():", *(f"    {n} = None" for n in names),

@@ -5,9 +5,9 @@ each instance in plant order, copy its inputs through the bindings (``invert`` a
 here and only here), scan it; copy every output through the bindings into the drivers'
 output images; every driver's ``write()``. The cycle is generated as Python code once, so
 it is one function call with no interpretation of the bindings: the usual one (nothing
-forced or pulsed) one unrolled sequence of scan calls, each instance's input bindings as
-its arguments and its outputs copied from what it returns; the slow one (forces, pulses)
-writes the bindings into the instances' state and applies the forces around each scan.
+forced or pulsed) makes no call per instance, every instance's scan inlined with its
+bindings in group functions (inline.py); the slow one (forces, pulses) writes the bindings
+into the instances' state and applies the forces around each scan.
 Both read and write the drivers' images by position (``IL_sim[3]``, ``OL_sim[7] = ...``
 on the images' value lists, drivers/image.py): the positions are resolved when the cycle
 is generated and never change.
@@ -140,6 +140,8 @@ class Plant:
         exec(compile_code(self.source, "<plant cycle>", book), env)  # noqa: S102 - generated
         #: the cycle with no force and no pulse (semantics unchanged, less to do)
         self._cycle_fast: Callable[[int, int], Driver | None] = env["cycle"]
+        if self.virtual and len(self._inliner.members) == 1:  # the group is the cycle
+            self._cycle_fast = env["G0"]
         #: the cycle with forces and pulses applied around each scan
         self._cycle: Callable[[int, int], Driver | None] = env["cycle_slow"]
         self._copy_outputs: Callable[[], None] = env["copy_outputs"]
