@@ -2,23 +2,29 @@
 
 A compiled chart's scan keeps its state in the cells of its closure (program.State), and
 its fast path (``Program.fast``, the body for a scan that starts with ``slow`` false) is
-plain Python over those cells. This module writes, for a group of instances, one function
-whose body is, per instance: its input bindings stored into its cells, then its fast path
-with every name of the chart made the instance's own (``i3_x_gsAbrir``, a state cell;
-``i3_f0``, a temporary), or its whole scan (``scan_state``) when its ``slow`` cell is
-set; then its outputs copied through their bindings. The function is then rebuilt on the
-instances' own cells (``types.FunctionType(code, globals, name, defaults, closure)``): it
-reads and writes the very cells the instances' scan closures and state views use, so the
-console, trace, retain and online change see no difference.
+plain Python over those cells. This module writes, for a group of instances, one body
+that is, per instance: its input bindings stored into its cells, then its fast path with
+every name of the chart made the instance's own (``p3_x_gsAbrir``, a state cell;
+``p3_f0``, a temporary), or its whole scan (``scan_state``) when its ``slow`` cell is set;
+then its outputs copied through their bindings (by position in the drivers' images).
 
-The instances are grouped (``GROUP`` per function): a function call per group costs less
-than a frame holding every cell of a large plant (each call copies its closure's cells
-into the new frame), and each group's source compiles on its own.
+Each group is a generator made of that code with the instances' own cells as its closure
+(``types.FunctionType(code, globals, name, defaults, closure)``), started once: it reads
+and writes the very cells the instances' scan closures and state views use, so the
+console, trace, retain and online change see no difference. A cycle resumes it with
+``send((now, up))``: its frame, cells and defaults in it, is made once, where a function
+call would copy every cell of its closure into a new frame each time (about 0.8 ns a cell,
+some 27 cells per drawer tester). A scan's fault is caught in the generator and handed
+back to the cycle, which raises it: the generator lives on for the cycles after the fault.
 
-A fault in an inlined scan is raised in a frame of ``FILENAME``; :meth:`Inliner.owner`
-gives the instance of a line of it. The groups of a plant of like instances (one chart,
-bindings of one shape) share one code object: the plant compiles one group's text, not
-every instance's (about 10 ms instead of 70 for 100 drawer testers).
+The instances are grouped (``GROUP`` per generator), so each group's source compiles on
+its own, and the groups of a plant of like instances (one chart, bindings of one shape:
+what differs between instances, a point's position or a scan function, is a default
+argument, ``K0``, and another group's cell a numbered name, ``L0``) share one code
+object: the plant compiles one group's text, not every instance's (about 10 ms instead of
+70 for 100 drawer testers). A fault in an inlined scan is raised in a frame of
+``FILENAME``; :meth:`Inliner.owner` gives its instance from the frame's group number
+(``_group``) and line.
 """
 
 from __future__ import annotations
@@ -41,12 +47,14 @@ from runtime.engine.instance import Instance
 
 #: the file name of the groups' code, as tracebacks show it
 FILENAME = "<plant scans>"
-#: instances per group function
+#: instances per group
 GROUP = 16
 _BUILTINS = set(dir(builtins))
 #: the names a chart's scan reads from its module (program.py's environment)
 _GLOBALS = {**HELPERS, "_Unstable": unstable_chart}
 _WORD = re.compile(r"[A-Za-z_]\w*")
+#: a group's ``send((now, up))``: None, or the exception one of its scans raised
+Send = Callable[[tuple[int, int]], "BaseException | None"]
 
 
 def scan_code(inst: Instance) -> types.CodeType:
@@ -136,7 +144,7 @@ def template(prog: Program, code: types.CodeType) -> Template:
 
 
 class Inliner:
-    """Writes and builds the group functions of a plant's usual cycle.
+    """Writes and builds the groups of a plant's usual cycle.
 
     For every instance in plant order ``begin(inst)``, then its lines written with the
     names :meth:`cell`, :meth:`slow` and :meth:`const` give, then ``add(inst, inputs,
@@ -223,42 +231,55 @@ class Inliner:
             f"if {self.slow(inst)}: {self.const(inst.scan_state)}(now, up)", "else:",
             tpl.text.replace(MARK, f"p{j}_"), *outputs]))
 
-    def build(self, book: CodeBook | None) -> list[Callable[[int, int], None]]:
-        """The group functions, in plant order, on the instances' own cells."""
+    def build(self, book: CodeBook | None) -> list[Send]:
+        """The groups, in plant order, on the instances' own cells: each a generator,
+        created and started once, whose ``send((now, up))`` runs the group's scans and
+        returns None, or the exception a scan raised (the generator lives on: the cycle
+        raises it)."""
         codes: dict[str, types.CodeType] = {}
-        out: list[Callable[[int, int], None]] = []
+        out: list[Send] = []
         for texts, free, consts, used in zip(self._texts, self._free, self._consts,
                                              self._used, strict=True):
             params = sorted(consts) + sorted(used & self.env.keys())
             names = sorted(free)
             head = ["def _outer():", *(f"    {n} = None" for n in names),
-                    f"    def group(now, up{''.join(f', {n}=None' for n in params)}):"]
+                    f"    def group({', '.join(f'{n}=None' for n in params)}):"]
             if names:
                 head.append(f"        nonlocal {', '.join(names)}")
+            head += ["        now, up = yield", "        while True:", "            try:"]
             lines = [-1] * len(head)
             body = []
             for j, text in enumerate(texts):
                 chunk = text.split("\n")
-                body += ["        " + line for line in chunk]
+                body += ["                " + line for line in chunk]
                 lines += [j] * len(chunk)
-            source = "\n".join([*head, *body, "    return group"]) + "\n"
+            tail = ["            except GeneratorExit:",
+                    "                raise",
+                    "            except BaseException as _fault:  # to the cycle, which raises it",
+                    "                now, up = yield _fault",
+                    "                continue",
+                    "            now, up = yield",
+                    "    return group"]
+            source = "\n".join([*head, *body, *tail]) + "\n"
             code = codes.get(source)
             if code is None:
                 outer = next(c for c in compile_code(source, FILENAME, book).co_consts
                              if isinstance(c, types.CodeType))
                 code = codes[source] = next(c for c in outer.co_consts
                                             if isinstance(c, types.CodeType))
-                self._lines[code] = [*lines, -1]
+                self._lines[code] = [*lines, *[-1] * len(tail)]
                 self.sources.append(source)
             values = {**self.env, **consts}
-            defaults = tuple(values[n] for n in code.co_varnames[2:code.co_argcount])
-            out.append(types.FunctionType(code, self.env, "group", defaults,
-                                          tuple(free[n] for n in code.co_freevars)))
+            defaults = tuple(values[n] for n in code.co_varnames[:code.co_argcount])
+            gen = types.FunctionType(code, self.env, "group", defaults,
+                                     tuple(free[n] for n in code.co_freevars))()
+            next(gen)  # to its first yield: ready for the first cycle
+            out.append(gen.send)
         return out
 
     def owner(self, frame: types.FrameType, lineno: int) -> str | None:
         """The instance whose inlined scan is at line ``lineno`` of ``frame`` (a frame of
-        a group function, in a fault's traceback), None if none."""
+        a group, in a fault's traceback), None if none."""
         lines = self._lines.get(frame.f_code)
         g = frame.f_locals.get("_group")
         if lines is None or not isinstance(g, int) or not 1 <= lineno <= len(lines):

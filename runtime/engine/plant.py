@@ -6,7 +6,7 @@ here and only here), scan it; copy every output through the bindings into the dr
 output images; every driver's ``write()``. The cycle is generated as Python code once, so
 it is one function call with no interpretation of the bindings: the usual one (nothing
 forced or pulsed) makes no call per instance, every instance's scan inlined with its
-bindings in group functions (inline.py); the slow one (forces, pulses) writes the bindings
+bindings in groups (inline.py); the slow one (forces, pulses) writes the bindings
 into the instances' state and applies the forces around each scan.
 Both read and write the drivers' images by position (``IL_sim[3]``, ``OL_sim[7] = ...``
 on the images' value lists, drivers/image.py): the positions are resolved when the cycle
@@ -140,8 +140,6 @@ class Plant:
         exec(compile_code(self.source, "<plant cycle>", book), env)  # noqa: S102 - generated
         #: the cycle with no force and no pulse (semantics unchanged, less to do)
         self._cycle_fast: Callable[[int, int], Driver | None] = env["cycle"]
-        if self.virtual and len(self._inliner.members) == 1:  # the group is the cycle
-            self._cycle_fast = env["G0"]
         #: the cycle with forces and pulses applied around each scan
         self._cycle: Callable[[int, int], Driver | None] = env["cycle_slow"]
         self._copy_outputs: Callable[[], None] = env["copy_outputs"]
@@ -253,9 +251,12 @@ class Plant:
                 pos = inl.const(self.drivers[b.driver or ""].outputs.index[b.point or ""])
                 outs.append(f"OL_{b.driver}[{pos}] = {'not ' if b.invert else ''}{val}")
             inl.add(inst, ins, outs)
-        for j, fn in enumerate(inl.build(self._book)):
-            self._env[f"G{j}"] = fn
-            lines.append(f"    G{j}(now, up)")
+        groups = inl.build(self._book)
+        self._env.update({f"G{j}": send for j, send in enumerate(groups)})
+        if groups:
+            lines.append("    t = (now, up)")
+        for j in range(len(groups)):  # a fault in a scan comes back from its group
+            lines += [f"    e = G{j}(t)", "    if e is not None: raise e"]
         if not self.virtual:
             lines += [f"    W_{name}()" for name in self.drivers]
         lines.append("    return None")
