@@ -186,11 +186,12 @@ class Evolution:
     def section(self, out: Emitter, folded: bool = False) -> None:
         """The evolution of one scan, per scan model (CODESYS: decided for the next scan).
         ``folded``: the fast path's body, where no chart flag was set when the scan
-        began (nothing frozen or paused, no tip pulse): only tip mode is tested, which a
-        CODESYS chart's actions, run before its evolution, may have set in this scan."""
+        began (nothing frozen or paused, no tip pulse) and none by a pre equation: only a
+        CODESYS chart tests tip mode, which its actions, run before its evolution, may
+        have set in this scan (``if True:`` compiles to nothing)."""
         g = self.g
-        guard = ("if not v_SFCTipMode:" if folded
-                 else "if not frozen and (not v_SFCTipMode or tip):")
+        guard = ("if not frozen and (not v_SFCTipMode or tip):" if not folded
+                 else "if not v_SFCTipMode:" if self.codesys else "if True:")
         if self.codesys:
             out("# 5b. CODESYS: the transitions decide the next scan's situation")
         else:
