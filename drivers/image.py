@@ -13,12 +13,15 @@ a dict.
 
 Every per-cycle path runs in C: ``items()`` iterates ``zip(index, vals)``, ``values()``
 ``iter(vals)``, ``keys()`` is the index's own keys view, ``copy()`` builds a dict with
-``dict(zip(index, vals))`` and ``fill(value)`` sets every value at once. Point names are
+``dict(zip(index, vals))`` and ``fill(value)`` sets every value at once. ``copy.copy`` and
+``copy.deepcopy`` give a new Image; an image is not a dict for ``json.dumps`` (dump its
+``copy()``). Point names are
 interned on insertion, so a lookup by a name the plant holds matches by identity.
 """
 
 from __future__ import annotations
 
+import copy
 import sys
 from collections.abc import ItemsView as _ItemsView
 from collections.abc import Iterable, Iterator, KeysView, Mapping, MutableMapping, ValuesView
@@ -127,6 +130,14 @@ class Image(MutableMapping[str, Any]):
     def copy(self) -> dict[str, Any]:
         """A plain dict of the image (point -> value), in position order."""
         return dict(zip(self.index, self.vals, strict=True))
+
+    def __copy__(self) -> Image:
+        """A new image with the same points and values (``copy.copy``): never the same
+        tables (a copy that wrote into the driver's image would be a hidden output)."""
+        return Image(zip(self.index, self.vals, strict=True))
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> Image:
+        return Image(zip(self.index, copy.deepcopy(self.vals, memo), strict=True))
 
     def fill(self, value: Any) -> None:
         """Every point's value set to ``value`` (the list kept: same object)."""

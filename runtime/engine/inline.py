@@ -37,7 +37,7 @@ import tokenize
 import types
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeAlias
 
 from runtime.compiler.codebook import CodeBook, compile_code
 from runtime.compiler.evolution import unstable_chart
@@ -53,6 +53,8 @@ _BUILTINS = set(dir(builtins))
 #: the names a chart's scan reads from its module (program.py's environment)
 _GLOBALS = {**HELPERS, "_Unstable": unstable_chart}
 _WORD = re.compile(r"[A-Za-z_]\w*")
+#: a group's generator (types.GeneratorType: ``gi_frame`` tells whether it has ended)
+GroupGen: TypeAlias = "types.GeneratorType[BaseException | None, tuple[int, int], None]"
 #: a group's ``send((now, up))``: None, or the exception one of its scans raised
 Send = Callable[[tuple[int, int]], "BaseException | None"]
 
@@ -174,6 +176,11 @@ class Inliner:
         self._lines: dict[types.CodeType, list[int]] = {}
         #: the distinct sources compiled (``FILENAME``), for reading
         self.sources: list[str] = []
+        #: each group's generator function, and its running generator's ``send`` (the
+        #: list the plant's cycle calls through, see :meth:`revive`)
+        self.factories: list[Callable[[], GroupGen]] = []
+        self.sends: list[Send] = []
+        self._gens: list[GroupGen] = []
 
     # -- names, for the lines of the current group ---------------------------------------
     def cell(self, inst: Instance, index: int) -> str:
@@ -246,19 +253,24 @@ class Inliner:
                     f"    def group({', '.join(f'{n}=None' for n in params)}):"]
             if names:
                 head.append(f"        nonlocal {', '.join(names)}")
-            head += ["        now, up = yield", "        while True:", "            try:"]
+            head += ["        _box = []", "        now, up = yield", "        while True:",
+                     "            try:"]
             lines = [-1] * len(head)
             body = []
             for j, text in enumerate(texts):
                 chunk = text.split("\n")
                 body += ["                " + line for line in chunk]
                 lines += [j] * len(chunk)
+            # a scan's fault goes to the cycle, which raises it; the suspended frame does
+            # not keep it (it would keep the fault's frames, and the plant, alive)
             tail = ["            except GeneratorExit:",
                     "                raise",
-                    "            except BaseException as _fault:  # to the cycle, which raises it",
-                    "                now, up = yield _fault",
-                    "                continue",
-                    "            now, up = yield",
+                    "            except BaseException as _fault:",
+                    "                _box.append(_fault)",
+                    "            if _box:",
+                    "                now, up = yield _box.pop()",
+                    "            else:",
+                    "                now, up = yield",
                     "    return group"]
             source = "\n".join([*head, *body, *tail]) + "\n"
             code = codes.get(source)
@@ -271,11 +283,30 @@ class Inliner:
                 self.sources.append(source)
             values = {**self.env, **consts}
             defaults = tuple(values[n] for n in code.co_varnames[:code.co_argcount])
-            gen = types.FunctionType(code, self.env, "group", defaults,
-                                     tuple(free[n] for n in code.co_freevars))()
-            next(gen)  # to its first yield: ready for the first cycle
-            out.append(gen.send)
+            fn = types.FunctionType(code, self.env, "group", defaults,
+                                    tuple(free[n] for n in code.co_freevars))
+            self.factories.append(fn)
+            self._gens.append(_start(fn))
+            out.append(self._gens[-1].send)
+        self.sends = out
         return out
+
+    def revive(self) -> list[int]:
+        """Start again every group whose generator has ended (an exception raised where no
+        scan catches it: at its resume, e.g. from a signal handler in the main thread);
+        their ``send`` is replaced in :attr:`sends`, the list the cycle calls through.
+        Returns the groups started again. The instances' state is in their cells: nothing
+        of it is lost."""
+        dead = [j for j, gen in enumerate(self._gens) if gen.gi_frame is None]
+        for j in dead:
+            self._gens[j] = _start(self.factories[j])
+            self.sends[j] = self._gens[j].send
+        return dead
+
+    def close(self) -> None:
+        """End every group's generator (the plant is disposed of)."""
+        for gen in self._gens:
+            gen.close()
 
     def owner(self, frame: types.FrameType, lineno: int) -> str | None:
         """The instance whose inlined scan is at line ``lineno`` of ``frame`` (a frame of
@@ -286,3 +317,10 @@ class Inliner:
             return None
         j = lines[lineno - 1]
         return self.members[g][j].name if j >= 0 else None
+
+
+def _start(fn: Callable[[], GroupGen]) -> GroupGen:
+    """A group's generator, run to its first yield (ready for a cycle)."""
+    gen = fn()
+    next(gen)
+    return gen

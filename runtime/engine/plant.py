@@ -261,11 +261,14 @@ class Plant:
                 outs.append(f"OL_{b.driver}[{pos}] = {'not ' if b.invert else ''}{val}")
             inl.add(inst, ins, outs)
         groups = inl.build(self._book)
-        self._env.update({f"G{j}": send for j, send in enumerate(groups)})
+        self._env["GS"] = groups  # the list revive() updates in place
         if groups:
             lines.append("    t = (now, up)")
         for j in range(len(groups)):  # a fault in a scan comes back from its group
-            lines += [f"    e = G{j}(t)", "    if e is not None: raise e"]
+            # raised with the local cleared: the fault's frames must not hold it (a cycle
+            # that would keep the plant alive once the fault is dropped)
+            lines += [f"    e = GS[{j}](t)", "    if e is not None:",
+                      "        try: raise e", "        finally: e = None"]
         if not self.virtual:
             lines += [f"    W_{name}()" for name in self.drivers]
         lines.append("    return None")
@@ -373,7 +376,11 @@ class Plant:
             pnow = now - self.offset_ns
             self.last_up = up = pnow - self.start
             self._last_scan = pnow
-            stopped = self._cycle_fast(pnow, up)
+            try:
+                stopped = self._cycle_fast(pnow, up)
+            except BaseException:
+                self._revive()
+                raise
             if stopped is not None:
                 return f"driver {stopped.name}: {stopped.fault_reason}"
             self.scans += 1
@@ -405,11 +412,22 @@ class Plant:
         elif self._forced_by_inst or self.forced_points:
             stopped = self._cycle(pnow, up)
         else:
-            stopped = self._cycle_fast(pnow, up)
+            try:
+                stopped = self._cycle_fast(pnow, up)
+            except BaseException:
+                self._revive()
+                raise
         if stopped is not None:
             return f"driver {stopped.name}: {stopped.fault_reason}"
         self.scans += 1
         return None
+
+    def _revive(self) -> None:
+        """After a cycle that raised: a group of inlined scans whose generator ended
+        (inline.py, ``revive``) is started again, said in the log."""
+        for j in self._inliner.revive():
+            log.warning("inlined scans of group %d started again after an exception "
+                        "outside its scans", j)
 
     def _program_time(self, now: int) -> int:
         """The program's time (ns) for a scan at monotonic time ``now``.
@@ -640,11 +658,13 @@ class Plant:
     # -- online change (runtime/change) ---------------------------------------------
     def dispose(self) -> None:
         """Break the one cycle a plant is made of (its generated functions' environment
-        holds the plant's own bound methods), so that once dropped it is freed at once by
+        holds the plant's own bound methods) and end its groups of inlined scans, so that
+        once dropped it is freed at once by
         reference counting: the controller's collector, which runs in the scan's idle
         time, never has to examine a dead plant (an online change drops one each time; a
         collection of a 100-tester plant's objects takes tens of ms). The plant cannot
         cycle any more afterwards; its instances, names and drivers stay readable."""
+        self._inliner.close()
         self._env.clear()
         del self._cycle_fast, self._cycle, self._copy_outputs
 

@@ -8,11 +8,14 @@ program; paused, faulted and iocheck controllers (docs/online-change.md)."""
 from __future__ import annotations
 
 import gc
+import logging
 import threading
 import weakref
 from collections.abc import Callable
 from itertools import pairwise
 from pathlib import Path
+
+import pytest
 
 from drivers.base import DriverError
 from runtime.controller.daemon import Daemon
@@ -343,6 +346,34 @@ def test_a_changed_driver_is_reopened_in_a_gap(make_daemon: MakeDaemon,
     assert new is not drv and new.health.value == "ok" and not daemon._gap
     counts_on(daemon, n0)
     assert daemon.status()["state"] == "running"
+
+
+#: CYCLER whose post equation divides by sDiv: 0 makes every scan fault
+CYCLER_DIV = CYCLER.replace("  sMaint: false\n", "  sMaint: false\n  sDiv: 1\n  sQ: 0\n") \
+    .replace("post:\n", "post:\n  - sQ := 100 / sDiv\n")
+
+
+def test_a_reload_in_a_scan_fault_frees_the_plant_it_replaces(
+        make_daemon: MakeDaemon, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The natural repair after a chart's fault: fix the chart, reload while in fault,
+    then ack. The fault (its traceback, held by the scans' group generator and by the
+    cycle's frame) must not keep the replaced plant alive: the controller's collector is
+    frozen, so it would stay for good (a review found it kept)."""
+    # pytest's log capture would itself keep the fault's record (its traceback) alive
+    monkeypatch.setattr(logging.getLogger("runtime.controller.daemon"), "disabled", True)
+    daemon, _drv, chart = running(make_daemon, tmp_path, chart=CYCLER_DIV)
+    daemon.call(lambda: daemon.plant.set("m.sDiv", 0))  # the chart divides by zero
+    wait_until(lambda: daemon.status()["state"] == "fault", 10.0, "the fault")
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        old = weakref.ref(daemon.plant)
+        edit(chart, "gsA.T >= 30ms", "gsA.T >= 40ms")
+        assert daemon.reload().applied
+        assert old() is None, "the replaced plant is kept alive by its fault"
+    finally:
+        if was:
+            gc.enable()
 
 
 def test_a_reload_frees_the_plant_it_replaces_without_a_collection(

@@ -6,6 +6,7 @@ drivers' images made of it."""
 
 from __future__ import annotations
 
+import copy
 import sys
 from typing import Any
 
@@ -196,3 +197,14 @@ def test_update_takes_what_dict_update_takes() -> None:
             img.update(arg, **kw)
             d.update(arg, **kw)
         assert img.copy() == d and list(img) == list(d)
+
+
+def test_a_copy_of_an_image_is_its_own() -> None:
+    """``copy.copy`` of an image copied its slots, so the copy shared the driver's tables:
+    a write into the copy changed the driver's image (a review found it)."""
+    img = Image({"Q0": 0, "Q1": 1})
+    for dup in (copy.copy(img), copy.deepcopy(img)):
+        assert isinstance(dup, Image) and dup == img
+        dup["Q0"] = 5
+        dup["Q9"] = 1
+        assert img.copy() == {"Q0": 0, "Q1": 1}
