@@ -100,8 +100,8 @@ class Compiler:
         out = Emitter()
         out.level = 3 if fast else 2
         L = self.state.let  # noqa: N806 - short: many emitted lines
-        if fast:
-            out(self.state.add("ct", "now - lastnow"))
+        if fast:  # the last scan not paused: the clock is the base's distance to now
+            out(L("ct", value="now - cb"))
         else:
             out("# chart clock: advances unless the chart was paused during the last "
                 "interval")
@@ -110,6 +110,8 @@ class Compiler:
             out(f"elif first: {L('ct', value='0')}")
             out(f"elif not wp: {self.state.add('ct', 'now - lastnow')}")
         out(L("lastnow", value="now"))
+        if not fast:  # the base the fast path counts the clock from (now - ct stays put
+            out(L("cb", value="now - ct"))  # while the chart is not paused)
         steps = list(g.steps.values())
         marks = len(out.lines)  # the entered/left marks: filled in once the body is known
         out("")
