@@ -35,6 +35,10 @@ from runtime.compiler.statements import StmtEmitter
 from runtime.language import ast as A
 from runtime.language.model import Grafcet, ScanModel, Step, VarKind
 
+#: the names a generated scan reads from its module: the integer helpers and the builder of
+#: the unstable-chart error (the plant's inlined scans read them from its cycle's module)
+SCAN_GLOBALS: dict[str, Any] = {**HELPERS, "_Unstable": unstable_chart}
+
 
 class Compiler:
     """Generates the scan function of one grafcet, from the parts that generate each piece
@@ -91,11 +95,12 @@ class Compiler:
 
         ``fast``: the body for a scan that starts with ``slow`` false: not the first scan,
         the last one not paused, no chart flag set. Unless a pre equation can set a flag,
-        the flags' section is left out, the evolution is guarded by tip mode only and the
-        actions run unguarded; the ``slow`` flag is left set by a chart that sets a flag in
-        its actions or post equations (the next scan takes the full body, which recomputes
-        it). A pre equation that can set a flag keeps the flags' section and the end of
-        scan that records a pause (``wp``) and recomputes ``slow``."""
+        the flags' section is left out, the evolution is guarded by tip mode only in a
+        CODESYS chart and the actions run unguarded; the ``slow`` flag is left set by a
+        chart that sets a flag in its actions or post equations (the next scan takes the
+        full body, which recomputes it). A pre equation that can set a flag keeps the
+        flags' section and the end of scan that records a pause (``wp``) and recomputes
+        ``slow``."""
         g = self.g
         out = Emitter()
         out.level = 3 if fast else 2
@@ -105,9 +110,7 @@ class Compiler:
         else:
             out("# chart clock: advances unless the chart was paused during the last "
                 "interval")
-            out("# (`slow` false: not the first scan, the last one not paused, no flag set)")
-            out(f"if not slow: {self.state.add('ct', 'now - lastnow')}")
-            out(f"elif first: {L('ct', value='0')}")
+            out(f"if first: {L('ct', value='0')}")
             out(f"elif not wp: {self.state.add('ct', 'now - lastnow')}")
         out(L("lastnow", value="now"))
         if not fast:  # the base the fast path counts the clock from (now - ct stays put
@@ -116,13 +119,14 @@ class Compiler:
         marks = len(out.lines)  # the entered/left marks: filled in once the body is known
         out("")
         out("")
+        stores = self.state.flag_stores
         if g.pre:
             out("# 1. pre equations")
             for s in g.pre:
                 self.exprs.sample_edges(out, [s.node])
                 self.stmts.stmt(out, s.node)
         # a pre equation that sets a chart flag sets `slow`: the flags are then tested
-        folded = fast and not any("slow = slow or" in line for line in out.lines[marks:])
+        folded = fast and self.state.flag_stores == stores
         if not folded:
             self.flags(out, steps)
         if self.codesys:
@@ -253,11 +257,11 @@ def compile_grafcet(g: Grafcet, book: CodeBook | None = None) -> Program:
     c = Compiler(g)
     source = c.generate()
     digest = hashlib.sha1(source.encode()).hexdigest()[:8]
-    env: dict[str, Any] = {**HELPERS, "_Unstable": unstable_chart}
+    env = dict(SCAN_GLOBALS)
     code = compile_code(source, f"<grafcet {g.name} {digest}>", book)
     exec(code, env)  # noqa: S102 - generated from the checked model
     return Program(g, source, env["make"], c.state.slots, c.probes(), c.inputs(), c.outputs(),
                    c.fast)
 
 
-__all__ = ["Compiler", "compile_grafcet"]
+__all__ = ["SCAN_GLOBALS", "Compiler", "compile_grafcet"]

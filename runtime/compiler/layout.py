@@ -46,6 +46,8 @@ class StateLayout:
         self.edge_nodes: list[A.Unary] = []
         #: the locals of SLOW_FLAGS
         self.slow_locals = {ident("v", f) for f in SLOW_FLAGS}
+        #: stores of a chart flag written so far (each also sets ``slow``)
+        self.flag_stores = 0
 
     def slot(self, key: str, local: str, init: Any, block: str | None = None,
              kind: SlotKind = SlotKind.INTERNAL, name: str = "",
@@ -62,6 +64,7 @@ class StateLayout:
         for t in targets:  # a chart flag set by the chart: the next test must see it
             if t in self.slow_locals:
                 line += f"; slow = slow or {t}"
+                self.flag_stores += 1
         return line
 
     def add(self, target: str, delta: str) -> str:

@@ -40,8 +40,7 @@ from dataclasses import dataclass
 from typing import Any, TypeAlias
 
 from runtime.compiler.codebook import CodeBook, compile_code
-from runtime.compiler.evolution import unstable_chart
-from runtime.compiler.expressions import HELPERS
+from runtime.compiler.codegen import SCAN_GLOBALS
 from runtime.compiler.program import Program
 from runtime.engine.instance import Instance
 
@@ -50,8 +49,6 @@ FILENAME = "<plant scans>"
 #: instances per group
 GROUP = 16
 _BUILTINS = set(dir(builtins))
-#: the names a chart's scan reads from its module (program.py's environment)
-_GLOBALS = {**HELPERS, "_Unstable": unstable_chart}
 _WORD = re.compile(r"[A-Za-z_]\w*")
 #: a group's generator (types.GeneratorType: ``gi_frame`` tells whether it has ended)
 GroupGen: TypeAlias = "types.GeneratorType[BaseException | None, tuple[int, int], None]"
@@ -108,7 +105,6 @@ class Template:
 
     text: str
     slots: list[int]  # the state slots the body names, by index
-    slow: bool  # whether it names the ``slow`` flag
     helpers: set[str]  # the module names it calls (``_idiv``, ``_Unstable``)
 
 
@@ -123,16 +119,12 @@ def template(prog: Program, code: types.CodeType) -> Template:
     temps = set(code.co_varnames[code.co_argcount:])
     used: set[int] = set()
     helpers: set[str] = set()
-    slow = False
 
     def rename(name: str) -> str | None:
-        nonlocal slow
         if name in state:
             used.add(state[name])
-        elif name == "slow":
-            slow = True
-        elif name not in temps:
-            if name in _GLOBALS:
+        elif name != "slow" and name not in temps:
+            if name in SCAN_GLOBALS:
                 helpers.add(name)
                 return None
             if name in ("now", "up") or name in _BUILTINS:
@@ -142,7 +134,7 @@ def template(prog: Program, code: types.CodeType) -> Template:
         return MARK + name
 
     text = "\n".join("    " + line for line in renamed(prog.fast, rename))
-    return Template(text, sorted(used), slow, helpers)
+    return Template(text, sorted(used), helpers)
 
 
 class Inliner:
@@ -169,7 +161,7 @@ class Inliner:
         self._texts: list[list[str]] = []  # per group: each member's lines, joined
         self._free: list[dict[str, Any]] = []  # per group: free name -> its cell
         self._consts: list[dict[str, Any]] = []  # per group: default name -> its value
-        self._links: list[dict[tuple[int, int], str]] = []  # (id(cell), 0) -> L name
+        self._links: list[dict[int, str]] = []  # per group: id(cell) -> its L name
         self._used: list[set[str]] = []  # per group: the words its lines name
         self._templates: dict[int, Template] = {}
         #: per distinct code: the position (in the group) of each line of its source
@@ -192,7 +184,7 @@ class Inliner:
             name = f"p{j}_{inst.program.slots[index].local}"
         else:
             links = self._links[-1]
-            name = links.setdefault((id(cell), 0), f"L{len(links)}")
+            name = links.setdefault(id(cell), f"L{len(links)}")
         self._free[-1][name] = cell
         return name
 

@@ -30,9 +30,7 @@ from drivers.base import Direction, Driver, FaultPolicy, Health
 from drivers.registry import driver_class
 from drivers.sim import SimDriver
 from runtime.compiler.codebook import CodeBook, compile_code
-from runtime.compiler.codegen import compile_grafcet
-from runtime.compiler.evolution import unstable_chart
-from runtime.compiler.expressions import HELPERS
+from runtime.compiler.codegen import SCAN_GLOBALS, compile_grafcet
 from runtime.compiler.layout import SLOW_FLAGS
 from runtime.compiler.program import Program
 from runtime.engine.inline import FILENAME as INLINE_FILE
@@ -335,8 +333,7 @@ class Plant:
         env["FI"] = self._forced_by_inst
         env["force_points"] = self._apply_point_forces
         env["force_instance"] = self._apply_instance_forces
-        env.update(HELPERS)  # what the inlined scans call (inline.py)
-        env["_Unstable"] = unstable_chart
+        env.update(SCAN_GLOBALS)  # what the inlined scans call (inline.py)
         for name, d in self.drivers.items():
             env[f"R_{name}"] = d.read
             env[f"W_{name}"] = d.write

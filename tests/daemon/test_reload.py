@@ -11,7 +11,8 @@ import gc
 import logging
 import threading
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from itertools import pairwise
 from pathlib import Path
 
@@ -348,6 +349,19 @@ def test_a_changed_driver_is_reopened_in_a_gap(make_daemon: MakeDaemon,
     assert daemon.status()["state"] == "running"
 
 
+@contextmanager
+def collector_off() -> Iterator[None]:
+    """Python's collector off, as the controller keeps it over its frozen plant: what is
+    not freed by reference counting stays."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
+
+
 #: CYCLER whose post equation divides by sDiv: 0 makes every scan fault
 CYCLER_DIV = CYCLER.replace("  sMaint: false\n", "  sMaint: false\n  sDiv: 1\n  sQ: 0\n") \
     .replace("post:\n", "post:\n  - sQ := 100 / sDiv\n")
@@ -364,16 +378,11 @@ def test_a_reload_in_a_scan_fault_frees_the_plant_it_replaces(
     daemon, _drv, chart = running(make_daemon, tmp_path, chart=CYCLER_DIV)
     daemon.call(lambda: daemon.plant.set("m.sDiv", 0))  # the chart divides by zero
     wait_until(lambda: daemon.status()["state"] == "fault", 10.0, "the fault")
-    was = gc.isenabled()
-    gc.disable()
-    try:
+    with collector_off():
         old = weakref.ref(daemon.plant)
         edit(chart, "gsA.T >= 30ms", "gsA.T >= 40ms")
         assert daemon.reload().applied
         assert old() is None, "the replaced plant is kept alive by its fault"
-    finally:
-        if was:
-            gc.enable()
 
 
 def test_a_reload_frees_the_plant_it_replaces_without_a_collection(
@@ -383,9 +392,7 @@ def test_a_reload_frees_the_plant_it_replaces_without_a_collection(
     was refused, must be freed by reference counting alone, or each reload would leave
     it behind (1.5 MB at 100 testers) or cost a long collection."""
     daemon, _drv, chart = running(make_daemon, tmp_path)
-    was = gc.isenabled()
-    gc.disable()
-    try:
+    with collector_off():
         old = weakref.ref(daemon.plant)
         edit(chart, "gsA.T >= 30ms", "gsA.T >= 40ms")
         assert daemon.reload().applied
@@ -403,6 +410,3 @@ def test_a_reload_frees_the_plant_it_replaces_without_a_collection(
         assert not daemon.reload().applied
         assert prepared and prepared[0]() is None, "the refused plant is kept alive"
         assert daemon.plant is kept
-    finally:
-        if was:
-            gc.enable()

@@ -132,16 +132,22 @@ def test_a_fault_in_an_inlined_scan_names_its_instance(
     assert err.value.loc.line == 21
 
 
+def self_plant(write: Callable[[str, str], str]) -> Plant:
+    """An open virtual plant of one instance A of SELF: go on sim.I0, run on sim.Q0."""
+    write("c.yaml", SELF)
+    plant = Plant(load_plant(write(
+        "p.yaml", "plc: {cycle: 10ms}\ndrivers: {sim: {type: sim}}\ninstances:\n"
+        "  A: {grafcet: c.yaml, inputs: {go: sim.I0, stop: sim.I1}, outputs: {run: sim.Q0}}\n")),
+        sim=True, virtual=True)
+    plant.open()
+    return plant
+
+
 def test_the_inlined_scans_work_on_the_instances_own_state(
         write: Callable[[str, str], str]) -> None:
     """What the inlined scans write is what the instance's state view reads, and a write
     through the view is what the next scan sees (it takes the instance's whole scan)."""
-    write("on.yaml", SELF)
-    plant = Plant(load_plant(write(
-        "p.yaml", "plc: {cycle: 10ms}\ndrivers: {sim: {type: sim}}\ninstances:\n"
-        "  A: {grafcet: on.yaml, inputs: {go: sim.I0, stop: sim.I1}, outputs: {run: sim.Q0}}\n")),
-        sim=True, virtual=True)
-    plant.open()
+    plant = self_plant(write)
     sim, a = plant.drivers["sim"], plant.instances["A"]
     for k in range(3):
         sim.inputs["I0"] = int(k >= 1)
@@ -297,12 +303,7 @@ def test_a_group_that_ended_is_started_again_with_the_state_kept(
     it (at its resume, e.g. from a signal handler in the main thread) ends it. Before, every
     later cycle raised StopIteration for good (a review found it); now that cycle fails, the
     group is started again, and the next cycle goes on from the instances' state."""
-    write("c.yaml", SELF)
-    plant = Plant(load_plant(write(
-        "p.yaml", "plc: {cycle: 10ms}\ndrivers: {sim: {type: sim}}\ninstances:\n"
-        "  A: {grafcet: c.yaml, inputs: {go: sim.I0, stop: sim.I1}, outputs: {run: sim.Q0}}\n")),
-        sim=True, virtual=True)
-    plant.open()
+    plant = self_plant(write)
     sim, a = plant.drivers["sim"], plant.instances["A"]
     sim.inputs["I0"] = 1
     for k in range(3):
