@@ -22,11 +22,12 @@ from __future__ import annotations
 
 import hashlib
 import re
+from collections.abc import Callable
 from typing import Any
 
 from runtime.compiler.actions import ActionEmitter
 from runtime.compiler.codebook import CodeBook, compile_code
-from runtime.compiler.emit import Emitter, ident
+from runtime.compiler.emit import Emitter, ident, renamed
 from runtime.compiler.evolution import Evolution, unstable_chart
 from runtime.compiler.expressions import HELPERS, ExprEmitter
 from runtime.compiler.layout import SLOW_FLAGS, SLOW_MEMORY, StateLayout, macro_initial
@@ -38,6 +39,9 @@ from runtime.language.model import Grafcet, ScanModel, Step, VarKind
 #: the names a generated scan reads from its module: the integer helpers and the builder of
 #: the unstable-chart error (the plant's inlined scans read them from its cycle's module)
 SCAN_GLOBALS: dict[str, Any] = {**HELPERS, "_Unstable": unstable_chart}
+#: the fast path's first line: the chart clock, its base's distance to now (the plant's
+#: inlined scans share it between the instances of one base, inline.py)
+FAST_CLOCK = "ct = now - cb"
 
 
 class Compiler:
@@ -47,6 +51,7 @@ class Compiler:
     def __init__(self, g: Grafcet) -> None:
         self.g = g
         self.codesys = g.scan is ScanModel.CODESYS
+        self.stable = g.scan is ScanModel.STABLE
         self.state = StateLayout(g)
         self.exprs = ExprEmitter(self.state)
         self.stmts = StmtEmitter(g, self.state, self.exprs)
@@ -106,7 +111,7 @@ class Compiler:
         out.level = 3 if fast else 2
         L = self.state.let  # noqa: N806 - short: many emitted lines
         if fast:  # the last scan not paused: the clock is the base's distance to now
-            out(L("ct", value="now - cb"))
+            out(FAST_CLOCK)
         else:
             out("# chart clock: advances unless the chart was paused during the last "
                 "interval")
@@ -129,7 +134,14 @@ class Compiler:
         folded = fast and self.state.flag_stores == stores
         if not folded:
             self.flags(out, steps)
-        if self.codesys:
+        at = [marks, out.level]  # where the marks are cleared
+        if folded and not self.stable:  # cleared where a step changes, else not tested
+            def clear_marks() -> None:
+                at[:] = [len(out.lines), out.level]
+                out("")
+                out("")
+            self.fired_or_not(out, steps, clear_marks)
+        elif self.codesys:
             if g.transitions:
                 out("# 3. CODESYS: the situation decided by the last scan becomes current "
                     "(held while paused)")
@@ -152,8 +164,48 @@ class Compiler:
             flags = ["wp", *(ident("v", f) for f in SLOW_FLAGS), *SLOW_MEMORY]
             out(f"if slow: {L('first', value='False')}; {L('wp', value='paused')}; "
                 f"slow = {' or '.join(flags)}")
-        out.lines[marks:marks + 2] = self.marks(steps, out.lines, out.level)
+        cleared = self.marks(steps, out.lines, at[1])
+        out.lines[at[0]:at[0] + 2] = cleared
+        if at[0] != marks:
+            del out.lines[marks:marks + 2]
         return out.lines
+
+    def fired_or_not(self, out: Emitter, steps: list[Step],
+                     clear_marks: Callable[[], None]) -> None:
+        """The folded fast path's evolution and actions (immediate and CODESYS models),
+        in two branches: where a step is entered or left, the marks cleared first and the
+        actions as written; where none is, the actions with every entered/left mark
+        false (``if False:`` compiles to nothing), so a usual scan neither clears nor
+        tests the marks."""
+        g = self.g
+        sub = Emitter()
+        sub.level = 0
+        self.actions.section(sub, folded=True)
+        names = {ident(p, s.name) for s in steps for p in ("a", "l")}
+        unmarked = renamed(sub.lines, lambda n: "False" if n in names else None)
+
+        def actions(marked: bool) -> None:
+            for line in sub.lines if marked else unmarked:
+                out(line)
+
+        if not self.codesys:
+            self.evolution.fired_or_not(out, clear_marks, actions)
+            return
+        if g.transitions:
+            out("# 3. CODESYS: the situation decided by the last scan becomes current")
+            out(f"if {' or '.join(f'pf{t.index}' for t in g.transitions)}:")
+            out.indent()
+            clear_marks()
+            self.evolution.apply_fired(out)
+            actions(True)
+            out.dedent()
+            out("else:  # nothing decided: no step entered or left")
+            out.indent()
+            actions(False)
+            out.dedent()
+        else:
+            actions(False)
+        self.evolution.section(out, folded=True)
 
     def flags(self, out: Emitter, steps: list[Step]) -> None:
         """The chart flags' section: tested only while ``slow`` is set."""
@@ -264,4 +316,4 @@ def compile_grafcet(g: Grafcet, book: CodeBook | None = None) -> Program:
                    c.fast)
 
 
-__all__ = ["SCAN_GLOBALS", "Compiler", "compile_grafcet"]
+__all__ = ["FAST_CLOCK", "SCAN_GLOBALS", "Compiler", "compile_grafcet"]

@@ -1,7 +1,12 @@
-"""The lines of a generated scan function as they are written, and the local that holds
-each chart name in it."""
+"""The lines of a generated scan function as they are written, the local that holds each
+chart name in it, and a block of generated lines with some of its names replaced."""
 
 from __future__ import annotations
+
+import io
+import keyword
+import tokenize
+from collections.abc import Callable
 
 
 def ident(prefix: str, name: str) -> str:
@@ -25,3 +30,36 @@ class Emitter:
 
     def dedent(self) -> None:
         self.level -= 1
+
+
+def renamed(lines: list[str], rename: Callable[[str], str | None]) -> list[str]:
+    """``lines`` (a block of Python at column 0) with every name token that ``rename``
+    maps (not None) replaced: an attribute after ``.`` and a keyword argument are not
+    names, strings and comments are left as they are."""
+    out = list(lines)
+    edits: dict[int, list[tuple[int, int, str]]] = {}
+    toks = list(tokenize.generate_tokens(io.StringIO("\n".join(lines) + "\n").readline))
+    depth = 0
+    for k, tok in enumerate(toks):
+        if tok.type == tokenize.OP:
+            depth += tok.string in "([{"
+            depth -= tok.string in ")]}"
+            continue
+        if tok.type != tokenize.NAME or keyword.iskeyword(tok.string):
+            continue
+        prev = toks[k - 1] if k else None
+        nxt = toks[k + 1] if k + 1 < len(toks) else None
+        if prev is not None and prev.type == tokenize.OP and prev.string == ".":
+            continue  # an attribute
+        if depth and nxt is not None and nxt.type == tokenize.OP and nxt.string == "=":
+            continue  # a keyword argument
+        new = rename(tok.string)
+        if new is not None and new != tok.string:
+            (row, col), (_, end) = tok.start, tok.end
+            edits.setdefault(row - 1, []).append((col, end, new))
+    for row, spans in edits.items():
+        line = out[row]
+        for col, end, new in sorted(spans, reverse=True):
+            line = line[:col] + new + line[end:]
+        out[row] = line
+    return out

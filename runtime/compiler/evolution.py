@@ -5,6 +5,8 @@ for the next scan)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from runtime.compiler.emit import Emitter, ident
 from runtime.compiler.expressions import ExprEmitter
 from runtime.compiler.layout import StateLayout, macro_initial
@@ -250,6 +252,44 @@ class Evolution:
             out.dedent()
             if can is not None:
                 out.dedent()
+        out.dedent()
+
+    def fired_or_not(self, out: Emitter, clear_marks: Callable[[], None],
+                     actions: Callable[[bool], None]) -> None:
+        """The folded evolution of the immediate model with the actions after it, in two
+        branches: where a transition fires, ``clear_marks()`` (the entered and left
+        marks set to false, before the steps change), the evolution, then
+        ``actions(True)``; where none fires, ``actions(False)``: the actions written
+        with every mark false (none can be set), so a usual scan neither clears the
+        marks nor tests them."""
+        g = self.g
+        out("# 3. evolution")
+        self.exprs.sample_edges(out, [t.cond for t in g.transitions])
+        if not g.transitions:
+            actions(False)
+            return
+        fired = " or ".join(f"f{t.index}" for t in g.transitions)
+        can = self.may_fire()
+        if can is not None:
+            out(f"if {can}:  # some transition fires: each one's, by priority")
+            out.indent()
+            clear_marks()
+            self.evaluate_transitions(out)
+            out(f"if {fired}:")
+            out.indent()
+            self.apply_fired(out)
+            out.dedent()
+        else:
+            self.evaluate_transitions(out)
+            out(f"if {fired}:")
+            out.indent()
+            clear_marks()
+            self.apply_fired(out)
+        actions(True)
+        out.dedent()
+        out("else:  # nothing fires: no step entered or left")
+        out.indent()
+        actions(False)
         out.dedent()
 
     def may_fire(self) -> str | None:

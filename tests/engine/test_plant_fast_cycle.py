@@ -10,8 +10,8 @@ from collections.abc import Callable
 import pytest
 
 from drivers.sim import SimDriver
+from runtime.compiler.emit import renamed
 from runtime.engine import inline
-from runtime.engine.inline import renamed
 from runtime.engine.plant import Plant
 from runtime.engine.simulate import ScanFault, Simulation
 from runtime.language.plantfile import load_plant
