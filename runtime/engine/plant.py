@@ -57,6 +57,11 @@ class ForcedVariable:
     value: Any
 
 
+#: the usual cycle: called with ``(now, up)`` (ns), returns None, the driver whose fault
+#: stopped it (before any scan), or the exception a scan raised (the caller raises it)
+FastCycle = Callable[[tuple[int, int]], "Driver | BaseException | None"]
+
+
 @dataclass(frozen=True, slots=True)
 class ForcedPoint:
     """A physical point held at ``value`` (a raw number) until unforced."""
@@ -146,7 +151,7 @@ class Plant:
         self.source = self._generate()
         exec(compile_code(self.source, "<plant cycle>", book), env)  # noqa: S102 - generated
         #: the cycle with no force and no pulse (semantics unchanged, less to do)
-        self._cycle_fast: Callable[[int, int], Driver | None] = env["cycle"]
+        self._cycle_fast: FastCycle = self._fast_cycle()
         #: the cycle with forces and pulses applied around each scan
         self._cycle: Callable[[int, int], Driver | None] = env["cycle_slow"]
         self._copy_outputs: Callable[[], None] = env["copy_outputs"]
@@ -215,7 +220,7 @@ class Plant:
             used = set(re.findall(r"[A-Za-z_]\w*", "\n".join(body))) & self._env.keys()
             return ", ".join(f"{n}={n}" for n in sorted(used))
 
-        return "\n".join([f"def cycle(now, up, {defaults(fast)}):", *fast, "",
+        return "\n".join([f"def cycle(t, {defaults(fast)}):", *fast, "",
                           f"def cycle_slow(now, up, {defaults(slow)}):", *slow, "",
                           # while the charts are held (console pause), forced chart
                           # outputs still reach their points: the copy after the forces
@@ -260,13 +265,8 @@ class Plant:
             inl.add(inst, ins, outs)
         groups = inl.build(self._book)
         self._env["GS"] = groups  # the list revive() updates in place
-        if groups:
-            lines.append("    t = (now, up)")
         for j in range(len(groups)):  # a fault in a scan comes back from its group
-            # raised with the local cleared: the fault's frames must not hold it (a cycle
-            # that would keep the plant alive once the fault is dropped)
-            lines += [f"    e = GS[{j}](t)", "    if e is not None:",
-                      "        try: raise e", "        finally: e = None"]
+            lines += [f"    e = GS[{j}](t)", "    if e is not None: return e"]
         if not self.virtual:
             lines += [f"    W_{name}()" for name in self.drivers]
         lines.append("    return None")
@@ -369,34 +369,47 @@ class Plant:
         they are not scanned."""
         if not (self.iocheck or self.hold or self._stood_still or self._pulses
                 or self._forced_by_inst or self.forced_points) and self.start is not None:
-            # the usual cycle: running, nothing forced (what follows, made short)
-            pnow = now - self.offset_ns
-            self.last_up = up = pnow - self.start
+            # the usual cycle: running, nothing forced (what follows, made short; no new
+            # integer for a zero offset or start, as in a simulation)
+            off, start = self.offset_ns, self.start
+            pnow = now - off if off else now
+            self.last_up = up = pnow - start if start else pnow
             self._last_scan = pnow
-            try:
-                stopped = self._cycle_fast(pnow, up)
-            except BaseException:
-                self._revive()
-                raise
-            if stopped is not None:
-                return f"driver {stopped.name}: {stopped.fault_reason}"
-            self.scans += 1
-            return None
-        if self.iocheck or (self.hold and self.steps_left <= 0):
-            if self._last_scan is not None:
-                self._stood_still = True
-            if not self.iocheck and self.forced:
-                self._copy_outputs()
-            self.exchange(zero_outputs=False)
-            return self.faulted()
-        if self.hold:
-            self.steps_left -= 1
-        pnow = self._program_time(now)
-        if self.start is None:
-            self.start = pnow
-        up = pnow - self.start
-        self.last_up = up
-        self._last_scan = pnow
+        else:
+            if self.iocheck or (self.hold and self.steps_left <= 0):
+                if self._last_scan is not None:
+                    self._stood_still = True
+                if not self.iocheck and self.forced:
+                    self._copy_outputs()
+                self.exchange(zero_outputs=False)
+                return self.faulted()
+            if self.hold:
+                self.steps_left -= 1
+            pnow = self._program_time(now)
+            if self.start is None:
+                self.start = pnow
+            up = pnow - self.start
+            self.last_up = up
+            self._last_scan = pnow
+            if self._pulses or self._forced_by_inst or self.forced_points:
+                return self._cycle_forced(pnow, up)
+        try:
+            got = self._cycle_fast((pnow, up))
+        except BaseException:
+            self._revive()
+            raise
+        if got is not None:
+            if isinstance(got, Driver):
+                return f"driver {got.name}: {got.fault_reason}"
+            try:  # a scan's fault, raised with the local cleared: the fault's frames must
+                raise got  # not hold it (a cycle that would keep the plant alive)
+            finally:
+                got = None
+        self.scans += 1
+        return None
+
+    def _cycle_forced(self, pnow: int, up: int) -> str | None:
+        """The cycle with forces and pulses applied around each scan (``cycle``)."""
         if self._pulses:
             self._rebuild_instance_forces()
             for inst, idx in self._pulses:
@@ -406,18 +419,21 @@ class Plant:
                 self.instances[inst].m[idx] = False
             self._pulses.clear()
             self._rebuild_instance_forces()
-        elif self._forced_by_inst or self.forced_points:
-            stopped = self._cycle(pnow, up)
         else:
-            try:
-                stopped = self._cycle_fast(pnow, up)
-            except BaseException:
-                self._revive()
-                raise
+            stopped = self._cycle(pnow, up)
         if stopped is not None:
             return f"driver {stopped.name}: {stopped.fault_reason}"
         self.scans += 1
         return None
+
+    def _fast_cycle(self) -> FastCycle:
+        """The usual cycle, called with ``(now, up)``: the generated ``cycle`` or, for a
+        virtual plant of one group of inlined scans (no driver to read or write), that
+        group's own ``send`` (one call less per cycle)."""
+        if self.virtual and len(self._inliner.sends) == 1:
+            return self._inliner.sends[0]
+        fn: FastCycle = self._env["cycle"]
+        return fn
 
     def _revive(self) -> None:
         """After a cycle that raised: a group of inlined scans whose generator ended
@@ -425,6 +441,7 @@ class Plant:
         for j in self._inliner.revive():
             log.warning("inlined scans of group %d started again after an exception "
                         "outside its scans", j)
+            self._cycle_fast = self._fast_cycle()
 
     def _program_time(self, now: int) -> int:
         """The program's time (ns) for a scan at monotonic time ``now``.

@@ -120,6 +120,8 @@ def check(tmp: Path, chart: RefChart, seq: list[Any]) -> None:
             if not fault_a:
                 ref["A"].scan(t, ins["A"], flags["A"])
                 scanned.append("A")
+                if flags["A"]["SFCInit"]:  # SFCInit resets SFCPause (semantics.md): the
+                    flags["A"]["SFCPause"] = False  # flag is A's memory, not an input
                 ins["B"] = {"a": ref["A"].out["o0"],
                             "b": b4 if forced_i4 is None else forced_i4, "c": not c5}
                 if not fault_b:

@@ -92,7 +92,8 @@ def test_a_flag_bound_to_its_own_input_sees_this_cycles_value_in_both_cycles(
         sim, out = pl.drivers["sim"], []
         for k, (stop, go) in enumerate([(0, 0), (0, 0), (1, 1), (1, 1), (0, 1), (0, 1)]):
             sim.inputs["I0"], sim.inputs["I1"] = stop, go
-            (pl._cycle_fast if fast else pl._cycle)(k * 10_000_000, k * 10_000_000)
+            t = k * 10_000_000
+            pl._cycle_fast((t, t)) if fast else pl._cycle(t, t)
             out.append((stop, go, pl.instances["A"].get("SFCPause"), sim.outputs["Q0"]))
         return out
     # paused in the very cycle the stop comes: the chart does not start `run`
