@@ -17,7 +17,8 @@ call would copy every cell of its closure into a new frame each time (about 0.8 
 some 27 cells per drawer tester). A scan's fault is caught in the generator and handed
 back to the cycle, which raises it: the generator lives on for the cycles after the fault.
 
-The instances are grouped (``GROUP`` per generator), so each group's source compiles on
+The instances are grouped (up to ``GROUP`` per generator, as many as keep the names of a
+group's code under 256, see ``NAMES``), so each group's source compiles on
 its own, and the groups of a plant of like instances (one chart, bindings of one shape:
 what differs between instances, a point's position or a scan function, is a default
 argument, ``K0``, and another group's cell a numbered name, ``L0``) share one code
@@ -44,8 +45,13 @@ from runtime.engine.instance import Instance
 
 #: the file name of the groups' code, as tracebacks show it
 FILENAME = "<plant scans>"
-#: instances per group
+#: instances per group, at most
 GROUP = 16
+#: the names a group's members may take in its code (its constants, temporaries and
+#: cells), so that with the group's own few every name's index stays under 256: an index
+#: over 255 costs an ``EXTENDED_ARG`` instruction at each use (a group of 16 drawer
+#: testers had 2678 of them, 30% of its instructions, and ran 15% slower than groups of 4)
+NAMES = 240
 _BUILTINS = set(dir(builtins))
 _WORD = re.compile(r"[A-Za-z_]\w*")
 #: a group's generator (types.GeneratorType: ``gi_frame`` tells whether it has ended)
@@ -71,6 +77,7 @@ class Template:
     text: str
     slots: list[int]  # the state slots the body names, by index
     helpers: set[str]  # the module names it calls (``_idiv``, ``_Unstable``)
+    temps: int  # the temporaries it names
 
 
 #: where an instance's prefix goes in a template (a character no Python source holds)
@@ -96,11 +103,14 @@ def template(prog: Program, code: types.CodeType) -> Template:
     temps = set(code.co_varnames[code.co_argcount:])
     used: set[int] = set()
     helpers: set[str] = set()
+    named: set[str] = set()
 
     def rename(name: str) -> str | None:
         if name in state:
             used.add(state[name])
-        elif name != "slow" and name not in temps:
+        elif name in temps:
+            named.add(name)
+        elif name != "slow":
             if name in SCAN_GLOBALS:
                 helpers.add(name)
                 return None
@@ -114,7 +124,7 @@ def template(prog: Program, code: types.CodeType) -> Template:
     if fast[:1] == [FAST_CLOCK]:  # the clock shared: see SHARED_CLOCK
         fast[:1] = SHARED_CLOCK
     text = "\n".join("    " + line for line in renamed(fast, rename))
-    return Template(text, sorted(used), helpers)
+    return Template(text, sorted(used), helpers, len(named))
 
 
 class Inliner:
@@ -128,22 +138,34 @@ class Inliner:
     instances have one text, compiled once, each group's function made of that code with
     its own cells and values (its closure and its defaults)."""
 
-    def __init__(self, env: dict[str, Any], instances: list[Instance]) -> None:
+    def __init__(self, env: dict[str, Any], instances: list[Instance],
+                 bindings: dict[str, int]) -> None:
         """``env``: the plant cycle's environment (the groups' globals); ``instances``:
-        every instance, in plant order."""
+        every instance, in plant order; ``bindings``: each one's number of bound inputs
+        and outputs (each takes about a name in its group: a position, or a cell of
+        another instance)."""
         self.env = env
-        #: per group: its instances in order
-        self.members: list[list[Instance]] = [
-            instances[k:k + GROUP] for k in range(0, len(instances), GROUP)]
+        self._templates: dict[int, Template] = {}
+        #: per group: its instances in order (at most GROUP, within NAMES)
+        self.members: list[list[Instance]] = []
+        size = NAMES
+        for inst in instances:
+            tpl = self._template(inst)
+            names = len(tpl.slots) + tpl.temps + 2 + bindings.get(inst.name, 0)
+            if size + names > NAMES or len(self.members[-1]) >= GROUP:
+                self.members.append([])
+                size = 0
+            self.members[-1].append(inst)
+            size += names
         #: every instance's group and position in it
-        self._pos = {inst.name: divmod(k, GROUP) for k, inst in enumerate(instances)}
+        self._pos = {inst.name: (g, j) for g, members in enumerate(self.members)
+                     for j, inst in enumerate(members)}
         self._group = -1
         self._texts: list[list[str]] = []  # per group: each member's lines, joined
         self._free: list[dict[str, Any]] = []  # per group: free name -> its cell
         self._consts: list[dict[str, Any]] = []  # per group: default name -> its value
         self._links: list[dict[int, str]] = []  # per group: id(cell) -> its L name
         self._used: list[set[str]] = []  # per group: the words its lines name
-        self._templates: dict[int, Template] = {}
         #: per distinct code: the position (in the group) of each line of its source
         self._lines: dict[types.CodeType, list[int]] = {}
         #: the distinct sources compiled (``FILENAME``), for reading
@@ -153,6 +175,13 @@ class Inliner:
         self.factories: list[Callable[[], GroupGen]] = []
         self.sends: list[Send] = []
         self._gens: list[GroupGen] = []
+
+    def _template(self, inst: Instance) -> Template:
+        """The template of ``inst``'s program (made once per program)."""
+        tpl = self._templates.get(id(inst.program))
+        if tpl is None:
+            tpl = self._templates[id(inst.program)] = template(inst.program, scan_code(inst))
+        return tpl
 
     # -- names, for the lines of the current group ---------------------------------------
     def cell(self, inst: Instance, index: int) -> str:
@@ -184,7 +213,8 @@ class Inliner:
 
     # -- the groups ------------------------------------------------------------------
     def begin(self, inst: Instance) -> None:
-        """Start ``inst``'s lines (in plant order): a new group every :data:`GROUP`."""
+        """Start ``inst``'s lines (in plant order), in a new group if it is the first of
+        one."""
         g, _ = self._pos[inst.name]
         if g != self._group:
             self._group = g
@@ -198,10 +228,7 @@ class Inliner:
         """Inline ``inst``'s scan into the current group, after its input lines and
         before its output lines (both at column 0)."""
         j = self._pos[inst.name][1]
-        prog = inst.program
-        tpl = self._templates.get(id(prog))
-        if tpl is None:
-            tpl = self._templates[id(prog)] = template(prog, scan_code(inst))
+        tpl = self._template(inst)
         for i in tpl.slots:
             self.cell(inst, i)
         self._used[-1] |= tpl.helpers | set(_WORD.findall("\n".join(inputs + outputs)))

@@ -241,7 +241,9 @@ class Plant:
         instance its bindings stored into its cells, its fast path or, its ``slow`` cell
         set, its whole scan, its outputs copied), the drivers' writes."""
         lines = self._reads()
-        inl = self._inliner = Inliner(self._env, list(self.instances.values()))
+        inl = self._inliner = Inliner(
+            self._env, list(self.instances.values()),
+            {name: len(i.inputs) + len(i.outputs) for name, i in self.pdef.instances.items()})
         for name, inst in self.instances.items():
             inl.begin(inst)
             idef = self.pdef.instances[name]
