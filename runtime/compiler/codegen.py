@@ -117,10 +117,11 @@ class Compiler:
             out("# chart clock: advances unless the chart was paused during the last "
                 "interval")
             out(f"if first: {L('ct', value='0')}")
-            out(f"elif not wp: {self.state.add('ct', 'now - lastnow')}")
-        out(L("lastnow", value="now"))
-        if not fast:  # the base the fast path counts the clock from (now - ct stays put
-            out(L("cb", value="now - ct"))  # while the chart is not paused)
+            # advanced by the interval since the last scan: ct + (now - last) = now - cb
+            out(f"elif not wp: {L('ct', value='now - cb')}")
+            # the base the fast path counts the clock from: it stays put while the chart
+            # is not paused, and cb + ct is always the time of the last scan
+            out(L("cb", value="now - ct"))
         steps = list(g.steps.values())
         marks = len(out.lines)  # the entered/left marks: filled in once the body is known
         out("")

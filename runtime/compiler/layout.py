@@ -91,7 +91,7 @@ class StateLayout:
         for b in g.blocks.values():
             self.slot(b.name, ident("b", b.name), None, b.kind, SlotKind.BLOCK, b.name)
         self.slot("#ct", "ct", 0, None, SlotKind.CLOCK, "", T.TIME)
-        for key, local, init in (("#last", "lastnow", 0), ("#clockbase", "cb", 0),
+        for key, local, init in (("#clockbase", "cb", 0),
                                  ("#first", "first", True), ("#initpend", "initpend", True),
                                  ("#paused", "wp", False), ("#resetprev", "resetprev", False),
                                  ("#quitprev", "quitprev", False), ("#tipprev", "tipprev", True)):

@@ -262,8 +262,9 @@ class Program:
         return fn
 
     def scan_time(self, m: Memory) -> int:
-        """Monotonic time (ns) of the last scan of ``m``."""
-        return int(m[self._by_key["#last"]])
+        """Monotonic time (ns) of the last scan of ``m``: its clock base plus its chart
+        clock (the base is set so at every scan)."""
+        return int(m[self._by_key["#clockbase"]] + m[self._by_key["#ct"]])
 
     def chart_paused(self, m: Memory) -> bool:
         """Whether the last scan of ``m`` was paused (SFCPause/SFCQuitError)."""

@@ -4,8 +4,8 @@ A compiled chart's scan keeps its state in the cells of its closure (program.Sta
 its fast path (``Program.fast``, the body for a scan that starts with ``slow`` false) is
 plain Python over those cells. This module writes, for a group of instances, one body
 that is, per instance: its input bindings stored into its cells, then its fast path with
-every name of the chart made the instance's own (``p3_x_gsAbrir``, a state cell;
-``p3_f0``, a temporary), or its whole scan (``scan_state``) when its ``slow`` cell is set;
+every state name made the instance's own (``p3_x_gsAbrir``, a cell) and every temporary
+the group's (``t_f0``), or its whole scan (``scan_state``) when its ``slow`` cell is set;
 then its outputs copied through their bindings (by position in the drivers' images).
 
 Each group is a generator made of that code with the instances' own cells as its closure
@@ -72,12 +72,14 @@ def scan_code(inst: Instance) -> types.CodeType:
 class Template:
     """A program's fast path made ready to inline: its text with every name of the
     instance's own marked (:data:`MARK`, replaced by the instance's prefix), and the
-    state slots it uses (their cells become free variables of the group)."""
+    state slots it uses (their cells become free variables of the group). Its
+    temporaries are the group's (``t_f0``): each scan writes one before it reads it (its
+    own scan function would raise otherwise), so the members share them."""
 
     text: str
     slots: list[int]  # the state slots the body names, by index
     helpers: set[str]  # the module names it calls (``_idiv``, ``_Unstable``)
-    temps: int  # the temporaries it names
+    temps: set[str]  # the temporaries it names, as the group names them
 
 
 #: where an instance's prefix goes in a template (a character no Python source holds)
@@ -109,7 +111,8 @@ def template(prog: Program, code: types.CodeType) -> Template:
         if name in state:
             used.add(state[name])
         elif name in temps:
-            named.add(name)
+            named.add("t_" + name)
+            return "t_" + name
         elif name != "slow":
             if name in SCAN_GLOBALS:
                 helpers.add(name)
@@ -124,7 +127,7 @@ def template(prog: Program, code: types.CodeType) -> Template:
     if fast[:1] == [FAST_CLOCK]:  # the clock shared: see SHARED_CLOCK
         fast[:1] = SHARED_CLOCK
     text = "\n".join("    " + line for line in renamed(fast, rename))
-    return Template(text, sorted(used), helpers, len(named))
+    return Template(text, sorted(used), helpers, named)
 
 
 class Inliner:
@@ -148,15 +151,17 @@ class Inliner:
         self._templates: dict[int, Template] = {}
         #: per group: its instances in order (at most GROUP, within NAMES)
         self.members: list[list[Instance]] = []
-        size = NAMES
+        size, temps = NAMES, set[str]()
         for inst in instances:
             tpl = self._template(inst)
-            names = len(tpl.slots) + tpl.temps + 2 + bindings.get(inst.name, 0)
-            if size + names > NAMES or len(self.members[-1]) >= GROUP:
+            names = len(tpl.slots) + 2 + bindings.get(inst.name, 0)
+            if (size + names + len(temps | tpl.temps) > NAMES
+                    or len(self.members[-1]) >= GROUP):
                 self.members.append([])
-                size = 0
+                size, temps = 0, set()
             self.members[-1].append(inst)
             size += names
+            temps |= tpl.temps
         #: every instance's group and position in it
         self._pos = {inst.name: (g, j) for g, members in enumerate(self.members)
                      for j, inst in enumerate(members)}
