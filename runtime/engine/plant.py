@@ -78,10 +78,10 @@ class Plant:
     # slots: ``cycle`` reads seven attributes every cycle; past 30 attributes an instance
     # dict stops sharing its keys and each read is a dict lookup (CPython 3.11)
     __slots__ = ("virtual", "pdef", "_book", "cycle_ns", "watchdog_ns", "retain_interval_ns",
-                 "start", "last_up", "offset_ns", "_last_scan", "_stood_still", "programs",
+                 "_start", "last_up", "offset_ns", "_last_scan", "_stood_still", "programs",
                  "instances", "drivers", "_handed", "forced", "forced_points",
-                 "_forced_by_inst", "_stash", "_pulses", "hold", "steps_left", "iocheck",
-                 "scans", "names", "_env", "source", "_cycle_fast", "_cycle",
+                 "_forced_by_inst", "_stash", "_pulses", "_hold", "steps_left", "_iocheck",
+                 "scans", "names", "_env", "source", "_cycle_fast", "_cycle", "_usual",
                  "_copy_outputs", "_inliner", "__weakref__")
 
     def __init__(self, pdef: PlantDef, *, sim: bool = False,
@@ -101,8 +101,7 @@ class Plant:
         self.cycle_ns = pdef.cycle_ns
         self.watchdog_ns = pdef.watchdog_ns
         self.retain_interval_ns = pdef.retain_interval_ns
-        #: program time (ns) of the first cycle: the clock bits count from it
-        self.start: int | None = None
+        self._start: int | None = None  # see the property
         #: program time since the start (ns) of the last cycle that scanned the charts
         self.last_up = 0
         #: the program's time is the monotonic clock less this offset (ns): it grows by
@@ -112,6 +111,9 @@ class Plant:
         self._last_scan: int | None = None
         #: whether a cycle since the last scan did not scan the charts
         self._stood_still = False
+        #: whether the next cycle is a usual one (``_is_usual``, kept by ``_settle``): the
+        #: one test of ``cycle``, where seven were (about 25 ns a cycle)
+        self._usual = False
         #: one program per distinct chart (the plant file's loader shares the Grafcet of a
         #: file between its instances): the instances of a chart share its code
         self.programs: list[Program] = []
@@ -136,10 +138,9 @@ class Plant:
         self._forced_by_inst: dict[str, list[tuple[int, Any]]] = {}
         self._stash: list[tuple[Driver, str, Any]] = []
         self._pulses: list[tuple[str, int]] = []
-        #: console pause: charts not scanned, I/O still exchanged (pause/resume/step)
-        self.hold = False
+        self._hold = False  # see the property
         self.steps_left = 0  # while held: full cycles still let through
-        self.iocheck = False
+        self._iocheck = False  # see the property
         self.scans = 0
         self._declare_points()
         #: the plant's names, resolved on the drivers' own point tables
@@ -155,6 +156,7 @@ class Plant:
         #: the cycle with forces and pulses applied around each scan
         self._cycle: Callable[[int, int], Driver | None] = env["cycle_slow"]
         self._copy_outputs: Callable[[], None] = env["copy_outputs"]
+        self._settle()
 
     # -- construction ----------------------------------------------------------------
     def _program(self, g: Grafcet) -> Program:
@@ -369,30 +371,31 @@ class Plant:
         output images are left to the technician (every output off on entry). The
         charts see the program's time (``_program_time``), which stands still while
         they are not scanned."""
-        if not (self.iocheck or self.hold or self._stood_still or self._pulses
-                or self._forced_by_inst or self.forced_points) and self.start is not None:
+        if self._usual:
             # the usual cycle: running, nothing forced (what follows, made short; no new
             # integer for a zero offset or start, as in a simulation)
-            off, start = self.offset_ns, self.start
+            off, start = self.offset_ns, self._start
             pnow = now - off if off else now
             self.last_up = up = pnow - start if start else pnow
             self._last_scan = pnow
         else:
-            if self.iocheck or (self.hold and self.steps_left <= 0):
+            if self._iocheck or (self._hold and self.steps_left <= 0):
                 if self._last_scan is not None:
                     self._stood_still = True
-                if not self.iocheck and self.forced:
+                    self._settle()
+                if not self._iocheck and self.forced:
                     self._copy_outputs()
                 self.exchange(zero_outputs=False)
                 return self.faulted()
-            if self.hold:
+            if self._hold:
                 self.steps_left -= 1
             pnow = self._program_time(now)
-            if self.start is None:
-                self.start = pnow
-            up = pnow - self.start
+            if self._start is None:
+                self._start = pnow
+            up = pnow - self._start
             self.last_up = up
             self._last_scan = pnow
+            self._settle()
             if self._pulses or self._forced_by_inst or self.forced_points:
                 return self._cycle_forced(pnow, up)
         try:
@@ -409,6 +412,49 @@ class Plant:
                 got = None
         self.scans += 1
         return None
+
+    # -- what makes a cycle unusual: set through these, so that ``_usual`` follows ------
+    @property
+    def start(self) -> int | None:
+        """Program time (ns) of the first cycle: the clock bits count from it."""
+        return self._start
+
+    @start.setter
+    def start(self, value: int | None) -> None:
+        self._start = value
+        self._settle()
+
+    @property
+    def hold(self) -> bool:
+        """Console pause: charts not scanned, I/O still exchanged (pause/resume/step)."""
+        return self._hold
+
+    @hold.setter
+    def hold(self, value: bool) -> None:
+        self._hold = value
+        self._settle()
+
+    @property
+    def iocheck(self) -> bool:
+        """Commissioning mode (``set_iocheck``): charts stopped, outputs left to the
+        technician."""
+        return self._iocheck
+
+    @iocheck.setter
+    def iocheck(self, value: bool) -> None:
+        self._iocheck = value
+        self._settle()
+
+    def _settle(self) -> None:
+        """Set ``_usual`` again: to be called after any change of what it sums up (the
+        attributes :meth:`_is_usual` reads, all changed in this class only)."""
+        self._usual = self._is_usual()
+
+    def _is_usual(self) -> bool:
+        """Whether the next cycle is a usual one: running (started, not held, not in
+        iocheck, the last cycle scanned), no force and no pulse."""
+        return not (self._iocheck or self._hold or self._stood_still or self._pulses
+                    or self._forced_by_inst or self.forced_points) and self._start is not None
 
     def _cycle_forced(self, pnow: int, up: int) -> str | None:
         """The cycle with forces and pulses applied around each scan (``cycle``)."""
@@ -454,7 +500,7 @@ class Plant:
         after the previous scan, whatever the clock says; the offset takes up the rest,
         so ``resume`` goes on from there with no jump."""
         last = self._last_scan
-        if last is not None and (self._stood_still or self.hold):
+        if last is not None and (self._stood_still or self._hold):
             self._stood_still = False
             self.offset_ns = now - (last + self.cycle_ns)
         return now - self.offset_ns
@@ -486,22 +532,24 @@ class Plant:
     def pause(self) -> bool:
         """Hold the charts (I/O still exchanged), cancelling any steps; returns whether
         they were held already."""
-        was = self.hold
-        self.hold = True
+        was = self._hold
+        self._hold = True
         self.steps_left = 0
+        self._settle()
         return was
 
     def resume(self) -> bool:
         """Let the charts run again; returns whether they were held."""
-        was = self.hold
-        self.hold = False
+        was = self._hold
+        self._hold = False
         self.steps_left = 0
+        self._settle()
         return was
 
     @property
     def held(self) -> bool:
         """Whether the charts are held (console pause), stepping or not."""
-        return self.hold
+        return self._hold
 
     @property
     def stepping(self) -> bool:
@@ -518,11 +566,13 @@ class Plant:
         """Hold a chart flag (SFCInit/SFCReset) true for the next scan only."""
         inst = self.instances[instance]
         self._pulses.append((instance, inst.program.var_index(flag)))
+        self._settle()
 
     def set_iocheck(self, on: bool) -> None:
         """Commissioning mode: charts stopped, every output off; leaving it turns every
         output off again (the caller restarts the charts after an acknowledge)."""
-        self.iocheck = on
+        self._iocheck = on
+        self._settle()
         self.safe_state()
 
     def safe_state(self) -> None:
@@ -616,6 +666,7 @@ class Plant:
             d = self.drivers[head]
             self.forced_points[name] = ForcedPoint(d, rest, rest in d.outputs,
                                                    int(coerce(A.Type.INT, value)))
+            self._settle()
 
     def unforce(self, name: str | None = None) -> None:
         """Release one forced name, or every force when ``name`` is None."""
@@ -647,6 +698,7 @@ class Plant:
         self._forced_by_inst.clear()
         for f in self.forced.values():
             self._forced_by_inst.setdefault(f.instance, []).append((f.slot, f.value))
+        self._settle()
 
     def _apply_instance_forces(self, inst: str, m: list[Any]) -> None:
         for idx, value in self._forced_by_inst.get(inst, ()):
@@ -689,9 +741,9 @@ class Plant:
         stepping, iocheck, forces, a flag pulse not yet run. ``rename`` gives the new name
         of an old forced name (None: it is gone). Returns one line per force released (name
         gone, value no longer of its type). Between two cycles only."""
-        self.start, self.last_up, self.offset_ns = old.start, old.last_up, old.offset_ns
+        self._start, self.last_up, self.offset_ns = old.start, old.last_up, old.offset_ns
         self._last_scan, self._stood_still = old._last_scan, old._stood_still
-        self.hold, self.steps_left, self.iocheck = old.hold, old.steps_left, old.iocheck
+        self._hold, self.steps_left, self._iocheck = old.hold, old.steps_left, old.iocheck
         self.scans = old.scans
         self.forced.clear()
         self.forced_points.clear()
@@ -709,4 +761,5 @@ class Plant:
             if inst in self.instances:
                 flag = old.instances[inst].program.slots[idx].name
                 self._pulses.append((inst, self.instances[inst].program.var_index(flag)))
+        self._settle()
         return released

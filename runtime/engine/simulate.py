@@ -68,10 +68,11 @@ class Simulation:
         plant.open()
         ev = 0
         n_ev = len(events)
+        due = [-(-e.at_ns // cyc) for e in events]  # the first scan at or after each
         cols = self.columns
         for k in range(self.cycles):
             t = k * cyc
-            while ev < n_ev and events[ev].at_ns <= t:
+            while ev < n_ev and due[ev] <= k:
                 events[ev].apply()
                 ev += 1
             try:

@@ -164,6 +164,49 @@ def test_the_inlined_scans_work_on_the_instances_own_state(
     assert a.m.slow.cell_contents is False  # and back to the fast path
 
 
+def test_the_one_test_of_the_usual_cycle_follows_every_change_of_what_it_sums_up(
+        write: Callable[[str, str], str]) -> None:
+    """``cycle`` tests one flag (``_usual``) where it tested seven attributes: after every
+    console operation, force, pulse, online take-over and cycle, the flag is what the
+    seven say, and an unusual cycle does what it must (a held plant does not scan)."""
+    plant = self_plant(write)
+    sim, a = plant.drivers["sim"], plant.instances["A"]
+
+    def consistent() -> None:
+        assert plant._usual == plant._is_usual()
+
+    t = iter(range(0, 10**12, 10_000_000))
+    consistent()
+    plant.cycle(next(t))
+    consistent()
+    assert plant._usual
+    ops: list[Callable[[], object]] = [
+        plant.pause, lambda: plant.step(1), plant.resume, lambda: plant.set_iocheck(True),
+        lambda: plant.set_iocheck(False), lambda: plant.force("A.go", True),
+        lambda: plant.unforce("A.go"), lambda: plant.force("sim.I1", 1),
+        lambda: plant.unforce(None), lambda: plant.pulse("A", "SFCInit"),
+        lambda: setattr(plant, "hold", True), lambda: setattr(plant, "hold", False),
+        lambda: setattr(plant, "iocheck", True), lambda: setattr(plant, "iocheck", False)]
+    for op in ops:
+        op()
+        consistent()
+        for _ in range(2):
+            plant.cycle(next(t))
+            consistent()
+    plant.pause()
+    sim.inputs["I0"] = 1
+    before = plant.scans
+    plant.cycle(next(t))
+    assert plant.scans == before and a.active_steps() == ["s0"]  # held: not scanned
+    plant.force("A.stop", False)
+    other = self_plant(write)
+    other.take_over(plant, lambda name: name)
+    assert other._usual == other._is_usual() and not other._usual  # held, forced
+    other.resume()
+    other.unforce(None)
+    assert other._usual == other._is_usual()
+
+
 def test_renaming_leaves_attributes_keywords_strings_and_comments() -> None:
     lines = ["x = b_t.q + f(IN=x, PT='x')  # x", "if x: y = {'x': x}[\"x\"]"]
     assert renamed(lines, lambda n: "i0_" + n if n in ("x", "y") else None) == [
