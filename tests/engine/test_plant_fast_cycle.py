@@ -207,6 +207,29 @@ def test_the_one_test_of_the_usual_cycle_follows_every_change_of_what_it_sums_up
     assert other._usual == other._is_usual()
 
 
+def test_scans_counts_every_cycle_that_scanned_past_256(
+        write: Callable[[str, str], str]) -> None:
+    """``scans`` is kept in two parts (no new integer in the usual cycle): it counts the
+    usual cycles, the forced ones, and not the held ones, across the parts' carry."""
+    plant = self_plant(write)
+    t = iter(range(0, 10**12, 10_000_000))
+    for _ in range(255):
+        plant.cycle(next(t))
+    assert plant.scans == 255
+    plant.force("A.go", True)
+    plant.cycle(next(t))  # a forced cycle: 256
+    plant.unforce(None)
+    plant.pause()
+    plant.cycle(next(t))  # held: not counted
+    plant.resume()
+    for _ in range(300):
+        plant.cycle(next(t))
+    assert plant.scans == 556
+    plant.scans = 1000  # as take_over sets it
+    plant.cycle(next(t))
+    assert plant.scans == 1001
+
+
 def test_renaming_leaves_attributes_keywords_strings_and_comments() -> None:
     lines = ["x = b_t.q + f(IN=x, PT='x')  # x", "if x: y = {'x': x}[\"x\"]"]
     assert renamed(lines, lambda n: "i0_" + n if n in ("x", "y") else None) == [
