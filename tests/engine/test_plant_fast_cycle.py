@@ -207,10 +207,9 @@ def test_the_one_test_of_the_usual_cycle_follows_every_change_of_what_it_sums_up
     assert other._usual == other._is_usual()
 
 
-def test_scans_counts_every_cycle_that_scanned_past_256(
+def test_scans_counts_every_cycle_that_scanned(
         write: Callable[[str, str], str]) -> None:
-    """``scans`` is kept in two parts (no new integer in the usual cycle): it counts the
-    usual cycles, the forced ones, and not the held ones, across the parts' carry."""
+    """``scans`` counts the usual cycles and the forced ones, not the held ones."""
     plant = self_plant(write)
     t = iter(range(0, 10**12, 10_000_000))
     for _ in range(255):
