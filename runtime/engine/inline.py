@@ -307,6 +307,15 @@ class Inliner:
             self.sends[j] = self._gens[j].send
         return dead
 
+    def restart(self) -> None:
+        """Start every group again: each works out its ``_base`` (the plant's start) at its
+        first cycle, so a start moved on a running plant needs new groups (the instances'
+        state is in their cells: nothing of it is lost)."""
+        for j, gen in enumerate(self._gens):
+            gen.close()
+            self._gens[j] = _start(self.factories[j])
+            self.sends[j] = self._gens[j].send
+
     def close(self) -> None:
         """End every group's generator (the plant is disposed of)."""
         for gen in self._gens:

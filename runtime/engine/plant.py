@@ -421,7 +421,11 @@ class Plant:
 
     @start.setter
     def start(self, value: int | None) -> None:
+        moved = value != self._start and self._last_scan is not None
         self._start = value
+        if moved:  # the groups' shared chart clock counts from the start (inline.py)
+            self._inliner.restart()
+            self._cycle_fast = self._fast_cycle()
         self._settle()
 
     @property
@@ -741,7 +745,8 @@ class Plant:
         stepping, iocheck, forces, a flag pulse not yet run. ``rename`` gives the new name
         of an old forced name (None: it is gone). Returns one line per force released (name
         gone, value no longer of its type). Between two cycles only."""
-        self._start, self.last_up, self.offset_ns = old.start, old.last_up, old.offset_ns
+        self.start = old.start  # (the property: groups that ran start again)
+        self.last_up, self.offset_ns = old.last_up, old.offset_ns
         self._last_scan, self._stood_still = old._last_scan, old._stood_still
         self._hold, self.steps_left, self._iocheck = old.hold, old.steps_left, old.iocheck
         self.scans = old.scans

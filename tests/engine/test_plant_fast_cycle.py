@@ -207,6 +207,26 @@ def test_the_one_test_of_the_usual_cycle_follows_every_change_of_what_it_sums_up
     assert other._usual == other._is_usual()
 
 
+def test_the_chart_clock_goes_on_when_the_plant_start_moves(
+        write: Callable[[str, str], str]) -> None:
+    """The inlined scans share the plant's ``up`` as the chart clock of the instances that
+    started with the plant (their base is its start): a start moved on a running plant
+    (a review found it) starts the groups again, and the clock still goes on by ``now``."""
+    plant = self_plant(write)
+    a = plant.instances["A"]
+    ct = a.program._by_key["#ct"]
+    for k in range(5):
+        plant.cycle(1_000_000_000 + k * 10_000_000)
+    assert a.m[ct] == 40_000_000
+    assert plant.start is not None
+    plant.start = plant.start + 200_000_000
+    plant.cycle(1_050_000_000)
+    assert a.m[ct] == 50_000_000
+    assert a.program.scan_time(a.m) == 1_050_000_000
+    plant.cycle(1_060_000_000)
+    assert a.m[ct] == 60_000_000
+
+
 def test_scans_counts_every_cycle_that_scanned(
         write: Callable[[str, str], str]) -> None:
     """``scans`` counts the usual cycles and the forced ones, not the held ones."""
