@@ -91,7 +91,8 @@ MARK = "\x00"
 #: where ``now - cb`` made a new integer per instance and scan (about 30 ns at 100 drawer
 #: testers). A base equal to ``_base`` but not the same object (set by a full scan) is
 #: made that object, once; any other base (a chart once paused, or started later) counts
-#: its own clock, as before.
+#: its own clock, as before. A start moved on a running plant starts the groups again
+#: (``Inliner.restart``, from ``Plant.start``).
 SHARED_CLOCK = ["if cb is _base: ct = up",
                 "else:",
                 "    ct = now - cb",

@@ -75,8 +75,8 @@ class ForcedPoint:
 class Plant:
     """Runs a PlantDef: ``open()``, ``cycle(now)`` every period, ``safe_state()``, ``close()``."""
 
-    # slots: ``cycle`` reads seven attributes every cycle; past 30 attributes an instance
-    # dict stops sharing its keys and each read is a dict lookup (CPython 3.11)
+    # slots: ``cycle`` reads and writes its attributes every cycle; past 30 attributes an
+    # instance dict stops sharing its keys and each read is a dict lookup (CPython 3.11)
     __slots__ = ("virtual", "pdef", "_book", "cycle_ns", "watchdog_ns", "retain_interval_ns",
                  "_start", "last_up", "offset_ns", "_last_scan", "_stood_still", "programs",
                  "instances", "drivers", "_handed", "forced", "forced_points",
