@@ -148,12 +148,12 @@ class Compiler:
                 out("# 3. CODESYS: the situation decided by the last scan becomes current "
                     "(held while paused)")
                 pending = " or ".join(f"pf{t.index}" for t in g.transitions)
-                out(f"if {pending}:" if folded else f"if not frozen and ({pending}):")
+                out(f"if not frozen and ({pending}):")
                 out.indent()
                 self.evolution.apply_fired(out)
                 out.dedent()
-            self.actions.section(out, folded)
-            self.evolution.section(out, folded)
+            self.actions.section(out)
+            self.evolution.section(out)
         else:
             self.evolution.section(out, folded)
             self.actions.section(out, folded)
@@ -179,7 +179,6 @@ class Compiler:
         actions as written; where none is, the actions with every entered/left mark
         false (``if False:`` compiles to nothing), so a usual scan neither clears nor
         tests the marks."""
-        g = self.g
         sub = Emitter()
         sub.level = 0
         self.actions.section(sub, folded=True)
@@ -190,24 +189,7 @@ class Compiler:
             for line in sub.lines if marked else unmarked:
                 out(line)
 
-        if not self.codesys:
-            self.evolution.fired_or_not(out, clear_marks, actions)
-            return
-        if g.transitions:
-            out("# 3. CODESYS: the situation decided by the last scan becomes current")
-            out(f"if {' or '.join(f'pf{t.index}' for t in g.transitions)}:")
-            out.indent()
-            clear_marks()
-            self.evolution.apply_fired(out)
-            actions(True)
-            out.dedent()
-            out("else:  # nothing decided: no step entered or left")
-            out.indent()
-            actions(False)
-            out.dedent()
-        else:
-            actions(False)
-        self.evolution.section(out, folded=True)
+        self.evolution.fired_or_not(out, clear_marks, actions)
 
     def flags(self, out: Emitter, steps: list[Step]) -> None:
         """The chart flags' section: tested only while ``slow`` is set."""

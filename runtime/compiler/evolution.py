@@ -256,13 +256,30 @@ class Evolution:
 
     def fired_or_not(self, out: Emitter, clear_marks: Callable[[], None],
                      actions: Callable[[bool], None]) -> None:
-        """The folded evolution of the immediate model with the actions after it, in two
-        branches: where a transition fires, ``clear_marks()`` (the entered and left
-        marks set to false, before the steps change), the evolution, then
-        ``actions(True)``; where none fires, ``actions(False)``: the actions written
-        with every mark false (none can be set), so a usual scan neither clears the
-        marks nor tests them."""
+        """The folded evolution with the actions after it (immediate), or before it
+        (CODESYS: after the situation it decided in the last scan becomes current), in
+        two branches: where a step changes, ``clear_marks()`` (the entered and left marks
+        set to false, before the steps change), the evolution, then ``actions(True)``;
+        where none does, ``actions(False)``: the actions written with every mark false
+        (none can be set), so a usual scan neither clears the marks nor tests them."""
         g = self.g
+        if self.codesys:
+            if g.transitions:
+                out("# 3. CODESYS: the situation decided by the last scan becomes current")
+                out(f"if {' or '.join(f'pf{t.index}' for t in g.transitions)}:")
+                out.indent()
+                clear_marks()
+                self.apply_fired(out)
+                actions(True)
+                out.dedent()
+                out("else:  # nothing decided: no step entered or left")
+                out.indent()
+                actions(False)
+                out.dedent()
+            else:
+                actions(False)
+            self.section(out, folded=True)
+            return
         out("# 3. evolution")
         self.exprs.sample_edges(out, [t.cond for t in g.transitions])
         if not g.transitions:
