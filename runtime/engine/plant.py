@@ -413,6 +413,66 @@ class Plant:
         self.scans += 1
         return None
 
+    def cycles(self, times: range) -> str | None:
+        """One cycle at each of ``times`` (monotonic ns, in order), exactly as :meth:`cycle`
+        runs them one by one, for a caller with nothing to do between them (a simulation
+        without a trace): the usual cycles run in one loop with no call of :meth:`cycle`
+        each, so a long run costs its scans. Returns None, or the reason why a cycle
+        stopped short (the later ones are not run). A scan's fault is raised as from
+        :meth:`cycle`, with ``last_up`` the time of the cycle that raised it."""
+        i = 0
+        while i < len(times):
+            if self._usual:
+                ran, why = self._usual_cycles(times[i:])
+                i += ran
+            else:
+                why = self.cycle(times[i])
+                i += 1
+            if why is not None:
+                return why
+        return None
+
+    def _usual_cycles(self, times: range) -> tuple[int, str | None]:
+        """The usual cycles at ``times``, all of them unless one stops short: how many ran
+        (that one included), and its reason. The bookkeeping of :meth:`cycle` (``scans``,
+        ``last_up``, the last scan's time) is done once, at the end."""
+        off, start = self.offset_ns, self._start or 0
+        program = range(times.start - off, times.stop - off, times.step)
+        fast = self._cycle_fast
+        got: Driver | BaseException | None = None
+        pnow: int | None = None
+        scanned = False  # whether the last cycle run scanned
+        try:
+            if start:
+                for pnow in program:
+                    got = fast((pnow, pnow - start))
+                    if got is not None:
+                        break
+            else:  # no new integer for a zero start (a simulation)
+                for pnow in program:
+                    got = fast((pnow, pnow))
+                    if got is not None:
+                        break
+            scanned = got is None
+        except BaseException:  # outside the scans (the generator ended): as in cycle
+            self._revive()
+            raise
+        finally:
+            ran = 0
+            if pnow is not None:
+                ran = program.index(pnow) + 1
+                self._last_scan = pnow
+                self.last_up = pnow - start
+                self.scans += ran if scanned else ran - 1
+        if got is None:
+            return ran, None
+        if isinstance(got, Driver):
+            return ran, f"driver {got.name}: {got.fault_reason}"
+        try:  # a scan's fault, raised with the local cleared (see cycle)
+            raise got
+        finally:
+            got = None
+
     # -- what makes a cycle unusual: set through these, so that ``_usual`` follows ------
     @property
     def start(self) -> int | None:

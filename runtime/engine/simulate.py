@@ -60,7 +60,8 @@ class Simulation:
         self.points = driver_columns(self.plant)
 
     def run(self, trace: bool = True) -> Iterator[dict[str, Any]]:
-        """Run every scan; yields each scan's trace row (or nothing when ``trace`` is off).
+        """Run every scan; yields each scan's trace row (or nothing when ``trace`` is off:
+        then the cycles between two scripted changes run in one call, ``Plant.cycles``).
 
         A scan that raises puts the plant in its safe state, yields a last row naming the
         fault (:func:`~runtime.engine.trace.fault_row`) and raises :class:`ScanFault`."""
@@ -70,15 +71,24 @@ class Simulation:
         n_ev = len(events)
         due = [-(-e.at_ns // cyc) for e in events]  # the first scan at or after each
         cols = self.columns
-        for k in range(self.cycles):
-            t = k * cyc
+        k = 0
+        while k < self.cycles:
             while ev < n_ev and due[ev] <= k:
                 events[ev].apply()
                 ev += 1
+            # the cycles up to the next change: this one only, with a trace
+            stop = k + 1 if trace else min(due[ev], self.cycles) if ev < n_ev else self.cycles
+            t = k * cyc
             try:
-                plant.cycle(t)
+                if trace:
+                    plant.cycle(t)
+                else:
+                    plant.cycles(range(t, stop * cyc, cyc))
             except Exception as exc:  # a fault in a scan: outputs off, one clear line
                 plant.safe_state()
+                if not trace:  # the time of the cycle that raised
+                    t = plant.last_up + (plant.start or 0) + plant.offset_ns
+                    k = t // cyc
                 fault, name = self._fault(exc, k, t)
                 if trace:
                     yield fault_row(k, t, fault.message, name, self.points)
@@ -88,6 +98,7 @@ class Simulation:
                 for key, get in cols:
                     row[key] = get()
                 yield row
+            k = stop
         plant.safe_state()
 
     def _fault(self, exc: Exception, k: int, t: int) -> tuple[ScanFault, str | None]:
