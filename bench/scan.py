@@ -8,8 +8,8 @@ of four runs of the same simulated plant on the same scripted input story:
   events written into the sim driver's image, the plant cycle with its process image,
   inverted bindings and output copy, and the generated scan of every instance; the cycles
   between two scripted changes run in one ``Plant.cycles`` call;
-- per cycle (``run_per_cycle``): the same with one ``Plant.cycle`` call per cycle, as the
-  daemon and a traced simulation call it (the plant's bookkeeping once per cycle);
+- ``cycle()`` (``run_per_cycle``): the same with one ``Plant.cycle`` call per cycle, as
+  the daemon and a traced simulation call it (the plant's bookkeeping once per cycle);
 - inline (``bench.handwritten.run_inline``): the chart hand-written as an ordinary inline
   Python loop over the instances: no call per instance, state in lists, the process image
   as plain lists indexed by integers;
@@ -21,7 +21,7 @@ Before timing, both hand-written runs are checked against the compiled plant cyc
 cycle, over two periods of the input pattern (start, strokes, stop at end of cycle, failure
 by time while opening and while closing, acknowledge, restart), half the testers starting
 three closes short of the end of the test so that it ends and restarts too. Runs alternate
-(compiled, per cycle, inline, hand, repeated) so all see the same machine load; the best of
+(compiled, ``cycle()``, inline, hand, repeated) so all see the same machine load; the best of
 ``--repeat`` is kept. Also times the compilation of the chart (load, check and compile, in
 process). Not a test: prints a table.
 
@@ -312,8 +312,9 @@ def main() -> int:
     out(f"compile {os.path.relpath(CHART, ROOT)} (load + check + compile, in process, 20 runs): "
         f"min {min(ct) * 1e3:.1f} ms, median {statistics.median(ct) * 1e3:.1f} ms")
     out(f"Python {sys.version.split()[0]}; best of {args.repeat} alternating runs, loop time")
-    out(f"{'instances':>9} {'cycles':>7} {'compiled ns':>11} {'per cycle':>9} {'inline ns':>9} "
-        f"{'hand ns':>8} {'vs inline':>9} {'per cycle':>9} {'vs hand':>7} {'ms/cycle':>9}")
+    out(f"{'instances':>9} {'cycles':>7} {'compiled ns':>11} {'cycle() ns':>10} {'inline ns':>9} "
+        f"{'hand ns':>8} {'vs inline':>9} {'cycle() vs inline':>17} {'vs hand':>7} "
+        f"{'ms/cycle':>9}")
     with tempfile.TemporaryDirectory() as d:
         for n in args.counts:
             cycles = args.cycles or max(500, 200_000 // n)
@@ -326,20 +327,20 @@ def main() -> int:
                 return 1
             ppath, spath = write_files(d, n, cycles)
             events = changes(n, cycles)
-            runs: dict[str, list[float]] = {"compiled": [], "per cycle": [], "inline": [],
+            runs: dict[str, list[float]] = {"compiled": [], "cycle()": [], "inline": [],
                                              "hand": []}
             for _ in range(args.repeat):  # alternating: all see the same machine load
                 for name in runs:  # the garbage of the last run is not this one's cost
                     gc.collect()
                     runs[name].append(
                         run_compiled(ppath, spath) if name == "compiled"
-                        else run_per_cycle(ppath, spath) if name == "per cycle"
+                        else run_per_cycle(ppath, spath) if name == "cycle()"
                         else BASELINES[name](n, cycles, events, None, None))
             t_c, t_p, t_i, t_h = (min(v) for v in runs.values())
             scans = n * cycles
-            out(f"{n:>9} {cycles:>7} {t_c / scans * 1e9:>11.0f} {t_p / scans * 1e9:>9.0f} "
+            out(f"{n:>9} {cycles:>7} {t_c / scans * 1e9:>11.0f} {t_p / scans * 1e9:>10.0f} "
                 f"{t_i / scans * 1e9:>9.0f} {t_h / scans * 1e9:>8.0f} {t_c / t_i:>9.2f} "
-                f"{t_p / t_i:>9.2f} {t_c / t_h:>7.2f} {t_c / cycles * 1e3:>9.4f}")
+                f"{t_p / t_i:>17.2f} {t_c / t_h:>7.2f} {t_c / cycles * 1e3:>9.4f}")
     return 0
 
 

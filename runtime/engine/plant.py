@@ -57,6 +57,9 @@ class ForcedVariable:
     value: Any
 
 
+#: fewer cycles than this in a row go through ``Plant.cycle`` one by one in ``Plant.cycles``
+#: (a run of them in one loop costs about five calls of ``cycle`` to set up)
+SHORT = 8
 #: the usual cycle: called with ``(now, up)`` (ns), returns None, the driver whose fault
 #: stopped it (before any scan), or the exception a scan raised (the caller raises it)
 FastCycle = Callable[[tuple[int, int]], "Driver | BaseException | None"]
@@ -416,13 +419,13 @@ class Plant:
     def cycles(self, times: range) -> str | None:
         """One cycle at each of ``times`` (monotonic ns, in order), exactly as :meth:`cycle`
         runs them one by one, for a caller with nothing to do between them (a simulation
-        without a trace): the usual cycles run in one loop with no call of :meth:`cycle`
-        each, so a long run costs its scans. Returns None, or the reason why a cycle
-        stopped short (the later ones are not run). A scan's fault is raised as from
-        :meth:`cycle`, with ``last_up`` the time of the cycle that raised it."""
+        without a trace): a stretch of usual cycles runs in one loop with no call of
+        :meth:`cycle` each, so a long run costs its scans. Returns None, or the reason why
+        a cycle stopped short (the later ones are not run). A scan's fault is raised as
+        from :meth:`cycle`, :attr:`last_now` the time of the cycle that raised it."""
         i = 0
         while i < len(times):
-            if self._usual:
+            if self._usual and len(times) - i >= SHORT:
                 ran, why = self._usual_cycles(times[i:])
                 i += ran
             else:
@@ -432,28 +435,35 @@ class Plant:
                 return why
         return None
 
+    @property
+    def last_now(self) -> int:
+        """The monotonic time (ns) of the last cycle that scanned, or whose scan raised."""
+        return self.last_up + (self._start or 0) + self.offset_ns
+
     def _usual_cycles(self, times: range) -> tuple[int, str | None]:
         """The usual cycles at ``times``, all of them unless one stops short: how many ran
         (that one included), and its reason. The bookkeeping of :meth:`cycle` (``scans``,
-        ``last_up``, the last scan's time) is done once, at the end."""
+        ``last_up``, the last scan's time) is done once, at the end, also when an
+        exception ends the loop (a Ctrl-C between two cycles: the cycles before it count)."""
         off, start = self.offset_ns, self._start or 0
         program = range(times.start - off, times.stop - off, times.step)
         fast = self._cycle_fast
         got: Driver | BaseException | None = None
-        pnow: int | None = None
-        scanned = False  # whether the last cycle run scanned
-        try:
+        pnow: int | None = None  # the program time of the last cycle begun
+        done: int | None = None  # ... and of the last one that scanned
+        try:  # two loops: no new integer for a zero start (a simulation)
             if start:
                 for pnow in program:
                     got = fast((pnow, pnow - start))
                     if got is not None:
                         break
-            else:  # no new integer for a zero start (a simulation)
+                    done = pnow
+            else:
                 for pnow in program:
                     got = fast((pnow, pnow))
                     if got is not None:
                         break
-            scanned = got is None
+                    done = pnow
         except BaseException:  # outside the scans (the generator ended): as in cycle
             self._revive()
             raise
@@ -463,7 +473,8 @@ class Plant:
                 ran = program.index(pnow) + 1
                 self._last_scan = pnow
                 self.last_up = pnow - start
-                self.scans += ran if scanned else ran - 1
+            if done is not None:
+                self.scans += program.index(done) + 1
         if got is None:
             return ran, None
         if isinstance(got, Driver):

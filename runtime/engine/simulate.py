@@ -76,8 +76,9 @@ class Simulation:
             while ev < n_ev and due[ev] <= k:
                 events[ev].apply()
                 ev += 1
-            # the cycles up to the next change: this one only, with a trace
-            stop = k + 1 if trace else min(due[ev], self.cycles) if ev < n_ev else self.cycles
+            stop = k + 1  # with a trace, cycle by cycle; without, up to the next change
+            if not trace:
+                stop = min(due[ev], self.cycles) if ev < n_ev else self.cycles
             t = k * cyc
             try:
                 if trace:
@@ -86,8 +87,8 @@ class Simulation:
                     plant.cycles(range(t, stop * cyc, cyc))
             except Exception as exc:  # a fault in a scan: outputs off, one clear line
                 plant.safe_state()
-                if not trace:  # the time of the cycle that raised
-                    t = plant.last_up + (plant.start or 0) + plant.offset_ns
+                if not trace:  # the cycle that raised
+                    t = plant.last_now
                     k = t // cyc
                 fault, name = self._fault(exc, k, t)
                 if trace:

@@ -5,9 +5,12 @@ at the same cycle, and the same stop on a driver fault."""
 
 from __future__ import annotations
 
+import inspect
 import os
 import random
+import sys
 from collections.abc import Callable
+from types import FrameType
 from typing import Any
 
 import pytest
@@ -42,7 +45,8 @@ def plant_file(write: Write, policy: str = "stop") -> str:
 def snapshot(plant: Plant) -> tuple[Any, ...]:
     sim = plant.drivers["sim"]
     assert isinstance(sim, SimDriver)
-    return (plant.scans, plant.last_up, plant.start, plant.offset_ns,
+    return (plant.scans, plant.last_up, plant.start, plant.offset_ns, plant._last_scan,
+            plant._stood_still, plant._usual, plant.steps_left, plant.hold,
             [list(i.m) for i in plant.instances.values()], dict(sim.outputs.items()),
             sim.written)
 
@@ -82,7 +86,7 @@ def test_a_run_of_cycles_is_cycle_after_cycle(write: Write, virtual: bool, t0: i
         inputs = {f"I{rng.randrange(4 * N)}": rng.randrange(2) for _ in range(rng.randrange(6))}
         op = rng.choice(ops) if rng.random() < 0.3 else ops[0]
         back = rng.random() < 0.4  # running again, nothing forced
-        length = rng.choice([1, 2, 7, 40, 300])
+        length = rng.choice([1, 2, 7, 8, 40, 300])
         times = range(t, t + length * CYCLE, CYCLE)
         for p in (one, batch):
             p.drivers["sim"].inputs.update(inputs)
@@ -108,7 +112,9 @@ steps:
 """
 
 
-def test_a_fault_in_the_middle_of_a_run_is_the_same_as_cycle_by_cycle(write: Write) -> None:
+@pytest.mark.parametrize("t0", [0, 1_000_000_007])
+def test_a_fault_in_the_middle_of_a_run_is_the_same_as_cycle_by_cycle(write: Write,
+                                                                      t0: int) -> None:
     """A scan that raises in the middle of a run (no scripted change there): the same
     fault, at the same cycle and time, and the same bookkeeping as one cycle at a time."""
     write("count.yaml", DIVIDES)
@@ -118,7 +124,7 @@ def test_a_fault_in_the_middle_of_a_run_is_the_same_as_cycle_by_cycle(write: Wri
     one, batch = (Plant(load_plant(path), sim=True, virtual=True) for _ in range(2))
     one.instances["c9"].set("c", 3)  # c9 raises first: in the scan of cycle 246
     batch.instances["c9"].set("c", 3)
-    times = range(0, 1000 * CYCLE, CYCLE)
+    times = range(t0, t0 + 1000 * CYCLE, CYCLE)
     with pytest.raises(ZeroDivisionError):
         for now in times:
             one.cycle(now)
@@ -126,6 +132,7 @@ def test_a_fault_in_the_middle_of_a_run_is_the_same_as_cycle_by_cycle(write: Wri
         batch.cycles(times)
     assert snapshot(batch) == snapshot(one)
     assert batch.scans == 246 and batch.last_up == 246 * CYCLE
+    assert batch.last_now == t0 + 246 * CYCLE
     script = write("s.yaml", "cycles: 1000\nset:\n  - {at: 1ms, sim.I0: 1}\n")
     messages = []
     for trace in (True, False):
@@ -139,8 +146,9 @@ def test_a_fault_in_the_middle_of_a_run_is_the_same_as_cycle_by_cycle(write: Wri
     assert "instance 'c9'" in messages[1] and "in cycle 246 (t = 2460 ms)" in messages[1]
 
 
+@pytest.mark.parametrize("t0", [0, 1_000_000_007])
 def test_a_driver_fault_stops_a_run_where_it_stops_a_cycle(
-        write: Write, monkeypatch: pytest.MonkeyPatch) -> None:
+        write: Write, monkeypatch: pytest.MonkeyPatch, t0: int) -> None:
     """A driver whose policy is ``stop`` faults in the middle of a run: the run ends at
     that cycle with its reason, as ``cycle`` returns it, and nothing after it runs."""
     one, batch = (Plant(load_plant(plant_file(write)), sim=True) for _ in range(2))
@@ -155,8 +163,79 @@ def test_a_driver_fault_stops_a_run_where_it_stops_a_cycle(
             real()
 
         monkeypatch.setattr(p.drivers["sim"], "_read", read)
-    times = range(0, 100 * CYCLE, CYCLE)
+    times = range(t0, t0 + 100 * CYCLE, CYCLE)
     why = next(filter(None, (one.cycle(now) for now in times)))
     assert batch.cycles(times) == why == "driver sim: bus gone"
     assert snapshot(batch) == snapshot(one)
     assert batch.scans == 57
+
+
+def test_a_group_ended_in_the_middle_of_a_run_is_started_again_as_by_cycle(
+        write: Write, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A group's generator ended by an exception outside its scans (closed here from the
+    driver's read, between two cycles of a run): the run raises at that cycle as
+    ``cycle`` does, the group is started again, and both go on alike."""
+    one, batch = (Plant(load_plant(plant_file(write)), sim=True) for _ in range(2))
+    for p in (one, batch):
+        p.open()
+        reads = iter(range(10**6))
+        real = p.drivers["sim"]._read
+
+        def read(real: Callable[[], None] = real, reads: Any = reads,
+                 p: Plant = p) -> None:
+            if next(reads) == 30:
+                p._inliner._gens[1].close()
+            real()
+
+        monkeypatch.setattr(p.drivers["sim"], "_read", read)
+    times = range(0, 100 * CYCLE, CYCLE)
+    with pytest.raises(StopIteration):
+        for now in times:
+            one.cycle(now)
+    with pytest.raises(StopIteration):
+        batch.cycles(times)
+    assert snapshot(batch) == snapshot(one)
+    assert batch.scans == 30 and caplog.text.count("started again") == 2
+    later = range(times.stop, times.stop + 50 * CYCLE, CYCLE)
+    for now in later:
+        assert one.cycle(now) is None
+    assert batch.cycles(later) is None
+    assert snapshot(batch) == snapshot(one)
+
+
+def test_a_ctrl_c_between_two_cycles_of_a_run_leaves_them_counted(write: Write) -> None:
+    """A KeyboardInterrupt where a signal lands between two cycles of a run (the loop's
+    back edge, raised here by a line tracer): the cycles before it count, as when it
+    lands between two calls of ``cycle``."""
+    one, batch = twins(write, virtual=True)
+    loops = {start + k for k, line in enumerate(inspect.getsourcelines(
+        Plant._usual_cycles)[0]) if "for pnow in program:" in line
+             for start in [Plant._usual_cycles.__code__.co_firstlineno]}
+    seen = 0
+
+    def tracer(frame: FrameType, event: str, arg: Any) -> Any:
+        nonlocal seen
+        if event == "line" and frame.f_lineno in loops:
+            seen += 1
+            if seen == 41:  # after 40 cycles
+                raise KeyboardInterrupt
+        return tracer
+
+    def calls(frame: FrameType, event: str, arg: Any) -> Any:
+        return tracer if frame.f_code is Plant._usual_cycles.__code__ else None
+
+    for now in range(0, 3 * CYCLE, CYCLE):  # started: the next cycles are usual
+        one.cycle(now)
+        batch.cycle(now)
+    times = range(3 * CYCLE, 100 * CYCLE, CYCLE)
+    for now in times[:40]:
+        one.cycle(now)
+    sys.settrace(calls)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            batch.cycles(times)
+    finally:
+        sys.settrace(None)
+    assert len(loops) == 2 and seen == 41
+    assert snapshot(batch) == snapshot(one) and batch.scans == 43
