@@ -672,11 +672,15 @@ class _TraceWriter:
         while True:
             self._wake.wait(0.2)
             self._wake.clear()
+            # read before draining: the stop is set after the last row was queued, so every
+            # row is written (read after, a row queued and the stop set between the drain
+            # and the test would be lost, were threads switched there)
+            stop = self._stop
             try:
                 while self._rows:
                     self.out.write(json.dumps(self._rows.popleft(), ensure_ascii=False,
                                               separators=(",", ":")) + "\n")
-                if self._stop:
+                if stop:
                     self.out.flush()
                     return
             except OSError as exc:  # EPIPE (SIGPIPE is ignored), ENOSPC: the plant runs on

@@ -233,6 +233,11 @@ def test_writes_allowed_refused_and_applied_between_scans(tmp_path: Path) -> Non
                     assert exc.code == ua.StatusCodes.BadNotWritable
                 return before, after
         before, after = asyncio.run(main())
+        # the read-back can come a scan or two after the write, while t1 is still in gsB
+        # (40 ms): let it get back to gsA, where sStop holds it, before the stop (asked in
+        # the scan thread: that scan's trace row is queued before the answer comes back)
+        t1 = d.plant.instances["t1"]
+        wait_until(lambda: d.call(lambda: t1.get("gsA.X")) is True, what="t1 back in gsA")
         d.stop()
     rows = read_trace(trace)
     first = min(cy for cy, row in rows.items() if row["t1.sStop"] == 1)
