@@ -405,6 +405,16 @@ def test_seed004_simultaneous_transitions_one_step_per_scan() -> None:
 
 
 # -- every example plant has a story --------------------------------------------------------
+def state(sim: Simulation) -> dict[str, list[object]]:
+    """Every instance's state, a function block as its type and fields."""
+    def value(v: object) -> object:
+        slots = getattr(type(v), "__slots__", None)
+        if slots is None:
+            return v
+        return (type(v).__name__, *(getattr(v, f, None) for f in slots))
+    return {n: [value(v) for v in i.m] for n, i in sim.plant.instances.items()}
+
+
 def test_every_simulated_plant_has_a_story_and_runs_it() -> None:
     plants = sorted(CONFIGS.glob("*/plant_sim.yaml"))
     assert len(plants) >= 6
@@ -415,3 +425,9 @@ def test_every_simulated_plant_has_a_story_and_runs_it() -> None:
             sim = Simulation(str(plant), str(script))
             assert list(sim.run(trace=False)) == []  # without a trace: nothing kept
             assert sim.plant.scans == sim.cycles > 0
+            # and the same end as cycle by cycle (a trace: one Plant.cycle per cycle; without,
+            # the stretches between scripted changes run by Plant.cycles)
+            traced = Simulation(str(plant), str(script))
+            assert len(list(traced.run())) == sim.cycles
+            assert state(sim) == state(traced), script
+            assert sim.plant.last_up == traced.plant.last_up
