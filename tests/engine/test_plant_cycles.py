@@ -59,6 +59,31 @@ def twins(write: Write, virtual: bool) -> tuple[Plant, Plant]:
     return one, batch
 
 
+def both_raise(exc: type[BaseException], one: Plant, batch: Plant, times: range) -> None:
+    """``one`` cycle by cycle and ``batch`` in one run over ``times``: both raise ``exc``
+    and end in the same state."""
+    with pytest.raises(exc):
+        for now in times:
+            one.cycle(now)
+    with pytest.raises(exc):
+        batch.cycles(times)
+    assert snapshot(batch) == snapshot(one)
+
+
+def on_read(plant: Plant, monkeypatch: pytest.MonkeyPatch, n: int,
+            act: Callable[[], None]) -> None:
+    """``act()`` at the ``n``-th read of the plant's sim driver (counted from 0)."""
+    reads = iter(range(10**6))
+    real = plant.drivers["sim"]._read
+
+    def read() -> None:
+        if next(reads) == n:
+            act()
+        real()
+
+    monkeypatch.setattr(plant.drivers["sim"], "_read", read)
+
+
 @pytest.mark.parametrize("virtual", [True, False])
 @pytest.mark.parametrize("t0", [0, 1_000_000_007])
 def test_a_run_of_cycles_is_cycle_after_cycle(write: Write, virtual: bool, t0: int,
@@ -124,13 +149,7 @@ def test_a_fault_in_the_middle_of_a_run_is_the_same_as_cycle_by_cycle(write: Wri
     one, batch = (Plant(load_plant(path), sim=True, virtual=True) for _ in range(2))
     one.instances["c9"].set("c", 3)  # c9 raises first: in the scan of cycle 246
     batch.instances["c9"].set("c", 3)
-    times = range(t0, t0 + 1000 * CYCLE, CYCLE)
-    with pytest.raises(ZeroDivisionError):
-        for now in times:
-            one.cycle(now)
-    with pytest.raises(ZeroDivisionError):
-        batch.cycles(times)
-    assert snapshot(batch) == snapshot(one)
+    both_raise(ZeroDivisionError, one, batch, range(t0, t0 + 1000 * CYCLE, CYCLE))
     assert batch.scans == 246 and batch.last_up == 246 * CYCLE
     assert batch.last_now == t0 + 246 * CYCLE
     script = write("s.yaml", "cycles: 1000\nset:\n  - {at: 1ms, sim.I0: 1}\n")
@@ -152,17 +171,12 @@ def test_a_driver_fault_stops_a_run_where_it_stops_a_cycle(
     """A driver whose policy is ``stop`` faults in the middle of a run: the run ends at
     that cycle with its reason, as ``cycle`` returns it, and nothing after it runs."""
     one, batch = (Plant(load_plant(plant_file(write)), sim=True) for _ in range(2))
+    def gone() -> None:
+        raise DriverError("bus gone")
+
     for p in (one, batch):
         p.open()
-        reads = iter(range(10**6))
-        real = p.drivers["sim"]._read
-
-        def read(real: Callable[[], None] = real, reads: Any = reads) -> None:
-            if next(reads) == 57:
-                raise DriverError("bus gone")
-            real()
-
-        monkeypatch.setattr(p.drivers["sim"], "_read", read)
+        on_read(p, monkeypatch, 57, gone)
     times = range(t0, t0 + 100 * CYCLE, CYCLE)
     why = next(filter(None, (one.cycle(now) for now in times)))
     assert batch.cycles(times) == why == "driver sim: bus gone"
@@ -179,23 +193,9 @@ def test_a_group_ended_in_the_middle_of_a_run_is_started_again_as_by_cycle(
     one, batch = (Plant(load_plant(plant_file(write)), sim=True) for _ in range(2))
     for p in (one, batch):
         p.open()
-        reads = iter(range(10**6))
-        real = p.drivers["sim"]._read
-
-        def read(real: Callable[[], None] = real, reads: Any = reads,
-                 p: Plant = p) -> None:
-            if next(reads) == 30:
-                p._inliner._gens[1].close()
-            real()
-
-        monkeypatch.setattr(p.drivers["sim"], "_read", read)
+        on_read(p, monkeypatch, 30, p._inliner._gens[1].close)
     times = range(0, 100 * CYCLE, CYCLE)
-    with pytest.raises(StopIteration):
-        for now in times:
-            one.cycle(now)
-    with pytest.raises(StopIteration):
-        batch.cycles(times)
-    assert snapshot(batch) == snapshot(one)
+    both_raise(StopIteration, one, batch, times)
     assert batch.scans == 30 and caplog.text.count("started again") == 2
     later = range(times.stop, times.stop + 50 * CYCLE, CYCLE)
     for now in later:
