@@ -437,7 +437,9 @@ class Plant:
 
     @property
     def last_now(self) -> int:
-        """The monotonic time (ns) of the last cycle that scanned, or whose scan raised."""
+        """The monotonic time (ns) of the last cycle that was not held: its scans ran,
+        raised, or a driver fault stopped them (``last_up`` from the start, plus the start
+        and the offset)."""
         return self.last_up + (self._start or 0) + self.offset_ns
 
     def _usual_cycles(self, times: range) -> tuple[int, str | None]:
