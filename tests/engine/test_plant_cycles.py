@@ -29,8 +29,9 @@ N = 12  # drawer testers: more than one group of inlined scans (inline.NAMES)
 Write = Callable[[str, str], str]
 
 
-def plant_file(write: Write, policy: str = "stop") -> str:
-    lines = ["plc: {cycle: 10ms}", f"drivers: {{sim: {{type: sim, on_fault: {policy}}}}}",
+def plant_file(write: Write) -> str:
+    """N drawer testers on one sim driver (``on_fault: stop``), tester i on I/O 4i..4i+3."""
+    lines = ["plc: {cycle: 10ms}", "drivers: {sim: {type: sim, on_fault: stop}}",
              "instances:"]
     for i in range(N):
         lines += [f"  t{i}:", f"    grafcet: {CHART}", "    inputs:",
@@ -171,6 +172,7 @@ def test_a_driver_fault_stops_a_run_where_it_stops_a_cycle(
     """A driver whose policy is ``stop`` faults in the middle of a run: the run ends at
     that cycle with its reason, as ``cycle`` returns it, and nothing after it runs."""
     one, batch = (Plant(load_plant(plant_file(write)), sim=True) for _ in range(2))
+
     def gone() -> None:
         raise DriverError("bus gone")
 
@@ -209,9 +211,8 @@ def test_a_ctrl_c_between_two_cycles_of_a_run_leaves_them_counted(write: Write) 
     back edge, raised here by a line tracer): the cycles before it count, as when it
     lands between two calls of ``cycle``."""
     one, batch = twins(write, virtual=True)
-    loops = {start + k for k, line in enumerate(inspect.getsourcelines(
-        Plant._usual_cycles)[0]) if "for pnow in program:" in line
-             for start in [Plant._usual_cycles.__code__.co_firstlineno]}
+    lines, first = inspect.getsourcelines(Plant._usual_cycles)
+    loops = {first + k for k, line in enumerate(lines) if "for pnow in program:" in line}
     seen = 0
 
     def tracer(frame: FrameType, event: str, arg: Any) -> Any:
@@ -231,11 +232,12 @@ def test_a_ctrl_c_between_two_cycles_of_a_run_leaves_them_counted(write: Write) 
     times = range(3 * CYCLE, 100 * CYCLE, CYCLE)
     for now in times[:40]:
         one.cycle(now)
+    was = sys.gettrace()
     sys.settrace(calls)
     try:
         with pytest.raises(KeyboardInterrupt):
             batch.cycles(times)
     finally:
-        sys.settrace(None)
+        sys.settrace(was)
     assert len(loops) == 2 and seen == 41
     assert snapshot(batch) == snapshot(one) and batch.scans == 43
