@@ -78,13 +78,13 @@ class DrawerModel:
 
     def __call__(self, cycle: int) -> None:
         inp, out = self.inp, self.out
-        press = 1 if cycle % 200 < 5 else 0
+        press = cycle % 200 < 5  # bits of the image hold bools (docs/drivers.md)
         for marcha, open_, closed, q_open, q_close in self.pos:
             inp[marcha] = press
             if out[q_open]:
-                inp[open_], inp[closed] = 1, 0
+                inp[open_], inp[closed] = True, False
             elif out[q_close]:
-                inp[open_], inp[closed] = 0, 1
+                inp[open_], inp[closed] = False, True
 
 
 def run_one(path: str, n: int, seconds: float, manage_gc: bool) -> dict[str, Any]:

@@ -26,8 +26,11 @@ point -> value like a dict, kept as a list of values by position (``vals``) and 
 point -> position (``index``) that only grows, so the plant's cycle reads and writes them
 by position. A back-end may read and assign them by name as a dict; a hot ``_read`` may
 assign ``self.inputs.vals[i]`` directly (positions taken from ``self.inputs.index`` at
-``_open()``; they never change). It must never rebind ``inputs``, ``outputs``, their
-``vals`` or ``index``, nor delete a point: the plant's generated cycle holds them.
+``_open()``; they never change). A BOOL point's input value is a bool, True or False (the
+plant reads the bits of the image as they are: drivers/image.py): a ``_read`` that
+assigns ``vals[i]`` stores one; ``publish_inputs`` makes one, and so does a store by name
+at a bit the plant declared. It must never rebind ``inputs``, ``outputs``, their ``vals``
+or ``index``, nor delete a point: the plant's generated cycle holds them.
 
 A back-end whose bus is too slow to be served inside the scan builds on ``PolledDriver``:
 its own thread (or a bus library's receive thread) does the I/O and exchanges buffers with
@@ -361,10 +364,13 @@ class PolledDriver(Driver):
 
     # -- I/O side (any thread) ------------------------------------------------------------
     def publish_inputs(self, values: Mapping[str, int], ok: bool = True) -> None:
-        """A fresh input image (physical values). With ``ok`` (an exchange that proves the
-        device works) it also clears any I/O fault; a receive callback passes False."""
+        """A fresh input image (physical values; a BOOL point's made a bool here, off the
+        scan). With ``ok`` (an exchange that proves the device works) it also clears any
+        I/O fault; a receive callback passes False."""
+        kinds, bit = self.kinds, PointKind.BOOL
+        fresh = {p: v != 0 if kinds.get(p) is bit else v for p, v in values.items()}
         with self._lock:
-            self._in_buf.update(values)
+            self._in_buf.update(fresh)
             self._in_seq += 1
             self._fresh_ns = self.clock()
             if ok:

@@ -100,7 +100,7 @@ class GpioDriver(Driver):
         values = self._request.get_values(self._in_offsets)
         vals = self.inputs.vals
         for i, v in zip(self._in_pos, values, strict=True):
-            vals[i] = 1 if v is Value.ACTIVE else 0
+            vals[i] = v is Value.ACTIVE
 
     def _write(self) -> None:
         last = self._last_written

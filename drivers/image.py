@@ -17,6 +17,13 @@ Every per-cycle path runs in C: ``items()`` iterates ``zip(index, vals)``, ``val
 ``copy.deepcopy`` give a new Image; an image is not a dict for ``json.dumps`` (dump its
 ``copy()``). Point names are
 interned on insertion, so a lookup by a name the plant holds matches by identity.
+
+The plant declares the *bits* of an input image (:meth:`Image.declare_bits`): the BOOL points
+that only BOOL variables read. Their values are bools, always: a value stored by name
+(``img[p] = v``, ``update``, ``fill``) is made one there, and a back-end that assigns
+``vals[i]`` stores True or False at a BOOL point. So the plant's binding of a bit reads it
+as the variable's value (``IL[3]``, or ``not IL[3]`` where it inverts), with no
+conversion per scan.
 """
 
 from __future__ import annotations
@@ -37,13 +44,15 @@ class Image(MutableMapping[str, Any]):
     rebind ``vals`` or ``index`` (the plant's cycle holds the very list): change values
     in place (``vals[i] = v``, :meth:`fill`)."""
 
-    __slots__ = ("vals", "index", "_items", "_values")
+    __slots__ = ("vals", "index", "bits", "_items", "_values")
 
     def __init__(self, data: Mapping[str, Any] | Iterable[tuple[str, Any]] = ()) -> None:
         #: values by position; never rebound
         self.vals: list[Any] = []
         #: point -> position; append-only
         self.index: dict[str, int] = {}
+        #: the positions whose values are bools (see :meth:`declare_bits`)
+        self.bits: frozenset[int] = frozenset()
         # the views, made once (live, on the tables, not on the image: no reference
         # cycle, an image is freed by reference counting): items() makes no object
         self._items = _Items(self.index, self.vals)
@@ -62,7 +71,7 @@ class Image(MutableMapping[str, Any]):
             self.index[point] = len(self.vals)
             self.vals.append(value)
         else:
-            self.vals[i] = value
+            self.vals[i] = bool(value) if i in self.bits else value
 
     def __delitem__(self, point: str) -> None:
         raise TypeError(f"cannot delete point {point!r} from a process image: the plant's "
@@ -102,13 +111,13 @@ class Image(MutableMapping[str, Any]):
             pairs = ((k, other[k]) for k in other.keys())
         else:
             pairs = other
-        index, vals = self.index, self.vals
+        index, vals, bits = self.index, self.vals, self.bits
         for p, v in pairs:
             i = index.get(p)
             if i is None:
                 self[p] = v
             else:
-                vals[i] = v
+                vals[i] = bool(v) if i in bits else v
         for p, v in kw.items():
             self[p] = v
 
@@ -134,14 +143,32 @@ class Image(MutableMapping[str, Any]):
     def __copy__(self) -> Image:
         """A new image with the same points and values (``copy.copy``): never the same
         tables (a copy that wrote into the driver's image would be a hidden output)."""
-        return Image(zip(self.index, self.vals, strict=True))
+        new = Image(zip(self.index, self.vals, strict=True))
+        new.bits = self.bits
+        return new
 
     def __deepcopy__(self, memo: dict[int, Any]) -> Image:
-        return Image(zip(self.index, copy.deepcopy(self.vals, memo), strict=True))
+        new = Image(zip(self.index, copy.deepcopy(self.vals, memo), strict=True))
+        new.bits = self.bits
+        return new
 
     def fill(self, value: Any) -> None:
-        """Every point's value set to ``value`` (the list kept: same object)."""
-        self.vals[:] = [value] * len(self.vals)
+        """Every point's value set to ``value``, as a bool at a bit (the list kept: same
+        object)."""
+        vals = self.vals
+        vals[:] = [value] * len(vals)
+        if self.bits:
+            as_bit = bool(value)
+            for i in self.bits:
+                vals[i] = as_bit
+
+    def declare_bits(self, positions: Iterable[int]) -> None:
+        """Make the points at ``positions`` its bits, in place of any declared before:
+        their values are made bools now and at every store by name."""
+        vals = self.vals
+        self.bits = frozenset(positions)
+        for i in self.bits:
+            vals[i] = bool(vals[i])
 
 
 class _Items(_ItemsView[str, Any]):

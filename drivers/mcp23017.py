@@ -173,7 +173,7 @@ class Mcp23017Driver(Driver):
         gpio = self._bus.read_i2c_block_data(self.address, GPIOA, 2)
         vals = self.inputs.vals
         for i, port, bit in self._in_bits:
-            vals[i] = (gpio[port] >> bit) & 1
+            vals[i] = (gpio[port] >> bit) & 1 == 1
 
     def _transfer_outputs(self) -> None:
         if not self.outputs:

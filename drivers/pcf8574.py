@@ -111,7 +111,7 @@ class Pcf8574Driver(Driver):
                 self._transfer_outputs()
         vals = self.inputs.vals
         for i, bit in self._in_bits:
-            vals[i] = (pins >> bit) & 1
+            vals[i] = (pins >> bit) & 1 == 1
 
     def _transfer_outputs(self) -> None:
         latch = self._image()

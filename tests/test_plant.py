@@ -191,3 +191,59 @@ def test_iocheck_stops_charts_and_leaves_outputs_to_the_technician(write, drawer
     assert sim.outputs["Q1"] == 1 and plant.get("first.gsParado.X") is True
     plant.set_iocheck(False)
     assert not any(sim.outputs.values())
+
+
+LEVEL = """\
+grafcet: Level
+inputs: [iOn, iLevel: int]
+outputs: [oHigh]
+steps:
+  s0: {initial: true}
+  s1: {actions: [oHigh]}
+transitions:
+  - {from: s0, to: s1, when: "iOn·(iLevel > 3)"}
+  - {from: s1, to: s0, when: "iLevel <= 3"}
+"""
+
+SHARED = """\
+plc: {cycle: 10ms}
+drivers:
+  sim: {type: sim}
+instances:
+  a:
+    grafcet: level.yaml
+    inputs: {iOn: sim.I0, iLevel: sim.level}
+    outputs: {oHigh: sim.Q1}
+  b:
+    grafcet: level.yaml
+    inputs: {iOn: {from: sim.I1, invert: true}, iLevel: sim.I0}
+    outputs: {oHigh: sim.Q0}
+"""
+
+
+def test_only_points_read_as_bool_alone_are_bits(write):  # type: ignore[no-untyped-def]
+    """A bit of an input image holds a bool, read by the cycle as it is. A point some
+    instance reads as a number (``sim.I0``, BOOL by its name, read as ``b.iLevel``) or a
+    sim point read as a number whatever its name (``sim.level``) is not one: its values
+    stay numbers, and its BOOL binding converts (``a.iOn``)."""
+    write("level.yaml", LEVEL)
+    plant = Plant(load_plant(write("plant.yaml", SHARED)), sim=True)
+    plant.open()
+    sim = plant.drivers["sim"]
+    assert sim.inputs.bits == plant.bits["sim"] == {sim.inputs.index["I1"]}
+    sim.inputs["I0"] = 5
+    sim.inputs["level"] = 7
+    sim.inputs["I1"] = 0  # inverted: b.iOn TRUE
+    plant.cycle(0)
+    assert sim.inputs["I0"] == 5 and sim.inputs["level"] == 7
+    assert plant.get("a.iOn") is True and plant.get("a.iLevel") == 7
+    assert plant.get("b.iOn") is True and plant.get("b.iLevel") == 5
+    assert type(sim.inputs["I1"]) is bool
+    plant.cycle(10 * MS)
+    assert plant.get("a.s1.X") is True and plant.get("b.s1.X") is True
+    assert sim.outputs["Q0"] is True
+    sim.inputs["I1"] = 1
+    sim.inputs["I0"] = 2
+    plant.cycle(20 * MS)
+    assert plant.get("b.iOn") is False and plant.get("b.iLevel") == 2
+    assert plant.get("b.s1.X") is False and plant.get("a.iOn") is True

@@ -30,13 +30,16 @@ class CycleWriter:
     groups of inlined scans it built (their generators, and each fault's instance)."""
 
     def __init__(self, pdef: PlantDef, instances: dict[str, Instance],
-                 drivers: dict[str, Driver], virtual: bool, env: dict[str, Any],
-                 book: CodeBook | None) -> None:
-        """``env``: the cycles' environment (the names they may use; ``GS``, the groups'
-        sends, is added to it); ``book``: code compiled in another process, or None."""
+                 drivers: dict[str, Driver], bits: dict[str, frozenset[int]], virtual: bool,
+                 env: dict[str, Any], book: CodeBook | None) -> None:
+        """``bits``: per driver, the positions of its input bits (Plant.bits: bools, read
+        as they are); ``env``: the cycles' environment (the names they may use; ``GS``,
+        the groups' sends, is added to it); ``book``: code compiled in another process,
+        or None."""
         self.pdef = pdef
         self.instances = instances
         self.drivers = drivers
+        self.bits = bits
         self.virtual = virtual
         self._env = env
         self._book = book
@@ -55,6 +58,8 @@ class CycleWriter:
             pos = self.drivers[b.driver].inputs.index[b.point or ""]
             ref_ = f"IL_{b.driver}[{const(pos)}]"
             if vtype is A.Type.BOOL:
+                if pos in self.bits[b.driver]:  # a bool already (drivers/image.py)
+                    return f"(not {ref_})" if b.invert else ref_
                 return f"({ref_} == 0)" if b.invert else f"({ref_} != 0)"
             return ref_
         other = self.instances[b.instance or ""]

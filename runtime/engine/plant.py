@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from types import FrameType
 from typing import Any
 
-from drivers.base import Direction, Driver, FaultPolicy, Health
+from drivers.base import Direction, Driver, FaultPolicy, Health, PointKind
 from drivers.registry import driver_class
 from drivers.sim import SimDriver
 from runtime.compiler.codebook import CodeBook, compile_code
@@ -80,7 +80,7 @@ class Plant:
                  "instances", "drivers", "_handed", "forced", "forced_points",
                  "_forced_by_inst", "_stash", "_pulses", "_hold", "steps_left", "_iocheck",
                  "scans", "names", "_env", "source", "_cycle_fast", "_cycle", "_usual",
-                 "_copy_outputs", "_inliner", "__weakref__")
+                 "_copy_outputs", "_inliner", "bits", "__weakref__")
 
     def __init__(self, pdef: PlantDef, *, sim: bool = False,
                  drivers: dict[str, Driver] | None = None, virtual: bool = False,
@@ -147,7 +147,8 @@ class Plant:
         env: dict[str, Any] = {}
         self._env = env
         self._bind_env(env)
-        writer = CycleWriter(pdef, self.instances, self.drivers, virtual, env, book)
+        writer = CycleWriter(pdef, self.instances, self.drivers, self.bits, virtual, env,
+                             book)
         self.source = writer.source()
         self._inliner = writer.inliner
         exec(compile_code(self.source, "<plant cycle>", book), env)  # noqa: S102 - generated
@@ -169,6 +170,23 @@ class Plant:
         return p
 
     def _declare_points(self) -> None:
+        """Every bound point declared to its driver; and :attr:`bits`, each driver's
+        input bits: the BOOL points that only BOOL variables read (their values bools,
+        read by the cycle as they are: drivers/image.py), declared to the images of the
+        drivers made here (a driver handed over open takes them in :meth:`take_over`,
+        between two cycles: until then the plant it serves reads them)."""
+        bits: dict[str, set[str]] = {name: set() for name in self.drivers}
+        not_bits: set[tuple[str, str]] = set()
+        for name, idef in self.pdef.instances.items():
+            chart = self.instances[name].grafcet
+            for sig, b in idef.inputs.items():
+                if b.driver is None or b.point == "ok":
+                    continue
+                var = chart.variables.get(sig)
+                if var is not None and var.type is A.Type.BOOL:
+                    bits[b.driver].add(b.point or "")
+                else:
+                    not_bits.add((b.driver, b.point or ""))
         for idef in self.pdef.instances.values():
             for direction, section in ((Direction.IN, idef.inputs), (Direction.OUT,
                                                                      idef.outputs)):
@@ -180,6 +198,14 @@ class Plant:
                             d.inputs if direction is Direction.IN else d.outputs):
                         continue
                     d.add_point(b.point or "", direction)
+        #: per driver: its input bits, by position
+        self.bits = {dname: frozenset(d.inputs.index[p] for p in bits[dname]
+                                      if d.kinds.get(p) is PointKind.BOOL
+                                      and (dname, p) not in not_bits)
+                     for dname, d in self.drivers.items()}
+        for dname, d in self.drivers.items():
+            if dname not in self._handed:
+                d.inputs.declare_bits(self.bits[dname])
 
     def instance_at(self, frame: FrameType, lineno: int) -> str | None:
         """The instance whose inlined scan is at line ``lineno`` of ``frame`` (a frame of
@@ -674,6 +700,8 @@ class Plant:
         stepping, iocheck, forces, a flag pulse not yet run. ``rename`` gives the new name
         of an old forced name (None: it is gone). Returns one line per force released (name
         gone, value no longer of its type). Between two cycles only."""
+        for dname in self._handed:  # read as this plant's cycle reads them, from now on
+            self.drivers[dname].inputs.declare_bits(self.bits[dname])
         self.start = old.start  # (the property: groups that ran start again)
         self.last_up, self.offset_ns = old.last_up, old.offset_ns
         self._last_scan, self._stood_still = old._last_scan, old._stood_still

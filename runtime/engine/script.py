@@ -130,8 +130,11 @@ def _apply(plant: Plant, c: Change) -> Callable[[], None]:
         phys = (not logical if t.invert else logical) if t.variable.type is T.BOOL else logical
         value = int(phys) if isinstance(phys, bool) else phys
 
-    # by position in the driver's input image (resolved once, fixed for its life)
+    # by position in the driver's input image (resolved once, fixed for its life); a bit
+    # of the image holds a bool (drivers/image.py)
     vals, pos = drv.inputs.vals, drv.inputs.index[point]
+    if pos in plant.bits[t.driver]:
+        value = bool(value)
 
     def apply_point() -> None:
         vals[pos] = value

@@ -168,3 +168,58 @@ def test_a_flag_pulse_asked_for_before_the_swap_runs_in_the_swap_scan():
     row = story.run(1)[0]
     assert row["tester1.gsParado.X"] and not row["tester1.gsAbrir.X"]
     assert row["sim.Q0"] == 0
+
+
+LEVEL = """\
+grafcet: Level
+inputs: [iOn, iLevel: int]
+outputs: [oHigh]
+steps:
+  s0: {initial: true}
+  s1: {actions: [oHigh]}
+transitions:
+  - {from: s0, to: s1, when: "iOn·(iLevel > 3)"}
+  - {from: s1, to: s0, when: "iLevel <= 3"}
+"""
+
+LEVELS = """\
+plc: {cycle: 10ms}
+drivers:
+  sim: {type: sim}
+instances:
+  a:
+    grafcet: level.yaml
+    inputs: {iOn: sim.I0, iLevel: sim.level}
+    outputs: {oHigh: sim.Q0}
+  c:
+    grafcet: level.yaml
+    inputs: {iOn: sim.I1, iLevel: sim.level}
+    outputs: {oHigh: sim.Q1}
+"""
+
+
+def test_the_input_bits_change_with_the_swap_not_before(tmp_path):
+    """``sim.I0`` is a bit (a bool, read as it is) while only ``a.iOn`` reads it; the
+    change has ``c.iLevel`` read it as a number too. Preparing leaves the running image's
+    bits alone (the running cycle reads ``I0`` as it is); the swap makes it a number."""
+    (tmp_path / "level.yaml").write_text(LEVEL)
+    (tmp_path / "p.yaml").write_text(LEVELS)
+    (tmp_path / "q.yaml").write_text(LEVELS.replace(
+        "{iOn: sim.I1, iLevel: sim.level}", "{iOn: sim.I1, iLevel: sim.I0}"))
+    old = sim_plant(str(tmp_path / "p.yaml"))
+    d = old.drivers["sim"]
+    i0, i1 = d.inputs.index["I0"], d.inputs.index["I1"]
+    assert d.inputs.bits == old.bits["sim"] == {i0, i1}
+    d.inputs["I0"] = 5
+    assert d.inputs["I0"] is True
+    old.cycle(0)
+    prep = prepare(old, load_plant(str(tmp_path / "q.yaml")))
+    assert prep.plant.drivers["sim"] is d
+    assert prep.plant.bits["sim"] == {i1} and d.inputs.bits == {i0, i1}
+    assert apply(old, prep).refusals == []
+    assert d.inputs.bits == {i1}
+    d.inputs["I0"] = 5
+    d.inputs["I1"] = 1
+    prep.plant.cycle(10_000_000)
+    assert prep.plant.get("c.iLevel") == 5 and prep.plant.get("a.iOn") is True
+    assert d.inputs["I0"] == 5 and d.inputs["I1"] is True

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import functools
 import logging
+import operator
 from collections.abc import Iterator
 
 import pytest
@@ -77,6 +79,26 @@ def test_open_read_write_round_trip(rig: Rig, driver: Driver) -> None:
     assert rig.until(d, lambda: rig.output(q0) == 1 and rig.output(q1) == 0)
     d.outputs[q0], d.outputs[q1] = 0, 1
     assert rig.until(d, lambda: rig.output(q0) == 0 and rig.output(q1) == 1)
+
+
+def test_bool_inputs_are_bools(rig: Rig, driver: Driver) -> None:
+    """A BOOL point's input value is a bool, whatever path stored it: the driver's own
+    read (a hot ``vals[i] =``), an exchange published by its bus thread, a store by name;
+    and the zeros of ``on_fault: zero``. The plant reads such a bit as it is (the
+    bindings make no conversion: drivers/image.py); a 1 would reach the chart."""
+    d = opened(rig, driver)
+    # what the plant does for inputs only BOOL variables read
+    d.inputs.declare_bits(d.inputs.index[p] for p in rig.inputs)
+    a, b = rig.inputs
+    for va, vb in ((1, 0), (0, 1)):
+        rig.set_input(a, va)
+        rig.set_input(b, vb)
+        want: dict[str, int] = {a: va, b: vb}
+        assert rig.until(d, functools.partial(operator.eq, d.inputs, want)), d.inputs
+        assert [type(v) for v in d.inputs.values()] == [bool, bool], d.inputs
+    d.inputs.fill(0)
+    assert list(d.inputs.values()) == [False, False]
+    assert all(type(v) is bool for v in d.inputs.values())
 
 
 def test_safe_state_writes_zeros(rig: Rig, driver: Driver) -> None:

@@ -208,3 +208,24 @@ def test_a_copy_of_an_image_is_its_own() -> None:
         dup["Q0"] = 5
         dup["Q9"] = 1
         assert img.copy() == {"Q0": 0, "Q1": 1}
+
+
+def test_bits_hold_bools_whatever_stores_them() -> None:
+    img = Image({"a": 0, "b": 1, "n": 0})
+    img.declare_bits([0, 1])
+    assert img.vals == [False, True, 0] and [type(v) for v in img.vals] == [bool, bool, int]
+    img["a"] = 1
+    img.update({"b": 0, "n": 5})
+    assert [(type(v), v) for v in img.vals] == [(bool, True), (bool, False), (int, 5)]
+    img.fill(1)
+    assert [(type(v), v) for v in img.vals] == [(bool, True), (bool, True), (int, 1)]
+    img.fill(0)
+    assert [(type(v), v) for v in img.vals] == [(bool, False), (bool, False), (int, 0)]
+    for twin in (copy.copy(img), copy.deepcopy(img)):
+        assert twin.bits == img.bits and twin.vals is not img.vals
+    img.declare_bits([2])  # in place of the bits before
+    img["a"] = 3
+    img["n"] = 3
+    assert img.vals == [3, False, True] and img.bits == {2}
+    img["new"] = 1  # a point added later is no bit
+    assert img["new"] == 1 and type(img["new"]) is int

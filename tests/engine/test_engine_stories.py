@@ -15,6 +15,8 @@ from typing import Any
 import pytest
 
 from runtime.engine.simulate import Simulation
+from runtime.language.ast import Type as T
+from runtime.language.model import VarKind
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = ROOT / "configs"
@@ -431,3 +433,25 @@ def test_every_simulated_plant_has_a_story_and_runs_it() -> None:
             assert len(list(traced.run())) == sim.cycles
             assert state(sim) == state(traced), script
             assert sim.plant.last_up == traced.plant.last_up
+
+
+def test_every_bool_variable_holds_a_bool_in_every_scan() -> None:
+    """A bound BOOL input reads its point as it is when the point is a bit of its image
+    (drivers/image.py): every writer of the image (the script, the driver) must have made
+    it a bool. An int there would reach the chart (``1`` for TRUE): checked in every scan
+    of every story, for every BOOL variable and step flag."""
+    for plant in sorted(CONFIGS.glob("*/plant_sim.yaml")):
+        for script in sorted(plant.parent.glob("story*.yaml")):
+            sim = Simulation(str(plant), str(script))
+            slots = {name: [inst.program.var_index(v.name)
+                            for v in inst.grafcet.variables.values()
+                            if v.type is T.BOOL and v.kind is not VarKind.SYSTEM]
+                     + [inst.program.x_index(s) for s in inst.grafcet.steps]
+                     for name, inst in sim.plant.instances.items()}
+            bits = sum(len(d.inputs.bits) for d in sim.plant.drivers.values())
+            assert bits > 0, plant  # the bound BOOL inputs are bits
+            for row in sim.run():
+                for name, inst in sim.plant.instances.items():
+                    wrong = [(i, inst.m[i]) for i in slots[name]
+                             if inst.m[i].__class__ is not bool]
+                    assert not wrong, (script.name, row["cycle"], name, wrong)
