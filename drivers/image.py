@@ -164,11 +164,15 @@ class Image(MutableMapping[str, Any]):
 
     def declare_bits(self, positions: Iterable[int]) -> None:
         """Make the points at ``positions`` its bits, in place of any declared before:
-        their values are made bools now and at every store by name."""
-        vals = self.vals
+        their values are made bools now and at every store by name. A bit no longer one
+        holds 0 or 1 again (a number it held before it was a bit is not known)."""
+        vals, was = self.vals, self.bits
         self.bits = frozenset(positions)
         for i in self.bits:
             vals[i] = bool(vals[i])
+        for i in was - self.bits:
+            if vals[i].__class__ is bool:
+                vals[i] = int(vals[i])
 
 
 class _Items(_ItemsView[str, Any]):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from drivers.sim import SimDriver
 from runtime.engine.plant import BindingError, Plant
 from runtime.language.plantfile import load_plant
 
@@ -247,3 +248,21 @@ def test_only_points_read_as_bool_alone_are_bits(write):  # type: ignore[no-unty
     plant.cycle(20 * MS)
     assert plant.get("b.iOn") is False and plant.get("b.iLevel") == 2
     assert plant.get("b.s1.X") is False and plant.get("a.iOn") is True
+    sim.inputs["level"] = True  # a bool at a BOOL point: a number variable reads 1
+    plant.cycle(30 * MS)
+    assert plant.get("a.iLevel") == 1 and type(plant.get("a.iLevel")) is int
+
+
+def test_drivers_handed_to_a_new_plant_get_its_bits(write):  # type: ignore[no-untyped-def]
+    """A plant built on drivers made elsewhere (``drivers=``: a daemon's, a test's)
+    declares its bits on them at once; only an online change waits for the swap."""
+    write("level.yaml", LEVEL)
+    sim = SimDriver("sim")
+    plant = Plant(load_plant(write("plant.yaml", SHARED)), drivers={"sim": sim})
+    assert sim.inputs.bits == plant.bits["sim"] == {sim.inputs.index["I1"]}
+    plant.open()
+    sim.set_input("I1", 0)
+    plant.force("sim.I1", 1)
+    plant.cycle(0)
+    assert plant.get("b.iOn") is False  # forced 1, inverted: a bool, not 0
+    assert sim.inputs["I1"] is False  # the physical value back after the scan

@@ -121,7 +121,8 @@ def prepare(old: Plant, new_pdef: PlantDef, book: CodeBook | None = None) -> Pre
     cs = diff_plants(old.pdef, new_pdef)
     keep = {n: d for n, d in old.drivers.items()
             if n in new_pdef.drivers and n not in cs.drivers_changed and n not in cs.new_points}
-    plant = Plant(new_pdef, sim=_is_sim(old), drivers=keep, virtual=old.virtual, book=book)
+    plant = Plant(new_pdef, sim=_is_sim(old), drivers=keep, virtual=old.virtual, book=book,
+                  handover=True)
     prep = Prepared(cs, plant, file_hashes(new_pdef))
     prep._fresh = [n for n in plant.drivers if n not in keep]
     prep._dropped = [n for n in old.drivers if n not in keep]

@@ -16,7 +16,7 @@ import re
 from collections.abc import Callable
 from typing import Any
 
-from drivers.base import Driver, FaultPolicy
+from drivers.base import Driver, FaultPolicy, PointKind
 from runtime.compiler.codebook import CodeBook
 from runtime.compiler.layout import SLOW_FLAGS
 from runtime.engine.inline import Inliner
@@ -55,12 +55,17 @@ class CycleWriter:
                 val = f"D[{const(b.driver)}].health is OK"
                 return f"not ({val})" if b.invert else f"({val})"
             # the point's position in the driver's image (fixed for the image's life)
-            pos = self.drivers[b.driver].inputs.index[b.point or ""]
+            drv, point = self.drivers[b.driver], b.point or ""
+            pos = drv.inputs.index[point]
             ref_ = f"IL_{b.driver}[{const(pos)}]"
             if vtype is A.Type.BOOL:
                 if pos in self.bits[b.driver]:  # a bool already (drivers/image.py)
                     return f"(not {ref_})" if b.invert else ref_
                 return f"({ref_} == 0)" if b.invert else f"({ref_} != 0)"
+            if vtype in (A.Type.INT, A.Type.REAL) and drv.kinds.get(point) is PointKind.BOOL:
+                # a driver's read stores a bool at a BOOL point: a number variable reads
+                # it as 0 or 1 (a sim point's number stays as it is)
+                return f"({ref_} + 0)"
             return ref_
         other = self.instances[b.instance or ""]
         ref_name = b.ref or ""

@@ -84,12 +84,15 @@ class Plant:
 
     def __init__(self, pdef: PlantDef, *, sim: bool = False,
                  drivers: dict[str, Driver] | None = None, virtual: bool = False,
-                 book: CodeBook | None = None) -> None:
-        """``sim``: every driver replaced by simulated I/O. ``virtual`` (simulate, on a
-        virtual clock): the simulated drivers' images are the whole process image, so the
-        cycle makes no driver call (a sim driver never faults and nothing watches its bus).
-        ``book``: code objects compiled in another process (an online change), used for the
-        sources it holds (runtime/compiler/codebook.py).
+                 book: CodeBook | None = None, handover: bool = False) -> None:
+        """``sim``: every driver replaced by simulated I/O. ``drivers``: driver objects to
+        use in place of new ones (by name). ``virtual`` (simulate, on a virtual clock): the
+        simulated drivers' images are the whole process image, so the cycle makes no driver
+        call (a sim driver never faults and nothing watches its bus). ``book``: code
+        objects compiled in another process (an online change), used for the sources it
+        holds (runtime/compiler/codebook.py). ``handover``: ``drivers`` are a running
+        plant's (an online change): this plant declares its input bits on their images in
+        :meth:`take_over`, not before.
         """
         if virtual and not sim:
             raise ValueError("a virtual plant runs on simulated I/O only")
@@ -121,6 +124,7 @@ class Plant:
         self.drivers: dict[str, Driver] = {}
         #: drivers handed over open (online change): their declared points are kept
         self._handed = set(drivers or ())
+        handover = handover and bool(drivers)
         for name, ddef in pdef.drivers.items():
             if drivers and name in drivers:
                 self.drivers[name] = drivers[name]
@@ -140,7 +144,7 @@ class Plant:
         self.steps_left = 0  # while held: full cycles still let through
         self._iocheck = False  # see the property
         self.scans = 0
-        self._declare_points()
+        self._declare_points(handover)
         #: the plant's names, resolved on the drivers' own point tables
         self.names = PlantNames(pdef, {n: (d.inputs, d.outputs)
                                        for n, d in self.drivers.items()})
@@ -169,12 +173,12 @@ class Plant:
         self.programs.append(p)
         return p
 
-    def _declare_points(self) -> None:
+    def _declare_points(self, handover: bool) -> None:
         """Every bound point declared to its driver; and :attr:`bits`, each driver's
         input bits: the BOOL points that only BOOL variables read (their values bools,
-        read by the cycle as they are: drivers/image.py), declared to the images of the
-        drivers made here (a driver handed over open takes them in :meth:`take_over`,
-        between two cycles: until then the plant it serves reads them)."""
+        read by the cycle as they are: drivers/image.py), declared to the drivers' images
+        (with ``handover``, a running plant's drivers take them in :meth:`take_over`,
+        between two cycles: until then the plant they serve reads them)."""
         bits: dict[str, set[str]] = {name: set() for name in self.drivers}
         not_bits: set[tuple[str, str]] = set()
         for name, idef in self.pdef.instances.items():
@@ -204,7 +208,7 @@ class Plant:
                                       and (dname, p) not in not_bits)
                      for dname, d in self.drivers.items()}
         for dname, d in self.drivers.items():
-            if dname not in self._handed:
+            if not (handover and dname in self._handed):
                 d.inputs.declare_bits(self.bits[dname])
 
     def instance_at(self, frame: FrameType, lineno: int) -> str | None:

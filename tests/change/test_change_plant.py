@@ -218,6 +218,9 @@ def test_the_input_bits_change_with_the_swap_not_before(tmp_path):
     assert prep.plant.bits["sim"] == {i1} and d.inputs.bits == {i0, i1}
     assert apply(old, prep).refusals == []
     assert d.inputs.bits == {i1}
+    assert d.inputs["I0"] == 1 and type(d.inputs["I0"]) is int  # no bit: 0 or 1 again
+    prep.plant.cycle(5_000_000)
+    assert prep.plant.get("c.iLevel") == 1 and type(prep.plant.get("c.iLevel")) is int
     d.inputs["I0"] = 5
     d.inputs["I1"] = 1
     prep.plant.cycle(10_000_000)

@@ -84,8 +84,8 @@ def test_open_read_write_round_trip(rig: Rig, driver: Driver) -> None:
 def test_bool_inputs_are_bools(rig: Rig, driver: Driver) -> None:
     """A BOOL point's input value is a bool, whatever path stored it: the driver's own
     read (a hot ``vals[i] =``), an exchange published by its bus thread, a store by name;
-    and the zeros of ``on_fault: zero``. The plant reads such a bit as it is (the
-    bindings make no conversion: drivers/image.py); a 1 would reach the chart."""
+    and ``fill`` (the zeros of ``on_fault: zero``). The plant reads such a bit as it is
+    (the bindings make no conversion: drivers/image.py); a 1 would reach the chart."""
     d = opened(rig, driver)
     # what the plant does for inputs only BOOL variables read
     d.inputs.declare_bits(d.inputs.index[p] for p in rig.inputs)
