@@ -53,3 +53,22 @@ def write(tmp_path: Path) -> Callable[[str, str], str]:
 @pytest.fixture
 def drawer(write: Callable[[str, str], str]) -> str:
     return write("drawer.yaml", DRAWER)
+
+
+#: a chart with a BOOL and an INT input (a point read as a bool or as a number)
+LEVEL = """\
+grafcet: Level
+inputs: [iOn, iLevel: int]
+outputs: [oHigh]
+steps:
+  s0: {initial: true}
+  s1: {actions: [oHigh]}
+transitions:
+  - {from: s0, to: s1, when: "iOn·(iLevel > 3)"}
+  - {from: s1, to: s0, when: "iLevel <= 3"}
+"""
+
+
+@pytest.fixture
+def level(write: Callable[[str, str], str]) -> str:
+    return write("level.yaml", LEVEL)

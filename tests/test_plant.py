@@ -194,18 +194,6 @@ def test_iocheck_stops_charts_and_leaves_outputs_to_the_technician(write, drawer
     assert not any(sim.outputs.values())
 
 
-LEVEL = """\
-grafcet: Level
-inputs: [iOn, iLevel: int]
-outputs: [oHigh]
-steps:
-  s0: {initial: true}
-  s1: {actions: [oHigh]}
-transitions:
-  - {from: s0, to: s1, when: "iOn·(iLevel > 3)"}
-  - {from: s1, to: s0, when: "iLevel <= 3"}
-"""
-
 SHARED = """\
 plc: {cycle: 10ms}
 drivers:
@@ -222,12 +210,11 @@ instances:
 """
 
 
-def test_only_points_read_as_bool_alone_are_bits(write):  # type: ignore[no-untyped-def]
+def test_only_points_read_as_bool_alone_are_bits(write, level):  # type: ignore[no-untyped-def]
     """A bit of an input image holds a bool, read by the cycle as it is. A point some
     instance reads as a number (``sim.I0``, BOOL by its name, read as ``b.iLevel``) or a
     sim point read as a number whatever its name (``sim.level``) is not one: its values
     stay numbers, and its BOOL binding converts (``a.iOn``)."""
-    write("level.yaml", LEVEL)
     plant = Plant(load_plant(write("plant.yaml", SHARED)), sim=True)
     plant.open()
     sim = plant.drivers["sim"]
@@ -253,10 +240,9 @@ def test_only_points_read_as_bool_alone_are_bits(write):  # type: ignore[no-unty
     assert plant.get("a.iLevel") == 1 and type(plant.get("a.iLevel")) is int
 
 
-def test_drivers_handed_to_a_new_plant_get_its_bits(write):  # type: ignore[no-untyped-def]
+def test_drivers_handed_to_a_new_plant_get_its_bits(write, level):  # type: ignore[no-untyped-def]
     """A plant built on drivers made elsewhere (``drivers=``: a daemon's, a test's)
     declares its bits on them at once; only an online change waits for the swap."""
-    write("level.yaml", LEVEL)
     sim = SimDriver("sim")
     plant = Plant(load_plant(write("plant.yaml", SHARED)), drivers={"sim": sim})
     assert sim.inputs.bits == plant.bits["sim"] == {sim.inputs.index["I1"]}

@@ -170,18 +170,6 @@ def test_a_flag_pulse_asked_for_before_the_swap_runs_in_the_swap_scan():
     assert row["sim.Q0"] == 0
 
 
-LEVEL = """\
-grafcet: Level
-inputs: [iOn, iLevel: int]
-outputs: [oHigh]
-steps:
-  s0: {initial: true}
-  s1: {actions: [oHigh]}
-transitions:
-  - {from: s0, to: s1, when: "iOn·(iLevel > 3)"}
-  - {from: s1, to: s0, when: "iLevel <= 3"}
-"""
-
 LEVELS = """\
 plc: {cycle: 10ms}
 drivers:
@@ -198,11 +186,10 @@ instances:
 """
 
 
-def test_the_input_bits_change_with_the_swap_not_before(tmp_path):
+def test_the_input_bits_change_with_the_swap_not_before(tmp_path, level):
     """``sim.I0`` is a bit (a bool, read as it is) while only ``a.iOn`` reads it; the
     change has ``c.iLevel`` read it as a number too. Preparing leaves the running image's
     bits alone (the running cycle reads ``I0`` as it is); the swap makes it a number."""
-    (tmp_path / "level.yaml").write_text(LEVEL)
     (tmp_path / "p.yaml").write_text(LEVELS)
     (tmp_path / "q.yaml").write_text(LEVELS.replace(
         "{iOn: sim.I1, iLevel: sim.level}", "{iOn: sim.I1, iLevel: sim.I0}"))
