@@ -124,7 +124,6 @@ class Plant:
         self.drivers: dict[str, Driver] = {}
         #: drivers handed over open (online change): their declared points are kept
         self._handed = set(drivers or ())
-        handover = handover and bool(drivers)
         for name, ddef in pdef.drivers.items():
             if drivers and name in drivers:
                 self.drivers[name] = drivers[name]
