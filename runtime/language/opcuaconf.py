@@ -4,7 +4,6 @@ OPC UA client may set between two scans."""
 
 from __future__ import annotations
 
-import os
 import re
 from typing import Any
 
@@ -12,7 +11,7 @@ from runtime.errors import Loc, SourceError, suggest
 from runtime.language import ast as A
 from runtime.language.grafcetfile import check_keys, expect_type, time_value
 from runtime.language.model import OPCUA_POLICIES, OpcuaDef, OpcuaSecurity, PlantDef, VarKind
-from runtime.language.runtimedir import PLACEHOLDER, expand
+from runtime.language.runtimedir import default_feed, expand
 from runtime.language.yamlsrc import YMap
 
 OPCUA_KEYS = ("endpoint", "sample", "feed", "writable", "security")
@@ -20,7 +19,6 @@ SECURITY_KEYS = ("policies", "certificate", "private_key", "trusted_clients",
                  "trusted_readers", "anonymous", "users")
 #: the snapshot period when the plant does not say (never below the cycle), ns
 DEFAULT_SAMPLE_NS = 50_000_000
-DEFAULT_FEED = f"{PLACEHOLDER}/feed.sock"
 _ENDPOINT = re.compile(r"^opc\.tcp://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})(/.*)?$")
 
 
@@ -49,9 +47,7 @@ def load_opcua(p: PlantDef, value: Any, loc: Loc) -> OpcuaDef:
         vloc = m.val_locs["feed"]
         o.feed = expand(str(expect_type(m["feed"], vloc, str, "a socket path")), vloc)
     else:
-        consoles = [c.address for c in p.consoles if c.kind == "socket"]
-        o.feed = (os.path.join(os.path.dirname(consoles[0]), "feed.sock") if consoles
-                  else expand(DEFAULT_FEED, loc))
+        o.feed = default_feed([c.address for c in p.consoles if c.kind == "socket"], loc)
     if "writable" in m:
         o.writable = _writable(p, m["writable"], m.val_locs["writable"])
     if "security" in m:

@@ -1,38 +1,103 @@
-"""``${RUNTIME_DIR}`` in a plant file's paths: the user's own directory for the console
-socket and other files of a controller started by hand.
+"""Where the processes of one plant find each other: its name, its runtime directory
+(``${RUNTIME_DIR}`` in plant paths), its lock, its console and feed sockets.
+
+This is the one home of that question. The controller (``softplc run``) creates what is
+named here; every process beside it (``softplc opcua``, ``softplc reload``, and any later
+side process: a web view, an MQTT edge node) reads the same plant file and calls
+``locate(pdef)`` to find the controller, never a path of its own.
 
 ``${RUNTIME_DIR}`` is, first found:
 
-1. ``$RUNTIME_DIRECTORY``: set by systemd for a unit with ``RuntimeDirectory=`` (the
-   installed service: /run/softplc);
-2. ``$XDG_RUNTIME_DIR/softplc`` when ``$XDG_RUNTIME_DIR`` is an absolute path to a directory
+1. ``$RUNTIME_DIRECTORY``: set by systemd for a unit with ``RuntimeDirectory=``. Both units
+   of an installed plant NAME (``softplc@NAME.service`` and ``softplc-opcua@NAME.service``)
+   declare ``RuntimeDirectory=softplc/%i`` with ``RuntimeDirectoryPreserve=yes``, so both
+   get /run/softplc/NAME, by construction;
+2. /run/softplc/NAME for an installed plant, whoever runs it: a plant file at
+   /etc/softplc/NAME/plant.yaml (what ``softplc install-service`` writes). So a process
+   started by hand on an installed plant (``sudo softplc opcua /etc/softplc/NAME/plant.yaml``,
+   a second ``softplc run`` by mistake) looks where the service is;
+3. ``$XDG_RUNTIME_DIR/softplc`` when ``$XDG_RUNTIME_DIR`` is an absolute path to a directory
    of this user (a login session: /run/user/UID);
-3. ``${TMPDIR:-/tmp}/softplc-UID`` otherwise.
+4. ``${TMPDIR:-/tmp}/softplc-UID`` otherwise.
 
-This module only names the directory; ``runtime.controller.paths`` creates it (0700) and
-checks it before the controller uses it. Nothing else is expanded: any other ``${`` in a path
-is an error, so that a misspelt placeholder never becomes a directory named ``${...}``.
+A plant's **name** is the NAME of an installed plant, else the name of the directory that
+holds its plant file (``configs/drawer_tester/plant_sim.yaml``: drawer_tester). Its
+**identity** is the real path of its plant file: the lock and the retained data's owner.
+
+This module only names things; ``runtime.controller.paths`` creates and checks the
+directories, ``runtime.controller.plantlock`` takes the lock. Nothing else is expanded in a
+path: any other ``${`` is an error, so that a misspelt placeholder never becomes a
+directory named ``${...}``.
 """
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
+import hashlib
 import os
+import re
 import stat
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
 
 from runtime.errors import Loc, SourceError
+from runtime.language.model import PlantDef
 
 PLACEHOLDER = "${RUNTIME_DIR}"
+#: where ``softplc install-service`` puts the plant NAME: INSTALL_DIR/NAME/plant.yaml
+INSTALL_DIR = "/etc/softplc"
+#: the file name of an installed plant in its directory
+INSTALLED_FILE = "plant.yaml"
+#: the runtime directories of installed plants: SERVICE_RUNTIME/NAME (the units'
+#: ``RuntimeDirectory=softplc/%i``)
+SERVICE_RUNTIME = "/run/softplc"
+#: the state directory of the units (``StateDirectory=softplc``): retained data
+STATE_DIR = "/var/lib/softplc"
+#: what a plant name (a unit's instance name) may be
+NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
+#: the feed socket's name when the plant does not give one
+FEED_FILE = "feed.sock"
+
+#: install-service loads the plant as the service will see it (``service_view``)
+_SERVICE_VIEW: contextvars.ContextVar[str | None] = contextvars.ContextVar(
+    "softplc_service_view", default=None)
 
 
-def runtime_dir(env: Mapping[str, str] | None = None, uid: int | None = None) -> str:
-    """The directory ``${RUNTIME_DIR}`` stands for (nothing is created or checked here
-    but whether ``$XDG_RUNTIME_DIR`` is this user's)."""
+def installed_name(plant: str) -> str | None:
+    """NAME when ``plant`` is an installed plant, INSTALL_DIR/NAME/plant.yaml (symbolic links
+    resolved); None otherwise."""
+    real = os.path.realpath(plant)
+    directory, file = os.path.split(real)
+    parent, name = os.path.split(directory)
+    if file == INSTALLED_FILE and parent == INSTALL_DIR and NAME_RE.match(name):
+        return name
+    return None
+
+
+def plant_name(plant: str) -> str:
+    """The plant's name: an installed plant's NAME, else its directory's name."""
+    name = installed_name(plant)
+    if name is not None:
+        return name
+    return os.path.basename(os.path.dirname(os.path.realpath(plant))) or "plant"
+
+
+def runtime_dir(env: Mapping[str, str] | None = None, uid: int | None = None,
+                plant: str | None = None) -> str:
+    """The directory ``${RUNTIME_DIR}`` stands for, for the plant file ``plant`` (nothing
+    is created or checked here but whether ``$XDG_RUNTIME_DIR`` is this user's)."""
+    viewed = _SERVICE_VIEW.get()
+    if viewed is not None:
+        return os.path.join(SERVICE_RUNTIME, viewed)
     env = os.environ if env is None else env
     uid = os.geteuid() if uid is None else uid
     systemd = env.get("RUNTIME_DIRECTORY", "").split(":")[0]
     if os.path.isabs(systemd):
         return os.path.normpath(systemd)
+    name = installed_name(plant) if plant else None
+    if name is not None:
+        return os.path.join(SERVICE_RUNTIME, name)
     xdg = env.get("XDG_RUNTIME_DIR", "")
     if os.path.isabs(xdg):
         try:
@@ -47,13 +112,76 @@ def runtime_dir(env: Mapping[str, str] | None = None, uid: int | None = None) ->
                         f"softplc-{uid}")
 
 
+def managed_by_systemd(directory: str, env: Mapping[str, str] | None = None) -> bool:
+    """Whether ``directory`` is a runtime directory systemd makes (mode 0750 there, group
+    softplc): the service's ``$RUNTIME_DIRECTORY``, or an installed plant's."""
+    env = os.environ if env is None else env
+    if os.path.isabs(env.get("RUNTIME_DIRECTORY", "")):
+        return True
+    return os.path.dirname(os.path.normpath(directory)) == SERVICE_RUNTIME
+
+
+@contextlib.contextmanager
+def service_view(name: str) -> Iterator[None]:
+    """Within it, ``${RUNTIME_DIR}`` is /run/softplc/NAME whatever the environment: how
+    ``install-service`` reads a plant as its unit will (its warnings name the service's
+    paths, not the installer's)."""
+    token = _SERVICE_VIEW.set(name)
+    try:
+        yield
+    finally:
+        _SERVICE_VIEW.reset(token)
+
+
 def expand(path: str, loc: Loc, env: Mapping[str, str] | None = None) -> str:
-    """``path`` with ``${RUNTIME_DIR}`` replaced; SourceError at ``loc`` for any other
-    ``${...}``."""
+    """``path`` with ``${RUNTIME_DIR}`` replaced (for the plant file ``loc.file``);
+    SourceError at ``loc`` for any other ``${...}``."""
     if "${" not in path:
         return path
     rest = path.replace(PLACEHOLDER, "")
     if "${" in rest:
         raise SourceError(loc, f"unknown placeholder in '{path}': the only one is "
                                f"{PLACEHOLDER}")
-    return path.replace(PLACEHOLDER, runtime_dir(env))
+    return path.replace(PLACEHOLDER, runtime_dir(env, plant=loc.file))
+
+
+def default_feed(console_sockets: list[str], loc: Loc) -> str:
+    """The feed socket when ``opcua: feed`` is not given: beside the plant's first console
+    socket, else ``${RUNTIME_DIR}/feed.sock``."""
+    if console_sockets:
+        return os.path.join(os.path.dirname(console_sockets[0]), FEED_FILE)
+    return expand(f"{PLACEHOLDER}/{FEED_FILE}", loc)
+
+
+@dataclass(frozen=True, slots=True)
+class Whereabouts:
+    """Where a plant's controller is, as every process of the plant finds it."""
+
+    #: the plant's name (an installed plant's NAME, else its directory's name)
+    name: str
+    #: its identity: the real path of its plant file
+    plant: str
+    #: ``${RUNTIME_DIR}`` for this plant
+    runtime_dir: str
+    #: the lock the controller holds for its life: RUNTIME_DIR/NAME-HASH.lock
+    lock: str
+    #: the console to reach it by: its first socket, else its first TCP port
+    #: ("127.0.0.1:PORT"); None without either
+    console: str | None
+    #: the feed socket of its side processes (``opcua: feed``); None without ``opcua:``
+    feed: str | None
+
+
+def locate(pdef: PlantDef) -> Whereabouts:
+    """Where the controller of ``pdef`` is (``pdef`` loaded by ``load_plant``: its paths are
+    already expanded the way the controller's are)."""
+    real = os.path.realpath(pdef.path)
+    rdir = runtime_dir(plant=pdef.path)
+    name = plant_name(pdef.path)
+    digest = hashlib.sha256(real.encode()).hexdigest()[:12]
+    console = next((c.address for c in pdef.consoles if c.kind == "socket"), None)
+    if console is None:
+        console = next((c.address for c in pdef.consoles if c.kind == "tcp"), None)
+    return Whereabouts(name=name, plant=real, runtime_dir=rdir,
+                       lock=os.path.join(rdir, f"{name}-{digest}.lock"), console=console,
+                       feed=pdef.opcua.feed if pdef.opcua is not None else None)
