@@ -86,9 +86,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def cmd_run(args: argparse.Namespace) -> int:
     """The controller: the plant in real time on its drivers (or simulated I/O)."""
     from runtime.controller.daemon import Daemon, serve
-    from runtime.controller.paths import PathError, plant_files, prepare
+    from runtime.controller.paths import LEDGER, PathError, plant_files, prepare
+    from runtime.controller.plantlock import PlantLock, PlantLocked
     from runtime.language.grafcetfile import time_value
     from runtime.language.plantfile import load_plant
+    from runtime.language.runtimedir import locate
 
     for_ns = None
     if args.for_ is not None:
@@ -97,12 +99,16 @@ def cmd_run(args: argparse.Namespace) -> int:
         sys.stderr.write("softplc run: error: --script plays simulated inputs: add --sim\n")
         return 2
     pdef = load_plant(args.plant)
-    feed_path = [pdef.opcua.feed] if pdef.opcua is not None else []  # the OPC UA feed
+    where = locate(pdef)
+    lock = PlantLock(where)
     try:
-        prepare(plant_files(pdef) + feed_path)  # its own directories, before anything is written
-    except PathError as exc:
+        lock.check()  # a running controller of this plant is named before anything else
+        prepare(plant_files(pdef), where.runtime_dir)  # its own directories, checked
+        lock.acquire()  # one controller per plant, until this process ends
+    except (PathError, PlantLocked) as exc:
         sys.stderr.write(f"softplc run: error: {exc}\n")
         return 2
+    LEDGER.lock = lock  # the sockets it binds are recorded as this plant's
     trace = open(args.trace, "w", encoding="utf-8") if args.trace else None  # noqa: SIM115
     try:
         try:
@@ -129,6 +135,9 @@ def cmd_run(args: argparse.Namespace) -> int:
                 if server is not None:
                     server.stop()
             return serve(daemon, for_ns, started, stopping)
+        except PathError as exc:  # a socket path that is not this plant's to take
+            sys.stderr.write(f"softplc run: error: {exc}\n")
+            return 2
         except (SourceError, KeyboardInterrupt):
             raise
         except Exception as exc:  # noqa: BLE001 - at start: one line, never a traceback

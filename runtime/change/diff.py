@@ -125,6 +125,7 @@ def diff_plants(old: PlantDef, new: PlantDef) -> ChangeSet:
             add(f"plant: {what} changed")
             cs.refusals.append(Refusal(f"{what} changed: it takes effect only at a restart "
                                        "of the controller", False))
+    _opcua(cs)
     # what the new plant brings with it (the retain interval is read at each save; the
     # console's PIN, limits and forces policy are applied at the swap, console/service.py)
     brought: tuple[tuple[str, object, object], ...] = (
@@ -154,6 +155,43 @@ def diff_plants(old: PlantDef, new: PlantDef) -> ChangeSet:
         cs.instances[name] = ic
         cs._lines += ic.lines
     return cs
+
+
+# -- the opcua: section -------------------------------------------------------------------
+def _opcua(cs: ChangeSet) -> None:
+    """``opcua:``: the controller serves its feed from its start (added, or a changed
+    sample or feed socket: refused until a restart); a removal applies the fail-safe part
+    at once (writes end, the feed serves values until a restart); the writable names are
+    applied at the swap; the endpoint and the security are the OPC UA server's, applied
+    when it restarts."""
+    old, new = cs.old.opcua, cs.new.opcua
+    add = cs._lines.append
+    if old is None and new is None:
+        return
+    if old is None:
+        add("plant: opcua: added")
+        cs.refusals.append(Refusal("opcua: added: the feed is served from the controller's "
+                                   "start: restart the controller, then start its OPC UA "
+                                   "server", False))
+        return
+    if new is None:
+        add("plant: opcua: removed: OPC UA writes refused from now on; the feed serves "
+            "values until the controller restarts")
+        return
+    for what, a, b in (("sample", old.sample_ns, new.sample_ns),
+                       ("feed", old.feed, new.feed)):
+        if a != b:
+            add(f"plant: opcua {what} changed")
+            cs.refusals.append(Refusal(f"opcua: {what} changed: it takes effect only at a "
+                                       "restart of the controller", False))
+    if old.writable != new.writable:
+        add(f"plant: opcua writable changed: [{', '.join(old.writable)}] -> "
+            f"[{', '.join(new.writable)}]")
+    for what, a, b in (("endpoint", old.endpoint, new.endpoint),  # type: ignore[assignment]
+                       ("security", old.security, new.security)):
+        if a != b:
+            add(f"plant: opcua {what} changed: applied when the OPC UA server restarts "
+                "(softplc opcua; systemctl restart softplc-opcua@NAME)")
 
 
 # -- drivers -------------------------------------------------------------------------------

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import re
 import select
 import selectors
@@ -39,7 +38,7 @@ from typing import Any
 
 from runtime.console.service import ConsoleService
 from runtime.console.session import Session
-from runtime.controller.paths import unix_listener
+from runtime.controller.paths import remove_socket, unix_listener
 from runtime.controller.window import (  # noqa: F401 - the console's names for them
     QUIET_BEFORE_S,
     ROUND_BUDGET_S,
@@ -563,8 +562,7 @@ class ConsoleServer:
             lst.sock.close()
         self._listeners.clear()
         for path in self._socket_paths:
-            if os.path.exists(path):
-                os.unlink(path)
+            remove_socket(path)  # only if still the one it bound
         self._socket_paths.clear()
 
 

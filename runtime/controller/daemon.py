@@ -32,6 +32,7 @@ from runtime.controller.realtime import lock_memory, reduce_timer_slack, set_fif
 from runtime.controller.reload import Reloader, ReloadHook, ReloadResult
 from runtime.controller.retain import (
     RetainedVars,
+    RetainForeign,
     RetainLost,
     RetainStore,
     RetainWriter,
@@ -44,6 +45,7 @@ from runtime.engine.plant import Plant
 from runtime.engine.trace import trace_columns
 from runtime.errors import Loc, SourceError
 from runtime.language.model import PlantDef
+from runtime.language.runtimedir import locate
 
 log = logging.getLogger(__name__)
 R = TypeVar("R")
@@ -355,9 +357,14 @@ class Daemon:
             os.makedirs(os.path.dirname(os.path.abspath(path)), mode=0o750, exist_ok=True)
         except OSError as exc:
             log.error("retain directory of %s not usable: %s", path, exc)
-        self.retain = RetainStore(path, RetainedVars.of(self.pdef))
+        where = locate(self.pdef)
+        self.retain = RetainStore(path, RetainedVars.of(self.pdef),
+                                  owner={"name": where.name, "path": where.plant})
         try:
             restored = restore(self.retain, refuse_if_lost=self.pdef.retain_required)
+        except RetainForeign as exc:
+            raise SourceError(self.pdef.retain_loc or Loc(self.pdef.path, 1, 1),
+                              f"plc retain: {exc}") from None
         except RetainLost as exc:
             raise SourceError(self.pdef.retain_required_loc or Loc(self.pdef.path, 1, 1),
                               f"retained data required but lost ({exc}): not started") from None

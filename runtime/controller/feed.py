@@ -44,7 +44,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from runtime.controller.paths import unix_listener
+from runtime.controller.paths import remove_socket, unix_listener
 from runtime.controller.window import ScanWindow
 from runtime.engine.instance import coerce
 from runtime.engine.names import Catalogue, Image
@@ -119,7 +119,7 @@ class FeedServer:
     # -- life cycle ----------------------------------------------------------------
     def start(self) -> None:
         """Bind the socket (errors raised here), hook into the scan, start the thread."""
-        srv = unix_listener(self.path)
+        srv = unix_listener(self.path, "feed")
         srv.listen(MAX_CLIENTS)
         srv.setblocking(False)
         self._sock = srv
@@ -145,10 +145,7 @@ class FeedServer:
             self._drop(c, None)
         if self._sock is not None:
             self._sock.close()
-            try:
-                os.unlink(self.path)
-            except OSError:
-                pass
+            remove_socket(self.path)  # only if still the one it bound
         if self._sel is not None:
             self._sel.close()
 
@@ -202,8 +199,10 @@ class FeedServer:
 
     def _reload(self) -> None:
         self._replaced = False
-        if self.daemon.pdef.opcua is not None:  # the new plant file's writable names
-            self.opc.writable = list(self.daemon.pdef.opcua.writable)
+        # the new plant file's writable names; none once the section is removed (the feed
+        # serves values until the controller restarts: change/diff.py says so)
+        opc = self.daemon.pdef.opcua
+        self.opc.writable = list(opc.writable) if opc is not None else []
         self._cat = Catalogue(self.daemon.plant)
         self._schema_line = self._schema()
         self._values = None
@@ -302,9 +301,16 @@ class FeedServer:
         except (ValueError, TypeError, OverflowError) as exc:
             return False, f"bad value for {name}: {exc}"
         daemon = self.daemon
+
+        def apply() -> None:
+            # the running plant and its writable names, read in the scan thread: an online
+            # change may have replaced them since the check above
+            opc = daemon.pdef.opcua
+            if opc is None or name not in opc.writable:
+                raise ValueError(f"{name} is not writable over OPC UA (opcua: writable)")
+            daemon.plant.set(name, v)
         try:
-            # the running plant, read in the scan thread: an online change may replace it
-            daemon.call(lambda: daemon.plant.set(name, v), timeout=SET_TIMEOUT_S)
+            daemon.call(apply, timeout=SET_TIMEOUT_S)
         except TimeoutError:
             return False, "the scan did not answer in time"
         except Exception as exc:  # noqa: BLE001 - the client gets the reason

@@ -7,13 +7,18 @@ symbolic link in its place, before the controller starts (the classic attack on 
 - ``${RUNTIME_DIR}`` (runtime.language.runtimedir) is created with mode 0700 if missing,
   then must be a real directory (not a symbolic link) owned by this user and open to nobody
   else: no access for others, and for group at most what systemd's RuntimeDirectoryMode=
-  0750 gives when systemd made it ($RUNTIME_DIRECTORY).
+  0750 gives when systemd made it ($RUNTIME_DIRECTORY, or an installed plant's
+  /run/softplc/NAME).
 - Any other directory holding such a file must be owned by this user or root and not
   writable by every user; a missing one may not be created inside a directory writable by
   every user (another user could create it first); no symbolic link on the way may belong to
   another user.
 
 Otherwise the controller refuses to start, with one line naming the directory and the fix.
+
+A Unix socket (the console's, the feed's) is bound only where nothing is, or where an
+earlier run of this plant left its own socket (``SocketLedger``, recorded in the plant's
+lock file); at the stop it is removed only if it is still the one this process bound.
 """
 
 from __future__ import annotations
@@ -22,11 +27,16 @@ import logging
 import os
 import socket
 import stat
+import struct
 from collections.abc import Iterable
+from typing import TYPE_CHECKING
 
 from runtime.errors import SoftplcError
 from runtime.language.model import PlantDef
-from runtime.language.runtimedir import PLACEHOLDER, runtime_dir
+from runtime.language.runtimedir import PLACEHOLDER, locate, managed_by_systemd, runtime_dir
+
+if TYPE_CHECKING:
+    from runtime.controller.plantlock import PlantLock
 
 log = logging.getLogger(__name__)
 
@@ -40,22 +50,22 @@ class PathError(SoftplcError):
 
 
 def plant_files(pdef: PlantDef) -> list[str]:
-    """The files the controller creates for this plant: retained data (and the fault
-    record beside it), the console sockets."""
-    files = [pdef.retain_path] if pdef.retain_path else []
+    """The files the controller creates for this plant: its lock, retained data (and the
+    fault record beside it), the console sockets, the feed socket."""
+    where = locate(pdef)
+    files = [where.lock] + ([pdef.retain_path] if pdef.retain_path else [])
     files += [c.address for c in pdef.consoles if c.kind == "socket"]
-    return files
+    return files + ([where.feed] if where.feed else [])
 
 
-def prepare(files: Iterable[str]) -> None:
-    """Create ``${RUNTIME_DIR}`` if a file is below it, and check the directory of every
-    file; PathError with one line otherwise."""
-    rdir = runtime_dir()
+def prepare(files: Iterable[str], rdir: str | None = None) -> None:
+    """Create the runtime directory ``rdir`` (``${RUNTIME_DIR}``) if a file is below it,
+    and check the directory of every file; PathError with one line otherwise."""
+    rdir = runtime_dir() if rdir is None else rdir
     for path in files:
         directory = os.path.dirname(os.path.abspath(path))
         if directory == rdir or directory.startswith(rdir + os.sep):
-            ensure_private_dir(rdir, SYSTEMD if os.environ.get("RUNTIME_DIRECTORY")
-                               else PRIVATE)
+            ensure_private_dir(rdir, SYSTEMD if managed_by_systemd(rdir) else PRIVATE)
         check_dir(directory, path)
 
 
@@ -115,19 +125,99 @@ def check_dir(directory: str, for_file: str) -> None:
         raise PathError(f"{for_file} {what} {existing}, writable by every user: {hint}")
 
 
-def unix_listener(path: str) -> socket.socket:
+class SocketLedger:
+    """The Unix sockets this process bound (path -> device, inode), and the plant lock that
+    records them for the next run (``runtime.controller.plantlock``): a process unlinks
+    only what it made."""
+
+    def __init__(self) -> None:
+        self.lock: PlantLock | None = None
+        self.bound: dict[str, tuple[int, int]] = {}
+
+
+#: this process's sockets: one process runs one plant at most
+LEDGER = SocketLedger()
+
+_KINDS = ((stat.S_ISREG, "a regular file"), (stat.S_ISDIR, "a directory"),
+          (stat.S_ISLNK, "a symbolic link"), (stat.S_ISFIFO, "a FIFO"),
+          (stat.S_ISCHR, "a device"), (stat.S_ISBLK, "a device"))
+
+
+def _listener_pid(path: str) -> int | None:
+    """The PID of the process listening on the socket at ``path`` (0 if it listens but
+    its PID is unknown); None if nobody listens there."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as probe:
+        probe.settimeout(0.5)
+        try:
+            probe.connect(path)
+        except (ConnectionRefusedError, FileNotFoundError):
+            return None
+        except OSError:  # a full backlog, a timeout: somebody is there
+            return 0
+        cred = probe.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, struct.calcsize("3i"))
+        return int(struct.unpack("3i", cred)[0])
+
+
+def _clear(path: str, what: str, ledger: SocketLedger) -> None:
+    """Make room for the socket at ``path``: nothing there, or a socket an earlier run of
+    this plant bound (removed); PathError for anything else, left alone."""
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return
+    if not stat.S_ISSOCK(st.st_mode):
+        kind = next((k for test, k in _KINDS if test(st.st_mode)), "not a socket")
+        raise PathError(f"{path} exists and is not a socket ({kind}): left alone; give the "
+                        f"{what} socket another path")
+    pid = _listener_pid(path)
+    if pid is not None:
+        who = f" (PID {pid})" if pid else ""
+        raise PathError(f"{path}: another process listens there{who}: left alone; stop it "
+                        f"or give the {what} socket another path")
+    mine = ledger.bound.get(path) == (st.st_dev, st.st_ino) or (
+        ledger.lock is not None and ledger.lock.made_before(path, st.st_dev, st.st_ino))
+    if not mine:
+        raise PathError(f"{path}: a socket that was not made by this plant: left alone; "
+                        f"remove it if nothing uses it")
+    os.unlink(path)  # left by an earlier run of this plant (killed, or its directory kept)
+    log.info("replaced %s, left by an earlier run of this plant", path)
+
+
+def unix_listener(path: str, what: str = "console",
+                  ledger: SocketLedger = LEDGER) -> socket.socket:
     """A listening-ready AF_UNIX stream socket bound at ``path`` (the console's and the
-    feed's): its directory made if missing, a socket file left by a previous run
-    replaced, the socket 0660 (its owner and group: the directory's mode decides who
-    reaches it). OSError if it cannot be bound."""
+    feed's, ``what`` says which): its directory made if missing, a socket this plant left
+    in an earlier run replaced (and nothing else: PathError), the socket 0660 (its owner
+    and group: the directory's mode decides who reaches it), recorded as made by this
+    plant. OSError if it cannot be bound."""
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    if os.path.exists(path):
-        os.unlink(path)  # left by a previous run
+    _clear(path, what, ledger)
     srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     try:
         srv.bind(path)
         os.chmod(path, 0o660)
+        st = os.lstat(path)
     except OSError:
         srv.close()
         raise
+    ledger.bound[path] = (st.st_dev, st.st_ino)
+    if ledger.lock is not None:
+        ledger.lock.record_socket(path, st.st_dev, st.st_ino)
     return srv
+
+
+def remove_socket(path: str, ledger: SocketLedger = LEDGER) -> None:
+    """Remove the socket at ``path`` if it is still the one this process bound (another
+    controller may have bound the path since: its socket is left alone)."""
+    ident = ledger.bound.pop(path, None)
+    try:
+        st = os.lstat(path)
+    except OSError:
+        st = None
+    if ident is not None and st is not None and (st.st_dev, st.st_ino) == ident:
+        try:
+            os.unlink(path)
+        except OSError as exc:
+            log.warning("%s not removed: %s", path, exc.strerror)
+    if ledger.lock is not None:
+        ledger.lock.forget_socket(path)

@@ -36,7 +36,9 @@ from runtime.language.model import PlantDef
 
 log = logging.getLogger(__name__)
 
-FORMAT = "softplc-retain/2"
+FORMAT = "softplc-retain/3"
+#: the format before the owner (the plant) was recorded; still loaded, taken over
+FORMAT_2 = "softplc-retain/2"
 #: the format before types were recorded; still loaded (see ``reconcile``)
 FORMAT_1 = "softplc-retain/1"
 #: a retain file longer than this is refused unread, bytes
@@ -52,6 +54,12 @@ class RetainFileError(SoftplcError):
     """A retain file that is not what softplc writes: torn by a power cut ("not JSON"), a
     flipped bit ("checksum mismatch"), crafted ("m.sN: "abc" is not of type int"), a
     symbolic link or a FIFO. The file is passed over, never the controller stopped."""
+
+
+class RetainForeign(SoftplcError):
+    """The retain file holds another plant's data (``restore`` with an owner): two clones
+    of a project whose demo plants name the same file, two installed plants given the same
+    ``plc: retain``. Neither restored nor overwritten: the controller does not start."""
 
 
 class RetainLost(SoftplcError):
@@ -90,6 +98,9 @@ class Loaded:
     charts: dict[str, str] | None = None
     types: dict[str, dict[str, str]] | None = None
     raw: bytes = b""  # the source file as read (kept aside when values are dropped)
+    #: the plant that saved it ({"name", "path"}: its plant file's real path); None in a
+    #: file of format 1 or 2
+    owner: dict[str, str] | None = None
     #: (file, contents) of each regular file passed over (kept aside when data is lost)
     bad: list[tuple[str, bytes]] = field(default_factory=list)
     #: why the retained data is lost (files there but none good: ``problems`` say why
@@ -176,10 +187,11 @@ def _mapping(value: Any, what: str) -> dict[str, Any]:
 
 
 def parse(raw: bytes) -> tuple[dict[str, Any], dict[str, dict[str, str]] | None,
-                               dict[str, str] | None, int, float]:
-    """Check a retain file's text: (data, types, charts, generation, saved_at).
+                               dict[str, str] | None, int, float, dict[str, str] | None]:
+    """Check a retain file's text: (data, types, charts, generation, saved_at, owner).
 
-    ``types``/``charts`` are None in a format 1 file. Raises RetainFileError."""
+    ``types``/``charts`` are None in a format 1 file, ``owner`` in a format 1 or 2 file.
+    Raises RetainFileError."""
     try:
         doc = json.loads(raw.decode("utf-8"), parse_constant=_no_constant)
     except RecursionError:
@@ -192,10 +204,10 @@ def parse(raw: bytes) -> tuple[dict[str, Any], dict[str, dict[str, str]] | None,
         raise RetainFileError(str(exc).splitlines()[0]) from None
     doc = _mapping(doc, "the file")
     fmt = doc.get("format")
-    if fmt not in (FORMAT, FORMAT_1):
+    if fmt not in (FORMAT, FORMAT_2, FORMAT_1):
         raise RetainFileError("not a softplc retain file")
     keys = ("format", "generation", "saved_at", "data") + \
-        (("charts", "types") if fmt == FORMAT else ())
+        (("charts", "types") if fmt != FORMAT_1 else ()) + (("plant",) if fmt == FORMAT else ())
     missing = [k for k in keys if k not in doc]
     if missing:
         raise RetainFileError(f"no {', '.join(missing)}")
@@ -209,8 +221,12 @@ def parse(raw: bytes) -> tuple[dict[str, Any], dict[str, dict[str, str]] | None,
             or not math.isfinite(saved_at):
         raise RetainFileError(f"saved_at {_short(saved_at)} is not a time")
     data = _mapping(payload["data"], "data")
-    types = charts = None
+    types = charts = owner = None
     if fmt == FORMAT:
+        owner = _mapping(payload["plant"], "plant")
+        if not all(isinstance(owner.get(k), str) for k in ("name", "path")):
+            raise RetainFileError("plant: expected its name and path")
+    if fmt != FORMAT_1:
         types = _mapping(payload["types"], "types")
         charts = _mapping(payload["charts"], "charts")
     out: dict[str, dict[str, Any]] = {}
@@ -232,7 +248,7 @@ def parse(raw: bytes) -> tuple[dict[str, Any], dict[str, dict[str, str]] | None,
             if typ not in TYPES:
                 raise RetainFileError(f"{where}: unknown type {_short(typ)}")
             out[inst][name] = _decode(typ, value, where)
-    return out, types, charts, gen, float(saved_at)
+    return out, types, charts, gen, float(saved_at), owner
 
 
 def _fits(typ: str, value: Any) -> bool:
@@ -312,6 +328,7 @@ def restore(store: RetainStore, *, refuse_if_lost: bool = False) -> Restored:
             if orphan is not None:
                 log.warning("retain: %s as it was is kept as %s", bad, orphan)
         return Restored({}, loaded.lost)
+    _check_owner(store, loaded)
     for problem in loaded.problems:
         log.warning("retain: %s", problem)
     if loaded.source is None:
@@ -331,13 +348,31 @@ def restore(store: RetainStore, *, refuse_if_lost: bool = False) -> Restored:
     return Restored(kept.values)
 
 
+def _check_owner(store: RetainStore, loaded: Loaded) -> None:
+    """RetainForeign if ``loaded`` was saved by another plant whose plant file is still
+    there; a plant that is gone (moved) is taken over, with a warning."""
+    mine, was = store.owner, loaded.owner
+    if mine is None or not was or not was.get("path") or was["path"] == mine["path"]:
+        return
+    if os.path.lexists(was["path"]):
+        raise RetainForeign(f"{store.path} holds the retained data of plant {was['name']} "
+                            f"({was['path']}), not of this plant ({mine['path']}): not "
+                            "started; give this plant a plc: retain file of its own")
+    log.warning("retain: %s was saved by plant %s (%s), which is no longer there: taken "
+                "over by this plant (%s)", store.path, was["name"], was["path"], mine["path"])
+
+
 class RetainStore:
     """The retain file at ``path``, its previous generation at ``path.prev`` and the
     record ``path.saved`` that data was saved here once (to tell lost data from a first
     start)."""
 
-    def __init__(self, path: str, plant: RetainedVars | None = None) -> None:
+    def __init__(self, path: str, plant: RetainedVars | None = None,
+                 owner: dict[str, str] | None = None) -> None:
         self.path = path
+        #: the plant whose data this is ({"name", "path"}), recorded with every save and
+        #: checked by ``restore``; None for tools (recorded empty)
+        self.owner = owner
         self.prev = path + ".prev"
         self.tmp = path + ".tmp"
         self.marker = path + ".saved"
@@ -360,7 +395,7 @@ class RetainStore:
                     continue
                 if candidate != self.tmp:
                     present.append(candidate)
-                data, types, charts, gen, saved_at = parse(raw)
+                data, types, charts, gen, saved_at, owner = parse(raw)
             except (OSError, RetainFileError) as exc:
                 if candidate != self.tmp:  # a torn .tmp is the normal trace of a power cut
                     present.append(candidate)
@@ -373,6 +408,7 @@ class RetainStore:
             if gen > best.generation:
                 best.data, best.generation, best.saved_at = data, gen, saved_at
                 best.source, best.types, best.charts, best.raw = candidate, types, charts, raw
+                best.owner = owner
         if best.source is not None and best.source != self.path:
             best.problems.append(f"restored generation {best.generation} from {best.source}")
         if best.source is None:
@@ -443,6 +479,7 @@ class RetainStore:
                   for inst in data}
         gen = self.generation + 1
         payload = {"format": FORMAT, "generation": gen, "saved_at": time.time(),
+                   "plant": self.owner or {"name": "", "path": ""},
                    "charts": charts, "types": types,
                    "data": {inst: {name: _encode(types[inst][name], v, f"{inst}.{name}")
                                    for name, v in values.items()}

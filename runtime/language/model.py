@@ -286,6 +286,8 @@ class PlantDef:
     cycle_ns: int = 10_000_000
     watchdog_ns: int = 100_000_000
     retain_path: str | None = None
+    #: where ``plc: retain`` is written (errors about the retained data point there)
+    retain_loc: Loc | None = None
     retain_interval_ns: int = 1_000_000_000
     #: refuse to start when the retained data is lost (docs/daemon.md)
     retain_required: bool = False

@@ -149,6 +149,7 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
                 setattr(p, attr, ns)
         if "retain" in plc and plc["retain"] is not None:
             p.retain_path = _retain_path(path, plc["retain"], plc.val_locs["retain"])
+            p.retain_loc = plc.val_locs["retain"]
         if "retain_required" in plc:
             loc = plc.val_locs["retain_required"]
             p.retain_required = expect_type(plc["retain_required"], loc, bool, "true or false")

@@ -4,6 +4,7 @@ refusals known without state."""
 from __future__ import annotations
 
 import textwrap
+from pathlib import Path
 
 import pytest
 
@@ -209,3 +210,60 @@ def test_plant_settings(tmp_path):
     got, refused = plants(tmp_path, base, base.replace("cycle: 20ms", "cycle: 10ms"))
     assert got == ["plant: cycle 20 ms -> 10 ms"]
     assert refused == ["plant: the cycle time changed: restart the controller"]
+
+
+OPCUA = """\
+opcua:
+  endpoint: opc.tcp://127.0.0.1:4841
+  writable: [tester1.sCierres]
+"""
+
+
+@pytest.mark.parametrize(("old_extra", "new_extra", "out", "refused"), [
+    ("", OPCUA, ["plant: opcua: added"],
+     ["opcua: added: the feed is served from the controller's start: restart the "
+      "controller, then start its OPC UA server"]),
+    (OPCUA, "", ["plant: opcua: removed: OPC UA writes refused from now on; the feed serves "
+                 "values until the controller restarts"], []),
+    (OPCUA, OPCUA.replace("4841", "4842"),
+     ["plant: opcua endpoint changed: applied when the OPC UA server restarts (softplc "
+      "opcua; systemctl restart softplc-opcua@NAME)"], []),
+    (OPCUA, OPCUA + "  sample: 100ms\n", ["plant: opcua sample changed"],
+     ["opcua: sample changed: it takes effect only at a restart of the controller"]),
+    (OPCUA, OPCUA.replace("[tester1.sCierres]", "[tester2.sCierres]"),
+     ["plant: opcua writable changed: [tester1.sCierres] -> [tester2.sCierres]"], []),
+], ids=["added", "removed", "endpoint", "sample", "writable"])
+def test_the_opcua_section_is_named_by_the_diff(tmp_path, old_extra: str, new_extra: str,
+                                                out: list[str], refused: list[str],
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 25: adding ``opcua:`` to a plant was `no change` and `can be applied online`."""
+    drawer = Path(DRAWER_PLANT)
+    src = drawer.read_text(encoding="utf-8").replace("grafcet: ", f"grafcet: {drawer.parent}/")
+    (tmp_path / "old.yaml").write_text(src + old_extra, encoding="utf-8")
+    (tmp_path / "new.yaml").write_text(src + new_extra, encoding="utf-8")
+    status = main(["diff", str(tmp_path / "old.yaml"), str(tmp_path / "new.yaml")])
+    text = capsys.readouterr().out.splitlines()
+    assert text[:len(out)] == out
+    if refused:
+        assert status == 1 and text[len(out):] == ["cannot be applied online:",
+                                                   *(f"  {x}" for x in refused)]
+    else:
+        assert status == 0 and text[len(out)] == "can be applied online"
+
+
+def test_every_setting_of_a_plant_is_compared_by_the_diff() -> None:
+    """A setting the diff does not know is a change applied silently, or not at all (issue
+    25: `opcua:` was): each field of PlantDef is either compared or said here why not."""
+    import dataclasses
+    import inspect
+
+    from runtime.change import diff as diffmod
+    from runtime.language.model import PlantDef
+
+    source = inspect.getsource(diffmod)
+    not_compared = {"path": "where the file is, not what it says",
+                    "retain_loc": "a position", "retain_required_loc": "a position"}
+    for f in dataclasses.fields(PlantDef):
+        if f.name in not_compared:
+            continue
+        assert f".{f.name}" in source, f"PlantDef.{f.name} is not compared by change/diff.py"

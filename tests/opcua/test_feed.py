@@ -197,3 +197,25 @@ def test_a_hostile_line_costs_its_client_only(tmp_path: Path, line: bytes) -> No
         wait_until(lambda: len(again.frames) >= 1, what="a new client served")
         for r in (good, bad, again):
             r.close()
+
+
+def test_a_reload_that_removes_the_opcua_section_ends_the_writes(tmp_path: Path) -> None:
+    """Issue 31: the feed served writes to the old writable names after a reload that
+    removed the ``opcua:`` section. The fail-safe direction applies online: writes end at
+    the swap, the values are served until the controller restarts."""
+    with controller(tmp_path, trace=False) as (d, feed, _):
+        r = FeedReader(feed.path)
+        wait_until(lambda: len(r.frames) >= 1)
+        assert r.set("t1.sStop", True)[0] is True
+        plant = Path(d.pdef.path)
+        text = plant.read_text(encoding="utf-8")
+        plant.write_text(text[:text.index("opcua:\n")], encoding="utf-8")
+        result = d.reload()
+        assert result.applied, result.refusals
+        assert "plant: opcua: removed: OPC UA writes refused from now on; the feed serves " \
+               "values until the controller restarts" in result.lines
+        assert r.set("t1.sStop", False) == (
+            False, "t1.sStop is not writable over OPC UA (opcua: writable)")
+        n = len(r.frames)
+        wait_until(lambda: len(r.frames) >= n + 2, what="frames after the reload")
+        r.close()
