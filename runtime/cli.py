@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import logging
+import os
+import stat
 import sys
 import time
 from collections.abc import Iterator, Sequence
@@ -214,11 +217,19 @@ def cmd_opcua(args: argparse.Namespace) -> int:
     import signal
 
     from runtime.language.plantfile import load_plant
+    from runtime.language.runtimedir import locate
 
     pdef = load_plant(args.plant)
     if pdef.opcua is None:
         raise SourceError(Loc(pdef.path, 1, 1), "no 'opcua:' section: add one to serve "
                                                 "this plant over OPC UA (docs/opcua.md)")
+    feed = args.feed or locate(pdef).feed  # where the controller serves it (one home)
+    assert feed is not None
+    endpoint = args.endpoint or pdef.opcua.endpoint
+    problem = _opcua_cannot_serve(pdef, endpoint, feed, bool(args.endpoint), bool(args.feed))
+    if problem is not None:  # at once, before asyncua takes seconds to set up
+        sys.stderr.write(f"{problem}\n")
+        return 2
     try:
         from runtime.opcua.server import serve
     except ImportError as exc:
@@ -233,9 +244,62 @@ def cmd_opcua(args: argparse.Namespace) -> int:
         loop = asyncio.get_running_loop()
         for s in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
             loop.add_signal_handler(s, stop.set)
-        await serve(pdef, args.endpoint, args.feed, stop=stop)
-    asyncio.run(main())
+        await serve(pdef, endpoint, feed, stop=stop)
+    try:
+        asyncio.run(main())
+    except OSError as exc:  # the port taken between the check and asyncua's bind
+        if exc.errno != errno.EADDRINUSE:
+            raise
+        sys.stderr.write(f"{_opcua_cannot_serve(pdef, endpoint, feed, False, False) or exc}\n")
+        return 2
     return 0
+
+
+def _opcua_cannot_serve(pdef: Any, endpoint: str, feed: str, endpoint_given: bool,
+                        feed_given: bool) -> str | None:
+    """Why ``softplc opcua`` cannot serve, as its one line (at the plant's line of the
+    key, or naming the option): the feed path is something other than a socket (a missing
+    one is fine: the controller is not running yet), or the endpoint's port cannot be
+    listened on (another process has it). None when it can."""
+    import socket
+    from urllib.parse import urlsplit
+
+    from runtime.controller.paths import file_kind
+
+    opc = pdef.opcua
+    where = opc.loc or Loc(pdef.path, 1, 1)
+
+    def at(key: str, given: bool, text: str) -> str:
+        if given:
+            return f"softplc opcua: error: --{key}: {text}"
+        return str(SourceError(opc.locs.get(key, where), f"opcua {key}: {text}"))
+    try:
+        st = os.lstat(feed)
+    except OSError:
+        st = None
+    if st is not None and not stat.S_ISSOCK(st.st_mode):
+        return at("feed", feed_given, f"{feed} is not a socket ({file_kind(st.st_mode)}): "
+                                      "the controller serves its feed there; give opcua: "
+                                      "feed another path")
+    url = urlsplit(endpoint)
+    host, port = url.hostname or "0.0.0.0", url.port or 4840
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except OSError as exc:
+        return at("endpoint", endpoint_given, f"{host}: {exc.strerror or exc}: not started")
+    for family, kind, proto, _, addr in infos:
+        with socket.socket(family, kind, proto) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as asyncua does
+            try:
+                probe.bind(addr)
+            except OSError as exc:
+                if exc.errno == errno.EADDRINUSE:
+                    return at("endpoint", endpoint_given,
+                              f"port {port} of {host} is in use (another OPC UA server, or "
+                              "another plant's: give each plant its own port): not started")
+                return at("endpoint", endpoint_given,
+                          f"cannot listen on {host}:{port}: {exc.strerror}: not started")
+    return None
 
 
 def cmd_hash_pin(args: argparse.Namespace) -> int:
@@ -343,7 +407,7 @@ def cmd_diff(args: argparse.Namespace) -> int:
 
 def cmd_opcua_cert(args: argparse.Namespace) -> int:
     """Write the OPC UA server's self-signed certificate and key (docs/opcua.md)."""
-    from runtime.opcua.security import APPLICATION_URI, make_certificate
+    from runtime.opcua.security import APPLICATION_URI, CLIENT_URI, make_certificate
 
     try:
         cert, key = make_certificate(args.dir, args.days, args.host, client=args.client)
@@ -355,7 +419,7 @@ def cmd_opcua_cert(args: argparse.Namespace) -> int:
         sys.stderr.write(f"softplc opcua-cert: error: {args.dir}: {exc.strerror}\n")
         return 2
     sys.stdout.write(f"certificate {cert}\nprivate key {key} (mode 0600)\n"
-                     f"application URI {APPLICATION_URI}\n")
+                     f"application URI {CLIENT_URI if args.client else APPLICATION_URI}\n")
     return 0
 
 

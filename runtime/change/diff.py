@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from runtime.language.model import Binding, Grafcet, InstanceDef, PlantDef, Transition
 
@@ -188,7 +188,8 @@ def _opcua(cs: ChangeSet) -> None:
         add(f"plant: opcua writable changed: [{', '.join(old.writable)}] -> "
             f"[{', '.join(new.writable)}]")
     for what, a, b in (("endpoint", old.endpoint, new.endpoint),  # type: ignore[assignment]
-                       ("security", old.security, new.security)):
+                       ("security", replace(old.security, loc=None),
+                        replace(new.security, loc=None))):
         if a != b:
             add(f"plant: opcua {what} changed: applied when the OPC UA server restarts "
                 "(softplc opcua; systemctl restart softplc-opcua@NAME)")

@@ -359,7 +359,7 @@ class Daemon:
             log.error("retain directory of %s not usable: %s", path, exc)
         where = locate(self.pdef)
         self.retain = RetainStore(path, RetainedVars.of(self.pdef),
-                                  owner={"name": where.name, "path": where.plant})
+                                  owner={"name": where.name, "path": where.home})
         try:
             restored = restore(self.retain, refuse_if_lost=self.pdef.retain_required)
         except RetainForeign as exc:

@@ -143,6 +143,11 @@ _KINDS = ((stat.S_ISREG, "a regular file"), (stat.S_ISDIR, "a directory"),
           (stat.S_ISCHR, "a device"), (stat.S_ISBLK, "a device"))
 
 
+def file_kind(mode: int) -> str:
+    """What a file of ``st_mode`` ``mode`` is, in words (for "... is not a socket")."""
+    return next((k for test, k in _KINDS if test(mode)), "not a socket")
+
+
 def _listener_pid(path: str) -> int | None:
     """The PID of the process listening on the socket at ``path`` (0 if it listens but
     its PID is unknown); None if nobody listens there."""
@@ -166,9 +171,8 @@ def _clear(path: str, what: str, ledger: SocketLedger) -> None:
     except FileNotFoundError:
         return
     if not stat.S_ISSOCK(st.st_mode):
-        kind = next((k for test, k in _KINDS if test(st.st_mode)), "not a socket")
-        raise PathError(f"{path} exists and is not a socket ({kind}): left alone; give the "
-                        f"{what} socket another path")
+        raise PathError(f"{path} exists and is not a socket ({file_kind(st.st_mode)}): left "
+                        f"alone; give the {what} socket another path")
     pid = _listener_pid(path)
     if pid is not None:
         who = f" (PID {pid})" if pid else ""

@@ -46,9 +46,18 @@ def _read(fd: int) -> dict[str, list[str]]:
     return out
 
 
-def holder(path: str) -> int | None:
-    """The PID of the process that holds the lock at ``path``; None if nobody does (or the
-    file is not there). Only reads: usable on another user's runtime directory."""
+def _holder(fd: int) -> tuple[int, str]:
+    """(PID, plant file) the lock file says (-1, "" if it does not)."""
+    found = _read(fd)
+    pids, plants = found.get("pid", []), found.get("plant", [])
+    return (int(pids[0]) if pids and pids[0].isdigit() else -1,
+            plants[0] if plants else "")
+
+
+def holder(path: str) -> tuple[int, str] | None:
+    """(PID, plant file) of the process that holds the lock at ``path``; None if nobody
+    does (or the file is not there). Only reads: usable on another user's runtime
+    directory."""
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
     except OSError:
@@ -59,8 +68,7 @@ def holder(path: str) -> int | None:
         except OSError as exc:
             if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
                 return None
-            pids = _read(fd).get("pid", [])
-            return int(pids[0]) if pids and pids[0].isdigit() else -1
+            return _holder(fd)
         return None
     finally:
         os.close(fd)
@@ -77,17 +85,17 @@ class PlantLock:
         self.previous: dict[str, tuple[int, int]] = {}
         self._sockets: dict[str, tuple[int, int]] = {}
 
-    def refusal(self, pid: int) -> PlantLocked:
+    def refusal(self, pid: int, plant: str) -> PlantLocked:
         who = f"PID {pid}" if pid > 0 else "a process"
         return PlantLocked(f"plant {self.where.name} is already running: {who} "
-                           f"({self.where.plant}, lock {self.path})")
+                           f"({plant or self.where.home}, lock {self.path})")
 
     def check(self) -> None:
         """PlantLocked if the controller of this plant runs (before any directory check:
         the lock of an installed plant is found even by a user who may not write there)."""
-        pid = holder(self.path)
-        if pid is not None:
-            raise self.refusal(pid)
+        found = holder(self.path)
+        if found is not None:
+            raise self.refusal(*found)
 
     def acquire(self) -> None:
         """Take the lock, or raise PlantLocked at once (never waits). Remembers the sockets
@@ -101,11 +109,10 @@ class PlantLock:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as exc:
-            pids = _read(fd).get("pid", [])
+            found = _holder(fd)
             os.close(fd)
             if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN):
-                raise self.refusal(int(pids[0]) if pids and pids[0].isdigit() else -1) \
-                    from None
+                raise self.refusal(*found) from None
             raise PlantLocked(f"cannot take the lock of plant {self.where.name}: "
                               f"{self.path}: {exc.strerror}") from None
         st = os.fstat(fd)

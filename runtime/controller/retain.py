@@ -98,8 +98,8 @@ class Loaded:
     charts: dict[str, str] | None = None
     types: dict[str, dict[str, str]] | None = None
     raw: bytes = b""  # the source file as read (kept aside when values are dropped)
-    #: the plant that saved it ({"name", "path"}: its plant file's real path); None in a
-    #: file of format 1 or 2
+    #: the plant that saved it ({"name", "path"}: the real path of its directory); None in
+    #: a file of format 1 or 2
     owner: dict[str, str] | None = None
     #: (file, contents) of each regular file passed over (kept aside when data is lost)
     bad: list[tuple[str, bytes]] = field(default_factory=list)
@@ -349,7 +349,7 @@ def restore(store: RetainStore, *, refuse_if_lost: bool = False) -> Restored:
 
 
 def _check_owner(store: RetainStore, loaded: Loaded) -> None:
-    """RetainForeign if ``loaded`` was saved by another plant whose plant file is still
+    """RetainForeign if ``loaded`` was saved by another plant whose directory is still
     there; a plant that is gone (moved) is taken over, with a warning."""
     mine, was = store.owner, loaded.owner
     if mine is None or not was or not was.get("path") or was["path"] == mine["path"]:

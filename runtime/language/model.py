@@ -264,6 +264,8 @@ class OpcuaDef:
     writable: list[str] = field(default_factory=list)
     security: OpcuaSecurity = field(default_factory=OpcuaSecurity)
     loc: Loc | None = None
+    #: where each key given (endpoint, feed ...) has its value, for errors at run time
+    locs: dict[str, Loc] = field(default_factory=dict)
 
 
 @dataclass(slots=True)

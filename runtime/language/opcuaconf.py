@@ -27,7 +27,8 @@ def load_opcua(p: PlantDef, value: Any, loc: Loc) -> OpcuaDef:
     m = expect_type(value, loc, YMap, "a mapping (endpoint, sample, feed, writable, "
                                       "security)")
     check_keys(m, OPCUA_KEYS, "opcua")
-    o = OpcuaDef(loc=loc, sample_ns=max(DEFAULT_SAMPLE_NS, p.cycle_ns))
+    o = OpcuaDef(loc=loc, sample_ns=max(DEFAULT_SAMPLE_NS, p.cycle_ns),
+                 locs=dict(m.val_locs))
     if "endpoint" in m:
         vloc = m.val_locs["endpoint"]
         ep = str(expect_type(m["endpoint"], vloc, str, "opc.tcp://HOST:PORT"))

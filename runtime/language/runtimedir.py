@@ -20,9 +20,11 @@ side process: a web view, an MQTT edge node) reads the same plant file and calls
    of this user (a login session: /run/user/UID);
 4. ``${TMPDIR:-/tmp}/softplc-UID`` otherwise.
 
-A plant's **name** is the NAME of an installed plant, else the name of the directory that
-holds its plant file (``configs/drawer_tester/plant_sim.yaml``: drawer_tester). Its
-**identity** is the real path of its plant file: the lock and the retained data's owner.
+A plant is its directory: the plant files of one directory are versions of one plant (an
+installed plant has a directory of its own, /etc/softplc/NAME). Its **name** is the NAME of
+an installed plant, else the name of that directory (``configs/drawer_tester/plant_sim.yaml``:
+drawer_tester); its **home** is the real path of that directory: the key of its lock and the
+owner recorded with its retained data.
 
 This module only names things; ``runtime.controller.paths`` creates and checks the
 directories, ``runtime.controller.plantlock`` takes the lock. Nothing else is expanded in a
@@ -159,11 +161,15 @@ class Whereabouts:
 
     #: the plant's name (an installed plant's NAME, else its directory's name)
     name: str
-    #: its identity: the real path of its plant file
+    #: the real path of its plant file
     plant: str
+    #: its identity: the real path of its directory (the lock's key, the retained data's
+    #: owner)
+    home: str
     #: ``${RUNTIME_DIR}`` for this plant
     runtime_dir: str
-    #: the lock the controller holds for its life: RUNTIME_DIR/NAME-HASH.lock
+    #: the lock the controller holds for its life: RUNTIME_DIR/NAME-HASH.lock (HASH: of
+    #: ``home``)
     lock: str
     #: the console to reach it by: its first socket, else its first TCP port
     #: ("127.0.0.1:PORT"); None without either
@@ -176,12 +182,13 @@ def locate(pdef: PlantDef) -> Whereabouts:
     """Where the controller of ``pdef`` is (``pdef`` loaded by ``load_plant``: its paths are
     already expanded the way the controller's are)."""
     real = os.path.realpath(pdef.path)
+    home = os.path.dirname(real)
     rdir = runtime_dir(plant=pdef.path)
     name = plant_name(pdef.path)
-    digest = hashlib.sha256(real.encode()).hexdigest()[:12]
+    digest = hashlib.sha256(home.encode()).hexdigest()[:12]
     console = next((c.address for c in pdef.consoles if c.kind == "socket"), None)
     if console is None:
         console = next((c.address for c in pdef.consoles if c.kind == "tcp"), None)
-    return Whereabouts(name=name, plant=real, runtime_dir=rdir,
+    return Whereabouts(name=name, plant=real, home=home, runtime_dir=rdir,
                        lock=os.path.join(rdir, f"{name}-{digest}.lock"), console=console,
                        feed=pdef.opcua.feed if pdef.opcua is not None else None)

@@ -1,7 +1,7 @@
 """One controller per plant (docs/daemon.md, "One controller per plant"): a second
 ``softplc run`` of a running plant is refused at once naming the running PID; no process
-unlinks a file or socket it did not create; retained data names its plant and a file of
-another plant is refused. Real processes, real sockets."""
+unlinks a file or socket it did not create; retained data names its plant (its directory)
+and a file of another plant is refused. Real processes, real sockets."""
 
 from __future__ import annotations
 
@@ -190,7 +190,8 @@ def test_retained_data_of_another_plant_is_refused(tmp_path: Path) -> None:
     assert r.returncode == 2, r.stderr
     line = r.stderr.strip().splitlines()[-1]
     assert line.startswith(f"{b}:5:11: error: plc retain: {shared} holds the retained data "
-                           f"of plant drawer ({a}), not of this plant ({b}): not started"), line
+                           f"of plant drawer ({a.parent}), not of this plant ({b.parent}): not "
+                           "started"), line
     assert shared.read_bytes() == before  # not restored, not overwritten
 
 
@@ -206,7 +207,7 @@ def test_retained_data_of_a_moved_plant_is_taken_over(tmp_path: Path) -> None:
     r = subprocess.run([sys.executable, "-m", "runtime.cli", "run", str(b), "--sim", "--for",
                         "0.5s"], env=ENV, capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
-    assert f"retain: {retain} was saved by plant old ({a}), which is no longer there: " \
-           f"taken over by this plant ({b})" in r.stderr
+    assert f"retain: {retain} was saved by plant old ({a.parent}), which is no longer " \
+           f"there: taken over by this plant ({b.parent})" in r.stderr
     loaded = RetainStore(str(retain)).load()
-    assert loaded.generation > gen and loaded.owner == {"name": "new", "path": str(b)}
+    assert loaded.generation > gen and loaded.owner == {"name": "new", "path": str(b.parent)}

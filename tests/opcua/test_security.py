@@ -325,3 +325,14 @@ def test_rules_let_readers_read_and_writers_write() -> None:
     assert rules.check_validity(reader, rd, None) and not rules.check_validity(reader, wr, None)
     assert rules.check_validity(writer, wr, None) and not rules.check_validity(writer, add, None)
     assert not rules.check_validity(admin, rd, None)
+
+
+def test_opcua_cert_client_names_the_client_uri(tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 25: it printed urn:softplc:opcua:server for a certificate holding ...:client."""
+    assert main(["opcua-cert", "--client", "--dir", str(tmp_path)]) == 0
+    cert = x509.load_der_x509_certificate((tmp_path / "client-cert.der").read_bytes())
+    san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    assert san.get_values_for_type(x509.UniformResourceIdentifier) == [security.CLIENT_URI]
+    out = capsys.readouterr().out.splitlines()
+    assert out[-1] == f"application URI {security.CLIENT_URI}"
