@@ -331,8 +331,12 @@ def cmd_reload(args: argparse.Namespace) -> int:
         sys.stderr.write(f"softplc reload: {text}\n")
         return status
     try:
-        address = expand(args.target, Loc("SOCKET|PORT", 1, 1))
-        client = ConsoleClient(Target.parse(address, args.baudrate).open())
+        address = _console_of(args.target)
+    except SourceError as exc:  # the edited plant does not load: that is the refusal
+        return fail(f"refused: {exc}", 1)
+    try:
+        client = ConsoleClient(Target.parse(expand(address, Loc("SOCKET|PORT", 1, 1)),
+                                            args.baudrate).open())
     except (SourceError, MonitorError) as exc:
         return fail(f"error: {exc.message if isinstance(exc, SourceError) else exc}", 2)
     line = "reload" + (" --force" if args.force else "") + (" --back" if args.back else "")
@@ -365,6 +369,27 @@ def cmd_reload(args: argparse.Namespace) -> int:
     for x in refusals:
         sys.stderr.write(f"softplc reload: refused: {x}\n")
     return 1
+
+
+def _console_of(target: str) -> str:
+    """The console address ``target`` names: a plant file's console, found the way every
+    process of a plant finds its controller (``runtimedir.locate``; SourceError if the
+    plant does not load), or ``target`` itself (a socket, a TCP port, a serial port)."""
+    from runtime.language.plantfile import load_plant
+    from runtime.language.runtimedir import locate
+
+    try:
+        st = os.stat(target)
+    except OSError:
+        st = None
+    if st is None or not stat.S_ISREG(st.st_mode):
+        return target
+    pdef = load_plant(target)
+    console = locate(pdef).console
+    if console is None:
+        raise SourceError(Loc(pdef.path, 1, 1), "the plant has no console to reload it "
+                                                "through: add monitor: socket: (or tcp:)")
+    return console
 
 
 def cmd_diff(args: argparse.Namespace) -> int:
@@ -475,8 +500,10 @@ def build_parser() -> argparse.ArgumentParser:
                                     "between two scans, state carried over "
                                     "(docs/online-change.md). Exit 0 applied, 1 refused, 2 "
                                     "cannot connect.")
-    rl.add_argument("target", metavar="SOCKET|PORT",
-                    help="/run/softplc/console.sock, 127.0.0.1:5020 or /dev/ttyUSB0")
+    rl.add_argument("target", metavar="PLANT|SOCKET|PORT",
+                    help="the plant file (its console is found as its side processes find "
+                         "it: /etc/softplc/NAME/plant.yaml), or /run/softplc/NAME/console.sock,"
+                         " 127.0.0.1:5020, /dev/ttyUSB0")
     rl.add_argument("--force", action="store_true",
                     help="apply what is refused unless forced (docs/online-change.md)")
     rl.add_argument("--restart", action="append", default=[], metavar="INSTANCE",

@@ -102,10 +102,10 @@ def test_each_example_plant_stages_compiles_and_checks(venv: Path, tmp_path: Pat
     r = run([softplc, "install-service", "--root", root, plant], cwd=tmp_path)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "Traceback" not in r.stderr
-    etc = root / "etc" / "softplc"
+    etc = root / "etc" / "softplc" / plant.parent.name  # the plant's name: its directory's
     staged = etc / "plant.yaml"  # whatever its name in configs/
-    unit = (root / "etc" / "systemd" / "system" / "softplc.service").read_text()
-    assert f"ExecStart={softplc} run /etc/softplc/plant.yaml" in unit.splitlines()
+    unit = (root / "etc" / "systemd" / "system" / "softplc@.service").read_text()
+    assert f"ExecStart={softplc} run /etc/softplc/%i/plant.yaml" in unit.splitlines()
     # compile and check the staged copy, from /etc/softplc's stand-in, with the venv's softplc
     r = run([softplc, "compile", staged], cwd=etc)
     assert r.returncode == 0 and f"{staged}: ok: " in r.stderr, r.stderr

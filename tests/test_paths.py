@@ -5,6 +5,7 @@ The attacks are played by a second uid (root in these tests chowns for it)."""
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import stat
 import subprocess
@@ -18,7 +19,13 @@ import pytest
 from runtime.controller.paths import PathError, check_dir, ensure_private_dir, prepare
 from runtime.errors import Loc, SourceError
 from runtime.language.plantfile import load_plant
-from runtime.language.runtimedir import expand, runtime_dir
+from runtime.language.runtimedir import (
+    expand,
+    installed_name,
+    locate,
+    plant_name,
+    runtime_dir,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 SOFTPLC = str(Path(sys.executable).parent / "softplc")
@@ -56,6 +63,49 @@ def test_runtime_dir_is_systemds_then_the_sessions_then_a_private_tmp_one(tmp: P
         f"{tmp}/softplc-{uid + 1}"
     assert runtime_dir({"XDG_RUNTIME_DIR": "relative", "TMPDIR": "also"}, 7) == \
         "/tmp/softplc-7"
+
+
+def test_an_installed_plant_has_its_runtime_dir_whoever_reads_it(tmp: Path) -> None:
+    """/etc/softplc/NAME/plant.yaml is the plant NAME: every process that reads it, under
+    its unit ($RUNTIME_DIRECTORY) or by hand, looks in /run/softplc/NAME."""
+    uid = os.geteuid()
+    installed = "/etc/softplc/press1/plant.yaml"
+    assert runtime_dir({"TMPDIR": str(tmp)}, uid, plant=installed) == "/run/softplc/press1"
+    assert runtime_dir({"RUNTIME_DIRECTORY": "/run/softplc/press1"}, uid,
+                       plant=installed) == "/run/softplc/press1"
+    assert expand("${RUNTIME_DIR}/console.sock", Loc(installed, 9, 3), {}) == \
+        "/run/softplc/press1/console.sock"
+    assert installed_name(installed) == "press1" and plant_name(installed) == "press1"
+    # anything else is a plant run by hand, named by its directory
+    assert installed_name("/etc/softplc/press1/other.yaml") is None
+    assert installed_name("/etc/softplc/plant.yaml") is None
+    assert plant_name(str(ROOT / "configs" / "drawer_tester" / "plant_sim.yaml")) == \
+        "drawer_tester"
+    assert runtime_dir({"TMPDIR": str(tmp)}, uid, plant="/srv/press1/plant.yaml") == \
+        f"{tmp}/softplc-{uid}"
+
+
+def test_locate_is_where_every_process_of_a_plant_finds_the_controller(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("RUNTIME_DIRECTORY", str(tmp_path / "run"))
+    d = tmp_path / "press"
+    d.mkdir()
+    (d / "drawer_tester.yaml").write_bytes(
+        (ROOT / "configs" / "drawer_tester" / "drawer_tester.yaml").read_bytes())
+    plant = d / "plant.yaml"
+    plant.write_text((ROOT / "configs" / "drawer_tester" / "plant_sim.yaml").read_text(
+        encoding="utf-8") + "opcua: {endpoint: 'opc.tcp://127.0.0.1:4850'}\n",
+        encoding="utf-8")
+    where = locate(load_plant(str(plant)))
+    assert (where.name, where.plant, where.home) == ("press", str(plant), str(d))
+    assert where.runtime_dir == str(tmp_path / "run")
+    assert where.console == str(tmp_path / "run" / "drawer.sock")
+    assert where.feed == str(tmp_path / "run" / "feed.sock")  # beside the console
+    assert re.fullmatch(re.escape(str(tmp_path / "run" / "press-")) + r"[0-9a-f]{12}\.lock",
+                        where.lock)
+    # another plant file of the same directory is the same plant: the same lock
+    (d / "other.yaml").write_bytes(plant.read_bytes())
+    assert locate(load_plant(str(d / "other.yaml"))).lock == where.lock
 
 
 def test_expand_knows_one_placeholder() -> None:

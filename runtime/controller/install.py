@@ -1,21 +1,31 @@
-"""``softplc install-service``: the plant under /etc/softplc, a ``softplc`` system user, and
-the systemd unit, enabled.
+"""``softplc install-service``: the plant NAME under /etc/softplc/NAME, a ``softplc`` system
+user, the template units softplc@.service (and softplc-opcua@.service), the instances
+softplc@NAME (and softplc-opcua@NAME) enabled, and with ``--now`` put in service.
 
-The plant file and every grafcet file it names are copied into the configuration
-directory, the plant's ``grafcet:`` paths rewritten to the copies (comments and layout
-kept). A file already there with other contents is never overwritten: the command stops
-and says so (``--force`` keeps the old one as ``NAME.bak-TIMESTAMP``). With ``--root DIR``
-everything is written below DIR and the user, group and systemctl steps are only printed
-(for packaging and for the tests).
+The plant file and every grafcet file it names are copied into /etc/softplc/NAME, the
+plant's ``grafcet:`` paths rewritten to the copies (comments and layout kept). A file
+already there with other contents is never overwritten: the command stops and says so
+(``--force`` keeps the old one as ``NAME.bak-TIMESTAMP``). With ``--root DIR`` everything is
+written below DIR and the user, group and systemctl steps are only printed (for packaging
+and for the tests).
 
-Who may read what (the plant holds the console's PIN hash): /etc/softplc is 0750
-root:softplc and the plant and its charts 0640 root:softplc (root writes them, the service
-reads them, nobody else does); /var/lib/softplc, the service's state directory, is 0750
-softplc:softplc. The unit's ``StateDirectory=`` and ``RuntimeDirectory=`` keep those two
-owned by the service; it has no ``ConfigurationDirectory=``: systemd would apply its mode to
-/etc/softplc without ever changing its group (systemd.exec(5)), locking the service out of
-its plant when the directory is root's. A file is written under a temporary name with its
-final mode and owner, then renamed: it is never readable by others, not even for a moment.
+Nothing is written for a plant the service could not run: what its sandbox hides or its
+user cannot read (``runtime.controller.unitsight``), a socket or retain file it could not
+create, a port or retain file another installed plant has: one line each.
+
+With ``--now`` the running controller gets the new plant the way ``softplc diff`` says it
+can: an online change (``systemctl reload``) when it can be applied online, else a
+restart; ``install-service`` says which it did.
+
+Who may read what (the plant holds the console's PIN hash): /etc/softplc and
+/etc/softplc/NAME are 0750 root:softplc and the plant and its charts 0640 root:softplc
+(root writes them, the service reads them, nobody else does); /var/lib/softplc, the
+service's state directory, is 0750 softplc:softplc. The unit's ``StateDirectory=`` and
+``RuntimeDirectory=`` keep that and /run/softplc/NAME owned by the service; it has no
+``ConfigurationDirectory=``: systemd would apply its mode to /etc/softplc without ever
+changing its group (systemd.exec(5)), locking the service out of its plant when the
+directory is root's. A file is written under a temporary name with its final mode and
+owner, then renamed: it is never readable by others, not even for a moment.
 """
 
 from __future__ import annotations
@@ -36,9 +46,27 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import NamedTuple
 
+from runtime.change.diff import diff_plants
+from runtime.controller.unitsight import (
+    below,
+    exec_chain,
+    hidden_by,
+    service_identity,
+    unreadable,
+)
 from runtime.errors import SoftplcError
+from runtime.language.model import PlantDef
 from runtime.language.plantfile import load_plant
-from runtime.language.runtimedir import runtime_dir
+from runtime.language.runtimedir import (
+    INSTALL_DIR,
+    INSTALLED_FILE,
+    NAME_RE,
+    PLACEHOLDER,
+    SERVICE_RUNTIME,
+    STATE_DIR,
+    plant_name,
+    service_view,
+)
 from runtime.language.yamlsrc import YMap, load_yaml
 
 log = logging.getLogger(__name__)
@@ -46,16 +74,24 @@ log = logging.getLogger(__name__)
 #: the unit files: systemd/ of the source tree, or share/softplc/ of an installed package
 _SOURCE_TREE = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 UNIT_DIRS = (os.path.join(_SOURCE_TREE, "systemd"), os.path.join(sys.prefix, "share", "softplc"))
-#: the console socket ExecReload= talks to when the plant names none under /run/softplc
-DEFAULT_RELOAD_SOCKET = "/run/softplc/console.sock"
 USER = "softplc"
 GROUPS = ("gpio", "i2c", "dialout")
-STATE_DIR = "/var/lib/softplc"
-RUNTIME_DIR = "/run/softplc"
+#: the template units: the controller, its OPC UA server
+CONTROLLER = "softplc@.service"
+OPCUA = "softplc-opcua@.service"
+#: the units of the single-plant layout before the templates (refused: remove them first)
+LEGACY = ("softplc.service", "softplc-opcua.service")
+#: how to make a venv the service can run
+VENV_FIX = "make the venv with the system's Python: /usr/bin/python3 -m venv /opt/softplc/venv"
 
 
 class InstallError(SoftplcError):
-    """The installation cannot go on; the message says what to do."""
+    """The installation cannot go on; the message says what to do (one line per reason)."""
+
+
+class NowRefused(SoftplcError):
+    """``--now``: the running controller refused the online change; it runs on with the
+    previous program (nothing restarted behind the operator's back)."""
 
 
 class Owner(Enum):
@@ -73,7 +109,7 @@ class ServiceIds(NamedTuple):
     gid: int
 
 
-#: mode of the configuration directory and of the plant and charts in it
+#: mode of the configuration directories and of the plant and charts in them
 CONFIG_DIR_MODE = 0o750
 CONFIG_FILE_MODE = 0o640
 #: as the unit's StateDirectoryMode=
@@ -94,10 +130,36 @@ class Entry:
 class Plan:
     """What install-service will write and run: directories first, then files."""
 
+    name: str = ""
     files: dict[str, Entry] = field(default_factory=dict)  # absolute path -> entry
     user_commands: list[list[str]] = field(default_factory=list)  # before the files
     commands: list[list[str]] = field(default_factory=list)  # after the files
     warnings: list[str] = field(default_factory=list)
+    #: why the service could not run this plant: nothing is installed (one line each)
+    refusals: list[str] = field(default_factory=list)
+    #: the plant has an ``opcua:`` section (softplc-opcua@NAME is installed)
+    opcua: bool = False
+    #: the installed plant had one and this one has not (softplc-opcua@NAME is disabled)
+    opcua_removed: bool = False
+    #: a file to install differs from what is installed (or nothing is installed)
+    changed: bool = True
+    #: why a running controller must restart to run this plant (empty: an online change)
+    restart_reasons: list[str] = field(default_factory=list)
+    #: put the plant in service now (``--now``)
+    start: bool = False
+
+    @property
+    def controller(self) -> str:
+        return instance(CONTROLLER, self.name)
+
+    @property
+    def server(self) -> str:
+        return instance(OPCUA, self.name)
+
+
+def instance(template: str, name: str) -> str:
+    """``softplc@.service`` and NAME -> ``softplc@NAME.service``."""
+    return template.replace("@.", f"@{name}.")
 
 
 def _template(name: str) -> str:
@@ -110,26 +172,28 @@ def _template(name: str) -> str:
         return f.read()
 
 
-def unit_text(softplc: str, plant: str, groups: tuple[str, ...] = GROUPS,
-              reload_socket: str = DEFAULT_RELOAD_SOCKET) -> str:
-    """The unit of systemd/softplc.service with ExecStart, ExecReload (``softplc reload``
-    on ``reload_socket``, the plant's console socket) and SupplementaryGroups set."""
+def unit_text(softplc: str, etc: str = INSTALL_DIR, groups: tuple[str, ...] = GROUPS) -> str:
+    """The template unit systemd/softplc@.service with ExecStart (``softplc run``),
+    ExecReload (``softplc reload``, which finds the plant's console) of the plant
+    ``etc/%i/plant.yaml`` and SupplementaryGroups set."""
+    plant = f"{etc}/%i/{INSTALLED_FILE}"
     out = []
-    for line in _template("softplc.service").splitlines():
+    for line in _template(CONTROLLER).splitlines():
         if line.startswith("ExecStart="):
             line = f"ExecStart={softplc} run {plant}"
         elif line.startswith("ExecReload="):
-            line = f"ExecReload={softplc} reload {reload_socket}"
+            line = f"ExecReload={softplc} reload {plant}"
         elif line.startswith("SupplementaryGroups="):
             line = "SupplementaryGroups=" + " ".join(groups)
         out.append(line)
     return "\n".join(out) + "\n"
 
 
-def opcua_unit_text(softplc: str, plant: str) -> str:
-    """The unit of systemd/softplc-opcua.service with ExecStart set."""
+def opcua_unit_text(softplc: str, etc: str = INSTALL_DIR) -> str:
+    """The template unit systemd/softplc-opcua@.service with ExecStart set."""
+    plant = f"{etc}/%i/{INSTALLED_FILE}"
     return "".join(f"ExecStart={softplc} opcua {plant}\n" if line.startswith("ExecStart=")
-                   else line + "\n" for line in _template("softplc-opcua.service").splitlines())
+                   else line + "\n" for line in _template(OPCUA).splitlines())
 
 
 def _rewrite_grafcet_paths(plant_path: str, names: dict[str, str]) -> str:
@@ -155,69 +219,222 @@ def _rewrite_grafcet_paths(plant_path: str, names: dict[str, str]) -> str:
     return "".join(lines)
 
 
-def plan(plant_path: str, softplc: str, etc: str = "/etc/softplc",
+def _target(path: str, root: str | None) -> str:
+    return os.path.join(root, path.lstrip("/")) if root else path
+
+
+def plan(plant_path: str, softplc: str, etc: str = INSTALL_DIR,
          unit_dir: str = "/etc/systemd/system", enable: bool = True,
-         start: bool = False) -> Plan:
-    """Work out the files and commands of an installation (nothing is written)."""
-    pdef = load_plant(plant_path)  # refuses a broken plant before anything is installed
-    p = Plan()
+         start: bool = False, name: str | None = None, root: str | None = None,
+         check_exec: bool | None = None) -> Plan:
+    """Work out the files and commands of an installation of the plant as NAME (nothing is
+    written). ``root``: where an installation is staged (what is installed is read
+    there). ``check_exec``: refuse an ``ExecStart`` the service could not run; by default
+    when really installing (``root`` None), else only warned."""
+    check_exec = root is None if check_exec is None else check_exec
+    name = name or plant_name(plant_path)
+    if not NAME_RE.match(name):
+        raise InstallError(f"'{name}' cannot name a plant (a unit's instance): use letters, "
+                           "digits, '_' and '-' (at most 64), e.g. --name press1")
+    with service_view(name):  # ${RUNTIME_DIR} as the service sees it: /run/softplc/NAME
+        pdef = load_plant(plant_path)  # refuses a broken plant before anything is installed
+    home = os.path.join(etc, name)
+    p = Plan(name=name, start=start, opcua=pdef.opcua is not None)
     p.files[etc] = Entry(CONFIG_DIR_MODE, Owner.CONFIG)
+    p.files[home] = Entry(CONFIG_DIR_MODE, Owner.CONFIG)
     p.files[STATE_DIR] = Entry(STATE_DIR_MODE, Owner.SERVICE)
-    copies: dict[str, str] = {}  # source path -> name in etc
+    copies: dict[str, str] = {}  # source path -> name in home
     names: dict[str, str] = {}
-    for name, inst in pdef.instances.items():
+    for iname, inst in pdef.instances.items():
         src = os.path.abspath(inst.grafcet.path)
         if src not in copies:
             base = os.path.basename(src)
-            taken = set(copies.values()) | {"plant.yaml"}
+            taken = set(copies.values()) | {INSTALLED_FILE}
             stem, ext = os.path.splitext(base)
             n = 2
             while base in taken:
                 base = f"{stem}-{n}{ext}"
                 n += 1
             copies[src] = base
-        names[name] = copies[src]
+        names[iname] = copies[src]
     for src, base in copies.items():
         with open(src, "rb") as f:
-            p.files[os.path.join(etc, base)] = Entry(CONFIG_FILE_MODE, Owner.CONFIG, f.read())
-    plant_target = os.path.join(etc, "plant.yaml")
-    p.files[plant_target] = Entry(CONFIG_FILE_MODE, Owner.CONFIG,
-                                  _rewrite_grafcet_paths(plant_path, names).encode())
-    mine = runtime_dir()  # ${RUNTIME_DIR} here; /run/softplc under the service
-    sockets = [RUNTIME_DIR + c.address[len(mine):] if c.address.startswith(mine + "/")
-               else c.address for c in pdef.consoles if c.kind == "socket"]
-    served = [s for s in sockets if s.startswith(RUNTIME_DIR + "/")]
-    p.files[os.path.join(unit_dir, "softplc.service")] = Entry(
-        UNIT_MODE, Owner.ROOT, unit_text(softplc, plant_target, reload_socket=(
-            served[0] if served else DEFAULT_RELOAD_SOCKET)).encode())
-    units = ["softplc.service"]
+            p.files[os.path.join(home, base)] = Entry(CONFIG_FILE_MODE, Owner.CONFIG, f.read())
+    p.files[os.path.join(home, INSTALLED_FILE)] = Entry(
+        CONFIG_FILE_MODE, Owner.CONFIG, _rewrite_grafcet_paths(plant_path, names).encode())
+    p.files[os.path.join(unit_dir, CONTROLLER)] = Entry(
+        UNIT_MODE, Owner.ROOT, unit_text(softplc, etc).encode())
+    units = [p.controller]
     if pdef.opcua is not None:
-        p.files[os.path.join(unit_dir, "softplc-opcua.service")] = Entry(
-            UNIT_MODE, Owner.ROOT, opcua_unit_text(softplc, plant_target).encode())
-        units.append("softplc-opcua.service")
-    if not served:
-        p.warnings.append("monitor: no console socket under /run/softplc: `systemctl reload "
-                          "softplc` (online change) needs one; add monitor: socket: {path: "
-                          "'${RUNTIME_DIR}/console.sock'}")
-    if pdef.retain_path and not pdef.retain_path.startswith(STATE_DIR + "/"):
-        p.warnings.append(f"plc: retain: {pdef.retain_path} is outside {STATE_DIR}: the "
-                          "service may not write there (ProtectSystem=strict); use "
-                          f"{STATE_DIR}/retain.json")
+        p.files[os.path.join(unit_dir, OPCUA)] = Entry(
+            UNIT_MODE, Owner.ROOT, opcua_unit_text(softplc, etc).encode())
+        units.append(p.server)
+    _sight(p, pdef, softplc, check_exec)
+    _conflicts(p, pdef, etc, unit_dir, root)
+    _changes(p, pdef, home, root)
+    p.user_commands = _user_commands()
+    p.commands.append(["systemctl", "daemon-reload"])
+    if enable:
+        p.commands.append(["systemctl", "enable", *units])
+        if p.opcua_removed:
+            p.commands.append(["systemctl", "disable", *(["--now"] if start else []),
+                               p.server])
+    return p
+
+
+def _sight(p: Plan, pdef: PlantDef, softplc: str, check_exec: bool) -> None:
+    """Refusals (and warnings) for what the service could not see, create or read."""
+    name = p.name
+    rdir = os.path.join(SERVICE_RUNTIME, name)
+    uid, gids = service_identity(USER, (USER, *GROUPS))
+    for what, path in exec_chain(softplc):
+        python = what.startswith("the Python")
+        directive = hidden_by(path)
+        if directive is not None:
+            fix = VENV_FIX if python else ("install softplc into a venv the service can "
+                                           "see, e.g. /opt/softplc/venv (pip install "
+                                           "/path/to/softplc, not pip install -e)")
+            line = (f"ExecStart: {path} ({what}) is hidden from the service by "
+                    f"{directive}: {fix}")
+        else:
+            why = unreadable(path, uid, gids, execute=what == "the program" or python)
+            line = "" if why is None else \
+                f"ExecStart: {path} ({what}) cannot be used by the user {USER}: {why}"
+        if line:
+            (p.refusals if check_exec else p.warnings).append(
+                line if check_exec else f"{line} (refused when installing)")
+    own = f"{STATE_DIR}/{name}.retain.json"
+    if pdef.retain_path:
+        path = pdef.retain_path
+        directive = hidden_by(path)
+        if directive is not None:
+            p.refusals.append(f"plc: retain: {path} is hidden from the service by "
+                              f"{directive}: use {own}")
+        elif below(os.path.abspath(path), rdir):
+            p.warnings.append(f"plc: retain: {path} is in the runtime directory {rdir}, "
+                              f"emptied at every reboot: keep retained data in {STATE_DIR} "
+                              f"(e.g. {own})")
+        elif not below(os.path.abspath(path), STATE_DIR):
+            p.refusals.append(f"plc: retain: {path} cannot be written by the service "
+                              f"(ProtectSystem=strict: it writes only {STATE_DIR} and "
+                              f"{rdir}): use {own}")
+    sockets = [("monitor: socket", c.address) for c in pdef.consoles if c.kind == "socket"]
+    if pdef.opcua is not None:
+        sockets.append(("opcua: feed", pdef.opcua.feed))
+    for key, path in sockets:
+        if below(os.path.abspath(path), rdir):
+            continue
+        directive = hidden_by(path)
+        why = (f"nobody outside the service would reach it ({directive})" if directive
+               else "the service cannot create it (ProtectSystem=strict)")
+        p.refusals.append(f"{key}: {path} is outside the runtime directory {rdir}: {why}; "
+                          f"put it in '{PLACEHOLDER}/'")
+    if pdef.opcua is not None:
+        sec = pdef.opcua.security
+        for key in ("certificate", "private_key", "trusted_clients", "trusted_readers"):
+            path = getattr(sec, key)
+            if not path:
+                continue
+            directive = hidden_by(path)
+            if directive is not None:
+                p.refusals.append(f"opcua: security: {key}: {path} is hidden from the "
+                                  f"service by {directive}: keep it under /etc/softplc")
+            elif not os.path.exists(path):
+                p.warnings.append(f"opcua: security: {key}: {path} does not exist yet "
+                                  "(softplc opcua-cert makes a certificate, docs/opcua.md)")
+            else:
+                why = unreadable(path, uid, gids)
+                if why is not None:
+                    p.refusals.append(f"opcua: security: {key}: {path} cannot be read by "
+                                      f"the user {USER}: {why}")
+    if not pdef.consoles or all(c.kind == "serial" for c in pdef.consoles):
+        p.warnings.append(f"monitor: no console socket or TCP port: `systemctl reload "
+                          f"{p.controller}` (online change) needs one; add monitor: socket: "
+                          f"{{path: '{PLACEHOLDER}/console.sock'}}")
     for c in pdef.consoles:
-        if c.kind == "socket" and not c.address.startswith((RUNTIME_DIR + "/", mine + "/")):
-            p.warnings.append(f"monitor: socket: {c.address} is outside {RUNTIME_DIR}: "
-                              "other users will not reach it (PrivateTmp); use "
-                              "${RUNTIME_DIR}/console.sock")
         if c.trusted and any(d.type != "sim" for d in pdef.drivers.values()):
             p.warnings.append(f"monitor: the {c.kind} console is trusted (no PIN) on a plant "
                               "that drives real I/O: set pin_hash (softplc hash-pin) instead")
     if any(d.type == "sim" for d in pdef.drivers.values()):
         p.warnings.append("the plant uses simulated I/O (type: sim): nothing physical moves")
-    p.user_commands = _user_commands()
-    p.commands.append(["systemctl", "daemon-reload"])
-    if enable:
-        p.commands.append(["systemctl", "enable", *(["--now"] if start else []), *units])
-    return p
+
+
+def _ports(pdef: PlantDef) -> dict[str, str]:
+    """What of ``pdef`` no other plant may have: its OPC UA and console TCP ports, its
+    retain file -> how to name it."""
+    out = {}
+    if pdef.opcua is not None:
+        port = pdef.opcua.endpoint.rsplit(":", 1)[1].split("/")[0]
+        out[f"port {port}"] = f"the opcua: endpoint port {port}"
+    for c in pdef.consoles:
+        if c.kind == "tcp":
+            port = c.address.rsplit(":", 1)[1]
+            out[f"port {port}"] = f"the monitor: tcp port {port}"
+    if pdef.retain_path:
+        out[f"file {pdef.retain_path}"] = f"the plc: retain file {pdef.retain_path}"
+    return out
+
+
+def _conflicts(p: Plan, pdef: PlantDef, etc: str, unit_dir: str, root: str | None) -> None:
+    """Refusals for what another installed plant has, and for the single-plant layout."""
+    for unit in LEGACY:
+        if os.path.exists(_target(os.path.join(unit_dir, unit), root)):
+            p.refusals.append(
+                f"{os.path.join(unit_dir, unit)}: an installation of the single-plant layout "
+                "is there, whose controller would drive the same I/O: remove it first "
+                f"(systemctl disable --now {' '.join(LEGACY)}; rm "
+                f"{' '.join(os.path.join(unit_dir, u) for u in LEGACY)})")
+            break
+    mine = _ports(pdef)
+    base = _target(etc, root)
+    try:
+        others = sorted(os.listdir(base))
+    except OSError:
+        others = []
+    for other in others:
+        path = os.path.join(base, other, INSTALLED_FILE)
+        if other == p.name or not NAME_RE.match(other) or not os.path.isfile(path):
+            continue
+        try:
+            with service_view(other):
+                theirs = _ports(load_plant(path))
+        except SoftplcError:
+            continue  # a broken plant of its own: its unit says so
+        for key in sorted(mine.keys() & theirs.keys()):
+            p.refusals.append(f"{mine[key]} is the one of the installed plant {other} "
+                              f"({os.path.join(etc, other, INSTALLED_FILE)}): give each "
+                              "plant its own")
+
+
+def _changes(p: Plan, pdef: PlantDef, home: str, root: str | None) -> None:
+    """Compare with what is installed: whether anything changes, and why a running
+    controller must restart for it (empty: an online change applies it)."""
+    differ = []
+    for path, entry in p.files.items():
+        if entry.data is None:
+            continue
+        try:
+            with open(_target(path, root), "rb") as f:
+                same = f.read() == entry.data
+        except OSError:
+            same = False
+        if not same:
+            differ.append(path)
+    p.changed = bool(differ)
+    units = [path for path in differ if path.endswith(".service")]
+    if units:
+        p.restart_reasons.append(f"its unit changed ({', '.join(units)})")
+    installed = _target(os.path.join(home, INSTALLED_FILE), root)
+    if not os.path.exists(installed):
+        return
+    try:
+        with service_view(p.name):
+            old = load_plant(installed)
+    except SoftplcError as exc:
+        p.restart_reasons.append(f"the installed plant could not be read: {exc}")
+        return
+    p.opcua_removed = old.opcua is not None and pdef.opcua is None
+    p.restart_reasons += diff_plants(old, pdef).static_refusals()
 
 
 def _user_commands() -> list[list[str]]:
@@ -284,17 +501,18 @@ def _write_file(path: str, entry: Entry, ids: ServiceIds | None) -> None:
 def apply(p: Plan, root: str | None = None, force: bool = False,
           ids: ServiceIds | None = None) -> list[str]:
     """Write the files (below ``root`` if given) and run the commands (only printed with
-    ``root``). Ownership is applied when really installing, or with ``ids`` below ``root``
-    (tests); otherwise only printed. Returns what was done, one line each. Raises
-    InstallError before writing anything if a file the user wrote would be overwritten."""
+    ``root``); with ``p.start``, put the plant in service (``bring_up``). Ownership is
+    applied when really installing, or with ``ids`` below ``root`` (tests); otherwise only
+    printed. Returns what was done, one line each. Raises InstallError before writing
+    anything for a plant the service could not run (``p.refusals``) or if a file the user
+    wrote would be overwritten; NowRefused if the running controller refused the online
+    change."""
+    if p.refusals:
+        raise InstallError("\n".join(p.refusals))
     done: list[str] = []
-
-    def target(path: str) -> str:
-        return os.path.join(root, path.lstrip("/")) if root else path
-
     clashes = []
     for path, entry in p.files.items():
-        t = target(path)
+        t = _target(path, root)
         if entry.data is not None and os.path.exists(t):
             with open(t, "rb") as old:
                 if old.read() != entry.data:
@@ -309,7 +527,7 @@ def apply(p: Plan, root: str | None = None, force: bool = False,
         ids = service_ids()
     stamp = time.strftime("%Y%m%d-%H%M%S")
     for path, entry in p.files.items():
-        t = target(path)
+        t = _target(path, root)
         how = f"{entry.mode:04o}, " + (f"{entry.owner.value}" if ids is not None
                                         else f"would chown {entry.owner.value}")
         if entry.data is None:
@@ -326,6 +544,52 @@ def apply(p: Plan, root: str | None = None, force: bool = False,
         done.append(f"wrote {t} ({how})")
     for cmd in p.commands:
         done.append(_run(cmd, root))
+    if p.start:
+        done += bring_up(p, root)
+    elif root is None and p.changed and _active(p.controller):
+        done.append(f"{p.controller} runs the previous plant: `systemctl reload "
+                    f"{p.controller}` (or restart) applies this one")
+    return done
+
+
+def _active(unit: str) -> bool:
+    return subprocess.run(["systemctl", "is-active", "--quiet", unit],
+                          check=False).returncode == 0
+
+
+def bring_up(p: Plan, root: str | None = None) -> list[str]:
+    """``--now``: start the plant, or give the running controller the new plant the way
+    the diff allows (an online change, else a restart), and say which; the same for its
+    OPC UA server (which reads the plant at its start). NowRefused if the controller
+    refused the online change (it runs on with its previous program)."""
+    ctl, srv = p.controller, p.server
+    if root:
+        return [f"would run: systemctl start {ctl}" + (f" {srv}" if p.opcua else "")]
+    done = []
+    if not _active(ctl):
+        _run(["systemctl", "start", ctl], None)
+        done.append(f"started {ctl}")
+    elif not p.changed:
+        done.append(f"{ctl} already runs this plant: left running")
+    elif p.restart_reasons:
+        _run(["systemctl", "restart", ctl], None)
+        done.append(f"restarted {ctl}: {'; '.join(p.restart_reasons)}")
+    else:
+        r = subprocess.run(["systemctl", "reload", ctl], check=False)
+        if r.returncode != 0:
+            raise NowRefused(f"{ctl} refused the online change (journalctl -u {ctl}): it "
+                             "still runs the previous program; systemctl restart "
+                             f"{ctl} applies it with a restart")
+        done.append(f"reloaded {ctl} (online change)")
+    if p.opcua:
+        if not _active(srv):
+            _run(["systemctl", "start", srv], None)
+            done.append(f"started {srv}")
+        elif p.changed:
+            _run(["systemctl", "restart", srv], None)
+            done.append(f"restarted {srv} (it reads the plant at its start)")
+    elif p.opcua_removed:
+        done.append(f"stopped and disabled {srv}: the plant has no opcua: section now")
     return done
 
 
@@ -347,26 +611,24 @@ def _this_softplc() -> str:
 
 def cmd_install_service(args: argparse.Namespace) -> int:
     softplc = os.path.abspath(_this_softplc())
-    if not args.root:
-        if os.geteuid() != 0:
-            sys.stderr.write("softplc install-service: error: run it as root (it creates a "
-                             "user and writes /etc), or with --root DIR to stage the files\n")
-            return 2
-        if softplc.startswith(("/home/", "/root/")):
-            sys.stderr.write(f"softplc install-service: error: {softplc} is under /home or "
-                             "/root, which the service cannot read (ProtectHome=yes): install "
-                             "softplc in a venv such as /opt/softplc/venv first\n")
-            return 2
+    if not args.root and os.geteuid() != 0:
+        sys.stderr.write("softplc install-service: error: run it as root (it creates a "
+                         "user and writes /etc), or with --root DIR to stage the files\n")
+        return 2
     try:
         p = plan(args.plant, softplc, args.etc, args.unit_dir, enable=not args.no_enable,
-                 start=args.now)
+                 start=args.now, name=args.name, root=args.root)
         for w in p.warnings:
             sys.stderr.write(f"warning: {w}\n")
         for line in apply(p, args.root, args.force):
             sys.stdout.write(line + "\n")
     except InstallError as exc:
-        sys.stderr.write(f"softplc install-service: error: {exc}\n")
+        for line in str(exc).splitlines():
+            sys.stderr.write(f"softplc install-service: error: {line}\n")
         return 2
+    except NowRefused as exc:
+        sys.stderr.write(f"softplc install-service: {exc}\n")
+        return 1
     except subprocess.CalledProcessError as exc:
         sys.stderr.write(f"softplc install-service: error: {' '.join(exc.cmd)} failed with "
                          f"status {exc.returncode}\n")
@@ -376,14 +638,19 @@ def cmd_install_service(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     c = sub.add_parser("install-service", help="install the plant as a systemd service",
-                       description="Copy the plant and its charts to /etc/softplc, create "
-                                   "the softplc user, install and enable the systemd unit.")
+                       description="Copy the plant and its charts to /etc/softplc/NAME, "
+                                   "create the softplc user, install the template units "
+                                   "and enable softplc@NAME (and softplc-opcua@NAME).")
     c.add_argument("plant", help="the plant file to run")
-    c.add_argument("--etc", default="/etc/softplc", help="configuration directory")
+    c.add_argument("--name", help="the plant's name, its unit's instance (default: the "
+                                  "name of the plant file's directory)")
+    c.add_argument("--etc", default=INSTALL_DIR, help="configuration directory")
     c.add_argument("--unit-dir", default="/etc/systemd/system")
     c.add_argument("--root", help="write below this directory; only print the commands")
     c.add_argument("--force", action="store_true",
                    help="replace changed files (the old ones are kept as .bak-TIMESTAMP)")
-    c.add_argument("--no-enable", action="store_true", help="do not enable the unit")
-    c.add_argument("--now", action="store_true", help="start the service at once")
+    c.add_argument("--no-enable", action="store_true", help="do not enable the units")
+    c.add_argument("--now", action="store_true",
+                   help="put the plant in service: start it, or give the running controller "
+                        "the new plant (online change, or a restart) and say which")
     c.set_defaults(func=cmd_install_service)

@@ -1,9 +1,14 @@
-"""The systemd unit and ``softplc install-service``: the unit passes ``systemd-analyze
-verify`` without a warning, its exposure score is at most 2.0, the staged installation
-runs its plant from /etc/softplc, and a file the user changed is never overwritten."""
+"""The template units and ``softplc install-service``: the units pass ``systemd-analyze
+verify`` without a warning and score at most 2.0, both units of a plant look in the same
+runtime directory, the staged installation runs its plant from /etc/softplc/NAME, a file the
+user changed is never overwritten, what the service could not see or use is refused with
+one line naming the path and the directive, and ``--now`` restarts or reloads a running
+controller and says which (against a stand-in ``systemctl`` that records what it is asked;
+tests/systemd/ runs the same under a real systemd)."""
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import subprocess
@@ -12,57 +17,113 @@ from pathlib import Path
 
 import pytest
 
-from runtime.controller.install import InstallError, apply, plan, unit_text
+from runtime.controller import install
+from runtime.controller.install import (
+    CONTROLLER,
+    OPCUA,
+    InstallError,
+    NowRefused,
+    apply,
+    bring_up,
+    opcua_unit_text,
+    plan,
+    unit_text,
+)
 from runtime.language.plantfile import load_plant
-from runtime.language.runtimedir import runtime_dir
 
 ROOT = Path(__file__).resolve().parents[2]
 SOFTPLC = str(Path(sys.executable).parent / "softplc")
+DRAWER = ROOT / "configs" / "drawer_tester" / "plant_sim.yaml"
 needs_systemd = pytest.mark.skipif(shutil.which("systemd-analyze") is None,
                                    reason="systemd-analyze not installed (Debian: systemd)")
 
 
-def staged_unit(tmp_path: Path) -> Path:
-    unit = tmp_path / "softplc.service"
-    unit.write_text(unit_text(SOFTPLC, "/etc/softplc/plant.yaml"), encoding="utf-8")
-    return unit
+def staged_units(tmp_path: Path) -> list[Path]:
+    out = []
+    for name, text in ((CONTROLLER, unit_text(SOFTPLC)), (OPCUA, opcua_unit_text(SOFTPLC))):
+        unit = tmp_path / name.replace("@.", "@demo.")  # an instance, as systemd loads it
+        unit.write_text(text, encoding="utf-8")
+        out.append(unit)
+    return out
 
 
 @needs_systemd
-def test_unit_passes_verify_without_warnings(tmp_path: Path) -> None:
-    r = subprocess.run(["systemd-analyze", "verify", str(staged_unit(tmp_path))],
-                       capture_output=True, text=True, timeout=60)
-    # verify exits 0 even on warnings: the contract is an empty stderr
-    assert r.returncode == 0 and r.stderr.strip() == "", r.stderr
+def test_units_pass_verify_without_warnings(tmp_path: Path) -> None:
+    for unit in staged_units(tmp_path):
+        r = subprocess.run(["systemd-analyze", "verify", str(unit)],
+                           capture_output=True, text=True, timeout=60)
+        # verify exits 0 even on warnings: the contract is an empty stderr
+        assert r.returncode == 0 and r.stderr.strip() == "", (unit.name, r.stderr)
 
 
 @needs_systemd
-def test_unit_exposure_score(tmp_path: Path) -> None:
-    r = subprocess.run(["systemd-analyze", "security", "--offline=true",
-                        str(staged_unit(tmp_path))], capture_output=True, text=True, timeout=60)
-    m = re.search(r"Overall exposure level for \S+: (\d+\.\d+) (\w+)", r.stdout)
-    assert m, r.stdout + r.stderr
-    sys.stderr.write(f"systemd-analyze security: {m.group(1)} {m.group(2)}\n")
-    assert float(m.group(1)) <= 2.0 and m.group(2) == "OK"
+def test_units_exposure_score(tmp_path: Path) -> None:
+    for unit in staged_units(tmp_path):
+        r = subprocess.run(["systemd-analyze", "security", "--offline=true", str(unit)],
+                           capture_output=True, text=True, timeout=60)
+        m = re.search(r"Overall exposure level for \S+: (\d+\.\d+) (\w+)", r.stdout)
+        assert m, r.stdout + r.stderr
+        sys.stderr.write(f"systemd-analyze security {unit.name}: {m.group(1)} {m.group(2)}\n")
+        assert float(m.group(1)) <= 2.0 and m.group(2) == "OK"
 
 
 def test_unit_keeps_the_essentials() -> None:
-    text = unit_text("/opt/softplc/venv/bin/softplc", "/etc/softplc/plant.yaml",
-                     ("dialout",))
+    text = unit_text("/opt/softplc/venv/bin/softplc", groups=("dialout",))
     for line in ("Type=notify", "WatchdogSec=2s", "Restart=on-failure", "User=softplc",
                  "NoNewPrivileges=yes", "ProtectSystem=strict", "ProtectHome=yes",
-                 "PrivateTmp=yes", "ReadWritePaths=/var/lib/softplc",
+                 "PrivateTmp=yes", "StateDirectory=softplc", "RuntimeDirectory=softplc/%i",
+                 "RuntimeDirectoryPreserve=yes",
                  "CapabilityBoundingSet=CAP_SYS_NICE CAP_IPC_LOCK",
-                 "ExecStart=/opt/softplc/venv/bin/softplc run /etc/softplc/plant.yaml",
+                 "ExecStart=/opt/softplc/venv/bin/softplc run /etc/softplc/%i/plant.yaml",
+                 "ExecReload=/opt/softplc/venv/bin/softplc reload /etc/softplc/%i/plant.yaml",
                  "SupplementaryGroups=dialout"):
         assert line in text.splitlines(), line
     assert "User=root" not in text
 
 
+def unit_keys(text: str) -> dict[str, str]:
+    return {k: v for k, _, v in (line.partition("=") for line in text.splitlines()
+                                 if "=" in line and not line.startswith("#"))}
+
+
+def test_the_opcua_unit_looks_for_the_feed_where_the_controller_serves_it(
+        tmp_path: Path) -> None:
+    """Issue 25: softplc-opcua.service looked for /tmp/softplc-999/feed.sock (no
+    RuntimeDirectory=, so ${RUNTIME_DIR} fell back to /tmp, hidden by its PrivateTmp
+    anyway) while softplc.service served /run/softplc/feed.sock. Each staged unit's plant
+    is loaded with the environment systemd gives that unit; both must name one feed."""
+    from tests.opcua.kit import write_plant
+    src = tmp_path / "press"
+    src.mkdir()
+    plant = write_plant(src, port=4840)
+    text = plant.read_text(encoding="utf-8")
+    plant.write_text(re.sub(r"  feed: .*\n", "", text), encoding="utf-8")  # the default
+    stage = tmp_path / "stage"
+    r = subprocess.run([SOFTPLC, "install-service", str(plant), "--root", str(stage)],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    feeds = {}
+    for unit in sorted((stage / "etc" / "systemd" / "system").glob("softplc*.service")):
+        keys = unit_keys(unit.read_text(encoding="utf-8"))
+        argv = keys["ExecStart"].replace("%i", "press").split()
+        env = {"PATH": os.environ["PATH"], "PYTHONPATH": str(ROOT)}  # a system unit's
+        if "RuntimeDirectory" in keys:
+            env["RUNTIME_DIRECTORY"] = "/run/" + keys["RuntimeDirectory"].replace("%i", "press")
+        probe = ("import sys; from runtime.language.plantfile import load_plant; "
+                 "print(load_plant(sys.argv[1]).opcua.feed)")
+        out = subprocess.run([sys.executable, "-c", probe, str(stage) + argv[2]], env=env,
+                             capture_output=True, text=True, timeout=60, cwd=str(stage))
+        assert out.returncode == 0, out.stderr
+        feeds[unit.name] = out.stdout.strip()
+    assert len(feeds) == 2, feeds
+    assert len(set(feeds.values())) == 1, feeds
+    assert next(iter(feeds.values())) == "/run/softplc/press/feed.sock"
+
+
 def test_staged_install_runs_from_etc(tmp_path: Path) -> None:
     src = ROOT / "configs" / "pi_mcp23017" / "plant.yaml"
-    done = apply(plan(str(src), SOFTPLC), root=str(tmp_path))
-    etc = tmp_path / "etc" / "softplc"
+    done = apply(plan(str(src), SOFTPLC, root=str(tmp_path)), root=str(tmp_path))
+    etc = tmp_path / "etc" / "softplc" / "pi_mcp23017"
     assert (etc / "drawer_tester.yaml").read_bytes() == \
         (ROOT / "configs" / "drawer_tester" / "drawer_tester.yaml").read_bytes()
     plant_text = (etc / "plant.yaml").read_text()
@@ -70,42 +131,150 @@ def test_staged_install_runs_from_etc(tmp_path: Path) -> None:
     assert "# Drawer tester on a Raspberry Pi" in plant_text  # comments kept
     pdef = load_plant(str(etc / "plant.yaml"))
     assert pdef.instances["tester1"].grafcet.path == str(etc / "drawer_tester.yaml")
-    unit = (tmp_path / "etc" / "systemd" / "system" / "softplc.service").read_text()
-    assert f"ExecStart={SOFTPLC} run /etc/softplc/plant.yaml" in unit
-    assert any(line.startswith("would run: systemctl enable") for line in done)
+    unit = (tmp_path / "etc" / "systemd" / "system" / "softplc@.service").read_text()
+    assert f"ExecStart={SOFTPLC} run /etc/softplc/%i/plant.yaml" in unit
+    assert "would run: systemctl enable softplc@pi_mcp23017.service" in done
     # the same installation again changes nothing and is allowed
-    apply(plan(str(src), SOFTPLC), root=str(tmp_path))
+    p = plan(str(src), SOFTPLC, root=str(tmp_path))
+    assert not p.changed and not p.restart_reasons
+    apply(p, root=str(tmp_path))
 
 
 def test_install_never_overwrites_what_the_user_changed(tmp_path: Path) -> None:
     src = ROOT / "configs" / "pi_mcp23017" / "plant.yaml"
-    apply(plan(str(src), SOFTPLC), root=str(tmp_path))
-    mine = tmp_path / "etc" / "softplc" / "plant.yaml"
+    apply(plan(str(src), SOFTPLC, root=str(tmp_path)), root=str(tmp_path))
+    mine = tmp_path / "etc" / "softplc" / "pi_mcp23017" / "plant.yaml"
     mine.write_text(mine.read_text() + "# tuned on site\n")
     with pytest.raises(InstallError, match="left alone"):
-        apply(plan(str(src), SOFTPLC), root=str(tmp_path))
+        apply(plan(str(src), SOFTPLC, root=str(tmp_path)), root=str(tmp_path))
     assert mine.read_text().endswith("# tuned on site\n")
-    done = apply(plan(str(src), SOFTPLC), root=str(tmp_path), force=True)
+    done = apply(plan(str(src), SOFTPLC, root=str(tmp_path)), root=str(tmp_path), force=True)
     backups = list(mine.parent.glob("plant.yaml.bak-*"))
     assert len(backups) == 1 and backups[0].read_text().endswith("# tuned on site\n")
     assert any("kept the old" in line for line in done)
 
 
-def test_install_warns_about_paths_the_service_cannot_use(tmp_path: Path) -> None:
-    p = plan(str(ROOT / "configs" / "drawer_tester" / "plant_sim.yaml"), SOFTPLC)
-    text = "\n".join(p.warnings)
-    # ${RUNTIME_DIR}: a runtime directory is emptied at every stop, no place for retain
-    assert f"retain: {runtime_dir()}/drawer_tester_sim.retain.json is outside " \
-        "/var/lib/softplc" in text
-    # and it is /run/softplc under the service: the socket is where it should be
-    assert "socket:" not in text
-    assert "simulated I/O" in text
-    plant = tmp_path / "plant.yaml"
-    plant.write_text((ROOT / "configs" / "drawer_tester" / "plant_sim.yaml").read_text()
-                     .replace("grafcet: ", f"grafcet: {ROOT}/configs/drawer_tester/")
-                     .replace("'${RUNTIME_DIR}/drawer.sock'", "/tmp/softplc/drawer.sock"))
-    text = "\n".join(plan(str(plant), SOFTPLC).warnings)
-    assert "socket: /tmp/softplc/drawer.sock is outside /run/softplc" in text
+def test_warnings_name_the_services_paths(tmp_path: Path) -> None:
+    """Issue 25: the retain warning named the installer's ${RUNTIME_DIR}
+    (/tmp/softplc-0/...), not the service's (/run/softplc/...)."""
+    r = subprocess.run([SOFTPLC, "install-service", str(DRAWER), "--root", str(tmp_path)],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert "warning: plc: retain: /run/softplc/drawer_tester/drawer_tester_sim.retain.json " \
+           "is in the runtime directory /run/softplc/drawer_tester, emptied at every reboot" \
+           in r.stderr
+    assert "/tmp" not in r.stderr
+    assert "simulated I/O" in r.stderr
+
+
+def refusals(tmp_path: Path, plant_text: str, softplc: str = SOFTPLC, **kw: object
+             ) -> list[str]:
+    d = tmp_path / "site"
+    d.mkdir(exist_ok=True)
+    plant = d / "plant.yaml"
+    plant.write_text(plant_text.replace("grafcet: ", f"grafcet: {DRAWER.parent}/"),
+                     encoding="utf-8")
+    p = plan(str(plant), softplc, root=str(tmp_path / "stage"), **kw)  # type: ignore[arg-type]
+    with pytest.raises(InstallError) as exc:
+        apply(p, root=str(tmp_path / "stage"))
+    assert not (tmp_path / "stage").exists()  # nothing written
+    return str(exc.value).splitlines()
+
+
+def test_paths_the_service_cannot_see_or_write_are_refused(tmp_path: Path) -> None:
+    text = DRAWER.read_text(encoding="utf-8")
+    got = refusals(tmp_path, text.replace("'${RUNTIME_DIR}/drawer.sock'", "/tmp/drawer.sock")
+                   .replace("${RUNTIME_DIR}/drawer_tester_sim.retain.json",
+                            "/home/me/drawer.retain.json"))
+    assert got == [
+        "plc: retain: /home/me/drawer.retain.json is hidden from the service by "
+        "ProtectHome=yes: use /var/lib/softplc/site.retain.json",
+        "monitor: socket: /tmp/drawer.sock is outside the runtime directory /run/softplc/site:"
+        " nobody outside the service would reach it (PrivateTmp=yes); put it in "
+        "'${RUNTIME_DIR}/'"]
+    got = refusals(tmp_path, text.replace("${RUNTIME_DIR}/drawer_tester_sim.retain.json",
+                                          "/srv/drawer.retain.json"))
+    assert got == ["plc: retain: /srv/drawer.retain.json cannot be written by the service "
+                   "(ProtectSystem=strict: it writes only /var/lib/softplc and "
+                   "/run/softplc/site): use /var/lib/softplc/site.retain.json"]
+
+
+def test_certificates_the_service_cannot_see_are_refused(tmp_path: Path) -> None:
+    """Issue 25: certificate paths under /tmp were written into the unit without a word."""
+    cert = tmp_path / "server-cert.der"
+    cert.write_bytes(b"x")
+    text = DRAWER.read_text(encoding="utf-8") + (
+        "opcua:\n  security:\n"
+        f"    certificate: {cert}\n    private_key: /etc/softplc/opcua/server-key.pem\n")
+    got = refusals(tmp_path, text)
+    assert got == [f"opcua: security: certificate: {cert} is hidden from the service by "
+                   "PrivateTmp=yes: keep it under /etc/softplc"]
+
+
+def fake_venv(tmp_path: Path, interpreter: str) -> str:
+    """A venv's ``softplc`` whose ``python`` links to ``interpreter``."""
+    venv = tmp_path / "venv" / "bin"
+    venv.mkdir(parents=True)
+    (venv / "python").symlink_to(interpreter)
+    (venv / "softplc").write_text(f"#!{venv / 'python'}\nimport sys\n", encoding="utf-8")
+    (venv / "softplc").chmod(0o755)
+    return str(venv / "softplc")
+
+
+def test_a_venv_the_service_cannot_run_is_refused(tmp_path: Path) -> None:
+    """Issue 25: a clone's .venv under /tmp, or a venv whose python links to a pyenv Python
+    under /root: ExecStart reached what PrivateTmp=/ProtectHome= hide (status=203/EXEC, a
+    restart loop) and install-service only said --now failed."""
+    softplc = fake_venv(tmp_path, "/root/.pyenv/versions/3.12.3/bin/python3.12")
+    got = refusals(tmp_path, DRAWER.read_text(encoding="utf-8"), softplc, check_exec=True)
+    assert got[0] == (f"ExecStart: {softplc} (the program) is hidden from the service by "
+                      "PrivateTmp=yes: install softplc into a venv the service can see, e.g. "
+                      "/opt/softplc/venv (pip install /path/to/softplc, not pip install -e)")
+    assert (f"ExecStart: /root/.pyenv/versions/3.12.3/bin/python3.12 (the Python of {softplc}"
+            f" ({Path(softplc).parent / 'python'} is a link to it)) is hidden from the "
+            "service by ProtectHome=yes: make the venv with the system's Python: "
+            "/usr/bin/python3 -m venv /opt/softplc/venv") in got
+    # staged (--root), the same is a warning: the staged plant is what is being tried
+    p = plan(str(DRAWER), softplc, root=str(tmp_path / "stage2"))
+    assert not p.refusals
+    assert any(w.startswith(f"ExecStart: {softplc} (the program) is hidden") and
+               w.endswith("(refused when installing)") for w in p.warnings)
+
+
+def test_a_port_or_retain_file_of_another_installed_plant_is_refused(tmp_path: Path) -> None:
+    from tests.opcua.kit import write_plant
+    stage = tmp_path / "stage"
+    for name in ("one", "two"):
+        (tmp_path / name).mkdir()
+        plant = write_plant(tmp_path / name, port=4841)
+        text = plant.read_text(encoding="utf-8")
+        plant.write_text(re.sub(r"  feed: .*\n", "", text).replace(
+            "plc: {cycle: 10ms, watchdog: 5s}",
+            "plc: {cycle: 10ms, watchdog: 5s, retain: /var/lib/softplc/shared.json}"),
+            encoding="utf-8")
+    apply(plan(str(tmp_path / "one" / "plant.yaml"), SOFTPLC, root=str(stage)),
+          root=str(stage))
+    p = plan(str(tmp_path / "two" / "plant.yaml"), SOFTPLC, root=str(stage))
+    assert p.refusals == [
+        "the plc: retain file /var/lib/softplc/shared.json is the one of the installed plant "
+        "one (/etc/softplc/one/plant.yaml): give each plant its own",
+        "the opcua: endpoint port 4841 is the one of the installed plant one "
+        "(/etc/softplc/one/plant.yaml): give each plant its own"]
+
+
+def test_the_single_plant_layout_is_refused_until_removed(tmp_path: Path) -> None:
+    units = tmp_path / "etc" / "systemd" / "system"
+    units.mkdir(parents=True)
+    (units / "softplc.service").write_text("[Service]\n", encoding="utf-8")
+    p = plan(str(DRAWER), SOFTPLC, root=str(tmp_path))
+    assert len(p.refusals) == 1
+    assert p.refusals[0].startswith("/etc/systemd/system/softplc.service: an installation of "
+                                    "the single-plant layout is there")
+
+
+def test_a_name_that_cannot_name_a_unit_is_refused() -> None:
+    with pytest.raises(InstallError, match="cannot name a plant"):
+        plan(str(DRAWER), SOFTPLC, name="press 1", root="/nonexistent")
 
 
 def test_cli_refuses_a_broken_plant(tmp_path: Path) -> None:
@@ -118,35 +287,90 @@ def test_cli_refuses_a_broken_plant(tmp_path: Path) -> None:
     assert not (tmp_path / "r").exists()
 
 
-def test_exec_reload_talks_to_the_plants_own_console_socket() -> None:
-    p = plan(str(ROOT / "configs" / "drawer_tester" / "plant_sim.yaml"), SOFTPLC)
-    data = p.files["/etc/systemd/system/softplc.service"].data
-    assert data is not None
-    unit = data.decode()
-    # ${RUNTIME_DIR}/drawer.sock is /run/softplc/drawer.sock under the service
-    assert f"ExecReload={SOFTPLC} reload /run/softplc/drawer.sock" in unit.splitlines()
-    assert not any("systemctl reload" in w for w in p.warnings)
-    assert "/etc/systemd/system/softplc-opcua.service" not in p.files
+def test_a_reinstall_knows_what_a_running_controller_needs(tmp_path: Path) -> None:
+    """What --now decides from: nothing changed; a chart edit (an online change); an
+    ``opcua:`` section added (a restart: the diff refuses it online)."""
+    d = tmp_path / "press"
+    d.mkdir()
+    (d / "drawer_tester.yaml").write_bytes((DRAWER.parent / "drawer_tester.yaml").read_bytes())
+    (d / "plant.yaml").write_bytes(DRAWER.read_bytes())
+    stage = str(tmp_path / "stage")
+    apply(plan(str(d / "plant.yaml"), SOFTPLC, root=stage), root=stage)
+    p = plan(str(d / "plant.yaml"), SOFTPLC, root=stage)
+    assert (p.changed, p.restart_reasons) == (False, [])
+    chart = d / "drawer_tester.yaml"
+    chart.write_text(chart.read_text(encoding="utf-8") + "# edited\n", encoding="utf-8")
+    p = plan(str(d / "plant.yaml"), SOFTPLC, root=stage)
+    assert (p.changed, p.restart_reasons) == (True, [])
+    (d / "plant.yaml").write_text(DRAWER.read_text(encoding="utf-8") +
+                                  "opcua: {endpoint: 'opc.tcp://127.0.0.1:4850'}\n",
+                                  encoding="utf-8")
+    p = plan(str(d / "plant.yaml"), SOFTPLC, root=stage)
+    assert p.changed and p.opcua
+    assert p.restart_reasons == [
+        "its unit changed (/etc/systemd/system/softplc-opcua@.service)",
+        "opcua: added: the feed is served from the controller's start: restart the "
+        "controller, then start its OPC UA server"]
 
 
-def test_a_plant_with_opcua_gets_the_opcua_unit_too(tmp_path: Path) -> None:
-    """And a plant with no console socket is told that `systemctl reload` needs one."""
-    from tests.opcua.kit import write_plant
-    plant = write_plant(tmp_path, port=4840)
-    p = plan(str(plant), SOFTPLC)
-    data = p.files["/etc/systemd/system/softplc-opcua.service"].data
-    assert data is not None
-    unit = data.decode()
-    assert f"ExecStart={SOFTPLC} opcua /etc/softplc/plant.yaml" in unit.splitlines()
-    assert ["systemctl", "enable", "softplc.service", "softplc-opcua.service"] in p.commands
-    assert any("systemctl reload" in w and "console.sock" in w for w in p.warnings)
-    data = p.files["/etc/systemd/system/softplc.service"].data
-    assert data is not None
-    main = data.decode()
-    assert f"ExecReload={SOFTPLC} reload /run/softplc/console.sock" in main.splitlines()
-    if shutil.which("systemd-analyze"):
-        staged = tmp_path / "softplc-opcua.service"
-        staged.write_text(unit, encoding="utf-8")
-        r = subprocess.run(["systemd-analyze", "verify", str(staged)], capture_output=True,
-                           text=True, timeout=60)
-        assert r.returncode == 0 and r.stderr.strip() == "", r.stderr
+@pytest.fixture
+def systemctl(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A stand-in ``systemctl`` first on PATH: records each call; ``is-active`` answers
+    from the file ACTIVE (one unit a line), ``reload`` fails if REFUSE exists."""
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    log = tmp_path / "calls"
+    (bin_dir / "systemctl").write_text(
+        "#!/bin/sh\n"
+        f'echo "$*" >> {log}\n'
+        'if [ "$1" = is-active ]; then\n'
+        f'  grep -qx "$3" {tmp_path}/ACTIVE 2>/dev/null; exit $?\n'
+        "fi\n"
+        f'if [ "$1" = reload ] && [ -e {tmp_path}/REFUSE ]; then exit 1; fi\n'
+        "exit 0\n", encoding="utf-8")
+    (bin_dir / "systemctl").chmod(0o755)
+    monkeypatch.setenv("PATH", f"{bin_dir}:{os.environ['PATH']}")
+    return tmp_path
+
+
+def calls(d: Path) -> list[str]:
+    return (d / "calls").read_text(encoding="utf-8").splitlines()
+
+
+def test_now_starts_a_plant_that_does_not_run(systemctl: Path) -> None:
+    p = install.Plan(name="press", opcua=True, start=True)
+    assert bring_up(p) == ["started softplc@press.service", "started softplc-opcua@press.service"]
+    assert "start softplc@press.service" in calls(systemctl)
+
+
+def test_now_restarts_a_running_controller_when_the_diff_refuses_online(
+        systemctl: Path) -> None:
+    """Issue 25: `systemctl enable --now` left the running controller on its old plant."""
+    (systemctl / "ACTIVE").write_text("softplc@press.service\nsoftplc-opcua@press.service\n")
+    p = install.Plan(name="press", opcua=True, start=True,
+                     restart_reasons=["opcua: added: ..."])
+    assert bring_up(p) == ["restarted softplc@press.service: opcua: added: ...",
+                           "restarted softplc-opcua@press.service (it reads the plant at "
+                           "its start)"]
+    assert "restart softplc@press.service" in calls(systemctl)
+
+
+def test_now_reloads_a_running_controller_when_the_change_applies_online(
+        systemctl: Path) -> None:
+    (systemctl / "ACTIVE").write_text("softplc@press.service\n")
+    p = install.Plan(name="press", start=True)
+    assert bring_up(p) == ["reloaded softplc@press.service (online change)"]
+    assert "reload softplc@press.service" in calls(systemctl)
+    assert not any(c.startswith("restart") for c in calls(systemctl))
+    # ...and when the controller refuses it, nothing is restarted behind the operator
+    (systemctl / "REFUSE").write_text("")
+    with pytest.raises(NowRefused, match="it still runs the previous program"):
+        bring_up(p)
+    assert not any(c.startswith("restart") for c in calls(systemctl))
+
+
+def test_now_leaves_a_controller_that_runs_this_plant_alone(systemctl: Path) -> None:
+    (systemctl / "ACTIVE").write_text("softplc@press.service\n")
+    p = install.Plan(name="press", start=True, changed=False)
+    assert bring_up(p) == ["softplc@press.service already runs this plant: left running"]
+    assert calls(systemctl) == ["is-active --quiet softplc@press.service"]

@@ -56,36 +56,41 @@ def mode(p: Path) -> int:
 
 def test_the_pin_hash_is_not_world_readable(staged: Path) -> None:
     """Attack: any local user read plant.yaml (0644) and searched the PIN offline."""
-    apply(plan(str(plant_with_pin(staged)), SOFTPLC), root=str(staged / "r"))
-    etc = staged / "r" / "etc" / "softplc"
+    r = str(staged / "r")
+    apply(plan(str(plant_with_pin(staged)), SOFTPLC, name="site", root=r), root=r)
+    etc = staged / "r" / "etc" / "softplc" / "site"
     assert mode(etc / "plant.yaml") == 0o640
     assert mode(etc / "drawer_tester.yaml") == 0o640
-    assert mode(etc) == 0o750
-    assert mode(staged / "r" / "etc" / "systemd" / "system" / "softplc.service") == 0o644
+    assert mode(etc) == 0o750 and mode(etc.parent) == 0o750
+    assert mode(staged / "r" / "etc" / "systemd" / "system" / "softplc@.service") == 0o644
     assert mode(staged / "r" / "var" / "lib" / "softplc") == 0o750
     assert not list(etc.glob(".*"))  # no temporary file left behind
 
 
 def test_a_reinstall_narrows_an_old_world_readable_tree(staged: Path) -> None:
     src = plant_with_pin(staged)
-    etc = staged / "r" / "etc" / "softplc"
+    etc = staged / "r" / "etc" / "softplc" / "site"
     etc.mkdir(parents=True, mode=0o755)
-    (etc / "plant.yaml").write_bytes(plan(str(src), SOFTPLC).files[
-        "/etc/softplc/plant.yaml"].data or b"")
+    (etc / "plant.yaml").write_bytes(plan(str(src), SOFTPLC, name="site").files[
+        "/etc/softplc/site/plant.yaml"].data or b"")
     (etc / "plant.yaml").chmod(0o644)  # what an older install-service wrote
     (etc / "plant.yaml").write_text((etc / "plant.yaml").read_text() + "# tuned\n")
-    apply(plan(str(src), SOFTPLC), root=str(staged / "r"), force=True)
+    apply(plan(str(src), SOFTPLC, name="site", root=str(staged / "r")), root=str(staged / "r"),
+          force=True)
     assert mode(etc) == 0o750 and mode(etc / "plant.yaml") == 0o640
     (backup,) = etc.glob("plant.yaml.bak-*")
     assert mode(backup) == 0o640 and backup.read_text().endswith("# tuned\n")
 
 
 def test_ownership_is_printed_when_staging(staged: Path) -> None:
-    done = apply(plan(str(plant_with_pin(staged)), SOFTPLC), root=str(staged / "r"))
+    r = str(staged / "r")
+    done = apply(plan(str(plant_with_pin(staged)), SOFTPLC, name="site", root=r), root=r)
     text = "\n".join(done)
-    assert f"wrote {staged}/r/etc/softplc/plant.yaml (0640, would chown root:softplc)" in text
+    assert f"wrote {staged}/r/etc/softplc/site/plant.yaml (0640, would chown root:softplc)" \
+        in text
     assert f"{staged}/r/var/lib/softplc (0750, would chown softplc:softplc)" in text
-    assert os.lstat(staged / "r" / "etc" / "softplc" / "plant.yaml").st_uid == os.geteuid()
+    assert os.lstat(staged / "r" / "etc" / "softplc" / "site" / "plant.yaml").st_uid == \
+        os.geteuid()
 
 
 def run_as(uid: int, gid: int, code: str) -> subprocess.CompletedProcess[str]:
@@ -108,13 +113,13 @@ can("write plant", lambda: open(os.path.join(etc, "plant.yaml"), "a").close())
 can("create in etc", lambda: open(os.path.join(etc, "new.yaml"), "w").close())
 can("create in state", lambda: open(os.path.join(state, "retain.json"), "w").close())
 can("create in run", lambda: open(os.path.join(run, "console.sock"), "w").close())
-can("create in /etc", lambda: open(os.path.join(etc, "..", "softplc.conf"), "w").close())
+can("create in /etc", lambda: open(os.path.join(etc, "..", "..", "softplc.conf"), "w").close())
 """
 
 
 def probe(uid: int, gid: int, root: Path) -> dict[str, bool]:
-    code = PROBE % (str(root / "etc" / "softplc"), str(root / "var" / "lib" / "softplc"),
-                    str(root / "run" / "softplc"))
+    code = PROBE % (str(root / "etc" / "softplc" / "site"),
+                    str(root / "var" / "lib" / "softplc"), str(root / "run" / "softplc" / "site"))
     r = run_as(uid, gid, code)
     assert r.returncode == 0, r.stderr
     answers: dict[str, bool] = {}
@@ -134,7 +139,7 @@ def systemd_prepares(unit: str, root: Path, ids: ServiceIds) -> None:
     settings = dict(line.split("=", 1) for line in unit.splitlines()
                     if "=" in line and not line.startswith("#"))
     for kind, base in (("Configuration", "etc"), ("State", "var/lib"), ("Runtime", "run")):
-        name = settings.get(f"{kind}Directory")
+        name = settings.get(f"{kind}Directory", "").replace("%i", "site")
         if not name:
             continue
         d = root / base / name
@@ -147,8 +152,9 @@ def systemd_prepares(unit: str, root: Path, ids: ServiceIds) -> None:
 @as_root
 def test_the_service_reads_its_plant_and_writes_only_its_state(staged: Path) -> None:
     r = staged / "r"
-    apply(plan(str(plant_with_pin(staged)), SOFTPLC), root=str(r), ids=SERVICE)
-    unit = (r / "etc" / "systemd" / "system" / "softplc.service").read_text()
+    apply(plan(str(plant_with_pin(staged)), SOFTPLC, name="site", root=str(r)), root=str(r),
+          ids=SERVICE)
+    unit = (r / "etc" / "systemd" / "system" / "softplc@.service").read_text()
     systemd_prepares(unit, r, SERVICE)
     service = probe(SERVICE.uid, SERVICE.gid, r)
     assert service == {"read plant": True, "read chart": True, "write plant": False,
@@ -158,8 +164,9 @@ def test_the_service_reads_its_plant_and_writes_only_its_state(staged: Path) -> 
     assert other == {"read plant": False, "read chart": False, "write plant": False,
                      "create in etc": False, "create in state": False,
                      "create in run": False, "create in /etc": False}, other
-    etc = r / "etc" / "softplc"
+    etc = r / "etc" / "softplc" / "site"
     assert (os.lstat(etc).st_uid, os.lstat(etc).st_gid) == (0, SERVICE.gid)
+    assert (os.lstat(etc.parent).st_uid, os.lstat(etc.parent).st_gid) == (0, SERVICE.gid)
     assert (os.lstat(etc / "plant.yaml").st_uid, os.lstat(etc / "plant.yaml").st_gid) == \
         (0, SERVICE.gid)
 
@@ -168,8 +175,9 @@ def test_the_service_reads_its_plant_and_writes_only_its_state(staged: Path) -> 
 def test_the_service_user_loads_the_installed_plant(staged: Path) -> None:
     """The real loader, run as the service's uid, reads the plant and its charts."""
     r = staged / "r"
-    apply(plan(str(plant_with_pin(staged)), SOFTPLC), root=str(r), ids=SERVICE)
-    plant = r / "etc" / "softplc" / "plant.yaml"
+    apply(plan(str(plant_with_pin(staged)), SOFTPLC, name="site", root=str(r)), root=str(r),
+          ids=SERVICE)
+    plant = r / "etc" / "softplc" / "site" / "plant.yaml"
     code = (f"import sys; sys.path.insert(0, {str(ROOT)!r})\n"
             "from runtime.language.plantfile import load_plant\n"
             f"p = load_plant({str(plant)!r}); print(sorted(p.instances), p.pin_hash)")
@@ -191,13 +199,13 @@ def test_unit_directories_match_systemd_exec(tmp_path: Path) -> None:
     """systemd chowns StateDirectory= and RuntimeDirectory= to the service but never
     ConfigurationDirectory=: a ConfigurationDirectoryMode=0750 on a root-owned /etc/softplc
     locks the service out of its plant. The unit leaves /etc/softplc to install-service."""
-    unit = unit_text(SOFTPLC, "/etc/softplc/plant.yaml")
+    unit = unit_text(SOFTPLC)
     lines = unit.splitlines()
     assert not any(line.startswith("ConfigurationDirectory") for line in lines), unit
     for line in ("StateDirectory=softplc", f"StateDirectoryMode={STATE_DIR_MODE:04o}",
-                 "RuntimeDirectory=softplc", "RuntimeDirectoryMode=0750", "UMask=0077"):
+                 "RuntimeDirectory=softplc/%i", "RuntimeDirectoryMode=0750", "UMask=0077"):
         assert line in lines, line
-    path = tmp_path / "softplc.service"
+    path = tmp_path / "softplc@demo.service"
     path.write_text(unit, encoding="utf-8")
     r = subprocess.run(["systemd-analyze", "verify", str(path)], capture_output=True,
                        text=True, timeout=60)
