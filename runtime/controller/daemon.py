@@ -139,6 +139,10 @@ class Daemon:
         self._loop_alive = False
         self._ready_sent = False  # scan thread: READY requested from the watchdog thread
         self._ready_told = False  # watchdog thread: READY=1 sent
+        #: READY=1 held back until the start is complete (``serve`` holds it while the
+        #: consoles and the feed bind and the drivers are checked: a start that then fails
+        #: never told systemd it was up)
+        self.ready_held = False
         self._state_changed = False  # scan thread -> watchdog thread: log the new state
         self._last_state: State | None = None
         self._trip_reason: str | None = None
@@ -470,11 +474,16 @@ class Daemon:
                 held[name] = flags
         return held
 
+    def release_ready(self) -> None:
+        """The start is complete: READY=1 (with the status line) as soon as a cycle ran."""
+        self.ready_held = False
+        self.watchdog.request_status()
+
     def _report_status(self) -> None:
         """Watchdog thread: READY=1 then STATUS= with ``summary()``, and the state line in
         the log when the scan thread saw the state change."""
-        if not self._ready_sent:
-            return  # no cycle yet: READY=1 comes with the first
+        if not self._ready_sent or self.ready_held:
+            return  # no cycle yet, or the start not complete: READY=1 comes after both
         changed, self._state_changed = self._state_changed, False  # a later one re-flags
         if not self.notifier.enabled and not changed:
             return  # nobody to tell: no percentiles computed for nothing
@@ -738,9 +747,11 @@ def serve(daemon: Daemon, for_ns: int | None = None,
     status = 0
     try:
         why[0] = "the start failed"  # until the start is complete
+        daemon.ready_held = True
         daemon.start()
         if started is not None:
             started()
+        daemon.release_ready()
         if why[0] == "the start failed":  # (a signal during the start keeps its name)
             why[0] = "end of --for"
         end = None if for_ns is None else time.monotonic() + for_ns / 1e9

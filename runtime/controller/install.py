@@ -421,9 +421,9 @@ def _changes(p: Plan, pdef: PlantDef, home: str, root: str | None) -> None:
         if not same:
             differ.append(path)
     p.changed = bool(differ)
-    units = [path for path in differ if path.endswith(".service")]
-    if units:
-        p.restart_reasons.append(f"its unit changed ({', '.join(units)})")
+    units = [path for path in differ if os.path.basename(path) == CONTROLLER]
+    if units:  # (the OPC UA server's unit is the server's: it restarts anyway)
+        p.restart_reasons.append(f"its unit changed ({units[0]})")
     installed = _target(os.path.join(home, INSTALLED_FILE), root)
     if not os.path.exists(installed):
         return
@@ -567,12 +567,12 @@ def bring_up(p: Plan, root: str | None = None) -> list[str]:
         return [f"would run: systemctl start {ctl}" + (f" {srv}" if p.opcua else "")]
     done = []
     if not _active(ctl):
-        _run(["systemctl", "start", ctl], None)
+        _start(ctl, "start")
         done.append(f"started {ctl}")
     elif not p.changed:
         done.append(f"{ctl} already runs this plant: left running")
     elif p.restart_reasons:
-        _run(["systemctl", "restart", ctl], None)
+        _start(ctl, "restart")
         done.append(f"restarted {ctl}: {'; '.join(p.restart_reasons)}")
     else:
         r = subprocess.run(["systemctl", "reload", ctl], check=False)
@@ -583,14 +583,26 @@ def bring_up(p: Plan, root: str | None = None) -> list[str]:
         done.append(f"reloaded {ctl} (online change)")
     if p.opcua:
         if not _active(srv):
-            _run(["systemctl", "start", srv], None)
+            _start(srv, "start")
             done.append(f"started {srv}")
         elif p.changed:
-            _run(["systemctl", "restart", srv], None)
+            _start(srv, "restart")
             done.append(f"restarted {srv} (it reads the plant at its start)")
     elif p.opcua_removed:
         done.append(f"stopped and disabled {srv}: the plant has no opcua: section now")
     return done
+
+
+def _start(unit: str, how: str) -> None:
+    """``systemctl start|restart UNIT``; NowRefused with the unit's own last line (its
+    error: a device missing, a plant it refuses) if it did not start."""
+    if subprocess.run(["systemctl", how, unit], check=False).returncode == 0:
+        return
+    r = subprocess.run(["journalctl", "-q", "-o", "cat", "-n", "1", f"_SYSTEMD_UNIT={unit}"],
+                       capture_output=True, text=True, check=False)  # its own, not systemd's
+    why = r.stdout.strip().splitlines()[-1] if r.stdout.strip() else "see journalctl"
+    raise NowRefused(f"{unit} did not start: {why} (journalctl -u {unit}; the unit tries "
+                     "again every RestartSec)")
 
 
 def _run(cmd: list[str], root: str | None) -> str:

@@ -308,7 +308,6 @@ def test_a_reinstall_knows_what_a_running_controller_needs(tmp_path: Path) -> No
     p = plan(str(d / "plant.yaml"), SOFTPLC, root=stage)
     assert p.changed and p.opcua
     assert p.restart_reasons == [
-        "its unit changed (/etc/systemd/system/softplc-opcua@.service)",
         "opcua: added: the feed is served from the controller's start: restart the "
         "controller, then start its OPC UA server"]
 

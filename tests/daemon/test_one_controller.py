@@ -211,3 +211,31 @@ def test_retained_data_of_a_moved_plant_is_taken_over(tmp_path: Path) -> None:
            f"there: taken over by this plant ({b.parent})" in r.stderr
     loaded = RetainStore(str(retain)).load()
     assert loaded.generation > gen and loaded.owner == {"name": "new", "path": str(b.parent)}
+
+
+def test_ready_is_sent_only_once_the_start_is_complete(tmp_path: Path,
+                                                       make_daemon: object) -> None:
+    """Under a real systemd (issue 25's journeys), a controller whose start then failed
+    (a serial port missing, found after the first cycle) had already sent READY=1: systemd
+    said `started`, and install-service with it, for a controller that exited 2 at once.
+    READY=1 waits for the end of the start (the consoles and the feed listening, the drivers
+    checked), however long it takes."""
+    from runtime.controller.daemon import serve
+    from runtime.controller.notify import Notifier
+    from tests.daemon.test_daemon_process import NotifySocket
+
+    notify = NotifySocket(tmp_path / "notify.sock")
+    daemon, _ = make_daemon(start=False)  # type: ignore[operator]
+    daemon.notifier = Notifier({"NOTIFY_SOCKET": notify.path})
+    early: list[str] = []
+    scans: list[int] = []
+
+    def started() -> None:  # a start that takes a while after the first cycles
+        early.extend(notify.collect(1.0))
+        scans.append(daemon.scan_stats.count)
+
+    assert serve(daemon, 2_000_000_000, started) == 0
+    later = notify.drain()
+    assert scans[0] > 10  # the scan ran meanwhile
+    assert not any("READY=1" in m for m in early), early
+    assert any("READY=1" in m for m in later), later
