@@ -13,7 +13,8 @@ for a in "$@"; do
 done
 # Optional system tools some tests use (systemd-analyze for the unit, graphviz for draw,
 # socat for pty pairs and, with rlwrap, the console commands docs/console.md gives;
-# setpriv and unshare for the permission and full-disk tests); tests skip with a reason where a tool is missing.
+# setpriv and unshare for the permission and full-disk tests; systemd-nspawn for the
+# journeys under a real systemd); tests skip with a reason where a tool is missing.
 if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
   missing=""
   command -v systemd-analyze >/dev/null || missing="$missing systemd"
@@ -24,6 +25,10 @@ if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
   # the system Python loads an installed plant as the service's uid in one test
   python3 -c "import yaml" 2>/dev/null || missing="$missing python3-yaml"
   command -v ip >/dev/null || missing="$missing iproute2"
+  # the journeys under a real systemd (tests/systemd): a container of this machine's root
+  # (systemd-nspawn), in which the venv is made from the system's Python (python3-venv)
+  command -v systemd-nspawn >/dev/null || missing="$missing systemd-container"
+  dpkg -s python3-venv >/dev/null 2>&1 || missing="$missing python3-venv"
   if [ -n "$missing" ]; then
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $missing >/dev/null || \
       echo "test.sh: could not install:$missing (the tests that need them will skip)" >&2

@@ -239,3 +239,28 @@ def test_ready_is_sent_only_once_the_start_is_complete(tmp_path: Path,
     assert scans[0] > 10  # the scan ran meanwhile
     assert not any("READY=1" in m for m in early), early
     assert any("READY=1" in m for m in later), later
+
+
+def test_a_file_written_before_the_owner_was_recorded_is_taken_over(tmp_path: Path) -> None:
+    """Format 2 (no ``plant``): restored by whichever plant starts on it; its next save
+    records the owner (format 3)."""
+    import json
+
+    from runtime.controller import retain as R
+
+    retain = tmp_path / "r.retain.json"
+    payload = {"format": R.FORMAT_2, "generation": 7, "saved_at": 1.0,
+               "charts": {"m": "Runner"}, "types": {"m": {"sN": "int"}},
+               "data": {"m": {"sN": 41}}}
+    retain.write_text(json.dumps({**payload, "sha256": R._digest(payload)}), encoding="utf-8")
+    plant = write_plant(tmp_path / "press", retain=retain, sock=tmp_path / "c.sock")
+    proc = start(plant)
+    try:
+        assert int(ask(tmp_path / "c.sock", "get m.sN").split("m.sN=")[1].split()[0]) >= 41
+    finally:
+        err = stop(proc)
+    assert "restored from" in err and "retain:" not in err, err  # no line about it
+    loaded = RetainStore(str(retain)).load()
+    assert loaded.generation > 7
+    assert loaded.owner == {"name": "press", "path": str(tmp_path / "press")}
+    assert json.loads(retain.read_text(encoding="utf-8"))["format"] == "softplc-retain/3"
