@@ -1,10 +1,18 @@
 """kill -9 at random moments, many times: the retained counter restored afterwards is
-never corrupt and never older than one retain interval (plus the time the write takes).
+never corrupt and never more than one retain interval (plus the time of a write) of counts
+behind the live counter.
 
 The daemon runs a chart that counts every scan into retained memory and saves every
 50 ms; the test reads the live counter over the console just before each kill, then
 loads the retain file as the next start will (and the next start must go on from it).
-200 kills by default (SOFTPLC_KILL_LOOPS), about three minutes: marked slow."""
+200 kills by default (SOFTPLC_KILL_LOOPS), about three minutes: marked slow.
+
+The bound is on the data, in counts, not on the file's age: on a loaded machine a freeze
+longer than the watchdog faults the controller (charts stopped, recorded, so the next start
+comes up in fault): nothing changes, nothing is saved, nothing is lost, and the file only
+gets older (issue 25 saw "saved 1442 ms before"). The test acknowledges such a fault so
+that the next kills test saves again, and counts them (docs/daemon.md, "Retained memory").
+"""
 
 from __future__ import annotations
 
@@ -39,25 +47,31 @@ transitions: []
 """
 
 
-def get_counter(sock_path: str, timeout: float = 20.0) -> int:
+def request(sock_path: str, line: bytes, timeout: float = 20.0) -> str:
+    """One console request, retried until the console answers."""
     end = time.monotonic() + timeout
     while True:
         try:
             with socket.socket(socket.AF_UNIX) as s:
                 s.connect(sock_path)
                 s.settimeout(5)
-                s.sendall(b"get m.sN\n")
+                s.sendall(line + b"\n")
                 out = b""
-                while not out.endswith(b"ok\r\n"):
+                while not (out.endswith(b"ok\r\n") or
+                           b"error" in out and out.endswith(b"\r\n")):
                     chunk = s.recv(4096)
                     if not chunk:
                         raise ConnectionError("closed")
                     out += chunk
-            return int(out.decode().split("m.sN=")[1].split()[0])
+            return out.decode()
         except (FileNotFoundError, ConnectionError, OSError):
             if time.monotonic() > end:
                 raise
             time.sleep(0.02)
+
+
+def get_counter(sock_path: str, timeout: float = 20.0) -> int:
+    return int(request(sock_path, b"get m.sN", timeout).split("m.sN=")[1].split()[0])
 
 
 @pytest.mark.slow
@@ -82,7 +96,9 @@ monitor:
     rng = random.Random(2026)
     previous = 0
     fallbacks = 0
+    faults = 0
     worst_age_ms = 0.0
+    worst_lost = 0
     for i in range(loops):
         if sock.exists():
             sock.unlink()
@@ -92,6 +108,9 @@ monitor:
         try:
             first = get_counter(str(sock))
             assert first >= previous, f"kill {i}: restarted at {first} < restored {previous}"
+            if "state fault" in request(str(sock), b"status"):  # a freeze on a busy machine
+                faults += 1
+                request(str(sock), b"ack")
             time.sleep(rng.uniform(0.0, 0.4))
             live = get_counter(str(sock))
             t_kill = time.time()
@@ -108,11 +127,14 @@ monitor:
         assert loaded.saved_at is not None
         age_ms = (t_kill - loaded.saved_at) * 1000
         worst_age_ms = max(worst_age_ms, age_ms)
-        # never older than one interval (+ the write's own time), never from the future
-        assert age_ms <= INTERVAL_MS + WRITE_MS, f"kill {i}: saved {age_ms:.0f} ms before"
+        worst_lost = max(worst_lost, live - restored)
+        # never more than one interval (+ the write's own time) of counts lost, never
+        # from the future
         assert restored >= live - (INTERVAL_MS + WRITE_MS) // CYCLE_MS, \
-            f"kill {i}: restored {restored}, live {live}"
+            f"kill {i}: restored {restored}, live {live} (saved {age_ms:.0f} ms before)"
         assert restored <= live + (WRITE_MS // CYCLE_MS)
         previous = restored
-    sys.stderr.write(f"{loops} kills: {fallbacks} restored from .prev/.tmp, worst age "
-                     f"{worst_age_ms:.0f} ms, final count {previous}\n")
+    sys.stderr.write(f"{loops} kills: {fallbacks} restored from .prev/.tmp, worst loss "
+                     f"{worst_lost} counts ({worst_lost * CYCLE_MS} ms of scans), worst age "
+                     f"{worst_age_ms:.0f} ms, {faults} freeze faults acknowledged, final "
+                     f"count {previous}\n")

@@ -149,6 +149,11 @@ def main(argv: list[str] | None = None) -> None:
     for spec in args.set:
         unit, fc, address, values = spec.split(":")
         peer.set(int(unit), int(fc), int(address), [int(v) for v in values.split(",")])
+    announce_and_serve(peer)
+
+
+def announce_and_serve(peer: ModbusPeer) -> None:
+    """Print ``ready`` (the started peer listens) and serve until the process is killed."""
     sys.stdout.write("ready\n")
     sys.stdout.flush()
     assert peer._thread is not None

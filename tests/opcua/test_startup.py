@@ -16,15 +16,18 @@ from tests.opcua.kit import write_plant
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def opcua(plant: Path, *args: str) -> tuple[subprocess.CompletedProcess[str], float]:
+def refusal(plant: Path) -> str:
+    """``softplc opcua PLANT`` that must refuse: its one line (exit status 2 checked)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     env.pop("JOURNAL_STREAM", None)
     t0 = time.monotonic()
-    r = subprocess.run([sys.executable, "-m", "runtime.cli", "opcua", str(plant), *args],
+    r = subprocess.run([sys.executable, "-m", "runtime.cli", "opcua", str(plant)],
                        env=env, capture_output=True, text=True, timeout=120)
-    took = time.monotonic() - t0
-    sys.stderr.write(f"softplc opcua refused in {took:.2f} s\n")
-    return r, took
+    sys.stderr.write(f"softplc opcua refused in {time.monotonic() - t0:.2f} s\n")
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.splitlines()
+    assert len(lines) == 1, r.stderr
+    return lines[0]
 
 
 def test_a_port_taken_is_one_line_at_once(tmp_path: Path) -> None:
@@ -33,21 +36,16 @@ def test_a_port_taken_is_one_line_at_once(tmp_path: Path) -> None:
         other.listen(1)
         port = other.getsockname()[1]
         plant = write_plant(tmp_path, port=port)
-        r, _ = opcua(plant)
-    assert r.returncode == 2, r.stderr
-    assert r.stderr.splitlines() == [
-        f"{plant}:14:13: error: opcua endpoint: port {port} of 127.0.0.1 is in use (another "
-        "OPC UA server, or another plant's: give each plant its own port): not started"], \
-        r.stderr
+        line = refusal(plant)
+    assert line == (f"{plant}:14:13: error: opcua endpoint: port {port} of 127.0.0.1 is in "
+                    "use (another OPC UA server, or another plant's: give each plant its own "
+                    "port): not started")
 
 
 def test_a_feed_path_that_is_no_socket_is_one_line(tmp_path: Path) -> None:
     plant = write_plant(tmp_path, port=4840)
     (tmp_path / "feed.sock").write_text("not a socket\n", encoding="utf-8")
-    r, _ = opcua(plant)
-    assert r.returncode == 2, r.stderr
-    assert r.stderr.splitlines() == [
+    assert refusal(plant) == (
         f"{plant}:16:9: error: opcua feed: {tmp_path}/feed.sock is not a socket (a regular "
-        "file): the controller serves its feed there; give opcua: feed another path"], \
-        r.stderr
+        "file): the controller serves its feed there; give opcua: feed another path")
     assert (tmp_path / "feed.sock").read_text(encoding="utf-8") == "not a socket\n"

@@ -26,7 +26,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from tests.drivers.modbus_peer import ModbusPeer  # noqa: E402
+from tests.drivers.modbus_peer import ModbusPeer, announce_and_serve  # noqa: E402
 from tests.drivers.pty_bridge import PtyBridge  # noqa: E402
 
 
@@ -60,11 +60,7 @@ def main() -> None:
     if os.path.lexists(args.link):
         os.unlink(args.link)
     os.symlink(bridge.driver_port, args.link)
-    peer = RecordingPeer(bridge.peer_port, args.log).start()
-    sys.stdout.write("ready\n")
-    sys.stdout.flush()
-    assert peer._thread is not None
-    peer._thread.join()
+    announce_and_serve(RecordingPeer(bridge.peer_port, args.log).start())
 
 
 if __name__ == "__main__":
