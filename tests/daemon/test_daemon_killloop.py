@@ -138,3 +138,58 @@ monitor:
                      f"{worst_lost} counts ({worst_lost * CYCLE_MS} ms of scans), worst age "
                      f"{worst_age_ms:.0f} ms, {faults} freeze faults acknowledged, final "
                      f"count {previous}\n")
+
+
+def test_after_a_freeze_fault_the_file_ages_and_nothing_is_lost(tmp_path: Path) -> None:
+    """What made the old bound (the file's age) fail on a busy machine (issue 25: "saved
+    1442 ms before"): a freeze longer than the watchdog faults the controller and records
+    it; the next start comes up in fault, its charts stopped: the counter stands still,
+    nothing is saved, the file gets older, and a kill loses nothing."""
+    (tmp_path / "counter.yaml").write_text(COUNTER, encoding="utf-8")
+    retain = tmp_path / "var" / "retain.json"
+    sock = tmp_path / "console.sock"
+    plant = tmp_path / "plant.yaml"
+    plant.write_text(f"""\
+plc: {{cycle: {CYCLE_MS}ms, watchdog: 200ms, retain: {retain}, retain_interval: {INTERVAL_MS}ms}}
+drivers: {{sim: {{type: sim}}}}
+instances:
+  m:
+    grafcet: counter.yaml
+    inputs: {{iUnused: sim.I0}}
+    outputs: {{oLamp: sim.Q0}}
+monitor:
+  socket: {{path: {sock}, trusted: true}}
+""", encoding="utf-8")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+
+    def start() -> subprocess.Popen[str]:
+        return subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", str(plant)],
+                                env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                text=True)
+    proc = start()
+    try:
+        get_counter(str(sock))
+        proc.send_signal(signal.SIGSTOP)  # frozen for longer than the watchdog
+        time.sleep(0.6)
+        proc.send_signal(signal.SIGCONT)
+        end = time.monotonic() + 20
+        while "state fault" not in request(str(sock), b"status"):
+            assert time.monotonic() < end, "no freeze fault"
+            time.sleep(0.05)
+    finally:
+        proc.kill()
+        proc.communicate()
+    proc = start()
+    try:
+        assert "state fault" in request(str(sock), b"status")  # carried over the restart
+        before = get_counter(str(sock))
+        time.sleep(1.0)
+        live = get_counter(str(sock))
+        t_kill = time.time()
+    finally:
+        proc.kill()
+        proc.communicate()
+    loaded = RetainStore(str(retain)).load()
+    assert loaded.saved_at is not None
+    assert live == before == int(loaded.data["m"]["sN"])  # nothing changed, nothing lost
+    assert (t_kill - loaded.saved_at) * 1000 > INTERVAL_MS + WRITE_MS  # the old bound
