@@ -14,6 +14,7 @@ scripts/setup.sh
 plant=configs/drawer_tester/plant_sim.yaml
 sock=$(.venv/bin/python -c 'import sys
 from runtime.language.plantfile import load_plant
-print(*(c.address for c in load_plant(sys.argv[1]).consoles if c.kind == "socket"))' "$plant")
+from runtime.language.runtimedir import locate
+print(locate(load_plant(sys.argv[1])).console)' "$plant")
 echo "run-demo: console on $sock; in a second terminal: .venv/bin/softplc monitor $sock" >&2
 exec .venv/bin/softplc run "$plant" --sim --script configs/drawer_tester/story.yaml "$@"
