@@ -3,9 +3,9 @@ ratios (tracemalloc peaks, characters of generated code), never by wall-clock ti
 
 The shapes an attacker chose: a selection (OR) divergence of n branches from one step, all
 on the same condition (the priority of file order made every branch test every earlier
-one: n²/2 terms, 1.6 GB at 1000 branches), and a chain of n steps. Doubling n must about
-double the peak memory of ``compile_grafcet`` (generate, ``compile``, ``exec``) and the
-generated source; quadratic growth would quadruple them."""
+one: n²/2 terms, 1.6 GB at 1000 branches), and a chain of n steps. Four times n must be
+about four times the peak memory of ``compile_grafcet`` (generate, ``compile``, ``exec``)
+and the generated source; quadratic growth would make them sixteen times."""
 
 from __future__ import annotations
 
@@ -15,32 +15,10 @@ from pathlib import Path
 
 import pytest
 
+from bench.divergence import chain_text, fan_text
 from runtime.compiler.codegen import Compiler, compile_grafcet
 from runtime.language.grafcetfile import load_grafcet
 from runtime.language.model import Grafcet
-
-
-def fan_text(n: int, scan: str = "immediate") -> str:
-    """Step s0 and n branches b0..b(n-1), each entered from s0 on iGo (all at once: the
-    first in file order wins) and left back to s0 on iStop."""
-    lines = ["grafcet: Fan", f"scan: {scan}", "inputs: [iGo, iStop]", "outputs: [oMotor]",
-             "steps:", "  s0: {initial: true}"]
-    lines += [f"  b{i}: {{actions: [oMotor]}}" for i in range(n)]
-    lines.append("transitions:")
-    for i in range(n):
-        lines += [f"  - {{from: s0, to: b{i}, when: iGo}}",
-                  f"  - {{from: b{i}, to: s0, when: iStop}}"]
-    return "\n".join(lines) + "\n"
-
-
-def chain_text(n: int) -> str:
-    """A loop of n steps, each passed on a rise of iGo."""
-    lines = ["grafcet: Chain", "inputs: [iGo]", "outputs: [oMotor]", "steps:",
-             "  s0: {initial: true}"]
-    lines += [f"  s{i}: {{actions: [oMotor]}}" for i in range(1, n)]
-    lines.append("transitions:")
-    lines += [f"  - {{from: s{i}, to: s{(i + 1) % n}, when: ↑iGo}}" for i in range(n)]
-    return "\n".join(lines) + "\n"
 
 
 def peak(fn: Callable[[], object]) -> int:
@@ -55,26 +33,29 @@ def peak(fn: Callable[[], object]) -> int:
         tracemalloc.stop()
 
 
-def assert_linear(what: str, small: float, large: float) -> None:
-    """``large`` measured at twice the size of ``small``: at most 2.4 times it (linear
-    is 2, quadratic 4)."""
-    assert large <= 2.4 * small, (f"{what} grows faster than the chart: x{large / small:.2f} "
-                                  f"for twice the size ({small:.0f} -> {large:.0f})")
+def assert_linear(what: str, small: float, large: float, factor: int = 2) -> None:
+    """``large`` measured at ``factor`` times the size of ``small``: at most 1.5 times
+    ``factor`` times it (linear is ``factor``, quadratic its square; the allowance covers
+    a table doubling its capacity at one size and not at the other)."""
+    assert large <= 1.5 * factor * small, (
+        f"{what} grows faster than the chart: x{large / small:.2f} for {factor} times the "
+        f"size ({small:.0f} -> {large:.0f})")
 
 
-SHAPES = {"fan immediate": (fan_text, 150), "fan codesys": (lambda n: fan_text(n, "codesys"), 150),
-          "fan stable": (lambda n: fan_text(n, "stable"), 150), "chain": (chain_text, 300)}
+SHAPES: dict[str, tuple[Callable[[int], str], int]] = {
+    "fan immediate": (fan_text, 75), "fan codesys": (lambda n: fan_text(n, "codesys"), 75),
+    "fan stable": (lambda n: fan_text(n, "stable"), 75), "chain": (chain_text, 150)}
 
 
 @pytest.mark.parametrize("shape", sorted(SHAPES))
 def test_compiling_grows_linearly(shape: str, tmp_path: Path) -> None:
     text, n = SHAPES[shape]
     charts: list[Grafcet] = []
-    for k in (n, 2 * n):
+    for k in (n, 4 * n):
         path = tmp_path / f"{k}.yaml"
         path.write_text(text(k), encoding="utf-8")
         charts.append(load_grafcet(str(path)))
     sources = [len(Compiler(g).generate()) for g in charts]
-    assert_linear(f"{shape}: the generated source", *sources)
+    assert_linear(f"{shape}: the generated source", *sources, 4)
     peaks = [peak(lambda g=g: compile_grafcet(g)) for g in charts]
-    assert_linear(f"{shape}: the memory of compile_grafcet", *peaks)
+    assert_linear(f"{shape}: the memory of compile_grafcet", *peaks, 4)
