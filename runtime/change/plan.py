@@ -187,6 +187,8 @@ def _carry(ic: InstanceChange, old: Instance, new: Instance) -> _Carry:
             if edge_input is not None:
                 c.new_edges.append((s.index, edge_input))
             continue
+        if s.kind is SlotKind.VARIABLE and s.name in ic.undriven:
+            continue  # at its initial value, as after a cold start (the diff's line says so)
         if s.kind is SlotKind.VARIABLE and s.name in ic.types_changed:
             c.reset.append(f"{ic.name}: variable {s.name} starts at its init value (type "
                            f"changed)")
