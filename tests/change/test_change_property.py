@@ -101,6 +101,8 @@ def hand_over(old: Reference, chart: RefChart) -> Reference:
     for o in chart.outputs:  # the memory of S is the target's while some S sets it
         if not any(a.target == o and a.qual == "S" for a in chart.actions):
             ref.stored[o] = False
+        if not any(a.target == o for a in chart.actions):  # its value of a cold start,
+            ref.out[o] = False  # also through a pause (docs/online-change.md)
     return ref
 
 
