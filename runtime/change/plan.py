@@ -86,6 +86,8 @@ class Applied:
     #: drivers of the OLD plant the caller must put in their safe state and close (removed,
     #: or replaced by a reopened one: close the old before opening the new)
     closed: list[str] = field(default_factory=list)
+    #: instances the new plant holds in fault (no active step left), with why
+    instance_faults: dict[str, str] = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
@@ -231,7 +233,9 @@ def apply(old: Plant, prepared: Prepared, *, restart: Collection[str] = (),
 
     O(state size): no compile, no code generation. ``restart``: instances restarted from
     their initial situation (retained values kept) instead of carried; ``force``: override
-    the refusals that can be (never a type change of a retained variable)."""
+    the refusals that can be (never a type change of a retained variable). An instance
+    carried with no active step (its last ones dropped by ``force``) is put in fault
+    (``Plant.fault_instance``: not scanned, its outputs off), never left running dead."""
     res = Applied()
     new = prepared.plant
     cs = prepared.changes
@@ -282,9 +286,15 @@ def apply(old: Plant, prepared: Prepared, *, restart: Collection[str] = (),
         for ni, vi in c.new_edges:
             nm[ni] = bool(nm[vi])
         res.lines += c.reset
-        for ix, step in c.removed_steps:
-            if om[ix]:
-                res.lines.append(f"{name}: active step {step} dropped (forced)")
+        dropped = [step for ix, step in c.removed_steps if om[ix]]
+        res.lines += [f"{name}: active step {step} dropped (forced)" for step in dropped]
+        if not new.instances[name].active_steps():
+            gone = old.instance_faults.get(name) or (
+                f"no active step left (the forced change dropped {', '.join(dropped)})")
+            new.fault_instance(name, gone)
+            res.instance_faults[name] = gone
+            res.lines.append(f"{name}: in fault, its outputs off: {gone}; ack, or reload "
+                             f"--restart {name}, starts it again from its initial situation")
     for d, p in prepared._unbound:
         new.drivers[d].outputs[p] = 0
         res.lines.append(f"{d}.{p}: no longer driven: off")

@@ -212,8 +212,8 @@ class ChartChecker:
         true. A transition on the same condition (as written) as an earlier one of the
         divergence is paired with that first one only; the other pairs are decided up to
         PAIRS_AT_LEAST + PAIRS_PER_TRANSITION per transition of the chart, so the rule's
-        work grows with the chart, not with the square of a divergence's branches (a note says when a
-        divergence is not decided whole)."""
+        work grows with the chart, not with the square of a divergence's branches (a note
+        says when a divergence is not decided whole)."""
         g = self.g
         seen: set[tuple[int, int]] = set()
         budget = PAIRS_AT_LEAST + PAIRS_PER_TRANSITION * len(g.transitions)

@@ -65,6 +65,8 @@ class ReloadResult:
     refusals: list[str] = field(default_factory=list)
     restarted: list[str] = field(default_factory=list)
     reopened: list[str] = field(default_factory=list)
+    #: instances the change left in fault (no active step), with why
+    instance_faults: dict[str, str] = field(default_factory=dict)
     #: one line: what changed ("3 changes: tester1: ...")
     summary: str = ""
     #: file -> sha256 of the program now running
@@ -79,6 +81,7 @@ class ReloadResult:
     def as_dict(self) -> dict[str, Any]:
         return {"applied": self.applied, "lines": self.lines, "refusals": self.refusals,
                 "restarted": self.restarted, "reopened": self.reopened,
+                "instance_faults": self.instance_faults,
                 "summary": self.summary, "hashes": self.hashes, "back": self.back,
                 "load_ms": round(self.load_ms, 3), "prepare_ms": round(self.prepare_ms, 3),
                 "swap_ms": round(self.swap_ms, 3)}
@@ -182,6 +185,9 @@ class Reloader:
                     ", ".join(f"{f} sha256 {h}" for f, h in result.hashes.items()))
         for line in result.lines:
             log.info("reload: %s", line)
+        for name, why in result.instance_faults.items():
+            log.error("FAULT of instance %s: %s: its outputs off until ack or reload "
+                      "--restart %s", name, why, name)
         return result
 
     def _static_refusals(self, old: PlantDef, new: PlantDef,
@@ -290,8 +296,9 @@ class Reloader:
         # was frozen, out of the collector's sight, at the start or by the last reload)
         old.dispose()
         return ReloadResult(True, lines=lines, restarted=list(applied.restarted),
-                            reopened=list(applied.reopened), summary=_summary(lines),
-                            swap_ms=swap_ms)
+                            reopened=list(applied.reopened),
+                            instance_faults=dict(applied.instance_faults),
+                            summary=_summary(lines), swap_ms=swap_ms)
 
     def _reopen(self, old: Plant, new: Plant, closed: list[str], opened: list[str]) -> None:
         """Outside the scan, during the daemon's ``gap`` (set at the swap: the cycles
