@@ -234,8 +234,8 @@ def apply(old: Plant, prepared: Prepared, *, restart: Collection[str] = (),
     O(state size): no compile, no code generation. ``restart``: instances restarted from
     their initial situation (retained values kept) instead of carried; ``force``: override
     the refusals that can be (never a type change of a retained variable). An instance
-    carried with no active step (its last ones dropped by ``force``) is put in fault
-    (``Plant.fault_instance``: not scanned, its outputs off), never left running dead."""
+    whose last active steps ``force`` drops is put in fault (``Plant.fault_instance``:
+    not scanned, its outputs off), never left running dead; one in fault stays so."""
     res = Applied()
     new = prepared.plant
     cs = prepared.changes
@@ -288,7 +288,11 @@ def apply(old: Plant, prepared: Prepared, *, restart: Collection[str] = (),
         res.lines += c.reset
         dropped = [step for ix, step in c.removed_steps if om[ix]]
         res.lines += [f"{name}: active step {step} dropped (forced)" for step in dropped]
-        if not new.instances[name].active_steps():
+        # a chart may empty its situation itself (a sink transition: SFCReset brings it
+        # back), but never by a change: one that dropped its last active steps leaves it
+        # in fault, as does one that carries an instance in fault
+        if name in old.instance_faults or (
+                dropped and not new.instances[name].active_steps()):
             gone = old.instance_faults.get(name) or (
                 f"no active step left (the forced change dropped {', '.join(dropped)})")
             new.fault_instance(name, gone)
