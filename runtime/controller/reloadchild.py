@@ -56,6 +56,10 @@ CHILD_MEMORY_BYTES = 1024 * 1024 * 1024
 #: the CPU time the child may use (``RLIMIT_CPU``), and how long the controller waits for
 #: its answer, s
 CHILD_TIME_S = 60
+#: the largest code object the controller reads from the child, bytes: reading one (``marshal``)
+#: is a single call holding the GIL, about 5 ms per MiB on the 2-core build machine; a
+#: chart whose code is larger (some 10 000 steps) is refused online: restart to load it
+MAX_CODE_BYTES = 8 * 1024 * 1024
 #: the directory holding this installation's ``runtime`` package
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 #: what ``python -I -c`` runs: this installation's ``runtime`` first on the path (only
@@ -159,6 +163,10 @@ def _answer(data: bytes) -> tuple[PlantDef | None, CodeBook] | str:
         if kind == b"J":
             records.append(payload)
         elif kind == b"C" and len(payload) > 64:
+            if len(payload) - 64 > MAX_CODE_BYTES:
+                return (f"the new program's code is too large to be loaded online "
+                        f"({(len(payload) - 64) / 2**20:.1f} MiB in one piece, more than "
+                        f"{MAX_CODE_BYTES / 2**20:g} MiB): restart the controller to load it")
             blobs[payload[:64].decode("ascii")] = payload[64:]
         else:
             raise ValueError(f"an unknown frame {kind!r}")

@@ -25,6 +25,10 @@ from runtime.language import ast as A
 from runtime.language.model import Binding, PlantDef
 
 
+#: a name in generated code
+_WORD = re.compile(r"[A-Za-z_]\w*")
+
+
 class CycleWriter:
     """Writes a plant's cycles: :meth:`source` once, after which :attr:`inliner` holds the
     groups of inlined scans it built (their generators, and each fault's instance)."""
@@ -90,7 +94,7 @@ class CycleWriter:
         copy = [f"    if FI: force_instance({name!r}, M_{name})"
                 for name in self.instances] + self._output_copy() + ["    if SI: stopped_off()"]
         def defaults(body: list[str]) -> str:  # the names of the environment it uses
-            used = set(re.findall(r"[A-Za-z_]\w*", "\n".join(body))) & self._env.keys()
+            used = {n for line in body for n in _WORD.findall(line)} & self._env.keys()
             return ", ".join(f"{n}={n}" for n in sorted(used))
 
         return "\n".join([f"def cycle(t, {defaults(fast)}):", *fast, "",

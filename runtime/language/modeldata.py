@@ -35,8 +35,8 @@ from runtime.errors import Loc, SoftplcError
 from runtime.language import ast as A
 from runtime.language import model as M
 
-#: records per chunk (a chunk of a large chart is about 100 kB of JSON, read in about 1 ms)
-CHUNK_RECORDS = 2000
+#: records per chunk (about 50 kB of JSON, read in about 1 ms)
+CHUNK_RECORDS = 1000
 #: the fields left out (None): functions that only the load's error messages use
 LEFT_OUT = frozenset({"locate"})
 

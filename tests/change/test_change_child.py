@@ -109,3 +109,14 @@ def test_bad_data_from_a_child_is_a_refusal(monkeypatch: pytest.MonkeyPatch) -> 
     evil = header + reloadchild._frame(b"J", b'[["o","Popen","rm -rf /"]]')
     with pytest.raises(Exception, match="unknown record"):
         reloadchild._answer(evil)
+
+
+def test_code_too_large_to_read_without_holding_up_the_scan_is_refused(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Reading a code object is one call holding the GIL: past MAX_CODE_BYTES the change
+    is refused (restart to load it), never read in the controller."""
+    monkeypatch.setattr(reloadchild, "MAX_CODE_BYTES", 16 * 1024)
+    got = load_apart(DRAWER_PLANT)
+    assert isinstance(got, str) and got.startswith(
+        "the new program's code is too large to be loaded online ("), got
+    assert got.endswith("more than 0.015625 MiB): restart the controller to load it"), got
