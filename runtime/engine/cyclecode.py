@@ -24,7 +24,6 @@ from runtime.engine.instance import Instance
 from runtime.language import ast as A
 from runtime.language.model import Binding, PlantDef
 
-
 #: a name in generated code
 _WORD = re.compile(r"[A-Za-z_]\w*")
 

@@ -115,8 +115,8 @@ def test_code_too_large_to_read_without_holding_up_the_scan_is_refused(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """Reading a code object is one call holding the GIL: past MAX_CODE_BYTES the change
     is refused (restart to load it), never read in the controller."""
-    monkeypatch.setattr(reloadchild, "MAX_CODE_BYTES", 16 * 1024)
+    monkeypatch.setattr(reloadchild, "MAX_CODE_BYTES", 2**20 // 1024)
     got = load_apart(DRAWER_PLANT)
     assert isinstance(got, str) and got.startswith(
         "the new program's code is too large to be loaded online ("), got
-    assert got.endswith("more than 0.015625 MiB): restart the controller to load it"), got
+    assert got.endswith("more than 0.000976562 MiB): restart the controller to load it"), got
