@@ -19,7 +19,8 @@ package is put first, as the controller itself imports it) in the working direct
 so that a module planted in the controller's working directory (``/tmp`` when it was started
 by hand there) is never imported, least of all as root. It sets its own limits first
 (``resource.setrlimit``): ``CHILD_MEMORY_BYTES`` of address space and ``CHILD_TIME_S`` of
-CPU; the controller waits ``CHILD_TIME_S`` at most. A child that fails, whatever the way, is
+CPU, and runs ``CHILD_NICE`` lower than the controller; the controller waits
+``CHILD_TIME_S`` at most. A child that fails, whatever the way, is
 a refused reload with its reason: the controller never loads "here" instead.
 
 The code objects are the one thing that is not plain data: ``marshal`` builds code objects
@@ -50,12 +51,15 @@ from runtime.language.plantfile import load_plant
 log = logging.getLogger(__name__)
 
 #: the address space the child may use, bytes (``RLIMIT_AS``): a load past it fails with
-#: MemoryError and the reload is refused (a plant of 100 drawer testers needs about 150 MiB;
-#: a chart of 4000 steps about 400 MiB)
+#: MemoryError and the reload is refused (a plant of 100 drawer testers loads within 64 MiB,
+#: a chart of 2000 steps within 256 MiB)
 CHILD_MEMORY_BYTES = 1024 * 1024 * 1024
 #: the CPU time the child may use (``RLIMIT_CPU``), and how long the controller waits for
 #: its answer, s
 CHILD_TIME_S = 60
+#: how much lower the child runs than the controller (``os.nice``): on a board of two
+#: cores the load is background work, the scan thread comes first
+CHILD_NICE = 10
 #: the largest code object the controller reads from the child, bytes: reading one (``marshal``)
 #: is a single call holding the GIL, about 5 ms per MiB on the 2-core build machine; a
 #: chart whose code is larger (some 10 000 steps) is refused online: restart to load it
@@ -187,6 +191,7 @@ def main(argv: list[str]) -> int:
     memory, cpu, mode, *rest = argv
     resource.setrlimit(resource.RLIMIT_AS, (int(memory), int(memory)))
     resource.setrlimit(resource.RLIMIT_CPU, (int(cpu), int(cpu) + 1))
+    os.nice(CHILD_NICE)
     out = sys.stdout.buffer
     try:
         frames = _work(mode, rest, sys.stdin.buffer)
