@@ -48,6 +48,9 @@ class _Carry:
     #: chart had not, on a chart input: the memory takes the input's value of the last
     #: scan, so that the edge is seen exactly as a running chart would have seen it
     new_edges: list[tuple[int, int]] = field(default_factory=list)
+    #: the X of the steps the old chart had not: a new step starts inactive, an initial
+    #: one too (its X starts true only in a fresh state)
+    new_steps: list[int] = field(default_factory=list)
 
 
 @dataclass
@@ -188,6 +191,8 @@ def _carry(ic: InstanceChange, old: Instance, new: Instance) -> _Carry:
             edge_input = _edge_input(s, new)
             if edge_input is not None:
                 c.new_edges.append((s.index, edge_input))
+            if s.kind is SlotKind.STEP_X:
+                c.new_steps.append(s.index)
             continue
         if s.kind is SlotKind.VARIABLE and s.name in ic.undriven:
             continue  # at its initial value, as after a cold start (the diff's line says so)
@@ -285,6 +290,8 @@ def apply(old: Plant, prepared: Prepared, *, restart: Collection[str] = (),
             nm[ni] = copy.copy(v) if block else v
         for ni, vi in c.new_edges:
             nm[ni] = bool(nm[vi])
+        for ni in c.new_steps:
+            nm[ni] = False
         res.lines += c.reset
         dropped = [step for ix, step in c.removed_steps if om[ix]]
         res.lines += [f"{name}: active step {step} dropped (forced)" for step in dropped]

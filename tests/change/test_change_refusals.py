@@ -141,3 +141,22 @@ def test_restart_of_an_unknown_instance_is_refused():
     prep = prepare(story.plant, load_plant(data_plant("timeout")))
     assert apply(story.plant, prep, restart=["tester9"]).refusals == [
         "--restart tester9: no such instance in the new plant"]
+
+
+def test_a_new_initial_step_starts_inactive(tmp_path):
+    """Only a fresh start activates the initial steps: an initial step the change adds to
+    a running chart starts inactive (docs: a new step starts inactive), never active beside
+    the situation the machine is in."""
+    from tests.change.changekit import ROOT
+    src = (ROOT / "configs/drawer_tester/drawer_tester.yaml").read_text()
+    (tmp_path / "chart.yaml").write_text(src.replace(
+        "  gsAbrir:\n", "  gsExtra: {initial: true}\n  gsAbrir:\n").replace(
+        "transitions:\n", "transitions:\n  - {from: gsExtra, to: gsParado, when: iParo}\n"))
+    plant = (ROOT / "configs/drawer_tester/plant_sim.yaml").read_text()
+    (tmp_path / "plant.yaml").write_text(plant.replace("drawer_tester.yaml", "chart.yaml"))
+    story = story_at(60)
+    prep = prepare(story.plant, load_plant(str(tmp_path / "plant.yaml")))
+    res = apply(story.plant, prep)
+    assert res.refusals == [] and "tester1: step gsExtra added" in res.lines
+    assert prep.plant.instances["tester1"].active_steps() == ["gsAbrir"]
+    assert prep.plant.instances["tester2"].active_steps() == ["gsParado"]
