@@ -56,6 +56,18 @@ def chain_text(n: int) -> str:
     return "\n".join(lines) + "\n"
 
 
+def measure(path: str, repeat: int) -> list[float]:
+    """[load s, check s, compile s, generated source MB, compile peak MB] of one chart."""
+    tl, g = best(lambda: load_grafcet(path), repeat)
+    tc, _ = best(lambda: check_grafcet(g), repeat)
+    tk, _ = best(lambda: compile_grafcet(g), repeat)
+    tracemalloc.start()
+    compile_grafcet(g)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return [tl, tc, tk, len(Compiler(g).generate()) / 1e6, peak / 1e6]
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--shape", choices=["fan", "chain"], default="fan")
@@ -64,27 +76,20 @@ def main() -> int:
     ap.add_argument("--repeat", type=int, default=1)
     args = ap.parse_args()
     yamlsrc.NODE_ALLOWANCE = max(yamlsrc.NODE_ALLOWANCE, 20 * max(args.sizes))
-    out(f"{'n':>6} {'load s':>8} {'check s':>8} {'compile s':>10} {'growth load':>11} "
-        f"{'check':>6} {'compile':>7} {'source MB':>10} {'compile peak MB':>16}")
-    prev: dict[str, tuple[int, float] | None] = {"load": None, "check": None, "compile": None}
+    names = ["load s", "check s", "compile s", "source MB", "compile peak MB"]
+    out(f"{'n':>6}" + "".join(f"{x:>16}" for x in names) + "   growth: load check compile")
+    rows: list[tuple[int, list[float]]] = []
     with tempfile.TemporaryDirectory() as tmp:
         for n in args.sizes:
-            path = os.path.join(tmp, f"{args.shape}{n}.yaml")
             text = fan_text(n, distinct=args.distinct) if args.shape == "fan" else chain_text(n)
+            path = os.path.join(tmp, f"{args.shape}{n}.yaml")
             with open(path, "w", encoding="utf-8") as f:
                 f.write(text)
-            tl, g = best(lambda: load_grafcet(path), args.repeat)  # noqa: B023 - run at once
-            tc, _ = best(lambda: check_grafcet(g), args.repeat)  # noqa: B023
-            tk, _ = best(lambda: compile_grafcet(g), args.repeat)  # noqa: B023
-            source = len(Compiler(g).generate())
-            tracemalloc.start()
-            compile_grafcet(g)
-            peak = tracemalloc.get_traced_memory()[1]
-            tracemalloc.stop()
-            out(f"{n:>6} {tl:>8.2f} {tc:>8.2f} {tk:>10.2f} {growth(prev['load'], n, tl):>11} "
-                f"{growth(prev['check'], n, tc):>6} {growth(prev['compile'], n, tk):>7} "
-                f"{source / 1e6:>10.2f} {peak / 1e6:>16.1f}")
-            prev = {"load": (n, tl), "check": (n, tc), "compile": (n, tk)}
+            rows.append((n, measure(path, args.repeat)))
+            before = rows[-2] if len(rows) > 1 else None
+            grows = [growth((before[0], before[1][k]) if before else None, n, rows[-1][1][k])
+                     for k in range(3)]
+            out(f"{n:>6}" + "".join(f"{v:>16.2f}" for v in rows[-1][1]) + "   " + " ".join(grows))
     return 0
 
 
