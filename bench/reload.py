@@ -17,7 +17,13 @@ model, so the charts keep moving) at a 10 ms cycle, and changes the chart's time
 
 against the p99 and maximum of the other cycles of the run (the quiet ones).
 
-    python -m bench.reload [--testers 100] [--repeat 10] [--seconds 1]
+With ``--chain N`` the plant also runs a chart of N steps in a loop (bench/divergence.py's
+``chain_text``, instance ``chain`` on the same sim driver), and each reload changes that
+chart instead (the time constant of its first step: ``min`` 1 ms <-> 2 ms), so every reload
+loads and compiles the large chart: the figures say whether a large chart's prepare holds up
+the cycles (the scan shares the GIL with the reload's worker thread).
+
+    python -m bench.reload [--testers 100] [--repeat 10] [--seconds 1] [--chain 2000]
 """
 
 from __future__ import annotations
@@ -32,6 +38,7 @@ import threading
 import time
 from collections.abc import Callable
 
+from bench.divergence import chain_text
 from bench.jitter import CHART, DrawerModel, plant_file
 from runtime.controller.daemon import Daemon
 from runtime.engine.plant import Plant
@@ -90,6 +97,8 @@ def main() -> int:
     ap.add_argument("--testers", type=int, default=100)
     ap.add_argument("--repeat", type=int, default=10)
     ap.add_argument("--seconds", type=float, default=1.0, help="between two reloads")
+    ap.add_argument("--chain", type=int, default=0,
+                    help="add a chart of N steps, the one each reload changes")
     args = ap.parse_args()
     tmp = tempfile.mkdtemp(prefix="reload-bench")
     try:
@@ -98,6 +107,16 @@ def main() -> int:
         path = plant_file(tmp, args.testers, 10, False)
         with open(path, encoding="utf-8") as f:
             text = f.read().replace(CHART, chart)
+        edited, swaps = chart, [("gsAbrir.T >= 10s", "gsAbrir.T >= 11s")]
+        if args.chain:
+            edited = os.path.join(tmp, "chain.yaml")
+            with open(edited, "w", encoding="utf-8") as f:
+                f.write(chain_text(args.chain).replace("  s1: {actions: [oMotor]}",
+                                                       "  s1: {actions: [oMotor], min: 1ms}"))
+            swaps = [("min: 1ms}", "min: 2ms}")]
+            b = 8 * args.testers
+            text += (f"  chain:\n    grafcet: {edited}\n    inputs: {{iGo: sim.I{b}}}\n"
+                     f"    outputs: {{oMotor: sim.Q{b}}}\n")
         with open(path, "w", encoding="utf-8") as f:
             f.write(text)
         daemon = Daemon(load_plant(path), sim=True)
@@ -111,11 +130,11 @@ def main() -> int:
         rss_before = rss_kib()
         for i in range(args.repeat):
             time.sleep(args.seconds)
-            with open(chart, encoding="utf-8") as f:
+            with open(edited, encoding="utf-8") as f:
                 src = f.read()
-            a, b = ("10s", "11s") if i % 2 == 0 else ("11s", "10s")
-            with open(chart, "w", encoding="utf-8") as f:
-                f.write(src.replace(f"gsAbrir.T >= {a}", f"gsAbrir.T >= {b}"))
+            a, b = swaps[0] if i % 2 == 0 else swaps[0][::-1]
+            with open(edited, "w", encoding="utf-8") as f:
+                f.write(src.replace(a, b))
             rec.in_prepare = True
             r = daemon.reload()
             if not r.applied:
@@ -133,7 +152,8 @@ def main() -> int:
         prep = [rec.cycles[k] for k in rec.preparing if k in rec.cycles]
         quiet = [v for k, v in rec.cycles.items() if k not in rec.swaps
                  and k not in rec.preparing]
-        out(f"online change, {args.testers} drawer testers, cycle 10 ms, "
+        chain = f" and a chart of {args.chain} steps" if args.chain else ""
+        out(f"online change, {args.testers} drawer testers{chain}, cycle 10 ms, "
             f"{len(results)} reloads, {len(rec.cycles)} cycles recorded, "
             f"{overruns} overruns in all")
         out(f"{'(ms)':36}{'median':>9}{'p99':>9}{'max':>9}")

@@ -14,7 +14,15 @@ from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
-from runtime.language.model import Binding, Grafcet, InstanceDef, PlantDef, Transition
+from runtime.compiler.layout import written
+from runtime.language.model import (
+    Binding,
+    Grafcet,
+    InstanceDef,
+    PlantDef,
+    Transition,
+    VarKind,
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -43,6 +51,11 @@ class InstanceChange:
     vars_removed: list[str] = field(default_factory=list)  # old names
     #: new name -> (old type, new type) for the variables whose type changed
     types_changed: dict[str, tuple[str, str]] = field(default_factory=dict)
+    #: variables the old chart wrote at every scan that the new one does not (or outputs
+    #: it no longer writes at all): they take their initial value at the swap, the value
+    #: a cold start of the new chart gives them, instead of keeping the last one (an
+    #: output latched on by an action removed)
+    undriven: list[str] = field(default_factory=list)
     scan_changed: bool = False
     lines: list[str] = field(default_factory=list)
 
@@ -281,6 +294,24 @@ def _transitions(g: Grafcet, rename: dict[str, str]) -> dict[str, Transition]:
     return out
 
 
+def _undriven(ic: InstanceChange, add: Callable[[str], None]) -> None:
+    """The variables the new chart no longer drives (``InstanceChange.undriven``): not
+    inputs (the plant writes them), not retained (a cold start restores their value), not
+    of another type (they start at their initial value anyway)."""
+    old_every, old_any = written(ic.old)
+    new_every, new_any = written(ic.new)
+    for v, was in ic.variables.items():
+        nv = ic.new.variables[v]
+        if nv.kind is VarKind.INPUT or nv.retain or v in ic.types_changed:
+            continue
+        if (was in old_every and v not in new_every) or (
+                nv.kind is VarKind.OUTPUT and was in old_any and v not in new_any):
+            ic.undriven.append(v)
+            what = "output" if nv.kind is VarKind.OUTPUT else "variable"
+            add(f"{ic.name}: {what} {v} no longer driven by the chart: {nv.init!r} from the "
+                "swap on, as after a cold start")
+
+
 def _short(text: str) -> str:
     one = " ".join(text.split())
     return one if len(one) <= 60 else one[:57] + "..."
@@ -359,6 +390,7 @@ def _instance(name: str, oidef: InstanceDef, idef: InstanceDef, cs: ChangeSet
         if va.init != vb.init and va.type is vb.type:
             add(f"{name}: variable {v}: init {va.init!r} -> {vb.init!r} (the running value "
                 f"is kept)")
+    _undriven(ic, add)
     # timers and function blocks
     oblocks = {**{t: "timer" for t in og.timers}, **{x.name: x.kind for x in og.blocks.values()}}
     nblocks = {**{t: "timer" for t in ng.timers}, **{x.name: x.kind for x in ng.blocks.values()}}

@@ -48,6 +48,9 @@ class _Carry:
     #: chart had not, on a chart input: the memory takes the input's value of the last
     #: scan, so that the edge is seen exactly as a running chart would have seen it
     new_edges: list[tuple[int, int]] = field(default_factory=list)
+    #: the X of the steps the old chart had not: a new step starts inactive, an initial
+    #: one too (its X starts true only in a fresh state)
+    new_steps: list[int] = field(default_factory=list)
 
 
 @dataclass
@@ -86,6 +89,8 @@ class Applied:
     #: drivers of the OLD plant the caller must put in their safe state and close (removed,
     #: or replaced by a reopened one: close the old before opening the new)
     closed: list[str] = field(default_factory=list)
+    #: instances the new plant holds in fault (no active step left), with why
+    instance_faults: dict[str, str] = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
@@ -186,7 +191,11 @@ def _carry(ic: InstanceChange, old: Instance, new: Instance) -> _Carry:
             edge_input = _edge_input(s, new)
             if edge_input is not None:
                 c.new_edges.append((s.index, edge_input))
+            if s.kind is SlotKind.STEP_X:
+                c.new_steps.append(s.index)
             continue
+        if s.kind is SlotKind.VARIABLE and s.name in ic.undriven:
+            continue  # at its initial value, as after a cold start (the diff's line says so)
         if s.kind is SlotKind.VARIABLE and s.name in ic.types_changed:
             c.reset.append(f"{ic.name}: variable {s.name} starts at its init value (type "
                            f"changed)")
@@ -229,7 +238,9 @@ def apply(old: Plant, prepared: Prepared, *, restart: Collection[str] = (),
 
     O(state size): no compile, no code generation. ``restart``: instances restarted from
     their initial situation (retained values kept) instead of carried; ``force``: override
-    the refusals that can be (never a type change of a retained variable)."""
+    the refusals that can be (never a type change of a retained variable). An instance
+    whose last active steps ``force`` drops is put in fault (``Plant.fault_instance``:
+    not scanned, its outputs off), never left running dead; one in fault stays so."""
     res = Applied()
     new = prepared.plant
     cs = prepared.changes
@@ -279,10 +290,22 @@ def apply(old: Plant, prepared: Prepared, *, restart: Collection[str] = (),
             nm[ni] = copy.copy(v) if block else v
         for ni, vi in c.new_edges:
             nm[ni] = bool(nm[vi])
+        for ni in c.new_steps:
+            nm[ni] = False
         res.lines += c.reset
-        for ix, step in c.removed_steps:
-            if om[ix]:
-                res.lines.append(f"{name}: active step {step} dropped (forced)")
+        dropped = [step for ix, step in c.removed_steps if om[ix]]
+        res.lines += [f"{name}: active step {step} dropped (forced)" for step in dropped]
+        # a chart may empty its situation itself (a sink transition: SFCReset brings it
+        # back), but never by a change: one that dropped its last active steps leaves it
+        # in fault, as does one that carries an instance in fault
+        if name in old.instance_faults or (
+                dropped and not new.instances[name].active_steps()):
+            gone = old.instance_faults.get(name) or (
+                f"no active step left (the forced change dropped {', '.join(dropped)})")
+            new.fault_instance(name, gone)
+            res.instance_faults[name] = gone
+            res.lines.append(f"{name}: in fault, its outputs off: {gone}; ack, or reload "
+                             f"--restart {name}, starts it again from its initial situation")
     for d, p in prepared._unbound:
         new.drivers[d].outputs[p] = 0
         res.lines.append(f"{d}.{p}: no longer driven: off")

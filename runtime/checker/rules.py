@@ -28,6 +28,10 @@ from runtime.language.model import Grafcet, Qualifier, Step, Transition
 from runtime.language.unparse import ARITH, COMPARE, unparse
 
 T = A.Type
+#: pairs of transitions G201 decides (``or_exclusive``): PAIRS_AT_LEAST, and
+#: PAIRS_PER_TRANSITION more per transition of the chart
+PAIRS_AT_LEAST = 256
+PAIRS_PER_TRANSITION = 4
 
 
 # -- the checks of one chart --------------------------------------------------------------
@@ -204,30 +208,64 @@ class ChartChecker:
 
     # -- G201 ---------------------------------------------------------------------------
     def or_exclusive(self) -> None:
+        """Each pair of transitions leaving one step: exclusive, or a witness of both
+        true. A transition on the same condition (as written) as an earlier one of the
+        divergence is paired with that first one only; the other pairs are decided up to
+        PAIRS_AT_LEAST + PAIRS_PER_TRANSITION per transition of the chart, so the rule's
+        work grows with the chart, not with the square of a divergence's branches (a note
+        says when a divergence is not decided whole)."""
         g = self.g
         seen: set[tuple[int, int]] = set()
+        budget = PAIRS_AT_LEAST + PAIRS_PER_TRANSITION * len(g.transitions)
         for s in g.leaf_steps():
             outs = [k for k in self.outgoing(s.name) if k not in self.never]
-            for i, a in enumerate(outs):
-                for b in outs[i + 1:]:
+            first: dict[str, int] = {}
+            distinct = []
+            for k in outs:
+                a = first.setdefault(unparse(g.transitions[k].cond), k)
+                if a == k:
+                    distinct.append(k)
+                elif (a, k) not in seen:
+                    seen.add((a, k))
+                    self._exclusive(s, a, k)
+            pairs = len(distinct) * (len(distinct) - 1) // 2
+            decided = 0
+            for i, a in enumerate(distinct):
+                if budget <= 0:
+                    break
+                for b in distinct[i + 1:]:
+                    if budget <= 0:
+                        break
+                    decided += 1
                     if (a, b) in seen:
                         continue
                     seen.add((a, b))
-                    ta, tb = g.transitions[a], g.transitions[b]
-                    steps = set(ta.src_steps) | set(tb.src_steps)
-                    r = self.logic.solve([(ta.cond, True), (tb.cond, True)], steps)
-                    pair = (f"transitions {self.tname(ta)} (line {ta.loc.line}) and "
-                            f"{self.tname(tb)} (line {tb.loc.line})")
-                    if r.sat:
-                        self.add(tb.loc, "warning", "G201", f"OR divergence after step "
-                                 f"'{s.name}' is not exclusive: {pair} are both true with "
-                                 f"{r.show()} ('{ta.text}' and '{tb.text}'); the first in "
-                                 "file order wins: make the conditions mutually exclusive "
-                                 "(seed-000 rule II.1)")
-                    elif r.sat is None:
-                        self.add(tb.loc, "note", "G201", f"could not decide whether {pair} "
-                                 f"are exclusive: {r.atoms} atoms, no witness found by a "
-                                 "bounded search")
+                    budget -= 1
+                    self._exclusive(s, a, b)
+            if decided < pairs:
+                self.add(g.transitions[distinct[0]].loc, "note", "G201", f"OR divergence "
+                         f"after step '{s.name}' ({len(outs)} transitions): exclusivity "
+                         f"decided for {decided} of its {pairs} pairs of distinct conditions "
+                         f"(the bound: {PAIRS_AT_LEAST} pairs and {PAIRS_PER_TRANSITION} per "
+                         "transition of the chart)")
+
+    def _exclusive(self, s: Step, a: int, b: int) -> None:
+        """G201 for transitions ``a`` and ``b`` (file order) leaving step ``s``."""
+        ta, tb = self.g.transitions[a], self.g.transitions[b]
+        steps = set(ta.src_steps) | set(tb.src_steps)
+        r = self.logic.solve([(ta.cond, True), (tb.cond, True)], steps)
+        pair = (f"transitions {self.tname(ta)} (line {ta.loc.line}) and "
+                f"{self.tname(tb)} (line {tb.loc.line})")
+        if r.sat:
+            self.add(tb.loc, "warning", "G201", f"OR divergence after step "
+                     f"'{s.name}' is not exclusive: {pair} are both true with "
+                     f"{r.show()} ('{ta.text}' and '{tb.text}'); the first in "
+                     "file order wins: make the conditions mutually exclusive "
+                     "(seed-000 rule II.1)")
+        elif r.sat is None:
+            self.add(tb.loc, "note", "G201", f"could not decide whether {pair} "
+                     f"are exclusive: {r.atoms} atoms, no witness found by a "
+                     "bounded search")
 
     # -- G202 ---------------------------------------------------------------------------
     def useless_actions(self) -> None:
@@ -412,29 +450,29 @@ class ChartChecker:
 
     # -- G204 ---------------------------------------------------------------------------
     def same_condition(self) -> None:
+        """A transition and, for each of its target steps, the first transition leaving
+        that step on the same level condition: looked up by condition, so a step entered
+        and left by n transitions each costs n lookups and at most n warnings, not n²."""
         g = self.g
-        keys: dict[int, str] = {}
-
-        def key(k: int) -> str:
-            if k not in keys:
-                keys[k] = unparse(g.transitions[k].cond)
-            return keys[k]
-
+        keys = [unparse(t.cond) for t in g.transitions]
+        leaving: dict[str, dict[str, list[int]]] = {}
+        for step, outs in self._out.items():
+            by_key = leaving[step] = {}
+            for j in outs:
+                by_key.setdefault(keys[j], []).append(j)
         for i, a in enumerate(g.transitions):
             if has_edge(a.cond) or self.logic.const(a.cond) is not None or isinstance(
                     a.cond, A.Lit):
                 continue
-            following = sorted({j for d in a.dst_steps for j in self._out.get(d, [])})
+            following = sorted({next((j for j in leaving.get(d, {}).get(keys[i], [])[:2]
+                                      if j != i), i) for d in a.dst_steps} - {i})
             for j in following:
                 b = g.transitions[j]
-                if j == i:
-                    continue
-                if key(j) == key(i):
-                    mid = sorted(set(a.dst_steps) & set(b.src_steps))[0]
-                    self.add(b.loc, "warning", "G204", f"transitions {self.tname(a)} (line "
-                             f"{a.loc.line}) and {self.tname(b)} have the same level "
-                             f"condition '{b.text}': while it holds, step '{mid}' is passed "
-                             "through at once; probably needs an edge (↑) (seed 000)")
+                mid = sorted(set(a.dst_steps) & set(b.src_steps))[0]
+                self.add(b.loc, "warning", "G204", f"transitions {self.tname(a)} (line "
+                         f"{a.loc.line}) and {self.tname(b)} have the same level "
+                         f"condition '{b.text}': while it holds, step '{mid}' is passed "
+                         "through at once; probably needs an edge (↑) (seed 000)")
 
     # -- G205 ---------------------------------------------------------------------------
     def counting(self) -> None:

@@ -40,6 +40,8 @@ from runtime.language.model import Grafcet, ScanModel, Step, VarKind
 #: the names a generated scan reads from its module: the integer helpers and the builder of
 #: the unstable-chart error (the plant's inlined scans read them from its cycle's module)
 SCAN_GLOBALS: dict[str, Any] = {**HELPERS, "_Unstable": unstable_chart}
+#: a read of an entered (``a_``) or left (``l_``) mark in a line of generated code
+_MARK_READ = re.compile(r"\b([al]_\w+)\b(?!\s*=[^=])")
 #: the fast path's first line: the chart clock, its base's distance to now (the plant's
 #: inlined scans share it between the instances of one base, inline.py)
 FAST_CLOCK = "ct = now - cb"
@@ -245,8 +247,9 @@ class Compiler:
         """The two lines clearing the entered (``a_``) and left (``l_``) marks at the
         start of a scan (indented ``level``): only the marks the body reads (the others
         are only written)."""
-        text = "\n".join(body)
-        read = set(re.findall(r"\b([al]_\w+)\b(?!\s*=[^=])", text))
+        read: set[str] = set()
+        for line in body:  # line by line: no single call over the whole text
+            read.update(_MARK_READ.findall(line))
         out = []
         for p in ("a", "l"):
             names = [n for n in (ident(p, s.name) for s in steps) if n in read]

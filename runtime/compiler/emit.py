@@ -38,25 +38,27 @@ def renamed(lines: list[str], rename: Callable[[str], str | None]) -> list[str]:
     names, strings and comments are left as they are."""
     out = list(lines)
     edits: dict[int, list[tuple[int, int, str]]] = {}
-    toks = list(tokenize.generate_tokens(io.StringIO("\n".join(lines) + "\n").readline))
+    # the tokens one by one, with the one before and the one after: never a list of them
+    # all (a large chart's fast path has 150 000; freeing such a list at once is one long
+    # stretch holding the GIL, tens of ms)
+    tokens = tokenize.generate_tokens(io.StringIO("\n".join(lines) + "\n").readline)
+    prev: tokenize.TokenInfo | None = None
+    tok = next(tokens, None)
     depth = 0
-    for k, tok in enumerate(toks):
+    while tok is not None:
+        nxt = next(tokens, None)
         if tok.type == tokenize.OP:
             depth += tok.string in "([{"
             depth -= tok.string in ")]}"
-            continue
-        if tok.type != tokenize.NAME or keyword.iskeyword(tok.string):
-            continue
-        prev = toks[k - 1] if k else None
-        nxt = toks[k + 1] if k + 1 < len(toks) else None
-        if prev is not None and prev.type == tokenize.OP and prev.string == ".":
-            continue  # an attribute
-        if depth and nxt is not None and nxt.type == tokenize.OP and nxt.string == "=":
-            continue  # a keyword argument
-        new = rename(tok.string)
-        if new is not None and new != tok.string:
-            (row, col), (_, end) = tok.start, tok.end
-            edits.setdefault(row - 1, []).append((col, end, new))
+        elif tok.type == tokenize.NAME and not keyword.iskeyword(tok.string) and not (
+                prev is not None and prev.type == tokenize.OP and prev.string == "."
+        ) and not (  # an attribute, a keyword argument: not names
+                depth and nxt is not None and nxt.type == tokenize.OP and nxt.string == "="):
+            new = rename(tok.string)
+            if new is not None and new != tok.string:
+                (row, col), (_, end) = tok.start, tok.end
+                edits.setdefault(row - 1, []).append((col, end, new))
+        prev, tok = tok, nxt
     for row, spans in edits.items():
         line = out[row]
         for col, end, new in sorted(spans, reverse=True):

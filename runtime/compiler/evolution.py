@@ -5,6 +5,7 @@ for the next scan)."""
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Callable
 
 from runtime.compiler.emit import Emitter, ident
@@ -70,20 +71,30 @@ class Evolution:
         return f"pf{t.index}" if self.codesys else f"f{t.index}"
 
     def evaluate_transitions(self, out: Emitter) -> None:
+        """Each transition's fired flag, by priority: its source steps active (and their
+        min times reached), no earlier transition fired on one of its source steps, its
+        condition. The earlier ones are summed up per step in a temporary (``h_STEP``:
+        some transition leaving STEP fired so far), so a divergence of n branches costs n
+        terms, not n²/2 (an earlier transition's ``not f`` each)."""
         g = self.g
-        taken: dict[str, list[str]] = {}
+        left = Counter(s for t in g.transitions for s in dict.fromkeys(t.src_steps))
+        seen: set[str] = set()
         for t in g.transitions:
             f = self.fired_name(t)
+            srcs = list(dict.fromkeys(t.src_steps))
             terms = [ident("x", s) for s in t.src_steps]
             for st in min_timed(g, t):
                 terms.append(f"(ct - {ident('t0', st.name)}) >= {st.min_ns}")
-            earlier = sorted({e for s in t.src_steps for e in taken.get(s, [])})
-            terms += [f"not {e}" for e in earlier]
+            terms += [f"not {ident('h', s)}" for s in srcs if s in seen]
             terms.append(self.exprs.ex(t.cond))
             out(f"# {transition_text(t)}")
             out(self.state.let(f, value=" and ".join(terms)))
-            for s in t.src_steps:
-                taken.setdefault(s, []).append(f)
+            for s in srcs:
+                left[s] -= 1
+                if left[s]:  # a later transition leaves it too
+                    h = ident("h", s)
+                    out(f"{h} = {h} or {f}" if s in seen else f"{h} = {f}")
+                seen.add(s)
 
     def _leave(self, step: str) -> str:
         """Statements deactivating ``step``: its .T is kept, it is marked left."""

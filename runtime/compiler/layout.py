@@ -35,6 +35,30 @@ def bool_targets(g: Grafcet) -> dict[str, list[Action]]:
     return out
 
 
+def written(g: Grafcet) -> tuple[frozenset[str], frozenset[str]]:
+    """The variables the scan of ``g`` writes: (those it writes at every scan, whatever the
+    situation: the bool targets of actions, whose action control computes them, and the
+    targets of assignments at the top level of ``pre`` and ``post``; those some action,
+    equation or statement writes at all). An online change gives a variable the first
+    chart wrote at every scan and the second does not its value of a cold start (its
+    initial value), as it does an output the second chart never writes
+    (runtime/change/diff.py)."""
+    every = set(bool_targets(g))
+    every |= {s.node.target.name for s in (*g.pre, *g.post) if isinstance(s.node, A.Assign)}
+    anywhere = set(every)
+    roots = [s.node for s in (*g.pre, *g.post)]
+    roots += [n for a in g.actions() for n in a.body or []]
+    for r in roots:
+        for n in A.walk(r):
+            if isinstance(n, A.Assign):
+                anywhere.add(n.target.name)
+            elif isinstance(n, A.CallStmt) and n.call.method == "Set":
+                anywhere.add(n.call.obj)
+            elif isinstance(n, A.For):
+                anywhere.add(n.var.name)
+    return frozenset(every), frozenset(anywhere)
+
+
 class StateLayout:
     """The slots of one chart's state list, and the locals stored into them."""
 

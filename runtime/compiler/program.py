@@ -21,6 +21,9 @@ from runtime.compiler import blocks as B
 from runtime.language import ast as A
 from runtime.language.model import Grafcet
 
+#: a name in generated code
+_WORD = re.compile(r"[A-Za-z_]\w*")
+
 
 class SlotKind(enum.Enum):
     """What one entry of the state list holds."""
@@ -180,10 +183,12 @@ class Program:
         order = self._cells
         if not order:
             cellvars = self.factory.__code__.co_cellvars
+            cells = set(cellvars)  # a set: n names tested, not n² compared
             seen = dict.fromkeys([f"v_{v}" for v in self.inputs] + ["slow"])
-            seen.update(dict.fromkeys(re.findall(r"[A-Za-z_]\w*", "\n".join(self.fast))))
+            for line in self.fast:  # line by line: no one long call holding the GIL
+                seen.update(dict.fromkeys(_WORD.findall(line)))
             seen.update(dict.fromkeys(cellvars))
-            order = self._cells = [n for n in seen if n in cellvars]
+            order = self._cells = [n for n in seen if n in cells]
         return order
 
     def new_state(self) -> list[Any]:

@@ -457,6 +457,8 @@ class Daemon:
             out.append(f"halted: {self.halted} (outputs off until ack)")
         if plant.iocheck:
             out.append("iocheck: charts stopped, outputs set by hand")
+        out += [f"{name}: in fault: {why} (its outputs off until ack or reload --restart "
+                f"{name})" for name, why in list(plant.instance_faults.items())]
         if plant.stepping:
             out.append(f"stepping by the console: {plant.steps_left} cycle(s) to go")
         elif plant.held:
@@ -516,13 +518,16 @@ class Daemon:
         return text
 
     def status(self) -> dict[str, Any]:
-        """State, fault, ``inhibits`` (see ``inhibits()``), counts and the last faults."""
+        """State, fault, ``inhibits`` (see ``inhibits()``), counts and the last faults;
+        ``instance_faults``: the instances in fault by themselves (no active step left),
+        with why."""
         return {"state": self.state.value, "fault": self.fault or self.halted,
                 "inhibits": self.inhibits(), "held": self.held(),
                 "scans": self.scan_stats.count, "uptime_s": round(self.uptime_s(), 3),
                 "cycle_ms": self.plant.cycle_ns / 1e6, "freezes": self.scan_stats.freezes,
                 "faults": [{"time": t, "reason": r} for t, r in self.faults],
-                "retain": self.retain_status(), "reload": self.reloader.last()}
+                "retain": self.retain_status(), "reload": self.reloader.last(),
+                "instance_faults": dict(self.plant.instance_faults)}
 
     def retain_status(self) -> dict[str, Any] | None:
         """``status``'s ``retain`` entry: state ok | failing | lost, since (wall time), text;
@@ -584,6 +589,9 @@ class Daemon:
             self.halted = None
             plant.restart()
             done.append("charts restarted from their initial situation")
+        for name, why in list(plant.instance_faults.items()):
+            plant.restart_instance(name)
+            done.append(f"{name}: in fault ({why}): restarted from its initial situation")
         for name, inst in plant.instances.items():
             if inst.get("SFCError"):
                 plant.pulse(name, "SFCQuitError")

@@ -3,7 +3,8 @@
 The flow, one reload at a time:
 
 1. load the plant file again (its charts from disk), or take the program that ran before
-   the last change (``back``);
+   the last change (``back``), and compile its code, in a child process under limits
+   (runtime/controller/reloadchild.py; a child that fails is a refused reload);
 2. in a worker thread, never the scan thread: ``runtime.change.prepare`` (compile, build
    the new Plant on the open drivers) and what each holder of the plant needs built in
    advance (the console's names, the trace columns, the event watcher's flags, the
@@ -24,10 +25,6 @@ from __future__ import annotations
 import collections
 import gc
 import logging
-import os
-import pickle
-import subprocess
-import sys
 import threading
 import time
 from collections.abc import Callable, Collection
@@ -36,10 +33,10 @@ from typing import TYPE_CHECKING, Any
 
 from runtime.change.plan import Applied, Prepared, apply, file_hashes, prepare
 from runtime.compiler.codebook import CodeBook
+from runtime.controller.reloadchild import compile_apart, load_apart
 from runtime.engine.plant import Plant
 from runtime.errors import SoftplcError
 from runtime.language.model import PlantDef
-from runtime.language.plantfile import load_plant
 
 if TYPE_CHECKING:
     from runtime.controller.daemon import Daemon
@@ -53,10 +50,6 @@ HISTORY_KEPT = 20
 SWAP_TIMEOUT_S = 30.0
 #: what a reload asked while another runs is told
 IN_PROGRESS = "reload in progress"
-#: the longest the child process loading the plant may take, s
-LOAD_TIMEOUT_S = 120.0
-#: the directory holding the ``runtime`` package (for the child process)
-_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 #: a holder of the plant (the console): called in the worker thread with the new plant,
 #: returns what to run in the scan thread at the swap (cheap: assignments)
@@ -72,6 +65,8 @@ class ReloadResult:
     refusals: list[str] = field(default_factory=list)
     restarted: list[str] = field(default_factory=list)
     reopened: list[str] = field(default_factory=list)
+    #: instances the change left in fault (no active step), with why
+    instance_faults: dict[str, str] = field(default_factory=dict)
     #: one line: what changed ("3 changes: tester1: ...")
     summary: str = ""
     #: file -> sha256 of the program now running
@@ -86,6 +81,7 @@ class ReloadResult:
     def as_dict(self) -> dict[str, Any]:
         return {"applied": self.applied, "lines": self.lines, "refusals": self.refusals,
                 "restarted": self.restarted, "reopened": self.reopened,
+                "instance_faults": self.instance_faults,
                 "summary": self.summary, "hashes": self.hashes, "back": self.back,
                 "load_ms": round(self.load_ms, 3), "prepare_ms": round(self.prepare_ms, 3),
                 "swap_ms": round(self.swap_ms, 3)}
@@ -189,6 +185,9 @@ class Reloader:
                     ", ".join(f"{f} sha256 {h}" for f, h in result.hashes.items()))
         for line in result.lines:
             log.info("reload: %s", line)
+        for name, why in result.instance_faults.items():
+            log.error("FAULT of instance %s: %s: its outputs off until ack or reload "
+                      "--restart %s", name, why, name)
         return result
 
     def _static_refusals(self, old: PlantDef, new: PlantDef,
@@ -203,7 +202,7 @@ class Reloader:
             out.append("iocheck on: end it first ('iocheck off', then 'ack')")
         return out
 
-    def _build(self, old: Plant, new_pdef: PlantDef, book: CodeBook | None
+    def _build(self, old: Plant, new_pdef: PlantDef, book: CodeBook
                ) -> tuple[Prepared, list[Callable[[], None]]]:
         """Worker thread: the new plant, and each holder's switch, built in advance."""
         sched = self.daemon.scheduler
@@ -219,9 +218,8 @@ class Reloader:
                 gc.freeze()
         finally:
             sched.gc_held = False
-        if book is not None:
-            log.debug("reload: %d code objects from the child, %d compiled here", book.hits,
-                      book.misses)
+        log.debug("reload: %d code objects from the child, %d compiled here", book.hits,
+                  book.misses)
         return prepared, commits
 
     def _in_worker(self, fn: Callable[[], Any]) -> Any:
@@ -298,8 +296,9 @@ class Reloader:
         # was frozen, out of the collector's sight, at the start or by the last reload)
         old.dispose()
         return ReloadResult(True, lines=lines, restarted=list(applied.restarted),
-                            reopened=list(applied.reopened), summary=_summary(lines),
-                            swap_ms=swap_ms)
+                            reopened=list(applied.reopened),
+                            instance_faults=dict(applied.instance_faults),
+                            summary=_summary(lines), swap_ms=swap_ms)
 
     def _reopen(self, old: Plant, new: Plant, closed: list[str], opened: list[str]) -> None:
         """Outside the scan, during the daemon's ``gap`` (set at the swap: the cycles
@@ -331,79 +330,6 @@ class Reloader:
         return self.history[-1].as_dict() if self.history else None
 
 
-def _load(path: str) -> PlantDef | str:
-    """The plant file at ``path`` with its charts, or the one line saying why not."""
-    try:
-        return load_plant(path)
-    except (SoftplcError, OSError) as exc:
-        return f"load error: {exc}"
-
-
-#: what the child of ``load_apart``/``compile_apart`` hands back: the plant (or the line
-#: saying why it did not load) and the code objects compiled for it
-Loaded = tuple[PlantDef, CodeBook | None]
-
-
-def load_apart(path: str) -> Loaded | str:
-    """Load the plant file at ``path`` and compile its code in a child process
-    (``python -m runtime.controller.reload PATH``), the results handed back pickled and
-    marshalled: the YAML parser and ``compile()`` hold the GIL for tens of ms at a time on a
-    large plant (measured 64 ms and 16 ms for 100 testers), which would make the scan
-    thread that much late; unpickling holds it ~3 ms, unmarshalling the code under 1 ms.
-    If the child fails, the plant is loaded in this process after all (one log line)."""
-    return _apart([path], None) or _loaded_here(path)
-
-
-def compile_apart(pdef: PlantDef) -> Loaded | str:
-    """The code of ``pdef`` compiled in a child process (``reload --back``: the previous
-    program, already loaded, is handed to the child pickled); in this process if that
-    fails (the book is then empty, and the prepare compiles). The plant returned is
-    ``pdef`` itself, not the child's copy of it."""
-    got = _apart([], pickle.dumps(pdef))
-    return (pdef, got[1]) if isinstance(got, tuple) else (pdef, None)
-
-
-def _apart(args: list[str], stdin: bytes | None) -> Loaded | str | None:
-    """The child's answer, None when there is none (said in one log line)."""
-    try:
-        child = subprocess.run([sys.executable, "-m", "runtime.controller.reload", *args],
-                               input=stdin, capture_output=True, timeout=LOAD_TIMEOUT_S,
-                               check=False, env={**os.environ, "PYTHONPATH": _ROOT + os.pathsep
-                                                 + os.environ.get("PYTHONPATH", "")})
-        if child.returncode == 0:
-            pdef, blobs = pickle.loads(child.stdout)  # noqa: S301 - our child
-            if isinstance(pdef, str):
-                return pdef
-            return pdef, CodeBook(blobs)
-        why = child.stderr.decode(errors="replace").strip().splitlines()[-1:] or ["?"]
-        log.warning("reload: the plant was not loaded apart (exit %d: %s): loaded here",
-                    child.returncode, why[0])
-    except (OSError, subprocess.SubprocessError, pickle.UnpicklingError, EOFError,
-            AttributeError, ImportError, ValueError, TypeError) as exc:
-        log.warning("reload: the plant was not loaded apart (%s): loaded here", exc)
-    return None
-
-
-def _loaded_here(path: str) -> Loaded | str:
-    pdef = _load(path)
-    return pdef if isinstance(pdef, str) else (pdef, None)
-
-
-def _child(args: list[str]) -> bytes:
-    """The child: load the plant (or read it pickled on stdin), build it on simulated I/O
-    recording every code object compiled, and answer ``(PlantDef or error line, blobs)``.
-    The code is compiled from the same generated sources as the controller's plant will
-    be: a source that comes out otherwise is compiled by the controller (codebook.py)."""
-    pdef = _load(args[0]) if args else pickle.loads(sys.stdin.buffer.read())  # noqa: S301
-    book = CodeBook(record=True)
-    if not isinstance(pdef, str):
-        try:
-            Plant(pdef, sim=True, book=book)
-        except Exception:  # noqa: BLE001 - the controller's own prepare says what is wrong
-            log.debug("reload child: the plant did not build", exc_info=True)
-    return pickle.dumps((pdef, book.blobs))
-
-
 def _summary(lines: list[str]) -> str:
     """One line for the log and ``status``: the count and the first changes."""
     if not lines:
@@ -411,7 +337,3 @@ def _summary(lines: list[str]) -> str:
     head = "; ".join(lines[:3])
     more = f"; ... ({len(lines) - 3} more)" if len(lines) > 3 else ""
     return f"{len(lines)} change{'s' if len(lines) != 1 else ''}: {head}{more}"
-
-
-if __name__ == "__main__":  # the child of ``load_apart`` and ``compile_apart``
-    sys.stdout.buffer.write(_child(sys.argv[1:]))

@@ -24,6 +24,9 @@ from runtime.engine.instance import Instance
 from runtime.language import ast as A
 from runtime.language.model import Binding, PlantDef
 
+#: a name in generated code
+_WORD = re.compile(r"[A-Za-z_]\w*")
+
 
 class CycleWriter:
     """Writes a plant's cycles: :meth:`source` once, after which :attr:`inliner` holds the
@@ -88,9 +91,9 @@ class CycleWriter:
         locals, not globals."""
         fast, slow = self._fast_body(), self._slow_body()
         copy = [f"    if FI: force_instance({name!r}, M_{name})"
-                for name in self.instances] + (self._output_copy() or ["    pass"])
+                for name in self.instances] + self._output_copy() + ["    if SI: stopped_off()"]
         def defaults(body: list[str]) -> str:  # the names of the environment it uses
-            used = set(re.findall(r"[A-Za-z_]\w*", "\n".join(body))) & self._env.keys()
+            used = {n for line in body for n in _WORD.findall(line)} & self._env.keys()
             return ", ".join(f"{n}={n}" for n in sorted(used))
 
         return "\n".join([f"def cycle(t, {defaults(fast)}):", *fast, "",
@@ -149,7 +152,8 @@ class CycleWriter:
 
     def _slow_body(self) -> list[str]:
         """The cycle with forces and pulses: bindings written into the state, the
-        instance's forces applied before and after its scan, the forced points masked."""
+        instance's forces applied before and after its scan, the forced points masked;
+        an instance in fault (``Plant.instance_faults``) not scanned, its outputs' points off."""
         lines = self._reads()
         add = lines.append
         add("    if FP: force_points(False)")
@@ -168,10 +172,11 @@ class CycleWriter:
                 add(f"    m[{slot}] = {self._input_expr(b, v.type, self._view)}  # {sig} <- "
                     f"{b.source}{' inverted' if b.invert else ''}")
             add(f"    if FI: force_instance({name!r}, m)")
-            add(f"    SS_{name}(now, up)")
+            add(f"    if not SI or {name!r} not in SI: SS_{name}(now, up)  # not in fault")
             add(f"    if FI: force_instance({name!r}, m)")
         lines += self._output_copy()
         add("    if FP: force_points(True)")
+        add("    if SI: stopped_off()  # the outputs of an instance in fault: off")
         if not self.virtual:
             lines += [f"    W_{name}()" for name in self.drivers]
         add("    if FP: force_points(None)")

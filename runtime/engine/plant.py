@@ -80,7 +80,7 @@ class Plant:
                  "instances", "drivers", "_handed", "forced", "forced_points",
                  "_forced_by_inst", "_stash", "_pulses", "_hold", "steps_left", "_iocheck",
                  "scans", "names", "_env", "source", "_cycle_fast", "_cycle", "_usual",
-                 "_copy_outputs", "_inliner", "bits", "__weakref__")
+                 "_copy_outputs", "_inliner", "bits", "instance_faults", "__weakref__")
 
     def __init__(self, pdef: PlantDef, *, sim: bool = False,
                  drivers: dict[str, Driver] | None = None, virtual: bool = False,
@@ -142,6 +142,10 @@ class Plant:
         self._hold = False  # see the property
         self.steps_left = 0  # while held: full cycles still let through
         self._iocheck = False  # see the property
+        #: instances in fault, with why (an instance left without an active step by a
+        #: forced online change): not scanned, the points of their outputs off, until
+        #: :meth:`restart_instance` or :meth:`restart` (``ack``)
+        self.instance_faults: dict[str, str] = {}
         self.scans = 0
         self._declare_points(handover)
         #: the plant's names, resolved on the drivers' own point tables
@@ -225,6 +229,8 @@ class Plant:
         env["FI"] = self._forced_by_inst
         env["force_points"] = self._apply_point_forces
         env["force_instance"] = self._apply_instance_forces
+        env["SI"] = self.instance_faults
+        env["stopped_off"] = self._stopped_off
         env.update(SCAN_GLOBALS)  # what the inlined scans call (inline.py)
         for name, d in self.drivers.items():
             env[f"R_{name}"] = d.read
@@ -284,7 +290,8 @@ class Plant:
             self.last_up = up
             self._last_scan = pnow
             self._settle()
-            if self._pulses or self._forced_by_inst or self.forced_points:
+            if (self._pulses or self._forced_by_inst or self.forced_points
+                    or self.instance_faults):
                 return self._cycle_forced(pnow, up)
         try:
             got = self._cycle_fast((pnow, up))
@@ -416,7 +423,8 @@ class Plant:
         """Whether the next cycle is a usual one: running (started, not held, not in
         iocheck, the last cycle scanned), no force and no pulse."""
         return not (self._iocheck or self._hold or self._stood_still or self._pulses
-                    or self._forced_by_inst or self.forced_points) and self._start is not None
+                    or self._forced_by_inst or self.forced_points or self.instance_faults
+                    ) and self._start is not None
 
     def _cycle_forced(self, pnow: int, up: int) -> str | None:
         """The cycle with forces and pulses applied around each scan (``cycle``)."""
@@ -573,9 +581,39 @@ class Plant:
                 log.warning("retained values ignored for %s: %s", name, ", ".join(ignored))
 
     def restart(self) -> None:
-        """Every chart back to its initial situation (retained memory kept)."""
+        """Every chart back to its initial situation (retained memory kept); an instance
+        in fault too."""
         for inst in self.instances.values():
             inst.restart()
+        self.instance_faults.clear()
+        self._settle()
+
+    # -- an instance in fault --------------------------------------------------------
+    def fault_instance(self, name: str, why: str) -> None:
+        """Put instance ``name`` in fault: from the next cycle on it is not scanned and
+        the points of its outputs are off (its output variables too, for the instances
+        that read them), whatever else runs. Between two cycles only."""
+        inst = self.instances[name]
+        for v in inst.grafcet.outputs:
+            off = "" if v.type is A.Type.STRING else coerce(v.type, 0)
+            inst.m[inst.program.var_index(v.name)] = off
+        self.instance_faults[name] = why
+        self._settle()
+
+    def restart_instance(self, name: str) -> None:
+        """Instance ``name`` back to its initial situation (retained memory kept), out of
+        fault if it was in one. Between two cycles only."""
+        self.instances[name].restart()
+        self.instance_faults.pop(name, None)
+        self._settle()
+
+    def _stopped_off(self) -> None:
+        """The points of the outputs of every instance in fault written off (the cycle,
+        after its outputs and the forced points)."""
+        for name in self.instance_faults:
+            for b in self.pdef.instances[name].outputs.values():
+                if b.driver is not None:
+                    self.drivers[b.driver].outputs[b.point or ""] = 0
 
     # -- names, set and force --------------------------------------------------------
     def _owner(self, name: str) -> tuple[Owner, str, str]:

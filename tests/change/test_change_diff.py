@@ -69,7 +69,9 @@ CASES = [
     ("action added", CHART.replace("actions: [p,", "actions: [p, o,"),
      ["Press: step s1: action 'o' added"], []),
     ("action removed", CHART.replace("actions: [p, ", "actions: ["),
-     ["Press: step s1: action 'p' removed"], []),
+     ["Press: step s1: action 'p' removed",
+      "Press: output p no longer driven by the chart: False from the swap on, as after a "
+      "cold start"], []),
     ("min time", CHART.replace("  s2: {}", "  s2: {min: 2s}"),
      ["Press: step s2: initial/min/max changed"], []),
     ("variable added", CHART.replace("  n: 0\n", "  n: 0\n  m: 5\n"),

@@ -1,8 +1,11 @@
 """Property: for a random chart (tests/engine's generator) run a random while, and a random
 compatible edit (a new step with a transition into it at any priority, a time constant, an
-action, a new variable), carrying the state then scanning equals scanning the new chart from
-that state, in the three scan models. The expected side is engine_reference.py on the new
-chart, its state handed over by hand by name; the engine side is prepare + apply."""
+action added or changed, bool actions removed, a new variable), carrying the state then
+scanning equals scanning the new chart from that state, in the three scan models. The
+expected side is engine_reference.py on the new chart, its state handed over by hand by
+name; the engine side is prepare + apply. An output whose last action an edit removes is
+what a cold start of the new chart makes it, from the swap on (never latched at its last
+value): compared with the reference from the initial situation too."""
 
 from __future__ import annotations
 
@@ -29,9 +32,12 @@ _serial = itertools.count()
 
 @st.composite
 def edits(draw: st.DrawFn, chart: RefChart) -> tuple[str, RefChart]:
-    """(what, the edited chart): each edit keeps every step, transition and action."""
+    """(what, the edited chart): each edit keeps every step and transition; only
+    ``unaction`` removes actions (bool ones: one, or every one of a target)."""
     new = copy.deepcopy(chart)
-    kind = draw(st.sampled_from(["step", "time", "action", "variable"]))
+    bools = [a for a in chart.actions if a.target is not None]
+    kind = draw(st.sampled_from(["step", "time", "action", "variable"]
+                                + (["unaction", "unaction"] if bools else [])))
     if kind == "step":
         s = "sNew"
         into = Trans([draw(st.sampled_from(chart.steps))], [s], draw(conditions(chart.steps)))
@@ -63,6 +69,11 @@ def edits(draw: st.DrawFn, chart: RefChart) -> tuple[str, RefChart]:
             new.actions.insert(at, draw(st.sampled_from([
                 Assoc("N", s, "o1"), Assoc("S", s, "o2"), Assoc("R", s, "o0"),
                 Assoc("P1", s, k=77), Assoc("N", s, k=55)])))
+    elif kind == "unaction":
+        target = draw(st.sampled_from(sorted({a.target for a in bools if a.target})))
+        mine = [i for i, a in enumerate(new.actions) if a.target == target]
+        gone = set(mine) if draw(st.booleans()) else {draw(st.sampled_from(mine))}
+        new.actions = [a for i, a in enumerate(new.actions) if i not in gone]
     return kind, new
 
 
@@ -87,6 +98,11 @@ def hand_over(old: Reference, chart: RefChart) -> Reference:
                 mine[new_ids.index(old_ids[i])] = v
     by_steps = {(tuple(t.src), tuple(t.dst)): t for t in chart.trans}
     ref.pending = [by_steps[(tuple(t.src), tuple(t.dst))] for t in old.pending]
+    for o in chart.outputs:  # the memory of S is the target's while some S sets it
+        if not any(a.target == o and a.qual == "S" for a in chart.actions):
+            ref.stored[o] = False
+        if not any(a.target == o for a in chart.actions):  # its value of a cold start,
+            ref.out[o] = False  # also through a pause (docs/online-change.md)
     return ref
 
 
@@ -111,8 +127,11 @@ def plant_of(tmp, chart: RefChart, extra: str = "") -> tuple[Plant, str]:
     return plant, text
 
 
-def run(plant: Plant, ref: Reference, seq: list, up: int, what: str) -> int | None:
-    """Scan both; assert they agree; the time of the next scan, None if unstable."""
+def run(plant: Plant, ref: Reference, seq: list, up: int, what: str,
+        cold: Reference | None = None, undriven: tuple[str, ...] = ()) -> int | None:
+    """Scan both; assert they agree; the time of the next scan, None if unstable. With
+    ``cold`` (the new chart from its initial situation, scanned alongside): the outputs
+    ``undriven`` are also what it makes them."""
     inst = plant.instances["Rnd"]
     for k, (delta, inputs, flags) in enumerate(seq):
         for name, value in {**inputs, **flags}.items():
@@ -127,6 +146,15 @@ def run(plant: Plant, ref: Reference, seq: list, up: int, what: str) -> int | No
         want = ref.snapshot()
         got = {key: inst.get(key) for key in want}
         assert got == want, f"{what}: scan {k} at {up // MS} ms, inputs {inputs} {flags}"
+        if cold is not None:
+            try:
+                cold.scan(BOOT + up, inputs, flags)
+            except Unstable:
+                cold = None
+            else:
+                started = {o: cold.out[o] for o in undriven}
+                assert {o: inst.get(o) for o in undriven} == started, (
+                    f"{what}: scan {k}: not what a cold start makes them")
         up += delta * MS
     return up
 
@@ -146,8 +174,11 @@ def check(tmp, chart: RefChart, edit: tuple[str, RefChart], before: list, after:
     assert state(old) == was
     if kind == "variable":
         assert new.instances["Rnd"].get("m2") == 5
+    undriven = tuple(o for o in new_chart.outputs
+                     if not any(a.target == o for a in new_chart.actions))
     run(prep.plant, hand_over(ref, new_chart), after, up,
-        f"after the edit ({kind})\n--- old\n{old_text}--- new\n{new_text}")
+        f"after the edit ({kind})\n--- old\n{old_text}--- new\n{new_text}",
+        Reference(new_chart), undriven)
 
 
 SETTINGS = settings(max_examples=200, deadline=None,

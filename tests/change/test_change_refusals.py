@@ -100,6 +100,40 @@ def test_forced_an_active_step_removed_is_dropped_and_said(tmp_path):
     assert "tester1: active step gsAbrir dropped (forced)" in res.lines
     assert prep.plant.instances["tester1"].active_steps() == []
     assert prep.plant.instances["tester2"].active_steps() == ["gsParado"]
+    # tester1, left without an active step, is in fault: not scanned, its outputs off;
+    # tester2 runs on (the story starts it)
+    assert res.instance_faults == {"tester1": "no active step left (the forced change "
+                                              "dropped gsAbrir)"}
+    new = prep.plant
+    story.bind(new)
+    rows = story.run(400)
+    points = [f"{b.driver}.{b.point}" for b in new.pdef.instances["tester1"].outputs.values()]
+    assert all(row[p] == 0 for row in rows for p in points)
+    assert all(not row[f"tester1.{s}.X"] for row in rows for s in ("gsParado", "gsOpen"))
+    assert any(row["tester2.gsCerrar.X"] for row in rows)
+    new.restart_instance("tester1")  # what ack and reload --restart do
+    assert new.instances["tester1"].active_steps() == ["gsParado"] and not new.instance_faults
+
+
+def test_a_chart_that_empties_its_situation_itself_is_no_fault(tmp_path):
+    """A sink transition may leave a chart with no active step (SFCReset brings it back):
+    a change that drops no active step leaves it as it is, scanned."""
+    chart = ("grafcet: Sink\ninputs: [iGo]\noutputs: [oRun]\nsteps:\n"
+             "  s0: {initial: true, actions: [oRun]}\ntransitions:\n"
+             "  - {from: s0, to: [], when: iGo}\n")
+    (tmp_path / "sink.yaml").write_text(chart)
+    (tmp_path / "plant.yaml").write_text(
+        "drivers:\n  sim: {type: sim}\ninstances:\n  m:\n    grafcet: sink.yaml\n"
+        "    inputs: {iGo: sim.I0}\n    outputs: {oRun: sim.Q0}\n")
+    old = sim_plant(str(tmp_path / "plant.yaml"))
+    old.drivers["sim"].inputs["I0"] = 1
+    old.cycle(0)
+    old.cycle(10_000_000)
+    assert old.instances["m"].active_steps() == []
+    (tmp_path / "sink.yaml").write_text(chart.replace("when: iGo", "when: iGo AND TRUE"))
+    prep = prepare(old, load_plant(str(tmp_path / "plant.yaml")))
+    res = apply(old, prep, force=True)
+    assert res.refusals == [] and res.instance_faults == {} and not prep.plant.instance_faults
 
 
 def test_restart_of_an_unknown_instance_is_refused():
@@ -107,3 +141,22 @@ def test_restart_of_an_unknown_instance_is_refused():
     prep = prepare(story.plant, load_plant(data_plant("timeout")))
     assert apply(story.plant, prep, restart=["tester9"]).refusals == [
         "--restart tester9: no such instance in the new plant"]
+
+
+def test_a_new_initial_step_starts_inactive(tmp_path):
+    """Only a fresh start activates the initial steps: an initial step the change adds to
+    a running chart starts inactive (docs: a new step starts inactive), never active beside
+    the situation the machine is in."""
+    from tests.change.changekit import ROOT
+    src = (ROOT / "configs/drawer_tester/drawer_tester.yaml").read_text()
+    (tmp_path / "chart.yaml").write_text(src.replace(
+        "  gsAbrir:\n", "  gsExtra: {initial: true}\n  gsAbrir:\n").replace(
+        "transitions:\n", "transitions:\n  - {from: gsExtra, to: gsParado, when: iParo}\n"))
+    plant = (ROOT / "configs/drawer_tester/plant_sim.yaml").read_text()
+    (tmp_path / "plant.yaml").write_text(plant.replace("drawer_tester.yaml", "chart.yaml"))
+    story = story_at(60)
+    prep = prepare(story.plant, load_plant(str(tmp_path / "plant.yaml")))
+    res = apply(story.plant, prep)
+    assert res.refusals == [] and "tester1: step gsExtra added" in res.lines
+    assert prep.plant.instances["tester1"].active_steps() == ["gsAbrir"]
+    assert prep.plant.instances["tester2"].active_steps() == ["gsParado"]

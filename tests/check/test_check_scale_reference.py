@@ -1,7 +1,8 @@
 """The linear-time rules give the answers of the plain ones they replace, on random charts.
 
 The references below are the earlier rules, written the direct way (one forward search per
-divergence, every pair of transitions for G204, a fixpoint over every transition for the
+divergence, every pair of transitions for G204 (for each step a transition enters, the
+first transition leaving it on the same condition), a fixpoint over every transition for the
 structural reach); the checker's G203 and G204 diagnostics and ``structural_reach`` must
 be the same on any chart the loader accepts (macro-steps, AND/OR divergences, loops,
 source and sink transitions, never-firing transitions).
@@ -140,11 +141,12 @@ def plain_g204(c: ChartChecker) -> list[tuple[int, int, str]]:
         key = unparse(a.cond)
         if has_edge(a.cond) or c.logic.const(a.cond) is not None or isinstance(a.cond, A.Lit):
             continue
-        for b in g.transitions:
-            if b is a or not set(a.dst_steps) & set(b.src_steps):
-                continue
-            if unparse(b.cond) == key:
-                out.append((b.loc.line, b.loc.col, a.text))
+        firsts = set()  # per step entered, the first transition leaving it on that condition
+        for d in a.dst_steps:
+            firsts |= {next((k for k, b in enumerate(g.transitions) if b is not a
+                             and d in b.src_steps and unparse(b.cond) == key), -1)} - {-1}
+        out += [(g.transitions[k].loc.line, g.transitions[k].loc.col, a.text)
+                for k in sorted(firsts)]
     return out
 
 
