@@ -53,6 +53,8 @@ log = logging.getLogger(__name__)
 
 #: how long the serving loops wait for input before polling streams and timers, seconds
 POLL_S = 0.05
+#: ... and at most this long while a session's command is pending (``cycle N``), seconds
+PENDING_POLL_S = 0.01
 #: bytes taken from a connection per read
 READ_CHUNK = 1024
 #: bytes received and not yet handled, per connection, before reading from it stops
@@ -108,7 +110,8 @@ class Throttle:
 class Line:
     """One connection's input queue in front of its Session: whole lines are handed over
     one at a time (``step``), each paid with a token of its Throttle; the reply bytes
-    wait in ``out`` for the transport."""
+    wait in ``out`` for the transport. While the session's command is pending (``cycle
+    N``) its lines wait; a Ctrl-C among them stops that command."""
 
     def __init__(self, session: Session, clock: Callable[[], float],
                  throttle: Throttle | None = None) -> None:
@@ -118,8 +121,9 @@ class Line:
         self.throttle = throttle
         self.inbuf = bytearray()
         self.out = bytearray()
-        #: clock seconds since which the session has had no input while neither trusted
-        #: nor unlocked (its idle time counts from there)
+        #: clock seconds since which the session has given no command (Session.last_command:
+        #: empty lines and Ctrl-C do not count) while neither trusted nor unlocked (its
+        #: idle time counts from there)
         self.idle_since = clock()
         #: monotonic seconds before which no line is handed over (0: none)
         self.held_until = 0.0
@@ -128,13 +132,17 @@ class Line:
 
     def receive(self, data: bytes) -> None:
         self.inbuf += data
-        self.idle_since = self.clock()
 
     def ready(self) -> bool:
         """A line (or a stretch of a long line) is waiting, the peer takes replies, and
-        the session is not waiting for its next token after a refused line."""
-        return (bool(self.inbuf) and len(self.out) < OUT_MAX
-                and (self.held_until == 0.0 or self._unheld()))
+        the session is not waiting for its next token after a refused line; or the
+        session's pending command can be finished (done, or a Ctrl-C came)."""
+        if len(self.out) >= OUT_MAX:
+            return False
+        pending = self.session.pending
+        if pending is not None:
+            return pending.ready() or b"\x03" in self.inbuf
+        return bool(self.inbuf) and (self.held_until == 0.0 or self._unheld())
 
     def _unheld(self) -> bool:
         if time.monotonic() < self.held_until:
@@ -143,7 +151,20 @@ class Line:
         return True
 
     def step(self) -> None:
-        """Hand the next line over (or what there is of it) and queue the reply."""
+        """Hand the next line over (or what there is of it) and queue the reply; or the
+        reply of the session's pending command (stopped first if a Ctrl-C came: the
+        Ctrl-C itself stays in the input, where it then drops a half-typed line)."""
+        session = self.session
+        if session.pending is not None:
+            if not session.pending.ready():
+                session.pending.interrupt()
+            self._send(session.finish())
+        else:
+            self._take_line()
+        # only a command is activity: an empty line or a Ctrl-C does not move this
+        self.idle_since = max(self.idle_since, session.last_command)
+
+    def _take_line(self) -> None:
         m = _LINE_END.search(self.inbuf)
         if m is None:  # half a line: the framer keeps it (and drops it when overlong)
             chunk, self.inbuf = bytes(self.inbuf), bytearray()
@@ -308,7 +329,9 @@ class ConsoleServer:
             while not self._stop.is_set():
                 busy = any(c.line.ready() for c in self._conns)
                 self._set_events(sel)
-                for key, _ in sel.select(0 if busy else POLL_S):
+                wait = 0 if busy else PENDING_POLL_S if any(
+                    c.line.session.pending for c in self._conns) else POLL_S
+                for key, _ in sel.select(wait):
                     if isinstance(key.data, _Listener):
                         self._accept(sel, key.data)
                     else:
@@ -516,7 +539,8 @@ class ConsoleServer:
                 reading = not reading
                 poller.modify(fd, select.POLLIN if reading else 0)
             busy = line.ready()
-            for _, ev in poller.poll(0 if busy else POLL_S * 1000):
+            wait = 0 if busy else PENDING_POLL_S if line.session.pending else POLL_S
+            for _, ev in poller.poll(wait * 1000):
                 if ev & (select.POLLHUP | select.POLLERR | select.POLLNVAL):
                     log.warning("console serial %s: hang-up", address)
                     return "hang-up"
