@@ -236,7 +236,8 @@ class CycleStopped(CommandError):
         self.data = data
 
 
-def _cycle_report(cat: Catalogue, n: int, before: Image, images: list[Image]) -> Reply:
+def _cycle_report(cat: Catalogue, n: int, before: Image, images: list[Image]
+                  ) -> tuple[list[str], dict[str, Any]]:
     """What ``cycle N`` changed: scan by scan (the first CYCLE_DETAIL_LINES), then in all."""
     names = cat.traced
     steps = [x for x in names if x.role == "step"]

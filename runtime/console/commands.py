@@ -108,7 +108,17 @@ def cmd_status(session: Session, args: list[str]) -> Reply:
 
 
 def cmd_stats(session: Session, args: list[str]) -> Reply:
-    s = session.ctl.stats()  # ScanStats sorts its window here, never in the scan thread
+    s = session.ctl.stats()  # percentiles computed here, never in the scan thread
+    svc = session.service
+    made = svc.stats_reply
+    if made is not None and made[0] is s:  # the same figures: the same reply (no work)
+        return made[1]
+    reply = _stats_reply(s)
+    svc.stats_reply = (s, reply)
+    return reply
+
+
+def _stats_reply(s: dict[str, Any]) -> Reply:
     cols = ("last", "min", "mean", "p50", "p99", "max")
     lines = [f"cycle time {s['cycle_us'] / 1000:g} ms: {s['cycles']} cycles, "
              f"{s['overruns']} overruns, {s['skipped']} deadlines skipped",

@@ -8,6 +8,8 @@ through Controller.call.
 No client can starve the scan (docs/console.md, "Transports and limits"):
 - console work (lines, streams) stops QUIET_BEFORE_S (at most half a cycle) before each
   scan is due, until it has ended (ScanWindow): the scan thread wakes to a free GIL;
+- the console threads together use at most CPU_SHARE of a processor (each thread's own
+  processor time, spent from the window's budget): a flood of costly requests waits;
 - lines are taken one at a time per connection, round-robin;
 - each session may run LINES_PER_S lines a second (bursts of BURST_LINES); a line over
   that gets ``error too many requests`` and is not run;
@@ -41,11 +43,16 @@ from runtime.console.service import ConsoleService
 from runtime.console.session import Session
 from runtime.controller.paths import unix_listener
 from runtime.controller.window import (  # noqa: F401 - the console's names for them
+    CPU_BURST_S,
+    CPU_SHARE,
     QUIET_BEFORE_S,
     ROUND_BUDGET_S,
+    STALE_S,
     WINDOW_POLL_S,
     WINDOW_SHARE,
+    CpuMeter,
     ScanWindow,
+    Slot,
 )
 from runtime.language.model import ConsoleEntry
 
@@ -246,7 +253,8 @@ class ConsoleServer:
         self._lock = threading.Lock()
         self._conns: list[_Conn] = []
         self._selector: selectors.BaseSelector | None = None
-        self.window = ScanWindow(service.controller.plant.cycle_ns / 1e9)
+        ctl = service.controller
+        self.window = ScanWindow(ctl.plant.cycle_ns / 1e9, due=ctl.next_scan_due)
         #: where the console is served: serial ports, socket paths, 127.0.0.1:PORT
         self.addresses: list[str] = []
         #: the sessions open now
@@ -324,31 +332,61 @@ class ConsoleServer:
 
     # -- sockets: one thread, one selector ---------------------------------------------
     def _serve_sockets(self, sel: selectors.BaseSelector) -> None:
-        next_poll = 0.0
+        """Everything happens inside the windows (ScanWindow.slot): reading, lines,
+        replies, timers. Between them the thread sleeps with the GIL free, woken by the
+        end of the next scan, never by a client: bytes that arrive meanwhile wait in the
+        kernel. Only a server with nothing to do waits for input across windows, and
+        then waits for a window before it reads it."""
+        meter = self.window.meter()
+        due = [0.0]  # monotonic seconds of the next tick (streams, timers, idle limits)
         try:
             while not self._stop.is_set():
-                busy = any(c.line.ready() for c in self._conns)
-                self._set_events(sel)
-                wait = 0 if busy else PENDING_POLL_S if any(
-                    c.line.session.pending for c in self._conns) else POLL_S
-                for key, _ in sel.select(wait):
-                    if isinstance(key.data, _Listener):
-                        self._accept(sel, key.data)
-                    else:
-                        self._io(key.data)
-                tick = time.monotonic() >= next_poll
-                if tick or any(c.line.ready() for c in self._conns):
-                    closes = self.window.until()
-                    self._work(min(closes, time.monotonic() + ROUND_BUDGET_S))
-                    if tick:
-                        next_poll = time.monotonic() + POLL_S
-                        self._tick()
+                self._serve_window(sel, self.window.slot(), meter, due)
                 for c in list(self._conns):
                     self._flush(c)
+                meter.charge()
+                if not any(c.line.inbuf or c.line.out or c.line.session.pending
+                           or c.line.session.stream for c in self._conns):
+                    self._set_events(sel)
+                    sel.select(max(0.0, min(POLL_S, due[0] - time.monotonic())))
         finally:
             for c in list(self._conns):
                 self._drop(c, "server stopping")
             sel.close()
+
+    def _serve_window(self, sel: selectors.BaseSelector, slot: Slot, meter: CpuMeter,
+                      due: list[float]) -> None:
+        """Input, lines, replies and the tick in ``slot``: until it closes, the processor
+        budget is spent, or (past ``slot.settles``) nothing is left to do."""
+        first = True
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if now >= slot.closes:
+                return
+            busy = any(c.line.ready() for c in self._conns)
+            self._set_events(sel)
+            limit = min(slot.settles, due[0])
+            if busy or first or now >= due[0]:
+                wait = 0.0
+            elif now < limit:
+                pending = any(c.line.session.pending for c in self._conns)
+                wait = min(limit - now, PENDING_POLL_S if pending else POLL_S)
+            else:
+                return  # nothing to do, and no more waiting in this window
+            first = False
+            for key, _ in sel.select(wait):
+                if isinstance(key.data, _Listener):
+                    self._accept(sel, key.data)
+                else:
+                    self._io(key.data)
+            if time.monotonic() >= due[0]:
+                due[0] = time.monotonic() + POLL_S
+                self._tick()
+            if not meter.charge():
+                return  # the budget is spent: ScanWindow.slot waits for it
+            self._work(min(slot.closes, time.monotonic() + ROUND_BUDGET_S), meter)
+            for c in list(self._conns):
+                self._flush(c)
 
     def _set_events(self, sel: selectors.BaseSelector) -> None:
         for c in self._conns:
@@ -363,12 +401,13 @@ class ConsoleServer:
                     sel.unregister(c.sock)
                 c.events = ev
 
-    def _work(self, until: float) -> None:
+    def _work(self, until: float, meter: CpuMeter) -> None:
         """Lines handed over round-robin, one per connection, until ``until`` (monotonic
-        seconds). The connection served goes to the end of the order, so the next line
-        (in this round or the next) comes from the one served least recently: a line
-        that waits for a scan boundary uses up a round, and restarting each round from
-        the first connection starved the last ones."""
+        seconds) or the window's processor budget is spent. The connection served goes
+        to the end of the order, so the next line (in this round or the next) comes from
+        the one served least recently: a line that waits for a scan boundary uses up a
+        round, and restarting each round from the first connection starved the last
+        ones."""
         conns = self._conns
         while True:
             c = next((c for c in conns if c.line.ready()), None)
@@ -377,7 +416,7 @@ class ConsoleServer:
             conns.remove(c)
             conns.append(c)
             c.line.step()
-            if time.monotonic() >= until:
+            if not meter.charge() or time.monotonic() >= until:
                 return
 
     def _tick(self) -> None:
@@ -525,58 +564,88 @@ class ConsoleServer:
                 self._stop.wait(REOPEN_MIN_S)
 
     def _pump_serial(self, port: Any, line: Line, address: str) -> str:
-        """Serve one open port until it hangs up (returns "hang-up") or the server stops."""
+        """Serve one open port until it hangs up (returns "hang-up") or the server stops;
+        inside the windows only, as the sockets are (``_serve_sockets``)."""
+        poller = select.poll()
+        poller.register(port.fileno(), select.POLLIN)
+        state = _SerialState(carrier=_carrier(port))  # None: no modem lines (pty, gadget)
+        meter = self.window.meter()
+        while not self._stop.is_set():
+            slot = self.window.slot()
+            first = True
+            while not self._stop.is_set():
+                now = time.monotonic()
+                if now >= slot.closes or not meter.charge():
+                    break
+                limit = min(slot.settles, state.due)
+                if line.ready() or first or now >= state.due:
+                    wait = 0.0
+                elif now < limit:
+                    wait = min(limit - now,
+                               PENDING_POLL_S if line.session.pending else POLL_S)
+                else:
+                    break  # nothing to do, and no more waiting in this window
+                first = False
+                if self._serial_io(port, poller, line, state, wait, address):
+                    return "hang-up"
+                if line.ready():
+                    line.step()
+                self._serial_write(port, line, address)
+            meter.charge()
+            if not (line.inbuf or line.out or line.session.pending or line.session.stream):
+                # nothing to do: wait for input across windows (then for a window)
+                for _, ev in poller.poll(max(0.0, min(POLL_S, state.due - time.monotonic()))
+                                         * 1000):
+                    if ev & (select.POLLHUP | select.POLLERR | select.POLLNVAL):
+                        log.warning("console serial %s: hang-up", address)
+                        return "hang-up"
+        return "server stopping"
+
+    def _serial_io(self, port: Any, poller: select.poll, line: Line, state: _SerialState,
+                   wait: float, address: str) -> bool:
+        """Read what came (up to ``wait`` seconds), and poll the session and the carrier
+        when due; whether the line hung up."""
+        reading = len(line.inbuf) < IN_MAX  # full: the bytes wait in the port
+        if reading != state.reading:
+            state.reading = reading
+            poller.modify(port.fileno(), select.POLLIN if reading else 0)
+        for _, ev in poller.poll(wait * 1000):
+            if ev & (select.POLLHUP | select.POLLERR | select.POLLNVAL):
+                log.warning("console serial %s: hang-up", address)
+                return True
+            if ev & select.POLLIN:
+                data = bytes(port.read(min(max(port.in_waiting, 1), READ_CHUNK)))
+                if data:
+                    line.receive(data)
+        if time.monotonic() >= state.due:
+            state.due = time.monotonic() + POLL_S
+            line.poll()
+            if state.carrier is not None:
+                cd = _carrier(port)
+                if state.carrier and cd is False:
+                    log.warning("console serial %s: carrier lost (hang-up)", address)
+                    return True
+                state.carrier = state.carrier or bool(cd)
+        return False
+
+    @staticmethod
+    def _serial_write(port: Any, line: Line, address: str) -> None:
         import serial  # pyserial
 
-        poller = select.poll()
-        fd = port.fileno()
-        reading = True
-        poller.register(fd, select.POLLIN)
-        carrier = _carrier(port)  # None: no modem lines (a pty, a USB gadget)
-        next_poll = 0.0
-        while not self._stop.is_set():
-            if reading != (len(line.inbuf) < IN_MAX):  # full: the bytes wait in the port
-                reading = not reading
-                poller.modify(fd, select.POLLIN if reading else 0)
-            busy = line.ready()
-            wait = 0 if busy else PENDING_POLL_S if line.session.pending else POLL_S
-            for _, ev in poller.poll(wait * 1000):
-                if ev & (select.POLLHUP | select.POLLERR | select.POLLNVAL):
-                    log.warning("console serial %s: hang-up", address)
-                    return "hang-up"
-                if ev & select.POLLIN:
-                    data = bytes(port.read(min(max(port.in_waiting, 1), READ_CHUNK)))
-                    if data:
-                        line.receive(data)
-            tick = time.monotonic() >= next_poll
-            if line.ready() or tick:
-                self.window.until()
-            if line.ready():
-                line.step()
-            if tick:
-                now = time.monotonic()
-                next_poll = now + POLL_S
-                line.poll()
-                if carrier is not None:
-                    cd = _carrier(port)
-                    if carrier and cd is False:
-                        log.warning("console serial %s: carrier lost (hang-up)", address)
-                        return "hang-up"
-                    carrier = carrier or bool(cd)
-            if line.out:
-                data, line.out = bytes(line.out), bytearray()
-                try:
-                    port.write(data)
-                except serial.SerialTimeoutException:
-                    log.warning("console serial %s: nobody reads the line, output dropped",
-                                address)
-        return "server stopping"
+        if line.out:
+            data, line.out = bytes(line.out), bytearray()
+            try:
+                port.write(data)
+            except serial.SerialTimeoutException:
+                log.warning("console serial %s: nobody reads the line, output dropped",
+                            address)
 
     def stop(self) -> None:
         """Stop serving: every session closed (its streams and, if configured, its
         forces released), threads joined, socket files removed. Idempotent."""
         self._stop.set()
         self.service.controller.remove_listener(self.window.on_scan)
+        self.window.close()
         with self._lock:
             threads = list(self._threads)
         for t in threads:
@@ -590,6 +659,18 @@ class ConsoleServer:
             if os.path.exists(path):
                 os.unlink(path)
         self._socket_paths.clear()
+
+
+class _SerialState:
+    """What the serving loop of one serial port keeps between two windows."""
+
+    def __init__(self, carrier: bool | None) -> None:
+        #: the carrier detect line as last seen (None: the port has no modem lines)
+        self.carrier = carrier
+        #: monotonic seconds of the next poll of the session and the carrier
+        self.due = 0.0
+        #: whether the port's input is being read (not while IN_MAX bytes wait)
+        self.reading = True
 
 
 def _carrier(port: Any) -> bool | None:

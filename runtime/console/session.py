@@ -214,7 +214,12 @@ class Session:
     # -- replies ---------------------------------------------------------------------
     def _reply_ok(self, lines: list[str], data: dict[str, Any]) -> list[str]:
         if self.json:
-            return [json.dumps({"ok": True, **data, "text": lines}, ensure_ascii=False)]
+            made = self.service.json_reply
+            if made is not None and made[0] is data and made[1] is lines:
+                return [made[2]]  # a shared reply (``stats``), encoded once
+            text = json.dumps({"ok": True, **data, "text": lines}, ensure_ascii=False)
+            self.service.json_reply = (data, lines, text)
+            return [text]
         return [*lines, "ok"]
 
     def _reply_error(self, reason: str, lines: list[str] | None = None,
