@@ -363,15 +363,11 @@ class ConsoleServer:
             now = time.monotonic()
             if now >= slot.closes:
                 return
-            busy = any(c.line.ready() for c in self._conns)
+            busy = first or any(c.line.ready() for c in self._conns)
             self._set_events(sel)
-            limit = min(slot.settles, due[0])
-            if busy or first or now >= due[0]:
-                wait = 0.0
-            elif now < limit:
-                pending = any(c.line.session.pending for c in self._conns)
-                wait = min(limit - now, PENDING_POLL_S if pending else POLL_S)
-            else:
+            wait = _wait_in(slot, now, due[0], busy,
+                            any(c.line.session.pending for c in self._conns))
+            if wait is None:
                 return  # nothing to do, and no more waiting in this window
             first = False
             for key, _ in sel.select(wait):
@@ -577,13 +573,9 @@ class ConsoleServer:
                 now = time.monotonic()
                 if now >= slot.closes or not meter.charge():
                     break
-                limit = min(slot.settles, state.due)
-                if line.ready() or first or now >= state.due:
-                    wait = 0.0
-                elif now < limit:
-                    wait = min(limit - now,
-                               PENDING_POLL_S if line.session.pending else POLL_S)
-                else:
+                wait = _wait_in(slot, now, state.due, first or line.ready(),
+                                line.session.pending is not None)
+                if wait is None:
                     break  # nothing to do, and no more waiting in this window
                 first = False
                 if self._serial_io(port, poller, line, state, wait, address):
@@ -659,6 +651,20 @@ class ConsoleServer:
             if os.path.exists(path):
                 os.unlink(path)
         self._socket_paths.clear()
+
+
+def _wait_in(slot: Slot, now: float, tick: float, busy: bool, pending: bool
+             ) -> float | None:
+    """How long a serving loop may wait for input at ``now`` in ``slot`` (seconds): not
+    at all while it has work (``busy``) or its tick is due (monotonic ``tick``); up to
+    the tick, POLL_S (PENDING_POLL_S while a command is pending) and ``slot.settles``
+    otherwise; None once the slot has settled: the rest waits for the next window."""
+    if busy or now >= tick:
+        return 0.0
+    limit = min(slot.settles, tick)
+    if now >= limit:
+        return None
+    return min(limit - now, PENDING_POLL_S if pending else POLL_S)
 
 
 class _SerialState:
