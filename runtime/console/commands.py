@@ -108,8 +108,8 @@ def cmd_status(session: Session, args: list[str]) -> Reply:
 
 
 def cmd_stats(session: Session, args: list[str]) -> Reply:
-    s = session.ctl.stats()  # percentiles computed here, never in the scan thread
     svc = session.service
+    s = session.ctl.stats(svc.pause)  # computed here, never in the scan thread
     made = svc.stats_reply
     if made is not None and made[0] is s:  # the same figures: the same reply (no work)
         return made[1]

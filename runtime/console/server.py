@@ -269,6 +269,7 @@ class ConsoleServer:
         """Open every listener (errors raised here) and start the serving threads."""
         if self.entries:
             self.service.controller.add_listener(self.window.on_scan)
+            self.service.pause = self.window.pause
         for e in self.entries:
             if e.kind == "serial":
                 self.addresses.append(e.address)

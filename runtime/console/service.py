@@ -44,8 +44,9 @@ class Controller(Protocol):
     def next_scan_due(self) -> float:
         """Monotonic seconds at which the next cycle is due (0 before the first)."""
 
-    def stats(self) -> dict[str, Any]:
-        """Cycle statistics (us) and per-driver health."""
+    def stats(self, pause: Callable[[], object] | None = None) -> dict[str, Any]:
+        """Cycle statistics (us) and per-driver health; ``pause()`` between the slices of
+        a long computation (ScanWindow.pause)."""
 
     def ack(self) -> str:
         """Acknowledge a fault (restart the charts) or SFCError; returns what was done."""
@@ -129,6 +130,10 @@ class ConsoleService:
         #: the last JSON reply built from a reply's data, and that data: a shared reply
         #: (``stats``) is encoded once for every session in JSON mode (Session._reply_ok)
         self.json_reply: tuple[object, object, str] | None = None
+        #: called between the slices of a long computation in a session's thread (the
+        #: percentiles of ``stats``): the console server's ScanWindow.pause, which holds
+        #: it to the window after each scan; None: the controller's own pause
+        self.pause: Callable[[], object] | None = None
         on_reload = getattr(controller, "on_reload", None)
         if on_reload is not None:  # a reload gives the sessions the new plant's names
             on_reload(self._reloaded)

@@ -549,14 +549,15 @@ class Daemon:
         return {"state": state, "since": w.failing_since, "generation": store.generation,
                 "text": "; ".join(texts) or f"saved, generation {store.generation}"}
 
-    def stats(self) -> dict[str, Any]:
+    def stats(self, pause: Callable[[], object] | None = None) -> dict[str, Any]:
         """Cycle statistics (µs) and driver health, computed at most every
         STATS_MAX_AGE_NS of cycles, their percentiles (of up to 8192 cycles: a few ms of
-        processor time, in slices with a pause between them) at most every
-        STATS_QUANTILES_MAX_AGE_NS, however many consoles ask (docs/console.md,
-        "Transports and limits"). Until they are computed again and while no driver's
-        health changes, every caller gets the same dict (do not change it): the console
-        formats its reply once for all."""
+        processor time, in slices with ``pause()`` between them: by default a sleep of
+        STATS_PAUSE_S; the console's waits for its next window once its window has
+        closed) at most every STATS_QUANTILES_MAX_AGE_NS, however many consoles ask
+        (docs/console.md, "Transports and limits"). Until they are computed again and
+        while no driver's health changes, every caller gets the same dict (do not change
+        it): the console formats its reply once for all."""
         stats = self.scan_stats
         count = stats.count
         cached = self._stats_cache
@@ -566,7 +567,8 @@ class Daemon:
             if (quantiles is None or count < quantiles[0] or count - quantiles[0]
                     >= max(1, STATS_QUANTILES_MAX_AGE_NS // self.plant.cycle_ns)):
                 quantiles = self._stats_quantiles = (count,
-                                                     stats.window_quantiles(_stats_pause))
+                                                     stats.window_quantiles(
+                                                         pause or _stats_pause))
             cached = self._stats_cache = (count, stats.as_dict(quantiles[1]))
         drivers = {name: {"health": d.health.value, "on_fault": d.on_fault.value,
                           "reason": d.fault_reason}

@@ -24,6 +24,8 @@ WINDOW_POLL_S = 0.0002
 STALE_S = 0.5
 #: the longest a thread waits for the end of a scan before it looks again, seconds
 WAIT_MAX_S = 1.0
+#: ``pause()`` inside a window sleeps this long, seconds
+PAUSE_S = 0.0001
 #: processor time the threads that ``spend`` from one window may use together, as a share
 #: of the time that passes: a flood of requests, however costly each one, never holds
 #: the GIL more than that...
@@ -122,10 +124,7 @@ class ScanWindow:
             elif now - self.scan_end > stale:
                 slot = Slot(now + ROUND_BUDGET_S, now + ROUND_BUDGET_S)
             else:
-                seen = self.scan_end
-                self._ended.clear()
-                if self.scan_end == seen and not self._closed:  # (none ended meanwhile)
-                    self.wait(min(WAIT_MAX_S, max(WINDOW_POLL_S, seen + stale - now)))
+                self._next_scan(now, stale)
                 continue
             short = self._shortfall(now)
             if short <= 0.0:
@@ -137,6 +136,27 @@ class ScanWindow:
                 spent_in = self.scan_end
             else:  # the scan is stuck: no window to wait for
                 self.sleep(max(WINDOW_POLL_S, back - now))
+
+    def pause(self) -> None:
+        """Between two slices of a long piece of work (the percentiles of ``stats``): a
+        short sleep (the GIL free, the thread never running for long at a stretch), or,
+        once this window has closed, until the next one opens: such work is done in
+        pieces, inside the windows, never across a scan's deadline."""
+        now = self.clock()
+        if now < self.closes or self._closed:
+            self.sleep(PAUSE_S)
+            return
+        stale = max(2 * self.cycle_s, STALE_S)
+        while not self._closed and now >= self.closes and now - self.scan_end <= stale:
+            self._next_scan(now, stale)
+            now = self.clock()
+
+    def _next_scan(self, now: float, stale: float) -> None:
+        """Wait for the end of the next scan (at most until the scan counts as stuck)."""
+        seen = self.scan_end
+        self._ended.clear()
+        if self.scan_end == seen and not self._closed:  # (none ended since it was read)
+            self.wait(min(WAIT_MAX_S, max(WINDOW_POLL_S, seen + stale - now)))
 
     def close(self) -> None:
         """The threads using this window are stopping: ``until`` returns at once."""

@@ -150,6 +150,19 @@ def test_a_slot_may_be_waited_in_only_until_a_quiet_time_before_it_closes() -> N
     assert slot.settles == pytest.approx(101.0 - 2 * QUIET_BEFORE_S)
 
 
+def test_a_long_computation_pauses_into_the_next_window() -> None:
+    """``pause()`` between the slices of a long computation (the percentiles of
+    ``stats``): a short sleep inside the window; once it has closed, until the next scan
+    has ended, so that no slice holds the GIL across the scan's deadline."""
+    w, vt = window(0.010)
+    w.pause()
+    assert vt.t == pytest.approx(100.0001)  # inside: a short sleep
+    vt.t = 100.0 + 0.006  # the window closed at 100.005
+    vt.scans = [100.0102]
+    w.pause()
+    assert vt.t == pytest.approx(100.0102)  # the next window
+
+
 def test_a_session_runs_its_rate_and_its_burst() -> None:
     vt = VirtualTime(0.010)
     th = Throttle(vt.clock)
