@@ -6,14 +6,22 @@ name as fast as the replies come (``mix``), or ``stats`` alone, or ``help`` alon
 12: no client can starve the scan).
 
 The plant is the console tests' one: two drawer testers on simulated I/O plus a chart
-that changes every scan, so the trace streams a line per scan. The clients run in their
-own processes (tests/console/flooder.py, at nice 10), as a laptop on the other end of
-the cable would. The garbage collector runs as in production (in the scan's idle time).
-Not a test: prints a table.
+that changes every scan, so the trace streams a line per scan; its Unix socket and TCP
+consoles are served by one server (one thread), as a plant's are. The clients run in
+their own processes (tests/console/flooder.py, at nice 10, or ``--client-nice N``: 0 for
+a local user's clients, the attack of issue 31), as a laptop on the other end of the
+cable would. The garbage collector runs as in production (in the scan's idle time).
+
+Besides the scan's own figures (overruns, lateness), each row splits the lateness of the
+scan thread's wake-ups (tests/console/schedprobe.py): ``runq`` is the time it waited for a
+CPU (the machine: other processes, the clients), ``blocked`` the time it was woken yet
+waited for something of the process itself (the GIL held by a console thread). Not a
+test: prints a table.
 
     python -m bench.console [--seconds 60] [--cycle 10ms] [--fifo | --priority N]
                             [--phases quiet,trace,serial,mix,stats,help]
-                            [--switch-interval MS]
+                            [--switch-interval MS] [--client-nice N] [--repeat K]
+                            [--warmup S]
 """
 
 from __future__ import annotations
@@ -27,26 +35,34 @@ import sys
 import time
 from typing import Any
 
-from runtime.console.server import ConsoleServer
-from runtime.language.model import ConsoleEntry
 from tests.console.consolekit import Rig, make_rig
+from tests.console.schedprobe import SchedProbe
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 FLOODER = os.path.join(HERE, "..", "tests", "console", "flooder.py")
 
 
+#: records each wake-up of the scan thread (installed by main)
+PROBE = SchedProbe()
+
+
 def window(rig: Rig, seconds: float) -> dict[str, Any]:
-    """Cycle statistics over ``seconds`` (reset in the scan thread at the start)."""
+    """Cycle figures over ``seconds``: counters of the scan's own statistics (never
+    reset: their window keeps the last 8192 cycles, as a daemon's that has run for a
+    while, see --warmup), lateness of each wake-up from the probe."""
     stats = rig.daemon.scan_stats
     faults = len(rig.daemon.faults)  # watchdog faults (and any other) in the window
-    rig.daemon.call(stats.reset)
-    time.sleep(seconds)
     count, overruns = rig.daemon.call(lambda: (stats.count, stats.overruns))
-    late, scan = stats.lateness(), stats.scan()
-    return {"cycles": count, "faults": len(rig.daemon.faults) - faults,
-            "overruns": overruns, "p50": late.p50 / 1e3,
-            "p99": late.p99 / 1e3, "max": late.max / 1e3, "scan_p99": scan.p99 / 1e3}
+    PROBE.start()
+    time.sleep(seconds)
+    wakes = PROBE.stop()
+    count2, overruns2 = rig.daemon.call(lambda: (stats.count, stats.overruns))
+    return {"cycles": count2 - count, "faults": len(rig.daemon.faults) - faults,
+            "overruns": overruns2 - overruns, "p50": wakes.late_p50,
+            "p99": wakes.late_p99, "max": wakes.late_max, "runq_p99": wakes.runq_p99,
+            "blocked_p99": wakes.blocked_p99, "blocked_max": wakes.blocked_max,
+            "blocked_1ms": wakes.blocked_over_1ms}
 
 
 #: the pipelining clients of a clients phase, per transport
@@ -57,24 +73,24 @@ CLIENT_PHASES: dict[str, list[str] | None] = {"mix": None, "stats": ["stats"],
                                               "help": ["help"]}
 
 
-def pipeliners(addresses: list[str], commands: list[str], seconds: float
+def pipeliners(addresses: list[str], commands: list[str], seconds: float, nice: int = 10
                ) -> list[subprocess.Popen[str]]:
     """One pipelining client process per address, connected (waiting for "go")."""
-    procs = [subprocess.Popen([sys.executable, FLOODER, "pipeline", a, str(seconds),
-                               *commands], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                              text=True) for a in addresses]
+    procs = [subprocess.Popen([sys.executable, FLOODER, "--nice", str(nice), "pipeline", a,
+                               str(seconds), *commands], stdin=subprocess.PIPE,
+                              stdout=subprocess.PIPE, text=True) for a in addresses]
     for p in procs:
         assert p.stdout is not None
         json.loads(p.stdout.readline())
     return procs
 
 
-def clients_phase(rig: Rig, tcp: str, secs: float, commands: list[str]
+def clients_phase(rig: Rig, secs: float, commands: list[str], nice: int
                   ) -> tuple[dict[str, Any], str]:
     """16 clients (8 TCP, 8 Unix socket) pipelining ``commands``."""
     assert rig.socket_path is not None
-    procs = pipeliners([tcp] * CLIENTS_PER_TRANSPORT
-                       + [rig.socket_path] * CLIENTS_PER_TRANSPORT, commands, secs)
+    procs = pipeliners([rig.tcp_address] * CLIENTS_PER_TRANSPORT
+                       + [rig.socket_path] * CLIENTS_PER_TRANSPORT, commands, secs, nice)
     for p in procs:
         assert p.stdin is not None
         p.stdin.write("go\n")
@@ -94,33 +110,44 @@ def main() -> int:
     ap.add_argument("--cycle", default="10ms", help="the plant's cycle (10ms)")
     ap.add_argument("--priority", type=int, metavar="N",
                     help="run the scan thread SCHED_FIFO at this priority (the plant's "
-                         "plc: realtime: priority key; needs the privilege)")
+                         "plc: realtime: priority key; needs the privilege); 0: at normal "
+                         "priority (realtime: false); default: the daemon's (SCHED_FIFO 50 "
+                         "where permitted)")
     ap.add_argument("--fifo", action="store_true", help="the same as --priority 50")
+    ap.add_argument("--warmup", type=float, default=1.0, metavar="S",
+                    help="seconds run before the phases (1; 85 fills the 8192-cycle window "
+                         "of a 10 ms cycle, as on a daemon that has run for a while)")
     ap.add_argument("--phases", default="quiet,trace,serial,mix,stats,help",
                     help="which phases, in this order (quiet,trace,serial,mix,stats,help)")
     ap.add_argument("--switch-interval", type=float, metavar="MS",
                     help="set the GIL switch interval after the daemon started (it sets "
                          "0.5 ms): to measure its effect")
+    ap.add_argument("--client-nice", type=int, default=10, metavar="N",
+                    help="nice level of the client processes (10; 0: a local user's, the "
+                         "attack of issue 31)")
+    ap.add_argument("--repeat", type=int, default=1, metavar="K",
+                    help="run the phases K times in turn (1)")
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
     secs = args.seconds
-    priority = args.priority or (50 if args.fifo else None)
-    phases = args.phases.split(",")
-    flooder = subprocess.Popen([sys.executable, FLOODER, "flood", str(secs), "1000"],
+    priority = 50 if args.fifo else args.priority
+    phases = args.phases.split(",") * args.repeat
+    flooder = subprocess.Popen([sys.executable, FLOODER, "--nice", str(args.client_nice),
+                                "flood", str(secs), "1000"],
                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     assert flooder.stdout is not None and flooder.stdin is not None
     port = json.loads(flooder.stdout.readline())["port"]
     rig = make_rig(serial_path=port, blink=True, cycle=args.cycle, manage_gc=True,
-                   priority=priority)
+                   priority=priority, tcp=True, probe=PROBE)
     if args.switch_interval is not None:
         sys.setswitchinterval(args.switch_interval / 1e3)
-    tcp_server = ConsoleServer(rig.service, [ConsoleEntry("tcp", "127.0.0.1:0")])
-    tcp_server.start()
     switch_ms = sys.getswitchinterval() * 1e3
     assert rig.socket_path is not None
     rows = []
     try:
-        time.sleep(1.0)  # start-up (compilation, first allocations) out of the figures
+        time.sleep(args.warmup)  # start-up (compilation, first allocations) out of the
+        # figures; and the cycles of a daemon that has run for a while
+        sched = scan_policy(rig)
         for phase in phases:
             if phase == "quiet":
                 rows.append(("no client", window(rig, secs), ""))
@@ -138,26 +165,37 @@ def main() -> int:
             elif phase in CLIENT_PHASES:
                 commands = CLIENT_PHASES[phase] or [
                     "stats", "help", *(f"get {n}" for n in rig.service.catalogue.names)]
-                stats, note = clients_phase(rig, tcp_server.addresses[0], secs, commands)
+                stats, note = clients_phase(rig, secs, commands, args.client_nice)
                 rows.append((f"16 clients: {phase}", stats, note))
             else:
                 raise SystemExit(f"unknown phase {phase!r}")
     finally:
         if flooder.poll() is None:
             flooder.kill()
-        tcp_server.stop()
         rig.close()
     out = sys.stdout
-    prio = f"SCHED_FIFO {priority}" if priority else "normal priority"
-    out.write(f"cycle {args.cycle}, {secs:g} s per phase, scan thread at {prio}, GIL "
-              f"switch interval {switch_ms:g} ms; lateness and scan time in us\n\n")
+    out.write(f"cycle {args.cycle}, {secs:g} s per phase, scan thread at {sched}, GIL "
+              f"switch interval {switch_ms:g} ms, clients at nice {args.client_nice}; "
+              "lateness and scan time in us; runq: waiting for a CPU, blocked: woken "
+              "but waiting for the process (the GIL); >1ms: wake-ups blocked longer\n\n")
     out.write(f"{'phase':26}{'cycles':>8}{'faults':>8}{'overruns':>10}{'late p50':>10}"
-              f"{'late p99':>10}{'late max':>10}{'scan p99':>10}  clients\n")
+              f"{'late p99':>10}{'late max':>10}{'runq p99':>10}"
+              f"{'blk p99':>9}{'blk max':>9}{'>1ms':>6}  clients\n")
     for name, s, note in rows:
         out.write(f"{name:26}{s['cycles']:>8}{s['faults']:>8}{s['overruns']:>10}"
                   f"{s['p50']:>10.0f}{s['p99']:>10.0f}{s['max']:>10.0f}"
-                  f"{s['scan_p99']:>10.0f}  {note}\n")
+                  f"{s['runq_p99']:>10.0f}{s['blocked_p99']:>9.0f}"
+                  f"{s['blocked_max']:>9.0f}{s['blocked_1ms']:>6}  {note}\n")
     return 0
+
+
+def scan_policy(rig: Rig) -> str:
+    """How the scan thread is scheduled: ``SCHED_FIFO 50`` or ``normal priority``."""
+    thread = rig.daemon._thread
+    assert thread is not None and thread.native_id is not None
+    if os.sched_getscheduler(thread.native_id) == os.SCHED_FIFO:
+        return f"SCHED_FIFO {os.sched_getparam(thread.native_id).sched_priority}"
+    return "normal priority"
 
 
 def serial_phase(rig: Rig, flooder: subprocess.Popen[str], secs: float

@@ -333,6 +333,7 @@ PLANT_BAD = {
     "unknown plc key": "plc: {cycle_time: 10ms}",
     "cycle as a bare number": "plc: {cycle: 10}",
     "realtime priority out of range": "plc: {realtime: {priority: 0}}",
+    "realtime true (the default needs no key)": "plc: {realtime: true}",
     "unknown driver type": "drivers: {g: {type: gpoi}}",
     "driver without type": "drivers: {g: {chip: /dev/gpiochip0}}",
     "bad on_fault": "drivers: {s: {type: sim, on_fault: ignore}}",
@@ -368,6 +369,12 @@ def test_plant_schema_rejects(case: str) -> None:
     doc = dict(MINIMAL_PLANT)
     doc.update(y(PLANT_BAD[case]))
     assert errors("plant", doc), f"accepted: {case}"
+
+
+def test_the_scan_at_normal_priority_is_realtime_false() -> None:
+    """SCHED_FIFO 50 is the default where permitted; ``realtime: false`` says no, and the
+    loader reads it as priority 0 (none)."""
+    assert not errors("plant", {**MINIMAL_PLANT, **y("plc: {realtime: false}")})
 
 
 def test_yaml_reads_hex_addresses_as_ints() -> None:

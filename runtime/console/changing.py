@@ -1,6 +1,7 @@
 """The console commands that change the plant (marked * in help; they need ``unlock PIN``
 or a trusted console): set, force, unforce, pause, resume, cycle, init, reset, iocheck,
-ack, reload. Plain functions ``(session, args) -> Reply``, dispatched through commands.COMMANDS.
+ack, reload. Plain functions ``(session, args) -> Reply``, dispatched through commands.COMMANDS;
+``cycle`` returns a Pending (its reply comes once its scans have run).
 
 Pause, stepping, iocheck and forces are held by the session that made them: each is
 recorded with ``ConsoleService.hold`` in the same scan-thread call as the plant change, and
@@ -18,7 +19,7 @@ import threading
 import time
 from typing import TYPE_CHECKING, Any
 
-from runtime.console.protocol import CYCLE_DETAIL_LINES, MAX_CYCLE, Reply
+from runtime.console.protocol import CYCLE_DETAIL_LINES, MAX_CYCLE, Pending, Reply
 from runtime.engine.names import Catalogue, CommandError, Image, Signal, parse_value, printable
 from runtime.language import ast as A
 
@@ -141,7 +142,7 @@ def cmd_resume(session: Session, args: list[str]) -> Reply:
     return [done]
 
 
-def cmd_cycle(session: Session, args: list[str]) -> Reply:
+def cmd_cycle(session: Session, args: list[str]) -> Pending:
     if len(args) > 1:
         raise CommandError("usage: cycle [N]")
     try:
@@ -151,48 +152,100 @@ def cmd_cycle(session: Session, args: list[str]) -> Reply:
                            "scans") from None
     if not 1 <= n <= MAX_CYCLE:
         raise CommandError(f"bad value {n}: cycle N runs 1 to {MAX_CYCLE} scans")
-    plant, cat = session.plant, session.cat
-    images: list[Image] = []
-    done = threading.Event()
-
-    def on_scan(scan: int) -> None:  # scan thread
-        images.append(cat.capture(scan))
-        if not plant.stepping:
-            done.set()
-
-    def start() -> Image:
-        state = _state(session)
-        if state != "paused":
-            raise CommandError(f"cycle runs while paused; the controller is {state}"
-                               + (": pause first" if state == "running" else ""))
-        session.service.hold("pause", session)  # the stepping session answers for both
-        session.service.hold("cycle", session)
-        plant.step(n)
-        session.ctl.add_listener(on_scan)
-        return cat.capture(-1)
-    before = session.call(start)
-    try:
-        if not done.wait(2.0 + 2 * n * plant.cycle_ns / 1e9):
-            session.call(lambda: plant.step(0))
-            raise CommandError(f"the scans did not run (controller {_state(session)}); "
-                               "stepping cancelled")
-    finally:
-        session.ctl.remove_listener(on_scan)
-        session.service.let_go("cycle")
-    ran = images[:n]
-    log.info("console %s: cycle %d: ran scans %s", session.name, n,
-             f"{ran[0].scan}..{ran[-1].scan}" if ran else "none")
-    return _cycle_report(session.cat, n, before, ran)
+    return _Stepping(session, n)
 
 
-def _cycle_report(cat: Catalogue, n: int, before: Image, images: list[Image]) -> Reply:
+class _Stepping(Pending):
+    """``cycle N`` while its scans run: the scan thread copies the image after each of
+    them; the reply is built when they have run (or when Ctrl-C stops them, or after
+    2 s plus twice their duration, which cancels the stepping). The thread serving the
+    session serves the others meanwhile, and sees at once when this one ends."""
+
+    command = "cycle"
+
+    def __init__(self, session: Session, n: int) -> None:
+        self.session, self.n = session, n
+        plant, cat = session.plant, session.cat
+        self.images: list[Image] = []
+        self.done = threading.Event()
+        self.interrupted = False
+        images, done = self.images, self.done
+
+        def on_scan(scan: int) -> None:  # scan thread
+            images.append(cat.capture(scan))
+            if not plant.stepping:
+                done.set()
+        self.on_scan = on_scan
+
+        def start() -> Image:
+            state = _state(session)
+            if state != "paused":
+                raise CommandError(f"cycle runs while paused; the controller is {state}"
+                                   + (": pause first" if state == "running" else ""))
+            session.service.hold("pause", session)  # the stepping session answers for both
+            session.service.hold("cycle", session)
+            plant.step(n)
+            session.ctl.add_listener(on_scan)
+            return cat.capture(-1)
+        self.before = session.call(start)
+        self.deadline = time.monotonic() + 2.0 + 2 * n * plant.cycle_ns / 1e9
+
+    def ready(self) -> bool:
+        return self.done.is_set() or self.interrupted or time.monotonic() >= self.deadline
+
+    def interrupt(self) -> None:
+        self.interrupted = True
+
+    def abandon(self) -> None:
+        self.session.ctl.remove_listener(self.on_scan)  # its end halts (session_ended)
+
+    def finish(self) -> Reply:
+        session, n = self.session, self.n
+        ctl = session.ctl
+
+        def cancel() -> int:  # scan thread: the steps that ran, and no more of them
+            plant = ctl.plant
+            ran = n - max(0, plant.steps_left) if plant.stepping else n
+            plant.step(0)
+            return ran
+        try:
+            ran = n if self.done.is_set() else ctl.call(cancel)
+        finally:
+            ctl.remove_listener(self.on_scan)
+            session.service.let_go("cycle")
+        images = self.images[:ran]
+        log.info("console %s: cycle %d: ran scans %s", session.name, n,
+                 f"{images[0].scan}..{images[-1].scan}" if images else "none")
+        if ran == n:
+            return _cycle_report(session.cat, n, self.before, images)
+        if self.interrupted:
+            lines, data = _cycle_report(session.cat, n, self.before, images)
+            raise CycleStopped(f"cycle stopped by Ctrl-C after {ran} of {n} scans",
+                               lines, data)
+        raise CommandError(f"the scans did not run (controller {_state(session)}); "
+                           "stepping cancelled")
+
+
+class CycleStopped(CommandError):
+    """``cycle N`` stopped by Ctrl-C: the report of the scans that ran comes before the
+    error line; JSON: ``scans``, ``per_scan``, ``changed`` as for a complete one."""
+
+    def __init__(self, reason: str, lines: list[str], data: dict[str, Any]) -> None:
+        super().__init__(reason)
+        self.lines = lines
+        self.data = data
+
+
+def _cycle_report(cat: Catalogue, n: int, before: Image, images: list[Image]
+                  ) -> tuple[list[str], dict[str, Any]]:
     """What ``cycle N`` changed: scan by scan (the first CYCLE_DETAIL_LINES), then in all."""
     names = cat.traced
     steps = [x for x in names if x.role == "step"]
     prev = {x.text: x.read(before) for x in names}
     first = prev
-    lines = [f"ran {n} scan(s)" + (f" ({images[0].scan}..{images[-1].scan})"
-                                   if images else "")]
+    lines = [f"ran {len(images) if len(images) < n else n}"
+             + (f" of {n}" if len(images) < n else "") + " scan(s)"
+             + (f" ({images[0].scan}..{images[-1].scan})" if images else "")]
     per_scan = []
     for img in images:
         cur = {x.text: x.read(img) for x in names}
@@ -209,7 +262,7 @@ def _cycle_report(cat: Catalogue, n: int, before: Image, images: list[Image]) ->
         lines.append("in all: " + _changes(cat, total, first, steps))
     if not total and not any(p["changed"] for p in per_scan):
         lines.append("nothing changed")
-    return lines, {"scans": n, "per_scan": per_scan,
+    return lines, {"scans": len(images), "per_scan": per_scan,
                    "changed": {k: cat.names[k].plain(v) for k, v in total.items()}}
 
 

@@ -1,7 +1,8 @@
 """The console's commands, and the table the session dispatches through (``COMMANDS``).
 
 Each command is a plain function ``(session, args) -> Reply``: its reply lines, and the
-data of its JSON reply; it raises CommandError with the reply's error text. The read-only
+data of its JSON reply; it raises CommandError with the reply's error text. A command
+whose reply comes later (``cycle N``) returns a ``Pending`` instead. The read-only
 commands are here; the ones that change the plant (marked * in help) are in changing.py.
 Plant reads go through ``Controller.call``: one consistent snapshot at a scan boundary.
 """
@@ -16,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 from drivers.durations import LITERAL_IN_TEXT, format_ns, parse_literal
 from runtime.console import changing
-from runtime.console.protocol import HELP, MIN_EVERY_MS, STATUS_FAULTS, Reply
+from runtime.console.protocol import HELP, MIN_EVERY_MS, STATUS_FAULTS, Pending, Reply
 from runtime.console.streams import Stream, feeds_text
 from runtime.engine.names import CommandError, printable
 from runtime.errors import suggest
@@ -27,7 +28,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 #: a command: the session it runs in, the words after its name -> its reply
-Command = Callable[["Session", list[str]], Reply]
+Command = Callable[["Session", list[str]], Reply | Pending]
 
 
 def round_times(text: str) -> str:
@@ -107,7 +108,17 @@ def cmd_status(session: Session, args: list[str]) -> Reply:
 
 
 def cmd_stats(session: Session, args: list[str]) -> Reply:
-    s = session.ctl.stats()  # ScanStats sorts its window here, never in the scan thread
+    svc = session.service
+    s = session.ctl.stats(svc.pause)  # computed here, never in the scan thread
+    made = svc.stats_reply
+    if made is not None and made[0] is s:  # the same figures: the same reply (no work)
+        return made[1]
+    reply = _stats_reply(s)
+    svc.stats_reply = (s, reply)
+    return reply
+
+
+def _stats_reply(s: dict[str, Any]) -> Reply:
     cols = ("last", "min", "mean", "p50", "p99", "max")
     lines = [f"cycle time {s['cycle_us'] / 1000:g} ms: {s['cycles']} cycles, "
              f"{s['overruns']} overruns, {s['skipped']} deadlines skipped",

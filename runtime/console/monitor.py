@@ -386,6 +386,18 @@ class Connection:
 
 
 # -- the view -----------------------------------------------------------------------------
+def reply_timeout(line: str, cycle_ms: float | None) -> float:
+    """How long the reply to a typed command may take, seconds: REQUEST_TIMEOUT_S, and
+    for ``cycle N`` as long again as the console waits for its scans (2 s plus twice
+    their duration): a reply given up for lost makes the monitor connect again, and the
+    end of the session that stepped halts the controller."""
+    words = line.split()
+    if not words or words[0].lower() != "cycle" or not cycle_ms:
+        return REQUEST_TIMEOUT_S
+    n = int(words[1]) if len(words) > 1 and words[1].isdigit() else 1
+    return REQUEST_TIMEOUT_S + 2.0 + 2 * n * cycle_ms / 1000
+
+
 @dataclass
 class View:
     """What the screen shows, from the replies to ``status``, ``stats`` and ``get``."""
@@ -460,7 +472,7 @@ class View:
     def command(self, client: ConsoleClient, line: str) -> dict[str, Any]:
         """A command typed at the prompt; its reply goes to the log."""
         self.log.append(f"> {line}")
-        reply = client.request(line)
+        reply = client.request(line, reply_timeout(line, self.status.get("cycle_ms")))
         if reply.get("ok"):
             self.log.extend(reply.get("text", []))
             self.log.append("ok")

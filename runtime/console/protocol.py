@@ -82,6 +82,34 @@ HELP = {
 #: what a command returns: its reply lines, and with them the data of its JSON reply
 Reply = list[str] | tuple[list[str], dict[str, Any]]
 
+
+class Pending:
+    """A command whose reply comes later (``cycle N``: once its scans have run), returned
+    by the command instead of its Reply. The thread serving the session goes on serving
+    the other sessions meanwhile; this session takes no other line until the reply has
+    been given: its transport asks ``ready()`` now and then, then ``finish()`` for the
+    reply. ``interrupt()`` (Ctrl-C on the line) asks it to stop early; ``abandon()``
+    (the session ended) lets go of what it watches without a reply."""
+
+    #: the command's name, for the error a line sent meanwhile would get
+    command = ""
+
+    def ready(self) -> bool:
+        """Whether ``finish()`` may be called now (done, interrupted or out of time)."""
+        raise NotImplementedError
+
+    def interrupt(self) -> None:
+        """Stop early: ``ready()`` is true from now on."""
+        raise NotImplementedError
+
+    def finish(self) -> Reply:
+        """The reply (raises CommandError for an error reply). Called once."""
+        raise NotImplementedError
+
+    def abandon(self) -> None:
+        """The session ended: no reply will be asked for."""
+        raise NotImplementedError
+
 _TERMINATOR = re.compile(rb"[\r\n\x03]")
 
 

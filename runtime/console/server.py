@@ -8,6 +8,8 @@ through Controller.call.
 No client can starve the scan (docs/console.md, "Transports and limits"):
 - console work (lines, streams) stops QUIET_BEFORE_S (at most half a cycle) before each
   scan is due, until it has ended (ScanWindow): the scan thread wakes to a free GIL;
+- the console threads together use at most CPU_SHARE of a processor (each thread's own
+  processor time, spent from the window's budget): a flood of costly requests waits;
 - lines are taken one at a time per connection, round-robin;
 - each session may run LINES_PER_S lines a second (bursts of BURST_LINES); a line over
   that gets ``error too many requests`` and is not run;
@@ -40,11 +42,16 @@ from runtime.console.service import ConsoleService
 from runtime.console.session import Session
 from runtime.controller.paths import remove_socket, unix_listener
 from runtime.controller.window import (  # noqa: F401 - the console's names for them
+    CPU_BURST_S,
+    CPU_SHARE,
     QUIET_BEFORE_S,
     ROUND_BUDGET_S,
+    STALE_S,
     WINDOW_POLL_S,
     WINDOW_SHARE,
+    CpuMeter,
     ScanWindow,
+    Slot,
 )
 from runtime.language.model import ConsoleEntry
 
@@ -52,6 +59,8 @@ log = logging.getLogger(__name__)
 
 #: how long the serving loops wait for input before polling streams and timers, seconds
 POLL_S = 0.05
+#: ... and at most this long while a session's command is pending (``cycle N``), seconds
+PENDING_POLL_S = 0.01
 #: bytes taken from a connection per read
 READ_CHUNK = 1024
 #: bytes received and not yet handled, per connection, before reading from it stops
@@ -107,7 +116,8 @@ class Throttle:
 class Line:
     """One connection's input queue in front of its Session: whole lines are handed over
     one at a time (``step``), each paid with a token of its Throttle; the reply bytes
-    wait in ``out`` for the transport."""
+    wait in ``out`` for the transport. While the session's command is pending (``cycle
+    N``) its lines wait; a Ctrl-C among them stops that command."""
 
     def __init__(self, session: Session, clock: Callable[[], float],
                  throttle: Throttle | None = None) -> None:
@@ -117,8 +127,9 @@ class Line:
         self.throttle = throttle
         self.inbuf = bytearray()
         self.out = bytearray()
-        #: clock seconds since which the session has had no input while neither trusted
-        #: nor unlocked (its idle time counts from there)
+        #: clock seconds since which the session has given no command (Session.last_command:
+        #: empty lines and Ctrl-C do not count) while neither trusted nor unlocked (its
+        #: idle time counts from there)
         self.idle_since = clock()
         #: monotonic seconds before which no line is handed over (0: none)
         self.held_until = 0.0
@@ -127,13 +138,17 @@ class Line:
 
     def receive(self, data: bytes) -> None:
         self.inbuf += data
-        self.idle_since = self.clock()
 
     def ready(self) -> bool:
         """A line (or a stretch of a long line) is waiting, the peer takes replies, and
-        the session is not waiting for its next token after a refused line."""
-        return (bool(self.inbuf) and len(self.out) < OUT_MAX
-                and (self.held_until == 0.0 or self._unheld()))
+        the session is not waiting for its next token after a refused line; or the
+        session's pending command can be finished (done, or a Ctrl-C came)."""
+        if len(self.out) >= OUT_MAX:
+            return False
+        pending = self.session.pending
+        if pending is not None:
+            return pending.ready() or b"\x03" in self.inbuf
+        return bool(self.inbuf) and (self.held_until == 0.0 or self._unheld())
 
     def _unheld(self) -> bool:
         if time.monotonic() < self.held_until:
@@ -142,7 +157,20 @@ class Line:
         return True
 
     def step(self) -> None:
-        """Hand the next line over (or what there is of it) and queue the reply."""
+        """Hand the next line over (or what there is of it) and queue the reply; or the
+        reply of the session's pending command (stopped first if a Ctrl-C came: the
+        Ctrl-C itself stays in the input, where it then drops a half-typed line)."""
+        session = self.session
+        if session.pending is not None:
+            if not session.pending.ready():
+                session.pending.interrupt()
+            self._send(session.finish())
+        else:
+            self._take_line()
+        # only a command is activity: an empty line or a Ctrl-C does not move this
+        self.idle_since = max(self.idle_since, session.last_command)
+
+    def _take_line(self) -> None:
         m = _LINE_END.search(self.inbuf)
         if m is None:  # half a line: the framer keeps it (and drops it when overlong)
             chunk, self.inbuf = bytes(self.inbuf), bytearray()
@@ -224,7 +252,8 @@ class ConsoleServer:
         self._lock = threading.Lock()
         self._conns: list[_Conn] = []
         self._selector: selectors.BaseSelector | None = None
-        self.window = ScanWindow(service.controller.plant.cycle_ns / 1e9)
+        ctl = service.controller
+        self.window = ScanWindow(ctl.plant.cycle_ns / 1e9, due=ctl.next_scan_due)
         #: where the console is served: serial ports, socket paths, 127.0.0.1:PORT
         self.addresses: list[str] = []
         #: the sessions open now
@@ -239,6 +268,7 @@ class ConsoleServer:
         """Open every listener (errors raised here) and start the serving threads."""
         if self.entries:
             self.service.controller.add_listener(self.window.on_scan)
+            self.service.pause = self.window.pause
         for e in self.entries:
             if e.kind == "serial":
                 self.addresses.append(e.address)
@@ -302,29 +332,57 @@ class ConsoleServer:
 
     # -- sockets: one thread, one selector ---------------------------------------------
     def _serve_sockets(self, sel: selectors.BaseSelector) -> None:
-        next_poll = 0.0
+        """Everything happens inside the windows (ScanWindow.slot): reading, lines,
+        replies, timers. Between them the thread sleeps with the GIL free, woken by the
+        end of the next scan, never by a client: bytes that arrive meanwhile wait in the
+        kernel. Only a server with nothing to do waits for input across windows, and
+        then waits for a window before it reads it."""
+        meter = self.window.meter()
+        due = [0.0]  # monotonic seconds of the next tick (streams, timers, idle limits)
         try:
             while not self._stop.is_set():
-                busy = any(c.line.ready() for c in self._conns)
-                self._set_events(sel)
-                for key, _ in sel.select(0 if busy else POLL_S):
-                    if isinstance(key.data, _Listener):
-                        self._accept(sel, key.data)
-                    else:
-                        self._io(key.data)
-                tick = time.monotonic() >= next_poll
-                if tick or any(c.line.ready() for c in self._conns):
-                    closes = self.window.until()
-                    self._work(min(closes, time.monotonic() + ROUND_BUDGET_S))
-                    if tick:
-                        next_poll = time.monotonic() + POLL_S
-                        self._tick()
+                self._serve_window(sel, self.window.slot(), meter, due)
                 for c in list(self._conns):
                     self._flush(c)
+                meter.charge()
+                if not any(c.line.inbuf or c.line.out or c.line.session.pending
+                           or c.line.session.stream for c in self._conns):
+                    self._set_events(sel)
+                    sel.select(max(0.0, min(POLL_S, due[0] - time.monotonic())))
         finally:
             for c in list(self._conns):
                 self._drop(c, "server stopping")
             sel.close()
+
+    def _serve_window(self, sel: selectors.BaseSelector, slot: Slot, meter: CpuMeter,
+                      due: list[float]) -> None:
+        """Input, lines, replies and the tick in ``slot``: until it closes, the processor
+        budget is spent, or (past ``slot.settles``) nothing is left to do."""
+        first = True
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if now >= slot.closes:
+                return
+            busy = first or any(c.line.ready() for c in self._conns)
+            self._set_events(sel)
+            wait = _wait_in(slot, now, due[0], busy,
+                            any(c.line.session.pending for c in self._conns))
+            if wait is None:
+                return  # nothing to do, and no more waiting in this window
+            first = False
+            for key, _ in sel.select(wait):
+                if isinstance(key.data, _Listener):
+                    self._accept(sel, key.data)
+                else:
+                    self._io(key.data)
+            if time.monotonic() >= due[0]:
+                due[0] = time.monotonic() + POLL_S
+                self._tick()
+            if not meter.charge():
+                return  # the budget is spent: ScanWindow.slot waits for it
+            self._work(min(slot.closes, time.monotonic() + ROUND_BUDGET_S), meter)
+            for c in list(self._conns):
+                self._flush(c)
 
     def _set_events(self, sel: selectors.BaseSelector) -> None:
         for c in self._conns:
@@ -339,12 +397,13 @@ class ConsoleServer:
                     sel.unregister(c.sock)
                 c.events = ev
 
-    def _work(self, until: float) -> None:
+    def _work(self, until: float, meter: CpuMeter) -> None:
         """Lines handed over round-robin, one per connection, until ``until`` (monotonic
-        seconds). The connection served goes to the end of the order, so the next line
-        (in this round or the next) comes from the one served least recently: a line
-        that waits for a scan boundary uses up a round, and restarting each round from
-        the first connection starved the last ones."""
+        seconds) or the window's processor budget is spent. The connection served goes
+        to the end of the order, so the next line (in this round or the next) comes from
+        the one served least recently: a line that waits for a scan boundary uses up a
+        round, and restarting each round from the first connection starved the last
+        ones."""
         conns = self._conns
         while True:
             c = next((c for c in conns if c.line.ready()), None)
@@ -353,7 +412,7 @@ class ConsoleServer:
             conns.remove(c)
             conns.append(c)
             c.line.step()
-            if time.monotonic() >= until:
+            if not meter.charge() or time.monotonic() >= until:
                 return
 
     def _tick(self) -> None:
@@ -501,57 +560,84 @@ class ConsoleServer:
                 self._stop.wait(REOPEN_MIN_S)
 
     def _pump_serial(self, port: Any, line: Line, address: str) -> str:
-        """Serve one open port until it hangs up (returns "hang-up") or the server stops."""
+        """Serve one open port until it hangs up (returns "hang-up") or the server stops;
+        inside the windows only, as the sockets are (``_serve_sockets``)."""
+        poller = select.poll()
+        poller.register(port.fileno(), select.POLLIN)
+        state = _SerialState(carrier=_carrier(port))  # None: no modem lines (pty, gadget)
+        meter = self.window.meter()
+        while not self._stop.is_set():
+            slot = self.window.slot()
+            first = True
+            while not self._stop.is_set():
+                now = time.monotonic()
+                if now >= slot.closes or not meter.charge():
+                    break
+                wait = _wait_in(slot, now, state.due, first or line.ready(),
+                                line.session.pending is not None)
+                if wait is None:
+                    break  # nothing to do, and no more waiting in this window
+                first = False
+                if self._serial_io(port, poller, line, state, wait, address):
+                    return "hang-up"
+                if line.ready():
+                    line.step()
+                self._serial_write(port, line, address)
+            meter.charge()
+            if not (line.inbuf or line.out or line.session.pending or line.session.stream):
+                # nothing to do: wait for input across windows (then for a window)
+                for _, ev in poller.poll(max(0.0, min(POLL_S, state.due - time.monotonic()))
+                                         * 1000):
+                    if ev & (select.POLLHUP | select.POLLERR | select.POLLNVAL):
+                        log.warning("console serial %s: hang-up", address)
+                        return "hang-up"
+        return "server stopping"
+
+    def _serial_io(self, port: Any, poller: select.poll, line: Line, state: _SerialState,
+                   wait: float, address: str) -> bool:
+        """Read what came (up to ``wait`` seconds), and poll the session and the carrier
+        when due; whether the line hung up."""
+        reading = len(line.inbuf) < IN_MAX  # full: the bytes wait in the port
+        if reading != state.reading:
+            state.reading = reading
+            poller.modify(port.fileno(), select.POLLIN if reading else 0)
+        for _, ev in poller.poll(wait * 1000):
+            if ev & (select.POLLHUP | select.POLLERR | select.POLLNVAL):
+                log.warning("console serial %s: hang-up", address)
+                return True
+            if ev & select.POLLIN:
+                data = bytes(port.read(min(max(port.in_waiting, 1), READ_CHUNK)))
+                if data:
+                    line.receive(data)
+        if time.monotonic() >= state.due:
+            state.due = time.monotonic() + POLL_S
+            line.poll()
+            if state.carrier is not None:
+                cd = _carrier(port)
+                if state.carrier and cd is False:
+                    log.warning("console serial %s: carrier lost (hang-up)", address)
+                    return True
+                state.carrier = state.carrier or bool(cd)
+        return False
+
+    @staticmethod
+    def _serial_write(port: Any, line: Line, address: str) -> None:
         import serial  # pyserial
 
-        poller = select.poll()
-        fd = port.fileno()
-        reading = True
-        poller.register(fd, select.POLLIN)
-        carrier = _carrier(port)  # None: no modem lines (a pty, a USB gadget)
-        next_poll = 0.0
-        while not self._stop.is_set():
-            if reading != (len(line.inbuf) < IN_MAX):  # full: the bytes wait in the port
-                reading = not reading
-                poller.modify(fd, select.POLLIN if reading else 0)
-            busy = line.ready()
-            for _, ev in poller.poll(0 if busy else POLL_S * 1000):
-                if ev & (select.POLLHUP | select.POLLERR | select.POLLNVAL):
-                    log.warning("console serial %s: hang-up", address)
-                    return "hang-up"
-                if ev & select.POLLIN:
-                    data = bytes(port.read(min(max(port.in_waiting, 1), READ_CHUNK)))
-                    if data:
-                        line.receive(data)
-            tick = time.monotonic() >= next_poll
-            if line.ready() or tick:
-                self.window.until()
-            if line.ready():
-                line.step()
-            if tick:
-                now = time.monotonic()
-                next_poll = now + POLL_S
-                line.poll()
-                if carrier is not None:
-                    cd = _carrier(port)
-                    if carrier and cd is False:
-                        log.warning("console serial %s: carrier lost (hang-up)", address)
-                        return "hang-up"
-                    carrier = carrier or bool(cd)
-            if line.out:
-                data, line.out = bytes(line.out), bytearray()
-                try:
-                    port.write(data)
-                except serial.SerialTimeoutException:
-                    log.warning("console serial %s: nobody reads the line, output dropped",
-                                address)
-        return "server stopping"
+        if line.out:
+            data, line.out = bytes(line.out), bytearray()
+            try:
+                port.write(data)
+            except serial.SerialTimeoutException:
+                log.warning("console serial %s: nobody reads the line, output dropped",
+                            address)
 
     def stop(self) -> None:
         """Stop serving: every session closed (its streams and, if configured, its
         forces released), threads joined, socket files removed. Idempotent."""
         self._stop.set()
         self.service.controller.remove_listener(self.window.on_scan)
+        self.window.close()
         with self._lock:
             threads = list(self._threads)
         for t in threads:
@@ -564,6 +650,32 @@ class ConsoleServer:
         for path in self._socket_paths:
             remove_socket(path)  # only if still the one it bound
         self._socket_paths.clear()
+
+
+def _wait_in(slot: Slot, now: float, tick: float, busy: bool, pending: bool
+             ) -> float | None:
+    """How long a serving loop may wait for input at ``now`` in ``slot`` (seconds): not
+    at all while it has work (``busy``) or its tick is due (monotonic ``tick``); up to
+    the tick, POLL_S (PENDING_POLL_S while a command is pending) and ``slot.settles``
+    otherwise; None once the slot has settled: the rest waits for the next window."""
+    if busy or now >= tick:
+        return 0.0
+    limit = min(slot.settles, tick)
+    if now >= limit:
+        return None
+    return min(limit - now, PENDING_POLL_S if pending else POLL_S)
+
+
+class _SerialState:
+    """What the serving loop of one serial port keeps between two windows."""
+
+    def __init__(self, carrier: bool | None) -> None:
+        #: the carrier detect line as last seen (None: the port has no modem lines)
+        self.carrier = carrier
+        #: monotonic seconds of the next poll of the session and the carrier
+        self.due = 0.0
+        #: whether the port's input is being read (not while IN_MAX bytes wait)
+        self.reading = True
 
 
 def _carrier(port: Any) -> bool | None:

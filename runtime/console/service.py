@@ -17,7 +17,7 @@ from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
-from runtime.console.protocol import LOCKOUT_MAX_S, LOCKOUT_MIN_S, MAX_PIN_TRIES
+from runtime.console.protocol import LOCKOUT_MAX_S, LOCKOUT_MIN_S, MAX_PIN_TRIES, Reply
 from runtime.controller.pin import check_pin
 from runtime.engine.names import Catalogue, CommandError
 from runtime.engine.plant import Plant
@@ -41,8 +41,12 @@ class Controller(Protocol):
     def status(self) -> dict[str, Any]:
         """state, fault, inhibits, held, scans, uptime_s, cycle_ms, freezes, faults, retain."""
 
-    def stats(self) -> dict[str, Any]:
-        """Cycle statistics (us) and per-driver health."""
+    def next_scan_due(self) -> float:
+        """Monotonic seconds at which the next cycle is due (0 before the first)."""
+
+    def stats(self, pause: Callable[[], object] | None = None) -> dict[str, Any]:
+        """Cycle statistics (us) and per-driver health; ``pause()`` between the slices of
+        a long computation (ScanWindow.pause)."""
 
     def ack(self) -> str:
         """Acknowledge a fault (restart the charts) or SFCError; returns what was done."""
@@ -119,6 +123,17 @@ class ConsoleService:
         self._ending: set[Session] = set()
         self._end_failed: set[Session] = set()
         self.lock = threading.Lock()
+        #: the last ``stats`` reply and the daemon's figures it shows: the daemon gives
+        #: the same object while they have not changed, so a flood of ``stats`` formats
+        #: one reply per STATS_MAX_AGE_NS of cycles (commands.cmd_stats)
+        self.stats_reply: tuple[object, Reply] | None = None
+        #: the last JSON reply built from a reply's data, and that data: a shared reply
+        #: (``stats``) is encoded once for every session in JSON mode (Session._reply_ok)
+        self.json_reply: tuple[object, object, str] | None = None
+        #: called between the slices of a long computation in a session's thread (the
+        #: percentiles of ``stats``): the console server's ScanWindow.pause, which holds
+        #: it to the window after each scan; None: the controller's own pause
+        self.pause: Callable[[], object] | None = None
         on_reload = getattr(controller, "on_reload", None)
         if on_reload is not None:  # a reload gives the sessions the new plant's names
             on_reload(self._reloaded)

@@ -5,8 +5,15 @@ Sessions are transport-free: a transport (serial port, Unix socket, TCP on 127.0
 feeds raw bytes to ``Session.feed`` and writes back the lines it returns, and calls
 ``Session.poll`` a few times a second for streamed lines (watch, trace), the time limits
 (service.tick) and the relock after an idle time, and ``Session.close(reason)`` when the
-connection ends. The commands themselves are in commands.py and changing.py, the stream's
-lines in streams.py.
+connection ends. A command whose reply comes later (``cycle N``) leaves ``pending`` set:
+the transport hands the session no other line until ``pending.ready()``, then writes
+``Session.finish()``. The commands themselves are in commands.py and changing.py, the
+stream's lines in streams.py.
+
+Activity is a command: a line that gets a reply (run, refused or unknown).
+``last_command`` is its time; empty lines, spaces and Ctrl-C (what a client sends to look
+alive) get no reply and do not count, neither for the relock after an idle time nor for
+the transports' idle limits.
 """
 
 from __future__ import annotations
@@ -25,6 +32,8 @@ from runtime.console.protocol import (
     READ_ONLY,
     LineEvent,
     LineFramer,
+    Pending,
+    Reply,
     apply_editing_keys,
 )
 from runtime.console.service import ConsoleService
@@ -62,8 +71,11 @@ class Session:
         self.unlocked = False
         #: the service's ``pin_generation`` when the session was unlocked
         self.unlocked_with = 0
-        #: service clock seconds of the last byte fed (the idle time counts from it)
-        self.last_input = service.clock()
+        #: service clock seconds of the last command (a line that got a reply): the idle
+        #: time counts from it, not from empty lines or Ctrl-C
+        self.last_command = service.clock()
+        #: the command whose reply comes later (``cycle N``), None when there is none
+        self.pending: Pending | None = None
         #: set by ``close``: the session takes nothing more, and why it ended
         self.closed = False
         self.close_reason = ""
@@ -108,8 +120,6 @@ class Session:
         stream. A line longer than MAX_LINE bytes is dropped whole (an error reply when
         its end arrives)."""
         out: list[str] = []
-        if data:
-            self.last_input = self.service.clock()
         for item in self._framer.feed(data):
             if isinstance(item, bytes):
                 out += self.handle(item)
@@ -117,12 +127,23 @@ class Session:
                 self._stop_stream()
             else:  # LineEvent.OVERLONG
                 self._stop_stream()
+                self.last_command = self.service.clock()
                 out += self._reply_error(f"line longer than {MAX_LINE} bytes: ignored")
         return out
 
     def handle(self, raw: bytes) -> list[str]:
-        """One line (without terminator) -> reply lines."""
+        """One line (without terminator) -> reply lines (none for an empty line, and none
+        yet for a command left ``pending``)."""
         self._stop_stream()
+        reply = self._handle(raw)
+        if reply or self.pending is not None:
+            self.last_command = self.service.clock()
+        return reply
+
+    def _handle(self, raw: bytes) -> list[str]:
+        if self.pending is not None:  # the transports never do this: they wait for it
+            return self._reply_error(f"'{self.pending.command}' is still running: its "
+                                     "reply comes first (Ctrl-C stops it)")
         if len(raw) > MAX_LINE:
             return self._reply_error(f"line longer than {MAX_LINE} bytes: ignored")
         try:
@@ -148,9 +169,14 @@ class Session:
                                          "no pin_hash in the plant file and the console is "
                                          "not trusted")
             return self._reply_error("locked: 'unlock PIN' first")
+        self.plant = self.ctl.plant
+        return self._reply(lambda: COMMANDS[cmd](self, args), line)
+
+    def _reply(self, run: Callable[[], Reply | Pending], line: str) -> list[str]:
+        """The reply lines of ``run()`` (a command, or the end of a pending one): its
+        result, or its error; none when it left a command pending."""
         try:
-            self.plant = self.ctl.plant
-            result = COMMANDS[cmd](self, args)
+            result = run()
         except (CommandError, CommandRefused, BindingError) as exc:
             # a refusal with reasons (reload) lists them before its error line
             return self._reply_error(str(exc), getattr(exc, "lines", []),
@@ -160,8 +186,18 @@ class Session:
         except Exception as exc:  # noqa: BLE001 - a bug must not end the session
             log.exception("console %s: '%s' failed", self.name, printable(line, 80))
             return self._reply_error(f"internal error: {type(exc).__name__}: {exc}")
+        if isinstance(result, Pending):
+            self.pending = result
+            return []
         lines, data = result if isinstance(result, tuple) else (result, {})
         return self._reply_ok(lines, data)
+
+    def finish(self) -> list[str]:
+        """The reply of the pending command (once ``pending.ready()``)."""
+        pending, self.pending = self.pending, None
+        if pending is None:
+            return []
+        return self._reply(pending.finish, pending.command)
 
     def service_account(self) -> bool:
         """Whether the peer is root or the controller's own user on a Unix socket: they
@@ -178,7 +214,12 @@ class Session:
     # -- replies ---------------------------------------------------------------------
     def _reply_ok(self, lines: list[str], data: dict[str, Any]) -> list[str]:
         if self.json:
-            return [json.dumps({"ok": True, **data, "text": lines}, ensure_ascii=False)]
+            made = self.service.json_reply
+            if made is not None and made[0] is data and made[1] is lines:
+                return [made[2]]  # a shared reply (``stats``), encoded once
+            text = json.dumps({"ok": True, **data, "text": lines}, ensure_ascii=False)
+            self.service.json_reply = (data, lines, text)
+            return [text]
         return [*lines, "ok"]
 
     def _reply_error(self, reason: str, lines: list[str] | None = None,
@@ -214,7 +255,7 @@ class Session:
         trace); call it a few times a second."""
         notices = self.service.tick(self)
         idle = self.service.limits.relock_after_idle_s
-        if self.unlocked and self.service.clock() - self.last_input >= idle:
+        if self.unlocked and self.service.clock() - self.last_command >= idle:
             self.unlocked = False
             log.info("console %s locked after %.0f s idle", self.name, idle)
             notices.append(f"locked after {idle:.0f} s idle: 'unlock PIN' to change the "
@@ -240,4 +281,7 @@ class Session:
         self.closed = True
         self.unlocked = False
         self._stop_stream()
+        if self.pending is not None:
+            self.pending.abandon()
+            self.pending = None
         self.service.session_ended(self, reason)

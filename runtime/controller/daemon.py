@@ -44,7 +44,7 @@ from runtime.engine.commands import CommandRefused
 from runtime.engine.plant import Plant
 from runtime.engine.trace import trace_columns
 from runtime.errors import Loc, SourceError
-from runtime.language.model import PlantDef
+from runtime.language.model import DEFAULT_REALTIME_PRIORITY, PlantDef
 from runtime.language.runtimedir import locate
 
 log = logging.getLogger(__name__)
@@ -58,8 +58,14 @@ FAULT_HISTORY = 20
 #: scan waits for the GIL held by another thread (a console serving a flood). Python's
 #: default, 5 ms, is half a 10 ms cycle (docs/console.md, "Transports and limits")
 GIL_SWITCH_S = 0.0005
-#: ``stats`` figures are at most this many ns of cycles old
+#: ``stats`` figures are at most this many ns of cycles old...
 STATS_MAX_AGE_NS = 100_000_000
+#: ...and their percentiles (of 8192 cycles: a few ms of processor time) at most this
+#: many: they barely move in a second
+STATS_QUANTILES_MAX_AGE_NS = 1_000_000_000
+#: the thread computing percentiles sleeps this long after sorting each slice of a
+#: window, seconds (ScanStats: it never runs for long at a stretch)
+STATS_PAUSE_S = 0.0001
 #: chart flags that hold an instance (initial situation, reset, frozen situation)
 HOLD_FLAGS = ("SFCInit", "SFCReset", "SFCPause")
 #: signals that stop the controller in order (safe state, retained data saved)
@@ -155,6 +161,9 @@ class Daemon:
         self._trace = _TraceWriter(self.plant, trace) if trace is not None else None
         self._switch_was = sys.getswitchinterval()
         self._stats_cache: tuple[int, dict[str, Any]] | None = None
+        self._stats_quantiles: tuple[int, tuple[list[int], list[int]]] | None = None
+        #: the last ``stats()`` result, and the figures it was made from
+        self._stats_out: tuple[tuple[int, dict[str, Any]], dict[str, Any]] | None = None
         #: logs step changes (``log: steps``), SFCError and overrun bursts
         self.events = EventWatcher(self.plant, self.scan_stats, clock)
         #: online change (``reload``): its flow and history (runtime/controller/reload.py)
@@ -240,7 +249,16 @@ class Daemon:
         if not done:
             log.debug("timer slack not reduced: %s", why)
         prio = self.pdef.realtime_priority
-        if prio:
+        if prio is None:  # not set: real time where permitted (the installed service)
+            done, why = set_fifo_priority(DEFAULT_REALTIME_PRIORITY)
+            if done:
+                log.info("scan thread at SCHED_FIFO priority %d", DEFAULT_REALTIME_PRIORITY)
+            else:
+                log.info("scan thread at normal priority (SCHED_FIFO %s): other processes "
+                         "can delay its scans", why)
+        elif not prio:
+            log.info("scan thread at normal priority (plc: realtime: false)")
+        else:
             done, why = set_fifo_priority(prio)
             if done:
                 log.info("scan thread at SCHED_FIFO priority %d", prio)
@@ -441,6 +459,11 @@ class Daemon:
             return State.STEPPING if plant.stepping else State.PAUSED
         return State.RUNNING
 
+    def next_scan_due(self) -> float:
+        """Monotonic seconds at which the next cycle is due (0 before the first cycle):
+        when work beside the scan must have let go of the GIL (ScanWindow)."""
+        return self.scheduler.due / 1e9
+
     def uptime_s(self) -> float:
         return 0.0 if self.started_ns is None else (self.clock() - self.started_ns) / 1e9
 
@@ -500,8 +523,9 @@ class Daemon:
 
     def summary(self) -> str:
         """One line: state, what inhibits the plant, cycle figures (systemd's STATUS=,
-        logs). Safe from any thread: the p99 figures never hold the GIL for long."""
-        scan_p99, late_p99 = self.scan_stats.p99()
+        logs). Safe from any thread but the scan thread: the p99 figures never hold the
+        GIL for long, and their thread pauses between the slices of the work."""
+        scan_p99, late_p99 = self.scan_stats.p99(_stats_pause)
         text = self.state.value
         inhibits = [x.removeprefix(f"{text}: ") for x in self.inhibits()]
         if inhibits:
@@ -546,20 +570,37 @@ class Daemon:
         return {"state": state, "since": w.failing_since, "generation": store.generation,
                 "text": "; ".join(texts) or f"saved, generation {store.generation}"}
 
-    def stats(self) -> dict[str, Any]:
-        """Cycle statistics (µs) and driver health. The percentiles sort up to 8192
-        cycles (~3 ms holding the GIL): computed at most every STATS_MAX_AGE_NS, however
-        many consoles ask (docs/console.md, "Transports and limits")."""
-        count = self.scan_stats.count
+    def stats(self, pause: Callable[[], object] | None = None) -> dict[str, Any]:
+        """Cycle statistics (µs) and driver health, computed at most every
+        STATS_MAX_AGE_NS of cycles, their percentiles (of up to 8192 cycles: a few ms of
+        processor time, in slices with ``pause()`` between them: by default a sleep of
+        STATS_PAUSE_S; the console's waits for its next window once its window has
+        closed) at most every STATS_QUANTILES_MAX_AGE_NS, however many consoles ask
+        (docs/console.md, "Transports and limits"). Until they are computed again and
+        while no driver's health changes, every caller gets the same dict (do not change
+        it): the console formats its reply once for all."""
+        stats = self.scan_stats
+        count = stats.count
         cached = self._stats_cache
         if (cached is None or count < cached[0]  # reset since
                 or count - cached[0] >= max(1, STATS_MAX_AGE_NS // self.plant.cycle_ns)):
-            cached = self._stats_cache = (count, self.scan_stats.as_dict())
-        out = dict(cached[1])
-        out["cycle_us"] = self.plant.cycle_ns / 1e3
-        out["drivers"] = {name: {"health": d.health.value, "on_fault": d.on_fault.value,
-                                 "reason": d.fault_reason}
-                          for name, d in self.plant.drivers.items()}
+            quantiles = self._stats_quantiles
+            if (quantiles is None or count < quantiles[0] or count - quantiles[0]
+                    >= max(1, STATS_QUANTILES_MAX_AGE_NS // self.plant.cycle_ns)):
+                quantiles = self._stats_quantiles = (count,
+                                                     stats.window_quantiles(
+                                                         pause or _stats_pause))
+            cached = self._stats_cache = (count, stats.as_dict(quantiles[1]))
+        drivers = {name: {"health": d.health.value, "on_fault": d.on_fault.value,
+                          "reason": d.fault_reason}
+                   for name, d in self.plant.drivers.items()}
+        cycle_us = self.plant.cycle_ns / 1e3
+        last = self._stats_out
+        if (last is not None and last[0] is cached and last[1]["drivers"] == drivers
+                and last[1]["cycle_us"] == cycle_us):
+            return last[1]
+        out = {**cached[1], "cycle_us": cycle_us, "drivers": drivers}
+        self._stats_out = (cached, out)
         return out
 
     def ack(self) -> str:
@@ -663,6 +704,11 @@ class Daemon:
     def remove_listener(self, fn: Callable[[int], None]) -> None:
         with self._listeners_lock:
             self._listeners = tuple(f for f in self._listeners if f != fn)
+
+
+def _stats_pause() -> None:
+    """Between two slices of a percentile computation (not in the scan thread)."""
+    time.sleep(STATS_PAUSE_S)
 
 
 class _TraceWriter:

@@ -91,6 +91,9 @@ class Scheduler:
         self.scanning_since = 0
         #: monotonic ns of the last wake-up, 0 before the first (Watchdog reads it)
         self.last_wake = 0
+        #: monotonic ns at which the next cycle is due, set before each idle time (the
+        #: console's ScanWindow closes its window a quiet time before it)
+        self.due = 0
         self.stop_event = threading.Event()
         self._last_full_gc = 0
         #: set while another thread builds a large long-lived structure (an online change
@@ -145,6 +148,7 @@ class Scheduler:
                     stats.overruns += 1
                     stats.skipped += (end - deadline) // cycle
                     deadline = end + cycle
+                self.due = deadline
                 if idle is not None:
                     idle(deadline - guard)
                 if manage_gc and not n % GC_CHECK_EVERY:

@@ -3,20 +3,23 @@
 ``record()`` runs once per cycle in the scan thread: a few integer stores into
 preallocated arrays, no container grows, nothing is allocated. Percentiles are computed on
 demand, off the hot path, over the last ``window`` cycles; min, mean, max and the overrun
-count cover the whole run. ``p99()`` (systemd's STATUS= line) finds the two p99 figures
-without sorting a whole window in one call: another thread computing it never holds the
-GIL for more than a chunk's sort (~50 µs), so the scan thread is never stalled by it.
+count cover the whole run. They are found without sorting a whole window in one call
+(``percentiles``): the thread computing them (the watchdog's for systemd's STATUS= line,
+the console's for ``stats``) never holds the GIL for more than a chunk's sort (~50 µs),
+so the scan thread is never stalled by it.
 """
 
 from __future__ import annotations
 
 from array import array
+from bisect import bisect_right
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 #: cycles kept for percentiles (p99.9 needs at least 1000)
 WINDOW = 8192
-#: values sorted per call by ``p99()``: the longest the GIL is held at once
+#: values sorted per call by ``percentiles``: the longest the GIL is held at once
 CHUNK = 512
 
 
@@ -43,25 +46,41 @@ def _rank(n: int, q: float) -> int:
     return min(n - 1, max(0, int(round(q * (n - 1)))))
 
 
-def _percentile(sorted_values: list[int], q: float) -> int:
-    if not sorted_values:
-        return 0
-    return sorted_values[_rank(len(sorted_values), q)]
+#: quantiles of a window: median, p99, p99.9
+QUANTILES = (0.5, 0.99, 0.999)
 
 
-def high_percentile(values: array[int], n: int, q: float) -> int:
-    """The ``q`` quantile (q >= 0.5) of ``values[:n]``, equal to ``_percentile`` of the
-    sorted values, found from the top ``k`` of each CHUNK-sized slice: no single call
-    sorts more than CHUNK values (or the k * chunks candidates)."""
+def percentiles(values: array[int], n: int, qs: tuple[float, ...],
+                pause: Callable[[], object] | None = None) -> list[int]:
+    """The ``qs`` quantiles of ``values[:n]``: for each, the value at ``_rank(n, q)`` of
+    the sorted values, found without one call holding the GIL for a whole sort. Each
+    CHUNK-sized slice is sorted on its own (~50 µs a call); a quantile is then the
+    smallest value that at least rank + 1 values do not exceed, found by halving the
+    range of values and counting with ``bisect`` in each sorted slice (~40 halvings of
+    a few µs each). 0 when there are no values. ``pause()`` is called after each
+    slice's sort: a thread that sleeps there (``time.sleep``) never runs for long at a
+    stretch, so a busy machine does not take the processor from it while it holds the
+    GIL (the scan thread would wait for it)."""
     if n <= 0:
-        return 0
-    k = n - _rank(n, q)  # the answer is the k-th largest value
-    top: list[int] = []
+        return [0] * len(qs)
+    chunks = []
     for start in range(0, n, CHUNK):
-        chunk = sorted(values[start:min(n, start + CHUNK)])
-        top += chunk[-k:]
-    top.sort()
-    return top[-k]
+        chunks.append(sorted(values[start:min(n, start + CHUNK)]))
+        if pause is not None:
+            pause()
+    low, high = min(c[0] for c in chunks), max(c[-1] for c in chunks)
+    out = []
+    for q in qs:
+        need = _rank(n, q) + 1
+        lo, hi = low, high
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if sum(bisect_right(c, mid) for c in chunks) >= need:
+                hi = mid
+            else:
+                lo = mid + 1
+        out.append(lo)
+    return out
 
 
 class ScanStats:
@@ -123,31 +142,48 @@ class ScanStats:
         if frozen_ns > self.freeze_max:
             self.freeze_max = frozen_ns
 
-    def _summary(self, ring: array[int], last: int, lo: int, hi: int, total: int) -> Summary:
-        n = min(self.count, self.window)
-        values = sorted(ring[:n])
+    def _summary(self, ring: array[int], last: int, lo: int, hi: int, total: int,
+                 quantiles: list[int] | None = None) -> Summary:
+        if quantiles is None:
+            quantiles = percentiles(ring, min(self.count, self.window), QUANTILES)
+        p50, p99, p999 = quantiles
         mean = total / self.count if self.count else 0.0
-        return Summary(last, lo if self.count else 0, mean, _percentile(values, 0.5),
-                       _percentile(values, 0.99), _percentile(values, 0.999), hi)
+        return Summary(last, lo if self.count else 0, mean, p50, p99, p999, hi)
 
-    def scan(self) -> Summary:
+    def scan(self, quantiles: list[int] | None = None) -> Summary:
+        """Scan time; its quantiles computed now, or ``quantiles`` (as computed by
+        ``window_quantiles``)."""
         return self._summary(self._scan, self.scan_last, self.scan_min, self.scan_max,
-                             self.scan_sum)
+                             self.scan_sum, quantiles)
 
-    def lateness(self) -> Summary:
+    def lateness(self, quantiles: list[int] | None = None) -> Summary:
+        """Wake-up lateness; as ``scan``."""
         return self._summary(self._late, self.late_last, self.late_min, self.late_max,
-                             self.late_sum)
+                             self.late_sum, quantiles)
 
-    def p99(self) -> tuple[int, int]:
-        """(scan p99, lateness p99) over the window, ns, as ``scan()`` and ``lateness()``
-        give them, never holding the GIL for a whole window's sort (safe to call from
-        another thread while the scan runs; a cycle recorded meanwhile may count or not)."""
+    def window_quantiles(self, pause: Callable[[], object] | None = None
+                         ) -> tuple[list[int], list[int]]:
+        """QUANTILES of the scan times and of the lateness over the window, ns (the
+        expensive part of the figures: ``pause`` as for ``percentiles``)."""
         n = min(self.count, self.window)
-        return (high_percentile(self._scan, n, 0.99), high_percentile(self._late, n, 0.99))
+        return (percentiles(self._scan, n, QUANTILES, pause),
+                percentiles(self._late, n, QUANTILES, pause))
 
-    def as_dict(self) -> dict[str, Any]:
-        """Everything, times in µs (what ``stats`` on the console shows)."""
+    def p99(self, pause: Callable[[], object] | None = None) -> tuple[int, int]:
+        """(scan p99, lateness p99) over the window, ns, as ``scan()`` and ``lateness()``
+        give them (safe to call from another thread while the scan runs; a cycle
+        recorded meanwhile may count or not; ``pause`` as for ``percentiles``)."""
+        n = min(self.count, self.window)
+        return (percentiles(self._scan, n, (0.99,), pause)[0],
+                percentiles(self._late, n, (0.99,), pause)[0])
+
+    def as_dict(self, quantiles: tuple[list[int], list[int]] | None = None
+                ) -> dict[str, Any]:
+        """Everything, times in µs (what ``stats`` on the console shows); the quantiles
+        computed now, or ``quantiles`` (``window_quantiles``, computed earlier)."""
+        scan_q, late_q = quantiles if quantiles is not None else self.window_quantiles()
         return {"cycles": self.count, "overruns": self.overruns, "skipped": self.skipped,
-                "scan_us": self.scan().as_dict(), "lateness_us": self.lateness().as_dict(),
+                "scan_us": self.scan(scan_q).as_dict(),
+                "lateness_us": self.lateness(late_q).as_dict(),
                 "gc_runs": self.gc_runs, "gc_ms": round(self.gc_ns / 1e6, 2),
                 "freezes": self.freezes, "freeze_max_ms": round(self.freeze_max / 1e6, 1)}

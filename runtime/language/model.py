@@ -282,6 +282,11 @@ class ConsoleLimits:
     relock_after_idle_s: float = 300.0
 
 
+#: the scan thread's SCHED_FIFO priority when the plant file does not say (docs/daemon.md,
+#: "Real time"): a normal-priority scan waits for the processor behind whatever else runs
+DEFAULT_REALTIME_PRIORITY = 50
+
+
 @dataclass(slots=True)
 class PlantDef:
     path: str
@@ -294,6 +299,8 @@ class PlantDef:
     #: refuse to start when the retained data is lost (docs/daemon.md)
     retain_required: bool = False
     retain_required_loc: Loc | None = None
+    #: SCHED_FIFO priority of the scan thread (``plc: realtime: priority``); None: not
+    #: set, DEFAULT_REALTIME_PRIORITY where permitted; 0: ``realtime: false``, none
     realtime_priority: int | None = None
     lock_memory: bool = False
     drivers: dict[str, DriverDef] = field(default_factory=dict)

@@ -156,8 +156,11 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
             p.retain_required_loc = loc
             if p.retain_required and p.retain_path is None:
                 raise SourceError(loc, "plc retain_required needs a retain file (plc retain)")
-        if "realtime" in plc:
-            rt = expect_type(plc["realtime"], plc.val_locs["realtime"], YMap, "a mapping")
+        if plc.get("realtime") is False:  # the scan thread at normal priority
+            p.realtime_priority = 0
+        elif "realtime" in plc:
+            rt = expect_type(plc["realtime"], plc.val_locs["realtime"], YMap,
+                             "a mapping ({priority: 1-99, lock_memory: true}) or false")
             check_keys(rt, ("priority", "lock_memory"), "plc realtime")
             if "priority" in rt:
                 p.realtime_priority = expect_type(rt["priority"], rt.val_locs["priority"], int,

@@ -28,7 +28,9 @@ from runtime.console.server import ConsoleServer
 from runtime.console.service import ConsoleService
 from runtime.controller.daemon import Daemon
 from runtime.engine.plant import Plant
+from runtime.language.model import ConsoleEntry
 from runtime.language.plantfile import load_plant
+from tests.console.schedprobe import SchedProbe
 
 ROOT = Path(__file__).resolve().parents[2]
 CHART = ROOT / "configs" / "drawer_tester" / "drawer_tester.yaml"
@@ -69,7 +71,9 @@ def plant_yaml(port: str | None, sock: str | None, *, trusted: bool = True,
     if pin_hash:
         mon.append(f"  pin_hash: '{pin_hash}'")
     mon.append(f"  release_forces_on_disconnect: {str(release).lower()}")
-    realtime = f", realtime: {{priority: {priority}}}" if priority else ""
+    # None: the default (SCHED_FIFO 50 where permitted); 0: normal priority
+    realtime = ("" if priority is None else ", realtime: false" if priority == 0
+                else f", realtime: {{priority: {priority}}}")
     return f"""\
 plc: {{cycle: {cycle}, watchdog: 300ms{realtime}}}
 drivers:
@@ -337,6 +341,11 @@ class Rig:
         self.clients.append(c)
         return c
 
+    @property
+    def tcp_address(self) -> str:
+        """127.0.0.1:PORT of the TCP console (``make_rig(tcp=True)``)."""
+        return next(a for a in self.server.addresses if a.startswith("127.0.0.1:"))
+
     def connect(self) -> LineClient:
         assert self.socket_path is not None
         c = socket_client(self.socket_path)
@@ -384,13 +393,17 @@ def make_rig(*, serial_port: bool = True, unix_socket: bool = True, trusted: boo
              pin_hash: str | None = None, release: bool = False, cycle: str = "10ms",
              clock: Callable[[], float] = time.monotonic, released_stop: bool = True,
              serial_path: str | None = None, blink: bool = False,
-             manage_gc: bool = False, priority: int | None = None) -> Rig:
+             manage_gc: bool = False, priority: int | None = None, tcp: bool = False,
+             probe: SchedProbe | None = None) -> Rig:
     """Write the plant, start the daemon and its console; the stop button released
     (rio.I0 = rio.I4 = 1, NC contacts) so the testers can start.
 
     The serial console is on a NullModem, or on ``serial_path`` (a pty another process
     owns) when given. ``manage_gc=True`` runs the collector as the daemon does in
-    production (disabled, then run in the scan's idle time): bench/console.py uses it."""
+    production (disabled, then run in the scan's idle time): bench/console.py uses it.
+    ``tcp=True`` adds a TCP console on an ephemeral port (``Rig.tcp_address``), served
+    by the same server as the socket, as a plant's ``monitor: tcp:`` is. ``probe``
+    records each wake-up of the scan thread (schedprobe.py)."""
     tmp = tempfile.mkdtemp(prefix="sc", dir="/tmp")  # short: Unix socket paths <= 107
     modem = NullModem() if serial_port and serial_path is None else None
     port = modem.daemon_port if modem else serial_path
@@ -407,13 +420,16 @@ def make_rig(*, serial_port: bool = True, unix_socket: bool = True, trusted: boo
     pdef = load_plant(path)
     drv = FlakySim("rio", {"on_fault": "stop"})
     daemon = Daemon(pdef, plant=Plant(pdef, drivers={"rio": drv}), manage_gc=manage_gc)
+    if probe is not None:
+        daemon.scheduler.sleep_until = probe.wrap(daemon.scheduler.sleep_until)
     if released_stop:
         drv.set_input("I0", 1)
         drv.set_input("I4", 1)
     daemon.start()
     service = ConsoleService(daemon, pdef.pin_hash, pdef.release_forces_on_disconnect,
                              clock=clock)
-    server = ConsoleServer(service, pdef.consoles)
+    entries = [*pdef.consoles, *([ConsoleEntry("tcp", "127.0.0.1:0")] if tcp else [])]
+    server = ConsoleServer(service, entries)
     server.start()
     return Rig(daemon, drv, service, server, modem, sock, tmp)
 

@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import json
 import re
-import threading
+import socket
+import struct
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -15,7 +17,7 @@ import pytest
 from runtime.errors import SourceError
 from runtime.language.model import ConsoleLimits
 from runtime.language.plantfile import load_plant
-from tests.console.consolekit import FakeClock, Rig, wait_for
+from tests.console.consolekit import FakeClock, LineClient, Rig, wait_for
 
 
 def outputs(rig: Rig) -> dict[str, int]:
@@ -78,19 +80,70 @@ def test_a_session_in_iocheck_that_left_halts(rig: Rig) -> None:
 
 
 def test_a_session_closed_while_stepping_cancels_the_steps_and_halts(rig: Rig) -> None:
-    """The server may end a session from another thread while ``cycle`` waits."""
+    """A session that ends while its ``cycle`` runs gets no reply: the stepping is
+    cancelled and the controller halted; nothing of the command is left listening."""
     s = rig.service.session("tcp:test", trusted=True, peer="tcp")
     s.feed(b"pause\r\n")
-    replies: list[str] = []
-    t = threading.Thread(target=lambda: replies.extend(s.feed(b"cycle 10000\r\n")),
-                         name="console-test-cycle")
-    t.start()
+    listeners = len(rig.daemon._listeners)
+    assert s.feed(b"cycle 10000\r\n") == [] and s.pending is not None
+    assert s.feed(b"status\r\n") == ["error 'cycle' is still running: its reply comes "
+                                      "first (Ctrl-C stops it)"]
     wait_for(lambda: rig.state() == "stepping", "stepping")
     s.close("peer disconnected")
-    t.join(10)
-    assert not t.is_alive() and replies[-1] == "ok"
+    assert s.pending is None and len(rig.daemon._listeners) == listeners
     assert rig.state() == "halted" and not rig.plant.stepping
     assert "ended (peer disconnected) while it held: pause, cycle;" in halted_reason(rig)
+
+
+#: how soon the end of a session holding the stepping must be seen: a failure deadline,
+#: far above what it takes (a poll of the server and a scan boundary, tens of ms) and far
+#: below what it took while ``cycle`` blocked the sockets' thread (until the scans ran)
+NOTICED_WITHIN_S = 2.0
+
+
+def reset(c: LineClient) -> None:
+    """Drop the connection with a TCP-style reset (SO_LINGER 0): no goodbye."""
+    sock = c._close.__self__  # type: ignore[attr-defined]
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+    c.close()
+
+
+def test_a_long_cycle_blocks_no_other_console_and_its_end_is_seen_at_once(
+        rig: Rig) -> None:
+    """The attack: one session's ``cycle 10000`` (100 s at 10 ms) froze every socket
+    console until the scans had run, and a reset of that connection was seen only then.
+    Now the other sessions keep answering while it steps, and its end halts the
+    controller (outputs off) as promptly as any other session's end."""
+    stepper, other = rig.connect(), rig.connect()
+    stepper.ok("pause")
+    stepper.send(b"cycle 10000\r\n")
+    wait_for(lambda: rig.state() == "stepping", "stepping")
+    assert other.cmd("status")[0] == "state stepping"  # the same thread serves both
+    assert other.ok("get t1.iMarcha") == ["t1.iMarcha=0"]
+    assert stepper.pending(0.2) == b""  # its reply waits for its scans
+    reset(stepper)
+    t0 = time.monotonic()
+    wait_for(lambda: rig.state() == "halted", "the halt", timeout=NOTICED_WITHIN_S)
+    took = time.monotonic() - t0
+    assert "ended (peer disconnected) while it held: pause, cycle;" in halted_reason(rig)
+    assert not rig.plant.stepping and set(outputs(rig).values()) == {0}, took
+    assert other.ok("ack") == ["charts restarted from their initial situation"]
+
+
+def test_ctrl_c_stops_a_running_cycle(rig: Rig) -> None:
+    """Ctrl-C stops a ``cycle N`` on its way: the reply says how many scans ran and what
+    they changed; the controller stays paused, held by that session."""
+    c = rig.connect()
+    c.ok("pause")
+    c.send(b"cycle 10000\r\nstatus\r\n")
+    wait_for(lambda: rig.state() == "stepping", "stepping")
+    c.send(b"\x03")
+    out = c.reply()
+    assert re.fullmatch(r"error cycle stopped by Ctrl-C after \d+ of 10000 scans",
+                        out[-1]), out
+    assert re.fullmatch(r"ran \d+ of 10000 scan\(s\) \(\d+\.\.\d+\)", out[0]), out
+    assert c.reply()[0] == "state paused"  # the line sent after it, answered after it
+    assert rig.service.holdings() == ["pause"]
 
 
 def test_another_session_keeps_what_it_holds_and_leaving_with_nothing_is_harmless(

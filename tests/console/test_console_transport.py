@@ -1,13 +1,18 @@
 """Transport limits over real sockets and a real pty: a bounded number of sessions per
-socket that idle connections cannot keep, idle unauthenticated connections closed, lines
-over a session's rate answered with an error, and a serial line's hang-up ending its
-session so that the next person on the line finds it locked."""
+socket that idle connections cannot keep (an empty line is not activity), idle
+unauthenticated connections closed, lines over a session's rate answered with an error,
+and a serial line's hang-up ending its session so that the next person on the line finds
+it locked."""
 
 from __future__ import annotations
 
+import array
+import fcntl
 import logging
+import math
 import os
 import select
+import termios
 import tty
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -57,6 +62,21 @@ def connect(rig: Rig, server: ConsoleServer) -> LineClient:
     return c
 
 
+def all_read(server: ConsoleServer) -> bool:
+    """Every byte the TCP clients sent has been read and handled by the server."""
+    for c in list(server._conns):
+        unread = array.array("i", [0])
+        fcntl.ioctl(c.sock.fileno(), termios.FIONREAD, unread)
+        if unread[0] or c.line.inbuf:
+            return False
+    return True
+
+
+#: what a client may send to look alive without giving a command: an empty line (CR LF,
+#: LF, CR), spaces, Ctrl-C
+KEEP_ALIVES = (b"\r\n", b"\n", b"\r", b"   \r\n", b"\x03")
+
+
 def test_idle_connections_do_not_lock_the_operator_out(
         tcp: tuple[Rig, ConsoleServer, FakeClock]) -> None:
     """Eight connections that say nothing take every place; a ninth is refused with an
@@ -83,6 +103,64 @@ def test_idle_connections_do_not_lock_the_operator_out(
         idle[0].line()
     assert idle[1].cmd("status")[-1] == "ok"  # the others are still served
     assert tcp_sessions(server) == MAX_CONNECTIONS
+
+
+def test_empty_lines_do_not_keep_a_place(
+        tcp: tuple[Rig, ConsoleServer, FakeClock]) -> None:
+    """The attack: eight TCP connections that each send an empty line every 4 s kept
+    every place for good (the idle time counted from any byte). Only a command (a line
+    that gets a reply) is activity: empty lines, spaces and Ctrl-C are not, so after
+    EVICT_IDLE_S the operator gets in, and after IDLE_TIMEOUT_S each is closed. A
+    connection that sends a command keeps its place."""
+    rig, server, clock = tcp
+    squatters = []
+    for _ in range(MAX_CONNECTIONS):
+        squatters.append(connect(rig, server))
+        wait_for(lambda: tcp_sessions(server) == len(squatters), "the connection accepted")
+    for k in range(4):  # 16 s of keep-alives, every 4 s
+        clock.t += 4.0
+        for c in squatters:
+            c.send(KEEP_ALIVES[k % len(KEEP_ALIVES)])
+        wait_for(lambda: all_read(server), "the keep-alives read")
+    assert all(c.pending() == b"" for c in squatters)  # no reply to any of them
+    operator = connect(rig, server)
+    assert operator.cmd("status")[0] == "state running"
+    assert squatters[0].line().startswith("error idle timeout (16 s without input")
+    # the others, still sending keep-alives, are closed after IDLE_TIMEOUT_S; the
+    # operator, sending a command every 4 s, is not
+    others = squatters[1:]
+    for k in range(int((IDLE_TIMEOUT_S - 16.0) // 4.0) + 1):
+        clock.t += 4.0
+        for c in others:
+            c.send(KEEP_ALIVES[k % len(KEEP_ALIVES)])
+        wait_for(lambda: all_read(server), "the keep-alives read")
+        assert operator.cmd("help stats")[-1] == "ok"
+    for c in others:
+        assert c.line().startswith("error idle timeout")
+        with pytest.raises(EOFError):
+            c.line()
+    wait_for(lambda: tcp_sessions(server) == 1, "the idle sessions closed")
+
+
+def test_empty_lines_do_not_keep_a_session_unlocked(
+        tcp: tuple[Rig, ConsoleServer, FakeClock]) -> None:
+    """An unlocked session whose client sends only keep-alives locks itself after
+    relock_after_idle, as one that sends nothing."""
+    rig, server, clock = tcp
+    idle = rig.service.limits.relock_after_idle_s
+    c = connect(rig, server)
+    assert c.ok(f"unlock {PIN}") == ["unlocked"]
+    (session,) = [s for s in server.sessions if s.name.startswith("tcp")]
+    for k in range(math.ceil(idle / 4.0) - 1):  # up to just before relock_after_idle
+        clock.t += 4.0
+        c.send(KEEP_ALIVES[k % len(KEEP_ALIVES)])
+        wait_for(lambda: all_read(server), "the keep-alives read")
+        # the server looked at it at this time (it polls sessions in real time, 20 times
+        # a second; the test's clock jumps)
+        wait_for(lambda: server.idle_s(session) == 0.0, "the server to see it unlocked")
+    clock.t += 4.0
+    assert c.line() == f"locked after {idle:.0f} s idle: 'unlock PIN' to change the machine"
+    assert c.error("pause") == "locked: 'unlock PIN' first"
 
 
 def test_an_idle_unauthenticated_connection_is_closed(
@@ -122,7 +200,9 @@ def test_lines_over_the_rate_get_an_error_reply(
     rig, server, _ = tcp
     c = connect(rig, server)
     n = 3 * BURST_LINES
-    c.send(b"get t1.iMarcha\r\n" * n)
+    # a command answered without the scan thread: a line that waits for a scan boundary
+    # (``get``) is handled about once a cycle, as slowly as the rate on a busy machine
+    c.send(b"help stats\r\n" * n)
     replies = [c.reply(timeout=30) for _ in range(n)]
     finals = [r[-1] for r in replies]
     ok = finals.count("ok")

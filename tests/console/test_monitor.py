@@ -134,6 +134,20 @@ def test_view_shows_steps_io_forced_marks_stats_and_faults(rig: Rig,
     assert re.search(r"^fault \d\d:\d\d:\d\d driver rio: rio: no answer$", text, re.M)
 
 
+def test_a_long_cycle_typed_at_the_monitor_does_not_lose_the_connection(
+        rig: Rig, client: ConsoleClient) -> None:
+    """``cycle 600`` (6 s at 10 ms) typed at the prompt: the monitor waits for its reply
+    as long as the console waits for the scans. Before, it gave the reply up after 5 s,
+    called the connection lost and connected again: the session that stepped ended, and
+    the controller halted."""
+    view = View(target="bench")
+    view.refresh(client)
+    view.command(client, "pause")
+    reply = view.command(client, "cycle 600")
+    assert reply["ok"] and reply["scans"] == 600, reply
+    assert rig.state() == "paused"
+
+
 def test_monitor_once_from_the_command_line(rig: Rig, capsys: pytest.CaptureFixture[str]
                                             ) -> None:
     assert rig.socket_path is not None

@@ -34,10 +34,13 @@ post:
 
 
 def plant_yaml(cycle: str = "10ms", watchdog: str = "100ms", retain: str | None = None,
-               interval: str = "1s", on_fault: str = "stop", extra: str = "") -> str:
+               interval: str = "1s", on_fault: str = "stop", extra: str = "",
+               realtime: str | None = None) -> str:
     plc = f"  cycle: {cycle}\n  watchdog: {watchdog}\n  retain_interval: {interval}\n"
     if retain:
         plc += f"  retain: {retain}\n"
+    if realtime is not None:
+        plc += f"  realtime: {realtime}\n"
     return (f"plc:\n{plc}drivers:\n  io: {{type: sim, on_fault: {on_fault}}}\n"
             "instances:\n  m:\n    grafcet: runner.yaml\n"
             "    inputs: {iGo: io.I0}\n    outputs: {oRun: io.Q0, oLamp: io.Q1}\n" + extra)

@@ -6,11 +6,12 @@ from __future__ import annotations
 import random
 import threading
 import time
+from array import array
 
 import pytest
 
 from runtime.controller.scheduler import Scheduler, Watchdog
-from runtime.controller.stats import ScanStats, Summary
+from runtime.controller.stats import ScanStats, Summary, percentiles
 from tests.daemon.daemonkit import wait_until
 
 MS = 1_000_000
@@ -198,16 +199,33 @@ def test_stats_storage_does_not_grow() -> None:
 
 
 @pytest.mark.parametrize("window,count", [(8192, 8192), (8192, 20_000), (8192, 700),
-                                          (100, 250), (8192, 1), (8192, 0)])
-def test_stats_p99_equals_the_sorted_window_percentile(window: int, count: int) -> None:
-    """``p99()`` (STATUS=) picks chunk tops instead of sorting the window: same figures."""
+                                          (100, 250), (8192, 1), (8192, 0), (8192, 513)])
+def test_stats_percentiles_equal_those_of_the_sorted_window(window: int, count: int) -> None:
+    """The percentiles come from sorted chunks and bisection (no call sorts a whole
+    window): the same figures as sorting the window, ties and equal values included."""
     st = ScanStats(window=window)
     rng = random.Random(count)
     for _ in range(count):
         st.record(rng.randrange(10_000_000), rng.choice((0, rng.randrange(3_000_000))))
+    n = min(count, window)
+
+    def at(ranked: list[int], q: float) -> int:
+        return ranked[min(n - 1, max(0, int(round(q * (n - 1)))))] if n else 0
+    for ring, summary in ((st._scan, st.scan()), (st._late, st.lateness())):
+        ranked = sorted(ring[:n])
+        assert (summary.p50, summary.p99, summary.p999) == tuple(
+            at(ranked, q) for q in (0.5, 0.99, 0.999))
     assert st.p99() == (st.scan().p99, st.lateness().p99)
     if count:
         assert st.scan_last == st._scan[(count - 1) % window]
+
+
+def test_stats_percentiles_of_negative_and_equal_values() -> None:
+    values = array("q", [-5, -5, 7, 7, 7, 0, 3 * 10**12, -(10**12)] * 300)
+    ranked = sorted(values)
+    for q in (0.0, 0.1, 0.5, 0.9, 0.99, 0.999, 1.0):
+        (got,) = percentiles(values, len(values), (q,))
+        assert got == ranked[int(round(q * (len(values) - 1)))], q
 
 
 def test_watchdog_builds_the_status_in_its_thread_when_asked_and_every_interval() -> None:
