@@ -1,8 +1,9 @@
 """Hostile plant files, settings and state files given to the command line (issue 31 §4),
 run as ``test_hostile_yaml.py`` runs its attacks (a capped child process, its helpers):
 
-- a path holding NUL (YAML's ``"\\0"``) in every place a plant names a file, and a chart
-  that is ``/proc/self/mem``: tracebacks before, one ``FILE:LINE:COL`` line now;
+- a path holding NUL (YAML's ``"\\0"``) in every place a plant names a file, a chart
+  that is ``/proc/self/mem``, a trace that is a directory: tracebacks before, one
+  ``FILE:LINE:COL`` line now;
 - settings accepted before and harmful at run (``cycle: 1ns`` overran every scan,
   ``cycle: 1h`` left the console without answers and made a stop take 7 s, ``watchdog:
   1ns``, ``tcp: 0``) or refused only at run (port 70000, port -1, a socket path of 200
@@ -84,6 +85,18 @@ def test_a_script_that_is_proc_self_mem_is_one_error_line(tmp_path: Path) -> Non
     f = _plant(tmp_path, PLANT_OK)
     refused(softplc(tmp_path, "simulate", str(f), "--script", "/proc/self/mem"),
             "/proc/self/mem", 1, "cannot read file", "Input/output error")
+
+
+@pytest.mark.parametrize("args", [["run", "--sim", "--for", "1s", "--trace"],
+                                  ["simulate", "--cycles", "3", "--trace"],
+                                  ["simulate", "--cycles", "3", "--vcd"]])
+def test_a_trace_that_cannot_be_written_is_one_error_line(tmp_path: Path,
+                                                          args: list[str]) -> None:
+    f = _plant(tmp_path, PLANT_OK)
+    (tmp_path / "out").mkdir()
+    command, *options = args
+    out = softplc(tmp_path, command, str(f), *options, str(tmp_path / "out"))
+    refused(out, options[-1], 1, f"cannot write {tmp_path / 'out'}", "Is a directory")
 
 
 # -- settings accepted before and harmful at run -----------------------------------------------
