@@ -65,11 +65,11 @@ PLC_TIMES: dict[str, tuple[int, int | None, str, str]] = {
                  "6 s too)"),
     "retain_interval": (1, None, "", ""),
 }
-#: a TCP port a console may listen on (0 would be a port the system picks, which nobody
-#: can know)
-TCP_PORTS = (1, 65535)
+#: a TCP port a console may listen on, and why not 0
+TCP_PORTS = (1, 65535, "such as 5020; 0 would be a port the system picks, which no client "
+                       "could know")
 #: SCHED_FIFO priorities (Linux)
-FIFO_PRIORITIES = (1, 99)
+FIFO_PRIORITIES = (1, 99, "50 leaves room above and below for the system's own threads")
 
 
 @dataclass
@@ -377,10 +377,10 @@ def _plc_time(key: str, value: Any, loc: Loc) -> int:
     return ns
 
 
-def _int_in(value: Any, loc: Loc, bounds: tuple[int, int], what: str) -> int:
-    """An integer from ``bounds[0]`` to ``bounds[1]``."""
-    low, high = bounds
-    expected = f"{what} from {low} to {high}"
+def _int_in(value: Any, loc: Loc, bounds: tuple[int, int, str], what: str) -> int:
+    """An integer from ``bounds[0]`` to ``bounds[1]`` (``bounds[2]``: a hint)."""
+    low, high, hint = bounds
+    expected = f"{what} from {low} to {high} ({hint})"
     n = _int(value, loc, expected)
     if not low <= n <= high:
         raise SourceError(loc, f"expected {expected}, found {n}")
