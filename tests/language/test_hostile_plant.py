@@ -59,7 +59,7 @@ NUL_PATHS = {
     "opcua certificate": (PLANT_OK + 'opcua: {security: {certificate: "c\\0.der"}}\n', 7,
                           'c\\0'),
     "modbus port": (PLANT_OK.replace("{sim: {type: sim}}", '{sim: {type: sim}, mb: {type: '
-                                     'modbus_rtu, port: "/dev/tty\\0USB0"}}'), 1, "{sim"),
+                                     'modbus_rtu, port: "/dev/tty\\0USB0"}}'), 1, "/dev/tty"),
 }
 
 
@@ -70,8 +70,7 @@ def test_a_nul_in_a_path_is_one_error_line(tmp_path: Path, what: str, command: s
     f = _plant(tmp_path, text)
     col, msg = refused(softplc(tmp_path, *COMMANDS[command](str(f))), f, line)
     assert "NUL" in msg or "\\x00" in msg, msg
-    if what != "modbus port":  # a driver's key is placed at its driver
-        assert col == _col(text, line, needle), msg
+    assert col == _col(text, line, needle), msg
 
 
 @pytest.mark.parametrize("command", list(COMMANDS))
