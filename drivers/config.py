@@ -157,7 +157,10 @@ class ConfigKey:
         return ok, value
 
     def _matches(self, text: str) -> bool:
-        return self.pattern is None or re.fullmatch(self.pattern, text) is not None
+        # no text of a driver holds NUL: a path or name would be cut there by the kernel,
+        # and Python refuses it with a traceback when the driver opens
+        return "\0" not in text and (
+            self.pattern is None or re.fullmatch(self.pattern, text) is not None)
 
     def _choice(self, value: Any) -> tuple[bool, Any]:
         def same(a: Any, b: Any) -> bool:

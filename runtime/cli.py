@@ -10,7 +10,7 @@ import stat
 import sys
 import time
 from collections.abc import Iterator, Sequence
-from typing import Any
+from typing import IO, Any
 
 from runtime.errors import Loc, SourceError
 
@@ -66,7 +66,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     try:
         if args.trace:
-            with open(args.trace, "w", encoding="utf-8") as f:
+            with _output(args.trace, "--trace") as f:
                 write_trace(rows(), f)
         elif args.vcd:
             for _ in rows():
@@ -76,7 +76,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                 pass
     finally:
         if args.vcd and kept:
-            with open(args.vcd, "w", encoding="utf-8") as f:
+            with _output(args.vcd, "--vcd") as f:
                 write_vcd(kept, f)
     dt = time.perf_counter() - t0
     steps = "; ".join(f"{n}: {','.join(i.active_steps())}" for n, i in
@@ -84,6 +84,16 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     sys.stderr.write(f"simulated {sim.cycles} scans ({sim.cycles * sim.plant.cycle_ns / 1e9:g} s "
                      f"of plant time) in {dt:.3f} s; final steps: {steps}\n")
     return 0
+
+
+def _output(path: str, option: str) -> IO[str]:
+    """``path`` opened for writing (``--trace``, ``--vcd``); SourceError naming ``option``
+    if it cannot be (a directory, no permission), never a traceback."""
+    try:
+        return open(path, "w", encoding="utf-8")  # noqa: SIM115 - the caller closes it
+    except OSError as exc:
+        raise SourceError(Loc(option, 1, 1), f"cannot write {path}: "
+                                             f"{exc.strerror or exc}") from None
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -112,7 +122,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         sys.stderr.write(f"softplc run: error: {exc}\n")
         return 2
     LEDGER.lock = lock  # the sockets it binds are recorded as this plant's
-    trace = open(args.trace, "w", encoding="utf-8") if args.trace else None  # noqa: SIM115
+    trace = _output(args.trace, "--trace") if args.trace else None
     try:
         try:
             if not args.sim:

@@ -361,6 +361,16 @@ PLANT_BAD = {
     "monitor serial without port": "monitor: {serial: {baudrate: 115200}}",
     "monitor trusted not a bool": "monitor: {socket: {path: /tmp/s.sock, trusted: 1}}",
     "monitor tcp port out of range": "monitor: {tcp: 70000}",
+    "monitor tcp port 0": "monitor: {tcp: 0}",
+    "monitor serial baud rate 0": "monitor: {serial: {port: /dev/ttyGS0, baudrate: 0}}",
+    "monitor serial baud rate not a rate": "monitor: {serial: {port: /dev/ttyGS0, "
+                                           "baudrate: 12345}}",
+    "monitor socket with a NUL": 'monitor: {socket: "/run/c\\0.sock"}',
+    "monitor socket path empty": 'monitor: {socket: {path: ""}}',
+    "retain with a NUL": 'plc: {retain: "r\\0.json"}',
+    "grafcet with a NUL": 'instances: {t1: {grafcet: "g\\0.yaml"}}',
+    "opcua feed with a NUL": 'opcua: {feed: "f\\0.sock"}',
+    "opcua certificate with a NUL": 'opcua: {security: {certificate: "c\\0.der"}}',
 }
 
 

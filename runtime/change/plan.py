@@ -25,6 +25,8 @@ from runtime.compiler.program import Program, Slot, SlotKind
 from runtime.engine.instance import Instance
 from runtime.engine.plant import Plant
 from runtime.language.model import PlantDef, VarKind
+from runtime.language.safefile import UnfitFile, read_bounded
+from runtime.language.yamlsrc import MAX_FILE_BYTES
 
 
 @dataclass
@@ -98,15 +100,16 @@ class Applied:
 
 
 def file_hashes(pdef: PlantDef) -> dict[str, str]:
-    """sha256 (hex) of the plant file and of each chart file, by path."""
+    """sha256 (hex) of the plant file and of each chart file, by path ("" for one that
+    cannot be read as a source file: ``safefile.read_bounded``, never blocking)."""
     paths = [pdef.path] + [idef.grafcet.path for idef in pdef.instances.values()]
     out: dict[str, str] = {}
     for p in paths:
         if p and p not in out:
             try:
-                with open(p, "rb") as f:
-                    out[p] = hashlib.sha256(f.read()).hexdigest()
-            except OSError:
+                raw = read_bounded(p, MAX_FILE_BYTES - 1, follow_links=True)
+                out[p] = hashlib.sha256(raw).hexdigest()
+            except (OSError, UnfitFile):
                 out[p] = ""
     return out
 

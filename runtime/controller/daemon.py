@@ -37,6 +37,8 @@ from runtime.controller.retain import (
     RetainStore,
     RetainWriter,
     restore,
+    unfit_reason,
+    write_new,
 )
 from runtime.controller.scheduler import Scheduler, Watchdog
 from runtime.controller.stats import ScanStats
@@ -46,6 +48,7 @@ from runtime.engine.trace import trace_columns
 from runtime.errors import Loc, SourceError
 from runtime.language.model import DEFAULT_REALTIME_PRIORITY, PlantDef
 from runtime.language.runtimedir import locate
+from runtime.language.safefile import UnfitFile, read_bounded
 
 log = logging.getLogger(__name__)
 R = TypeVar("R")
@@ -54,6 +57,10 @@ R = TypeVar("R")
 STATUS_EVERY_NS = 5_000_000_000
 #: faults remembered for ``status`` and the monitor
 FAULT_HISTORY = 20
+#: the longest fault record read at start (softplc writes ~200 bytes), bytes
+FAULT_RECORD_MAX_BYTES = 64 * 1024
+#: the longest reason taken from a fault record, characters
+FAULT_REASON_MAX = 500
 #: the interpreter's GIL switch interval while the scan runs, seconds: the longest a
 #: scan waits for the GIL held by another thread (a console serving a flood). Python's
 #: default, 5 ms, is half a 10 ms cycle (docs/console.md, "Transports and limits")
@@ -105,6 +112,27 @@ class _Call:
         self.done.set()
 
 
+def recorded_fault(path: str) -> str | None:
+    """The reason the fault record at ``path`` gives, None if there is none. A record that
+    cannot be read (a FIFO, a symbolic link, a device, a huge or garbled file: read by
+    ``safefile.read_bounded``, never blocking, never past FAULT_RECORD_MAX_BYTES) is a
+    fault all the same: the start stays in fault, saying why."""
+    try:
+        raw = read_bounded(path, FAULT_RECORD_MAX_BYTES)
+    except FileNotFoundError:
+        return None
+    except UnfitFile as exc:
+        return f"unreadable fault record {path}: {unfit_reason(exc, FAULT_RECORD_MAX_BYTES)}"
+    except OSError as exc:
+        return f"unreadable fault record {path}: {exc.strerror or exc}"
+    try:
+        doc = json.loads(raw.decode("utf-8"))
+        reason = str(doc.get("reason", "unknown"))
+    except (ValueError, AttributeError, RecursionError):  # not UTF-8, not JSON, not a map
+        return f"unreadable fault record {path}: not what softplc writes"
+    return reason if len(reason) <= FAULT_REASON_MAX else reason[:FAULT_REASON_MAX] + "..."
+
+
 class Daemon:
     """A plant run by a scan thread paced to its cycle; see the module docstring."""
 
@@ -118,7 +146,8 @@ class Daemon:
         self.notifier = notifier or Notifier()
         self.scan_stats = ScanStats()
         self.scheduler = Scheduler(self._cycle, self.plant.cycle_ns, self.plant.watchdog_ns,
-                                   idle=self._idle, on_watchdog=self._slow_scan,
+                                   idle=self._idle, serve=self._serve,
+                                   on_watchdog=self._slow_scan,
                                    on_freeze=self._frozen, clock=clock,
                                    stats=self.scan_stats, manage_gc=manage_gc)
         # systemd's watchdog is fed by the watchdog thread, not by the scan's idle time:
@@ -213,7 +242,7 @@ class Daemon:
         self.watchdog.stop_pinging()
         self.notifier.stopping(f"stopping: {why}")
         log.info("stopping: %s", why)
-        self.scheduler.stop_event.set()
+        self.scheduler.stop()
         if self._thread is not None:
             self._thread.join(timeout=max(5.0, 3 * self.plant.watchdog_ns / 1e9))
             if self._thread.is_alive():
@@ -346,11 +375,7 @@ class Daemon:
             n = self.scan_stats.count
             for fn in listeners:
                 fn(n)
-        calls = self._calls
-        while calls:
-            calls.popleft().run()
-            if self.clock() >= until:
-                break
+        self._serve(until)
         state = self.state
         if state is not self._last_state or not self._ready_sent:
             # STATUS= and the log line are built by the watchdog thread: no percentile
@@ -367,6 +392,15 @@ class Daemon:
             if snap != self._retain_last or self._retain_writer.last_error is not None:
                 self._retain_writer.submit(snap)
                 self._retain_last = snap
+
+    def _serve(self, until: int) -> None:
+        """Run the queued ``call``s, stopping at monotonic ``until`` (the scheduler calls it
+        again when one is queued in a long cycle's wait)."""
+        calls = self._calls
+        while calls:
+            calls.popleft().run()
+            if self.clock() >= until:
+                break
 
     # -- retain and the fault latch ----------------------------------------------------
     def _restore(self) -> None:
@@ -395,12 +429,8 @@ class Daemon:
             self._retain_lost = f"started without retained data: {restored.lost}"
         self._retain_last = self.plant.retain_snapshot()
         self._retain_writer = RetainWriter(self.retain)
-        if self._latch_path and os.path.exists(self._latch_path):
-            try:
-                with open(self._latch_path, encoding="utf-8") as f:
-                    reason = str(json.load(f).get("reason", "unknown"))
-            except (OSError, ValueError, AttributeError):
-                reason = "unreadable fault record"
+        reason = recorded_fault(self._latch_path) if self._latch_path else None
+        if reason is not None:
             self.fault = f"before the restart: {reason}"
             self.faults.append((time.time(), self.fault))
             log.error("FAULT carried over from the previous run (%s): outputs off until ack",
@@ -413,14 +443,15 @@ class Daemon:
             return
         try:
             tmp = self._latch_path + ".tmp"
-            with open(tmp, "w", encoding="utf-8") as f:
-                json.dump({"reason": reason, "time": time.time()}, f)
+            # never through a link planted there; no fsync: this is the scan thread
+            write_new(tmp, json.dumps({"reason": reason, "time": time.time()}).encode(),
+                      exclusive=False, sync=False)
             os.replace(tmp, self._latch_path)
         except OSError as exc:
             log.warning("fault record not written: %s", exc)
 
     def _unlatch(self) -> None:
-        if self._latch_path and os.path.exists(self._latch_path):
+        if self._latch_path and os.path.lexists(self._latch_path):
             try:
                 os.unlink(self._latch_path)
             except OSError as exc:
@@ -434,6 +465,7 @@ class Daemon:
             return fn()
         c = _Call(fn)
         self._calls.append(c)
+        self.scheduler.wake()
         if not c.done.wait(timeout):
             c.abandoned = True
             raise TimeoutError("the scan did not answer in time")

@@ -33,6 +33,7 @@ from typing import Any
 
 from runtime.errors import SoftplcError
 from runtime.language.model import PlantDef
+from runtime.language.safefile import UnfitFile, read_bounded
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +44,9 @@ FORMAT_2 = "softplc-retain/2"
 FORMAT_1 = "softplc-retain/1"
 #: a retain file longer than this is refused unread, bytes
 MAX_FILE_BYTES = 4 * 1024 * 1024
-#: bound of a generation number
+#: the greatest generation number, loaded and saved alike: a save after it writes it
+#: again (the count stops there; among files of one generation the newest, ``PATH``, is
+#: loaded). Only a crafted or foreign file gets there: 292 million years of a save a ms
 GENERATION_MAX = 2 ** 63 - 1
 #: how a real that is not finite is written (plain JSON has no Infinity or NaN)
 NON_FINITE = {"inf": math.inf, "-inf": -math.inf, "nan": math.nan}
@@ -405,7 +408,7 @@ class RetainStore:
                 if candidate == self.path:
                     self._path_bad = True
                 continue
-            if gen > best.generation:
+            if gen > best.generation:  # among equals the first: PATH (GENERATION_MAX)
                 best.data, best.generation, best.saved_at = data, gen, saved_at
                 best.source, best.types, best.charts, best.raw = candidate, types, charts, raw
                 best.owner = owner
@@ -424,33 +427,14 @@ class RetainStore:
     @staticmethod
     def _read(path: str) -> bytes | None:
         """The bytes of ``path``, None if it does not exist; OSError/RetainFileError if it
-        is not a regular file of a sane size. Never follows a symbolic link, never blocks."""
+        is not a regular file of at most MAX_FILE_BYTES (``safefile.read_bounded``: never
+        a symbolic link followed, never blocking)."""
         try:
-            fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+            return read_bounded(path, MAX_FILE_BYTES)
         except FileNotFoundError:
             return None
-        except OSError as exc:
-            if exc.errno == errno.ELOOP:
-                raise RetainFileError("a symbolic link, never followed") from None
-            raise
-        try:
-            st = os.fstat(fd)
-            if not stat.S_ISREG(st.st_mode):
-                raise RetainFileError("not a regular file")
-            if st.st_size > MAX_FILE_BYTES:
-                raise RetainFileError(f"larger than {MAX_FILE_BYTES} bytes ({st.st_size})")
-            chunks: list[bytes] = []
-            size = 0
-            while True:
-                chunk = os.read(fd, 65536)
-                if not chunk:
-                    return b"".join(chunks)
-                size += len(chunk)
-                if size > MAX_FILE_BYTES:
-                    raise RetainFileError(f"larger than {MAX_FILE_BYTES} bytes")
-                chunks.append(chunk)
-        finally:
-            os.close(fd)
+        except UnfitFile as exc:
+            raise RetainFileError(unfit_reason(exc, MAX_FILE_BYTES)) from None
 
     def keep_orphan(self, raw: bytes) -> str | None:
         """Keep ``raw`` (a file's contents before the next save replaces it) as
@@ -460,7 +444,7 @@ class RetainStore:
         while True:
             name = self.path + ".orphan" + (f".{n}" if n > 1 else "")
             try:
-                self._write_new(name, raw, exclusive=True)
+                write_new(name, raw, exclusive=True)
                 return name
             except FileExistsError:
                 n += 1
@@ -470,14 +454,15 @@ class RetainStore:
 
     # -- saving --------------------------------------------------------------------
     def save(self, data: dict[str, Any]) -> int:
-        """Write ``data`` as the next generation, atomically. Returns its number.
+        """Write ``data`` as the next generation, atomically (at GENERATION_MAX: that one
+        again). Returns its number.
         Raises OSError (disk full, I/O error, read-only file system): nothing that was on
         disk before has changed then, and the next save tries again."""
         types = {inst: {name: self._type(inst, name, v) for name, v in values.items()}
                  for inst, values in data.items()}
         charts = {inst: (self.plant.charts.get(inst, "") if self.plant else "")
                   for inst in data}
-        gen = self.generation + 1
+        gen = min(self.generation + 1, GENERATION_MAX)  # never one that load would refuse
         payload = {"format": FORMAT, "generation": gen, "saved_at": time.time(),
                    "plant": self.owner or {"name": "", "path": ""},
                    "charts": charts, "types": types,
@@ -492,7 +477,7 @@ class RetainStore:
             st = None
         if st is not None and stat.S_ISDIR(st.st_mode):  # never moved away
             raise IsADirectoryError(errno.EISDIR, f"{self.path} is a directory")
-        self._write_new(self.tmp, text, exclusive=False)
+        write_new(self.tmp, text, exclusive=False)
         # only now, the new generation complete and on disk, the old ones move; a PATH
         # that is no good generation (torn, a link...) is replaced, not kept as .prev
         if st is not None and stat.S_ISREG(st.st_mode) and not self._path_bad:
@@ -504,7 +489,7 @@ class RetainStore:
         if not self._marked:  # once per run; retried at each save until written
             try:
                 if not os.path.lexists(self.marker):
-                    self._write_new(self.marker, json.dumps(
+                    write_new(self.marker, json.dumps(
                         {"first_saved": time.time()}).encode(), exclusive=True)
                 self._marked = True
             except OSError as exc:
@@ -520,39 +505,51 @@ class RetainStore:
                 return typ
         return _type_of(value)
 
-    def _write_new(self, name: str, content: bytes, *, exclusive: bool) -> None:
-        """Write ``name`` completely and fsync it, never through a symbolic link; on any
-        error the partial file is removed and the error raised."""
-        if not exclusive:
-            try:
-                os.unlink(name)  # a leftover (or planted) file or link: never written into
-            except FileNotFoundError:
-                pass
-        fd = os.open(name, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC,
-                     0o640)
-        try:
-            view = memoryview(content)
-            while view:
-                n = os.write(fd, view)
-                if n <= 0:  # no progress: the disk takes nothing more
-                    raise OSError(errno.ENOSPC, f"{name}: write made no progress")
-                view = view[n:]
-            os.fsync(fd)
-        except BaseException:
-            os.close(fd)
-            try:
-                os.unlink(name)
-            except OSError:
-                pass
-            raise
-        os.close(fd)
-
     def _fsync_dir(self) -> None:
         dfd = os.open(os.path.dirname(os.path.abspath(self.path)), os.O_RDONLY)
         try:
             os.fsync(dfd)
         finally:
             os.close(dfd)
+
+
+def write_new(name: str, content: bytes, *, exclusive: bool, sync: bool = True) -> None:
+    """Write ``name`` completely (and fsync it if ``sync``), never through a symbolic link:
+    a file or link already there is removed first, unless ``exclusive`` (then
+    FileExistsError). On any error the partial file is removed and the error raised."""
+    if not exclusive:
+        try:
+            os.unlink(name)  # a leftover (or planted) file or link: never written into
+        except FileNotFoundError:
+            pass
+    fd = os.open(name, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC,
+                 0o640)
+    try:
+        view = memoryview(content)
+        while view:
+            n = os.write(fd, view)
+            if n <= 0:  # no progress: the disk takes nothing more
+                raise OSError(errno.ENOSPC, f"{name}: write made no progress")
+            view = view[n:]
+        if sync:
+            os.fsync(fd)
+    except BaseException:
+        os.close(fd)
+        try:
+            os.unlink(name)
+        except OSError:
+            pass
+        raise
+    os.close(fd)
+
+
+def unfit_reason(exc: UnfitFile, limit: int) -> str:
+    """Why a file beside the retain file was passed over, as the log says it."""
+    if exc.found == "a symbolic link":
+        return "a symbolic link, never followed"
+    if exc.found.startswith("a file of"):
+        return f"larger than {limit} bytes ({exc.found})"
+    return f"not a regular file ({exc.found})"
 
 
 def _reason(exc: BaseException) -> str:

@@ -4,7 +4,11 @@ Per cycle: sleep until the deadline, run the cycle body (read inputs, scan, writ
 outputs), record scan time and wake-up lateness, then spend what is left of the period on
 the idle work (console requests, noticing state changes, retain hand-off, garbage
 collection), never past a guard band before the next deadline. systemd's STATUS= text
-(percentiles over thousands of cycles) is built by ``Watchdog``'s thread, not here.
+(percentiles over thousands of cycles) is built by ``Watchdog``'s thread, not here. A
+cycle longer than ``AWAKE_CYCLE_NS`` spends the rest of its wait awake: a request queued
+then (a console's, a reload's switch) is served when it comes and the stop ends the wait,
+instead of waiting up to a whole cycle (a 1 min cycle would otherwise leave the console
+without an answer and make a stop wait a minute).
 
 Overrun policy: when a cycle ends at or after the next deadline, the overrun is counted,
 the deadlines it passed are counted as skipped, and the schedule is re-anchored one full
@@ -38,8 +42,14 @@ from runtime.controller.stats import ScanStats
 log = logging.getLogger(__name__)
 
 #: idle work stops this long before the next deadline, ns (and never less than a fifth
-#: of the period)
+#: of the period, up to GUARD_MAX_NS)
 GUARD_NS = 300_000
+#: the longest guard before a deadline, ns: the longest idle item (a console's ``stats``,
+#: about 1 ms) fits in it many times
+GUARD_MAX_NS = 10_000_000
+#: a cycle longer than this spends its wait for the next deadline awake (``serve``): a
+#: console request, a reload's switch or the stop is served at once, not a cycle later, ns
+AWAKE_CYCLE_NS = 20_000_000
 #: young-generation collections run in the idle time once this many objects are pending
 GC_GEN0_THRESHOLD = 700
 #: the pending-object count is looked at every this many cycles (a few cycles late is
@@ -60,13 +70,17 @@ class Scheduler:
     """Paces ``body(now)`` to absolute deadlines; ``run()`` is the scan thread's loop.
 
     ``idle(deadline_ns)`` is called after each cycle and must return before
-    ``deadline_ns``; ``on_watchdog(scan_ns)`` when a scan took longer than the watchdog;
+    ``deadline_ns``; with a cycle longer than AWAKE_CYCLE_NS, ``serve(deadline_ns)`` is
+    called again each time ``wake()`` is (a request queued) until that deadline, and
+    ``stop()`` ends the wait at once; ``on_watchdog(scan_ns)`` when a scan took longer than
+    the watchdog;
     ``on_freeze(frozen_ns)`` when the process did not run for longer than the watchdog.
     The clocks and the sleep are injectable, so tests run the loop on virtual time
     (``boot_clock`` defaults to CLOCK_BOOTTIME with the default clock, else to none)."""
 
     def __init__(self, body: Callable[[int], None], cycle_ns: int, watchdog_ns: int, *,
                  idle: Callable[[int], None] | None = None,
+                 serve: Callable[[int], None] | None = None,
                  on_watchdog: Callable[[int], None] | None = None,
                  on_freeze: Callable[[int], None] | None = None,
                  clock: Callable[[], int] = time.monotonic_ns,
@@ -77,6 +91,7 @@ class Scheduler:
         self.cycle_ns = cycle_ns
         self.watchdog_ns = watchdog_ns
         self.idle = idle
+        self.serve = serve
         self.on_watchdog = on_watchdog
         self.on_freeze = on_freeze
         self.clock = clock
@@ -86,7 +101,7 @@ class Scheduler:
         self.sleep_until = sleep_until or make_sleep_until()
         self.stats = stats or ScanStats()
         self.manage_gc = manage_gc
-        self.guard_ns = max(GUARD_NS, cycle_ns // 5)
+        self.guard_ns = max(GUARD_NS, min(cycle_ns // 5, GUARD_MAX_NS))
         #: monotonic ns at which the current scan started, 0 between scans (Watchdog reads it)
         self.scanning_since = 0
         #: monotonic ns of the last wake-up, 0 before the first (Watchdog reads it)
@@ -95,12 +110,22 @@ class Scheduler:
         #: console's ScanWindow closes its window a quiet time before it)
         self.due = 0
         self.stop_event = threading.Event()
+        self._wake = threading.Event()  # a request queued, or the stop (``serve``)
         self._last_full_gc = 0
         #: set while another thread builds a large long-lived structure (an online change
         #: preparing its plant): the scan thread collects nothing meanwhile, since a
         #: collection would examine every object just built (tens of ms, once measured
         #: 52 ms, at 100 testers); that thread then freezes them (``gc.freeze()``)
         self.gc_held = False
+
+    def wake(self) -> None:
+        """A request is queued for ``serve`` (any thread): served now in a long cycle."""
+        self._wake.set()
+
+    def stop(self) -> None:
+        """End ``run`` after the current cycle, or at once between two (any thread)."""
+        self.stop_event.set()
+        self._wake.set()
 
     def run(self, cycles: int | None = None) -> None:
         """Run until ``stop_event`` is set (or ``cycles`` cycles, for tests).
@@ -113,6 +138,7 @@ class Scheduler:
         sleep_until, idle, record = self.sleep_until, self.idle, stats.record
         on_watchdog, guard, manage_gc = self.on_watchdog, self.guard_ns, self.manage_gc
         stopped = stop.is_set
+        awake = self.serve is not None and cycle > AWAKE_CYCLE_NS
         gc_was_enabled = gc.isenabled()
         if manage_gc:
             gc.collect()
@@ -153,12 +179,27 @@ class Scheduler:
                     idle(deadline - guard)
                 if manage_gc and not n % GC_CHECK_EVERY:
                     self._collect(deadline - guard)
+                if awake:
+                    self._serve_until(deadline - guard)
         finally:
             self.scanning_since = self.last_wake = 0
             if manage_gc:
                 gc.unfreeze()
                 if gc_was_enabled:
                     gc.enable()
+
+    def _serve_until(self, until: int) -> None:
+        """Wait awake until monotonic ``until``: ``serve`` each time ``wake()`` is called,
+        back at once on ``stop()``. (The exact sleep to the deadline follows.)"""
+        clock, wake, stopped, serve = self.clock, self._wake, self.stop_event.is_set, self.serve
+        assert serve is not None
+        while not stopped():
+            left = until - clock()
+            if left <= 0 or not wake.wait(left / 1e9):
+                return
+            wake.clear()  # before serving: a request queued meanwhile sets it again
+            if not stopped():
+                serve(until)
 
     def _froze(self, frozen: int) -> None:
         self.stats.record_freeze(frozen)

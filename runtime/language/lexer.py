@@ -4,12 +4,17 @@ keywords, numbers, time literals, operators, new lines), each with its offsets."
 from __future__ import annotations
 
 import unicodedata
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 from drivers.durations import LITERAL_UNITS, format_ns, parse_literal
 from runtime.errors import Loc, SourceError
 from runtime.language.yamlsrc import INT_MAX, TIME_MAX_NS
+
+#: tokens in one text (an expression, an action, a block of statements): about 40 kB of
+#: text, a hundred times the longest of the examples; beyond, a text is refused where the
+#: limit is crossed, before the rest of it is read (language.md, "Limits")
+MAX_TOKENS = 10_000
 
 KEYWORDS = {
     "AND", "OR", "XOR", "NOT", "MOD", "RE", "FE", "TRUE", "FALSE", "IF", "THEN", "ELSIF",
@@ -68,13 +73,25 @@ class Lexer:
     def error(self, offset: int, msg: str) -> SourceError:
         return SourceError(self.locate(offset), msg)
 
-    def tokens(self) -> list[Tok]:
-        text, i, out = self.text, 0, []
+    def tokens(self) -> Iterator[Tok]:
+        """The tokens, made as they are asked for (the parser stops at its first error, so
+        a long text costs only what was read before it), the last one EOF; SourceError at
+        the first that cannot be one, or at the one past MAX_TOKENS."""
+        for k, tok in enumerate(self._tokens()):
+            if k == MAX_TOKENS and tok.kind != "EOF":
+                raise self.error(tok.start, f"expected at most {MAX_TOKENS} tokens (names, "
+                                 "numbers, operators) in one expression, action or block of "
+                                 "statements, found more: split it (temporaries, more "
+                                 "actions, several pre: or post: items)")
+            yield tok
+
+    def _tokens(self) -> Iterator[Tok]:
+        text, i = self.text, 0
         n = len(text)
         while i < n:
             c = text[i]
             if c == "\n":
-                out.append(Tok("NL", "\n", i, i + 1))
+                yield Tok("NL", "\n", i, i + 1)
                 i += 1
                 continue
             if c.isspace():
@@ -91,8 +108,9 @@ class Lexer:
                 i = n if j < 0 else j
                 continue
             if c.isdigit():
-                out.append(self._number(i))
-                i = out[-1].end
+                tok = self._number(i)
+                yield tok
+                i = tok.end
                 continue
             if c.isalpha() or c == "_":
                 j = i + 1
@@ -108,7 +126,7 @@ class Lexer:
                     if ns is None:
                         raise self.error(i, f"bad time literal '{text[i:k]}': expected units "
                                             "in order d h m s ms (e.g. T#1h30m)")
-                    out.append(Tok("TIME", text[i:k], i, k, ns))
+                    yield Tok("TIME", text[i:k], i, k, ns)
                     i = k
                     continue
                 if j < n and text[j] == "#" and word.isdigit():  # pragma: no cover
@@ -117,12 +135,12 @@ class Lexer:
                 if kind == "NAME" and not is_name(word):
                     raise self.error(i, f"expected a name of letters, digits and '_', found "
                                         f"'{word}'")
-                out.append(Tok(kind, word.upper() if kind == "KW" else word, i, j))
+                yield Tok(kind, word.upper() if kind == "KW" else word, i, j)
                 i = j
                 continue
             for op in _OPS:
                 if text.startswith(op, i):
-                    out.append(Tok("OP", op, i, i + len(op)))
+                    yield Tok("OP", op, i, i + len(op))
                     i += len(op)
                     break
             else:
@@ -132,8 +150,7 @@ class Lexer:
                                         "(save the file in Unicode NFC form)")
                 raise self.error(i, f"expected an operand or an operator, found the "
                                     f"unexpected character '{c}'")
-        out.append(Tok("EOF", "", n, n))
-        return out
+        yield Tok("EOF", "", n, n)
 
     def _number(self, i: int) -> Tok:
         text, n = self.text, len(self.text)

@@ -11,7 +11,8 @@ from runtime.errors import Loc, SourceError, suggest
 from runtime.language import ast as A
 from runtime.language.grafcetfile import check_keys, expect_type, time_value
 from runtime.language.model import OPCUA_POLICIES, OpcuaDef, OpcuaSecurity, PlantDef, VarKind
-from runtime.language.runtimedir import default_feed, expand
+from runtime.language.plantpaths import path_problem, path_value
+from runtime.language.runtimedir import default_feed
 from runtime.language.yamlsrc import YMap
 
 OPCUA_KEYS = ("endpoint", "sample", "feed", "writable", "security")
@@ -45,10 +46,13 @@ def load_opcua(p: PlantDef, value: Any, loc: Loc) -> OpcuaDef:
                                     f"({p.cycle_ns / 1e6:g} ms): a snapshot is taken at the "
                                     "end of a scan")
     if "feed" in m:
-        vloc = m.val_locs["feed"]
-        o.feed = expand(str(expect_type(m["feed"], vloc, str, "a socket path")), vloc)
+        o.feed = path_value(m["feed"], m.val_locs["feed"], "opcua feed", socket=True)
     else:
         o.feed = default_feed([c.address for c in p.consoles if c.kind == "socket"], loc)
+        problem = path_problem(o.feed, socket=True)
+        if problem is not None:
+            raise SourceError(loc, f"opcua feed (by default {o.feed}): {problem}: give "
+                                   "'feed:' a shorter path")
     if "writable" in m:
         o.writable = _writable(p, m["writable"], m.val_locs["writable"])
     if "security" in m:
@@ -128,7 +132,7 @@ def _security(value: Any, loc: Loc) -> OpcuaSecurity:
     for key in ("certificate", "private_key", "trusted_clients", "trusted_readers"):
         if key in m:
             vloc = m.val_locs[key]
-            setattr(sec, key, expand(str(expect_type(m[key], vloc, str, "a path")), vloc))
+            setattr(sec, key, path_value(m[key], vloc, f"opcua security {key}"))
     if "anonymous" in m:
         vloc = m.val_locs["anonymous"]
         if m["anonymous"] not in ("read", "none"):

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from itertools import islice
 
 from runtime.errors import Loc, SourceError
 from runtime.language import ast as A
@@ -31,6 +32,8 @@ METHODS = ("Ini", "End", "Reset", "Val", "Set")
 MAX_NESTING = 50  # parentheses and prefix operators inside one another
 MAX_DEPTH = 100  # operators in a chain (a + b + c ...: depth = number of operators)
 MAX_BLOCKS = 16  # IF / CASE / FOR inside one another
+#: tokens read from the text at a time, beyond the one asked for
+_READ_AHEAD = 16
 
 
 def _describe(t: Tok) -> str:
@@ -46,7 +49,9 @@ class Parser:
 
     def __init__(self, text: str, locate: Callable[[int], Loc]) -> None:
         self.lexer = Lexer(text, locate)
-        self.toks = self.lexer.tokens()
+        self._more = self.lexer.tokens()
+        #: the tokens read so far (read as the parser gets to them: ``_tok``); EOF last
+        self.toks: list[Tok] = []
         self.i = 0
         self.depth = 0  # parenthesis depth: newlines inside parentheses are spaces
         self.nesting = 0  # parentheses and prefix operators being parsed
@@ -54,27 +59,35 @@ class Parser:
         self.text = text
 
     # -- token helpers -----------------------------------------------------------------
+    def tok(self, k: int) -> Tok:
+        """Token number ``k`` (EOF past the end), read from the text if not yet."""
+        toks = self.toks
+        if k >= len(toks):
+            if toks and toks[-1].kind == "EOF":
+                return toks[-1]
+            toks.extend(islice(self._more, k + _READ_AHEAD - len(toks)))
+            return toks[min(k, len(toks) - 1)]
+        return toks[k]
+
     def peek(self, skip_nl: bool = False) -> Tok:
         i = self.i
+        t = self.tok(i)
         if skip_nl or self.depth:
-            while self.toks[i].kind == "NL":
+            while t.kind == "NL":
                 i += 1
-        return self.toks[i]
+                t = self.tok(i)
+        return t
 
     def next(self, skip_nl: bool = False) -> Tok:
         if skip_nl or self.depth:
             self.skip_nl()
-        t = self.toks[self.i]
+        t = self.tok(self.i)
         if t.kind != "EOF":  # EOF is never passed
             self.i += 1
         return t
 
-    def tok(self, k: int) -> Tok:
-        """Token number ``k`` (EOF past the end)."""
-        return self.toks[min(k, len(self.toks) - 1)]
-
     def skip_nl(self) -> None:
-        while self.toks[self.i].kind == "NL":
+        while self.tok(self.i).kind == "NL":
             self.i += 1
 
     def at(self, kind: str, text: str | None = None, skip_nl: bool = False) -> bool:
@@ -125,13 +138,20 @@ class Parser:
             self.depth -= 1
 
     def _binary(self, max_level: int) -> A.Node:
-        """Operators of level <= max_level (1 tightest), left-associative (Pratt loop)."""
+        """Operators of level <= max_level (1 tightest), left-associative (Pratt loop).
+
+        A chain longer than MAX_DEPTH is refused at its first operator past the limit, as
+        soon as it is read (``check_depth`` sees the whole tree, once parsed)."""
         left = self._unary()
+        chain = 0
         while True:
             t = self.peek()
             key = t.text if t.kind in ("OP", "KW") else None
             if key is None or key not in _BINARY or _BINARY[key][0] > max_level:
                 return left
+            chain += 1
+            if chain > MAX_DEPTH:
+                raise _too_deep(self.lexer.locate(t.start))
             level, op = _BINARY[key]
             self.next()
             self.skip_nl()  # an operator at the end of a line continues the expression
@@ -432,6 +452,11 @@ def _children(n: A.Node) -> list[A.Node]:
     return []
 
 
+def _too_deep(loc: Loc) -> SourceError:
+    return SourceError(loc, f"expected at most {MAX_DEPTH} operators in a chain, found more: "
+                            "split the expression with temporaries")
+
+
 def check_depth(roots: list[A.Node], locate: Callable[[int], Loc]) -> None:
     """Refuse expressions nested deeper than MAX_DEPTH operators (without recursion: the
     checker and the compiler recurse on the tree, and Python limits nested parentheses)."""
@@ -441,9 +466,7 @@ def check_depth(roots: list[A.Node], locate: Callable[[int], Loc]) -> None:
         if isinstance(n, (A.Unary, A.Binary, A.MethodCall)):
             d += 1
             if d > MAX_DEPTH:
-                raise SourceError(locate(n.start), f"expected at most {MAX_DEPTH} operators "
-                                  "in a chain, found more: split the expression with "
-                                  "temporaries")
+                raise _too_deep(locate(n.start))
         else:
             d = 0  # a statement: its expressions start afresh
         stack.extend((c, d) for c in _children(n))

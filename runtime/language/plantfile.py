@@ -16,7 +16,8 @@ from typing import Any
 
 from drivers.base import Direction, PointError
 from drivers.config import ConfigError
-from drivers.registry import DRIVER_KEYS, check_config, check_point
+from drivers.durations import format_ns
+from drivers.registry import BAUDRATES, DRIVER_KEYS, check_config, check_point
 from runtime.errors import Diagnostic, Loc, SourceError, suggest
 from runtime.language import ast as A
 from runtime.language.grafcetfile import check_keys, expect_type, load_grafcet, time_value
@@ -32,9 +33,9 @@ from runtime.language.model import (
     VarKind,
 )
 from runtime.language.opcuaconf import load_opcua
-from runtime.language.runtimedir import expand
+from runtime.language.plantpaths import path_value
 from runtime.language.typecheck import FLAGS_BOOL
-from runtime.language.yamlsrc import YMap, load_yaml, source_problem
+from runtime.language.yamlsrc import SourceFileError, YMap, load_yaml
 
 PLANT_KEYS = ("plc", "drivers", "instances", "monitor", "opcua")
 PLC_KEYS = ("cycle", "watchdog", "retain", "retain_interval", "retain_required", "realtime",
@@ -45,6 +46,30 @@ INSTANCE_KEYS = ("grafcet", "inputs", "outputs", "description", "log")
 LOG_VALUES = {"steps": True, "none": False}
 MONITOR_KEYS = ("serial", "socket", "tcp", "pin_hash", "release_forces_on_disconnect",
                 "limits")
+_MS, _S = 1_000_000, 1_000_000_000
+#: the bounds of the times under ``plc:`` (ns, inclusive; None: no bound) and why a value
+#: beyond one would harm the plant (docs/language.md, "The plant file")
+PLC_TIMES: dict[str, tuple[int, int | None, str, str]] = {
+    "cycle": (1 * _MS, 60 * _S,
+              "below 1 ms every scan overruns in Python (a wake-up and a scan take tens to "
+              "hundreds of µs, a stall of the system several ms; 5-10 ms suits a Raspberry "
+              "Pi)",
+              "a longer cycle leaves the inputs unread that long (an emergency stop, a limit "
+              "switch): pace a slow process with the chart's times (a step's time, TON) at a "
+              "shorter cycle"),
+    "watchdog": (10 * _MS, 6 * _S,
+                 "the stalls of a system without real-time priority reach several ms: a "
+                 "shorter watchdog puts a healthy plant in fault",
+                 "a stuck scan would hold the outputs that long before they go off, and a "
+                 "stop waits up to three watchdogs for it (S7's cycle monitoring stops at "
+                 "6 s too)"),
+    "retain_interval": (1, None, "", ""),
+}
+#: a TCP port a console may listen on, and why not 0
+TCP_PORTS = (1, 65535, "such as 5020; 0 would be a port the system picks, which no client "
+                       "could know")
+#: SCHED_FIFO priorities (Linux)
+FIFO_PRIORITIES = (1, 99, "50 leaves room above and below for the system's own threads")
 
 
 @dataclass
@@ -59,11 +84,16 @@ class PlantLoad:
     charts: dict[str, Grafcet] = field(default_factory=dict)  # real path -> chart
     chart_files: list[str] = field(default_factory=list)  # as named, instance order, once each
 
-    def chart(self, path: str) -> Grafcet:
-        """The chart of file ``path``, read at its first use in this load."""
+    def chart(self, path: str, loc: Loc) -> Grafcet:
+        """The chart of file ``path``, read at its first use in this load; a file that
+        cannot be read at all (a FIFO, a device, a huge file, an I/O error) is said at
+        ``loc``, the plant's line that names it."""
         real = os.path.realpath(path)
         if real not in self.charts:
-            self.charts[real] = load_grafcet(path)
+            try:
+                self.charts[real] = load_grafcet(path)
+            except SourceFileError as exc:
+                raise SourceError(loc, f"grafcet file {path}: {exc.problem}") from None
         return self.charts[real]
 
     def report(self, error: SourceError) -> None:
@@ -80,9 +110,7 @@ def _resolve(base: str, path: str) -> str:
 
 def _retain_path(base: str, value: Any, loc: Loc) -> str:
     """``plc: retain``: a regular file, or one not yet there, never a directory."""
-    text = expand(str(expect_type(value, loc, str, "a file name for plc retain")), loc)
-    if not text.strip():
-        raise SourceError(loc, "plc retain: expected a file name, found an empty text")
+    text = path_value(value, loc, "plc retain")
     if text.endswith(("/", os.sep)):
         raise SourceError(loc, f"plc retain: '{text}' names a directory, expected a file")
     path = _resolve(base, text)
@@ -140,13 +168,9 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
     if "plc" in doc:
         plc = expect_type(doc["plc"], doc.val_locs["plc"], YMap, "a mapping")
         check_keys(plc, PLC_KEYS, "plc")
-        for key, attr in (("cycle", "cycle_ns"), ("watchdog", "watchdog_ns"),
-                          ("retain_interval", "retain_interval_ns")):
+        for key in PLC_TIMES:
             if key in plc:
-                ns = time_value(plc[key], plc.val_locs[key], f"plc {key}")
-                if ns <= 0:
-                    raise SourceError(plc.val_locs[key], f"plc {key} must be positive")
-                setattr(p, attr, ns)
+                setattr(p, f"{key}_ns", _plc_time(key, plc[key], plc.val_locs[key]))
         if "retain" in plc and plc["retain"] is not None:
             p.retain_path = _retain_path(path, plc["retain"], plc.val_locs["retain"])
             p.retain_loc = plc.val_locs["retain"]
@@ -163,8 +187,8 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
                              "a mapping ({priority: 1-99, lock_memory: true}) or false")
             check_keys(rt, ("priority", "lock_memory"), "plc realtime")
             if "priority" in rt:
-                p.realtime_priority = expect_type(rt["priority"], rt.val_locs["priority"], int,
-                                                  "a SCHED_FIFO priority 1-99")
+                p.realtime_priority = _int_in(rt["priority"], rt.val_locs["priority"],
+                                              FIFO_PRIORITIES, "a SCHED_FIFO priority")
             p.lock_memory = bool(rt.get("lock_memory", False))
         if "log" in plc:
             log_steps = _log_steps(plc["log"], plc.val_locs["log"])
@@ -215,15 +239,13 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
                 load.report(exc)
             if "grafcet" not in spec:
                 raise SourceError(spec.loc, f"instance '{name}' needs 'grafcet: FILE'")
-            gpath = _resolve(path, str(spec["grafcet"]))
+            gloc = spec.val_locs["grafcet"]
+            gpath = _resolve(path, path_value(spec["grafcet"], gloc, "grafcet"))
             if not os.path.exists(gpath):
-                raise SourceError(spec.val_locs["grafcet"], f"grafcet file not found: {gpath}")
-            problem = source_problem(gpath)  # a device, a FIFO or a huge file: said here
-            if problem is not None:
-                raise SourceError(spec.val_locs["grafcet"], f"grafcet file {gpath}: {problem}")
+                raise SourceError(gloc, f"grafcet file not found: {gpath}")
             if gpath not in load.chart_files:
                 load.chart_files.append(gpath)
-            g = load.chart(gpath)
+            g = load.chart(gpath, gloc)
         except SourceError as exc:
             load.report(exc)
             continue  # the instance is left out
@@ -346,6 +368,29 @@ def _resolve_bindings(p: PlantDef, load: PlantLoad) -> None:
                                                    f"'{b.source}'{suggest(head, where)}"))
 
 
+def _plc_time(key: str, value: Any, loc: Loc) -> int:
+    """``plc: KEY``, a time within PLC_TIMES[key], in ns."""
+    ns = time_value(value, loc, f"plc {key}")
+    low, high, below, above = PLC_TIMES[key]
+    if ns < low or (high is not None and ns > high):
+        span = (f"from {format_ns(low)} to {format_ns(high)}" if high is not None
+                else "more than 0")
+        why = below if ns < low else above
+        raise SourceError(loc, f"plc {key}: expected a time {span}, found '{value}'"
+                               + (f": {why}" if why else ""))
+    return ns
+
+
+def _int_in(value: Any, loc: Loc, bounds: tuple[int, int, str], what: str) -> int:
+    """An integer from ``bounds[0]`` to ``bounds[1]`` (``bounds[2]``: a hint)."""
+    low, high, hint = bounds
+    expected = f"{what} from {low} to {high} ({hint})"
+    n = _int(value, loc, expected)
+    if not low <= n <= high:
+        raise SourceError(loc, f"expected {expected}, found {n}")
+    return n
+
+
 def _log_steps(value: Any, loc: Loc) -> bool:
     """``log: steps`` (every step change logged) or ``log: none``."""
     if not isinstance(value, str) or value not in LOG_VALUES:
@@ -374,34 +419,35 @@ def _monitor(p: PlantDef, mon: Any, loc: Loc) -> None:
     if "serial" in mon:
         s = expect_type(mon["serial"], mon.val_locs["serial"], YMap, "{port, baudrate}")
         check_keys(s, ("port", "baudrate", "trusted"), "monitor serial")
-        port = expect_type(_need(s, "port", "the serial port (e.g. /dev/ttyGS0)"),
-                           s.val_locs.get("port", s.loc), str, "a serial port path")
-        baud = _int(s.get("baudrate", 115200), s.val_locs.get("baudrate", s.loc),
-                    "a baud rate (e.g. 115200)")
-        p.consoles.append(ConsoleEntry("serial", str(port), baud, _flag(s, "trusted")))
+        port = path_value(_need(s, "port", "the serial port (e.g. /dev/ttyGS0)"),
+                          s.val_locs.get("port", s.loc), "monitor serial port")
+        baud = s.get("baudrate", 115200)
+        if isinstance(baud, bool) or baud not in BAUDRATES:
+            raise SourceError(s.val_locs.get("baudrate", s.loc), f"monitor serial baudrate: "
+                              f"expected a standard baud rate such as 9600 or 115200 (50 to "
+                              f"{BAUDRATES[-1]}), found {baud!r}")
+        p.consoles.append(ConsoleEntry("serial", port, baud, _flag(s, "trusted")))
     if "socket" in mon:
         s = mon["socket"]
         if isinstance(s, YMap):
             check_keys(s, ("path", "trusted"), "monitor socket")
-            path = expect_type(_need(s, "path", "the socket's path"),
-                               s.val_locs.get("path", s.loc), str, "a socket path")
-            path = expand(str(path), s.val_locs.get("path", s.loc))
+            path = path_value(_need(s, "path", "the socket's path"),
+                              s.val_locs.get("path", s.loc), "monitor socket", socket=True)
             p.consoles.append(ConsoleEntry("socket", path, trusted=_flag(s, "trusted")))
         else:
-            path = expand(str(expect_type(s, mon.val_locs["socket"], str, "a socket path")),
-                          mon.val_locs["socket"])
+            path = path_value(s, mon.val_locs["socket"], "monitor socket", socket=True)
             p.consoles.append(ConsoleEntry("socket", path))
     if "tcp" in mon:
         s = mon["tcp"]
         if isinstance(s, YMap):
             check_keys(s, ("port", "trusted"), "monitor tcp")
-            port = _int(_need(s, "port", "a TCP port number"), s.val_locs.get("port", s.loc),
-                        "a TCP port number")
-            p.consoles.append(ConsoleEntry("tcp", f"127.0.0.1:{port}",
+            number = _int_in(_need(s, "port", "a TCP port number"),
+                             s.val_locs.get("port", s.loc), TCP_PORTS, "a TCP port number")
+            p.consoles.append(ConsoleEntry("tcp", f"127.0.0.1:{number}",
                                            trusted=_flag(s, "trusted")))
         else:
-            port = _int(s, mon.val_locs["tcp"], "a TCP port number")
-            p.consoles.append(ConsoleEntry("tcp", f"127.0.0.1:{port}"))
+            number = _int_in(s, mon.val_locs["tcp"], TCP_PORTS, "a TCP port number")
+            p.consoles.append(ConsoleEntry("tcp", f"127.0.0.1:{number}"))
     if "pin_hash" in mon:
         p.pin_hash = str(mon["pin_hash"])
     if "release_forces_on_disconnect" in mon:

@@ -16,15 +16,14 @@ file.
 
 from __future__ import annotations
 
-import os
 import re
-import stat
 from typing import Any
 
 import yaml
 
 from drivers.durations import MAX_NS
 from runtime.errors import Loc, SourceError
+from runtime.language.safefile import UnfitFile, read_bounded
 
 #: the largest chart, plant or script file read, in bytes (1 MiB: the example charts and
 #: plants are under 7 kB, a plant of 1000 drawer testers is 300 kB; a file of one 1 MiB
@@ -296,56 +295,30 @@ def _make_str(value: str, node: yaml.ScalarNode, path: str, text: str) -> YStr:
     return s
 
 
-_KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
-          (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-          (stat.S_ISSOCK, "a socket"))
+class SourceFileError(SourceError):
+    """A chart, plant or script file that cannot be read at all: no regular file below
+    MAX_FILE_BYTES (a FIFO, ``/dev/zero``, a directory, a huge file) or an error of the
+    system (``/proc/self/mem``: EIO). ``problem`` is the message without the place, for a
+    plant to say it at the line that names the file."""
 
-
-def file_problem(mode: int, size: int) -> str | None:
-    """Why a file of this ``st_mode`` and size (bytes) is no source file: not a regular
-    file, or not below MAX_FILE_BYTES; None if it is one."""
-    if not stat.S_ISREG(mode):
-        found = next((what for test, what in _KINDS if test(mode)), "no regular file")
-    elif size >= MAX_FILE_BYTES:
-        found = f"a file of {size} bytes"
-    else:
-        return None
-    return (f"must be a regular file below {MAX_FILE_BYTES // 1024} KiB ({MAX_FILE_BYTES} "
-            f"bytes), found {found}")
-
-
-def source_problem(path: str) -> str | None:
-    """Why ``path`` cannot be read as a chart, plant or script (None: it can be tried)."""
-    try:
-        st = os.stat(path)
-    except OSError as exc:
-        return f"cannot read file: {exc.strerror}"
-    return file_problem(st.st_mode, st.st_size)
+    def __init__(self, path: str, problem: str) -> None:
+        super().__init__(Loc(path, 1, 1), problem)
+        self.problem = problem
 
 
 def read_source(path: str) -> str:
-    """The text of a chart, plant or script file; SourceError if it is no regular file below
-    MAX_FILE_BYTES or not UTF-8.
+    """The text of a chart, plant or script file; SourceFileError if it is no regular file
+    below MAX_FILE_BYTES or cannot be read, SourceError if it is not UTF-8.
 
-    The status is checked before opening (opening a device can have effects of its own), the
-    file is opened non-blocking (a FIFO put in its place meanwhile cannot hang the open) and
-    checked again, and at most MAX_FILE_BYTES are read whatever its size said.
-    """
-    problem = source_problem(path)
-    data = b""
-    if problem is None:
-        try:
-            fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
-        except OSError as exc:
-            raise SourceError(Loc(path, 1, 1), f"cannot read file: {exc.strerror}") from None
-        with os.fdopen(fd, "rb") as f:
-            st = os.fstat(fd)
-            problem = file_problem(st.st_mode, st.st_size)
-            if problem is None:
-                data = f.read(MAX_FILE_BYTES)
-                problem = file_problem(st.st_mode, len(data))  # it grew meanwhile
-    if problem is not None:
-        raise SourceError(Loc(path, 1, 1), problem)
+    Read by ``safefile.read_bounded``, following a symbolic link (a deployment may link
+    its plant file): never blocking, never past the limit."""
+    try:
+        data = read_bounded(path, MAX_FILE_BYTES - 1, follow_links=True)
+    except UnfitFile as exc:
+        raise SourceFileError(path, f"must be a regular file below {MAX_FILE_BYTES // 1024} "
+                              f"KiB ({MAX_FILE_BYTES} bytes), found {exc.found}") from None
+    except OSError as exc:
+        raise SourceFileError(path, f"cannot read file: {exc.strerror or exc}") from None
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:

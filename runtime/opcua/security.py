@@ -59,7 +59,6 @@ import os
 import socket
 import time
 from collections.abc import Callable, Iterable
-from pathlib import Path
 from typing import Any
 
 from asyncua import ua
@@ -77,6 +76,7 @@ from cryptography.x509.oid import ExtendedKeyUsageOID
 from runtime.controller.pin import check_pin
 from runtime.errors import Loc, SourceError
 from runtime.language.model import OpcuaSecurity
+from runtime.language.safefile import UnfitFile, read_bounded
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +86,8 @@ APPLICATION_URI = "urn:softplc:opcua:server"
 #: the ApplicationUri of a client certificate made by ``softplc opcua-cert --client``: the
 #: client must announce the same (asyncua: ``client.application_uri``)
 CLIENT_URI = "urn:softplc:opcua:client"
+#: the largest certificate or key file read (a certificate is 1-2 kB), bytes
+CERTIFICATE_MAX_BYTES = 64 * 1024
 #: after a failed password check, further checks are refused without hashing this long, s
 FAIL_HOLD_S = 1.0
 #: plant policy name -> asyncua's endpoint type
@@ -150,9 +152,9 @@ class TrustedClients:
             path = os.path.join(self.directory, name)
             if not os.path.isfile(path):
                 continue
-            try:
-                out.append(_der(Path(path).read_bytes()))
-            except (OSError, ValueError) as exc:
+            try:  # never blocking, never past the bound (a FIFO or a huge file put there)
+                out.append(_der(read_bounded(path, CERTIFICATE_MAX_BYTES, follow_links=True)))
+            except (OSError, ValueError, UnfitFile) as exc:
                 log.warning("opcua trusted_clients: %s is not a certificate (%s): skipped",
                             path, exc)
         return out
@@ -262,10 +264,13 @@ async def apply(server: Server, sec: OpcuaSecurity, where: Loc | None = None) ->
             if not os.path.isfile(path):
                 raise SourceError(loc, f"opcua security {key}: no file {path} (make one "
                                        "with 'softplc opcua-cert', docs/opcua.md)")
-        try:
-            await server.load_certificate(str(sec.certificate))
-            await server.load_private_key(str(sec.private_key))
-        except (OSError, ValueError) as exc:
+        try:  # read here, bounded and never blocking; asyncua would read any file
+            cert_bytes, key_bytes = (
+                read_bounded(str(p), CERTIFICATE_MAX_BYTES, follow_links=True)
+                for p in (sec.certificate, sec.private_key))
+            await server.load_certificate(cert_bytes, _format(str(sec.certificate)))
+            await server.load_private_key(key_bytes, format=_format(str(sec.private_key)))
+        except (OSError, ValueError, UnfitFile) as exc:
             raise SourceError(loc, f"opcua security: cannot load the certificate or key "
                                    f"({exc})") from exc
     rules = Rules()
@@ -281,6 +286,12 @@ async def apply(server: Server, sec: OpcuaSecurity, where: Loc | None = None) ->
     if sec.users and not any(p == "Basic256Sha256_SignAndEncrypt" for p in sec.policies):
         log.warning("opcua: users are set but no SignAndEncrypt policy is listed: their "
                     "passwords may cross the network readable")
+
+
+def _format(path: str) -> str:
+    """How asyncua reads a certificate or key file given as bytes: PEM for a ``.pem``,
+    else DER (what it decides from the name when it reads the file itself)."""
+    return "pem" if path.lower().endswith(".pem") else "der"
 
 
 def _validator(*trusted: TrustedClients) -> Callable[[x509.Certificate, Any], Any]:

@@ -11,6 +11,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from runtime.controller.pin import hash_pin
 from tests.console.consolekit import CHART, Rig
 
@@ -73,10 +75,13 @@ def test_reload_over_the_pty_and_the_socket(rigs: Callable[..., Rig]) -> None:
     assert rig.steps("t1") == ["gsParado"] and rig.state() == "running"
 
 
-def _swap_queued_then(tmp_path: Path, line: bytes, first: bytes | None = None
-                      ) -> tuple[list[str], Any, Any, Any]:
-    """A console command typed while a reload's swap waits for the scan (a 300 ms cycle
-    makes the window wide): (its reply, daemon, service, session)."""
+def _swap_queued_then(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, line: bytes,
+                      first: bytes | None = None) -> tuple[list[str], Any, Any, Any]:
+    """A console command typed while a reload's swap waits for the scan: (its reply,
+    daemon, service, session). The swap waits for the next cycle's idle time, as in any
+    cycle of 20 ms or less; a 300 ms cycle makes that window wide (a longer cycle would
+    serve the swap at once, when it is queued: not waking the scan thread keeps it
+    waiting)."""
     import threading
     import time
 
@@ -98,6 +103,7 @@ def _swap_queued_then(tmp_path: Path, line: bytes, first: bytes | None = None
     s = svc.session("tcp:127.0.0.1:5000", trusted=True)
     if first is not None:
         assert s.handle(first)[-1] == "ok"
+    monkeypatch.setattr(d.scheduler, "wake", lambda: None)  # served at the next idle time
     (tmp_path / "runner.yaml").write_text(CYCLER.replace("gsA.T >= 30ms", "gsA.T >= 40ms"),
                                           encoding="utf-8")
     done: list[Any] = []
@@ -115,11 +121,12 @@ def _swap_queued_then(tmp_path: Path, line: bytes, first: bytes | None = None
 
 
 def test_a_command_racing_a_reload_is_refused_not_applied_to_the_old_plant(
-        tmp_path: Path) -> None:
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """An 'unforce' that reached the scan after the swap acted on the replaced plant: the
     console said 'released' while the running plant kept the output forced, owned by
     nobody (a review of the online change found it). Now it is refused, nothing done."""
-    reply, d, svc, s = _swap_queued_then(tmp_path, b"unforce io.Q1", first=b"force io.Q1 1")
+    reply, d, svc, s = _swap_queued_then(tmp_path, monkeypatch, b"unforce io.Q1",
+                                         first=b"force io.Q1 1")
     try:
         # the swap was queued first: the command reaches the scan after it
         assert "reloaded meanwhile" in reply[-1], reply
@@ -132,8 +139,8 @@ def test_a_command_racing_a_reload_is_refused_not_applied_to_the_old_plant(
 
 
 def test_iocheck_racing_a_reload_never_leaves_the_charts_running_unsaid(
-        tmp_path: Path) -> None:
-    reply, d, svc, s = _swap_queued_then(tmp_path, b"iocheck on")
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    reply, d, svc, s = _swap_queued_then(tmp_path, monkeypatch, b"iocheck on")
     try:
         assert "reloaded meanwhile" in reply[-1], reply
         assert not d.plant.iocheck and "iocheck" not in svc.holdings()

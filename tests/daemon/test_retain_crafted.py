@@ -143,3 +143,24 @@ def test_a_retain_path_that_cannot_be_a_file_is_a_load_error(tmp_path: Path,
     with pytest.raises(SourceError) as info:
         load_plant(str(plant))
     assert str(info.value).startswith(f"{plant}:3:11: error: plc retain")
+
+
+def test_generations_cross_the_top_without_losing_data(tmp_path: Path) -> None:
+    """A file at generation 2**63-1 loads; before, the next saves wrote 2**63 and 2**63+1,
+    which load refused: after two runs the data was lost. Generations now stop at the top
+    (GENERATION_MAX) and the newest file, PATH, is loaded among equals."""
+    path = tmp_path / "r.json"
+    top = R.GENERATION_MAX
+    for start in (top - 1, top):
+        path.write_text(_signed({"m": {"sN": 0}}, generation=start))
+        saved = []
+        for run in range(1, 4):  # each run: a start that loads, then one save
+            store = RetainStore(str(path))
+            loaded = store.load()
+            assert loaded.data == {"m": {"sN": run - 1}}, (start, run, loaded.problems)
+            assert loaded.problems == [] and loaded.lost is None, loaded.problems
+            saved.append(store.save({"m": {"sN": run}}))
+        assert RetainStore(str(path)).load().data == {"m": {"sN": 3}}
+        assert saved == [min(start + run, top) for run in (1, 2, 3)]
+        for f in tmp_path.iterdir():
+            f.unlink()

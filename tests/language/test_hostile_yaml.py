@@ -110,13 +110,13 @@ def _limit_memory() -> None:
     resource.setrlimit(resource.RLIMIT_AS, (CHILD_MEMORY_BYTES, CHILD_MEMORY_BYTES))
 
 
-def softplc(tmp_path: Path, *args: str) -> Outcome:
-    """Run ``softplc ARGS`` in a capped child process."""
+def softplc(tmp_path: Path, *args: str, env: dict[str, str] | None = None) -> Outcome:
+    """Run ``softplc ARGS`` in a capped child process (``env``: variables to change)."""
     timing = tmp_path / "timing"
     timing.unlink(missing_ok=True)
-    env = dict(os.environ, HOSTILE_TIMING=str(timing), PYTHONPATH=str(ROOT))
+    environ = dict(os.environ, HOSTILE_TIMING=str(timing), PYTHONPATH=str(ROOT), **(env or {}))
     proc = subprocess.run([sys.executable, "-c", CHILD, *args], capture_output=True, text=True,
-                          timeout=CHILD_TIMEOUT_S, env=env, cwd=tmp_path,
+                          timeout=CHILD_TIMEOUT_S, env=environ, cwd=tmp_path,
                           preexec_fn=_limit_memory)
     lines = [ln for ln in (proc.stdout + proc.stderr).splitlines() if ln.strip()]
     load_s = float(timing.read_text()) if timing.exists() else float("inf")

@@ -10,8 +10,11 @@ from pathlib import Path
 import pytest
 
 from runtime.errors import Loc, SourceError
-from runtime.language import yamlsrc
+from runtime.language import safefile, yamlsrc
 from runtime.language.grafcetfile import time_value
+from runtime.language.lexer import MAX_TOKENS
+from runtime.language.parser import MAX_DEPTH as MAX_CHAIN
+from runtime.language.parser import Parser, parse_expression, parse_statements
 from runtime.language.plantfile import load_plant
 from runtime.language.yamlsrc import (
     EXPANSION_ALLOWANCE,
@@ -167,9 +170,9 @@ def test_a_file_that_grows_after_its_size_was_read_is_cut_and_refused(
         return os.stat_result((*st[:6], 10, *st[7:]))  # st_size is field 6
 
     monkeypatch.setattr(yamlsrc, "MAX_FILE_BYTES", 1000)
-    monkeypatch.setattr(yamlsrc.os, "stat", lambda path: small(real_stat(path)))
-    monkeypatch.setattr(yamlsrc.os, "fstat", lambda fd: small(real_fstat(fd)))
-    with pytest.raises(SourceError, match=r"found a file of 1000 bytes"):
+    monkeypatch.setattr(safefile.os, "stat", lambda path: small(real_stat(path)))
+    monkeypatch.setattr(safefile.os, "fstat", lambda fd: small(real_fstat(fd)))
+    with pytest.raises(SourceError, match=r"found a file of at least 1000 bytes"):
         read_source(str(p))
 
 
@@ -213,3 +216,31 @@ def test_expression_literals_up_to_64_bits_parse_and_one_more_is_refused() -> No
         with pytest.raises(SourceError, match="integer out of range") as info:
             expr(f"x + {text}")
         assert info.value.loc.col == 5
+
+
+def _place(offset: int) -> Loc:
+    return Loc("t", 1, offset + 1)
+
+
+def test_a_long_chain_is_refused_at_its_first_operator_past_the_limit_unread_beyond() -> None:
+    # 100000 terms: before, every token was made and the tree built before the refusal
+    # (2-3 s); now the parser stops at the 101st operator, with a few tokens read ahead
+    text = " + ".join(["iA"] * 100_000)
+    p = Parser(text, _place)
+    with pytest.raises(SourceError, match="at most 100 operators in a chain") as info:
+        p.expression()
+    assert info.value.loc.col == len("iA + ") * MAX_CHAIN + len("iA ") + 1  # the 101st '+'
+    assert len(p.toks) < 2 * MAX_CHAIN + 50  # tokens read: the rest was never looked at
+    # a fault further on is not reached either: the first fault of the text is the one said
+    with pytest.raises(SourceError, match="at most 100 operators"):
+        parse_expression(text + " $", _place)
+    chain = " + ".join(["iA"] * (MAX_CHAIN + 1))  # 100 operators: a chain at the limit
+    assert parse_expression(chain, _place) is not None
+
+
+def test_a_text_of_max_tokens_parses_and_one_more_token_is_refused_there() -> None:
+    body = "sN := 1\n" * (MAX_TOKENS // 4)  # NAME ':=' INT NL: 4 tokens a statement
+    assert len(parse_statements(body, _place)) == MAX_TOKENS // 4
+    with pytest.raises(SourceError, match=f"at most {MAX_TOKENS} tokens") as info:
+        parse_statements(body + "sN := 2\n", _place)
+    assert info.value.loc.col == len(body) + 1  # the 10001st token: the last 'sN'
