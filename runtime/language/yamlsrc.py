@@ -31,12 +31,15 @@ from typing import Any
 import yaml
 
 try:  # libyaml, in PyYAML's wheels
-    from yaml.cyaml import CParser as _CParser
+    from yaml._yaml import CParser as _CParser
+
+    _HAS_LIBYAML = True
 except ImportError:  # pragma: no cover - a PyYAML built without it
-    _CParser = None
+    _HAS_LIBYAML = False
 
 from drivers.durations import MAX_NS
 from runtime.errors import Loc, SourceError
+from runtime.language.yamlslip import anchor_alone, explain
 
 #: the largest chart, plant or script file read, in bytes (1 MiB: the example charts and
 #: plants are under 7 kB, a plant of 1000 drawer testers is 300 kB; a file of one 1 MiB
@@ -178,7 +181,8 @@ class _Constructor(yaml.constructor.SafeConstructor):
         return value
 
 
-_Constructor.add_constructor("tag:yaml.org,2002:int", _Constructor.construct_yaml_int)
+_Constructor.yaml_constructors = {**yaml.constructor.SafeConstructor.yaml_constructors,
+                                  "tag:yaml.org,2002:int": _Constructor.construct_yaml_int}
 
 
 class _Composer(yaml.composer.Composer, _Resolver):
@@ -201,6 +205,7 @@ class _Composer(yaml.composer.Composer, _Resolver):
         #: a ``?`` inside a flow collection: what libyaml reads otherwise than PyYAML
         self.divergent = False
         self.flow = 0  # flow collections open
+        self.source: str | None = None  # the text libyaml parses (None: PyYAML parses)
         #: (index, mark): a node starting at that index is placed at that mark instead
         self.end: tuple[int, Any] = (-1, None)
 
@@ -225,8 +230,14 @@ class _Composer(yaml.composer.Composer, _Resolver):
         if len(self.open_anchors) >= MAX_DEPTH:
             raise self._refuse(event.start_mark, f"YAML nested deeper than {MAX_DEPTH} levels "
                                "(mappings and lists inside one another)")
-        if event.tag is not None or (self.flow and isinstance(event, yaml.ScalarEvent)
-                                     and not event.style and "?" in event.value):
+        if isinstance(event, yaml.ScalarEvent) and not event.style:
+            if event.anchor is not None and not event.value:
+                raise self._refuse(event.start_mark, anchor_alone(event.anchor))
+            if self.flow and "?" in event.value:
+                self.divergent = True
+            elif self.flow and not event.value and self.source is not None:
+                self._place_empty(event)
+        if event.tag is not None:
             self.divergent = True
         if event.start_mark.index == self.end[0]:
             event.start_mark = event.end_mark = self.end[1]
@@ -244,6 +255,20 @@ class _Composer(yaml.composer.Composer, _Resolver):
         if event.anchor is not None:
             self.sizes[event.anchor] = (self.nodes - nodes, self.chars - chars)
         return node
+
+    def _place_empty(self, event: Any) -> None:
+        """An empty value after ``key:`` in a flow mapping (``{a: , b: 1}``) is placed by
+        PyYAML right after the ``:``, by libyaml at the next token: placed here as PyYAML
+        does (after spaces on one line), or the text is read by PyYAML (across lines)."""
+        text, mark = str(self.source), event.start_mark
+        i = j = mark.index
+        while j > 0 and text[j - 1] == " ":
+            j -= 1
+        if j > 0 and text[j - 1] in "\n\r":
+            self.divergent = True
+        elif j > 0 and text[j - 1] == ":" and j != i:
+            event.start_mark = event.end_mark = yaml.Mark(
+                mark.name, j, mark.line, mark.column - (i - j), None, 0)
 
     def _charge(self, nodes: int, chars: int, mark: Any, what: str) -> None:
         self.nodes += nodes
@@ -269,7 +294,7 @@ class _Loader(yaml.reader.Reader, yaml.scanner.Scanner, yaml.parser.Parser, _Com
         _Composer.__init__(self, path, len(text))
 
 
-if _CParser is not None:
+if _HAS_LIBYAML:
     class _CLoader(_Composer, _CParser):
         """libyaml's parser (PyYAML's C extension) under the composer with limits: its
         events carry the same marks (line, column, index in characters) as the
@@ -278,13 +303,14 @@ if _CParser is not None:
         def __init__(self, text: str, path: str) -> None:
             _CParser.__init__(self, text)
             _Composer.__init__(self, path, len(text))
+            self.source = text
             if text and not text.endswith(("\n", "\r")):
                 # libyaml puts the end of a text without a final line break on a line of
                 # its own; PyYAML after its last character, where an empty value at the
                 # very end is placed
                 end = _index_loc(path, text, len(text))
                 self.end = (len(text), yaml.Mark(path, len(text), end.line - 1, end.col - 1,
-                                                 None, None))
+                                                 None, 0))
 
 
 def _mark(path: str, mark: Any) -> Loc:
@@ -475,7 +501,7 @@ def _index_loc(path: str, text: str, index: int) -> Loc:
 
 
 #: parse with libyaml where PyYAML has it (the tests set it False to run the other path)
-USE_LIBYAML = _CParser is not None
+USE_LIBYAML = _HAS_LIBYAML
 #: what libyaml reads otherwise than PyYAML's pure-Python parser (found by comparing them
 #: on random texts, tests/language/test_yaml_paths.py): a tab (libyaml accepts one after a
 #: value, PyYAML refuses it), the line breaks NEL, LS and PS (in a comment), U+FEFF
@@ -516,13 +542,20 @@ def _compose(path: str, text: str) -> Any:
                           "other than tab and line breaks, U+FFFE and U+FFFF): remove it"
                           ) from None
     except yaml.MarkedYAMLError as exc:
-        mark = exc.problem_mark or exc.context_mark
-        loc = _mark(path, mark) if mark else Loc(path, 1, 1)
-        what = exc.problem or "invalid YAML"
-        if what == "mapping values are not allowed here":
-            what = "found ':' where no mapping value is allowed (quote a text holding ': ')"
-        ctx = f" ({exc.context})" if exc.context else ""
-        raise SourceError(loc, f"YAML syntax: {what}{ctx}") from None
+        raise _syntax_error(path, text, exc) from None
+
+
+def _syntax_error(path: str, text: str, exc: yaml.MarkedYAMLError) -> SourceError:
+    """PyYAML's error as one line: a newcomer's slip in the file's words with what to
+    write instead (yamlslip.py), any other in PyYAML's words."""
+    mark = exc.problem_mark or exc.context_mark
+    slip = explain(exc.problem or "", exc.problem_mark, exc.context, exc.context_mark,
+                   text) if exc.problem_mark is not None else None
+    if slip is not None:
+        return SourceError(Loc(path, slip[0] + 1, slip[1] + 1), f"YAML syntax: {slip[2]}")
+    loc = _mark(path, mark) if mark else Loc(path, 1, 1)
+    ctx = f" ({exc.context})" if exc.context else ""
+    return SourceError(loc, f"YAML syntax: {exc.problem or 'invalid YAML'}{ctx}")
 
 
 #: the tag of a text: its value is the node's, as it is
@@ -578,7 +611,7 @@ def load_yaml(path: str, text: str | None = None) -> Any:
                 lst.append(v)
                 lst.locs.append(v.loc if isinstance(v, YStr) else _mark(path, item.start_mark))
             return lst
-        if n.tag == _STR_TAG:
+        if isinstance(n, yaml.ScalarNode) and n.tag == _STR_TAG:
             return _make_str(n.value, n, path, text)
         value = scalar(n)
         if isinstance(value, str) and isinstance(n, yaml.ScalarNode):
@@ -589,5 +622,9 @@ def load_yaml(path: str, text: str | None = None) -> Any:
         return convert(node)
     except yaml.constructor.ConstructorError as exc:
         mark = exc.problem_mark
+        slip = explain(str(exc.problem), mark, None, None, text) if mark else None
+        if slip is not None:  # a tag of the file's own: '!iVaso'
+            raise SourceError(Loc(path, slip[0] + 1, slip[1] + 1),
+                              f"YAML syntax: {slip[2]}") from None
         raise SourceError(_mark(path, mark) if mark else Loc(path, 1, 1),
                           str(exc.problem)) from None

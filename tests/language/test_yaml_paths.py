@@ -128,6 +128,14 @@ ERRORS = {
     "bad tagged int": "a: !!int abc\n",
     "duplicate key": "a: 1\na: 2\n",
     "mapping key": "? [a]\n: b\n",
+    "anchor alone": "t: {when: &iVaso}\n",
+    "reserved indicator": "t: {when: @iVaso}\n",
+    "block scalar misused": "t:\n  when: |iVaso|\n",
+    "list then more": "t:\n  when: [iVaso] AND iLleno\n",
+    "quoted then more": "t: {when: \"iVaso\" AND iLleno}\n",
+    "key further in": "t:\n  - from: a\n     to: b\n",
+    "key further out": "t:\n  - from: a\n   to: b\n",
+    "tab after a value": "t: {when: iVaso}\t\n",
 }
 
 
@@ -148,7 +156,7 @@ def test_a_file_that_loads_is_not_parsed_in_python(monkeypatch: pytest.MonkeyPat
     monkeypatch.setattr(yamlsrc, "_Loader", spy)
     load_yaml("good.yaml", TEXTS["anchors and aliases"])
     assert made == []
-    with pytest.raises(SourceError, match="found undefined alias"):
+    with pytest.raises(SourceError, match="undefined alias"):
         load_yaml("bad.yaml", ERRORS["undefined alias"])
     assert made == ["bad.yaml"]  # worded by the pure-Python parser
 
