@@ -22,17 +22,6 @@ sys.stderr.write("MODULES " + " ".join(sorted(sys.modules)) + "\\n")
 sys.exit(rc)
 """
 
-CHART = """\
-grafcet: T
-inputs: [iA]
-outputs: [oA]
-steps:
-  gsA: {initial: true, actions: [oA]}
-  gsB: {}
-transitions:
-  - {from: gsA, to: gsB, when: iA}
-  - {from: gsB, to: gsA, when: "iA'"}
-"""
 
 
 def imported(*argv: str) -> tuple[int, set[str]]:
@@ -43,19 +32,15 @@ def imported(*argv: str) -> tuple[int, set[str]]:
     return r.returncode, set(line.split()[1:])
 
 
-def test_compile_imports_no_other_command(tmp_path: Path) -> None:
-    chart = tmp_path / "t.yaml"
-    chart.write_text(CHART, encoding="utf-8")
-    rc, modules = imported("compile", str(chart))
+def test_compile_imports_no_other_command(level: str) -> None:
+    rc, modules = imported("compile", level)
     assert rc == 0
     assert "runtime.compiler.codegen" in modules  # what it needs, it has
     assert sorted(m for m in OTHERS if m in modules) == []
 
 
-def test_check_imports_its_own_module_only(tmp_path: Path) -> None:
-    chart = tmp_path / "t.yaml"
-    chart.write_text(CHART, encoding="utf-8")
-    rc, modules = imported("check", "-q", str(chart))
+def test_check_imports_its_own_module_only(level: str) -> None:
+    rc, modules = imported("check", "-q", level)
     assert rc == 0
     assert "runtime.checker.check" in modules
     assert sorted(m for m in OTHERS[1:] if m in modules) == []

@@ -49,44 +49,68 @@ def _explain(problem: str, at: Any, ctx: str, context_mark: Any,
         return at, _tag(_word(text, at.index))
     if problem.startswith("found undefined alias"):
         word = _word(text, at.index)
-        return at, (f"expected a value, found '{word}', which YAML reads as an undefined "
-                    f"alias (a copy of the value marked &{word[1:]}, and none is): quote a "
-                    f"text that begins with '*': {_quoted(word)}")
+        return at, _reads_as(word, f"an undefined alias (a copy of the value marked "
+                                   f"&{word[1:]}, and none is)")
     if ctx in ("while scanning an alias", "while scanning an anchor") and context_mark:
         word = _word(text, context_mark.index)
-        what = "an alias" if word.startswith("*") else "an anchor"
-        return context_mark, (f"expected a value, found '{word}', which YAML reads as {what}:"
-                              f" quote a text that begins with '{word[0]}': {_quoted(word)}")
+        return context_mark, _reads_as(word, "an alias" if word[0] == "*" else "an anchor")
     m = re.fullmatch(r"found character '(.)' that cannot start any token", problem)
     if m and m.group(1) in "@`%":
         word = _word(text, at.index)
         return at, (f"expected a value, found '{word}': YAML reserves '{m.group(1)}' at the "
                     f"start of a value: quote it: {_quoted(word)}")
     if ctx == "while scanning a block scalar" and context_mark is not None:
-        word = _rest(text, context_mark.index)
-        return context_mark, (f"expected a block text ('{word[0]}' alone at the end of the "
-                              f"line, the text on the lines below), found '{_short(word)}':"
-                              f" quote a value that begins with '{word[0]}': "
-                              f"{_quoted(word)}")
+        return context_mark, _block_header(_rest(text, context_mark.index))
     if problem == "expected <block end>, but found '<scalar>'":
         return _continued(text, at, flow=False)
     if problem in ("expected ',' or '}', but got '<scalar>'",
                    "expected ',' or ']', but got '<scalar>'"):
         return _continued(text, at, flow=True)
-    if problem == "expected <block end>, but found '-'" and context_mark is not None:
-        first = _rest(text, context_mark.index)
-        return at, (f"expected a key of the mapping that begins at line "
-                    f"{context_mark.line + 1} ('{_short(first)}'), found a list item "
-                    f"('{_short(_rest(text, at.index))}'): the items of a list each begin "
-                    f"with '- ' at one indentation: write '- {_short(first)}'")
-    if problem == "expected <block end>, but found '?'" and context_mark is not None:
-        key = _rest(text, at.index)
-        return at, (f"expected an item ('- ') of the list that begins at line "
-                    f"{context_mark.line + 1}, found a key ('{_short(key)}'): begin it with "
-                    f"'- ' ('- {_short(key)}'), the keys that go with it indented under it")
-    if problem == "expected <block end>, but found '<block mapping start>'" and context_mark:
+    if context_mark is None:
+        return None
+    if problem == "expected <block end>, but found '-'":
+        return at, _item_among_keys(context_mark.line, _rest(text, context_mark.index),
+                                    _rest(text, at.index))
+    if problem == "expected <block end>, but found '?'":
+        return at, _key_among_items(context_mark.line, _rest(text, at.index))
+    if problem == "expected <block end>, but found '<block mapping start>'":
         return at, _out_of_line(text, at, context_mark, ctx)
     return None
+
+
+def _reads_as(word: str, what: str) -> str:
+    """A value that begins with one of YAML's indicators, read as ``what``."""
+    return (f"expected a value, found '{word}', which YAML reads as {what}: quote a text "
+            f"that begins with '{word[0]}': {_quoted(word)}")
+
+
+def _tag(word: str) -> str:
+    negation = (f"; a negation is NOT {word[1:]} or {word[1:]}'"
+                if _NAME.fullmatch(word[1:]) else "")
+    return _reads_as(word, "a tag") + negation
+
+
+def _block_header(words: str) -> str:
+    """A value that begins with ``|`` or ``>``: YAML's block text, whose header is alone
+    on its line."""
+    return (f"expected a block text ('{words[0]}' alone at the end of the line, the text on "
+            f"the lines below), found '{_short(words)}': quote a value that begins with "
+            f"'{words[0]}': {_quoted(words)}")
+
+
+def _item_among_keys(line: int, first: str, item: str) -> str:
+    """A list item where the keys of a mapping (the first one ``first``, at ``line``, from
+    0) go on: the mapping was meant as the list's first item."""
+    return (f"expected a key of the mapping that begins at line {line + 1} "
+            f"('{_short(first)}'), found a list item ('{_short(item)}'): the items of a list "
+            f"each begin with '- ' at one indentation: write '- {_short(first)}'")
+
+
+def _key_among_items(line: int, key: str) -> str:
+    """A key where the items of a list (the first at ``line``, from 0) go on."""
+    return (f"expected an item ('- ') of the list that begins at line {line + 1}, found a "
+            f"key ('{_short(key)}'): begin it with '- ' ('- {_short(key)}'), the keys that "
+            "go with it indented under it")
 
 
 def _tab(text: str, index: int) -> str:
@@ -98,13 +122,6 @@ def _tab(text: str, index: int) -> str:
                 "YAML indents with spaces, never tabs")
     return (f"expected a space, found a tab after '{_short(before.strip(), end=True)}': "
             "YAML separates with spaces, never tabs")
-
-
-def _tag(word: str) -> str:
-    negation = (f"; a negation is NOT {word[1:]} or {word[1:]}'"
-                if _NAME.fullmatch(word[1:]) else "")
-    return (f"expected a value, found '{word}', which YAML reads as a tag: quote a text that "
-            f"begins with '!': {_quoted(word)}{negation}")
 
 
 def _continued(text: str, at: Any, flow: bool) -> tuple[Any, str] | None:
