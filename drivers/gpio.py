@@ -1,8 +1,8 @@
 """Linux GPIO lines through the character device (libgpiod v2 Python bindings, ``gpiod``).
 
 One line request holds every bound line of the chip: inputs with the configured bias and
-debounce (the kernel's), outputs initialised at the image's levels (inactive at start-up,
-and while the driver is inhibited). ``active_low`` is never set: the driver moves
+debounce (the kernel's), outputs initialised inactive (the next write sets what the image
+holds). ``active_low`` is never set: the driver moves
 physical levels only, and any inversion is the binding's (``invert: true``).
 
 Points are line offsets on the chip: ``gpio.17``. Config::
@@ -55,7 +55,6 @@ class GpioDriver(DigitalBank):
         return self.chip
 
     def _attach(self) -> int:
-        word = self.setup_word()
         config: dict[Iterable[int | str] | int | str, gpiod.LineSettings | None] = {}
         if self.in_lines:
             config[tuple(self.in_lines)] = gpiod.LineSettings(
@@ -64,17 +63,14 @@ class GpioDriver(DigitalBank):
                 active_low=False,
                 debounce_period=datetime.timedelta(seconds=self.debounce_s),
             )
-        for value in (Value.INACTIVE, Value.ACTIVE):
-            lines = tuple(n for n in self.out_lines
-                          if (word >> n & 1) == (value is Value.ACTIVE))
-            if lines:
-                config[lines] = gpiod.LineSettings(
-                    direction=LineDirection.OUTPUT,
-                    active_low=False,
-                    output_value=value,
-                )
+        if self.out_lines:  # inactive: the next write sets what the image holds
+            config[tuple(self.out_lines)] = gpiod.LineSettings(
+                direction=LineDirection.OUTPUT,
+                active_low=False,
+                output_value=Value.INACTIVE,
+            )
         if not config:
-            return word
+            return 0
         try:
             self._request = gpiod.request_lines(
                 self.chip, config=config, consumer=f"{self.CONSUMER_PREFIX}:{self.name}"
@@ -84,7 +80,7 @@ class GpioDriver(DigitalBank):
         except OSError as exc:
             raise DriverError(f"{self.chip}: cannot request lines "
                               f"{self.in_lines + self.out_lines}: {exc}") from exc
-        return word
+        return 0
 
     def _read_word(self) -> int:
         if not self.in_lines:
