@@ -528,6 +528,9 @@ def _compose(path: str, text: str) -> Any:
                 return node
         except yaml.YAMLError:
             pass  # worded below
+        except SourceError:  # a limit: PyYAML would stop there too, unless it read the
+            if not cloader.divergent:  # text otherwise before
+                raise
         finally:
             cloader.dispose()
     try:

@@ -136,6 +136,7 @@ ERRORS = {
     "key further in": "t:\n  - from: a\n     to: b\n",
     "key further out": "t:\n  - from: a\n   to: b\n",
     "tab after a value": "t: {when: iVaso}\t\n",
+    "a tag only libyaml takes, then too deep": "a: !...!!str x\nb: " + "[" * 70 + "]" * 70 + "\n",
 }
 
 
