@@ -11,11 +11,21 @@ step), the last block leading back to the first. Times, separately and in proces
 - compile: ``compile_grafcet`` (generate the Python source, ``compile`` and ``exec`` it).
 
 Then the reachability of ``--parallel`` branches of ``--branch`` steps each under one AND
-divergence (default 3 x 50: a product of 50^3 situations if enumerated). Not a test: prints
-a table, each time the best of ``--repeat`` runs, and the growth exponent between
-consecutive sizes (log(t2/t1) / log(n2/n1): 1 is linear, 2 quadratic).
+divergence (default 3 x 50: a product of 50^3 situations if enumerated).
+
+``--process`` times instead what a user waits for: ``softplc compile FILE`` and ``softplc
+check FILE`` as whole processes (interpreter start, imports, argument parser, YAML, load,
+check or compile), wall time and CPU time (user + system, which another process loading
+the machine disturbs less), with the modules' bytecode cached as an installed package has
+it (the children write it to a temporary ``PYTHONPYCACHEPREFIX``, one run first
+untimed). ``--root DIR`` runs the children on the checkout at DIR (another commit, for a
+before/after comparison in one run).
+
+Not a test: prints a table, each time the best of ``--repeat`` runs, and the growth
+exponent between consecutive sizes (log(t2/t1) / log(n2/n1): 1 is linear, 2 quadratic).
 
     python -m bench.compile [--steps 50 100 200 500 1000] [--repeat 3]
+    python -m bench.compile --process [--steps 125 250 500 1000 2000] [--root DIR]
 """
 
 from __future__ import annotations
@@ -23,6 +33,8 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import resource
+import subprocess
 import sys
 import tempfile
 import time
@@ -131,13 +143,68 @@ def growth(prev: tuple[int, float] | None, n: int, t: float) -> str:
     return f"{math.log(t / prev[1]) / math.log(n / prev[0]):5.2f}"
 
 
+def run_process(argv: list[str], root: str, env: dict[str, str]) -> tuple[float, float]:
+    """(wall s, CPU s: user + system) of one child process ``python -m runtime.cli ARGV``
+    run on the checkout at ``root``; RuntimeError if it fails (exit status over 1: 1 is
+    ``check``'s 'errors found')."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "runtime.cli", *argv], cwd=root, env=env,
+                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, check=False)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if proc.returncode not in (0, 1):
+        raise RuntimeError(f"softplc {' '.join(argv)}: exit {proc.returncode}: "
+                           f"{proc.stderr.decode(errors='replace')[-500:]}")
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return wall, cpu
+
+
+def processes(args: argparse.Namespace) -> int:
+    """The ``--process`` table: compile and check of each size as whole processes."""
+    root = os.path.abspath(args.root)
+    out(f"whole processes on {root}, best of {args.repeat} (wall s, CPU s = user + system)")
+    out(f"{'steps':>6} {'compile s':>10} {'cpu':>6} {'check s':>8} {'cpu':>6} "
+        f"{'growth compile':>14} {'check':>6}")
+    prev: dict[str, tuple[int, float] | None] = {"compile": None, "check": None}
+    with tempfile.TemporaryDirectory() as tmp:
+        env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+        env["PYTHONPATH"] = root
+        env["PYTHONPYCACHEPREFIX"] = os.path.join(tmp, "pyc")
+        for n in args.steps:
+            path = os.path.join(tmp, f"big{n}.yaml")
+            with open(path, "w", encoding="utf-8") as f:
+                f.write(chart_text(n))
+            row: dict[str, tuple[float, float]] = {}
+            for cmd in ("compile", "check"):
+                run_process([cmd, path], root, env)  # untimed: bytecode cached
+                runs = [run_process([cmd, path], root, env) for _ in range(args.repeat)]
+                row[cmd] = (min(w for w, _ in runs), min(c for _, c in runs))
+            (kw, kc), (cw, cc) = row["compile"], row["check"]
+            out(f"{n:>6} {kw:>10.3f} {kc:>6.3f} {cw:>8.3f} {cc:>6.3f} "
+                f"{growth(prev['compile'], n, kw):>14} {growth(prev['check'], n, cw):>6}")
+            prev = {"compile": (n, kw), "check": (n, cw)}
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    ap.add_argument("--steps", type=int, nargs="+", default=[50, 100, 200, 500, 1000])
+    ap.add_argument("--steps", type=int, nargs="+", default=None,
+                    help="chart sizes (default 50 100 200 500 1000; --process: 125 250 500 "
+                         "1000 2000)")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--parallel", type=int, default=3, help="parallel branches (default 3)")
     ap.add_argument("--branch", type=int, default=50, help="steps per branch (default 50)")
+    ap.add_argument("--process", action="store_true",
+                    help="time softplc compile and check as whole processes")
+    ap.add_argument("--root", default=os.path.dirname(os.path.dirname(os.path.abspath(
+                    __file__))), help="with --process: the checkout the children run "
+                    "(default this one)")
     args = ap.parse_args()
+    if args.process:
+        args.steps = args.steps or [125, 250, 500, 1000, 2000]
+        return processes(args)
+    args.steps = args.steps or [50, 100, 200, 500, 1000]
     # the 1000-step chart has about 12 000 YAML nodes, over the loader's limit for a file
     # (yamlsrc.node_budget): raised here, for the measurement only
     yamlsrc.NODE_ALLOWANCE = max(yamlsrc.NODE_ALLOWANCE, 20 * max(args.steps))

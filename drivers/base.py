@@ -13,11 +13,15 @@ marks ``health`` FAULT with ``fault_reason``, logs once per state change, and th
 applies the driver's ``on_fault`` policy (``stop``/``hold``/``zero``).
 
 A back-end **must** override:
-  ``_check_point(point, direction) -> PointKind`` (raise PointError for a point it lacks),
   ``_open()``, ``_read()`` (fill ``self.inputs`` with physical values),
   ``_write()`` (send ``self.outputs``), ``_close()``.
-It **may** override ``_safe_state()`` (default: every output 0, then ``_write()``) and
-``_reopen()`` (default: ``_close()`` then ``_open()``), used for recovery with back-off.
+It **may** override ``_init()`` (its own fields, from ``self.params``: called at the end of
+``__init__``, so a back-end needs no constructor of its own), ``_check_point(point,
+direction) -> PointKind`` (default: the type's points as drivers.registry describes them;
+raise PointError for a point it lacks), ``_safe_state()`` (default: every output 0, then
+``_write()``) and ``_reopen()`` (default: ``_close()`` then ``_open()``), used for recovery
+with back-off. A digital bank (a GPIO chip, an I2C expander) builds on
+:class:`drivers.bank.DigitalBank`, which fills these hooks from a few of its own.
 A back-end that writes outputs outside ``_write()`` (a device set up again after a
 reconnect or a power glitch) must write them all 0 while ``inhibited`` is set.
 
@@ -149,6 +153,7 @@ class Driver(abc.ABC):
         # write() and safe_state() may race when the scan watchdog (another thread) puts
         # the outputs off while the scan thread is stuck: this lock orders them
         self._out_lock = threading.Lock()
+        self._init()
 
     # -- plant-facing API -------------------------------------------------------------
     @property
@@ -243,9 +248,15 @@ class Driver(abc.ABC):
         self.health = Health.CLOSED
 
     # -- back-end hooks ---------------------------------------------------------------
-    @abc.abstractmethod
+    def _init(self) -> None:  # noqa: B027 - a hook, empty unless a back-end fills it
+        """Set the back-end's own fields (from ``self.params``); a subclass of a class that
+        has one calls ``super()._init()`` first."""
+
     def _check_point(self, point: str, direction: Direction) -> PointKind:
         """Validate ``point`` for ``direction``; return its kind or raise PointError."""
+        from drivers.registry import POINTS  # it imports this module
+
+        return POINTS[self.type_name].check(self.name, point, direction)
 
     @abc.abstractmethod
     def _open(self) -> None:
@@ -322,13 +333,14 @@ class PolledDriver(Driver):
     While faulted, the I/O side is asked to try again (``_retry()``) at back-off times of
     the injected clock, and recovery is seen as soon as the I/O side reports success.
 
-    A back-end **must** override ``_check_point``, ``_start()`` (connect and begin I/O,
+    A back-end **must** override ``_start()`` (connect and begin I/O,
     quickly: it runs in ``open()``, which then waits up to ``first_data_timeout_s`` for the
     I/O side's first report, and in the scan thread at recovery until it has once
     succeeded) and ``_stop()`` (end I/O, release the bus; idempotent).
-    It **may** override ``_wake()`` (new outputs are waiting), ``_retry()`` (ask the I/O
-    side for one more attempt; must not block), ``_check()`` (extra health checks in the
-    scan thread, raise DriverError) and ``_write()``.
+    It **may** override ``_init()`` (calling ``super()._init()`` first), ``_check_point``,
+    ``_wake()`` (new outputs are waiting), ``_retry()`` (ask the I/O side for one more
+    attempt; must not block), ``_check()`` (extra health checks in the scan thread, raise
+    DriverError) and ``_write()``.
     """
 
     #: inputs older than this are STALE, seconds; None: never stale by age
@@ -336,14 +348,7 @@ class PolledDriver(Driver):
     #: longest wait in open() for the first input image, seconds
     FIRST_DATA_TIMEOUT_S: ClassVar[float] = 2.0
 
-    def __init__(
-        self,
-        name: str,
-        config: Mapping[str, Any] | None = None,
-        *,
-        clock: Callable[[], int] = time.monotonic_ns,
-    ) -> None:
-        super().__init__(name, config, clock=clock)
+    def _init(self) -> None:
         #: inputs older than this are STALE, seconds (None: never)
         self.stale_after_s: float | None = self.STALE_AFTER_S
         #: longest wait in open() for the I/O side's first report, seconds

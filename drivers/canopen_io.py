@@ -45,8 +45,8 @@ import canopen
 from canopen.objectdictionary import ODVariable
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
-from drivers.base import Direction, DriverError, PointKind, PolledDriver
-from drivers.registry import CANOPEN_KEYS, POINTS, PdoEntry, pdo_config
+from drivers.base import DriverError, PolledDriver
+from drivers.registry import CANOPEN_KEYS, PdoEntry, pdo_config
 
 log = logging.getLogger(__name__)
 
@@ -132,15 +132,9 @@ class CanopenDriver(PolledDriver):
     #: seconds to wait for the configuration thread to end on close
     JOIN_TIMEOUT_S = 5.0
 
-    def __init__(
-        self,
-        name: str,
-        config: Mapping[str, Any] | None = None,
-        *,
-        clock: Callable[[], int] = time.monotonic_ns,
-    ) -> None:
-        super().__init__(name, config, clock=clock)
-        self.cfg = CanopenConfig.from_params(name, self.params)
+    def _init(self) -> None:
+        super()._init()
+        self.cfg = CanopenConfig.from_params(self.name, self.params)
         self.first_data_timeout_s = max(self.FIRST_DATA_TIMEOUT_S, 3 * self.cfg.heartbeat_s)
         self._network: canopen.Network | None = None
         self._node: canopen.RemoteNode | None = None
@@ -162,9 +156,6 @@ class CanopenDriver(PolledDriver):
         self._bus_dead = False
         #: how many times the node was (re)started with NMT
         self.starts = 0
-
-    def _check_point(self, point: str, direction: Direction) -> PointKind:
-        return POINTS[self.type_name].check(self.name, point, direction)
 
     def _where(self) -> str:
         return f"node {self.cfg.node} on {self.cfg.interface}:{self.cfg.channel}"

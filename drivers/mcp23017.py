@@ -18,22 +18,23 @@ never read-modify-write) when an output changed. Every ``CHECK_PERIOD_S`` the re
 IODIR..DEFVAL are read back; a difference means the chip lost power (or was reset) and it
 is set up again.
 
+The chip has no debounce: ``debounce`` filters the inputs in software (drivers/bank.py).
+
 Points ``A0``-``A7``, ``B0``-``B7``. Config::
 
-    exp1: {type: mcp23017, bus: 1, address: 0x20, pull_up: true}
+    exp1: {type: mcp23017, bus: 1, address: 0x20, pull_up: true, debounce: 10ms}
 """
 
 from __future__ import annotations
 
 import logging
-import time
-from collections.abc import Callable, Mapping
 from typing import Any
 
 import smbus2
 
-from drivers.base import Direction, Driver, DriverError, PointKind
-from drivers.registry import MCP23017_KEYS, POINTS
+from drivers.bank import DigitalBank
+from drivers.base import DriverError
+from drivers.registry import MCP23017_KEYS
 
 log = logging.getLogger(__name__)
 
@@ -50,12 +51,13 @@ OLATA = 0x14
 IOCON_BANK1 = 0x05
 
 
-class Mcp23017Driver(Driver):
-    """One MCP23017; the I2C transfers (a few hundred µs at 400 kHz) run in the scan."""
+class Mcp23017Driver(DigitalBank):
+    """One MCP23017; the I2C transfers (a few hundred µs at 400 kHz) run in the scan. Line
+    n is A0..A7 for n = 0..7, B0..B7 for n = 8..15: the bank's word is GPIOA + 256 GPIOB."""
 
     type_name = "mcp23017"
     config_keys = MCP23017_KEYS
-    ONE_DIRECTION_PER_POINT = True
+    SOFT_DEBOUNCE = True
     #: seconds between read-backs of the set-up registers (power-loss detection)
     CHECK_PERIOD_S = 0.1
     #: IOCON value written at open: BANK=0, SEQOP=0 (sequential), everything else off
@@ -63,134 +65,68 @@ class Mcp23017Driver(Driver):
     #: DEFVALA/DEFVALB signature (power-on value is 0x00)
     SIGNATURE = (0xA5, 0x5A)
 
-    def __init__(
-        self,
-        name: str,
-        config: Mapping[str, Any] | None = None,
-        *,
-        clock: Callable[[], int] = time.monotonic_ns,
-    ) -> None:
-        super().__init__(name, config, clock=clock)
+    def _init(self) -> None:
+        super()._init()
         self.bus_number: int = self.params["bus"]
         self.address: int = self.params["address"]
         self.pull_up: bool = self.params["pull_up"]
         #: how many times the chip was found reset and set up again
         self.reinits = 0
         self._bus: Any = None
-        self._iodir = [0xFF, 0xFF]
-        self._gppu = [0, 0]
-        self._olat: list[int] | None = None
-        #: per input point: (its position in the image, port, bit), set by _open()
-        self._in_bits: list[tuple[int, int, int]] = []
         self._next_check_ns = 0
 
-    def _check_point(self, point: str, direction: Direction) -> PointKind:
-        return POINTS[self.type_name].check(self.name, point, direction)
+    def line(self, point: str) -> int:
+        return (0 if point[0] == "A" else 8) + int(point[1])
 
-    @staticmethod
-    def _bit(point: str) -> tuple[int, int]:
-        return (0 if point[0] == "A" else 1), int(point[1])
-
-    def _where(self) -> str:
+    def where(self) -> str:
         return f"mcp23017 at 0x{self.address:02x} on /dev/i2c-{self.bus_number}"
 
-    def _open(self) -> None:
-        iodir, gppu = [0xFF, 0xFF], [0, 0]
-        for point in self.outputs:
-            port, bit = self._bit(point)
-            iodir[port] &= ~(1 << bit) & 0xFF
-        self._in_bits.clear()
-        for point, i in self.inputs.index.items():
-            port, bit = self._bit(point)
-            self._in_bits.append((i, port, bit))
-            if self.pull_up:
-                gppu[port] |= 1 << bit
-        self._iodir, self._gppu = iodir, gppu
-        try:
-            self._bus = smbus2.SMBus(self.bus_number)
-            self._setup()
-        except OSError as exc:
-            self._close()
-            raise DriverError(f"{self._where()}: {exc}") from exc
-        except DriverError:
-            self._close()
-            raise
+    def _attach(self) -> int:
+        self._bus = smbus2.SMBus(self.bus_number)
+        return self._setup()
 
     def _expected(self) -> list[int]:
-        return [*self._iodir, 0, 0, 0, 0, *self.SIGNATURE]
+        """IODIRA..DEFVALB as the set-up writes them: 1 = input (unbound pins too), no
+        inversion (IPOL 0: the binding inverts), no interrupts, the signature."""
+        iodir = 0xFFFF & ~self.out_mask
+        return [iodir & 0xFF, iodir >> 8, 0, 0, 0, 0, *self.SIGNATURE]
 
-    def _setup(self) -> None:
+    def _setup(self) -> int:
         bus, addr = self._bus, self.address
         bus.write_byte_data(addr, IOCON_BANK1, 0x00)
         bus.write_byte_data(addr, IOCON, self.IOCON_VALUE)
-        olat = self._olat_image()
-        bus.write_i2c_block_data(addr, OLATA, olat)
+        olat = self.setup_word()
+        bus.write_i2c_block_data(addr, OLATA, [olat & 0xFF, olat >> 8])
         bus.write_i2c_block_data(addr, IODIRA, self._expected())
-        bus.write_i2c_block_data(addr, GPPUA, self._gppu)
-        self._olat = olat
+        gppu = self.in_mask if self.pull_up else 0
+        bus.write_i2c_block_data(addr, GPPUA, [gppu & 0xFF, gppu >> 8])
         back = list(bus.read_i2c_block_data(addr, IODIRA, 8))
         if back != self._expected():
-            raise DriverError(f"{self._where()}: registers do not keep their values "
+            raise DriverError(f"{self.where()}: registers do not keep their values "
                               f"(wrote {self._expected()}, read {back}): not an MCP23017?")
         self._next_check_ns = self.clock() + int(self.CHECK_PERIOD_S * 1e9)
-
-    def _olat_image(self) -> list[int]:
-        olat = [0, 0]
-        if self.inhibited:  # a set-up again (power glitch, reconnect) must not energise
-            return olat
-        out = self.outputs
-        for point, value in zip(out.index, out.vals, strict=True):  # no view
-            if value:
-                port, bit = self._bit(point)
-                olat[port] |= 1 << bit
         return olat
 
-    def _read(self) -> None:
-        try:
-            self._transfer_inputs()
-        except OSError as exc:
-            raise DriverError(f"{self._where()}: {exc}") from exc
-
-    def _write(self) -> None:
-        try:
-            self._transfer_outputs()
-        except OSError as exc:
-            raise DriverError(f"{self._where()}: {exc}") from exc
-
-    def _transfer_inputs(self) -> None:
+    def _read_word(self) -> int:
         now = self.clock()
         if now >= self._next_check_ns:
             self._next_check_ns = now + int(self.CHECK_PERIOD_S * 1e9)
             back = list(self._bus.read_i2c_block_data(self.address, IODIRA, 8))
             if back != self._expected():
                 log.warning("driver %s: %s lost its set-up (power loss or reset?): read %s, "
-                            "expected %s; setting it up again", self.name, self._where(), back,
+                            "expected %s; setting it up again", self.name, self.where(), back,
                             self._expected())
                 self.reinits += 1
                 self._setup()
-        if not self._in_bits:
-            return
+        if not self.in_mask:
+            return 0
         gpio = self._bus.read_i2c_block_data(self.address, GPIOA, 2)
-        vals = self.inputs.vals
-        for i, port, bit in self._in_bits:
-            vals[i] = (gpio[port] >> bit) & 1 == 1
+        return int(gpio[0]) | int(gpio[1]) << 8
 
-    def _transfer_outputs(self) -> None:
-        if not self.outputs:
-            return
-        olat = self._olat_image()
-        if olat != self._olat:
-            self._bus.write_i2c_block_data(self.address, OLATA, olat)
-            self._olat = olat
+    def _write_word(self, word: int, changed: int) -> None:
+        self._bus.write_i2c_block_data(self.address, OLATA, [word & 0xFF, word >> 8])
 
-    def _safe_state(self) -> None:
-        if self._bus is None:  # never opened, or lost: nothing to write to
-            return
-        self._olat = None  # write even if the cache says it is already off
-        self._write()
-
-    def _close(self) -> None:
+    def _detach(self) -> None:
         bus, self._bus = self._bus, None
-        self._olat = None
         if bus is not None:
             bus.close()

@@ -39,7 +39,7 @@ from typing import Any
 
 import serial
 
-from drivers.base import Direction, PointKind, PolledDriver
+from drivers.base import PolledDriver
 from drivers.modbus_frame import (
     MAX_ITEMS,
     READ_COILS,
@@ -53,7 +53,7 @@ from drivers.modbus_frame import (
     write_coils_request,
     write_registers_request,
 )
-from drivers.registry import MODBUS_RTU_KEYS, POINTS
+from drivers.registry import MODBUS_RTU_KEYS
 from drivers.serial_line import RtuMaster, SerialLine, SerialPorts, SerialSettings, shared_ports
 
 log = logging.getLogger(__name__)
@@ -115,9 +115,12 @@ class ModbusRtuDriver(PolledDriver):
         clock: Callable[[], int] = time.monotonic_ns,
         ports: SerialPorts | None = None,
     ) -> None:
-        super().__init__(name, config, clock=clock)
         #: the open lines this driver's port is shared through (default: the process's)
         self.ports = shared_ports() if ports is None else ports
+        super().__init__(name, config, clock=clock)
+
+    def _init(self) -> None:
+        super()._init()
         self.cfg = ModbusConfig.from_params(self.params)
         self.settings = SerialSettings(self.cfg.port, self.cfg.baudrate, self.cfg.parity,
                                        self.cfg.stopbits)
@@ -131,9 +134,6 @@ class ModbusRtuDriver(PolledDriver):
         self._last_write = 0.0
         self._last_outputs: dict[str, int] = {}
         self._written_seq = 0  # the output image sequence last written to the unit
-
-    def _check_point(self, point: str, direction: Direction) -> PointKind:
-        return POINTS[self.type_name].check(self.name, point, direction)
 
     # -- poll plan ------------------------------------------------------------------------
     def _plan(self) -> None:

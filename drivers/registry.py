@@ -48,13 +48,18 @@ SIM_KEYS = ConfigKeys()
 #: the longest GPIO debounce period, s: the kernel takes it in µs in 32 bits (4294.97 s)
 GPIO_MAX_DEBOUNCE_S = 4294
 
+#: the debounce period of a digital bank's inputs (drivers/bank.py): the kernel's for a GPIO
+#: chip, the driver's own for an I2C expander (the same range for both)
+_DEBOUNCE = ConfigKey("debounce", Kind.DURATION, default=0, maximum=GPIO_MAX_DEBOUNCE_S,
+                      expected=f"a debounce period from 0 to {GPIO_MAX_DEBOUNCE_S}s such as "
+                               "5ms")
+
 GPIO_KEYS = ConfigKeys(
     ConfigKey("chip", Kind.TEXT, default="/dev/gpiochip0", pattern=r"/\S+",
               expected="a GPIO character device such as /dev/gpiochip0 (its full path)"),
     ConfigKey("bias", Kind.CHOICE, default="none", choices=("pull_up", "pull_down", "none"),
               message="{key} '{value}': expected {expected}"),
-    ConfigKey("debounce", Kind.DURATION, default=0, maximum=GPIO_MAX_DEBOUNCE_S,
-              expected=f"a debounce period from 0 to {GPIO_MAX_DEBOUNCE_S}s such as 5ms"),
+    _DEBOUNCE,
 )
 
 #: the keys of an I2C chip: bus and address
@@ -66,6 +71,7 @@ MCP23017_KEYS = ConfigKeys(
     ConfigKey("address", Kind.I2C_ADDRESS, required=True, minimum=0x20, maximum=0x27,
               expected="an MCP23017 address from 0x20 to 0x27 (pins A2 A1 A0)"),
     ConfigKey("pull_up", Kind.BOOL, default=True),
+    _DEBOUNCE,
 )
 
 PCF8574_KEYS = ConfigKeys(
@@ -74,6 +80,7 @@ PCF8574_KEYS = ConfigKeys(
               ranges=((0x20, 0x27), (0x38, 0x3F)),
               expected="a PCF8574 address from 0x20 to 0x27 or a PCF8574A address from "
                        "0x38 to 0x3f (pins A2 A1 A0)"),
+    _DEBOUNCE,
 )
 
 #: python-can's own interfaces (python-can 4): the ``interface`` of a canopen driver

@@ -2,13 +2,9 @@
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable, Mapping
-from typing import Any
-
-from drivers.base import Direction, Driver, PointKind
+from drivers.base import Driver
 from drivers.image import Image
-from drivers.registry import POINTS, SIM_KEYS
+from drivers.registry import SIM_KEYS
 
 
 class SimDriver(Driver):
@@ -22,19 +18,9 @@ class SimDriver(Driver):
     type_name = "sim"
     config_keys = SIM_KEYS
 
-    def __init__(
-        self,
-        name: str,
-        config: Mapping[str, Any] | None = None,
-        *,
-        clock: Callable[[], int] = time.monotonic_ns,
-    ) -> None:
-        super().__init__(name, config, clock=clock)
+    def _init(self) -> None:
         #: the outputs as last written, point -> value (positions as in ``outputs``)
         self.written = Image()
-
-    def _check_point(self, point: str, direction: Direction) -> PointKind:
-        return POINTS[self.type_name].check(self.name, point, direction)
 
     def _open(self) -> None:
         pass

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import importlib
 import logging
 import os
 import stat
@@ -469,10 +470,29 @@ def package_version() -> str:
         return "(not installed: run from a source tree)"
 
 
-def build_parser() -> argparse.ArgumentParser:
+class _VersionAction(argparse.Action):
+    """``--version``: the package's version, looked up only when asked for (importing
+    importlib.metadata costs every start some 20 ms, 120 ms without cached bytecode)."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str = argparse.SUPPRESS,
+                 default: str = argparse.SUPPRESS, help: str | None = None) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=default,
+                         help=help or "show the version and exit")
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        sys.stdout.write(f"softplc {package_version()}\n")
+        parser.exit()
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The command line's parser. With ``argv``, the subcommands that live in their own
+    module are registered only if ``argv`` names them (or names no known command: then
+    every one, for the help and the 'invalid choice' error), so that ``softplc compile``
+    does not import the checker, the drawing and the console."""
     p = argparse.ArgumentParser(prog="softplc", description="GRAFCET/SFC soft-PLC runtime")
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
-    p.add_argument("--version", action="version", version=f"softplc {package_version()}")
+    p.add_argument("--version", action=_VersionAction)
     sub = p.add_subparsers(dest="command", required=True)
 
     c = sub.add_parser("compile", help="compile and check grafcet or plant files")
@@ -558,28 +578,28 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--feed", help="override opcua: feed (the controller's feed socket)")
     o.set_defaults(func=cmd_opcua)
 
-    for extra in EXTRA_COMMANDS:
-        extra(sub)
+    command = None if argv is None else next((a for a in argv if not a.startswith("-")), "")
+    known = command in sub.choices or command in MODULE_COMMANDS
+    for name, module in MODULE_COMMANDS.items():
+        if command is None or command == name or not known:
+            importlib.import_module(module).register(sub)
     return p
 
 
-def _register_modules(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    """Subcommands that live with their own module (each has a ``register(sub)``)."""
-    from runtime.checker import check
-    from runtime.console import monitor
-    from runtime.controller import install
-    from runtime.drawing import chart as draw
-    from runtime.drawing import chronogram
-    for module in (check, draw, chronogram, install, monitor):
-        module.register(sub)
-
-
-#: functions adding further subcommands, each called with the subparsers object
-EXTRA_COMMANDS = [_register_modules]
+#: subcommands that live with their own module, which has a ``register(sub)``: name -> module
+MODULE_COMMANDS = {
+    "check": "runtime.checker.check",
+    "draw": "runtime.drawing.chart",
+    "chronogram": "runtime.drawing.chronogram",
+    "install-service": "runtime.controller.install",
+    "monitor": "runtime.console.monitor",
+}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    if argv is None:
+        argv = sys.argv[1:]
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     from runtime.controller.logsetup import setup_logging
 

@@ -190,6 +190,10 @@ def _carry(ic: InstanceChange, old: Instance, new: Instance) -> _Carry:
     for s in new.program.slots:
         key = _old_key(s, ic)
         o = oslots.get(key) if key is not None else None
+        if o is None and key is not None and key.endswith(".TA"):
+            # a step given its first L, D or DS: its delays count from its activation,
+            # which .T's start tells (unless a rule-5 re-entry restarted it before)
+            o = oslots.get(key[:-3] + ".T0")
         if o is None:
             edge_input = _edge_input(s, new)
             if edge_input is not None:

@@ -53,20 +53,20 @@ class ActionEmitter:
             terms.append(s)
         for k, a in enumerate(assocs):
             q, st = a.qualifier, a.step
-            x, t0 = ident("x", st), ident("t0", st)
+            x, ta = ident("x", st), ident("ta", st)  # ta: since X rose (layout.py)
             if q is Qualifier.N:
                 terms.append(f"({x} and {self.exprs.ex(a.cond)})" if a.cond is not None else x)
             elif q is Qualifier.L:
-                terms.append(f"({x} and ct - {t0} < {a.time_ns})")
+                terms.append(f"({x} and ct - {ta} < {a.time_ns})")
             elif q is Qualifier.D:
-                terms.append(f"({x} and ct - {t0} >= {a.time_ns})")
+                terms.append(f"({x} and ct - {ta} >= {a.time_ns})")
             elif q is Qualifier.P:
                 terms.append(ident("a", st))
             elif q in (Qualifier.SD, Qualifier.SL, Qualifier.DS):
                 tag = f"{q.value.lower()}{k}_{target}"
                 ff, tt = f"f{tag}", f"t{tag}"
                 if q is Qualifier.DS:
-                    out(f"if {x} and ct - {t0} >= {a.time_ns}: {self.state.let(ff, value='True')}")
+                    out(f"if {x} and ct - {ta} >= {a.time_ns}: {self.state.let(ff, value='True')}")
                     terms.append(ff)
                 else:
                     out(f"if {self.active(st)} and not {ff}: {self.state.let(ff, value='True')}; "
@@ -84,7 +84,7 @@ class ActionEmitter:
         """``if <the action's Q>: body``; with ``final_scan``, CODESYS's extra run of an IEC
         action whose step was left in the previous scan (Q = false)."""
         q, st = a.qualifier, a.step
-        x, t0 = ident("x", st), ident("t0", st)
+        x, ta = ident("x", st), ident("ta", st)
         ent, left = ident("a", st), ident("l", st)
         text = a.text.replace("\n", " ")
         label = f"{q.value if q is not Qualifier.EVENT else 'on'} in {st}: {text[:60]}"
@@ -98,9 +98,9 @@ class ActionEmitter:
         if q is Qualifier.N:
             cond = x
         elif q is Qualifier.L:
-            cond = f"{x} and ct - {t0} < {a.time_ns}"
+            cond = f"{x} and ct - {ta} < {a.time_ns}"
         elif q is Qualifier.D:
-            cond = f"{x} and ct - {t0} >= {a.time_ns}"
+            cond = f"{x} and ct - {ta} >= {a.time_ns}"
         elif q in (Qualifier.P, Qualifier.P1):
             cond = ent
         elif q is Qualifier.P0:

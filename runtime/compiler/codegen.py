@@ -233,8 +233,10 @@ class Compiler:
             f"{L('v_SFCErrorStep', value=repr(''))}; frozen = paused = True")
         out("elif quitprev:  # SFCQuitError fell: the active steps' times restart")
         out.indent()
-        for st in steps:
-            out(f"if {ident('x', st.name)}: {L(ident('t0', st.name), value='ct')}")
+        for st in steps:  # and the L, D and DS delays with them: a fresh start
+            starts = [ident(p, st.name) for p in ("t0", "ta")
+                      if p == "t0" or st.name in self.state.timed]
+            out(f"if {ident('x', st.name)}: {L(*starts, value='ct')}")
         out.dedent()
         out("if v_SFCPause: frozen = paused = True")
         out.dedent()

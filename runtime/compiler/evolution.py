@@ -104,9 +104,15 @@ class Evolution:
 
     def _enter(self, step: str) -> str:
         """Statements activating ``step``: its .T restarts, it is marked entered."""
-        x, t0, a = (ident(p, step) for p in ("x", "t0", "a"))
-        return (f"{self.state.let(x, value='True')}; {self.state.let(t0, value='ct')}; "
+        x, a = ident("x", step), ident("a", step)
+        return (f"{self.state.let(x, value='True')}; "
+                f"{self.state.let(*self._starts(step), value='ct')}; "
                 f"{self.state.let(a, value='True')}")
+
+    def _starts(self, step: str) -> list[str]:
+        """The clocks an activation of ``step`` restarts: its ``.T``'s, and the one its L, D
+        and DS delays count from (``ta_``), which a rule-5 re-entry leaves alone."""
+        return [ident("t0", step)] + ([ident("ta", step)] if step in self.state.timed else [])
 
     def apply_fired(self, out: Emitter) -> None:
         """Deactivate sources, then activate targets, of the transitions that fired."""
@@ -157,7 +163,10 @@ class Evolution:
                 out(f"if ({' or '.join(entering)}) and (not {x}{again}):")
                 out.indent()
                 out(self.state.let(t0, value="ct"))
-                out(f"if not {x}: {self.state.let(a, value='True')}")
+                entered = self.state.let(a, value="True")
+                if m.name in self.state.timed:  # entered while inactive: its delays start
+                    entered = f"{self.state.let(ident('ta', m.name), value='ct')}; {entered}"
+                out(f"if not {x}: {entered}")
                 out.dedent()
             out(f"if {x} and not _nx: {self.state.let(tk, value=f'ct - {t0}')}; "
                 f"{self.state.let(lft, value='True')}")
@@ -187,7 +196,8 @@ class Evolution:
         for st in self.g.steps.values():
             x, t0, tk = (ident(p, st.name) for p in ("x", "t0", "tk"))
             init = st.initial or macro_initial(self.g, st)
-            line = (f"{self.state.let(x, value=str(init))}; {self.state.let(t0, value='ct')}; "
+            line = (f"{self.state.let(x, value=str(init))}; "
+                    f"{self.state.let(*self._starts(st.name), value='ct')}; "
                     f"{self.state.let(tk, value='0')}")
             if mark_entered and init:
                 line += f"; {self.state.let(ident('a', st.name), value='True')}"

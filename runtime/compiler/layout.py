@@ -59,6 +59,17 @@ def written(g: Grafcet) -> tuple[frozenset[str], frozenset[str]]:
     return frozenset(every), frozenset(anywhere)
 
 
+#: the qualifiers timed from the step's activation, as IEC's ACTION_CONTROL times them: a
+#: TON on the qualifier's input, the step's X, which a rule-5 re-entry leaves TRUE
+ACTIVATION_TIMED = (Qualifier.L, Qualifier.D, Qualifier.DS)
+
+
+def activation_timed(g: Grafcet) -> set[str]:
+    """The steps with an L, D or DS action: they keep the chart clock at their activation,
+    which rule 5 does not restart (``ta_``), beside the one ``.T`` counts from (``t0_``)."""
+    return {a.step for a in g.actions() if a.qualifier in ACTIVATION_TIMED}
+
+
 class StateLayout:
     """The slots of one chart's state list, and the locals stored into them."""
 
@@ -72,6 +83,8 @@ class StateLayout:
         self.slow_locals = {ident("v", f) for f in SLOW_FLAGS}
         #: stores of a chart flag written so far (each also sets ``slow``)
         self.flag_stores = 0
+        #: the steps that keep their activation's clock for L, D and DS (``ta_``)
+        self.timed = activation_timed(g)
 
     def slot(self, key: str, local: str, init: Any, block: str | None = None,
              kind: SlotKind = SlotKind.INTERNAL, name: str = "",
@@ -110,6 +123,9 @@ class StateLayout:
                       s.name, T.TIME)
             self.slot(f"{s.name}.TK", ident("tk", s.name), 0, None, SlotKind.STEP_LAST,
                       s.name, T.TIME)
+            if s.name in self.timed:
+                self.slot(f"{s.name}.TA", ident("ta", s.name), 0, None, SlotKind.STEP_START,
+                          s.name, T.TIME)
         for name in g.timers:
             self.slot(name, ident("b", name), None, "SeedTimer", SlotKind.BLOCK, name)
         for b in g.blocks.values():

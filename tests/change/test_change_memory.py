@@ -204,3 +204,20 @@ def test_the_memory_of_a_renamed_step_follows_it(tmp_path):
     assert inst.get("N") is True  # stored: S in s0 left, still set
     scan(run, 3, b=True)
     assert inst.active_steps() == ["S9"]  # RE b: b was already 1 (its memory followed)
+
+
+def test_an_l_action_given_to_an_active_step_counts_from_its_activation(tmp_path):
+    """The edit gives the running step s1 its first L action: the new program keeps the
+    clock its L, D and DS delays count from (``ta_``), which the old one did not have; it
+    starts from the step's activation, not from the swap nor from the chart's start."""
+    old = plant(tmp_path, "old", BASE.format(model="immediate", extra="", cond="a"))
+    for k in range(3):
+        scan(old, k, a=k == 1)  # s1 activated at 10 ms
+    new = plant(tmp_path, "new", BASE.format(model="immediate", extra="", cond="a")
+                .replace("s1: {actions: [o]}", 's1: {actions: ["L 50ms o"]}'))
+    run = swap(old, new)
+    seen = []
+    for k in range(3, 8):
+        scan(run, k)
+        seen.append(run.instances["Small"].get("o"))
+    assert seen == [True, True, True, False, False]  # 30, 40, 50 ms on; 60 ms: 50 ms since

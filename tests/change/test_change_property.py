@@ -87,6 +87,7 @@ def hand_over(old: Reference, chart: RefChart) -> Reference:
         setattr(ref, f, copy.deepcopy(getattr(old, f)))
     ref.X = set(old.X)
     ref.t_act.update(old.t_act)
+    ref.t_on.update(old.t_on)
     ref.t_kept.update(old.t_kept)
     pairs: list[tuple[dict[int, Any], dict[int, Any], str]] = [
         (ref.ff, old.ff, "all"), (ref.ff_start, old.ff_start, "all"),

@@ -9,6 +9,7 @@ from collections.abc import Iterator
 
 import pytest
 
+from drivers.bank import DigitalBank
 from drivers.base import Direction, Driver, Health, PointError, PointKind, PolledDriver
 from drivers.config import ConfigError
 from drivers.registry import DRIVERS, driver_class
@@ -217,3 +218,93 @@ def test_inhibited_driver_never_energises(rig: Rig, clock: FakeClock, driver: Dr
     assert all(rig.output(q) == 0 for q in rig.outputs)
     d.inhibit(False)  # acknowledged: the plant's image goes out again
     assert rig.until(d, lambda: all(rig.output(q) == 1 for q in rig.outputs))
+
+
+# -- the digital bank (drivers/bank.py), covered once, over every bank ------------------------
+BANKS = sorted(t for t in RIGS if issubclass(driver_class(t), DigitalBank))
+
+
+@pytest.fixture(params=BANKS)
+def bank_rig(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch,
+             clock: FakeClock) -> Iterator[Rig]:
+    r = RIGS[request.param](monkeypatch, clock)
+    yield r
+    r.close()
+
+
+def test_the_digital_banks_are_the_gpio_chip_and_the_expanders() -> None:
+    assert BANKS == ["gpio", "mcp23017", "pcf8574"]
+
+
+def test_a_bank_reads_in_one_transfer_and_writes_only_what_changed(
+        bank_rig: Rig, monkeypatch: pytest.MonkeyPatch) -> None:
+    d = opened(bank_rig, bank_rig.make())
+    assert isinstance(d, DigitalBank)
+    reads: list[int] = []
+    writes: list[tuple[int, int]] = []
+    read_word, write_word = d._read_word, d._write_word
+
+    def counted_read() -> int:
+        reads.append(1)
+        return read_word()
+
+    def counted_write(word: int, changed: int) -> None:
+        writes.append((word, changed))
+        write_word(word, changed)
+
+    monkeypatch.setattr(d, "_read_word", counted_read)
+    monkeypatch.setattr(d, "_write_word", counted_write)
+    q0, q1 = (1 << d.line(q) for q in bank_rig.outputs)
+    d.read()
+    d.write()
+    assert (len(reads), writes) == (1, [])  # nothing changed since the set-up
+    d.outputs[bank_rig.outputs[0]] = 1
+    d.write()
+    d.write()
+    assert writes == [(q0, q0)] and bank_rig.output(bank_rig.outputs[0]) == 1
+    d.outputs[bank_rig.outputs[1]] = True
+    d.write()
+    assert writes[-1] == (q0 | q1, q1)
+    d.safe_state()  # every output, whatever was written last
+    assert writes[-1] == (0, q0 | q1) and d.out_mask == q0 | q1
+    assert all(bank_rig.output(q) == 0 for q in bank_rig.outputs)
+    d.close()
+
+
+def test_a_bank_debounces_its_inputs(bank_rig: Rig, clock: FakeClock) -> None:
+    """A change back within the period is a bounce, never seen; a change held for the
+    period is taken (by the GPIO kernel driver, or by the bank where the chip has none)."""
+    a, b = bank_rig.inputs
+    bank_rig.set_input(a, 1)
+    bank_rig.set_input(b, 1)
+    clock.advance(0.05)
+    d = opened(bank_rig, bank_rig.make(debounce="10ms"))
+    d.read()
+    assert d.inputs == {a: 1, b: 1}  # the first read takes the levels as they are
+    bank_rig.set_input(a, 0)  # a 2 ms bounce
+    d.read()
+    clock.advance(0.002)
+    bank_rig.set_input(a, 1)
+    d.read()
+    clock.advance(0.05)
+    d.read()
+    assert d.inputs == {a: 1, b: 1}
+    bank_rig.set_input(b, 0)  # held
+    d.read()
+    clock.advance(0.005)
+    d.read()
+    assert d.inputs == {a: 1, b: 1}  # 5 ms: not yet
+    clock.advance(0.006)
+    d.read()
+    assert d.inputs == {a: 1, b: 0}
+    d.close()
+
+
+def test_without_debounce_a_bank_takes_a_change_at_the_next_read(bank_rig: Rig) -> None:
+    a, _ = bank_rig.inputs
+    d = opened(bank_rig, bank_rig.make())
+    for level in (1, 0, 1):
+        bank_rig.set_input(a, level)
+        d.read()
+        assert d.inputs[a] == level
+    d.close()

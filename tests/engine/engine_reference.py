@@ -110,6 +110,9 @@ class Reference:
         self.c = chart
         self.X: set[str] = set(chart.initial)  # before the first scan: initial situation
         self.t_act = {s: 0 for s in chart.steps}  # now of the activating scan
+        #: now of the scan X rose in: L, D and DS count from it (a rule-5 re-entry leaves
+        #: X TRUE, so IEC's ACTION_CONTROL timers go on)
+        self.t_on = {s: 0 for s in chart.steps}
         self.t_kept = {s: 0 for s in chart.steps}  # .T frozen at deactivation
         self.first = True
         self.prev: dict[str, bool] = {}
@@ -129,6 +132,10 @@ class Reference:
     # -- values ------------------------------------------------------------------------
     def T(self, s: str, now: int) -> int:
         return now - self.t_act[s] if s in self.X else self.t_kept[s]
+
+    def on_for(self, s: str, now: int) -> int:
+        """How long the step has been active without a break (rule 5 is none)."""
+        return now - self.t_on[s]
 
     def ev(self, c: Cond, now: int, inp: dict[str, bool], rise: dict[str, bool],
            fall: dict[str, bool]) -> bool:
@@ -183,7 +190,7 @@ class Reference:
         for s in into - out:
             if s not in self.X:  # an already active step: nothing changes
                 self.X.add(s)
-                self.t_act[s] = now
+                self.t_act[s] = self.t_on[s] = now
                 activated.add(s)
         return activated, left
 
@@ -209,7 +216,7 @@ class Reference:
         """Situation = initial steps, every .T = 0 (SFCInit, SFCReset, cycle 0)."""
         self.X = set(self.c.initial)
         for s in self.c.steps:
-            self.t_act[s] = ct
+            self.t_act[s] = self.t_on[s] = ct
             self.t_kept[s] = 0
         self.pending = []
 
@@ -299,9 +306,9 @@ class Reference:
         if q == "N":
             return active
         if q == "L":
-            return active and self.T(a.step, now) < a.time
+            return active and self.on_for(a.step, now) < a.time
         if q == "D":
-            return active and self.T(a.step, now) >= a.time
+            return active and self.on_for(a.step, now) >= a.time
         if q in ("P", "P1"):
             return a.step in activated
         if q == "P0":
@@ -338,7 +345,7 @@ class Reference:
             q = self.stored[o]
             for i, a in assocs:
                 active = a.step in self.X
-                t = self.T(a.step, now)
+                t = self.on_for(a.step, now)  # L, D, DS: since X rose
                 if a.qual == "N":
                     q |= active and (a.cond is None or self.ev(a.cond, now, *env))
                 elif a.qual == "L":
@@ -355,7 +362,7 @@ class Reference:
                     self.ff[i] = now_ff
                     el = now - self.ff_start.get(i, now)
                     q |= now_ff and (el >= a.time if a.qual == "SD" else el < a.time)
-                elif a.qual == "DS":  # the step's time, then an RS flip-flop
+                elif a.qual == "DS":  # a timer on the step's X, then an RS flip-flop
                     self.ff[i] = not reset and (self.ff.get(i, False) or (active and t >= a.time))
                     q |= self.ff[i]
             self.out[o] = bool(q) and not reset

@@ -84,6 +84,27 @@ def test_cycle_0_runs_p_actions_of_initial_steps(chart, model):
     assert not c["o"] and c["n"] == 1  # (the second run under codesys is on leaving)
 
 
+@pytest.mark.parametrize("model", MODELS)
+def test_cycle_0_pre_reads_the_initial_steps_as_active(chart, model):
+    """Cycle 0's evolution is the initial steps' activation, yet the situation before it is
+    already the initial one: pre equations of cycle 0 read s0.X TRUE (and s0.T 0), as IEC
+    and matiec have the initial steps active from the start (docs/semantics.md)."""
+    c = chart(f"""\
+    grafcet: Pre0
+    scan: {model}
+    outputs: [o]
+    memory: {{pX: false, pY: true, pT: false}}
+    pre: ["pX := s0.X", "pY := s1.X", "pT := s0.T < 1ms"]
+    steps:
+      s0: {{initial: true}}
+      s1: {{actions: [o]}}
+    transitions:
+      - {{from: s0, to: s1, when: "1"}}
+    """)
+    c.scan()
+    assert (c["pX"], c["pY"], c["pT"]) == (True, False, True)
+
+
 # -- one evolution per scan, priorities, divergences ------------------------------------
 def test_immediate_at_most_one_evolution_per_scan(chart):
     c = chart(CHAIN.format(model="immediate")).scan()
@@ -223,9 +244,53 @@ def test_rule5_a_step_deactivated_and_activated_stays_active_and_restarts_its_ti
     c.scan(a=1)  # 50 ms: s1 -> s1
     assert c.steps == ["s1"] and c["s1.X"] and c.t_ms("s1") == 0
     assert not c["oP"] and c["n1"] == 1 and c["n0"] == 0  # not activated (nor left) again
-    assert c["oL"]  # the L timer restarted with .T
+    assert c["oL"]  # 40 ms of the L's 50 since s1 became active
     c.scan(a=0)
     assert c.t_ms("s1") == 10
+    assert not c["oL"]  # 50 ms since s1 became active: the L ended, .T's restart aside
+
+
+RULE5_TIMED = """\
+grafcet: Rule5Timed
+inputs: [a]
+outputs: [oL, oD, oDS]
+memory: {nL: 0, nD: 0}
+steps:
+  s0: {initial: true}
+  s1:
+    actions: ["L 50ms oL", "D 50ms oD", "DS 50ms oDS", "L 50ms nL := nL + 1",
+              "D 50ms nD := nD + 1"]
+transitions:
+  - {from: s0, to: s1, when: "1"}
+  - {from: s1, to: s1, when: RE a}
+"""
+
+
+@pytest.mark.parametrize("scan", ["immediate", "stable"])
+def test_rule5_leaves_the_l_d_and_ds_delays_running(chart, scan):
+    """IEC 61131-3's ACTION_CONTROL times L, D and DS on the qualifier's input, the step's
+    X, which stays TRUE when rule 5 leaves and re-enters the step in one evolution: the
+    delays go on from the activation (docs/semantics.md), only .T restarts."""
+    c = chart(RULE5_TIMED.replace("grafcet: Rule5Timed", f"grafcet: Rule5Timed\nscan: {scan}"))
+    c.scan().scan()  # s1 activated at 10 ms
+    c.run(3)  # 40 ms
+    c.scan(a=1)  # 50 ms: s1 -> s1, .T restarts
+    assert c.t_ms("s1") == 0 and c["oL"] and not c["oD"] and not c["oDS"]
+    c.scan(a=0)  # 60 ms: 50 ms since the activation
+    assert c.t_ms("s1") == 10
+    assert (c["oL"], c["oD"], c["oDS"]) == (False, True, True)
+    assert (c["nL"], c["nD"]) == (5, 1)  # L ran at 10..50 ms, D from 60 ms
+
+
+def test_rule5_under_codesys_leaves_the_delays_running(chart):
+    c = chart(RULE5_TIMED.replace("grafcet: Rule5Timed", "grafcet: Rule5Timed\nscan: codesys"))
+    c.scan().scan()  # s0 current; s1 decided at 10 ms, current at 20 ms
+    c.run(3)  # 50 ms
+    c.scan(a=1)  # 60 ms: s1 -> s1 decided, current at 70 ms
+    c.scan(a=0)  # 70 ms: .T restarts
+    assert c.t_ms("s1") == 0 and c["oL"] and not c["oD"]
+    c.scan()  # 80 ms: 60 ms since s1 became current at 20 ms
+    assert (c["oL"], c["oD"], c["oDS"]) == (False, True, True)
 
 
 def test_rule5_with_two_transitions_of_an_and_sequence(chart):

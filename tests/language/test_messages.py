@@ -288,3 +288,82 @@ def test_block_named_action_is_still_a_call(tmp_path: Path,
         "{actions: [oMotor]}", "{actions: ['Action(IN := iParo, PT := 2s)']}")
     path = write(tmp_path, "chart.yaml", text)
     assert main(["compile", path]) == 0, capsys.readouterr().err
+
+
+# -- YAML slips (issue 30 §2): PyYAML's words replaced by the file's and a fix -----------------
+HEAD = MOTOR[:MOTOR.index("transitions:")] + "transitions:\n"
+FIRST = "  - {from: Ini, to: Arranque, when: iMarcha}\n"
+BLOCK = "  - from: Arranque\n    to: Ini\n    when: WHEN\n"
+QUOTE = "quote a text that begins with"
+
+
+@pytest.mark.parametrize("body, needle, message", [
+    (FIRST + "\t- {from: Arranque, to: Ini, when: iParo}\n", "\t",
+     "expected spaces, found a tab in the indentation of '- {from: Arranque, to: Ini, when: "
+     "iParo}': YAML indents with spaces, never tabs"),
+    (FIRST.replace("}", "}\t") + "  - {from: Arranque, to: Ini, when: iParo}\n", "\t",
+     "expected a space, found a tab after '...om: Ini, to: Arranque, when: iMarcha}': YAML "
+     "separates with spaces, never tabs"),
+    (FIRST + "  - {from: Arranque, to: Ini, when: !iParo}\n", "!iParo",
+     f"expected a value, found '!iParo', which YAML reads as a tag: {QUOTE} '!': \"!iParo\"; "
+     "a negation is NOT iParo or iParo'"),
+    (FIRST + BLOCK.replace("WHEN", "!iParo"), "!iParo",
+     f"expected a value, found '!iParo', which YAML reads as a tag: {QUOTE} '!': \"!iParo\"; "
+     "a negation is NOT iParo or iParo'"),
+    (FIRST + "  - {from: Arranque, to: Ini, when: *iParo}\n", "*iParo",
+     "expected a value, found '*iParo', which YAML reads as an undefined alias (a copy of the "
+     f"value marked &iParo, and none is): {QUOTE} '*': \"*iParo\""),
+    (FIRST + BLOCK.replace("WHEN", "*iParo"), "*iParo",
+     "expected a value, found '*iParo', which YAML reads as an undefined alias (a copy of the "
+     f"value marked &iParo, and none is): {QUOTE} '*': \"*iParo\""),
+    (FIRST + "  - {from: Arranque, to: Ini, when: &iParo}\n", "&iParo",
+     "expected a value after '&iParo', found nothing: YAML reads '&iParo' as an anchor (a "
+     f"name for the value after it): {QUOTE} '&': \"&iParo\""),
+    (FIRST + "  - {from: Arranque, to: Ini, when: @iParo}\n", "@iParo",
+     "expected a value, found '@iParo': YAML reserves '@' at the start of a value: quote it: "
+     "\"@iParo\""),
+    (FIRST + BLOCK.replace("WHEN", "`iParo`"), "`iParo`",
+     "expected a value, found '`iParo`': YAML reserves '`' at the start of a value: quote "
+     "it: \"`iParo`\""),
+    (FIRST + "  - {from: Arranque, to: Ini, when: %iParo}\n", "%iParo",
+     "expected a value, found '%iParo': YAML reserves '%' at the start of a value: quote it: "
+     "\"%iParo\""),
+    (FIRST + BLOCK.replace("WHEN", "|iParo| > 0"), "|iParo|",
+     "expected a block text ('|' alone at the end of the line, the text on the lines below), "
+     "found '|iParo| > 0': quote a value that begins with '|': \"|iParo| > 0\""),
+    (FIRST + BLOCK.replace("WHEN", "[iParo] AND iMarcha"), "AND",
+     "expected the end of the value after '[iParo]', found 'AND iMarcha': a value that "
+     "begins with '[' is a list and ends where it closes: quote the whole value: "
+     "\"[iParo] AND iMarcha\""),
+    (FIRST + BLOCK.replace("WHEN", "{iParo} OR iMarcha"), "OR",
+     "expected the end of the value after '{iParo}', found 'OR iMarcha': a value that "
+     "begins with '{' is a mapping and ends where it closes: quote the whole value: "
+     "\"{iParo} OR iMarcha\""),
+    (FIRST + "  - {from: Arranque, to: Ini, when: \"iParo\" AND iMarcha}\n", "AND",
+     "expected the end of the value after '\"iParo\"', found 'AND iMarcha': a value that "
+     "begins with '\"' is a quoted text and ends where it closes: quote the whole value: "
+     "\"iParo AND iMarcha\""),
+    ("  from: Ini\n  to: Arranque\n  when: iMarcha\n  - {from: Arranque, to: Ini, when: "
+     "iParo}\n", "- {from: Arranque",
+     "expected a key of the mapping that begins at line 8 ('from: Ini'), found a list item "
+     "('- {from: Arranque, to: Ini, when: iParo}'): the items of a list each begin with '- ' "
+     "at one indentation: write '- from: Ini'"),
+    (FIRST + "  from: Arranque\n  to: Ini\n  when: iParo\n", "from: Arranque",
+     "expected an item ('- ') of the list that begins at line 8, found a key ('from: "
+     "Arranque'): begin it with '- ' ('- from: Arranque'), the keys that go with it indented "
+     "under it"),
+    (FIRST + BLOCK.replace("WHEN", "iParo").replace("    to:", "     to:"), "to: Ini",
+     "expected the key 'to' at column 5, aligned with 'from' above it, found it at column 6, "
+     "where YAML reads it as more of the value of 'from': align it"),
+    (FIRST + BLOCK.replace("WHEN", "iParo").replace("    to:", "   to:"), "to: Ini",
+     "expected an item ('- ') of the list that begins at line 8 (column 3) or a key aligned "
+     "with 'from' above it (column 5), found 'to: Ini' at column 4: align it"),
+], ids=["tab indenting", "tab after a value", "!x in a flow", "!x", "*x in a flow", "*x",
+        "&x", "@x", "`x`", "%x", "|x|", "[x] and more", "{x} and more", "quoted and more",
+        "a mapping before list items", "a mapping after list items", "a key further in",
+        "a key further out"])
+def test_a_yaml_slip_says_what_to_write(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                        body: str, needle: str, message: str) -> None:
+    text = HEAD + body
+    assert compile_error(tmp_path, capsys, text) == line(tmp_path, text, needle,
+                                                         "YAML syntax: " + message)
