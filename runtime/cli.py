@@ -9,6 +9,7 @@ import time
 from collections.abc import Iterator, Sequence
 from typing import Any
 
+from runtime import package_version
 from runtime.errors import Loc, SourceError
 
 log = logging.getLogger("softplc")
@@ -350,17 +351,6 @@ def cmd_opcua_cert(args: argparse.Namespace) -> int:
     return 0
 
 
-def package_version() -> str:
-    """The installed package's version (importlib.metadata), or a word saying it is not
-    installed (run from a source tree without ``pip install``)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("softplc")
-    except PackageNotFoundError:
-        return "(not installed: run from a source tree)"
-
-
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="softplc", description="GRAFCET/SFC soft-PLC runtime")
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
@@ -460,7 +450,8 @@ def _register_modules(sub: argparse._SubParsersAction) -> None:  # type: ignore[
     from runtime.controller import install
     from runtime.drawing import chart as draw
     from runtime.drawing import chronogram
-    for module in (check, draw, chronogram, install, monitor):
+    from runtime.plcopen import commands as plcopen
+    for module in (check, draw, chronogram, install, monitor, plcopen):
         module.register(sub)
 
 

@@ -47,3 +47,115 @@ def transition_text(t: Transition) -> str:
     src = ",".join(t.sources) or "(source)"
     dst = ",".join(t.targets) or "(sink)"
     return f"{src} -> {dst} when {t.text}"
+
+
+# -- Structured Text -------------------------------------------------------------------------
+#: binary operators -> (ST spelling, precedence level of language.md: 2 tightest .. 7)
+_ST_BINARY = {"MUL": ("*", 2), "DIV": ("/", 2), "MOD": ("MOD", 2), "ADD": ("+", 3),
+              "SUB": ("-", 3), **{op: (sym, 4) for op, sym in COMPARE.items()},
+              "AND": ("AND", 5), "XOR": ("XOR", 6), "OR": ("OR", 7)}
+_ST_PREFIX = {"NOT": "NOT ", "NEG": "-", "RE": "RE ", "FE": "FE "}
+#: one level of indentation of ST statements
+ST_INDENT = "    "
+
+
+def st_text(n: A.Node) -> str:
+    """An expression in Structured Text with the fewest parentheses the precedence table
+    needs: ``AND OR XOR NOT``, ``T#10s``, ``TRUE``/``FALSE`` for bools (after type
+    checking, so the seed's ``+`` and ``·`` between bools are ``OR`` and ``AND``). Edges
+    are written ``RE x``/``FE x``, the language's own ASCII form (IEC 61131-3 has none in
+    expressions). Parsed again in the same chart, the text gives the same typed tree."""
+    return _st(n)[0]
+
+
+def _st_lit(n: A.Lit) -> str:
+    if n.lit_type is T.TIME:
+        return "T#" + format_ns(int(n.value))
+    if n.type is T.BOOL or (n.type is None and n.lit_type is T.BOOL):
+        return "TRUE" if n.value else "FALSE"
+    if isinstance(n.value, float):
+        text = repr(n.value)
+        if "e" in text and "." not in text.split("e")[0]:
+            mantissa, exp = text.split("e")
+            text = f"{mantissa}.0E{exp}"
+        return text
+    return str(int(n.value))
+
+
+def _st(n: A.Node) -> tuple[str, int]:
+    """(text, level): 0 an atom, 1 a prefix operator, then the binary levels."""
+    if isinstance(n, A.Lit):
+        text = _st_lit(n)
+        return (f"({text})", 0) if text.startswith("-") else (text, 0)
+    if isinstance(n, A.Name):
+        return n.name, 0
+    if isinstance(n, A.StepFlag):
+        return f"{n.step}.{n.flag}", 0
+    if isinstance(n, A.Member):
+        return f"{n.obj}.{n.member}", 0
+    if isinstance(n, A.MethodCall):
+        return f"{n.obj}.{n.method}({', '.join(st_text(a) for a in n.args)})", 0
+    if isinstance(n, A.Unary):
+        inner, level = _st(n.operand)
+        if level > 1 or (n.op == "NEG" and inner.startswith("-")):
+            inner = f"({inner})"
+        return _ST_PREFIX[n.op] + inner, 1
+    if isinstance(n, A.Binary):
+        sym, level = _ST_BINARY[n.op]
+        left, llv = _st(n.left)
+        right, rlv = _st(n.right)
+        if llv > level or (llv == level == 4):
+            left = f"({left})"
+        if rlv >= level:
+            right = f"({right})"
+        return f"{left} {sym} {right}", level
+    raise TypeError(f"no Structured Text for {type(n).__name__}")
+
+
+def st_statements(body: list[A.Node], indent: str = "") -> str:
+    """Statements in Structured Text, one per line, each ended by ``;``."""
+    return "\n".join(_st_stmt(s, indent) for s in body)
+
+
+def _st_block(body: list[A.Node], indent: str) -> list[str]:
+    return [_st_stmt(s, indent) for s in body]
+
+
+def _st_stmt(s: A.Node, indent: str) -> str:
+    inner = indent + ST_INDENT
+    if isinstance(s, A.Assign):
+        return f"{indent}{s.target.name} := {st_text(s.value)};"
+    if isinstance(s, A.CallStmt):
+        return f"{indent}{st_text(s.call)};"
+    if isinstance(s, A.FbCall):
+        args = ", ".join(f"{k} := {st_text(v)}" for k, v in s.args)
+        return f"{indent}{s.block}({args});"
+    if isinstance(s, A.If):
+        lines: list[str] = []
+        for i, (cond, body) in enumerate(s.branches):
+            lines.append(f"{indent}{'IF' if i == 0 else 'ELSIF'} {st_text(cond)} THEN")
+            lines += _st_block(body, inner)
+        if s.orelse:
+            lines.append(f"{indent}ELSE")
+            lines += _st_block(s.orelse, inner)
+        lines.append(f"{indent}END_IF;")
+        return "\n".join(lines)
+    if isinstance(s, A.Case):
+        lines = [f"{indent}CASE {st_text(s.selector)} OF"]
+        for labels, body in s.arms:
+            text = ", ".join(str(lo) if lo == hi else f"{lo}..{hi}" for lo, hi in labels)
+            lines.append(f"{inner}{text}:")
+            lines += _st_block(body, inner + ST_INDENT)
+        if s.orelse:
+            lines.append(f"{indent}ELSE")
+            lines += _st_block(s.orelse, inner)
+        lines.append(f"{indent}END_CASE;")
+        return "\n".join(lines)
+    if isinstance(s, A.For):
+        step = f" BY {st_text(s.step)}" if s.step is not None else ""
+        lines = [f"{indent}FOR {s.var.name} := {st_text(s.first)} TO {st_text(s.last)}"
+                 f"{step} DO"]
+        lines += _st_block(s.body, inner)
+        lines.append(f"{indent}END_FOR;")
+        return "\n".join(lines)
+    raise TypeError(f"no Structured Text for {type(s).__name__}")

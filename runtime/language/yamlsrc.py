@@ -301,37 +301,39 @@ _KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
           (stat.S_ISSOCK, "a socket"))
 
 
-def file_problem(mode: int, size: int) -> str | None:
+def file_problem(mode: int, size: int, limit: int | None = None) -> str | None:
     """Why a file of this ``st_mode`` and size (bytes) is no source file: not a regular
-    file, or not below MAX_FILE_BYTES; None if it is one."""
+    file, or not below ``limit`` bytes (MAX_FILE_BYTES unless told); None if it is one."""
+    limit = MAX_FILE_BYTES if limit is None else limit
     if not stat.S_ISREG(mode):
         found = next((what for test, what in _KINDS if test(mode)), "no regular file")
-    elif size >= MAX_FILE_BYTES:
+    elif size >= limit:
         found = f"a file of {size} bytes"
     else:
         return None
-    return (f"must be a regular file below {MAX_FILE_BYTES // 1024} KiB ({MAX_FILE_BYTES} "
-            f"bytes), found {found}")
+    return (f"must be a regular file below {limit // 1024} KiB ({limit} bytes), found {found}")
 
 
-def source_problem(path: str) -> str | None:
-    """Why ``path`` cannot be read as a chart, plant or script (None: it can be tried)."""
+def source_problem(path: str, limit: int | None = None) -> str | None:
+    """Why ``path`` cannot be read as a chart, plant or script, or as a file of at most
+    ``limit`` bytes (None: it can be tried)."""
     try:
         st = os.stat(path)
     except OSError as exc:
         return f"cannot read file: {exc.strerror}"
-    return file_problem(st.st_mode, st.st_size)
+    return file_problem(st.st_mode, st.st_size, limit)
 
 
-def read_source(path: str) -> str:
-    """The text of a chart, plant or script file; SourceError if it is no regular file below
-    MAX_FILE_BYTES or not UTF-8.
+def read_bytes(path: str, limit: int | None = None) -> bytes:
+    """The bytes of a user's file; SourceError if it is no regular file below ``limit``
+    bytes (MAX_FILE_BYTES unless told).
 
     The status is checked before opening (opening a device can have effects of its own), the
     file is opened non-blocking (a FIFO put in its place meanwhile cannot hang the open) and
-    checked again, and at most MAX_FILE_BYTES are read whatever its size said.
+    checked again, and at most ``limit`` bytes are read whatever its size said.
     """
-    problem = source_problem(path)
+    limit = MAX_FILE_BYTES if limit is None else limit
+    problem = source_problem(path, limit)
     data = b""
     if problem is None:
         try:
@@ -340,12 +342,19 @@ def read_source(path: str) -> str:
             raise SourceError(Loc(path, 1, 1), f"cannot read file: {exc.strerror}") from None
         with os.fdopen(fd, "rb") as f:
             st = os.fstat(fd)
-            problem = file_problem(st.st_mode, st.st_size)
+            problem = file_problem(st.st_mode, st.st_size, limit)
             if problem is None:
-                data = f.read(MAX_FILE_BYTES)
-                problem = file_problem(st.st_mode, len(data))  # it grew meanwhile
+                data = f.read(limit)
+                problem = file_problem(st.st_mode, len(data), limit)  # it grew meanwhile
     if problem is not None:
         raise SourceError(Loc(path, 1, 1), problem)
+    return data
+
+
+def read_source(path: str) -> str:
+    """The text of a chart, plant or script file; SourceError if it is no regular file below
+    MAX_FILE_BYTES (``read_bytes``) or not UTF-8."""
+    data = read_bytes(path)
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
