@@ -56,9 +56,10 @@ def cmd_import(args: argparse.Namespace) -> int:
     result = import_file(args.file, args.pou)
     for note in result.notes:
         sys.stderr.write(f"{note}\n")
-    if args.strict and result.notes:
-        sys.stderr.write(f"softplc import: error: {len(result.notes)} element(s) would be "
-                         "left out or changed (--strict): nothing written\n")
+    lost = [n for n in result.notes if n.lost]
+    if args.strict and lost:
+        sys.stderr.write(f"softplc import: error: {len(lost)} element(s) would be left out "
+                         "or changed (--strict): nothing written\n")
         return 2
     os.makedirs(args.output, exist_ok=True)
     files = [f"{c.pou}.yaml" for c in result.charts]

@@ -133,13 +133,13 @@ def _interface(g: Grafcet, iface: Node) -> None:
         vs = [var(v.name, Node(EXPORT_TYPES[v.type.value]))
               for v in g.variables.values() if v.kind is kind]
         lists.append((tag, {}, vs))
-    local = [var(v.name, Node(EXPORT_TYPES[v.type.value]), value_text(v.type, v.init),
-                 v.renamed_from) for v in g.memory if not v.retain]
-    local += [var(b.name, Node("derived", {"name": b.kind})) for b in g.blocks.values()]
-    lists.append(("localVars", {}, local))
-    kept = [var(v.name, Node(EXPORT_TYPES[v.type.value]), value_text(v.type, v.init),
-                v.renamed_from) for v in g.memory if v.retain]
-    lists.append(("localVars", {"retain": "true"}, kept))
+    # memory in its order: one localVars list per run of retained or not retained variables
+    for retain, run in itertools.groupby(g.memory, key=lambda v: v.retain):
+        lists.append(("localVars", {"retain": "true"} if retain else {},
+                      [var(v.name, Node(EXPORT_TYPES[v.type.value]),
+                           value_text(v.type, v.init), v.renamed_from) for v in run]))
+    lists.append(("localVars", {}, [var(b.name, Node("derived", {"name": b.kind}))
+                                    for b in g.blocks.values()]))
     for tag, attrs, vs in lists:
         if vs:
             iface.add(tag, attrs).children.extend(vs)
@@ -372,6 +372,9 @@ class _Exporter:
             st = st_text(t.cond)
             _text(inline.add("ST"), st, cdata=True)
             sp = _data(e).add(SP + "transition", {"order": str(k)})
+            for key, names in (("sources", t.sources), ("targets", t.targets)):
+                if len(names) > 1:
+                    sp.attrs[key] = " ".join(names)
             if t.name:
                 sp.attrs["name"] = t.name
             if not t.sources:

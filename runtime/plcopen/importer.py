@@ -38,19 +38,21 @@ from runtime.plcopen.texts import (
     spell_as_declared,
     sub,
 )
-from runtime.plcopen.vendor import codesys_attributes, is_codesys
+from runtime.plcopen.vendor import codesys_attributes, codesys_objects, is_codesys
 from runtime.plcopen.xmltree import Element, parse_xml
 
 
 @dataclass(frozen=True)
 class Note:
-    """Something of the file the chart does not carry, or carries changed."""
+    """Something of the file the chart does not carry, or carries changed (``lost``), or a
+    choice the importer made that the user should know of."""
 
     loc: Loc
     message: str
+    lost: bool = True
 
     def __str__(self) -> str:
-        return f"{self.loc}: warning: {self.message}"
+        return f"{self.loc}: {'warning' if self.lost else 'note'}: {self.message}"
 
 
 @dataclass
@@ -176,7 +178,8 @@ class _PouImporter:
         """POU actions or transitions by their name in lower case (IEC names ignore case)."""
         out: dict[str, Element] = {}
         g = pou.find(group, PLCOPEN_NS)
-        for e in g.findall(tag, PLCOPEN_NS) if g is not None else []:
+        for e in [*(g.findall(tag, PLCOPEN_NS) if g is not None else []),
+                  *codesys_objects(pou, tag)]:
             out.setdefault((e.get("name") or "").lower(), e)
         return out
 
@@ -197,8 +200,9 @@ class _PouImporter:
             _put(doc, "scan", plain(chart.get("scan") or "", chart.loc), chart.loc)
         elif self.codesys:
             _put(doc, "scan", plain("codesys", pou.loc), pou.loc)
-            self.note(pou.loc, f"POU '{self.name}' comes from CODESYS: imported with 'scan: "
-                               "codesys' (CODESYS's processing order, docs/semantics.md)")
+            self.notes.append(Note(pou.loc, f"POU '{self.name}' comes from CODESYS: "
+                                   "imported with 'scan: codesys' (CODESYS's processing order, "
+                                   "docs/semantics.md)", lost=False))
         self._variables(doc, iface)
         self._equations(doc, chart, "pre")
         steps, transitions = self._level(level, None)
@@ -476,22 +480,23 @@ class _PouImporter:
         for key, q in (("entry", "P1"), ("main", "N"), ("exit", "P0")):
             name = vendor.get(key, "")
             if name:
-                text = self._reference(st.e, q, None, name, plain(name, st.e.loc))
+                text = self._reference(st.e, f"localId {st.id} (step '{st.name}'), CODESYS "
+                                       f"{key} action", q, None, name, plain(name, st.e.loc))
                 if text is not None:
                     out.append((text, st.e.loc))
         blocks = sorted(level.blocks.get(st.name, []),
                         key=lambda b: (position(b)[1], position(b)[0], b.loc.line))
         for b in blocks:
-            for a in b.findall("action", PLCOPEN_NS):
-                text = self._action(a)
+            for k, a in enumerate(b.findall("action", PLCOPEN_NS), 1):
+                text = self._action(a, f"localId {b.get('localId')} (action block of step "
+                                       f"'{st.name}'), action {k}")
                 if text is not None:
                     out.append((text, a.loc))
         return out
 
-    def _action(self, a: Element) -> YStr | None:
+    def _action(self, a: Element, where: str) -> YStr | None:
         """The action text of an ``action`` association, or None (left out, noted)."""
         q = (a.get("qualifier") or "N").strip()
-        where = f"action (localId {a.get('localId')})"
         if q not in QUALIFIERS:
             raise SourceError(a.loc, f"{where}: unknown qualifier '{q}': expected one of "
                                      f"{' '.join(QUALIFIERS)}")
@@ -527,7 +532,7 @@ class _PouImporter:
                              "shows a variable beside the action)")
         if ref is not None:
             name = ref.get("name") or ""
-            return self._reference(a, q, dtext, name, plain(name, ref.loc))
+            return self._reference(a, where, q, dtext, name, plain(name, ref.loc))
         if st is None:
             lang = inline.children[0].tag if inline is not None and inline.children else None
             self.note(a.loc, f"{where} left out: " + (
@@ -543,11 +548,9 @@ class _PouImporter:
             return self._text(body)
         return self._text(compose([prefix + " ", body], a.loc))
 
-    def _reference(self, a: Element, q: str, dtext: str | None, name: str, at: YStr
-                   ) -> YStr | None:
+    def _reference(self, a: Element, where: str, q: str, dtext: str | None, name: str,
+                   at: YStr) -> YStr | None:
         """An action that names a POU action (its ST body) or a bool variable."""
-        where = f"action (localId {a.get('localId')})" if a.tag == "action" else (
-            f"step '{a.get('name')}'")
         action = self.actions.get(name.lower())
         prefix = native_text(q, dtext, "") + " "
         if action is None:

@@ -276,7 +276,18 @@ def _transition(level: Level, i: int) -> GTransition:
     if not targets and (sp is None or sp.get("sink") != "true"):
         raise SourceError(e.loc, f"localId {i}: transition that leads to no step: expected a "
                                  "step, a jump step or a divergence connected below it")
-    return GTransition(i, e, list(dict.fromkeys(sources)), list(dict.fromkeys(targets)))
+    return GTransition(i, e, _written(level, sources, sp, "sources"),
+                       _written(level, targets, sp, "targets"))
+
+
+def _written(level: Level, names: list[str], sp: Element | None, key: str) -> list[str]:
+    """The steps of a transition in the order softplc wrote them (its data), else left to
+    right, top to bottom (``from: [A, B]``: the order does not change what the chart does)."""
+    found = list(dict.fromkeys(names))
+    kept = (sp.get(key) or "").split() if sp is not None else []
+    if sorted(kept) == sorted(found):
+        return kept
+    return sorted(found, key=lambda n: (*position(level.steps[n].e), n))
 
 
 def _action_block(level: Level, i: int, note: Note) -> None:

@@ -26,6 +26,20 @@ def codesys_attributes(e: Element) -> dict[str, str]:
     return out
 
 
+def codesys_objects(pou: Element, kind: str) -> list[Element]:
+    """The POU's actions (``kind`` "action") or transitions ("transition") that CODESYS
+    keeps in the POU's vendor data (``data name=".../plcopenxml/action"``) instead of the
+    schema's ``actions``/``transitions``."""
+    add = pou.find("addData", PLCOPEN_NS)
+    if add is None:
+        return []
+    out = []
+    for data in add.findall("data", PLCOPEN_NS):
+        if data.get("name") == f"http://www.3s-software.com/plcopenxml/{kind}":
+            out += data.findall(kind, PLCOPEN_NS)
+    return out
+
+
 def is_codesys(root: Element) -> bool:
     """Whether a project comes from CODESYS (or a tool built on it): its header names 3S or
     CODESYS, or it holds CODESYS's vendor data."""
