@@ -6,6 +6,8 @@ place: softplc carries a condition only as an expression."""
 
 from __future__ import annotations
 
+import re
+
 from runtime.errors import Loc, SourceError
 from runtime.language.yamlsrc import YStr
 from runtime.plcopen.schema import PLCOPEN_NS
@@ -99,13 +101,24 @@ class Network:
         if not parts or (GATES[op] and len(parts) != GATES[op]):
             raise SourceError(e.loc, f"localId {ref}: {op} with {len(parts)} inputs")
         if op == "NOT":
-            return compose(["NOT (", parts[0], ")"], e.loc)
+            return compose(["NOT ", *_paren(parts[0], e.loc)], e.loc)
         out = _join(parts, op, e.loc)
         outs = e.find("outputVariables", PLCOPEN_NS)
         first = outs.find("variable", PLCOPEN_NS) if outs is not None else None
         if first is not None and first.get("negated") == "true":
-            out = compose(["NOT (", out, ")"], e.loc)
+            out = compose(["NOT ", *_paren(out, e.loc)], e.loc)
         return out
+
+
+#: operands that need no parentheses: of NOT, RE and FE a name (or ``step.X``); of AND,
+#: OR and XOR also a name negated or edged
+_NAME = re.compile(r"^\w+(\.\w+)?$")
+_OPERAND = re.compile(r"^((NOT|RE|FE) )?\w+(\.\w+)?$")
+
+
+def _paren(text: YStr, at: Loc, atom: re.Pattern[str] = _NAME) -> list[str | YStr]:
+    """``text`` as an operand: in parentheses unless ``atom`` matches it."""
+    return [text] if atom.match(str(text)) else ["(", text, ")"]
 
 
 def _join(parts: list[YStr], op: str, at: Loc) -> YStr:
@@ -113,7 +126,7 @@ def _join(parts: list[YStr], op: str, at: Loc) -> YStr:
     for i, p in enumerate(parts):
         if i:
             pieces.append(f" {op} ")
-        pieces += ["(", p, ")"]
+        pieces += _paren(p, at, _OPERAND)
     return compose(pieces, at)
 
 
@@ -126,7 +139,7 @@ def _modified(e: Element, text: YStr) -> YStr:
                                  "transition's condition: set and reset have no meaning there")
     out = text
     if edge in ("rising", "falling"):
-        out = compose(["RE (" if edge == "rising" else "FE (", out, ")"], e.loc)
+        out = compose(["RE " if edge == "rising" else "FE ", *_paren(out, e.loc)], e.loc)
     if e.get("negated") == "true":
-        out = compose(["NOT (", out, ")"], e.loc)
+        out = compose(["NOT ", *_paren(out, e.loc)], e.loc)
     return out
