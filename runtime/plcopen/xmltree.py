@@ -10,15 +10,13 @@ Each refusal is one ``FILE:LINE:COL`` error (``SourceError``). Lines and columns
 
 from __future__ import annotations
 
-import io
-import xml.sax
-import xml.sax.handler
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
+from xml.parsers import expat
 
-from defusedxml.common import DTDForbidden, EntitiesForbidden, ExternalReferenceForbidden
-from defusedxml.expatreader import DefusedExpatParser
+from defusedxml.common import EntitiesForbidden, ExternalReferenceForbidden
+from defusedxml.ElementTree import DefusedXMLParser
 
 from runtime.errors import Loc, SourceError
 from runtime.language.yamlsrc import YStr, read_bytes
@@ -42,9 +40,16 @@ class Element:
     ns: str
     tag: str
     attrs: dict[str, str]
-    loc: Loc
+    file: str
+    line: int
+    col: int
     children: list[Element] = field(default_factory=list)
     chunks: list[tuple[str, int, int]] = field(default_factory=list)  # (text, line, col)
+
+    @property
+    def loc(self) -> Loc:
+        """Where the element's start tag begins."""
+        return Loc(self.file, self.line, self.col)
 
     def __repr__(self) -> str:
         return f"<{self.tag} at {self.loc}>"
@@ -100,53 +105,50 @@ class Element:
         return s
 
 
-class _Builder(xml.sax.handler.ContentHandler):
-    """Builds the tree while counting elements and depth."""
+class _Builder:
+    """Builds the tree from expat's events, counting elements and depth; every place is
+    read from the parser at the event (1-based lines, 0-based columns from expat)."""
 
-    def __init__(self, path: str) -> None:
-        super().__init__()
+    def __init__(self, path: str, parser: Any) -> None:
         self.path = path
-        self.locator: Any = None
+        self.p = parser
         self.stack: list[Element] = []
         self.root: Element | None = None
         self.count = 0
 
-    def setDocumentLocator(self, locator: Any) -> None:  # noqa: N802 - SAX's name
-        self.locator = locator
-
     def here(self) -> Loc:
-        if self.locator is None:
-            return Loc(self.path, 1, 1)
-        return Loc(self.path, self.locator.getLineNumber() or 1,
-                   (self.locator.getColumnNumber() or 0) + 1)
+        return Loc(self.path, self.p.CurrentLineNumber, self.p.CurrentColumnNumber + 1)
 
-    def startElementNS(self, name: tuple[str | None, str], qname: str | None,  # noqa: N802
-                       attrs: Any) -> None:
+    def start(self, name: str, attrs: list[str]) -> None:
         self.count += 1
-        loc = self.here()
         if self.count > MAX_ELEMENTS:
-            raise SourceError(loc, f"the file has more than {MAX_ELEMENTS} XML elements: "
-                                   "expected a PLCopen project of a sensible size")
+            raise SourceError(self.here(), f"the file has more than {MAX_ELEMENTS} XML "
+                                           "elements: expected a PLCopen project of a "
+                                           "sensible size")
         if len(self.stack) >= MAX_XML_DEPTH:
-            raise SourceError(loc, f"XML nested deeper than {MAX_XML_DEPTH} levels: expected "
-                                   "a PLCopen project (about 12 levels, 3 more per macro-step)")
+            raise SourceError(self.here(), f"XML nested deeper than {MAX_XML_DEPTH} levels: "
+                                           "expected a PLCopen project (about 12 levels, 3 "
+                                           "more per macro-step)")
+        ns, _, tag = name.rpartition("}")
         values: dict[str, str] = {}
-        for (uri, local), value in attrs.items():
-            values[f"{{{uri}}}{local}" if uri else local] = value
-        e = Element(name[0] or "", name[1], values, loc)
+        for i in range(0, len(attrs), 2):
+            uri, _, local = attrs[i].rpartition("}")
+            values[f"{{{uri}}}{local}" if uri else local] = attrs[i + 1]
+        p = self.p
+        e = Element(ns, tag, values, self.path, p.CurrentLineNumber, p.CurrentColumnNumber + 1)
         if self.stack:
             self.stack[-1].children.append(e)
         else:
             self.root = e
         self.stack.append(e)
 
-    def endElementNS(self, name: tuple[str | None, str], qname: str | None) -> None:  # noqa: N802
+    def end(self, name: str) -> None:
         self.stack.pop()
 
-    def characters(self, content: str) -> None:
+    def data(self, text: str) -> None:
         if self.stack:
-            loc = self.here()
-            self.stack[-1].chunks.append((content, loc.line, loc.col))
+            p = self.p
+            self.stack[-1].chunks.append((text, p.CurrentLineNumber, p.CurrentColumnNumber + 1))
 
 
 def parse_xml(path: str, data: bytes | None = None) -> Element:
@@ -154,17 +156,21 @@ def parse_xml(path: str, data: bytes | None = None) -> Element:
     read); SourceError at the place of the first problem."""
     if data is None:
         data = read_bytes(path, MAX_XML_BYTES)
-    builder = _Builder(path)
-    parser = DefusedExpatParser(forbid_dtd=False, forbid_entities=True, forbid_external=True)
-    parser.setFeature(xml.sax.handler.feature_namespaces, True)
-    parser.setContentHandler(builder)
-    source = xml.sax.xmlreader.InputSource(path)
-    source.setByteStream(io.BytesIO(data))
+    # defusedxml's parser: its expat refuses entity declarations and external references;
+    # the tree is built here from expat's own events, which know their place in the file
+    defused = DefusedXMLParser(forbid_dtd=False, forbid_entities=True, forbid_external=True)
+    p = defused.parser
+    builder = _Builder(path, p)
+    p.buffer_text = False  # one event per piece of text, each with its own place
+    p.ordered_attributes = True
+    p.StartElementHandler = builder.start
+    p.EndElementHandler = builder.end
+    p.CharacterDataHandler = builder.data
     try:
-        parser.parse(source)
-    except xml.sax.SAXParseException as exc:
-        loc = Loc(path, exc.getLineNumber() or 1, (exc.getColumnNumber() or 0) + 1)
-        raise SourceError(loc, f"XML syntax: {exc.getMessage()}") from None
+        p.Parse(data, True)
+    except expat.ExpatError as exc:
+        loc = Loc(path, exc.lineno or 1, (exc.offset or 0) + 1)
+        raise SourceError(loc, f"XML syntax: {expat.ErrorString(exc.code)}") from None
     except EntitiesForbidden as exc:
         if exc.sysid or exc.pubid:
             raise SourceError(builder.here(), f"external entity '{exc.name}' "
@@ -176,8 +182,6 @@ def parse_xml(path: str, data: bytes | None = None) -> Element:
     except ExternalReferenceForbidden as exc:
         raise SourceError(builder.here(), f"external entity '{exc.sysid}' refused: nothing "
                           "outside the file is read") from None
-    except DTDForbidden:  # pragma: no cover - DTDs without entities are let through
-        raise SourceError(builder.here(), "document type declaration refused") from None
     if builder.root is None:  # pragma: no cover - expat refuses a file without an element
         raise SourceError(Loc(path, 1, 1), "no XML element in the file")
     return builder.root

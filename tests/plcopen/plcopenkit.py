@@ -63,5 +63,5 @@ def import_back(xml: Path, out: Path) -> tuple[Grafcet, ImportResult]:
     """The chart of the file's first POU, written as softplc import writes it and loaded."""
     result = import_file(str(xml))
     chart = result.charts[0]
-    out.write_text(chart_text(str(xml), chart, str(out)), encoding="utf-8")
+    out.write_text(chart_text(str(xml), chart), encoding="utf-8")
     return load_grafcet(str(out)), result
