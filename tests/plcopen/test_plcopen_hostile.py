@@ -47,7 +47,7 @@ def trans(i: int, source: int | None, cond: str = "a", network: int | None = Non
 
 
 LAUGHS = ('<?xml version="1.0"?>\n<!DOCTYPE lolz [\n <!ENTITY lol "lol">\n'
-          + "".join(f' <!ENTITY lol{k} "{("&lol" + str(k - 1) + ";") * 10 if k > 1 else "&lol;" * 10}">\n'
+          + "".join(f' <!ENTITY lol{k} "{(f"&lol{k - 1};" if k > 1 else "&lol;") * 10}">\n'
                     for k in range(1, 10))
           + f']>\n{HEAD}<fileHeader companyName="&lol9;"/></project>\n')
 

@@ -171,8 +171,10 @@ def test_the_order_of_the_elements_does_not_matter(source: Path, seed: int,
 POU = """\
 <?xml version="1.0" encoding="utf-8"?>
 <project xmlns="http://www.plcopen.org/xml/tc6_0201" xmlns:xhtml="http://www.w3.org/1999/xhtml">
-  <fileHeader companyName="t" productName="t" productVersion="1" creationDateTime="2025-01-01T00:00:00"/>
-  <contentHeader name="t"><coordinateInfo><fbd><scaling x="0" y="0"/></fbd><ld><scaling x="0" y="0"/></ld><sfc><scaling x="0" y="0"/></sfc></coordinateInfo></contentHeader>
+  <fileHeader companyName="t" productName="t" productVersion="1"
+              creationDateTime="2025-01-01T00:00:00"/>
+  <contentHeader name="t"><coordinateInfo><fbd><scaling x="0" y="0"/></fbd><ld>
+<scaling x="0" y="0"/></ld><sfc><scaling x="0" y="0"/></sfc></coordinateInfo></contentHeader>
   <types><dataTypes/><pous>
     <pou name="P" pouType="program">
       <interface><inputVars>
@@ -207,29 +209,45 @@ def condition_of(tmp_path: Path, condition: str, network: str = "", transitions:
 
 
 FBD_OR = """\
-<inVariable localId="10"><position x="0" y="0"/><connectionPointOut/><expression>a</expression></inVariable>
-<inVariable localId="11"><position x="0" y="0"/><connectionPointOut/><expression>B</expression></inVariable>
-<inVariable localId="12" negated="true"><position x="0" y="0"/><connectionPointOut/><expression>c</expression></inVariable>
+<inVariable localId="10"><position x="0" y="0"/><connectionPointOut/><expression>a</expression>
+</inVariable>
+<inVariable localId="11"><position x="0" y="0"/><connectionPointOut/><expression>B</expression>
+</inVariable>
+<inVariable localId="12" negated="true"><position x="0" y="0"/><connectionPointOut/>
+<expression>c</expression></inVariable>
 <block localId="13" typeName="OR"><position x="0" y="0"/>
   <inputVariables>
-    <variable formalParameter="IN1"><connectionPointIn><connection refLocalId="14"/></connectionPointIn></variable>
-    <variable formalParameter="IN2" edge="rising"><connectionPointIn><connection refLocalId="12"/></connectionPointIn></variable>
-  </inputVariables><inOutVariables/><outputVariables><variable formalParameter="OUT"><connectionPointOut/></variable></outputVariables>
+    <variable formalParameter="IN1"><connectionPointIn><connection refLocalId="14"/>
+</connectionPointIn></variable>
+    <variable formalParameter="IN2" edge="rising"><connectionPointIn>
+<connection refLocalId="12"/></connectionPointIn></variable>
+  </inputVariables><inOutVariables/><outputVariables><variable formalParameter="OUT">
+<connectionPointOut/></variable></outputVariables>
 </block>
 <block localId="14" typeName="AND"><position x="0" y="0"/>
   <inputVariables>
-    <variable formalParameter="IN1"><connectionPointIn><connection refLocalId="10"/></connectionPointIn></variable>
-    <variable formalParameter="IN2"><connectionPointIn><connection refLocalId="11"/></connectionPointIn></variable>
-  </inputVariables><inOutVariables/><outputVariables><variable formalParameter="OUT"><connectionPointOut/></variable></outputVariables>
+    <variable formalParameter="IN1"><connectionPointIn><connection refLocalId="10"/>
+</connectionPointIn></variable>
+    <variable formalParameter="IN2"><connectionPointIn><connection refLocalId="11"/>
+</connectionPointIn></variable>
+  </inputVariables><inOutVariables/><outputVariables><variable formalParameter="OUT">
+<connectionPointOut/></variable></outputVariables>
 </block>
 """
 
 LD_PARALLEL = """\
-<leftPowerRail localId="20"><position x="0" y="0"/><connectionPointOut formalParameter=""/></leftPowerRail>
-<contact localId="21"><position x="0" y="0"/><connectionPointIn><connection refLocalId="20"/></connectionPointIn><connectionPointOut/><variable>a</variable></contact>
-<contact localId="22" negated="true"><position x="0" y="0"/><connectionPointIn><connection refLocalId="20"/></connectionPointIn><connectionPointOut/><variable>b</variable></contact>
-<contact localId="23" edge="rising"><position x="0" y="0"/><connectionPointIn><connection refLocalId="21"/><connection refLocalId="22"/></connectionPointIn><connectionPointOut/><variable>c</variable></contact>
-<connector name="k" localId="24"><position x="0" y="0"/><connectionPointIn><connection refLocalId="23"/></connectionPointIn></connector>
+<leftPowerRail localId="20"><position x="0" y="0"/><connectionPointOut formalParameter=""/>
+</leftPowerRail>
+<contact localId="21"><position x="0" y="0"/><connectionPointIn><connection refLocalId="20"/>
+</connectionPointIn><connectionPointOut/><variable>a</variable></contact>
+<contact localId="22" negated="true"><position x="0" y="0"/><connectionPointIn>
+<connection refLocalId="20"/></connectionPointIn><connectionPointOut/><variable>b</variable>
+</contact>
+<contact localId="23" edge="rising"><position x="0" y="0"/><connectionPointIn>
+<connection refLocalId="21"/><connection refLocalId="22"/></connectionPointIn>
+<connectionPointOut/><variable>c</variable></contact>
+<connector name="k" localId="24"><position x="0" y="0"/><connectionPointIn>
+<connection refLocalId="23"/></connectionPointIn></connector>
 <continuation name="K" localId="25"><position x="0" y="0"/><connectionPointOut/></continuation>
 """
 
