@@ -169,6 +169,7 @@ class _PouImporter:
         self.spelling: dict[str, str] = {}
         self.uses: dict[str, int] = {}  # POU transition name (lower case) -> references
         self.used_actions: set[str] = set()  # POU action names (lower case) steps use
+        self.networks: dict[int, Network] = {}  # per level (id): its FBD/LD elements
 
     def note(self, loc: Loc, message: str) -> None:
         self.notes.append(Note(loc, message))
@@ -278,6 +279,22 @@ class _PouImporter:
             _put(doc, "blocks", blocks, blocks.loc)
 
     # -- steps and transitions ----------------------------------------------------------------
+    def _network(self, level: Level) -> Network:
+        """The FBD/LD elements of a level's body (one reader per body: it notes what the
+        conditions use)."""
+        net = self.networks.get(id(level))
+        if net is None:
+            net = self.networks[id(level)] = Network(level.sfc)
+        return net
+
+    def _unused_network(self, level: Level) -> None:
+        used = self.networks[id(level)].used if id(level) in self.networks else set()
+        for i, kind in sorted(level.kind.items()):
+            if kind == "network" and i not in used:
+                e = level.elements[i]
+                self.note(e.loc, f"localId {i}: {e.tag} left out: it is part of no "
+                                 "transition's condition")
+
     def _level(self, level: Level, macro: GStep | None) -> tuple[YMap, YList]:
         initial = {n: self._initial(s) for n, s in level.steps.items()}
         names, transitions = order(level, lambda n: initial[n])
@@ -291,6 +308,7 @@ class _PouImporter:
                  st.e.loc)
         items = [(self._transition(level, t), t.e.loc) for t in transitions]
         trans = _list(items[0][1] if items else steps.loc, items)
+        self._unused_network(level)
         return steps, trans
 
     def _initial(self, st: GStep) -> bool:
@@ -444,7 +462,7 @@ class _PouImporter:
                                          body_owner.get("name") or name)
         point = cond.find("connectionPointIn", PLCOPEN_NS)
         if point is not None:
-            return Network(level.sfc).point(point)
+            return self._network(level).point(point)
         raise SourceError(cond.loc, f"localId {t.id}: expected an inline condition, a "
                                     "reference or a connection in <condition>")
 
@@ -487,6 +505,10 @@ class _PouImporter:
         blocks = sorted(level.blocks.get(st.name, []),
                         key=lambda b: (position(b)[1], position(b)[0], b.loc.line))
         for b in blocks:
+            if b.get("negated") == "true":
+                self.note(b.loc, f"localId {b.get('localId')} (action block of step "
+                                 f"'{st.name}'): 'negated' left out (IEC 61131-3 gives an "
+                                 "action block no negation)")
             for k, a in enumerate(b.findall("action", PLCOPEN_NS), 1):
                 text = self._action(a, f"localId {b.get('localId')} (action block of step "
                                        f"'{st.name}'), action {k}")

@@ -34,6 +34,7 @@ class Network:
         self.connectors: dict[str, Element] = {
             (e.get("name") or "").lower(): e for e in self.elements.values()
             if e.tag == "connector"}
+        self.used: set[int] = set()  # the elements some condition was read from
 
     def point(self, point: Element, trail: tuple[int, ...] = ()) -> YStr:
         """The expression feeding a connection point (several connections: their OR)."""
@@ -52,6 +53,7 @@ class Network:
             raise SourceError(e.loc, f"cycle in refLocalId: {cycle} (a condition's network "
                                      "must start at variables or at the left power rail)")
         trail = (*trail, ref)
+        self.used.add(ref)
         if len(trail) > MAX_CHAIN:
             raise SourceError(e.loc, f"a transition's condition network more than {MAX_CHAIN} "
                                      "elements long: write the condition in ST")
@@ -80,6 +82,7 @@ class Network:
             if source is None or cin is None:
                 raise SourceError(e.loc, f"localId {ref}: continuation '{e.get('name')}' has "
                                          "no connector of that name")
+            self.used.add(local_id(source))
             return self.point(cin, (*trail, local_id(source)))
         if e.tag == "block" and (e.get("typeName") or "").upper() in GATES:
             return self.gate(e, ref, trail)

@@ -321,3 +321,14 @@ def test_a_file_without_sfc_is_refused(tmp_path: Path) -> None:
     with pytest.raises(SourceError) as e:
         import_file(str(p), "Q")
     assert e.value.message == "POU 'Q' is not written in SFC"
+
+
+def test_fbd_elements_of_no_condition_are_noted(tmp_path: Path) -> None:
+    p = tmp_path / "p.xml"
+    stray = ('<inVariable localId="40"><position x="0" y="0"/><connectionPointOut/>'
+             '<expression>b</expression></inVariable>')
+    p.write_text(POU.format(condition='<reference name="a"/>', network=stray, transitions="",
+                            negated=""), encoding="utf-8")
+    (note,) = import_file(str(p)).notes
+    assert note.message == ("localId 40: inVariable left out: it is part of no transition's "
+                            "condition")
