@@ -170,6 +170,7 @@ class _PouImporter:
         self.uses: dict[str, int] = {}  # POU transition name (lower case) -> references
         self.used_actions: set[str] = set()  # POU action names (lower case) steps use
         self.networks: dict[int, Network] = {}  # per level (id): its FBD/LD elements
+        self.names_given: set[str] = set()  # transition names, unique in a chart
 
     def note(self, loc: Loc, message: str) -> None:
         self.notes.append(Note(loc, message))
@@ -191,6 +192,7 @@ class _PouImporter:
         assert sfc is not None
         level = read_level(sfc, self.note)
         self._spelling(iface, level)
+        self._count_references(level)
         doc = _map(pou.loc)
         _put(doc, "grafcet", plain(self.name, pou.loc), pou.loc)
         docu = pou.find("documentation", PLCOPEN_NS)
@@ -390,7 +392,11 @@ class _PouImporter:
                 _put(spec, key, _list(e.loc, [(plain(n, e.loc), e.loc) for n in names]), e.loc)
         _put(spec, "when", self._condition(level, t), e.loc)
         name = self._transition_name(t)
-        if name:
+        if name and name in self.names_given:
+            self.note(e.loc, f"localId {t.id}: transition name '{name}' left out: another "
+                             "transition has it (names are unique in a chart)")
+        elif name:
+            self.names_given.add(name)
             _put(spec, "name", name, e.loc)
         docu = e.find("documentation", PLCOPEN_NS)
         if docu is not None and str(formatted(docu)):
@@ -410,10 +416,22 @@ class _PouImporter:
         ref = cond.find("reference", PLCOPEN_NS)
         if ref is not None:
             key = (ref.get("name") or "").lower()
-            self.uses[key] = self.uses.get(key, 0) + 1
-            if key in self.transitions and self.uses[key] == 1:
+            if key in self.transitions and self.uses.get(key) == 1:
                 return self.transitions[key].get("name") or ""
         return ""
+
+    def _count_references(self, level: Level) -> None:
+        """How many transitions of the chart (macro-steps' expansions included) name each
+        POU transition: its name becomes a transition's name when one only does."""
+        for t in level.transitions:
+            cond = t.e.find("condition", PLCOPEN_NS)
+            ref = cond.find("reference", PLCOPEN_NS) if cond is not None else None
+            if ref is not None:
+                key = (ref.get("name") or "").lower()
+                self.uses[key] = self.uses.get(key, 0) + 1
+        for st in level.steps.values():
+            if st.macro is not None:
+                self._count_references(st.macro)
 
     def _used_transitions(self) -> None:
         for key, e in self.transitions.items():
