@@ -332,3 +332,56 @@ def test_fbd_elements_of_no_condition_are_noted(tmp_path: Path) -> None:
     (note,) = import_file(str(p)).notes
     assert note.message == ("localId 40: inVariable left out: it is part of no transition's "
                             "condition")
+
+
+TWO_REFERENCES = """\
+<?xml version="1.0" encoding="utf-8"?>
+<project xmlns="http://www.plcopen.org/xml/tc6_0201" xmlns:xhtml="http://www.w3.org/1999/xhtml">
+  <types><dataTypes/><pous><pou name="R" pouType="program">
+    <interface><inputVars><variable name="a"><type><BOOL/></type></variable></inputVars>
+    </interface>
+    <transitions>
+      <transition name="Go"><body><ST><xhtml:p>a</xhtml:p></ST></body></transition>
+      <transition name="Back"><body><ST><xhtml:p>NOT a</xhtml:p></ST></body></transition>
+    </transitions>
+    <body><SFC>
+      <step localId="1" name="S0" initialStep="true"><position x="0" y="0"/>
+        <connectionPointIn><connection refLocalId="6"/></connectionPointIn></step>
+      <transition localId="2"><position x="0" y="50"/>
+        <connectionPointIn><connection refLocalId="1"/></connectionPointIn>
+        <condition><reference name="Go"/></condition></transition>
+      <step localId="3" name="S1"><position x="0" y="100"/>
+        <connectionPointIn><connection refLocalId="2"/></connectionPointIn></step>
+      <transition localId="4"><position x="0" y="150"/>
+        <connectionPointIn><connection refLocalId="3"/></connectionPointIn>
+        <condition><reference name="Go"/></condition></transition>
+      <step localId="5" name="S2"><position x="0" y="200"/>
+        <connectionPointIn><connection refLocalId="4"/></connectionPointIn></step>
+      <transition localId="6"><position x="0" y="250"/>
+        <connectionPointIn><connection refLocalId="5"/></connectionPointIn>
+        <condition><inline name="Back"><ST><xhtml:p>NOT a</xhtml:p></ST></inline></condition>
+      </transition>
+      <transition localId="7"><position x="50" y="250"/>
+        <connectionPointIn><connection refLocalId="5"/></connectionPointIn>
+        <condition><inline name="Back"><ST><xhtml:p>a</xhtml:p></ST></inline></condition>
+      </transition>
+      <jumpStep localId="8" targetName="S1"><position x="50" y="300"/>
+        <connectionPointIn><connection refLocalId="7"/></connectionPointIn></jumpStep>
+    </SFC></body>
+  </pou></pous></types>
+</project>
+"""
+
+
+def test_transition_names_stay_unique(tmp_path: Path) -> None:
+    """A POU transition named by two transitions names neither; a name given twice is
+    kept once, the second noted (a chart's transition names are unique)."""
+    p = tmp_path / "r.xml"
+    p.write_text(TWO_REFERENCES, encoding="utf-8")
+    result = import_file(str(p))
+    names = [t.name for t in result.charts[0].grafcet.transitions]
+    assert names == ["", "", "Back", ""]
+    assert [n.message for n in result.notes] == [
+        "localId 7: transition name 'Back' left out: another transition has it (names are "
+        "unique in a chart)",
+        "transition 'Back' of the POU left out: no transition of the chart refers to it"]
