@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from drivers.durations import format_ns
 from runtime.language import ast as A
 from runtime.language.model import Transition
@@ -14,6 +16,21 @@ LOGIC = {"OR": " OR ", "XOR": " XOR ", "AND": " AND "}
 _PREFIX = {"NOT": "NOT ", "NEG": "-", "RE": "↑", "FE": "↓"}
 
 
+def atom_text(n: A.Node, argument: Callable[[A.Node], str]) -> str | None:
+    """The text of a name, a step flag (``gsA.X``), a block member (``ton.Q``) or a method
+    call (``timeX.Ini(...)``, its arguments written by ``argument``); None for any other
+    node. Every notation writes them alike."""
+    if isinstance(n, A.Name):
+        return n.name
+    if isinstance(n, A.StepFlag):
+        return f"{n.step}.{n.flag}"
+    if isinstance(n, A.Member):
+        return f"{n.obj}.{n.member}"
+    if isinstance(n, A.MethodCall):
+        return f"{n.obj}.{n.method}({', '.join(argument(a) for a in n.args)})"
+    return None
+
+
 def unparse(n: A.Node) -> str:
     """A canonical ST-like text of an expression: equal texts mean equal expressions."""
     if isinstance(n, A.Lit):
@@ -22,14 +39,9 @@ def unparse(n: A.Node) -> str:
         if n.type is T.BOOL or n.lit_type is T.BOOL:
             return "1" if n.value else "0"
         return repr(n.value)
-    if isinstance(n, A.Name):
-        return n.name
-    if isinstance(n, A.StepFlag):
-        return f"{n.step}.{n.flag}"
-    if isinstance(n, A.Member):
-        return f"{n.obj}.{n.member}"
-    if isinstance(n, A.MethodCall):
-        return f"{n.obj}.{n.method}({', '.join(unparse(a) for a in n.args)})"
+    atom = atom_text(n, unparse)
+    if atom is not None:
+        return atom
     if isinstance(n, A.Unary):
         inner = unparse(n.operand)
         op = _PREFIX[n.op]
@@ -87,14 +99,9 @@ def _st(n: A.Node) -> tuple[str, int]:
     if isinstance(n, A.Lit):
         text = _st_lit(n)
         return (f"({text})", 0) if text.startswith("-") else (text, 0)
-    if isinstance(n, A.Name):
-        return n.name, 0
-    if isinstance(n, A.StepFlag):
-        return f"{n.step}.{n.flag}", 0
-    if isinstance(n, A.Member):
-        return f"{n.obj}.{n.member}", 0
-    if isinstance(n, A.MethodCall):
-        return f"{n.obj}.{n.method}({', '.join(st_text(a) for a in n.args)})", 0
+    atom = atom_text(n, st_text)
+    if atom is not None:
+        return atom, 0
     if isinstance(n, A.Unary):
         inner, level = _st(n.operand)
         if level > 1 or (n.op == "NEG" and inner.startswith("-")):
@@ -121,6 +128,10 @@ def _st_block(body: list[A.Node], indent: str) -> list[str]:
     return [_st_stmt(s, indent) for s in body]
 
 
+def _st_else(body: list[A.Node], indent: str) -> list[str]:
+    return [f"{indent}ELSE", *_st_block(body, indent + ST_INDENT)] if body else []
+
+
 def _st_stmt(s: A.Node, indent: str) -> str:
     inner = indent + ST_INDENT
     if isinstance(s, A.Assign):
@@ -135,22 +146,14 @@ def _st_stmt(s: A.Node, indent: str) -> str:
         for i, (cond, body) in enumerate(s.branches):
             lines.append(f"{indent}{'IF' if i == 0 else 'ELSIF'} {st_text(cond)} THEN")
             lines += _st_block(body, inner)
-        if s.orelse:
-            lines.append(f"{indent}ELSE")
-            lines += _st_block(s.orelse, inner)
-        lines.append(f"{indent}END_IF;")
-        return "\n".join(lines)
+        return "\n".join(lines + _st_else(s.orelse, indent) + [f"{indent}END_IF;"])
     if isinstance(s, A.Case):
         lines = [f"{indent}CASE {st_text(s.selector)} OF"]
         for labels, body in s.arms:
             text = ", ".join(str(lo) if lo == hi else f"{lo}..{hi}" for lo, hi in labels)
             lines.append(f"{inner}{text}:")
             lines += _st_block(body, inner + ST_INDENT)
-        if s.orelse:
-            lines.append(f"{indent}ELSE")
-            lines += _st_block(s.orelse, inner)
-        lines.append(f"{indent}END_CASE;")
-        return "\n".join(lines)
+        return "\n".join(lines + _st_else(s.orelse, indent) + [f"{indent}END_CASE;"])
     if isinstance(s, A.For):
         step = f" BY {st_text(s.step)}" if s.step is not None else ""
         lines = [f"{indent}FOR {s.var.name} := {st_text(s.first)} TO {st_text(s.last)}"
