@@ -77,12 +77,12 @@ def chart_yaml(doc: YMap, header: Iterable[str] = ()) -> str:
     return "\n".join(lines) + ("\n" if lines else "") + body
 
 
-#: the sim driver's points: bits by any name, numbers on IR.../HR... (drivers/registry.py)
 def plant_yaml(instances: list[tuple[str, str, list[tuple[str, str, str]],
                                      list[tuple[str, str, str]]]],
                cycle_ns: int | None, header: Iterable[str] = ()) -> str:
     """A plant on simulated I/O: ``instances`` as (name, chart file, inputs, outputs), each
-    signal (name, type, address in the PLCopen file or "")."""
+    signal (name, type, address in the PLCopen file or ""). The sim driver's points are
+    bits by any name and numbers on IR.../HR... (drivers/registry.py)."""
     out = [f"# {h}" for h in header]
     out += ["plc:", f"  cycle: {format_ns(cycle_ns or 10_000_000)}", "drivers:",
             "  sim: {type: sim}", "instances:"]

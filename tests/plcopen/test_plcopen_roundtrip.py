@@ -6,6 +6,7 @@ read back without softplc's data, what the chart's own texts mean."""
 from __future__ import annotations
 
 import re
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +33,8 @@ def _loadable(tmp: Path) -> list[tuple[str, str]]:
     return out
 
 
-CHARTS = _loadable(Path(__import__("tempfile").mkdtemp(prefix="plcopen-charts-")))
+with tempfile.TemporaryDirectory(prefix="plcopen-charts-") as _tmp:
+    CHARTS = _loadable(Path(_tmp))
 
 
 def test_the_charts_are_found() -> None:
