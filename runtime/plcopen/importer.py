@@ -19,7 +19,7 @@ from typing import Any
 from drivers.durations import format_ns, parse_literal, strip_time_prefix
 from runtime.errors import Loc, SourceError
 from runtime.language.grafcetfile import GrafcetLoader
-from runtime.language.lexer import Lexer
+from runtime.language.lexer import KEYWORDS, Lexer, is_name
 from runtime.language.model import Grafcet
 from runtime.language.signatures import FB_MEMBERS, TIMER_METHODS
 from runtime.language.typecheck import FLAGS_BOOL, FLAGS_STRING, SYSTEM_BOOL
@@ -120,18 +120,15 @@ def _tasks(root: Element) -> dict[str, tuple[str, int | None]]:
     """POU name -> (its instance's name, the interval of the task running it, ns)."""
     out: dict[str, tuple[str, int | None]] = {}
     instances = root.find("instances", PLCOPEN_NS)
-    if instances is None:
-        return out
-    for e in instances.iter():
-        if e.tag != "pouInstance" or not e.get("typeName"):
+    for holder in instances.iter() if instances is not None else []:
+        if holder.tag not in ("task", "resource"):
             continue
-        cycle = None
-        # the task is the instance's parent: find it
-        for task in instances.iter():
-            if task.tag == "task" and e in task.children:
-                interval = task.get("interval") or ""
-                cycle = parse_literal(strip_time_prefix(interval.strip()).replace("_", ""))
-        out.setdefault(e.get("typeName") or "", (e.get("name") or "", cycle or None))
+        interval = (holder.get("interval") or "").strip() if holder.tag == "task" else ""
+        cycle = parse_literal(strip_time_prefix(interval).replace("_", "")) or None
+        for e in holder.findall("pouInstance", PLCOPEN_NS):
+            name = e.get("name") or ""
+            if is_name(name) and name.upper() not in KEYWORDS:
+                out.setdefault(e.get("typeName") or "", (name, cycle))
     return out
 
 
@@ -515,9 +512,12 @@ class _PouImporter:
         vendor = codesys_attributes(st.e)
         for key, q in (("entry", "P1"), ("main", "N"), ("exit", "P0")):
             name = vendor.get(key, "")
-            if name:
-                text = self._reference(st.e, f"localId {st.id} (step '{st.name}'), CODESYS "
-                                       f"{key} action", q, None, name, plain(name, st.e.loc))
+            where = f"localId {st.id} (step '{st.name}'), CODESYS {key} action"
+            if name and name.lower() not in self.actions:
+                self.note(st.e.loc, f"{where} '{name}' left out: the file holds no action of "
+                                    "that name")
+            elif name:
+                text = self._reference(st.e, where, q, None, name, plain(name, st.e.loc))
                 if text is not None:
                     out.append((text, st.e.loc))
         blocks = sorted(level.blocks.get(st.name, []),
