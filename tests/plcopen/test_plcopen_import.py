@@ -385,3 +385,20 @@ def test_transition_names_stay_unique(tmp_path: Path) -> None:
         "localId 7: transition name 'Back' left out: another transition has it (names are "
         "unique in a chart)",
         "transition 'Back' of the POU left out: no transition of the chart refers to it"]
+
+
+@pytest.mark.parametrize(("declaration", "encoding", "bom"), [
+    ('<?xml version="1.0" encoding="ISO-8859-1"?>', "iso-8859-1", b""),
+    ('<?xml version="1.0" encoding="utf-8"?>', "utf-8", b"\xef\xbb\xbf"),  # CODESYS writes one
+])
+def test_encodings_of_the_editors(tmp_path: Path, declaration: str, encoding: str,
+                                  bom: bytes) -> None:
+    text = POU.format(condition='<inline name=""><ST><xhtml:p>señal</xhtml:p></ST></inline>',
+                      network="", transitions="", negated="")
+    text = text.replace('<variable name="a">', '<variable name="Señal">').replace(
+        '<?xml version="1.0" encoding="utf-8"?>', declaration)
+    p = tmp_path / "p.xml"
+    p.write_bytes(bom + text.encode(encoding))
+    g = import_file(str(p)).charts[0].grafcet
+    assert g.transitions[0].text == "Señal"
+    assert [v.name for v in g.inputs] == ["Señal", "b", "c"]
