@@ -212,6 +212,9 @@ class _Exporter:
         producers = self.transitions(sfc, lv, exit_point)
         for s in lv.steps:
             self.step(sfc, lv, s, producers)
+        # steps (each with its action block) first, as a reader looks for them
+        first = ("step", "macroStep", "actionBlock")
+        sfc.children.sort(key=lambda e: e.tag not in first)
 
     # -- steps ----------------------------------------------------------------------------
     def divergence(self, sfc: Node, lv: _Level, s: Step) -> tuple[int, Point | None]:
