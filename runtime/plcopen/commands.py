@@ -42,9 +42,42 @@ def plant_text(path: str, result: ImportResult, files: list[str]) -> str:
 
 
 def _write(path: str, text: str, force: bool) -> None:
-    """Write a new file; an existing one only with ``force`` (never silently)."""
-    with open(path, "w" if force else "x", encoding="utf-8") as f:
-        f.write(text)
+    """Write a whole file or none: written beside it, then put in place; an existing file is
+    replaced only with ``force`` (FileExistsError otherwise)."""
+    part = f"{path}.{os.getpid()}.part"
+    try:
+        with open(part, "x", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        if force:
+            os.replace(part, path)
+        else:
+            os.link(part, path)  # fails if the file exists: never overwritten
+    finally:
+        if os.path.exists(part):
+            os.unlink(part)
+
+
+def _write_all(files: list[tuple[str, str]], force: bool) -> None:
+    """Write every file or, on a failure, remove the ones this call created."""
+    created: list[str] = []
+    try:
+        for path, text in files:
+            existed = os.path.exists(path)
+            _write(path, text, force)
+            if not existed:
+                created.append(path)
+    except OSError:
+        for path in created:
+            os.unlink(path)
+        raise
+
+
+def _fail(command: str, exc: OSError) -> int:
+    where = f"{exc.filename}: " if exc.filename else ""
+    sys.stderr.write(f"softplc {command}: error: {where}{exc.strerror or exc}\n")
+    return 2
 
 
 def cmd_import(args: argparse.Namespace) -> int:
@@ -56,7 +89,6 @@ def cmd_import(args: argparse.Namespace) -> int:
         sys.stderr.write(f"softplc import: error: {len(lost)} element(s) would be left out "
                          "or changed (--strict): nothing written\n")
         return 2
-    os.makedirs(args.output, exist_ok=True)
     files = [f"{c.pou}.yaml" for c in result.charts]
     texts = [chart_text(args.file, c) for c in result.charts]
     plant = plant_text(args.file, result, files)
@@ -66,8 +98,11 @@ def cmd_import(args: argparse.Namespace) -> int:
         sys.stderr.write(f"softplc import: error: {', '.join(existing)} exist(s): not "
                          "overwritten (remove, choose another -o, or --force)\n")
         return 2
-    for target, text in zip(targets, [*texts, plant], strict=True):
-        _write(target, text, args.force)
+    try:
+        os.makedirs(args.output, exist_ok=True)
+        _write_all(list(zip(targets, [*texts, plant], strict=True)), args.force)
+    except OSError as exc:
+        return _fail("import", exc)
     for c, target in zip(result.charts, targets, strict=False):
         g = c.grafcet
         sys.stderr.write(f"{args.file}: POU {c.pou} -> {target} ({len(g.steps)} steps, "
@@ -92,6 +127,8 @@ def cmd_export(args: argparse.Namespace) -> int:
     except FileExistsError:
         raise SourceError(Loc(args.output, 1, 1), "exists: not overwritten (remove it, or "
                                                   "--force)") from None
+    except OSError as exc:
+        return _fail("export", exc)
     sys.stderr.write(f"{args.output}: {g.name} exported ({len(g.steps)} steps, "
                      f"{len(g.transitions)} transitions)\n")
     return 0

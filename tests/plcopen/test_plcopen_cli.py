@@ -4,6 +4,7 @@ overwritten without --force, --strict, the plant skeleton running at once under
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -111,3 +112,26 @@ def test_the_plant_skeleton_simulates_and_runs_at_once(
     r = subprocess.run([SOFTPLC, "run", str(out / "plant.yaml"), "--sim", "--for", "300ms"],
                        capture_output=True, text=True, timeout=120, check=False)
     assert r.returncode == 0, r.stderr
+
+
+def test_a_directory_that_cannot_be_written_is_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory", encoding="utf-8")
+    assert main(["import", str(DATA / "beremiz_mixer.xml"), "-o", str(blocker)]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[-1] == f"softplc import: error: {blocker}: File exists"
+    assert main(["export", DRAWER, "-o", str(tmp_path / "no" / "such" / "d.xml")]) == 2
+    assert capsys.readouterr().err == (f"softplc export: error: {tmp_path / 'no/such/d.xml'}"
+                                       f".{os.getpid()}.part: No such file or directory\n")
+
+
+def test_a_failed_write_leaves_no_file_behind(tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """Every file of an import or none: a plant that cannot be written takes the chart
+    written before it away again (here the plant's name is taken by a directory)."""
+    out = tmp_path / "out"
+    (out / "plant.yaml").mkdir(parents=True)
+    assert main(["import", str(DATA / "beremiz_mixer.xml"), "-o", str(out), "--force"]) == 2
+    assert "softplc import: error: " in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["plant.yaml"]
