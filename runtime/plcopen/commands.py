@@ -54,6 +54,8 @@ def _write(path: str, text: str, force: bool) -> None:
             os.replace(part, path)
         else:
             os.link(part, path)  # fails if the file exists: never overwritten
+    except OSError as exc:  # said of the file asked for, not of the one beside it
+        raise type(exc)(exc.errno, exc.strerror, path) from None
     finally:
         if os.path.exists(part):
             os.unlink(part)
