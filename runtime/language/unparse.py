@@ -80,17 +80,22 @@ def st_text(n: A.Node) -> str:
     return _st(n)[0]
 
 
+def st_real(value: float) -> str:
+    """A real in IEC 61131-3's form: digits, a point, digits (``1.0E-05``, not ``1e-05``)."""
+    text = repr(value)
+    if "e" in text:
+        mantissa, exp = text.split("e")
+        text = f"{mantissa if '.' in mantissa else mantissa + '.0'}E{exp}"
+    return text
+
+
 def _st_lit(n: A.Lit) -> str:
     if n.lit_type is T.TIME:
         return "T#" + format_ns(int(n.value))
     if n.type is T.BOOL or (n.type is None and n.lit_type is T.BOOL):
         return "TRUE" if n.value else "FALSE"
     if isinstance(n.value, float):
-        text = repr(n.value)
-        if "e" in text and "." not in text.split("e")[0]:
-            mantissa, exp = text.split("e")
-            text = f"{mantissa}.0E{exp}"
-        return text
+        return st_real(n.value)
     return str(int(n.value))
 
 

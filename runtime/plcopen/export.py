@@ -21,7 +21,7 @@ from runtime.drawing.layout import BAR_W, macro_of_transition
 from runtime.errors import SourceError
 from runtime.language import ast as A
 from runtime.language.model import Action, Grafcet, Qualifier, Step, Transition, VarKind
-from runtime.language.unparse import st_statements, st_text
+from runtime.language.unparse import st_real, st_statements, st_text
 from runtime.plcopen.geometry import (
     BAR_H,
     DOUBLE_H,
@@ -114,7 +114,7 @@ def value_text(t: A.Type, v: object) -> str:
         return "TRUE" if v else "FALSE"
     if t is A.Type.TIME:
         return "T#" + format_ns(int(v))  # type: ignore[call-overload]
-    return repr(v) if isinstance(v, float) else str(v)
+    return st_real(v) if isinstance(v, float) else str(v)
 
 
 def _interface(g: Grafcet, iface: Node) -> None:

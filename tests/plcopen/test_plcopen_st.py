@@ -76,3 +76,14 @@ FOR tI := 1 TO 10 BY 2 DO
     sCierres := sCierres + tI;
 END_FOR;
 timeTest.Ini(T#1m30s);"""
+
+
+def test_initial_values_in_iec_form(tmp_path: Path) -> None:
+    from runtime.plcopen.export import export_chart
+
+    p = tmp_path / "v.yaml"
+    p.write_text("grafcet: V\nmemory: {sR: 1.0e-5, sB: true, sT: 1m30s, sN: -3}\n"
+                 "steps: {s0: {initial: true}}\n", encoding="utf-8")
+    xml = export_chart(load_grafcet(str(p)))
+    assert [v for v in ('value="1.0E-05"', 'value="TRUE"', 'value="T#1m30s"', 'value="-3"')
+            if v not in xml] == []
