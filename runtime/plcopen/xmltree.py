@@ -130,10 +130,9 @@ class _Builder:
                                            "expected a PLCopen project (about 12 levels, 3 "
                                            "more per macro-step)")
         ns, _, tag = name.rpartition("}")
-        values: dict[str, str] = {}
-        for i in range(0, len(attrs), 2):
-            uri, _, local = attrs[i].rpartition("}")
-            values[f"{{{uri}}}{local}" if uri else local] = attrs[i + 1]
+        values = dict(zip(attrs[::2], attrs[1::2], strict=True))
+        if any("}" in k for k in values):  # namespaced attributes: {uri}name
+            values = {("{" + k if "}" in k else k): v for k, v in values.items()}
         p = self.p
         e = Element(ns, tag, values, self.path, p.CurrentLineNumber, p.CurrentColumnNumber + 1)
         if self.stack:
