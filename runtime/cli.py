@@ -13,6 +13,7 @@ import time
 from collections.abc import Iterator, Sequence
 from typing import IO, Any
 
+from runtime import package_version
 from runtime.errors import Loc, SourceError
 
 log = logging.getLogger("softplc")
@@ -459,17 +460,6 @@ def cmd_opcua_cert(args: argparse.Namespace) -> int:
     return 0
 
 
-def package_version() -> str:
-    """The installed package's version (importlib.metadata), or a word saying it is not
-    installed (run from a source tree without ``pip install``)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("softplc")
-    except PackageNotFoundError:
-        return "(not installed: run from a source tree)"
-
-
 class _VersionAction(argparse.Action):
     """``--version``: the package's version, looked up only when asked for (importing
     importlib.metadata costs every start some 20 ms, 120 ms without cached bytecode)."""
@@ -580,19 +570,24 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
 
     command = None if argv is None else next((a for a in argv if not a.startswith("-")), "")
     known = command in sub.choices or command in MODULE_COMMANDS
-    for name, module in MODULE_COMMANDS.items():
-        if command is None or command == name or not known:
+    wanted = {module for name, module in MODULE_COMMANDS.items()
+              if command is None or command == name or not known}
+    for module in dict.fromkeys(MODULE_COMMANDS.values()):  # each module once, in order
+        if module in wanted:
             importlib.import_module(module).register(sub)
     return p
 
 
-#: subcommands that live with their own module, which has a ``register(sub)``: name -> module
+#: subcommands that live with their own module, which has a ``register(sub)`` (a module
+#: may register several: PLCopen's import and export): name -> module
 MODULE_COMMANDS = {
     "check": "runtime.checker.check",
     "draw": "runtime.drawing.chart",
     "chronogram": "runtime.drawing.chronogram",
     "install-service": "runtime.controller.install",
     "monitor": "runtime.console.monitor",
+    "import": "runtime.plcopen.commands",
+    "export": "runtime.plcopen.commands",
 }
 
 

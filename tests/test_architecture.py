@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PARTS = (
     "runtime.cli", "runtime.errors", "runtime.language", "runtime.compiler", "runtime.engine",
     "runtime.controller", "runtime.console", "runtime.checker", "runtime.drawing", "drivers",
-    "runtime.change", "runtime.opcua",
+    "runtime.change", "runtime.opcua", "runtime.plcopen",
 )
 
 #: drivers modules with no bus library (the driver contract, lookup by type, durations, and
@@ -47,6 +47,8 @@ ALLOWED: dict[str, frozenset[str]] = {
     "runtime.opcua": frozenset({"runtime.errors", "runtime.language", "runtime.engine.names",
                                 "runtime.controller.feed", "runtime.controller.pin",
                                 "drivers.contract"}),
+    "runtime.plcopen": frozenset({"runtime.errors", "runtime.language", "runtime.drawing",
+                                  "drivers.contract"}),
     "runtime.cli": frozenset({"*"}),
     "runtime.change": frozenset({"runtime.errors", "runtime.language", "runtime.compiler",
                                  "runtime.engine", "drivers.contract"}),
@@ -109,9 +111,10 @@ def violations(graph: Mapping[str, list[tuple[int, str]]],
             if not allowed(src, dst, rules):
                 out.append(f"{src}:{line} imports {dst} ({part_of(src)} may import "
                            f"{', '.join(sorted(rules[part_of(src)])) or 'nothing of the project'})")
-            if part_of(dst) == "runtime.console" and part_of(src) not in ("runtime.console",
-                                                                          "runtime.cli"):
-                out.append(f"{src}:{line} imports the console ({dst}): only runtime.cli may")
+            for only_cli in ("runtime.console", "runtime.plcopen"):
+                if part_of(dst) == only_cli and part_of(src) not in (only_cli, "runtime.cli"):
+                    out.append(f"{src}:{line} imports {dst}: only runtime.cli may import "
+                               f"{only_cli}")
     return out
 
 
@@ -167,6 +170,10 @@ def test_no_import_cycle_between_parts() -> None:
     ("runtime.checker.check", "runtime.engine.plant"),
     ("runtime.opcua.server", "runtime.controller.daemon"),
     ("runtime.controller.feed", "runtime.opcua.server"),
+    ("runtime.plcopen.importer", "runtime.compiler.codegen"),
+    ("runtime.plcopen.export", "runtime.engine.plant"),
+    ("runtime.drawing.chart", "runtime.plcopen.export"),
+    ("runtime.checker.check", "runtime.plcopen.importer"),
 ])
 def test_the_rules_catch_a_forbidden_import(src: str, dst: str) -> None:
     """The checker of the rules is itself checked: each of these edges is refused."""

@@ -261,13 +261,19 @@ def place(c: Chart, hint: dict[str, float] | None = None) -> None:
     x) instead of the one the rule gives. Elements with no predecessor (a second initial
     step, a source transition) start a group of their own: placed once, then again to the
     right of everything in the rows their group takes."""
+    pred = {n: c.primary_pred(n) for n in c.nodes}
+    root_of: dict[str, str] = {}  # each element's group: the root up its primary predecessors
     members: dict[str, list[str]] = {}
     for n in c.dfs:
-        root = n
-        while (p := c.primary_pred(root)) is not None:
+        path, root = [], n
+        while root not in root_of and (p := pred[root]) is not None:
+            path.append(root)
             root = p
+        root = root_of.get(root, root)
+        for m in path:
+            root_of[m] = root
         members.setdefault(root, []).append(n)
-    roots = [r for r in c.dfs if c.primary_pred(r) is None]
+    roots = [r for r in c.dfs if pred[r] is None]
     later = {n for r in roots[1:] for n in members[r]}
     _place(c, hint, {}, later)  # the first group alone
     root_x: dict[str, float] = {}

@@ -12,7 +12,7 @@ import re
 from drivers.durations import format_ns
 from runtime.language import ast as A
 from runtime.language.model import Action, Qualifier, Statement, Step
-from runtime.language.unparse import unparse
+from runtime.language.unparse import atom_text, unparse
 
 #: the font family of every drawing; the widths below are this font's
 FONT = "DejaVu Sans, Helvetica, Arial, sans-serif"
@@ -56,14 +56,9 @@ def _seed(n: A.Node) -> tuple[str, int]:
         if n.lit_type is A.Type.BOOL or isinstance(n.value, bool):
             return ("1" if n.value else "0"), 0
         return f"{n.value!r}", (1 if n.value < 0 else 0)
-    if isinstance(n, A.Name):
-        return n.name, 0
-    if isinstance(n, A.StepFlag):
-        return f"{n.step}.{n.flag}", 0
-    if isinstance(n, A.Member):
-        return f"{n.obj}.{n.member}", 0
-    if isinstance(n, A.MethodCall):
-        return f"{n.obj}.{n.method}({', '.join(seed_text(a) for a in n.args)})", 0
+    atom = atom_text(n, seed_text)
+    if atom is not None:
+        return atom, 0
     if isinstance(n, A.Unary):
         inner, level = _seed(n.operand)
         if n.op == "NOT":  # postfix ' binds tighter than ↑: (↑a)' needs its parentheses

@@ -432,28 +432,36 @@ def _has_break(text: str, start: int, end: int) -> bool:
 
 class SourceFileError(SourceError):
     """A chart, plant or script file that cannot be read at all: no regular file below
-    MAX_FILE_BYTES (a FIFO, ``/dev/zero``, a directory, a huge file) or an error of the
-    system (``/proc/self/mem``: EIO). ``problem`` is the message without the place, for a
-    plant to say it at the line that names the file."""
+    its limit (a FIFO, ``/dev/zero``, a directory, a huge file) or an error of the system
+    (``/proc/self/mem``: EIO). ``problem`` is the message without the place, for a plant to
+    say it at the line that names the file."""
 
     def __init__(self, path: str, problem: str) -> None:
         super().__init__(Loc(path, 1, 1), problem)
         self.problem = problem
 
 
-def read_source(path: str) -> str:
-    """The text of a chart, plant or script file; SourceFileError if it is no regular file
-    below MAX_FILE_BYTES or cannot be read, SourceError if it is not UTF-8.
+def read_bytes(path: str, limit: int | None = None) -> bytes:
+    """The bytes of a user's file; SourceFileError if it is no regular file below ``limit``
+    bytes (MAX_FILE_BYTES unless told) or cannot be read.
 
     Read by ``safefile.read_bounded``, following a symbolic link (a deployment may link
     its plant file): never blocking, never past the limit."""
+    limit = MAX_FILE_BYTES if limit is None else limit
     try:
-        data = read_bounded(path, MAX_FILE_BYTES - 1, follow_links=True)
+        return read_bounded(path, limit - 1, follow_links=True)
     except UnfitFile as exc:
-        raise SourceFileError(path, f"must be a regular file below {MAX_FILE_BYTES // 1024} "
-                              f"KiB ({MAX_FILE_BYTES} bytes), found {exc.found}") from None
+        raise SourceFileError(path, f"must be a regular file below {limit // 1024} KiB "
+                              f"({limit} bytes), found {exc.found}") from None
     except OSError as exc:
         raise SourceFileError(path, f"cannot read file: {exc.strerror or exc}") from None
+
+
+def read_source(path: str) -> str:
+    """The text of a chart, plant or script file; SourceFileError if it is no regular file
+    below MAX_FILE_BYTES (``read_bytes``) or cannot be read, SourceError if it is not
+    UTF-8."""
+    data = read_bytes(path)
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -1,0 +1,112 @@
+"""The files ``softplc import`` writes: each chart as a grafcet YAML file, and a plant
+skeleton that binds every chart's inputs and outputs to simulated I/O."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any
+
+import yaml
+
+from drivers.durations import format_ns
+from runtime.language.yamlsrc import YList, YMap
+
+
+class _Flow(dict[str, Any]):
+    """A mapping written on one line: ``{from: A, to: B, when: iX}``."""
+
+
+class _FlowList(list[Any]):
+    """A list written on one line: ``[iA, iB]``."""
+
+
+#: libyaml's emitter when PyYAML has it (about 5 times as fast), else PyYAML's own
+_Base: type[yaml.SafeDumper] = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+
+
+class _Dumper(_Base):  # type: ignore[misc,valid-type]
+    """Block style, multi-line texts as literal blocks (``|``), short transitions and lists
+    of names on one line."""
+
+
+def _str(dumper: yaml.SafeDumper, text: str) -> yaml.ScalarNode:
+    if "\n" in text:
+        return dumper.represent_scalar("tag:yaml.org,2002:str", text.rstrip("\n") + "\n",
+                                       style="|")
+    return dumper.represent_scalar("tag:yaml.org,2002:str", text)
+
+
+_Dumper.add_representer(str, _str)
+_Dumper.add_representer(_Flow, lambda d, m: d.represent_mapping(
+    "tag:yaml.org,2002:map", m.items(), flow_style=True))
+_Dumper.add_representer(_FlowList, lambda d, v: d.represent_sequence(
+    "tag:yaml.org,2002:seq", v, flow_style=True))
+
+
+def _plain(value: Any, key: str = "") -> Any:
+    """The document as plain YAML data (the loader's YStr/YMap/YList are subclasses)."""
+    if isinstance(value, YMap) or isinstance(value, dict):
+        out = {str(k): _plain(v, str(k)) for k, v in value.items()}
+        if key == "transition" and all(_short(v) for v in out.values()):
+            return _Flow(out)
+        return out
+    if isinstance(value, YList) or isinstance(value, list):
+        items = [_plain(v, "transition" if key == "transitions" else "") for v in value]
+        if key in ("inputs", "outputs", "timers", "from", "to") and all(
+                _short(v) for v in items):
+            return _FlowList(items)
+        return items
+    if isinstance(value, str):
+        return str(value)
+    return value
+
+
+def _short(v: Any) -> bool:
+    if isinstance(v, dict):
+        return all(_short(x) for x in v.values())
+    if isinstance(v, list):
+        return all(_short(x) for x in v)
+    return not (isinstance(v, str) and ("\n" in v or len(v) > 60))
+
+
+def chart_yaml(doc: YMap, header: Iterable[str] = ()) -> str:
+    """The text of a grafcet file holding ``doc`` (an imported chart's document)."""
+    lines = [f"# {h}" for h in header]
+    body = yaml.dump(_plain(doc), Dumper=_Dumper, sort_keys=False, allow_unicode=True,
+                     default_flow_style=False, width=100)
+    return "\n".join(lines) + ("\n" if lines else "") + body
+
+
+def plant_yaml(instances: list[tuple[str, str, list[tuple[str, str, str]],
+                                     list[tuple[str, str, str]]]],
+               cycle_ns: int | None, header: Iterable[str] = ()) -> str:
+    """A plant on simulated I/O: ``instances`` as (name, chart file, inputs, outputs), each
+    signal (name, type, address in the PLCopen file or ""). The sim driver's points are
+    bits by any name and numbers on IR.../HR... (drivers/registry.py)."""
+    out = [f"# {h}" for h in header]
+    out += ["plc:", f"  cycle: {format_ns(cycle_ns or 10_000_000)}", "drivers:",
+            "  sim: {type: sim}", "instances:"]
+    bits = {"in": 0, "out": 0}
+    words = {"in": 0, "out": 0}
+    for name, chart, inputs, outputs in instances:
+        out += [f"  {name}:", f"    grafcet: {_q(chart)}"]
+        for key, way, signals in (("inputs", "in", inputs), ("outputs", "out", outputs)):
+            if not signals:
+                continue
+            out.append(f"    {key}:")
+            for sig, typ, address in signals:
+                if typ == "bool":
+                    point = f"{'I' if way == 'in' else 'Q'}{bits[way]}"
+                    bits[way] += 1
+                else:
+                    point = f"{'IR' if way == 'in' else 'HR'}{words[way]}"
+                    words[way] += 1
+                note = f"  # {address} in the PLCopen file" if address else ""
+                out.append(f"      {_q(sig)}: sim.{point}{note}")
+    return "\n".join(out) + "\n"
+
+
+def _q(text: str) -> str:
+    """A name or a file name as a YAML scalar (quoted when YAML would read it otherwise)."""
+    dumped: str = yaml.safe_dump(text, default_flow_style=True, allow_unicode=True)
+    return dumped.strip().removesuffix("...").strip()
