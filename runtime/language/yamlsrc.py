@@ -132,6 +132,16 @@ class YStr(str):
         return Loc(self.loc.file, line, col + 1)
 
 
+def placed_str(value: str, places: list[tuple[int, int]], loc: Loc) -> YStr:
+    """A YStr whose characters' file places are given (text read from another format,
+    such as PLCopen XML): ``places[i]`` is character i's (line, col)."""
+    s = YStr(value)
+    s.loc = loc
+    s._pos = places
+    s._src = None
+    return s
+
+
 def synthetic_str(value: str, loc: Loc) -> YStr:
     """A YStr for text that is not in the file as such (a YAML number or bool used as a
     condition): its characters are placed one after the other from ``loc``."""

@@ -8,7 +8,7 @@ import re
 
 from runtime.errors import Loc, SourceError
 from runtime.language.lexer import Lexer
-from runtime.language.yamlsrc import YStr, synthetic_str
+from runtime.language.yamlsrc import YStr, placed_str, synthetic_str
 from runtime.plcopen.schema import XHTML_NS
 from runtime.plcopen.xmltree import Element
 
@@ -16,20 +16,18 @@ from runtime.plcopen.xmltree import Element
 def compose(parts: list[str | YStr], at: Loc) -> YStr:
     """The texts of ``parts`` one after the other; the characters of a YStr keep their
     places, those of a plain str (an operator the importer adds) are placed at ``at``."""
-    out = YStr("".join(parts))
     places: list[tuple[int, int]] = []
     first: Loc | None = None
     for p in parts:
         if isinstance(p, YStr):
-            places += p._pos[:len(p)]
-            places += [(at.line, at.col)] * (len(p) - len(p._pos))
+            own = p.places()
+            places += own[:len(p)]
+            places += [(at.line, at.col)] * (len(p) - len(own))
             if first is None and len(p):
                 first = p.loc
         else:
             places += [(at.line, at.col)] * len(p)
-    out.loc = first or at
-    out._pos = places
-    return out
+    return placed_str("".join(parts), places, first or at)
 
 
 def sub(s: YStr, start: int, end: int | None = None) -> YStr:
@@ -39,10 +37,8 @@ def sub(s: YStr, start: int, end: int | None = None) -> YStr:
         start += 1
     while end > start and s[end - 1].isspace():
         end -= 1
-    out = YStr(str(s)[start:end])
-    out._pos = s._pos[start:end]
-    out.loc = s.pos(start) if start < len(s) else s.loc
-    return out
+    return placed_str(str(s)[start:end], s.places()[start:end],
+                      s.pos(start) if start < len(s) else s.loc)
 
 
 def plain(text: str, at: Loc) -> YStr:
@@ -93,9 +89,7 @@ def spell_as_declared(text: YStr, names: dict[str, str]) -> YStr:
             changed = True
     if not changed:
         return text
-    out = YStr("".join(chars))
-    out._pos, out.loc = text._pos, text.loc
-    return out
+    return placed_str("".join(chars), text.places(), text.loc)
 
 
 def native_text(qualifier: str, duration: str | None, body: str) -> str:

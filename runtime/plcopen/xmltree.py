@@ -19,7 +19,7 @@ from defusedxml.common import EntitiesForbidden, ExternalReferenceForbidden
 from defusedxml.ElementTree import DefusedXMLParser
 
 from runtime.errors import Loc, SourceError
-from runtime.language.yamlsrc import YStr, read_bytes
+from runtime.language.yamlsrc import YStr, placed_str, read_bytes
 
 #: the largest XML file read, bytes (16 MiB: an exported 500-step chart is about 1 MiB; a
 #: Beremiz project of a few dozen POUs a few MiB)
@@ -99,10 +99,8 @@ class Element:
             end = len(text.rstrip())
             if end < lead:
                 end = lead
-        s = YStr(text[lead:end])
-        s.loc = Loc(self.loc.file, *places[lead]) if lead < len(places) else self.loc
-        s._pos = places[lead:end]
-        return s
+        return placed_str(text[lead:end], places[lead:end],
+                          Loc(self.loc.file, *places[lead]) if lead < len(places) else self.loc)
 
 
 class _Builder:

@@ -23,7 +23,8 @@ import pytest
 from tests.console.consolekit import Rig, make_rig
 
 ROOT = Path(__file__).resolve().parents[2]
-DOC_SOCKET = "/run/softplc/console.sock"
+#: the console socket of an installed plant NAME, as docs/console.md writes it
+DOC_SOCKET = "/run/softplc/NAME/console.sock"
 #: generous: the machine is shared; every wait ends as soon as its condition holds
 DEADLINE_S = 30.0
 
@@ -114,6 +115,7 @@ class Terminal:
 @pytest.mark.parametrize("command, leave", documented_commands())
 def test_documented_socat_command_talks_to_the_console(rig: Rig, command: str,
                                                         leave: str) -> None:
+    assert DOC_SOCKET in command, f"the documented command names no {DOC_SOCKET}: {command}"
     argv = shlex.split(command.replace(DOC_SOCKET, str(rig.socket_path)))
     missing = [p for p in dict.fromkeys(argv[:2]) if p in ("socat", "rlwrap")
                and shutil.which(p) is None]
