@@ -28,9 +28,16 @@ CASES = [
 
 def run(plant: Path, *, user: int | None = None) -> subprocess.CompletedProcess[str]:
     argv = [sys.executable, "-m", "runtime.cli", "run", str(plant), "--for", "30s"]
+    env = None
     if user is not None:  # as that user: its permissions, not root's
         argv = ["setpriv", f"--reuid={user}", f"--regid={user}", "--clear-groups", *argv]
-    return subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=120)
+        # its runtime directory (${TMPDIR}/softplc-UID) where that user may create it: the
+        # test's own TMPDIR may be a directory of root's
+        shared = plant.parent / "tmp"
+        shared.mkdir(exist_ok=True)
+        shared.chmod(0o1777)
+        env = {**os.environ, "TMPDIR": str(shared)}
+    return subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=120, env=env)
 
 
 def write_plant(tmp_path: Path, type_name: str, cfg: dict[str, str | None]) -> Path:

@@ -370,14 +370,16 @@ def lock_name(plc: Container, name: str) -> str:
 def make_venv(plc: Container, python: str, venv: str) -> str:
     """A venv made by ``python`` with a ``softplc`` program of its own; the package it
     imports is the one installed in /opt/softplc/venv (through a .pth file: a second
-    ``pip install`` would only cost time). Its ``softplc``'s path."""
+    ``pip install`` would only cost time), its data files (the unit templates in
+    share/softplc) copied as ``pip install`` puts them. Its ``softplc``'s path."""
     site = plc.sh(f"{VENV}/bin/python -c 'import sysconfig; "
                   "print(sysconfig.get_paths()[\"purelib\"])'").stdout.strip()
     plc.sh(f"{python} -m venv --without-pip {venv} && "
            f"echo {site} > $({venv}/bin/python -c 'import sysconfig; "
            "print(sysconfig.get_paths()[\"purelib\"])')/softplc-installed.pth && "
            f"printf '#!{venv}/bin/python\\nimport sys\\nfrom runtime.cli import main\\n"
-           f"sys.exit(main())\\n' > {venv}/bin/softplc && chmod 755 {venv}/bin/softplc")
+           f"sys.exit(main())\\n' > {venv}/bin/softplc && chmod 755 {venv}/bin/softplc && "
+           f"mkdir -p {venv}/share && cp -r {VENV}/share/softplc {venv}/share/")
     return f"{venv}/bin/softplc"
 
 
