@@ -287,9 +287,12 @@ def _sight(p: Plan, pdef: PlantDef, softplc: str, check_exec: bool) -> None:
     name = p.name
     rdir = os.path.join(SERVICE_RUNTIME, name)
     uid, gids = service_identity(USER, (USER, *GROUPS))
-    for what, path in exec_chain(softplc):
+    chain = exec_chain(softplc)
+    listed = {path for _, path in chain}
+    for what, path in chain:
         python = what.startswith("the Python")
-        directive = hidden_by(path)
+        # a link whose target is in the chain too is said once, at the target
+        directive = hidden_by(path, follow=os.path.realpath(path) not in listed - {path})
         if directive is not None:
             fix = VENV_FIX if python else ("install softplc into a venv the service can "
                                            "see, e.g. /opt/softplc/venv (pip install "

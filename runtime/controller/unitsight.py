@@ -27,10 +27,10 @@ def below(path: str, directory: str) -> bool:
     return path == directory or path.startswith(directory.rstrip("/") + "/")
 
 
-def hidden_by(path: str) -> str | None:
-    """The directive that hides ``path`` (as written, or once its links are followed) from
-    the service; None if the service sees it."""
-    for p in (os.path.abspath(path), os.path.realpath(path)):
+def hidden_by(path: str, follow: bool = True) -> str | None:
+    """The directive that hides ``path`` (as written, or once its links are followed unless
+    ``follow`` is false) from the service; None if the service sees it."""
+    for p in (os.path.abspath(path), *([os.path.realpath(path)] if follow else [])):
         for directory, directive in HIDDEN:
             if below(p, directory):
                 return directive

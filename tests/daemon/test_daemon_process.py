@@ -295,6 +295,7 @@ def test_signal_in_the_middle_of_scans_ends_with_outputs_off(
     for _ in range(3):
         notify = NotifySocket(tmp_path / f"n{rng.random()}.sock")
         proc = start(path, {"NOTIFY_SOCKET": notify.path})
+        failed: AssertionError | None = None
         try:
             notify.wait_for("READY=1")
             wait_until(lambda: coils(peer) == [1, 1], 20, "outputs on")
@@ -305,9 +306,13 @@ def test_signal_in_the_middle_of_scans_ends_with_outputs_off(
                 assert "ok" in con.cmd(f"set m.sLoops {loops}")
             con.close()
             time.sleep(rng.uniform(0.0, 0.3))  # a random moment in the scans
+        except AssertionError as exc:  # said with the controller's own log
+            failed = exc
         finally:
             code, err = stop(proc, sig)
             notify.close()
+        if failed is not None:
+            raise AssertionError(f"{failed}\n--- the controller's log:\n{err[-4000:]}")
         assert code == 0, err
         assert f"stopping: {signal.Signals(sig).name}" in err
         assert coils(peer) == [0, 0], err
