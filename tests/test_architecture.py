@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PARTS = (
     "runtime.cli", "runtime.errors", "runtime.language", "runtime.compiler", "runtime.engine",
     "runtime.controller", "runtime.console", "runtime.checker", "runtime.drawing", "drivers",
-    "runtime.change", "runtime.opcua",
+    "runtime.change", "runtime.opcua", "runtime.mqtt",
 )
 
 #: drivers modules with no bus library (the driver contract, lookup by type, durations, and
@@ -45,8 +45,10 @@ ALLOWED: dict[str, frozenset[str]] = {
                                   "drivers.contract"}),
     "runtime.drawing": frozenset({"runtime.errors", "runtime.language", "drivers.contract"}),
     "runtime.opcua": frozenset({"runtime.errors", "runtime.language", "runtime.engine.names",
-                                "runtime.controller.feed", "runtime.controller.pin",
-                                "drivers.contract"}),
+                                "runtime.controller.feed", "runtime.controller.feedclient",
+                                "runtime.controller.pin", "drivers.contract"}),
+    "runtime.mqtt": frozenset({"runtime.errors", "runtime.language",
+                               "runtime.controller.feed", "runtime.controller.feedclient"}),
     "runtime.cli": frozenset({"*"}),
     "runtime.change": frozenset({"runtime.errors", "runtime.language", "runtime.compiler",
                                  "runtime.engine", "drivers.contract"}),
@@ -167,6 +169,10 @@ def test_no_import_cycle_between_parts() -> None:
     ("runtime.checker.check", "runtime.engine.plant"),
     ("runtime.opcua.server", "runtime.controller.daemon"),
     ("runtime.controller.feed", "runtime.opcua.server"),
+    ("runtime.mqtt.node", "runtime.controller.daemon"),
+    ("runtime.mqtt.node", "runtime.opcua.server"),
+    ("runtime.opcua.server", "runtime.mqtt.node"),
+    ("runtime.controller.feed", "runtime.mqtt.session"),
 ])
 def test_the_rules_catch_a_forbidden_import(src: str, dst: str) -> None:
     """The checker of the rules is itself checked: each of these edges is refused."""
