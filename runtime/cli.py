@@ -244,7 +244,16 @@ def _until_signal(serve: Callable[[Any], Awaitable[None]]) -> None:
 
 def cmd_opcua(args: argparse.Namespace) -> int:
     """The OPC UA server of a plant, fed by its running controller (docs/opcua.md)."""
+    from runtime.language.runtimedir import locate
+
     pdef = _side_plant(args.plant, "opcua", "serve this plant over OPC UA")
+    feed = args.feed or locate(pdef).feed  # where the controller serves it (one home)
+    assert feed is not None
+    endpoint = args.endpoint or pdef.opcua.endpoint
+    problem = _opcua_cannot_serve(pdef, endpoint, feed, bool(args.endpoint), bool(args.feed))
+    if problem is not None:  # at once, before asyncua takes seconds to set up
+        sys.stderr.write(f"{problem}\n")
+        return 2
     try:
         from runtime.opcua.server import serve
     except ImportError as exc:
@@ -252,7 +261,13 @@ def cmd_opcua(args: argparse.Namespace) -> int:
     if not logging.getLogger().isEnabledFor(logging.DEBUG):
         # asyncua logs every request at INFO: the journal gets its warnings and errors
         logging.getLogger("asyncua").setLevel(logging.WARNING)
-    _until_signal(lambda stop: serve(pdef, args.endpoint, args.feed, stop=stop))
+    try:
+        _until_signal(lambda stop: serve(pdef, endpoint, feed, stop=stop))
+    except OSError as exc:  # the port taken between the check and asyncua's bind
+        if exc.errno != errno.EADDRINUSE:
+            raise
+        sys.stderr.write(f"{_opcua_cannot_serve(pdef, endpoint, feed, False, False) or exc}\n")
+        return 2
     return 0
 
 
@@ -261,13 +276,16 @@ def cmd_mqtt(args: argparse.Namespace) -> int:
     (docs/mqtt.md)."""
     import ssl
 
+    from runtime.language.runtimedir import locate
+
     pdef = _side_plant(args.plant, "mqtt", "publish this plant over MQTT")
+    feed = args.feed or locate(pdef).feed  # where the controller serves it (one home)
     try:
         from runtime.mqtt.session import serve
     except ImportError as exc:
         raise _missing_extra(exc, "mqtt") from None
     try:
-        _until_signal(lambda stop: serve(pdef, args.feed, stop=stop))
+        _until_signal(lambda stop: serve(pdef, feed, stop=stop))
     except (OSError, ssl.SSLError) as exc:  # a certificate, key or password file
         where = getattr(exc, "filename", None)
         sys.stderr.write(f"softplc mqtt: error: {where + ': ' if where else ''}"

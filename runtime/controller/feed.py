@@ -203,9 +203,10 @@ class FeedServer:
 
     def _reload(self) -> None:
         self._replaced = False
+        # the new plant file's writable names; none for a side whose section is removed
+        # (the feed serves values until the controller restarts: change/diff.py says so)
         new = self.daemon.pdef.feed()
-        if new is not None:  # the new plant file's writable names
-            self.feed.writable = new.writable
+        self.feed.writable = new.writable if new is not None else {}
         self._cat = Catalogue(self.daemon.plant)
         self._schema_line = self._schema()
         self._values = None

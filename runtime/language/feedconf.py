@@ -10,24 +10,14 @@ else writes every scan: what a client may set between two scans (``writable_prob
 
 from __future__ import annotations
 
-import os
 from typing import Any
 
 from runtime.errors import Loc, SourceError, suggest
 from runtime.language import ast as A
 from runtime.language.grafcetfile import expect_type, time_value
 from runtime.language.model import PlantDef, VarKind
-from runtime.language.runtimedir import PLACEHOLDER, expand
+from runtime.language.runtimedir import default_feed, expand
 from runtime.language.yamlsrc import YMap
-
-DEFAULT_FEED = f"{PLACEHOLDER}/feed.sock"
-
-
-def default_feed(p: PlantDef, loc: Loc) -> str:
-    """Where the feed is when no section names it."""
-    consoles = [c.address for c in p.consoles if c.kind == "socket"]
-    return (os.path.join(os.path.dirname(consoles[0]), "feed.sock") if consoles
-            else expand(DEFAULT_FEED, loc))
 
 
 def sample_key(p: PlantDef, m: YMap, section: str) -> int:
@@ -66,7 +56,7 @@ def settle_feed(p: PlantDef, named: dict[str, Loc]) -> None:
         path, first = section.feed, key
     if not path:
         loc = sections[0][1].loc or Loc(p.path, 1, 1)
-        path = default_feed(p, loc)
+        path = default_feed([c.address for c in p.consoles if c.kind == "socket"], loc)
     for _key, section in sections:
         section.feed = path
 
