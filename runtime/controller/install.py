@@ -56,7 +56,7 @@ from runtime.controller.unitsight import (
     unreadable,
 )
 from runtime.errors import SoftplcError
-from runtime.language.model import MqttDef, MqttTls, PlantDef
+from runtime.language.model import MqttTls, PlantDef
 from runtime.language.plantfile import load_plant
 from runtime.language.runtimedir import (
     INSTALL_DIR,
@@ -360,24 +360,17 @@ def _sight(p: Plan, pdef: PlantDef, softplc: str, check_exec: bool) -> None:
                           f"put it in '{PLACEHOLDER}/'")
     if pdef.opcua is not None:
         sec = pdef.opcua.security
-        for key in ("certificate", "private_key", "trusted_clients", "trusted_readers"):
-            path = getattr(sec, key)
-            if not path:
-                continue
-            directive = hidden_by(path)
-            if directive is not None:
-                p.refusals.append(f"opcua: security: {key}: {path} is hidden from the "
-                                  f"service by {directive}: keep it under /etc/softplc")
-            elif not os.path.exists(path):
-                p.warnings.append(f"opcua: security: {key}: {path} does not exist yet "
-                                  "(softplc opcua-cert makes a certificate, docs/opcua.md)")
-            else:
-                why = unreadable(path, uid, gids)
-                if why is not None:
-                    p.refusals.append(f"opcua: security: {key}: {path} cannot be read by "
-                                      f"the user {USER}: {why}")
+        _service_reads(p, [(f"opcua: security: {key}", getattr(sec, key)) for key in
+                           ("certificate", "private_key", "trusted_clients",
+                            "trusted_readers")],
+                       "softplc opcua-cert makes a certificate, docs/opcua.md", uid, gids)
     if pdef.mqtt is not None:
-        _mqtt_files(p, pdef.mqtt, uid, gids)
+        tls = pdef.mqtt.tls or MqttTls()
+        _service_reads(p, [("mqtt: tls: ca", tls.ca), ("mqtt: tls: certificate",
+                                                       tls.certificate),
+                           ("mqtt: tls: private_key", tls.private_key),
+                           ("mqtt: password_file", pdef.mqtt.password_file)],
+                       "the edge node cannot connect without it, docs/mqtt.md", uid, gids)
     if not pdef.consoles or all(c.kind == "serial" for c in pdef.consoles):
         p.warnings.append(f"monitor: no console socket or TCP port: `systemctl reload "
                           f"{p.controller}` (online change) needs one; add monitor: socket: "
@@ -390,27 +383,24 @@ def _sight(p: Plan, pdef: PlantDef, softplc: str, check_exec: bool) -> None:
         p.warnings.append("the plant uses simulated I/O (type: sim): nothing physical moves")
 
 
-def _mqtt_files(p: Plan, q: MqttDef, uid: int, gids: set[int]) -> None:
-    """Refusals for the files of ``mqtt:`` the edge node's unit could not see or read (its
-    TLS files, its password file), a warning for one not there yet."""
-    tls = q.tls or MqttTls()
-    for key, path in (("tls: ca", tls.ca), ("tls: certificate", tls.certificate),
-                      ("tls: private_key", tls.private_key),
-                      ("password_file", q.password_file)):
+def _service_reads(p: Plan, files: list[tuple[str, str | None]], missing: str, uid: int,
+                   gids: set[int]) -> None:
+    """Refusals for the files a unit reads (certificates, keys, a password file: KEY and
+    path) that it could not see or its user could not read; a warning for one not there yet
+    (``missing``: what makes it, or what it is for)."""
+    for key, path in files:
         if not path:
             continue
         directive = hidden_by(path)
         if directive is not None:
-            p.refusals.append(f"mqtt: {key}: {path} is hidden from the service by "
-                              f"{directive}: keep it under /etc/softplc")
+            p.refusals.append(f"{key}: {path} is hidden from the service by {directive}: "
+                              "keep it under /etc/softplc")
         elif not os.path.exists(path):
-            p.warnings.append(f"mqtt: {key}: {path} does not exist yet (the edge node "
-                              "cannot connect without it, docs/mqtt.md)")
+            p.warnings.append(f"{key}: {path} does not exist yet ({missing})")
         else:
             why = unreadable(path, uid, gids)
             if why is not None:
-                p.refusals.append(f"mqtt: {key}: {path} cannot be read by the user "
-                                  f"{USER}: {why}")
+                p.refusals.append(f"{key}: {path} cannot be read by the user {USER}: {why}")
 
 
 def _ports(pdef: PlantDef) -> dict[str, str]:

@@ -448,14 +448,17 @@ def lock_name(plc: Container, name: str) -> str:
 def make_venv(plc: Container, python: str, venv: str) -> str:
     """A venv made by ``python`` with a ``softplc`` program of its own; the package it
     imports is the one installed in /opt/softplc/venv (through a .pth file: a second
-    ``pip install`` would only cost time). Its ``softplc``'s path."""
+    ``pip install`` would only cost time), its unit templates copied into its share/softplc
+    as pip would have put them. Its ``softplc``'s path."""
     site = plc.sh(f"{VENV}/bin/python -c 'import sysconfig; "
                   "print(sysconfig.get_paths()[\"purelib\"])'").stdout.strip()
     plc.sh(f"{python} -m venv --without-pip {venv} && "
            f"echo {site} > $({venv}/bin/python -c 'import sysconfig; "
            "print(sysconfig.get_paths()[\"purelib\"])')/softplc-installed.pth && "
            f"printf '#!{venv}/bin/python\\nimport sys\\nfrom runtime.cli import main\\n"
-           f"sys.exit(main())\\n' > {venv}/bin/softplc && chmod 755 {venv}/bin/softplc")
+           f"sys.exit(main())\\n' > {venv}/bin/softplc && chmod 755 {venv}/bin/softplc && "
+           # the unit templates, where pip puts the package's data files: PREFIX/share
+           f"mkdir -p {venv}/share && cp -r {VENV}/share/softplc {venv}/share/")
     return f"{venv}/bin/softplc"
 
 
