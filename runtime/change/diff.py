@@ -169,10 +169,9 @@ MQTT_OWN = ("brokers", "group_id", "edge_node_id", "client_id", "username", "pas
 
 
 def _sides(cs: ChangeSet) -> None:
-    """``opcua:`` and ``mqtt:``: the
-    controller serves their one feed from its start, so what changes the feed (its socket,
-    its sample: the shortest of the sections') is refused until a restart, and so is a
-    section added to a plant that had no feed; a removal applies the fail-safe part at once
+    """``opcua:`` and ``mqtt:``: the controller serves their one feed from its start, so
+    what changes the feed (its socket, its sample: the shortest of the sections') is
+    refused until a restart, and so is a section added to a plant that had no feed; a removal applies the fail-safe part at once
     (that side's writes end, the feed serves values until a restart); the writable names
     are applied at the swap; the rest is the side process's own, applied when it
     restarts."""
