@@ -171,10 +171,10 @@ MQTT_OWN = ("brokers", "group_id", "edge_node_id", "client_id", "username", "pas
 def _sides(cs: ChangeSet) -> None:
     """``opcua:`` and ``mqtt:``: the controller serves their one feed from its start, so
     what changes the feed (its socket, its sample: the shortest of the sections') is
-    refused until a restart, and so is a section added to a plant that had no feed; a removal applies the fail-safe part at once
-    (that side's writes end, the feed serves values until a restart); the writable names
-    are applied at the swap; the rest is the side process's own, applied when it
-    restarts."""
+    refused until a restart, and so is a section added to a plant that had no feed; a
+    removal applies the fail-safe part at once (that side's writes end, the feed serves
+    values until a restart); the writable names are applied at the swap; the rest is the
+    side process's own, applied when it restarts."""
     ofeed, nfeed = cs.old.feed(), cs.new.feed()
     feed_changed = (ofeed is not None and nfeed is not None
                     and (ofeed.path, ofeed.sample_ns) != (nfeed.path, nfeed.sample_ns))
