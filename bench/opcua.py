@@ -228,13 +228,14 @@ def make_pki(directory: str) -> dict[str, str]:
 
 def start_daemon(path: str, testers: int, feed: bool) -> tuple[Daemon, FeedServer | None]:
     pdef = load_plant(path)
-    if not feed:
-        pdef.opcua = None
+    if not feed:  # the plant without its side processes' sections: no feed
+        pdef.opcua = pdef.mqtt = None
     daemon = Daemon(pdef, sim=True, manage_gc=True)
     daemon.add_listener(DrawerModel(daemon, testers))
     fs = None
-    if pdef.opcua is not None:
-        fs = FeedServer(daemon, pdef.opcua)
+    feed_def = pdef.feed()
+    if feed_def is not None:
+        fs = FeedServer(daemon, feed_def)
         fs.start()
     daemon.start()
     time.sleep(1.0)  # warm-up, not counted
@@ -298,12 +299,24 @@ def phase_server(path: str, testers: int, clients: int, seconds: float, url: str
     finally:
         for p in procs:
             p.wait(60)
-        server.send_signal(signal.SIGTERM)
-        try:
-            server.wait(60)
-        except subprocess.TimeoutExpired:
-            server.kill()
+        end_process(server)
         stop_daemon(daemon, fs)
+
+
+def end_process(p: subprocess.Popen[Any], seconds: float = 60.0) -> None:
+    """SIGTERM, then SIGKILL after ``seconds``."""
+    p.send_signal(signal.SIGTERM)
+    try:
+        p.wait(seconds)
+    except subprocess.TimeoutExpired:
+        p.kill()
+        p.wait()
+
+
+def scan_row(label: str, r: dict[str, Any], extra: str) -> str:
+    """A table row: the phase, the scan's figures of ``window``, then ``extra`` cells."""
+    return (f"| {label} | {r['cycles']} | {r['overruns']} | {r['faults']} | {r['p50']:.0f} | "
+            f"{r['p99']:.0f} | {r['max']:.0f}{extra}")
 
 
 def row(label: str, r: dict[str, Any]) -> str:
@@ -311,8 +324,7 @@ def row(label: str, r: dict[str, Any]) -> str:
     if "notif_s" in r:
         extra = (f" | {r['nodes']} | {r['notif_s']:.0f} | {r['cpu_pct']:.0f} % | "
                  f"{r['rss']:.0f} ({r['hwm']:.0f}) |")
-    return (f"| {label} | {r['cycles']} | {r['overruns']} | {r['faults']} | {r['p50']:.0f} | "
-            f"{r['p99']:.0f} | {r['max']:.0f}{extra}")
+    return scan_row(label, r, extra)
 
 
 def main() -> None:

@@ -10,7 +10,7 @@ import os
 import stat
 import sys
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Awaitable, Callable, Iterator, Sequence
 from typing import IO, Any
 
 from runtime import package_version
@@ -116,6 +116,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     pdef = load_plant(args.plant)
     where = locate(pdef)
     lock = PlantLock(where)
+    feed_def = pdef.feed()  # the side processes' feed (opcua:, mqtt:)
     try:
         lock.check()  # a running controller of this plant is named before anything else
         prepare(plant_files(pdef), where.runtime_dir)  # its own directories, checked
@@ -135,7 +136,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
                 daemon.add_listener(ScriptPlayer(daemon.plant, args.script))
             server = _console_server(daemon) if pdef.consoles else None
-            feed = _feed_server(daemon) if pdef.opcua is not None else None
+            feed = _feed_server(daemon, feed_def) if feed_def is not None else None
 
             def started() -> None:
                 _check_opened(daemon)
@@ -216,25 +217,48 @@ def _console_server(daemon: Any) -> Any:
     return ConsoleServer(service, pdef.consoles)
 
 
-def _feed_server(daemon: Any) -> Any:
-    """The OPC UA server's feed (runtime/controller/feed.py), served by the controller."""
+def _feed_server(daemon: Any, feed_def: Any) -> Any:
+    """The side processes' feed (runtime/controller/feed.py), served by the controller."""
     from runtime.controller.feed import FeedServer
 
-    return FeedServer(daemon, daemon.pdef.opcua)
+    return FeedServer(daemon, feed_def)
+
+
+def _side_plant(path: str, section: str, doing: str) -> Any:
+    """The plant of a side process (``softplc opcua``, ``softplc mqtt``): loaded, with its
+    section, else an error at the plant file."""
+    from runtime.language.plantfile import load_plant
+
+    pdef = load_plant(path)
+    if getattr(pdef, section) is None:
+        raise SourceError(Loc(pdef.path, 1, 1), f"no '{section}:' section: add one to {doing} "
+                                                f"(docs/{section}.md)")
+    return pdef
+
+
+def _missing_extra(exc: ImportError, extra: str) -> ImportError:
+    return ImportError(f"{exc}: install the {extra} extra (pip install 'softplc[{extra}]')")
+
+
+def _until_signal(serve: Callable[[Any], Awaitable[None]]) -> None:
+    """``serve(stop)`` in an event loop until SIGTERM, SIGINT or SIGHUP sets ``stop``."""
+    import asyncio
+    import signal
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for s in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+            loop.add_signal_handler(s, stop.set)
+        await serve(stop)
+    asyncio.run(main())
 
 
 def cmd_opcua(args: argparse.Namespace) -> int:
     """The OPC UA server of a plant, fed by its running controller (docs/opcua.md)."""
-    import asyncio
-    import signal
-
-    from runtime.language.plantfile import load_plant
     from runtime.language.runtimedir import locate
 
-    pdef = load_plant(args.plant)
-    if pdef.opcua is None:
-        raise SourceError(Loc(pdef.path, 1, 1), "no 'opcua:' section: add one to serve "
-                                                "this plant over OPC UA (docs/opcua.md)")
+    pdef = _side_plant(args.plant, "opcua", "serve this plant over OPC UA")
     feed = args.feed or locate(pdef).feed  # where the controller serves it (one home)
     assert feed is not None
     endpoint = args.endpoint or pdef.opcua.endpoint
@@ -245,24 +269,39 @@ def cmd_opcua(args: argparse.Namespace) -> int:
     try:
         from runtime.opcua.server import serve
     except ImportError as exc:
-        raise ImportError(f"{exc}: install the opcua extra (pip install "
-                          "'softplc[opcua]')") from None
+        raise _missing_extra(exc, "opcua") from None
     if not logging.getLogger().isEnabledFor(logging.DEBUG):
         # asyncua logs every request at INFO: the journal gets its warnings and errors
         logging.getLogger("asyncua").setLevel(logging.WARNING)
-
-    async def main() -> None:
-        stop = asyncio.Event()
-        loop = asyncio.get_running_loop()
-        for s in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
-            loop.add_signal_handler(s, stop.set)
-        await serve(pdef, endpoint, feed, stop=stop)
     try:
-        asyncio.run(main())
+        _until_signal(lambda stop: serve(pdef, endpoint, feed, stop=stop))
     except OSError as exc:  # the port taken between the check and asyncua's bind
         if exc.errno != errno.EADDRINUSE:
             raise
         sys.stderr.write(f"{_opcua_cannot_serve(pdef, endpoint, feed, False, False) or exc}\n")
+        return 2
+    return 0
+
+
+def cmd_mqtt(args: argparse.Namespace) -> int:
+    """The plant's MQTT Sparkplug B edge node, fed by its running controller
+    (docs/mqtt.md)."""
+    import ssl
+
+    from runtime.language.runtimedir import locate
+
+    pdef = _side_plant(args.plant, "mqtt", "publish this plant over MQTT")
+    feed = args.feed or locate(pdef).feed  # where the controller serves it (one home)
+    try:
+        from runtime.mqtt.session import serve
+    except ImportError as exc:
+        raise _missing_extra(exc, "mqtt") from None
+    try:
+        _until_signal(lambda stop: serve(pdef, feed, stop=stop))
+    except (OSError, ssl.SSLError) as exc:  # a certificate, key or password file
+        where = getattr(exc, "filename", None)
+        sys.stderr.write(f"softplc mqtt: error: {where + ': ' if where else ''}"
+                         f"{getattr(exc, 'strerror', None) or exc}\n")
         return 2
     return 0
 
@@ -567,6 +606,12 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     o.add_argument("--endpoint", help="override opcua: endpoint (opc.tcp://HOST:PORT)")
     o.add_argument("--feed", help="override opcua: feed (the controller's feed socket)")
     o.set_defaults(func=cmd_opcua)
+
+    mq = sub.add_parser("mqtt", help="publish a running plant over MQTT Sparkplug B (its own "
+                                     "process)")
+    mq.add_argument("plant")
+    mq.add_argument("--feed", help="override mqtt: feed (the controller's feed socket)")
+    mq.set_defaults(func=cmd_mqtt)
 
     command = None if argv is None else next((a for a in argv if not a.startswith("-")), "")
     known = command in sub.choices or command in MODULE_COMMANDS

@@ -15,6 +15,9 @@ done
 # socat for pty pairs and, with rlwrap, the console commands docs/console.md gives;
 # setpriv and unshare for the permission and full-disk tests; systemd-nspawn for the
 # journeys under a real systemd); tests skip with a reason where a tool is missing.
+# setpriv and unshare for the permission and full-disk tests; ip for the network namespaces
+# of the MQTT tests; mosquitto, their broker); tests skip with a reason where a tool is
+# missing, but in CI the MQTT tests fail instead.
 if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
   missing=""
   command -v systemd-analyze >/dev/null || missing="$missing systemd"
@@ -29,6 +32,8 @@ if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
   # (systemd-nspawn), in which the venv is made from the system's Python (python3-venv)
   command -v systemd-nspawn >/dev/null || missing="$missing systemd-container"
   dpkg -s python3-venv >/dev/null 2>&1 || missing="$missing python3-venv"
+  # the MQTT tests' broker (tests/mqtt: started by the tests on a loopback port)
+  command -v mosquitto >/dev/null || [ -x /usr/sbin/mosquitto ] || missing="$missing mosquitto"
   if [ -n "$missing" ]; then
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $missing >/dev/null || \
       echo "test.sh: could not install:$missing (the tests that need them will skip)" >&2

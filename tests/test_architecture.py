@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PARTS = (
     "runtime.cli", "runtime.errors", "runtime.language", "runtime.compiler", "runtime.engine",
     "runtime.controller", "runtime.console", "runtime.checker", "runtime.drawing", "drivers",
-    "runtime.change", "runtime.opcua", "runtime.plcopen",
+    "runtime.change", "runtime.opcua", "runtime.plcopen", "runtime.mqtt",
 )
 
 #: drivers modules with no bus library (the driver contract, lookup by type, durations, and
@@ -45,8 +45,10 @@ ALLOWED: dict[str, frozenset[str]] = {
                                   "drivers.contract"}),
     "runtime.drawing": frozenset({"runtime.errors", "runtime.language", "drivers.contract"}),
     "runtime.opcua": frozenset({"runtime.errors", "runtime.language", "runtime.engine.names",
-                                "runtime.controller.feed", "runtime.controller.pin",
-                                "drivers.contract"}),
+                                "runtime.controller.feed", "runtime.controller.feedclient",
+                                "runtime.controller.pin", "drivers.contract"}),
+    "runtime.mqtt": frozenset({"runtime.errors", "runtime.language",
+                               "runtime.controller.feed", "runtime.controller.feedclient"}),
     "runtime.plcopen": frozenset({"runtime.errors", "runtime.language", "runtime.drawing",
                                   "drivers.contract"}),
     "runtime.cli": frozenset({"*"}),
@@ -174,6 +176,10 @@ def test_no_import_cycle_between_parts() -> None:
     ("runtime.plcopen.export", "runtime.engine.plant"),
     ("runtime.drawing.chart", "runtime.plcopen.export"),
     ("runtime.checker.check", "runtime.plcopen.importer"),
+    ("runtime.mqtt.node", "runtime.controller.daemon"),
+    ("runtime.mqtt.node", "runtime.opcua.server"),
+    ("runtime.opcua.server", "runtime.mqtt.node"),
+    ("runtime.controller.feed", "runtime.mqtt.session"),
 ])
 def test_the_rules_catch_a_forbidden_import(src: str, dst: str) -> None:
     """The checker of the rules is itself checked: each of these edges is refused."""

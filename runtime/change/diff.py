@@ -13,8 +13,10 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 from runtime.compiler.layout import written
+from runtime.language.feedconf import SIDE_NAMES
 from runtime.language.model import (
     Binding,
     Grafcet,
@@ -138,7 +140,7 @@ def diff_plants(old: PlantDef, new: PlantDef) -> ChangeSet:
             add(f"plant: {what} changed")
             cs.refusals.append(Refusal(f"{what} changed: it takes effect only at a restart "
                                        "of the controller", False))
-    _opcua(cs)
+    _sides(cs)
     # what the new plant brings with it (the retain interval is read at each save; the
     # console's PIN, limits and forces policy are applied at the swap, console/service.py)
     brought: tuple[tuple[str, object, object], ...] = (
@@ -170,42 +172,78 @@ def diff_plants(old: PlantDef, new: PlantDef) -> ChangeSet:
     return cs
 
 
-# -- the opcua: section -------------------------------------------------------------------
-def _opcua(cs: ChangeSet) -> None:
-    """``opcua:``: the controller serves its feed from its start (added, or a changed
-    sample or feed socket: refused until a restart); a removal applies the fail-safe part
-    at once (writes end, the feed serves values until a restart); the writable names are
-    applied at the swap; the endpoint and the security are the OPC UA server's, applied
-    when it restarts."""
-    old, new = cs.old.opcua, cs.new.opcua
+# -- the side processes' sections (opcua:, mqtt:) ------------------------------------------
+#: section -> its process and unit, as the diff names them
+SIDES = {"opcua": ("OPC UA server", "softplc opcua; systemctl restart softplc-opcua@NAME"),
+         "mqtt": ("MQTT edge node", "softplc mqtt; systemctl restart softplc-mqtt@NAME")}
+#: what of ``mqtt:`` is the edge node's own (read at its start)
+MQTT_OWN = ("brokers", "group_id", "edge_node_id", "client_id", "username", "password_file",
+            "tls", "primary_host", "publish", "statistics_ns", "keepalive_ns", "buffer")
+
+
+def _sides(cs: ChangeSet) -> None:
+    """``opcua:`` and ``mqtt:``: the controller serves their one feed from its start, so
+    what changes the feed (its socket, its sample: the shortest of the sections') is
+    refused until a restart, and so is a section added to a plant that had no feed; a
+    removal applies the fail-safe part at once (that side's writes end, the feed serves
+    values until a restart); the writable names are applied at the swap; the rest is the
+    side process's own, applied when it restarts."""
+    ofeed, nfeed = cs.old.feed(), cs.new.feed()
+    feed_changed = (ofeed is not None and nfeed is not None
+                    and (ofeed.path, ofeed.sample_ns) != (nfeed.path, nfeed.sample_ns))
     add = cs._lines.append
-    if old is None and new is None:
-        return
-    if old is None:
-        add("plant: opcua: added")
-        cs.refusals.append(Refusal("opcua: added: the feed is served from the controller's "
-                                   "start: restart the controller, then start its OPC UA "
-                                   "server", False))
-        return
-    if new is None:
-        add("plant: opcua: removed: OPC UA writes refused from now on; the feed serves "
-            "values until the controller restarts")
-        return
-    for what, a, b in (("sample", old.sample_ns, new.sample_ns),
-                       ("feed", old.feed, new.feed)):
-        if a != b:
-            add(f"plant: opcua {what} changed")
-            cs.refusals.append(Refusal(f"opcua: {what} changed: it takes effect only at a "
-                                       "restart of the controller", False))
-    if old.writable != new.writable:
-        add(f"plant: opcua writable changed: [{', '.join(old.writable)}] -> "
-            f"[{', '.join(new.writable)}]")
-    for what, a, b in (("endpoint", old.endpoint, new.endpoint),  # type: ignore[assignment]
-                       ("security", replace(old.security, loc=None),
-                        replace(new.security, loc=None))):
-        if a != b:
-            add(f"plant: opcua {what} changed: applied when the OPC UA server restarts "
-                "(softplc opcua; systemctl restart softplc-opcua@NAME)")
+    sections: tuple[tuple[str, Any, Any], ...] = (
+        ("opcua", cs.old.opcua, cs.new.opcua), ("mqtt", cs.old.mqtt, cs.new.mqtt))
+    for key, old, new in sections:
+        process, restart = SIDES[key]
+        if old is None and new is None:
+            continue
+        if old is None:
+            add(f"plant: {key}: added")
+            if ofeed is None:
+                cs.refusals.append(Refusal(f"{key}: added: the feed is served from the "
+                                           "controller's start: restart the controller, "
+                                           f"then start its {process}", False))
+            elif feed_changed:
+                cs.refusals.append(Refusal(f"{key}: added: it changes the feed (its sample "
+                                           "or socket), set up at the controller's start: "
+                                           f"restart the controller, then start its "
+                                           f"{process}", False))
+            continue
+        if new is None:
+            add(f"plant: {key}: removed: {SIDE_NAMES[key]} writes refused from now on; the "
+                "feed serves values until the controller restarts")
+            continue
+        for what, a, b in (("sample", old.sample_ns, new.sample_ns),
+                           ("feed", old.feed, new.feed)):
+            if a == b:
+                continue
+            if feed_changed:
+                add(f"plant: {key} {what} changed")
+                cs.refusals.append(Refusal(f"{key}: {what} changed: it takes effect only at "
+                                           "a restart of the controller", False))
+            elif key == "mqtt":  # the edge node reports at most once per its own sample
+                add(f"plant: {key} {what} changed: applied when the {process} restarts "
+                    f"({restart})")
+            else:
+                add(f"plant: {key} {what} changed: the feed's is the same (the shortest "
+                    "of opcua: and mqtt:)")
+        if old.writable != new.writable:
+            add(f"plant: {key} writable changed: [{', '.join(old.writable)}] -> "
+                f"[{', '.join(new.writable)}]")
+        if key == "opcua":
+            own: list[tuple[str, object, object]] = [
+                ("endpoint", old.endpoint, new.endpoint),
+                ("security", replace(old.security, loc=None), replace(new.security, loc=None))]
+        else:  # (the TLS files' place in the file is no setting)
+            own = [(f.removesuffix("_ns"), getattr(old, f), getattr(new, f))
+                   for f in MQTT_OWN if f != "tls"]
+            own.append(("tls", old.tls and replace(old.tls, loc=None),
+                        new.tls and replace(new.tls, loc=None)))
+        for what, a, b in own:
+            if a != b:
+                add(f"plant: {key} {what} changed: applied when the {process} restarts "
+                    f"({restart})")
 
 
 # -- drivers -------------------------------------------------------------------------------

@@ -1,5 +1,6 @@
-"""The feed: snapshots of the process image for a process beside the controller (the OPC UA
-server, ``softplc opcua``), over a local socket, without costing the scan its cycle.
+"""The feed: snapshots of the process image for the processes beside the controller (the OPC
+UA server, ``softplc opcua``; the MQTT edge node, ``softplc mqtt``), over a local socket,
+without costing the scan its cycle.
 
 Controller side (``FeedServer``): every ``sample`` ns the scan thread, at the end of a
 cycle, stores a copy of the image (``Catalogue.capture``: a few list copies) with its scan
@@ -8,8 +9,9 @@ reads every name from it, and sends inside the console's scan window (``ScanWind
 each client the schema once, then one JSON line per snapshot with the values that changed.
 A client whose unsent output passes OUT_MAX (it stopped reading) is dropped: the scan and
 the other clients never wait for it. Writes come back on the same socket (``set``): only
-names of the plant's ``opcua: writable:`` list, applied between two scans as the console's
-``set`` is (``Daemon.call``), each answered ok or error.
+names of the ``writable:`` list of the side process that asks (``opcua:``, ``mqtt:``),
+applied between two scans as the console's ``set`` is (``Daemon.call``: the requests read
+together are applied in one call), each answered ok or error.
 
 Client side (``FeedState``): the schema and the values of the last frame, decoded.
 
@@ -17,8 +19,8 @@ Messages, one JSON object per line (``"\\n"``):
 
 - server -> client ``{"schema": {...}}`` first, and again after an online change replaced
   the plant (the client rebuilds what it shows; the next frame is a whole one): ``names``
-  ([name, type, role] in value order), ``instances``, ``drivers``, ``writable``,
-  ``cycle_ms``, ``sample_ms``;
+  ([name, type, role] in value order), ``instances``, ``drivers``, ``writable`` (side
+  process -> names), ``cycle_ms``, ``sample_ms``;
 - ``{"f": [scan, wall_s, values]}``: a whole frame (first after the schema), values in
   schema order; ``{"d": [scan, wall_s, [i, v, i, v, ...]]}``: only the values that changed
   since the previous frame. ``scan`` is the trace's ``cycle`` number; times are in ns;
@@ -27,7 +29,8 @@ Messages, one JSON object per line (``"\\n"``):
   max), before the frame it goes with, only when it changed (the scan count is the
   frame's scan + 1);
 - ``{"r": [id, ok, text]}``: the answer to a ``set``;
-- client -> server ``{"set": [id, name, value]}`` (value in the name's type; times in ns).
+- client -> server ``{"set": [id, name, value, side]}`` (value in the name's type; times in
+  ns; ``side`` is the asking section, ``opcua`` or ``mqtt``: ``opcua`` when left out).
 """
 
 from __future__ import annotations
@@ -49,7 +52,8 @@ from runtime.controller.window import ScanWindow
 from runtime.engine.instance import coerce
 from runtime.engine.names import Catalogue, Image
 from runtime.language import ast as A
-from runtime.language.model import OpcuaDef
+from runtime.language.feedconf import SIDE_NAMES
+from runtime.language.model import FeedDef
 
 if TYPE_CHECKING:
     from runtime.controller.daemon import Daemon
@@ -84,17 +88,17 @@ class _Client:
 
 
 class FeedServer:
-    """Serves the feed of ``daemon`` on ``opc.feed`` until ``stop()``."""
+    """Serves the feed of ``daemon`` on ``feed.path`` until ``stop()``."""
 
-    def __init__(self, daemon: Daemon, opc: OpcuaDef,
+    def __init__(self, daemon: Daemon, feed: FeedDef,
                  wall: Callable[[], float] = time.time) -> None:
         self.daemon = daemon
-        self.opc = opc
-        self.path = opc.feed
+        self.feed = feed
+        self.path = feed.path
         self.wall = wall
         cycle_ns = daemon.plant.cycle_ns
         #: a snapshot every this many scans
-        self.every = max(1, opc.sample_ns // cycle_ns)
+        self.every = max(1, feed.sample_ns // cycle_ns)
         self.window = ScanWindow(cycle_ns / 1e9)
         self._cat = Catalogue(daemon.plant)
         self._next = 0
@@ -199,10 +203,10 @@ class FeedServer:
 
     def _reload(self) -> None:
         self._replaced = False
-        # the new plant file's writable names; none once the section is removed (the feed
-        # serves values until the controller restarts: change/diff.py says so)
-        opc = self.daemon.pdef.opcua
-        self.opc.writable = list(opc.writable) if opc is not None else []
+        # the new plant file's writable names; none for a side whose section is removed
+        # (the feed serves values until the controller restarts: change/diff.py says so)
+        new = self.daemon.pdef.feed()
+        self.feed.writable = new.writable if new is not None else {}
         self._cat = Catalogue(self.daemon.plant)
         self._schema_line = self._schema()
         self._values = None
@@ -262,11 +266,14 @@ class FeedServer:
             self._drop(c, None)
             return
         c.inbuf += data
+        lines = []
         while b"\n" in c.inbuf:
             line, _, rest = bytes(c.inbuf).partition(b"\n")
             c.inbuf = bytearray(rest)
+            lines.append(line)
+        if lines:
             try:
-                self._request(c, line)
+                self._requests(c, lines)
             except Exception as exc:  # noqa: BLE001 - one client's line never ends the feed
                 log.warning("feed: a request of %s failed (%s: %s): client dropped", c.peer,
                             type(exc).__name__, exc)
@@ -276,47 +283,77 @@ class FeedServer:
         if len(c.inbuf) > IN_MAX:
             self._drop(c, "a line too long")
 
-    def _request(self, c: _Client, line: bytes) -> None:
-        try:
-            msg = json.loads(line)
-            ident, name, value = msg["set"]
-        except (ValueError, KeyError, TypeError, RecursionError):
-            self._drop(c, "a malformed request")
-            return
-        ok, text = self.apply_set(str(name), value)
-        self._queue(c, _line({"r": [ident, ok, text]}))
+    def _requests(self, c: _Client, lines: list[bytes]) -> None:
+        """The ``set`` lines read from ``c`` at once, applied together, each answered."""
+        asked: list[tuple[Any, str, Any, str]] = []
+        for line in lines:
+            try:
+                msg = json.loads(line)
+                ident, name, value, *side = msg["set"]
+                if len(side) > 1 or (side and side[0] not in SIDE_NAMES):
+                    raise ValueError(side)
+            except (ValueError, KeyError, TypeError, RecursionError):
+                self._drop(c, "a malformed request")
+                return
+            asked.append((ident, str(name), value, str(side[0]) if side else "opcua"))
+        answers = self.apply_sets([(name, value, side) for _i, name, value, side in asked])
+        for (ident, *_rest), (ok, text) in zip(asked, answers, strict=True):
+            self._queue(c, _line({"r": [ident, ok, text]}))
 
-    def apply_set(self, name: str, value: Any) -> tuple[bool, str]:
-        """A client's write: only a name of ``opcua: writable:``, applied between two scans
-        as the console's ``set`` (the scan thread runs it). (ok, text)."""
-        if name not in self.opc.writable:
-            return False, f"{name} is not writable over OPC UA (opcua: writable)"
-        sig = self._cat.names.get(name)
-        if sig is None:
-            return False, f"unknown name '{name}'"
-        try:
-            if sig.type is A.Type.BOOL and isinstance(value, float):
-                raise ValueError(f"expected a bool, found {value!r}")
-            v = coerce(sig.type, value)
-        except (ValueError, TypeError, OverflowError) as exc:
-            return False, f"bad value for {name}: {exc}"
+    def apply_set(self, name: str, value: Any, side: str = "opcua") -> tuple[bool, str]:
+        """A client's write (see ``apply_sets``). (ok, text)."""
+        return self.apply_sets([(name, value, side)])[0]
+
+    def apply_sets(self, sets: list[tuple[str, Any, str]]) -> list[tuple[bool, str]]:
+        """Clients' writes (name, value, side process): only names of that side's
+        ``writable:``, applied between two scans as the console's ``set``, all in one call
+        of the scan thread. (ok, text) for each."""
+        out: list[tuple[bool, str]] = [(False, "")] * len(sets)
+        todo: list[tuple[int, str, Any, str]] = []
+        for k, (name, value, side) in enumerate(sets):
+            if name not in self.feed.writable.get(side, ()):
+                out[k] = (False, f"{name} is not writable over {SIDE_NAMES[side]} "
+                                 f"({side}: writable)")
+                continue
+            sig = self._cat.names.get(name)
+            if sig is None:
+                out[k] = (False, f"unknown name '{name}'")
+                continue
+            try:
+                if sig.type is A.Type.BOOL and isinstance(value, float):
+                    raise ValueError(f"expected a bool, found {value!r}")
+                v = coerce(sig.type, value)
+            except (ValueError, TypeError, OverflowError) as exc:
+                out[k] = (False, f"bad value for {name}: {exc}")
+                continue
+            todo.append((k, name, v, sig.show(v)))
+        if not todo:
+            return out
         daemon = self.daemon
 
-        def apply() -> None:
-            # the running plant and its writable names, read in the scan thread: an online
-            # change may have replaced them since the check above
-            opc = daemon.pdef.opcua
-            if opc is None or name not in opc.writable:
-                raise ValueError(f"{name} is not writable over OPC UA (opcua: writable)")
-            daemon.plant.set(name, v)
+        def apply() -> list[str | None]:
+            # the running plant, read in the scan thread: an online change may replace it
+            errors: list[str | None] = []
+            for _k, name, v, _shown in todo:
+                try:
+                    daemon.plant.set(name, v)
+                    errors.append(None)
+                except Exception as exc:  # noqa: BLE001 - the client gets the reason
+                    errors.append(str(exc) or type(exc).__name__)
+            return errors
         try:
-            daemon.call(apply, timeout=SET_TIMEOUT_S)
+            errors = daemon.call(apply, timeout=SET_TIMEOUT_S)
         except TimeoutError:
-            return False, "the scan did not answer in time"
-        except Exception as exc:  # noqa: BLE001 - the client gets the reason
-            return False, str(exc)
-        log.info("opcua: set %s = %s", name, sig.show(v))
-        return True, f"{name} set to {sig.show(v)}"
+            for k, *_rest in todo:
+                out[k] = (False, "the scan did not answer in time")
+            return out
+        for (k, name, _v, shown), error in zip(todo, errors, strict=True):
+            if error is not None:
+                out[k] = (False, error)
+                continue
+            log.info("%s: set %s = %s", sets[k][2], name, shown)
+            out[k] = (True, f"{name} set to {shown}")
+        return out
 
     def _publish(self, scan: int, wall: float, img: Image, live: tuple[Any, ...]) -> None:
         """One frame to every client: whole to new ones, the changes to the others."""
@@ -363,6 +400,8 @@ class FeedServer:
                 "drivers": drivers}
 
     def _queue(self, c: _Client, data: bytes) -> None:
+        if c not in self._clients:  # dropped meanwhile (its answers overflowed)
+            return
         c.out += data
         if len(c.out) > OUT_MAX:
             self.dropped += 1
@@ -407,7 +446,7 @@ class FeedServer:
             "names": [[s.text, s.type.value, s.role] for s in self._cat.names.values()],
             "instances": {n: i.grafcet.name for n, i in pdef.instances.items()},
             "drivers": list(self.daemon.plant.drivers),
-            "writable": list(self.opc.writable),
+            "writable": {k: list(v) for k, v in self.feed.writable.items()},
             "cycle_ms": self.daemon.plant.cycle_ns / 1e6,
             "sample_ms": self.every * self.daemon.plant.cycle_ns / 1e6}})
 
@@ -466,6 +505,6 @@ class FeedState:
         return self.values[self.index[name]]
 
 
-def set_request(ident: int, name: str, value: Any) -> bytes:
-    """A client's write request, as one line."""
-    return _line({"set": [ident, name, value]})
+def set_request(ident: int, name: str, value: Any, side: str = "opcua") -> bytes:
+    """A client's write request, as one line (``side``: the asking section)."""
+    return _line({"set": [ident, name, value, side]})

@@ -1,6 +1,7 @@
 """``softplc install-service``: the plant NAME under /etc/softplc/NAME, a ``softplc`` system
-user, the template units softplc@.service (and softplc-opcua@.service), the instances
-softplc@NAME (and softplc-opcua@NAME) enabled, and with ``--now`` put in service.
+user, the template units softplc@.service (and softplc-opcua@.service for a plant with
+``opcua:``, softplc-mqtt@.service for one with ``mqtt:``), the instances softplc@NAME (and
+softplc-opcua@NAME, softplc-mqtt@NAME) enabled, and with ``--now`` put in service.
 
 The plant file and every grafcet file it names are copied into /etc/softplc/NAME, the
 plant's ``grafcet:`` paths rewritten to the copies (comments and layout kept). A file
@@ -55,7 +56,7 @@ from runtime.controller.unitsight import (
     unreadable,
 )
 from runtime.errors import SoftplcError
-from runtime.language.model import PlantDef
+from runtime.language.model import MqttTls, PlantDef
 from runtime.language.plantfile import load_plant
 from runtime.language.runtimedir import (
     INSTALL_DIR,
@@ -76,9 +77,13 @@ _SOURCE_TREE = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(_
 UNIT_DIRS = (os.path.join(_SOURCE_TREE, "systemd"), os.path.join(sys.prefix, "share", "softplc"))
 USER = "softplc"
 GROUPS = ("gpio", "i2c", "dialout")
-#: the template units: the controller, its OPC UA server
+#: the template units: the controller, its OPC UA server, its MQTT edge node
 CONTROLLER = "softplc@.service"
 OPCUA = "softplc-opcua@.service"
+MQTT = "softplc-mqtt@.service"
+#: the side processes: plant section -> (template unit, command, what it is)
+SIDES = {"opcua": (OPCUA, "opcua", "OPC UA server"),
+         "mqtt": (MQTT, "mqtt", "MQTT edge node")}
 #: the units of the single-plant layout before the templates (refused: remove them first)
 LEGACY = ("softplc.service", "softplc-opcua.service")
 #: how to make a venv the service can run
@@ -141,6 +146,10 @@ class Plan:
     opcua: bool = False
     #: the installed plant had one and this one has not (softplc-opcua@NAME is disabled)
     opcua_removed: bool = False
+    #: the plant has an ``mqtt:`` section (softplc-mqtt@NAME is installed)
+    mqtt: bool = False
+    #: the installed plant had one and this one has not (softplc-mqtt@NAME is disabled)
+    mqtt_removed: bool = False
     #: a file to install differs from what is installed (or nothing is installed)
     changed: bool = True
     #: why a running controller must restart to run this plant (empty: an online change)
@@ -155,6 +164,15 @@ class Plan:
     @property
     def server(self) -> str:
         return instance(OPCUA, self.name)
+
+    @property
+    def edge_node(self) -> str:
+        return instance(MQTT, self.name)
+
+    def sides(self) -> list[tuple[str, bool, bool, str]]:
+        """(section, installed, removed, its unit) for each side process."""
+        return [("opcua", self.opcua, self.opcua_removed, self.server),
+                ("mqtt", self.mqtt, self.mqtt_removed, self.edge_node)]
 
 
 def instance(template: str, name: str) -> str:
@@ -189,11 +207,18 @@ def unit_text(softplc: str, etc: str = INSTALL_DIR, groups: tuple[str, ...] = GR
     return "\n".join(out) + "\n"
 
 
+def side_unit_text(section: str, softplc: str, etc: str = INSTALL_DIR) -> str:
+    """The template unit of a side process (systemd/softplc-opcua@.service,
+    softplc-mqtt@.service) with ExecStart set."""
+    unit, command, _what = SIDES[section]
+    plant = f"{etc}/%i/{INSTALLED_FILE}"
+    return "".join(f"ExecStart={softplc} {command} {plant}\n" if line.startswith("ExecStart=")
+                   else line + "\n" for line in _template(unit).splitlines())
+
+
 def opcua_unit_text(softplc: str, etc: str = INSTALL_DIR) -> str:
     """The template unit systemd/softplc-opcua@.service with ExecStart set."""
-    plant = f"{etc}/%i/{INSTALLED_FILE}"
-    return "".join(f"ExecStart={softplc} opcua {plant}\n" if line.startswith("ExecStart=")
-                   else line + "\n" for line in _template(OPCUA).splitlines())
+    return side_unit_text("opcua", softplc, etc)
 
 
 def _rewrite_grafcet_paths(plant_path: str, names: dict[str, str]) -> str:
@@ -239,7 +264,7 @@ def plan(plant_path: str, softplc: str, etc: str = INSTALL_DIR,
     with service_view(name):  # ${RUNTIME_DIR} as the service sees it: /run/softplc/NAME
         pdef = load_plant(plant_path)  # refuses a broken plant before anything is installed
     home = os.path.join(etc, name)
-    p = Plan(name=name, start=start, opcua=pdef.opcua is not None)
+    p = Plan(name=name, start=start, opcua=pdef.opcua is not None, mqtt=pdef.mqtt is not None)
     p.files[etc] = Entry(CONFIG_DIR_MODE, Owner.CONFIG)
     p.files[home] = Entry(CONFIG_DIR_MODE, Owner.CONFIG)
     p.files[STATE_DIR] = Entry(STATE_DIR_MODE, Owner.SERVICE)
@@ -265,10 +290,11 @@ def plan(plant_path: str, softplc: str, etc: str = INSTALL_DIR,
     p.files[os.path.join(unit_dir, CONTROLLER)] = Entry(
         UNIT_MODE, Owner.ROOT, unit_text(softplc, etc).encode())
     units = [p.controller]
-    if pdef.opcua is not None:
-        p.files[os.path.join(unit_dir, OPCUA)] = Entry(
-            UNIT_MODE, Owner.ROOT, opcua_unit_text(softplc, etc).encode())
-        units.append(p.server)
+    for section, there, _removed, unit in p.sides():
+        if there:
+            p.files[os.path.join(unit_dir, SIDES[section][0])] = Entry(
+                UNIT_MODE, Owner.ROOT, side_unit_text(section, softplc, etc).encode())
+            units.append(unit)
     _sight(p, pdef, softplc, check_exec)
     _conflicts(p, pdef, etc, unit_dir, root)
     _changes(p, pdef, home, root)
@@ -276,9 +302,10 @@ def plan(plant_path: str, softplc: str, etc: str = INSTALL_DIR,
     p.commands.append(["systemctl", "daemon-reload"])
     if enable:
         p.commands.append(["systemctl", "enable", *units])
-        if p.opcua_removed:
-            p.commands.append(["systemctl", "disable", *(["--now"] if start else []),
-                               p.server])
+        for _section, _there, removed, unit in p.sides():
+            if removed:
+                p.commands.append(["systemctl", "disable", *(["--now"] if start else []),
+                                   unit])
     return p
 
 
@@ -324,6 +351,8 @@ def _sight(p: Plan, pdef: PlantDef, softplc: str, check_exec: bool) -> None:
     sockets = [("monitor: socket", c.address) for c in pdef.consoles if c.kind == "socket"]
     if pdef.opcua is not None:
         sockets.append(("opcua: feed", pdef.opcua.feed))
+    elif pdef.mqtt is not None:  # (one feed: opcua's is mqtt's when both are there)
+        sockets.append(("mqtt: feed", pdef.mqtt.feed))
     for key, path in sockets:
         if below(os.path.abspath(path), rdir):
             continue
@@ -334,22 +363,17 @@ def _sight(p: Plan, pdef: PlantDef, softplc: str, check_exec: bool) -> None:
                           f"put it in '{PLACEHOLDER}/'")
     if pdef.opcua is not None:
         sec = pdef.opcua.security
-        for key in ("certificate", "private_key", "trusted_clients", "trusted_readers"):
-            path = getattr(sec, key)
-            if not path:
-                continue
-            directive = hidden_by(path)
-            if directive is not None:
-                p.refusals.append(f"opcua: security: {key}: {path} is hidden from the "
-                                  f"service by {directive}: keep it under /etc/softplc")
-            elif not os.path.exists(path):
-                p.warnings.append(f"opcua: security: {key}: {path} does not exist yet "
-                                  "(softplc opcua-cert makes a certificate, docs/opcua.md)")
-            else:
-                why = unreadable(path, uid, gids)
-                if why is not None:
-                    p.refusals.append(f"opcua: security: {key}: {path} cannot be read by "
-                                      f"the user {USER}: {why}")
+        _service_reads(p, [(f"opcua: security: {key}", getattr(sec, key)) for key in
+                           ("certificate", "private_key", "trusted_clients",
+                            "trusted_readers")],
+                       "softplc opcua-cert makes a certificate, docs/opcua.md", uid, gids)
+    if pdef.mqtt is not None:
+        tls = pdef.mqtt.tls or MqttTls()
+        _service_reads(p, [("mqtt: tls: ca", tls.ca), ("mqtt: tls: certificate",
+                                                       tls.certificate),
+                           ("mqtt: tls: private_key", tls.private_key),
+                           ("mqtt: password_file", pdef.mqtt.password_file)],
+                       "the edge node cannot connect without it, docs/mqtt.md", uid, gids)
     if not pdef.consoles or all(c.kind == "serial" for c in pdef.consoles):
         p.warnings.append(f"monitor: no console socket or TCP port: `systemctl reload "
                           f"{p.controller}` (online change) needs one; add monitor: socket: "
@@ -360,6 +384,26 @@ def _sight(p: Plan, pdef: PlantDef, softplc: str, check_exec: bool) -> None:
                               "that drives real I/O: set pin_hash (softplc hash-pin) instead")
     if any(d.type == "sim" for d in pdef.drivers.values()):
         p.warnings.append("the plant uses simulated I/O (type: sim): nothing physical moves")
+
+
+def _service_reads(p: Plan, files: list[tuple[str, str | None]], missing: str, uid: int,
+                   gids: set[int]) -> None:
+    """Refusals for the files a unit reads (certificates, keys, a password file: KEY and
+    path) that it could not see or its user could not read; a warning for one not there yet
+    (``missing``: what makes it, or what it is for)."""
+    for key, path in files:
+        if not path:
+            continue
+        directive = hidden_by(path)
+        if directive is not None:
+            p.refusals.append(f"{key}: {path} is hidden from the service by {directive}: "
+                              "keep it under /etc/softplc")
+        elif not os.path.exists(path):
+            p.warnings.append(f"{key}: {path} does not exist yet ({missing})")
+        else:
+            why = unreadable(path, uid, gids)
+            if why is not None:
+                p.refusals.append(f"{key}: {path} cannot be read by the user {USER}: {why}")
 
 
 def _ports(pdef: PlantDef) -> dict[str, str]:
@@ -437,6 +481,7 @@ def _changes(p: Plan, pdef: PlantDef, home: str, root: str | None) -> None:
         p.restart_reasons.append(f"the installed plant could not be read: {exc}")
         return
     p.opcua_removed = old.opcua is not None and pdef.opcua is None
+    p.mqtt_removed = old.mqtt is not None and pdef.mqtt is None
     p.restart_reasons += diff_plants(old, pdef).static_refusals()
 
 
@@ -563,11 +608,13 @@ def _active(unit: str) -> bool:
 def bring_up(p: Plan, root: str | None = None) -> list[str]:
     """``--now``: start the plant, or give the running controller the new plant the way
     the diff allows (an online change, else a restart), and say which; the same for its
-    OPC UA server (which reads the plant at its start). NowRefused if the controller
-    refused the online change (it runs on with its previous program)."""
-    ctl, srv = p.controller, p.server
+    side processes (its OPC UA server, its MQTT edge node: each reads the plant at its
+    start). NowRefused if the controller refused the online change (it runs on with its
+    previous program)."""
+    ctl = p.controller
     if root:
-        return [f"would run: systemctl start {ctl}" + (f" {srv}" if p.opcua else "")]
+        return [" ".join([f"would run: systemctl start {ctl}",
+                          *(unit for _s, there, _r, unit in p.sides() if there)])]
     done = []
     if not _active(ctl):
         _start(ctl, "start")
@@ -584,15 +631,17 @@ def bring_up(p: Plan, root: str | None = None) -> list[str]:
                              "still runs the previous program; systemctl restart "
                              f"{ctl} applies it with a restart")
         done.append(f"reloaded {ctl} (online change)")
-    if p.opcua:
-        if not _active(srv):
-            _start(srv, "start")
-            done.append(f"started {srv}")
-        elif p.changed:
-            _start(srv, "restart")
-            done.append(f"restarted {srv} (it reads the plant at its start)")
-    elif p.opcua_removed:
-        done.append(f"stopped and disabled {srv}: the plant has no opcua: section now")
+    for section, there, removed, unit in p.sides():
+        if there:
+            if not _active(unit):
+                _start(unit, "start")
+                done.append(f"started {unit}")
+            elif p.changed:
+                _start(unit, "restart")
+                done.append(f"restarted {unit} (it reads the plant at its start)")
+        elif removed:
+            done.append(f"stopped and disabled {unit}: the plant has no {section}: section "
+                        "now")
     return done
 
 
@@ -655,7 +704,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     c = sub.add_parser("install-service", help="install the plant as a systemd service",
                        description="Copy the plant and its charts to /etc/softplc/NAME, "
                                    "create the softplc user, install the template units "
-                                   "and enable softplc@NAME (and softplc-opcua@NAME).")
+                                   "and enable softplc@NAME (and softplc-opcua@NAME, "
+                                   "softplc-mqtt@NAME).")
     c.add_argument("plant", help="the plant file to run")
     c.add_argument("--name", help="the plant's name, its unit's instance (default: the "
                                   "name of the plant file's directory)")

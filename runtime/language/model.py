@@ -268,6 +268,84 @@ class OpcuaDef:
     locs: dict[str, Loc] = field(default_factory=dict)
 
 
+#: what ``mqtt: publish:`` may list besides names: groups of a plant's values (docs/mqtt.md)
+MQTT_GROUPS = ("inputs", "outputs", "memory", "flags", "steps", "step_times", "temporaries",
+               "points", "controller", "drivers")
+#: the groups published when the plant does not say (issue 28: outputs, inputs, steps' X,
+#: memory, chart flags, the controller's state and statistics, the drivers' health)
+MQTT_DEFAULT_PUBLISH = ("outputs", "inputs", "steps", "memory", "flags", "controller",
+                        "drivers")
+
+
+@dataclass(slots=True)
+class MqttBroker:
+    """One broker of ``mqtt: brokers:`` (tried in order, the next one on failure)."""
+
+    url: str
+    host: str
+    port: int
+    tls: bool
+
+
+@dataclass(slots=True)
+class MqttTls:
+    """``mqtt: tls:``: whom the edge node trusts, and its own certificate if the broker
+    asks for one. Without ``ca`` the system's certificate authorities are trusted."""
+
+    ca: str | None = None
+    certificate: str | None = None
+    private_key: str | None = None
+    loc: Loc | None = None
+
+
+@dataclass(slots=True)
+class MqttDef:
+    """``mqtt:`` of a plant file: the Sparkplug B edge node (``softplc mqtt``, docs/mqtt.md)."""
+
+    brokers: list[MqttBroker] = field(default_factory=list)
+    group_id: str = ""
+    #: the host name unless the plant names one
+    edge_node_id: str = ""
+    #: the MQTT client identifier (default ``softplc-GROUP-EDGE``)
+    client_id: str = ""
+    username: str | None = None
+    #: a file whose first line is the password (never the password itself)
+    password_file: str | None = None
+    tls: MqttTls | None = None
+    #: the primary host application whose STATE the node waits for (None: no waiting)
+    primary_host: str | None = None
+    #: groups (MQTT_GROUPS) and names published
+    publish: list[str] = field(default_factory=lambda: list(MQTT_DEFAULT_PUBLISH))
+    #: ``instance.name`` of the variables and chart flags a DCMD may write
+    writable: list[str] = field(default_factory=list)
+    #: report by exception at most this often, ns (a snapshot of the image per sample)
+    sample_ns: int = 100_000_000
+    #: the controller's statistics (lateness, counters, uptime) are published this often, ns
+    statistics_ns: int = 10_000_000_000
+    #: MQTT keep-alive, ns: the broker publishes the node's death (its Will) after 1.5 times
+    #: this without a word from the node
+    keepalive_ns: int = 30_000_000_000
+    #: metric values kept while no broker is reachable (store and forward), the oldest
+    #: dropped first beyond it
+    buffer: int = 100_000
+    #: the feed's local socket (the controller serves it, ``softplc mqtt`` connects)
+    feed: str = ""
+    loc: Loc | None = None
+
+
+@dataclass(slots=True)
+class FeedDef:
+    """The controller's feed (runtime/controller/feed.py) as the plant's side processes
+    (``opcua:``, ``mqtt:``) need it: one socket, one snapshot period, and the names each
+    side process may write."""
+
+    path: str
+    #: a snapshot every this long, ns: the shortest period a side process asks for
+    sample_ns: int
+    #: side process ("opcua", "mqtt") -> the names it may write
+    writable: dict[str, list[str]] = field(default_factory=dict)
+
+
 @dataclass(slots=True)
 class ConsoleLimits:
     """How long console holds may last, seconds (``monitor: limits:``, console.md)."""
@@ -311,3 +389,15 @@ class PlantDef:
     console_limits: ConsoleLimits = field(default_factory=ConsoleLimits)
     #: the OPC UA server's section (``opcua:``), None without one
     opcua: OpcuaDef | None = None
+    #: the MQTT Sparkplug B edge node's section (``mqtt:``), None without one
+    mqtt: MqttDef | None = None
+
+    def feed(self) -> FeedDef | None:
+        """The feed the controller serves for its side processes, None if it has none."""
+        sides = {k: v for k, v in (("opcua", self.opcua), ("mqtt", self.mqtt))
+                 if v is not None}
+        if not sides:
+            return None
+        first = next(iter(sides.values()))
+        return FeedDef(first.feed, min(v.sample_ns for v in sides.values()),
+                       {k: list(v.writable) for k, v in sides.items()})

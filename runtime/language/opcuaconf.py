@@ -8,11 +8,10 @@ import re
 from typing import Any
 
 from runtime.errors import Loc, SourceError, suggest
-from runtime.language import ast as A
-from runtime.language.grafcetfile import check_keys, expect_type, time_value
-from runtime.language.model import OPCUA_POLICIES, OpcuaDef, OpcuaSecurity, PlantDef, VarKind
-from runtime.language.plantpaths import path_problem, path_value
-from runtime.language.runtimedir import default_feed
+from runtime.language.feedconf import feed_key, sample_key, writable_names
+from runtime.language.grafcetfile import check_keys, expect_type
+from runtime.language.model import OPCUA_POLICIES, OpcuaDef, OpcuaSecurity, PlantDef
+from runtime.language.plantpaths import path_value
 from runtime.language.yamlsrc import YMap
 
 OPCUA_KEYS = ("endpoint", "sample", "feed", "writable", "security")
@@ -39,73 +38,14 @@ def load_opcua(p: PlantDef, value: Any, loc: Loc) -> OpcuaDef:
                                     f"opc.tcp://127.0.0.1:4840), found '{ep}'")
         o.endpoint = ep
     if "sample" in m:
-        vloc = m.val_locs["sample"]
-        o.sample_ns = time_value(m["sample"], vloc, "opcua sample")
-        if o.sample_ns < p.cycle_ns:
-            raise SourceError(vloc, f"opcua sample must be at least the cycle "
-                                    f"({p.cycle_ns / 1e6:g} ms): a snapshot is taken at the "
-                                    "end of a scan")
-    if "feed" in m:
-        o.feed = path_value(m["feed"], m.val_locs["feed"], "opcua feed", socket=True)
-    else:
-        o.feed = default_feed([c.address for c in p.consoles if c.kind == "socket"], loc)
-        problem = path_problem(o.feed, socket=True)
-        if problem is not None:
-            raise SourceError(loc, f"opcua feed (by default {o.feed}): {problem}: give "
-                                   "'feed:' a shorter path")
+        o.sample_ns = sample_key(p, m, "opcua")
+    if "feed" in m:  # the default: runtime/language/feedconf.py, once every section is read
+        o.feed = feed_key(m, "opcua")
     if "writable" in m:
-        o.writable = _writable(p, m["writable"], m.val_locs["writable"])
+        o.writable = writable_names(p, m["writable"], m.val_locs["writable"], "opcua")
     if "security" in m:
         o.security = _security(m["security"], m.val_locs["security"])
     return o
-
-
-def _writable(p: PlantDef, value: Any, loc: Loc) -> list[str]:
-    items = expect_type(value, loc, list, "a list of instance.name")
-    locs = getattr(items, "locs", None)
-    out: list[str] = []
-    for k, item in enumerate(items):
-        iloc = locs[k] if locs is not None and k < len(locs) else loc
-        name = str(expect_type(item, iloc, str, "instance.name"))
-        problem = writable_problem(p, name)
-        if problem is not None:
-            raise SourceError(iloc, f"opcua writable: {problem}")
-        if name not in out:
-            out.append(name)
-    return out
-
-
-def writable_problem(p: PlantDef, name: str) -> str | None:
-    """Why ``name`` cannot be written by OPC UA clients, or None if it can: only memory
-    variables and chart flags that nothing else writes every scan."""
-    head, _, rest = name.partition(".")
-    if head in p.drivers:
-        return (f"'{name}' is a driver point: physical points are never written over OPC UA "
-                "(bind a memory variable, or force it from the console)")
-    idef = p.instances.get(head)
-    if idef is None or not rest:
-        return (f"unknown instance in '{name}': expected instance.variable"
-                f"{suggest(head, p.instances)}")
-    g = idef.grafcet
-    var = g.variables.get(rest)
-    if var is None:
-        names = [v.name for v in g.variables.values()
-                 if v.kind in (VarKind.MEMORY, VarKind.FLAG)]
-        return f"'{name}': {head} has no variable '{rest}'{suggest(rest, names)}"
-    if var.kind is VarKind.FLAG:
-        if var.type is not A.Type.BOOL:
-            return f"'{name}' is a {var.type.value} chart flag, read-only"
-        b = idef.inputs.get(rest)
-        if b is not None:
-            return f"'{name}' is bound to {b.source}, which sets it before every scan"
-        return None
-    if var.kind is VarKind.MEMORY:
-        return None
-    why = {VarKind.INPUT: "an input, copied from its binding before every scan",
-           VarKind.OUTPUT: "an output, written by the chart every scan",
-           VarKind.TEMP: "a temporary, assigned by the chart every scan",
-           VarKind.SYSTEM: "a system value"}[var.kind]
-    return f"'{name}' is {why}: expected a memory variable or a chart flag"
 
 
 def _security(value: Any, loc: Loc) -> OpcuaSecurity:

@@ -20,6 +20,7 @@ from drivers.durations import format_ns
 from drivers.registry import BAUDRATES, DRIVER_KEYS, check_config, check_point
 from runtime.errors import Diagnostic, Loc, SourceError, suggest
 from runtime.language import ast as A
+from runtime.language.feedconf import settle_feed
 from runtime.language.grafcetfile import check_keys, expect_type, load_grafcet, time_value
 from runtime.language.lexer import is_name
 from runtime.language.model import (
@@ -32,12 +33,13 @@ from runtime.language.model import (
     PlantDef,
     VarKind,
 )
+from runtime.language.mqttconf import load_mqtt
 from runtime.language.opcuaconf import load_opcua
 from runtime.language.plantpaths import path_value
 from runtime.language.typecheck import FLAGS_BOOL
 from runtime.language.yamlsrc import SourceFileError, YMap, load_yaml
 
-PLANT_KEYS = ("plc", "drivers", "instances", "monitor", "opcua")
+PLANT_KEYS = ("plc", "drivers", "instances", "monitor", "opcua", "mqtt")
 PLC_KEYS = ("cycle", "watchdog", "retain", "retain_interval", "retain_required", "realtime",
             "log")
 INSTANCE_KEYS = ("grafcet", "inputs", "outputs", "description", "log")
@@ -298,8 +300,14 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
     _resolve_bindings(p, load)
     if "monitor" in doc and doc["monitor"] is not None:
         _monitor(p, doc["monitor"], doc.val_locs["monitor"])
-    if "opcua" in doc and doc["opcua"] is not None:
-        p.opcua = load_opcua(p, doc["opcua"], doc.val_locs["opcua"])
+    named: dict[str, Loc] = {}  # side process section -> its feed: value's place
+    for key, load_side in (("opcua", load_opcua), ("mqtt", load_mqtt)):
+        if key in doc and doc[key] is not None:
+            setattr(p, key, load_side(p, doc[key], doc.val_locs[key]))
+            section = doc[key]
+            if isinstance(section, YMap) and "feed" in section:
+                named[key] = section.val_locs["feed"]
+    settle_feed(p, named)
     return p
 
 

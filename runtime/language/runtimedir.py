@@ -3,15 +3,15 @@
 
 This is the one home of that question. The controller (``softplc run``) creates what is
 named here; every process beside it (``softplc opcua``, ``softplc reload``, and any later
-side process: a web view, an MQTT edge node) reads the same plant file and calls
+side process: ``softplc mqtt``, a web view) reads the same plant file and calls
 ``locate(pdef)`` to find the controller, never a path of its own.
 
 ``${RUNTIME_DIR}`` is, first found:
 
-1. ``$RUNTIME_DIRECTORY``: set by systemd for a unit with ``RuntimeDirectory=``. Both units
-   of an installed plant NAME (``softplc@NAME.service`` and ``softplc-opcua@NAME.service``)
-   declare ``RuntimeDirectory=softplc/%i`` with ``RuntimeDirectoryPreserve=yes``, so both
-   get /run/softplc/NAME, by construction;
+1. ``$RUNTIME_DIRECTORY``: set by systemd for a unit with ``RuntimeDirectory=``. Every unit
+   of an installed plant NAME (``softplc@NAME.service``, ``softplc-opcua@NAME.service``,
+   ``softplc-mqtt@NAME.service``) declares ``RuntimeDirectory=softplc/%i`` with
+   ``RuntimeDirectoryPreserve=yes``, so all get /run/softplc/NAME, by construction;
 2. /run/softplc/NAME for an installed plant, whoever runs it: a plant file at
    /etc/softplc/NAME/plant.yaml (what ``softplc install-service`` writes). So a process
    started by hand on an installed plant (``sudo softplc opcua /etc/softplc/NAME/plant.yaml``,
@@ -148,8 +148,8 @@ def expand(path: str, loc: Loc, env: Mapping[str, str] | None = None) -> str:
 
 
 def default_feed(console_sockets: list[str], loc: Loc) -> str:
-    """The feed socket when ``opcua: feed`` is not given: beside the plant's first console
-    socket, else ``${RUNTIME_DIR}/feed.sock``."""
+    """The feed socket when no section (``opcua:``, ``mqtt:``) names one: beside the
+    plant's first console socket, else ``${RUNTIME_DIR}/feed.sock``."""
     if console_sockets:
         return os.path.join(os.path.dirname(console_sockets[0]), FEED_FILE)
     return expand(f"{PLACEHOLDER}/{FEED_FILE}", loc)
@@ -174,7 +174,8 @@ class Whereabouts:
     #: the console to reach it by: its first socket, else its first TCP port
     #: ("127.0.0.1:PORT"); None without either
     console: str | None
-    #: the feed socket of its side processes (``opcua: feed``); None without ``opcua:``
+    #: the feed socket of its side processes (``opcua: feed``, ``mqtt: feed``: one per
+    #: plant); None without ``opcua:`` or ``mqtt:``
     feed: str | None
 
 
@@ -189,6 +190,7 @@ def locate(pdef: PlantDef) -> Whereabouts:
     console = next((c.address for c in pdef.consoles if c.kind == "socket"), None)
     if console is None:
         console = next((c.address for c in pdef.consoles if c.kind == "tcp"), None)
+    feed = pdef.feed()
     return Whereabouts(name=name, plant=real, home=home, runtime_dir=rdir,
                        lock=os.path.join(rdir, f"{name}-{digest}.lock"), console=console,
-                       feed=pdef.opcua.feed if pdef.opcua is not None else None)
+                       feed=feed.path if feed is not None else None)

@@ -23,8 +23,6 @@ from __future__ import annotations
 import asyncio
 import datetime
 import importlib
-import itertools
-import json
 import logging
 from collections.abc import Callable
 from typing import Any
@@ -32,7 +30,7 @@ from typing import Any
 from asyncua import Server, ua
 from asyncua.crypto.permission_rules import User, UserRole
 
-from runtime.controller.feed import FeedState, set_request
+from runtime.controller.feedclient import FeedClient, FeedLost
 from runtime.language.model import PlantDef
 from runtime.opcua.space import (
     NAMESPACE,
@@ -48,13 +46,8 @@ from runtime.opcua.space import (
 
 log = logging.getLogger(__name__)
 
-#: reconnection delays to the feed, seconds (doubling)
-RECONNECT_MIN_S = 0.2
-RECONNECT_MAX_S = 2.0
 #: a write the controller has not answered in this long fails (BadTimeout), seconds
 WRITE_TIMEOUT_S = 3.0
-#: the longest feed line read (a whole frame of a large plant), bytes
-LINE_MAX = 64 << 20
 #: event severities (1-1000)
 SEVERITY = {"fault": 900, "sfcerror": 700, "driver": 800, "cleared": 300}
 
@@ -75,7 +68,10 @@ class PlantServer:
         self.feed_path = feed or self.opc.feed
         self.server = Server()
         self.space = Space()
-        self.state = FeedState()
+        #: the controller's feed (runtime/controller/feedclient.py): its state is the last
+        #: frame
+        self.feed = FeedClient(self.feed_path, "opcua", self._schema, self._frame, self._lost)
+        self.state = self.feed.state
         #: may this session's user write? Only a writer (UserRole.User: a user with its
         #: password, or a trusted client certificate, runtime/opcua/security.py), checked
         #: here whatever the channel: asyncua skips its own permission rules on a channel
@@ -85,13 +81,9 @@ class PlantServer:
         self.connected = asyncio.Event()
         #: frames applied (tests wait on it)
         self.frames = 0
-        self._writer: asyncio.StreamWriter | None = None
-        self._pending: dict[int, asyncio.Future[tuple[bool, str]]] = {}
-        self._ids = itertools.count(1)
         self._names_built: list[tuple[str, ...]] | None = None
         self._events: dict[str, Any] = {}
         self._prev: dict[str, Any] = {}
-        self._stop = asyncio.Event()
 
     # -- set-up ------------------------------------------------------------------
     async def start(self) -> None:
@@ -181,21 +173,12 @@ class PlantServer:
             value = from_ua(self.space.types[i], wv.Value.Value)
         except (ValueError, TypeError, AttributeError):
             return ua.StatusCode(Status.BadTypeMismatch)
-        writer = self._writer
-        if writer is None:
-            return ua.StatusCode(Status.BadNoCommunication)
-        ident = next(self._ids)
-        fut: asyncio.Future[tuple[bool, str]] = asyncio.get_running_loop().create_future()
-        self._pending[ident] = fut
         try:
-            writer.write(set_request(ident, name, value))
-            ok, text = await asyncio.wait_for(fut, WRITE_TIMEOUT_S)
+            ok, text = await self.feed.set(name, value, WRITE_TIMEOUT_S)
         except TimeoutError:
             return ua.StatusCode(Status.BadTimeout)
-        except (OSError, ConnectionError):
+        except (OSError, FeedLost):
             return ua.StatusCode(Status.BadNoCommunication)
-        finally:
-            self._pending.pop(ident, None)
         if not ok:
             log.info("opcua write of %s refused by the controller: %s", name, text)
             return ua.StatusCode(Status.BadInvalidState)
@@ -204,66 +187,17 @@ class PlantServer:
     # -- the feed ----------------------------------------------------------------
     async def run(self) -> None:
         """Follow the feed until ``stop()``: reconnect forever."""
-        delay = RECONNECT_MIN_S
-        while not self._stop.is_set():
-            try:
-                reader, writer = await asyncio.open_unix_connection(self.feed_path,
-                                                                    limit=LINE_MAX)
-            except OSError as exc:
-                log.debug("feed %s: %s", self.feed_path, exc)
-                await self._wait(delay)
-                delay = min(RECONNECT_MAX_S, delay * 2)
-                continue
-            delay = RECONNECT_MIN_S
-            log.info("connected to the controller's feed %s", self.feed_path)
-            self._writer = writer
-            try:
-                await self._follow(reader)
-            except (OSError, ValueError, asyncio.IncompleteReadError, KeyError,
-                    IndexError) as exc:
-                log.warning("feed: %s", exc)
-            finally:
-                self._writer = None
-                writer.close()
-                self.connected.clear()
-                self._prev = {}  # the next frame is a state, not a change from this one
-                for fut in self._pending.values():
-                    if not fut.done():
-                        fut.set_exception(ConnectionError("feed lost"))
-                await self._all_bad(Status.BadNoCommunication)
-            if not self._stop.is_set():
-                log.warning("lost the controller's feed: values BadNoCommunication until "
-                            "it is back")
-                await self._wait(RECONNECT_MIN_S)
-
-    async def _wait(self, seconds: float) -> None:
-        try:
-            await asyncio.wait_for(self._stop.wait(), seconds)
-        except TimeoutError:
-            pass
+        await self.feed.run()
 
     def stop(self) -> None:
         """End ``run()``: the feed connection is closed (a read waiting on it ends)."""
-        self._stop.set()
-        if self._writer is not None:
-            self._writer.close()
+        self.feed.stop()
 
-    async def _follow(self, reader: asyncio.StreamReader) -> None:
-        st = self.state
-        while not self._stop.is_set():
-            line = await reader.readline()
-            if not line:
-                return
-            kind = st.apply(line)
-            if kind == "schema":
-                await self._schema(st.schema)
-            elif kind == "frame":
-                await self._frame()
-            elif kind == "reply":
-                ident, ok, text = _reply(line)
-                fut = self._pending.get(ident)
-                if fut is not None and not fut.done():
-                    fut.set_result((ok, text))
+    async def _lost(self) -> None:
+        """The feed's connection ended: every value BadNoCommunication until it is back."""
+        self.connected.clear()
+        self._prev = {}  # the next frame is a state, not a change from this one
+        await self._all_bad(Status.BadNoCommunication)
 
     async def _schema(self, schema: dict[str, Any]) -> None:
         names = [tuple(n) for n in schema["names"]]
@@ -366,11 +300,6 @@ def _dv(ptype: str, value: Any, ts: datetime.datetime,
         now: datetime.datetime) -> ua.DataValue:
     return ua.DataValue(ua.Variant(value, TYPES[ptype][0]), SourceTimestamp=ts,
                         ServerTimestamp=now)
-
-
-def _reply(line: bytes) -> tuple[int, bool, str]:
-    ident, ok, text = json.loads(line)["r"]
-    return int(ident), bool(ok), str(text)
 
 
 async def serve(pdef: PlantDef, endpoint: str | None = None, feed: str | None = None,

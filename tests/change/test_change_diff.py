@@ -253,6 +253,46 @@ def test_the_opcua_section_is_named_by_the_diff(tmp_path, old_extra: str, new_ex
         assert status == 0 and text[len(out)] == "can be applied online"
 
 
+MQTT = """\
+mqtt:
+  brokers: [mqtt://127.0.0.1:1883]
+  group_id: plant
+  edge_node_id: drawer
+  writable: [tester1.sCierres]
+"""
+
+
+@pytest.mark.parametrize(("old_extra", "new_extra", "out", "refused"), [
+    ("", MQTT, ["plant: mqtt: added"],
+     ["mqtt: added: the feed is served from the controller's start: restart the "
+      "controller, then start its MQTT edge node"]),
+    (OPCUA, OPCUA + MQTT, ["plant: mqtt: added"], []),
+    (OPCUA, OPCUA + MQTT + "  sample: 20ms\n", ["plant: mqtt: added"],
+     ["mqtt: added: it changes the feed (its sample or socket), set up at the controller's "
+      "start: restart the controller, then start its MQTT edge node"]),
+    (MQTT, "", ["plant: mqtt: removed: MQTT writes refused from now on; the feed serves "
+                "values until the controller restarts"], []),
+    (MQTT, MQTT.replace("1883", "1884"),
+     ["plant: mqtt brokers changed: applied when the MQTT edge node restarts (softplc "
+      "mqtt; systemctl restart softplc-mqtt@NAME)"], []),
+    (MQTT, MQTT + "  sample: 200ms\n", ["plant: mqtt sample changed"],
+     ["mqtt: sample changed: it takes effect only at a restart of the controller"]),
+    (OPCUA + "  sample: 20ms\n" + MQTT, OPCUA + "  sample: 20ms\n" + MQTT + "  sample: 200ms\n",
+     ["plant: mqtt sample changed: applied when the MQTT edge node restarts (softplc mqtt; "
+      "systemctl restart softplc-mqtt@NAME)"], []),
+    (MQTT, MQTT.replace("[tester1.sCierres]", "[tester2.sCierres]"),
+     ["plant: mqtt writable changed: [tester1.sCierres] -> [tester2.sCierres]"], []),
+], ids=["added", "added-beside-opcua", "added-faster", "removed", "brokers", "sample",
+        "sample-not-the-feeds", "writable"])
+def test_the_mqtt_section_is_named_by_the_diff(tmp_path, old_extra: str, new_extra: str,
+                                               out: list[str], refused: list[str],
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 28 on issue 25's design: ``mqtt:`` is named as ``opcua:`` is (it was not
+    compared at all: adding it was `can be applied online`)."""
+    test_the_opcua_section_is_named_by_the_diff(tmp_path, old_extra, new_extra, out, refused,
+                                                capsys)
+
+
 def test_every_setting_of_a_plant_is_compared_by_the_diff() -> None:
     """A setting the diff does not know is a change applied silently, or not at all (issue
     25: `opcua:` was): each field of PlantDef is either compared or said here why not."""

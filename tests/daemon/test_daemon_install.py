@@ -20,6 +20,7 @@ import pytest
 from runtime.controller import install
 from runtime.controller.install import (
     CONTROLLER,
+    MQTT,
     OPCUA,
     InstallError,
     NowRefused,
@@ -27,6 +28,7 @@ from runtime.controller.install import (
     bring_up,
     opcua_unit_text,
     plan,
+    side_unit_text,
     unit_text,
 )
 from runtime.language.plantfile import load_plant
@@ -40,7 +42,8 @@ needs_systemd = pytest.mark.skipif(shutil.which("systemd-analyze") is None,
 
 def staged_units(tmp_path: Path) -> list[Path]:
     out = []
-    for name, text in ((CONTROLLER, unit_text(SOFTPLC)), (OPCUA, opcua_unit_text(SOFTPLC))):
+    for name, text in ((CONTROLLER, unit_text(SOFTPLC)), (OPCUA, opcua_unit_text(SOFTPLC)),
+                       (MQTT, side_unit_text("mqtt", SOFTPLC))):
         unit = tmp_path / name.replace("@.", "@demo.")  # an instance, as systemd loads it
         unit.write_text(text, encoding="utf-8")
         out.append(unit)
@@ -86,17 +89,20 @@ def unit_keys(text: str) -> dict[str, str]:
                                  if "=" in line and not line.startswith("#"))}
 
 
-def test_the_opcua_unit_looks_for_the_feed_where_the_controller_serves_it(
+def test_the_side_units_look_for_the_feed_where_the_controller_serves_it(
         tmp_path: Path) -> None:
     """Issue 25: softplc-opcua.service looked for /tmp/softplc-999/feed.sock (no
     RuntimeDirectory=, so ${RUNTIME_DIR} fell back to /tmp, hidden by its PrivateTmp
-    anyway) while softplc.service served /run/softplc/feed.sock. Each staged unit's plant
-    is loaded with the environment systemd gives that unit; both must name one feed."""
+    anyway) while softplc.service served /run/softplc/feed.sock; issue 28's
+    softplc-mqtt.service the same. Each staged unit's plant is loaded with the environment
+    systemd gives that unit and the feed found by ``locate`` (what ``softplc opcua`` and
+    ``softplc mqtt`` do); all three must name one feed."""
     from tests.opcua.kit import write_plant
     src = tmp_path / "press"
     src.mkdir()
     plant = write_plant(src, port=4840)
-    text = plant.read_text(encoding="utf-8")
+    text = plant.read_text(encoding="utf-8") + (
+        "mqtt:\n  brokers: [mqtt://127.0.0.1:1883]\n  group_id: plant\n")
     plant.write_text(re.sub(r"  feed: .*\n", "", text), encoding="utf-8")  # the default
     stage = tmp_path / "stage"
     r = subprocess.run([SOFTPLC, "install-service", str(plant), "--root", str(stage)],
@@ -110,12 +116,13 @@ def test_the_opcua_unit_looks_for_the_feed_where_the_controller_serves_it(
         if "RuntimeDirectory" in keys:
             env["RUNTIME_DIRECTORY"] = "/run/" + keys["RuntimeDirectory"].replace("%i", "press")
         probe = ("import sys; from runtime.language.plantfile import load_plant; "
-                 "print(load_plant(sys.argv[1]).opcua.feed)")
+                 "from runtime.language.runtimedir import locate; "
+                 "print(locate(load_plant(sys.argv[1])).feed)")
         out = subprocess.run([sys.executable, "-c", probe, str(stage) + argv[2]], env=env,
                              capture_output=True, text=True, timeout=60, cwd=str(stage))
         assert out.returncode == 0, out.stderr
         feeds[unit.name] = out.stdout.strip()
-    assert len(feeds) == 2, feeds
+    assert len(feeds) == 3, feeds
     assert len(set(feeds.values())) == 1, feeds
     assert next(iter(feeds.values())) == "/run/softplc/press/feed.sock"
 
@@ -209,6 +216,70 @@ def test_certificates_the_service_cannot_see_are_refused(tmp_path: Path) -> None
     got = refusals(tmp_path, text)
     assert got == [f"opcua: security: certificate: {cert} is hidden from the service by "
                    "PrivateTmp=yes: keep it under /etc/softplc"]
+
+
+def test_mqtt_files_the_service_cannot_see_or_read_are_refused(tmp_path: Path) -> None:
+    """The edge node's TLS and password files, as the OPC UA certificates: what its unit's
+    PrivateTmp=/ProtectHome= hide, or its user cannot read, is refused before anything is
+    written; a file not there yet is a warning."""
+    ca = tmp_path / "ca.pem"
+    ca.write_bytes(b"x")
+    secret = tmp_path / "secret"
+    secret.write_bytes(b"x")
+    secret.chmod(0o600)
+    base = DRAWER.read_text(encoding="utf-8") + (
+        "mqtt:\n  brokers: [mqtts://broker.plant:8883]\n  group_id: plant\n"
+        "  username: press\n")
+    got = refusals(tmp_path, base + f"  password_file: /home/op/mqtt.pw\n  tls: {{ca: {ca}}}\n")
+    assert got == [f"mqtt: tls: ca: {ca} is hidden from the service by PrivateTmp=yes: keep "
+                   "it under /etc/softplc",
+                   "mqtt: password_file: /home/op/mqtt.pw is hidden from the service by "
+                   "ProtectHome=yes: keep it under /etc/softplc"]
+    etc = Path("/etc/softplc-test-none")  # not there: a warning only
+    (tmp_path / "site" / "plant.yaml").write_text(
+        (base + f"  password_file: {etc}/mqtt.pw\n").replace(
+            "grafcet: ", f"grafcet: {DRAWER.parent}/"), encoding="utf-8")
+    p = plan(str(tmp_path / "site" / "plant.yaml"), SOFTPLC, root=str(tmp_path / "s2"))
+    assert not p.refusals
+    assert (f"mqtt: password_file: {etc}/mqtt.pw does not exist yet (the edge node cannot "
+            "connect without it, docs/mqtt.md)") in p.warnings
+
+
+def test_a_plant_with_mqtt_gets_the_mqtt_unit_too(tmp_path: Path) -> None:
+    from tests.mqtt.kit import write_plant
+    src = tmp_path / "press"
+    src.mkdir()
+    plant = write_plant(src, ["mqtts://broker.plant:8883"])
+    plant.write_text(re.sub(r"  feed: .*\n", "", plant.read_text(encoding="utf-8")),
+                     encoding="utf-8")
+    p = plan(str(plant), SOFTPLC, root=str(tmp_path / "stage"))
+    data = p.files[f"/etc/systemd/system/{MQTT}"].data
+    assert data is not None
+    unit = data.decode().splitlines()
+    assert f"ExecStart={SOFTPLC} mqtt /etc/softplc/%i/plant.yaml" in unit
+    for line in ("User=softplc", "Nice=10", "RuntimeDirectory=softplc/%i",
+                 "RuntimeDirectoryPreserve=yes", "ProtectHome=yes", "PrivateTmp=yes"):
+        assert line in unit, line
+    assert ["systemctl", "enable", "softplc@press.service", "softplc-mqtt@press.service"] \
+        in p.commands
+    assert f"/etc/systemd/system/{OPCUA}" not in p.files
+    assert p.mqtt and not p.opcua
+
+
+def test_now_starts_and_restarts_the_edge_node(systemctl: Path) -> None:
+    """--now starts softplc-mqtt@NAME beside its controller, restarts it when the plant
+    changed (it reads the plant at its start), says it is disabled once mqtt: is gone."""
+    p = install.Plan(name="press", mqtt=True, start=True)
+    assert bring_up(p) == ["started softplc@press.service", "started softplc-mqtt@press.service"]
+    (systemctl / "ACTIVE").write_text("softplc@press.service\nsoftplc-mqtt@press.service\n")
+    p = install.Plan(name="press", mqtt=True, opcua=True, start=True)
+    assert bring_up(p) == ["reloaded softplc@press.service (online change)",
+                           "started softplc-opcua@press.service",
+                           "restarted softplc-mqtt@press.service (it reads the plant at its "
+                           "start)"]
+    p = install.Plan(name="press", mqtt_removed=True, start=True)
+    assert bring_up(p)[-1] == ("stopped and disabled softplc-mqtt@press.service: the plant has "
+                               "no mqtt: section now")
 
 
 def fake_venv(tmp_path: Path, interpreter: str) -> str:
@@ -373,3 +444,14 @@ def test_now_leaves_a_controller_that_runs_this_plant_alone(systemctl: Path) -> 
     p = install.Plan(name="press", start=True, changed=False)
     assert bring_up(p) == ["softplc@press.service already runs this plant: left running"]
     assert calls(systemctl) == ["is-active --quiet softplc@press.service"]
+
+
+def test_every_unit_is_shipped_with_the_package() -> None:
+    """install-service of a pip-installed softplc reads the units from share/softplc: one
+    left out of pyproject's data-files is 'not found' at the first install (the MQTT unit
+    was, found by tests/systemd)."""
+    import tomllib
+    data = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+    shipped = data["tool"]["setuptools"]["data-files"]["share/softplc"]
+    assert sorted(shipped) == sorted(f"systemd/{u.name}" for u in (ROOT / "systemd").glob("*"))
+    assert {f"systemd/{u}" for u in (CONTROLLER, OPCUA, MQTT)} <= set(shipped)

@@ -35,12 +35,13 @@ def controller(tmp: Path, trace: bool = True, port: int = 4840, **plant: Any
     """A running Daemon on sim I/O with its FeedServer; (daemon, feed, trace path)."""
     path = write_plant(tmp, port=port, **plant)
     pdef = load_plant(str(path))
-    assert pdef.opcua is not None
+    feed_def = pdef.feed()
+    assert feed_def is not None
     trace_path = tmp / "trace.jsonl"
     out = open(trace_path, "w", encoding="utf-8") if trace else None  # noqa: SIM115
     d = Daemon(pdef, sim=True, trace=out, manage_gc=False)
     d.start()
-    feed = FeedServer(d, pdef.opcua)
+    feed = FeedServer(d, feed_def)
     feed.start()
     try:
         yield d, feed, trace_path

@@ -55,20 +55,26 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def plant_head(tmp: Path, cycle: str = "10ms", plc: str = "") -> str:
+    """The chart written in ``tmp``, and the plant file's text before its side process
+    section: two instances of it on a sim driver."""
+    (tmp / "blink.yaml").write_text(CHART, encoding="utf-8")
+    return (f"plc: {{cycle: {cycle}, watchdog: 5s{plc}}}\n"
+            "drivers:\n  io: {type: sim}\n"
+            "instances:\n"
+            "  t1:\n    grafcet: blink.yaml\n    inputs: {iGo: io.I0}\n"
+            "    outputs: {oLamp: io.Q0}\n"
+            "  t2:\n    grafcet: blink.yaml\n    inputs: {iGo: io.I1}\n"
+            "    outputs: {oLamp: io.Q1}\n")
+
+
 def write_plant(tmp: Path, *, port: int, cycle: str = "10ms", sample: str = "50ms",
                 writable: str = "[t1.sStop, t1.sJam, t1.sRate, t1.sDiv, t1.SFCQuitError]",
                 extra: str = "", plc: str = "") -> Path:
     """chart + plant (two instances, a sim driver) in ``tmp``; the plant's path."""
-    (tmp / "blink.yaml").write_text(CHART, encoding="utf-8")
     plant = tmp / "plant.yaml"
     plant.write_text(
-        f"plc: {{cycle: {cycle}, watchdog: 5s{plc}}}\n"
-        "drivers:\n  io: {type: sim}\n"
-        "instances:\n"
-        "  t1:\n    grafcet: blink.yaml\n    inputs: {iGo: io.I0}\n"
-        "    outputs: {oLamp: io.Q0}\n"
-        "  t2:\n    grafcet: blink.yaml\n    inputs: {iGo: io.I1}\n"
-        "    outputs: {oLamp: io.Q1}\n"
+        plant_head(tmp, cycle, plc) +
         "opcua:\n"
         f"  endpoint: opc.tcp://127.0.0.1:{port}\n"
         f"  sample: {sample}\n"

@@ -382,7 +382,9 @@ def test_a_driver_fault_and_its_recovery_are_events_of_the_driver(tmp_path: Path
     drv = RecordingDriver("io", {"on_fault": "hold"})
     d = Daemon(pdef, plant=Plant(pdef, drivers={"io": drv}), manage_gc=False)
     d.start()
-    feed = FeedServer(d, pdef.opcua)
+    feed_def = pdef.feed()
+    assert feed_def is not None
+    feed = FeedServer(d, feed_def)
     feed.start()
     handler = Collect()
     try:

@@ -1,11 +1,13 @@
-"""The installation of docs/daemon.md and docs/opcua.md, followed as a user follows it, under
+"""The installation of docs/daemon.md, docs/opcua.md and docs/mqtt.md, followed as a user
+follows it, under
 a real systemd (PID 1 of a container of this machine's own root, tests/systemd/container.py):
 booted once for the module, its venv made from the system's Python as on a Raspberry Pi.
 
-Each test is one journey of issue 25; docs/daemon.md ("Tested under a real systemd") says
-what each does. They run in file order on the one container (a later journey uses the
-plants an earlier one installed), and are skipped, with the reason, only where a container
-cannot run (not root, no systemd-nspawn, overlay mounts not permitted)."""
+Each test is one journey of issue 25 (and of issue 28's MQTT edge node); docs/daemon.md
+("Tested under a real systemd") says what each does. They run in file order on the one
+container (a later journey uses the plants an earlier one installed), and are skipped, with
+the reason, only where a container cannot run (not root, no systemd-nspawn, overlay mounts
+not permitted)."""
 
 from __future__ import annotations
 
@@ -50,6 +52,22 @@ steps:
   gsCount: {initial: true, actions: [oRun, "N sN := sN + 1"]}
 transitions: []
 """
+
+
+def edge_plant(broker: str | None = None) -> str:
+    """A plant on simulated I/O; with ``broker``, its ``mqtt:`` section (feed by default)."""
+    text = ("plc: {cycle: 20ms, watchdog: 500ms}\n"
+            "drivers: {io: {type: sim}}\n"
+            "instances:\n  m:\n    grafcet: counter.yaml\n    inputs: {iGo: io.I0}\n"
+            "    outputs: {oRun: io.Q0}\n"
+            "monitor:\n  socket: {path: '${RUNTIME_DIR}/console.sock', trusted: true}\n")
+    if broker is not None:
+        text += (f"mqtt:\n  brokers: [{broker}]\n  group_id: {MQTT_GROUP}\n"
+                 f"  edge_node_id: {MQTT_EDGE}\n  keepalive: 2s\n")
+    return text
+
+
+MQTT_GROUP, MQTT_EDGE = "Journeys", "edge"
 
 
 def press_plant(port: int | None = None) -> str:
@@ -100,7 +118,7 @@ def plc() -> Iterator[Container]:
              "--exclude=./tests/opcua/node/node_modules --exclude='*.egg-info' -cf - . "
              f"| tar -C {SRC} -xf -")
         c.sh(f"/usr/bin/python3 -m venv {VENV} && {VENV}/bin/pip install -q "
-             f"'{SRC}[opcua]' && {SOFTPLC} --version", timeout=900)
+             f"'{SRC}[opcua,mqtt]' && {SOFTPLC} --version", timeout=900)
         yield c
     finally:
         c.close()
@@ -239,6 +257,66 @@ def test_the_opcua_unit_finds_its_controller(plc: Container) -> None:
     assert prop(plc, "softplc-opcua@press.service", "NRestarts") == "0"
 
 
+# -- 2b. the MQTT unit beside its controller: a plant that gets mqtt: on a reinstall -----
+def test_the_mqtt_unit_finds_its_controller(plc: Container, tmp_path: Path) -> None:
+    """Issue 28 on issue 25's design: softplc-mqtt.service was a single-plant unit reading
+    /etc/softplc/plant.yaml, install-service no longer wrote it, and `mqtt:` added to a
+    running plant was `reloaded (online change)`: no feed, so no device ever born. Here a
+    real mosquitto on this machine's 127.0.0.1 (the container shares its network) and the
+    pysparkplug host application (tests/mqtt/host) see the edge node's births."""
+    from tests.mqtt.kit import Broker, Host
+
+    broker = Broker(tmp_path).start()
+    host = Host(broker)
+    try:
+        plant = write_plant(plc, "edge", edge_plant())
+        out = sh(plc, f"{SOFTPLC} install-service {plant} --now")
+        assert "started softplc@edge.service" in out, out
+        assert "softplc-mqtt@edge" not in out, out
+        plc.wait("systemctl is-active --quiet softplc@edge.service")
+        pid = prop(plc, "softplc@edge.service", "MainPID")
+        write_plant(plc, "edge", edge_plant(broker.url))
+        # (the installed plant's ${RUNTIME_DIR} is the service's, the clone's the shell's:
+        # the consoles differ too)
+        out = sh(plc, f"{SOFTPLC} diff /etc/softplc/edge/plant.yaml {plant}", check=False)
+        assert "plant: mqtt: added" in out.splitlines(), out
+        assert ("  mqtt: added: the feed is served from the controller's start: restart the "
+                "controller, then start its MQTT edge node") in out.splitlines(), out
+        out = sh(plc, f"{SOFTPLC} install-service {plant} --now --force")
+        assert ("restarted softplc@edge.service: mqtt: added: the feed is served from the "
+                "controller's start") in out, out
+        assert "started softplc-mqtt@edge.service" in out, out
+        assert prop(plc, "softplc@edge.service", "MainPID") != pid
+        unit = "softplc-mqtt@edge.service"
+        assert prop(plc, unit, "User") == "softplc"
+        # the node's birth, then its instance's: the feed was found where the controller
+        # serves it (a device is born only from the feed's schema)
+        host.wait(lambda _r: bool(host.of("NBIRTH")) and bool(host.of("DBIRTH", "m")), 90,
+                  "NBIRTH and DBIRTH of m from the installed edge node")
+        nb = host.of("NBIRTH")[0]
+        assert nb["topic"] == f"spBv1.0/{MQTT_GROUP}/NBIRTH/{MQTT_EDGE}", nb
+        log = plc.journal(unit)
+        assert "connected to the controller's feed /run/softplc/edge/feed.sock" in log, log
+        assert "Traceback" not in log, log
+        # the controller restarted under the edge node: its device dies and is born again,
+        # the edge node itself runs on
+        births = len(host.of("DBIRTH", "m"))
+        plc.sh("systemctl restart softplc@edge.service")
+        host.wait(lambda _r: len(host.of("DBIRTH", "m")) > births, 90,
+                  "DBIRTH of m again after the controller's restart")
+        assert host.of("DDEATH", "m"), [r["topic"] for r in host.rows]
+        assert prop(plc, unit, "NRestarts") == "0"
+        # mqtt: removed: the edge node is stopped and disabled
+        write_plant(plc, "edge", edge_plant())
+        out = sh(plc, f"{SOFTPLC} install-service {plant} --now --force")
+        assert (f"stopped and disabled {unit}: the plant has no mqtt: section now") in out, out
+        assert prop(plc, unit, "ActiveState") == "inactive"
+        host.wait(lambda _r: bool(host.of("NDEATH")), 30, "NDEATH once the node stopped")
+    finally:
+        host.close()
+        broker.kill()
+
+
 # -- 3. systemctl reload: an edit applied, an edit refused ----------------------------
 def test_reload_applies_an_edit_and_refuses_another(plc: Container) -> None:
     unit = "softplc@drawer_tester.service"
@@ -367,11 +445,6 @@ def lock_name(plc: Container, name: str) -> str:
 
 
 # -- 7. what the service could not run is refused -------------------------------------
-def errors(stderr: str) -> list[str]:
-    """The error lines of a command's output (the warnings before them left out)."""
-    return [ln for ln in stderr.splitlines() if ": error: " in ln]
-
-
 def make_venv(plc: Container, python: str, venv: str) -> str:
     """A venv made by ``python`` with a ``softplc`` program of its own; the package it
     imports is the one installed in /opt/softplc/venv (through a .pth file: a second
@@ -386,6 +459,12 @@ def make_venv(plc: Container, python: str, venv: str) -> str:
            f"sys.exit(main())\\n' > {venv}/bin/softplc && chmod 755 {venv}/bin/softplc && "
            f"mkdir -p {venv}/share && cp -r {VENV}/share/softplc {venv}/share/")
     return f"{venv}/bin/softplc"
+
+
+def errors(stderr: str) -> list[str]:
+    """install-service's error lines (its warnings about the plant come first)."""
+    return [line for line in stderr.splitlines()
+            if line.startswith("softplc install-service: error: ")]
 
 
 def test_a_venv_the_service_cannot_run_is_refused(plc: Container) -> None:

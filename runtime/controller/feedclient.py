@@ -1,0 +1,133 @@
+"""The feed's client for a side process's event loop (``softplc opcua``, ``softplc mqtt``):
+follow the controller's feed socket forever, decode it, and carry writes to it.
+
+The protocol is runtime/controller/feed.py's (``FeedState`` decodes it). A side process
+gives three hooks and runs ``FeedClient.run``: ``schema`` after each schema (the first one
+of a connection, and again after an online change), ``frame`` after each frame (the
+state's values are then that scan's), ``lost`` when a connection ends (the controller
+stopped or restarts). It reconnects forever, with a delay doubling from RECONNECT_MIN_S
+to RECONNECT_MAX_S. ``set`` sends a write and waits for the controller's answer.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import json
+import logging
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+from runtime.controller.feed import FeedState, set_request
+from runtime.errors import SoftplcError
+
+log = logging.getLogger(__name__)
+
+#: reconnection delays to the feed, seconds (doubling)
+RECONNECT_MIN_S = 0.2
+RECONNECT_MAX_S = 2.0
+#: the longest feed line read (a whole frame of a large plant), bytes
+LINE_MAX = 64 << 20
+
+
+class FeedLost(SoftplcError, ConnectionError):
+    """The feed is not connected, or its connection ended before a write was answered.
+
+    For example: a write asked while the controller restarts."""
+
+
+class FeedClient:
+    """Follows the feed at ``path`` for the side process ``side`` (``opcua``, ``mqtt``)."""
+
+    def __init__(self, path: str, side: str,
+                 schema: Callable[[dict[str, Any]], Awaitable[None]],
+                 frame: Callable[[], Awaitable[None]],
+                 lost: Callable[[], Awaitable[None]]) -> None:
+        self.path = path
+        self.side = side
+        self.state = FeedState()
+        self._on_schema, self._on_frame, self._on_lost = schema, frame, lost
+        self._writer: asyncio.StreamWriter | None = None
+        self._pending: dict[int, asyncio.Future[tuple[bool, str]]] = {}
+        self._ids = itertools.count(1)
+        self._stop = asyncio.Event()
+
+    @property
+    def connected(self) -> bool:
+        return self._writer is not None
+
+    async def run(self) -> None:
+        """Follow the feed until ``stop()``: reconnect forever."""
+        delay = RECONNECT_MIN_S
+        while not self._stop.is_set():
+            try:
+                reader, writer = await asyncio.open_unix_connection(self.path, limit=LINE_MAX)
+            except OSError as exc:
+                log.debug("feed %s: %s", self.path, exc)
+                await self._wait(delay)
+                delay = min(RECONNECT_MAX_S, delay * 2)
+                continue
+            delay = RECONNECT_MIN_S
+            log.info("connected to the controller's feed %s", self.path)
+            self._writer = writer
+            try:
+                await self._follow(reader)
+            except (OSError, ValueError, asyncio.IncompleteReadError, KeyError,
+                    IndexError, TypeError) as exc:
+                log.warning("feed: %s", exc)
+            finally:
+                self._writer = None
+                writer.close()
+                for fut in self._pending.values():
+                    if not fut.done():
+                        fut.set_exception(FeedLost("the feed's connection ended"))
+                await self._on_lost()
+            if not self._stop.is_set():
+                log.warning("lost the controller's feed: waiting for it to come back")
+                await self._wait(RECONNECT_MIN_S)
+
+    def stop(self) -> None:
+        """End ``run()``: the connection is closed (a read waiting on it ends)."""
+        self._stop.set()
+        if self._writer is not None:
+            self._writer.close()
+
+    async def set(self, name: str, value: Any, timeout: float) -> tuple[bool, str]:
+        """Write ``name`` through the controller: its (ok, text). FeedLost if there is no
+        connection or it ends first; TimeoutError after ``timeout`` seconds."""
+        writer = self._writer
+        if writer is None:
+            raise FeedLost("the controller's feed is not connected")
+        ident = next(self._ids)
+        fut: asyncio.Future[tuple[bool, str]] = asyncio.get_running_loop().create_future()
+        self._pending[ident] = fut
+        try:
+            writer.write(set_request(ident, name, value, self.side))
+            return await asyncio.wait_for(fut, timeout)
+        finally:
+            self._pending.pop(ident, None)
+
+    async def _wait(self, seconds: float) -> None:
+        try:
+            await asyncio.wait_for(self._stop.wait(), seconds)
+        except TimeoutError:
+            pass
+
+    async def _follow(self, reader: asyncio.StreamReader) -> None:
+        st = self.state
+        while not self._stop.is_set():
+            line = await reader.readline()
+            if not line.endswith(b"\n"):
+                # the end: a last line cut short (the controller dropped this client for
+                # reading too slowly, or stopped) is not decoded
+                return
+            kind = st.apply(line)
+            if kind == "schema":
+                await self._on_schema(st.schema)
+            elif kind == "frame":
+                await self._on_frame()
+            elif kind == "reply":
+                ident, ok, text = json.loads(line)["r"]
+                fut = self._pending.get(int(ident))
+                if fut is not None and not fut.done():
+                    fut.set_result((bool(ok), str(text)))

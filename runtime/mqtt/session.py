@@ -1,0 +1,390 @@
+"""``softplc mqtt PLANT``: the plant's Sparkplug B edge node on its MQTT broker, fed by the
+controller's feed, in a process of its own (never in the scan's way).
+
+- **Brokers.** ``mqtt: brokers:`` in order: a broker that cannot be reached, refuses the
+  node, or drops it, is followed by the next one; after a whole round without a session
+  the node waits (RECONNECT_MIN_S doubling to RECONNECT_MAX_S, each wait drawn between
+  half and all of it, so that a fleet does not come back all at once). TLS (``mqtts://``)
+  checks the broker's certificate and name against ``tls: ca`` (or the system's CAs) and
+  shows ``tls: certificate`` when set; the password is read from ``password_file`` at each
+  connection.
+- **A session.** CONNECT (clean session) with the NDEATH of the next ``bdSeq`` as its Will
+  (QoS 1); subscriptions to the node's NCMD, its devices' DCMD and, with ``primary_host``,
+  the host's STATE (``spBv1.0/STATE/HOST``, JSON ``{"online": ..., "timestamp": ...}``,
+  retained); then the births (runtime/mqtt/node.py), at once or once STATE says online. A
+  STATE saying offline (newer than the last one seen) ends the session: NDEATH published,
+  DISCONNECT, the next broker. Stopping publishes the NDEATH, then disconnects.
+- **Publishing** goes through one queue, in order. While more than REPORT_BACKLOG messages
+  wait in it (the broker, or this process, does not keep up with the changes), a frame's
+  report is skipped: the next report carries every change since the last one sent (values
+  that came and went in between are not seen), so the rate of reports falls to what the
+  link carries. A session whose queue passes OUTBOX_MAX messages is ended (NDEATH,
+  DISCONNECT) and born again on the next one.
+- **Commands.** NCMD: ``Node Control/Rebirth``. DCMD: writes of ``mqtt: writable:`` names,
+  all checked before any is sent (runtime/mqtt/node.py), then applied by the controller
+  between two scans (the feed's ``set``), at most MAX_PENDING_WRITES at a time (more are
+  refused, busy). Every refusal, and every payload that is no command (undecodable, too
+  large, too many metrics, wrong types), is one log line and, for a device, its
+  ``Command/Result`` metric; the same line repeated is held back by the log's rate limit
+  (runtime/controller/logsetup.py: 5 in 10 s, then a count).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import random
+import ssl
+from collections.abc import Callable
+from typing import Any
+
+import aiomqtt
+
+from runtime.controller.feedclient import FeedClient, FeedLost
+from runtime.errors import SoftplcError
+from runtime.language.model import MqttBroker, MqttDef, PlantDef
+from runtime.mqtt.node import CommandRefused, EdgeNode, Message, Write
+from runtime.mqtt.payload import CommandError, decode_command
+
+log = logging.getLogger(__name__)
+
+#: waits between two rounds of the brokers, seconds (doubling, drawn in [half, all])
+RECONNECT_MIN_S = 1.0
+RECONNECT_MAX_S = 30.0
+#: how long a CONNECT may take, seconds
+CONNECT_TIMEOUT_S = 10.0
+#: the NDEATH published before a clean disconnect: how long its PUBACK may take, seconds
+DEATH_TIMEOUT_S = 2.0
+#: messages waiting to be published beyond which a frame's report is skipped
+REPORT_BACKLOG = 200
+#: messages waiting to be published before the session is given up (broker too slow)
+OUTBOX_MAX = 10_000
+#: how long stopping may take before the process ends without its NDEATH, seconds (the
+#: unit's TimeoutStopSec is 10 s)
+STOP_TIMEOUT_S = 6.0
+#: DCMD writes waiting for the controller's answer at once; more are refused (busy)
+MAX_PENDING_WRITES = 32
+#: a write the controller has not answered in this long is refused, seconds
+WRITE_TIMEOUT_S = 3.0
+
+
+class SessionEnded(SoftplcError):
+    """A session ends on purpose: the primary host went offline, the publishing queue
+    overflowed (the broker does not keep up), the process stops."""
+
+
+def tls_context(q: MqttDef) -> ssl.SSLContext:
+    """The TLS context of the ``mqtts://`` brokers (OSError, ssl.SSLError if a file is
+    missing or no certificate)."""
+    ca = q.tls.ca if q.tls is not None else None
+    ctx = ssl.create_default_context(cafile=ca)
+    if q.tls is not None and q.tls.certificate is not None:
+        ctx.load_cert_chain(q.tls.certificate, q.tls.private_key)
+    return ctx
+
+
+def read_password(path: str) -> str:
+    """The first line of ``path`` (OSError if it cannot be read)."""
+    with open(path, encoding="utf-8") as f:
+        return f.readline().rstrip("\r\n")
+
+
+class EdgeSession:
+    """The edge node of ``pdef`` on its brokers, fed by the feed at ``feed_path``."""
+
+    def __init__(self, pdef: PlantDef, feed_path: str | None = None) -> None:
+        assert pdef.mqtt is not None
+        self.q = q = pdef.mqtt
+        self.feed = FeedClient(feed_path or q.feed, "mqtt", self._on_schema, self._on_frame,
+                               self._on_lost)
+        self.node = EdgeNode(q, self.feed.state)
+        self.tls = tls_context(q) if any(b.tls for b in q.brokers) else None
+        if q.password_file is not None:
+            read_password(q.password_file)  # at start: a missing file is an error now
+        self.outbox: asyncio.Queue[tuple[int, Message]] = asyncio.Queue()
+        #: the session the queued messages belong to (stale ones are never sent)
+        self.session_no = 0
+        self.host_online = q.primary_host is None
+        self._state_ts = -1
+        self._broker = 0
+        self._pending_writes = 0
+        self._stop = asyncio.Event()
+        self._client: aiomqtt.Client | None = None
+        #: a session is up (tests, benchmarks)
+        self.connected = asyncio.Event()
+        #: counters: messages published, sessions, commands applied, commands refused,
+        #: frames whose report was skipped (too many messages waiting)
+        self.skipped = 0
+        self.published = 0
+        self.sessions = 0
+        self.applied = 0
+        self.refused = 0
+
+    # -- the feed ----------------------------------------------------------------
+    async def _on_schema(self, schema: dict[str, Any]) -> None:
+        self.node.schema()
+
+    async def _on_frame(self) -> None:
+        if self.outbox.qsize() > REPORT_BACKLOG and not self.node.owes_births:
+            # the broker (or this process) does not keep up: this frame's report is
+            # skipped, the next one carries every change since the last one sent
+            self.skipped += 1
+            return
+        self.send(self.node.frame())
+
+    async def _on_lost(self) -> None:
+        self.send(self.node.lost())
+
+    def send(self, messages: list[Message]) -> None:
+        for m in messages:
+            self.outbox.put_nowait((self.session_no, m))
+
+    # -- sessions ----------------------------------------------------------------
+    async def run(self) -> None:
+        """Follow the feed and keep a session on a broker until ``stop()``."""
+        feed = asyncio.create_task(self.feed.run())
+        try:
+            await self._sessions()
+        finally:
+            self.feed.stop()
+            await feed
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    async def _sessions(self) -> None:
+        delay = RECONNECT_MIN_S
+        failed = 0
+        while not self._stop.is_set():
+            # nothing to birth before the controller's first schema
+            while self.node.layout is None and not self._stop.is_set():
+                await self._wait(0.05)
+            if self._stop.is_set():
+                return
+            broker = self.q.brokers[self._broker]
+            up = False
+            try:
+                up = await self._session(broker)
+            except SessionEnded as exc:
+                up = True
+                log.warning("mqtt: session on %s ended: %s", broker.url, exc)
+            except (aiomqtt.MqttError, OSError, ssl.SSLError, ValueError) as exc:
+                log.warning("mqtt: broker %s: %s", broker.url, exc or type(exc).__name__)
+            finally:
+                up = up or self.connected.is_set()  # a session that was up, then dropped
+                self._client = None
+                self.connected.clear()
+                self.node.session_lost()
+                self.session_no += 1
+            if self._stop.is_set():
+                return
+            self._broker = (self._broker + 1) % len(self.q.brokers)
+            if up:
+                delay, failed = RECONNECT_MIN_S, 0
+                await self._wait(random.uniform(0.1, RECONNECT_MIN_S))
+                continue
+            failed += 1
+            if failed % len(self.q.brokers) == 0:  # a whole round: wait
+                await self._wait(random.uniform(delay / 2, delay))
+                delay = min(RECONNECT_MAX_S, delay * 2)
+
+    async def _session(self, broker: MqttBroker) -> bool:
+        """One session on ``broker`` until it ends or ``stop()``; True if it was up."""
+        q = self.q
+        will = self.node.will()
+        password = read_password(q.password_file) if q.password_file is not None else None
+        client = aiomqtt.Client(
+            broker.host, broker.port, identifier=q.client_id, username=q.username,
+            password=password, will=aiomqtt.Will(will.topic, will.payload, will.qos,
+                                                 will.retain),
+            clean_session=True, keepalive=q.keepalive_ns // 1_000_000_000,
+            timeout=CONNECT_TIMEOUT_S, tls_context=self.tls if broker.tls else None)
+        async with client:
+            self._client = client
+            self.sessions += 1
+            t = self.node.topics
+            log.info("mqtt: connected to %s as %s (group %s, edge node %s, bdSeq %d)",
+                     broker.url, q.client_id, q.group_id, q.edge_node_id, self.node.bdseq)
+            subs = [(t.node("NCMD"), 1), (t.device("DCMD", "+"), 1)]
+            if q.primary_host is not None:
+                subs.append((t.state(q.primary_host), 1))
+                self.host_online = False
+            await client.subscribe(subs)
+            self.connected.set()
+            if self.host_online:
+                self.send(self.node.start_publishing())
+            elif q.primary_host is not None:
+                log.info("mqtt: waiting for the primary host %s to be online",
+                         q.primary_host)
+            try:
+                async with asyncio.TaskGroup() as tg:
+                    tg.create_task(self._publisher(client, self.session_no))
+                    tg.create_task(self._receiver(client))
+                    tg.create_task(self._until_stop())
+            except BaseExceptionGroup as group:
+                first = _first(group)
+                if isinstance(first, SessionEnded):
+                    # a clean DISCONNECT sends no Will: the NDEATH is published first
+                    await self._goodbye(client)
+                    if self._stop.is_set():
+                        return True
+                raise first from None
+        return True
+
+    async def _until_stop(self) -> None:
+        await self._stop.wait()
+        raise SessionEnded("stopping")
+
+    async def _goodbye(self, client: aiomqtt.Client) -> None:
+        """NDEATH published (a clean DISCONNECT sends no Will), then DISCONNECT."""
+        death = self.node.death()
+        try:
+            await client.publish(death.topic, death.payload, qos=1, timeout=DEATH_TIMEOUT_S)
+            log.info("mqtt: NDEATH published (bdSeq %d)", self.node.bdseq)
+        except aiomqtt.MqttError as exc:
+            log.warning("mqtt: NDEATH not published: %s", exc)
+
+    async def _publisher(self, client: aiomqtt.Client, no: int) -> None:
+        while True:
+            session, m = await self.outbox.get()
+            if session != no:
+                continue
+            if self.outbox.qsize() > OUTBOX_MAX:
+                raise SessionEnded(f"{self.outbox.qsize()} messages waiting: the broker does "
+                                   "not keep up")
+            await client.publish(m.topic, m.payload, qos=m.qos, retain=m.retain)
+            self.published += 1
+
+    async def _wait(self, seconds: float) -> None:
+        try:
+            await asyncio.wait_for(self._stop.wait(), seconds)
+        except TimeoutError:
+            pass
+
+    # -- what comes in -----------------------------------------------------------
+    async def _receiver(self, client: aiomqtt.Client) -> None:
+        t = self.node.topics
+        ncmd, dcmd = t.node("NCMD"), t.node("DCMD") + "/"
+        state = t.state(self.q.primary_host) if self.q.primary_host is not None else None
+        async for message in client.messages:
+            topic = message.topic.value
+            payload = message.payload
+            data = payload if isinstance(payload, bytes | bytearray) else str(payload).encode()
+            if topic == state:
+                self._state(bytes(data))
+            elif topic == ncmd:
+                self._node_command(bytes(data))
+            elif topic.startswith(dcmd):
+                self._device_command(topic[len(dcmd):], bytes(data))
+
+    def _state(self, data: bytes) -> None:
+        try:
+            msg = json.loads(data)
+            online, ts = msg["online"], msg["timestamp"]
+            if not isinstance(online, bool) or not isinstance(ts, int):
+                raise TypeError("online must be a Boolean, timestamp an integer")
+        except (ValueError, KeyError, TypeError, RecursionError) as exc:
+            _warn(f"mqtt: STATE of {self.q.primary_host} ignored: not a Sparkplug 3.0 "
+                  f"STATE ({exc})")
+            return
+        if ts < self._state_ts:
+            return  # an older STATE than the last one seen
+        self._state_ts = ts
+        if online and not self.host_online:
+            self.host_online = True
+            log.info("mqtt: primary host %s online: births", self.q.primary_host)
+            self.send(self.node.start_publishing())
+        elif not online and self.host_online:
+            self.host_online = False
+            raise SessionEnded(f"the primary host {self.q.primary_host} went offline")
+
+    def _node_command(self, data: bytes) -> None:
+        try:
+            self.send(self.node.node_command(decode_command(data)))
+        except (CommandError, CommandRefused) as exc:
+            self.refused += 1
+            _warn(f"mqtt: NCMD refused: {exc}")
+
+    def _device_command(self, device: str, data: bytes) -> None:
+        try:
+            writes = self.node.device_command(device, decode_command(data))
+            if self._pending_writes + len(writes) > MAX_PENDING_WRITES:
+                raise CommandRefused(f"{device}: busy: {MAX_PENDING_WRITES} writes already "
+                                     "wait for the controller")
+        except (CommandError, CommandRefused) as exc:
+            self._refuse(device, str(exc))
+            return
+        self._pending_writes += len(writes)
+        asyncio.get_running_loop().create_task(self._apply(device, writes))
+
+    def _refuse(self, device: str, text: str) -> None:
+        self.refused += 1
+        _warn(f"mqtt: DCMD to {device} refused: {text}")
+        if self.node.layout is not None and device in self.node.layout.devices:
+            self.node.command_result(device, f"refused: {text}")
+
+    async def _apply(self, device: str, writes: list[Write]) -> None:
+        """The writes of one DCMD through the feed, sent together (the controller applies
+        them in one call between two scans)."""
+        try:
+            answers = await asyncio.gather(
+                *(self.feed.set(w.plant, w.value, WRITE_TIMEOUT_S) for w in writes),
+                return_exceptions=True)
+        finally:
+            self._pending_writes -= len(writes)
+        texts, refused = [], []
+        for w, a in zip(writes, answers, strict=True):
+            if isinstance(a, TimeoutError):
+                refused.append(f"{w.metric}: the controller did not answer in time")
+            elif isinstance(a, FeedLost | OSError):
+                refused.append(f"{w.metric}: the controller is offline")
+            elif isinstance(a, BaseException):
+                refused.append(f"{w.metric}: {type(a).__name__}: {a}")
+            elif not a[0]:
+                refused.append(f"{w.metric}: {a[1]}")
+            else:
+                texts.append(a[1])
+        if refused:
+            self._refuse(device, "; ".join(refused))
+        else:
+            self.applied += 1
+            self.node.command_result(device, "ok: " + "; ".join(texts))
+
+
+def _warn(text: str) -> None:
+    """One line of a refusal, its whole text as the template: the log's rate limit
+    (runtime/controller/logsetup.py) holds back repeats of the same line, not different
+    refusals."""
+    log.warning(text.replace("%", "%%"))
+
+
+def _first(group: BaseExceptionGroup[Any]) -> BaseException:
+    """The first exception of a task group's group (its tasks end on the first one)."""
+    first: BaseException = group
+    while isinstance(first, BaseExceptionGroup):
+        first = first.exceptions[0]
+    return first
+
+
+async def serve(pdef: PlantDef, feed: str | None = None,
+                ready: Callable[[EdgeSession], None] | None = None,
+                stop: asyncio.Event | None = None) -> None:
+    """Run the edge node until ``stop`` is set (or forever)."""
+    es = EdgeSession(pdef, feed)
+    task = asyncio.create_task(es.run())
+    if ready is not None:
+        ready(es)
+    if stop is None:
+        await task
+        return
+    stopping = asyncio.create_task(stop.wait())
+    await asyncio.wait([task, stopping], return_when=asyncio.FIRST_COMPLETED)
+    stopping.cancel()
+    es.stop()
+    try:
+        await asyncio.wait_for(task, STOP_TIMEOUT_S)
+    except TimeoutError:
+        # the process ends anyway: without a clean DISCONNECT the broker sends the Will
+        log.warning("mqtt: not stopped in %g s (NDEATH and DISCONNECT not done): leaving "
+                    "the NDEATH to the Will", STOP_TIMEOUT_S)
