@@ -75,8 +75,10 @@ class State(enum.Enum):
     STOPPED = "stopped"
 
 
-class _Call:
-    """A function to run in the scan thread at the next scan boundary."""
+class ScanCall:
+    """A function to run in the scan thread at the next scan boundary (``Daemon.submit``):
+    ``done`` is set once it ran, with its ``result`` or its ``error``; a caller that gives
+    up sets ``abandoned`` (a call not started yet is then skipped)."""
 
     __slots__ = ("fn", "done", "result", "error", "abandoned")
 
@@ -130,7 +132,7 @@ class Daemon:
         self.stopped = False
         self._stopping = False
         self.started_ns: int | None = None
-        self._calls: collections.deque[_Call] = collections.deque()
+        self._calls: collections.deque[ScanCall] = collections.deque()
         self._listeners: tuple[Callable[[int], None], ...] = ()
         self._listeners_lock = threading.Lock()
         self._thread: threading.Thread | None = None
@@ -403,8 +405,7 @@ class Daemon:
         (its exception is raised here). TimeoutError if the scan does not get to it."""
         if not self._loop_alive or threading.current_thread() is self._thread:
             return fn()
-        c = _Call(fn)
-        self._calls.append(c)
+        c = self.submit(fn)
         if not c.done.wait(timeout):
             c.abandoned = True
             raise TimeoutError("the scan did not answer in time")
@@ -412,6 +413,17 @@ class Daemon:
             raise c.error
         result: R = c.result
         return result
+
+    def submit(self, fn: Callable[[], Any]) -> ScanCall:
+        """Queue ``fn`` for the scan thread at the next scan boundary and return at once
+        (``call`` without the wait: a thread serving several clients never waits for a
+        scan). Run here and now when no scan thread runs, or from the scan thread."""
+        c = ScanCall(fn)
+        if not self._loop_alive or threading.current_thread() is self._thread:
+            c.run()
+        else:
+            self._calls.append(c)
+        return c
 
     @property
     def state(self) -> State:

@@ -8,8 +8,13 @@ reads every name from it, and sends inside the console's scan window (``ScanWind
 each client the schema once, then one JSON line per snapshot with the values that changed.
 A client whose unsent output passes OUT_MAX (it stopped reading) is dropped: the scan and
 the other clients never wait for it. Writes come back on the same socket (``set``): only
-names of the plant's ``opcua: writable:`` list, applied between two scans as the console's
-``set`` is (``Daemon.call``), each answered ok or error.
+names of the plant's ``opcua: writable:`` list, with values in range (``value_problem``),
+applied between two scans as the console's ``set`` is (``Daemon.submit``), each answered
+ok or error. The feed thread never waits for the scan: a write is handed to the scan
+thread and answered at a later turn. Work per client per turn is bounded (fairness): at
+most LINES_PER_TURN requests taken, at most PENDING_MAX writes waiting for the scan; a
+client that sends more waits (its socket is not read meanwhile), so one client pipelining
+thousands of writes delays nobody's frames.
 
 Client side (``FeedState``): the schema and the values of the last frame, decoded.
 
@@ -34,25 +39,29 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import selectors
 import socket
 import struct
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from drivers.durations import format_ns
 from runtime.controller.paths import unix_listener
 from runtime.controller.window import ScanWindow
 from runtime.engine.instance import coerce
 from runtime.engine.names import Catalogue, Image
 from runtime.language import ast as A
 from runtime.language.model import OpcuaDef
+from runtime.language.yamlsrc import INT_MAX, INT_MIN, TIME_MAX_NS
 
 if TYPE_CHECKING:
-    from runtime.controller.daemon import Daemon
+    from runtime.controller.daemon import Daemon, ScanCall
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +79,10 @@ STATS_EVERY_NS = 1_000_000_000
 POLL_S = 0.05
 #: a write not applied by the scan thread in this long is answered with an error, seconds
 SET_TIMEOUT_S = 2.0
+#: requests taken from one client per turn of the feed thread (a turn per scan window)
+LINES_PER_TURN = 8
+#: writes of one client handed to the scan thread and not yet answered; more wait
+PENDING_MAX = 8
 
 
 @dataclass(slots=True)
@@ -81,6 +94,13 @@ class _Client:
     #: the next frame it gets is a whole one (it has none yet)
     fresh: bool = True
     status: dict[str, Any] | None = None
+    #: its writes handed to the scan thread, oldest first: (id, name, shown value, the
+    #: call, monotonic deadline); answered in this order
+    pending: deque[tuple[Any, str, str, ScanCall, float]] = field(default_factory=deque)
+    #: its socket is watched for input (not while its unhandled input is at IN_MAX)
+    reading: bool = True
+    #: the selector events its socket is registered for (0: not registered)
+    events: int = 0
 
 
 class FeedServer:
@@ -190,6 +210,7 @@ class FeedServer:
                     if slot[3] is self._cat:  # not an image of a replaced plant
                         self._publish(slot[0], slot[1], slot[2], slot[4])
                         self._flush()
+                self._serve()
                 self._io(max(0.0, min(closes - time.monotonic(), POLL_S)))
         except Exception:  # noqa: BLE001 - the feed dies, never the controller
             log.exception("feed thread failed: OPC UA clients see no more values")
@@ -247,11 +268,12 @@ class FeedServer:
         c = _Client(conn, f"pid {pid} uid {uid}")
         c.out += self._schema_line
         self._clients.append(c)
-        self._sel.register(conn, selectors.EVENT_READ, c)
+        self._interest(c)
         log.info("feed: client connected (%s)", c.peer)
         self._send(c)
 
     def _read(self, c: _Client) -> None:
+        """Take what the client sent into its input buffer (handled by ``_serve``)."""
         try:
             data = c.sock.recv(READ_CHUNK)
         except (BlockingIOError, InterruptedError):
@@ -263,19 +285,62 @@ class FeedServer:
             self._drop(c, None)
             return
         c.inbuf += data
-        while b"\n" in c.inbuf:
-            line, _, rest = bytes(c.inbuf).partition(b"\n")
-            c.inbuf = bytearray(rest)
-            try:
-                self._request(c, line)
-            except Exception as exc:  # noqa: BLE001 - one client's line never ends the feed
-                log.warning("feed: a request of %s failed (%s: %s): client dropped", c.peer,
-                            type(exc).__name__, exc)
-                self._drop(c, "a request that failed")
-            if c not in self._clients:
-                return
-        if len(c.inbuf) > IN_MAX:
+        if len(c.inbuf) > IN_MAX and b"\n" not in c.inbuf:
             self._drop(c, "a line too long")
+            return
+        self._watch(c)
+
+    def _serve(self) -> None:
+        """One turn for every client: the answers of its writes the scan thread has
+        applied (or that timed out), then at most LINES_PER_TURN of its requests while it
+        has fewer than PENDING_MAX writes waiting."""
+        now = time.monotonic()
+        for c in list(self._clients):
+            pending = c.pending
+            while (pending and c in self._clients
+                   and (pending[0][3].done.is_set() or now > pending[0][4])):
+                self._answer(c, *pending.popleft())
+            taken = 0
+            while (taken < LINES_PER_TURN and len(pending) < PENDING_MAX
+                   and c in self._clients):
+                cut = c.inbuf.find(b"\n")
+                if cut < 0:
+                    break
+                line = bytes(c.inbuf[:cut])
+                del c.inbuf[:cut + 1]
+                taken += 1
+                try:
+                    self._request(c, line)
+                except Exception as exc:  # noqa: BLE001 - one client's line never ends the feed
+                    log.warning("feed: a request of %s failed (%s: %s): client dropped",
+                                c.peer, type(exc).__name__, exc)
+                    self._drop(c, "a request that failed")
+            if c in self._clients:
+                self._watch(c)
+
+    def _watch(self, c: _Client) -> None:
+        """Read from the client only while its unhandled input is below IN_MAX: a client
+        that sends faster than its turns take waits, in its own socket buffer."""
+        reading = len(c.inbuf) < IN_MAX
+        if reading != c.reading:
+            c.reading = reading
+            self._interest(c)
+
+    def _interest(self, c: _Client) -> None:
+        """Watch the client's socket for what it waits for: input while ``reading``,
+        room to send while it has output; for neither, not at all."""
+        assert self._sel is not None
+        events = ((selectors.EVENT_READ if c.reading else 0)
+                  | (selectors.EVENT_WRITE if c.out else 0))
+        if events == c.events:
+            return
+        if not c.events:
+            self._sel.register(c.sock, events, c)
+        elif events:
+            self._sel.modify(c.sock, events, c)
+        else:
+            self._sel.unregister(c.sock)
+        c.events = events
 
     def _request(self, c: _Client, line: bytes) -> None:
         try:
@@ -284,33 +349,65 @@ class FeedServer:
         except (ValueError, KeyError, TypeError, RecursionError):
             self._drop(c, "a malformed request")
             return
-        ok, text = self.apply_set(str(name), value)
+        name = str(name)
+        refused, shown, fn = self._prepare_set(name, value)
+        if refused is not None:
+            self._queue(c, _line({"r": [ident, False, refused]}))
+            return
+        assert fn is not None
+        c.pending.append((ident, name, shown, self.daemon.submit(fn),
+                          time.monotonic() + SET_TIMEOUT_S))
+
+    def _answer(self, c: _Client, ident: Any, name: str, shown: str, call: ScanCall,
+                deadline: float) -> None:
+        if not call.done.is_set():
+            call.abandoned = True
+            ok, text = False, "the scan did not answer in time"
+        elif call.error is not None:
+            ok, text = False, str(call.error)
+        else:
+            log.info("opcua: set %s = %s", name, shown)
+            ok, text = True, f"{name} set to {shown}"
         self._queue(c, _line({"r": [ident, ok, text]}))
 
-    def apply_set(self, name: str, value: Any) -> tuple[bool, str]:
-        """A client's write: only a name of ``opcua: writable:``, applied between two scans
-        as the console's ``set`` (the scan thread runs it). (ok, text)."""
+    def _prepare_set(self, name: str, value: Any
+                     ) -> tuple[str | None, str, Callable[[], Any] | None]:
+        """A client's write checked: (None, the value as shown, the function the scan
+        thread runs), or (why it is refused, "", None). Only a name of ``opcua:
+        writable:``, a value of its type and in range."""
         if name not in self.opc.writable:
-            return False, f"{name} is not writable over OPC UA (opcua: writable)"
+            return f"{name} is not writable over OPC UA (opcua: writable)", "", None
         sig = self._cat.names.get(name)
         if sig is None:
-            return False, f"unknown name '{name}'"
+            return f"unknown name '{name}'", "", None
         try:
             if sig.type is A.Type.BOOL and isinstance(value, float):
                 raise ValueError(f"expected a bool, found {value!r}")
             v = coerce(sig.type, value)
         except (ValueError, TypeError, OverflowError) as exc:
-            return False, f"bad value for {name}: {exc}"
+            return f"bad value for {name}: {exc}", "", None
+        problem = value_problem(sig.type, v)
+        if problem is not None:
+            return f"bad value for {name}: {problem}", "", None
         daemon = self.daemon
+        # the running plant, read in the scan thread: an online change may replace it
+        return None, sig.show(v), lambda: daemon.plant.set(name, v)
+
+    def apply_set(self, name: str, value: Any) -> tuple[bool, str]:
+        """A client's write, waited for (the feed thread never does: ``_request``); as
+        the console's ``set``, between two scans. (ok, text)."""
+        refused, shown, fn = self._prepare_set(name, value)
+        if refused is not None:
+            return False, refused
+        assert fn is not None
         try:
-            # the running plant, read in the scan thread: an online change may replace it
-            daemon.call(lambda: daemon.plant.set(name, v), timeout=SET_TIMEOUT_S)
+            self.daemon.call(fn, timeout=SET_TIMEOUT_S)
         except TimeoutError:
             return False, "the scan did not answer in time"
         except Exception as exc:  # noqa: BLE001 - the client gets the reason
             return False, str(exc)
-        log.info("opcua: set %s = %s", name, sig.show(v))
-        return True, f"{name} set to {sig.show(v)}"
+        log.info("opcua: set %s = %s", name, shown)
+        return True, f"{name} set to {shown}"
 
     def _publish(self, scan: int, wall: float, img: Image, live: tuple[Any, ...]) -> None:
         """One frame to every client: whole to new ones, the changes to the others."""
@@ -377,8 +474,7 @@ class FeedServer:
             self._drop(c, str(exc))
             return
         del c.out[:n]
-        events = selectors.EVENT_READ | (selectors.EVENT_WRITE if c.out else 0)
-        self._sel.modify(c.sock, events, c)
+        self._interest(c)
 
     def _drop(self, c: _Client, why: str | None) -> None:
         if c in self._clients:
@@ -388,6 +484,7 @@ class FeedServer:
                 self._sel.unregister(c.sock)
             except (KeyError, ValueError):
                 pass
+        c.events = 0
         c.sock.close()
         if why is None:
             log.info("feed: client gone (%s)", c.peer)
@@ -408,6 +505,20 @@ class FeedServer:
     @property
     def clients(self) -> int:
         return len(self._clients)
+
+
+def value_problem(t: A.Type, value: Any) -> str | None:
+    """Why ``value`` (already of type ``t``, times in ns) may not be written to a plant
+    variable from outside (None if it may): a REAL or TIME must be finite, a TIME within
+    64-bit nanoseconds, an INT within the language's 64-bit range."""
+    if t is A.Type.REAL and not math.isfinite(value):
+        return f"{value!r} is not a finite number"
+    if t is A.Type.TIME and not -TIME_MAX_NS <= value <= TIME_MAX_NS:
+        return (f"out of range: a time is at most {format_ns(TIME_MAX_NS)} (64-bit "
+                "nanoseconds)")
+    if t is A.Type.INT and not INT_MIN <= value <= INT_MAX:
+        return f"out of range: an int is from {INT_MIN} to {INT_MAX} (64 bits)"
+    return None
 
 
 def _line(msg: dict[str, Any]) -> bytes:

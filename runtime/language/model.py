@@ -252,6 +252,28 @@ class OpcuaSecurity:
 
 
 @dataclass(slots=True)
+class OpcuaLimits:
+    """``opcua: limits:`` (docs/opcua.md, "Limits"): what OPC UA clients may hold of the
+    server, so that no client, nor all of them, can wedge it or take the controller's CPU."""
+
+    #: sessions open at once (a connection gone counts until its session is closed)
+    sessions: int = 10
+    #: subscriptions per session (each publishes at most once per ``sample``)
+    subscriptions: int = 5
+    #: publishes per second a session's subscriptions may add up to, and all sessions'
+    publish_rate: float = 50.0
+    publish_rate_total: float = 200.0
+    #: monitored items per session, and in all sessions together
+    items: int = 5000
+    items_total: int = 20000
+    #: the longest session timeout granted to a client that asks for more, ns
+    session_timeout_ns: int = 60_000_000_000
+    #: a session whose connection is gone is closed after this long without a request, ns
+    abandoned_ns: int = 10_000_000_000
+    loc: Loc | None = None
+
+
+@dataclass(slots=True)
 class OpcuaDef:
     """``opcua:`` of a plant file: the OPC UA server (``softplc opcua``) and its feed."""
 
@@ -263,6 +285,7 @@ class OpcuaDef:
     #: ``instance.name`` of the variables and chart flags OPC UA clients may write
     writable: list[str] = field(default_factory=list)
     security: OpcuaSecurity = field(default_factory=OpcuaSecurity)
+    limits: OpcuaLimits = field(default_factory=OpcuaLimits)
     loc: Loc | None = None
 
 

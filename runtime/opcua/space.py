@@ -17,6 +17,7 @@ NodeIds are strings in namespace 2 (``urn:softplc:plant``):
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -24,7 +25,10 @@ from typing import Any
 from asyncua import Server, ua
 from asyncua.common.node import Node
 
+from runtime.controller.feed import value_problem
+from runtime.language import ast as A
 from runtime.language.model import PlantDef
+from runtime.language.yamlsrc import TIME_MAX_NS
 
 NAMESPACE = "urn:softplc:plant"
 NS = 2
@@ -36,6 +40,8 @@ TYPES: dict[str, tuple[ua.VariantType, int]] = {
     "time": (ua.VariantType.Double, ua.ObjectIds.Duration),
     "string": (ua.VariantType.String, ua.ObjectIds.String),
 }
+#: plant type name -> the language's type
+PLANT_TYPES = {t.value: t for t in A.Type}
 #: a value of each type for the creation of its node (its status is bad until a frame)
 ZERO: dict[str, Any] = {"bool": False, "int": 0, "real": 0.0, "time": 0.0, "string": ""}
 #: the role of a name in the feed's schema -> the instance folder it goes in
@@ -66,23 +72,53 @@ def qname(text: str) -> ua.QualifiedName:
     return ua.QualifiedName(text, NS)
 
 
-def to_ua(ptype: str, value: Any) -> Any:
-    """A feed value (times in ns) -> the node's value (times in ms)."""
+#: what an Int64 holds
+INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
+GOOD = ua.StatusCodes.Good
+OUT_OF_RANGE = ua.StatusCodes.BadOutOfRange
+
+
+class OutOfRange(ValueError):
+    """A client's value of the right type that no plant variable may hold (BadOutOfRange)."""
+
+
+def to_ua(ptype: str, value: Any) -> tuple[Any, int]:
+    """A feed value (times in ns) -> (the node's value (times in ms), its status code).
+    An INT beyond Int64, a TIME beyond 64-bit nanoseconds, or a REAL beyond a Double is
+    (None, BadOutOfRange) (docs/opcua.md, "Values out of range"): the language's integers
+    have no fixed width, OPC UA's have; and a Bad value carries no value (Part 4, 7.7.1)."""
+    if ptype == "int":
+        if INT64_MIN <= value <= INT64_MAX:
+            return value, GOOD
+        return None, OUT_OF_RANGE
     if ptype == "time":
-        return value / 1e6
+        if -TIME_MAX_NS <= value <= TIME_MAX_NS:
+            return value / 1e6, GOOD
+        return None, OUT_OF_RANGE
     if ptype == "real":
-        return float(value)
-    return value
+        try:
+            return float(value), GOOD
+        except OverflowError:  # an integer past a Double (a REAL holds floats only)
+            return None, OUT_OF_RANGE
+    return value, GOOD
 
 
 def from_ua(ptype: str, variant: ua.Variant) -> Any:
-    """A client's written Variant -> the feed value; ValueError on a type mismatch."""
+    """A client's written Variant -> the feed value; ValueError on a type mismatch,
+    OutOfRange for a value of the right type no plant variable may hold (a non-finite
+    REAL or TIME, a TIME past 64-bit nanoseconds: ``controller.feed.value_problem``)."""
     vt, _ = TYPES[ptype]
     if variant.VariantType != vt:
         raise ValueError(f"expected {vt.name}, found {variant.VariantType.name}")
+    value = variant.Value
     if ptype == "time":
-        return round(variant.Value * 1e6)
-    return variant.Value
+        if not math.isfinite(value):
+            raise OutOfRange(f"{value!r} ms is not a finite time")
+        value = round(value * 1e6)
+    problem = value_problem(PLANT_TYPES[ptype], value)
+    if problem is not None:
+        raise OutOfRange(problem)
+    return value
 
 
 @dataclass

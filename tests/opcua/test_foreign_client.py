@@ -22,11 +22,10 @@ from typing import Any
 
 import pytest
 import yaml
-from asyncua import Client
 
 from runtime.controller.pin import hash_pin
 from runtime.opcua import security
-from tests.opcua.kit import CHART, free_port, write_plant
+from tests.opcua.kit import CHART, free_port, wait_serving, write_plant
 from tests.opcua.seckit import Certs, make_certs
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -72,22 +71,6 @@ def softplc(*args: str, log: Path) -> subprocess.Popen[bytes]:
     with open(log, "wb") as f:
         return subprocess.Popen([sys.executable, "-m", "runtime.cli", *args], cwd=ROOT,
                                 stdout=f, stderr=subprocess.STDOUT)
-
-
-async def wait_serving(url: str, deadline: float) -> None:
-    """Until the server answers with a good controller.scan (the first frame arrived)."""
-    while True:
-        try:
-            async with Client(url, timeout=5) as c:
-                dv = await c.get_node("ns=2;s=controller.scan").read_data_value(
-                    raise_on_bad_status=False)
-                if dv.StatusCode.is_good():
-                    return
-        except (OSError, TimeoutError):
-            pass
-        if time.monotonic() > deadline:
-            raise TimeoutError(f"{url}: no good value before the deadline")
-        await asyncio.sleep(0.2)
 
 
 def start(tmp: Path, security_yaml: str) -> Running:
