@@ -9,6 +9,7 @@ from typing import Any
 
 from runtime.errors import Loc
 from runtime.language import ast as A
+from runtime.language.units import Unit
 
 #: The file place of character ``i`` of a text read from a user's file (a condition, an
 #: action, a statement), whatever its YAML style (quoted, block, folded).
@@ -59,6 +60,8 @@ class Variable:
     retain: bool = False
     #: the name this variable had before an edit (``renamed_from:``, online change)
     renamed_from: str | None = None
+    #: what it means, for a person (``description:``; docs/language.md, "The I/O list")
+    description: str = ""
 
 
 @dataclass(slots=True)
@@ -199,6 +202,11 @@ class Binding:
     point: str | None = None
     instance: str | None = None  # set for a link to another instance
     ref: str | None = None  # that instance's name: "oX", "gsA.X", "SFCError"
+    #: the I/O list (docs/language.md, "The I/O list"): what the signal is, its unit of
+    #: measure and, for a number, its engineering range (low, high)
+    description: str = ""
+    unit: Unit | None = None
+    range: tuple[float, float] | None = None
 
 
 @dataclass(slots=True)
@@ -208,6 +216,8 @@ class InstanceDef:
     loc: Loc
     inputs: dict[str, Binding] = field(default_factory=dict)  # inputs and chart flags
     outputs: dict[str, Binding] = field(default_factory=dict)
+    #: what this machine is (``description:``), for a person
+    description: str = ""
     #: log every step activation and deactivation (``log: steps``, of the instance or the
     #: plant's ``plc:``; docs/daemon.md, "Logging")
     log_steps: bool = False

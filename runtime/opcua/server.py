@@ -39,6 +39,7 @@ from collections.abc import Callable
 from typing import Any
 
 from asyncua import Server, ua
+from asyncua.common.callback import CallbackType, ServerItemCallback
 from asyncua.crypto.permission_rules import User, UserRole
 
 from runtime.controller.feed import FeedState, set_request
@@ -76,6 +77,8 @@ STALE_MIN_S = 1.0
 SERVER_NICE = 10
 
 Status = ua.StatusCodes
+#: AccessLevel bits: CurrentRead, CurrentRead | CurrentWrite
+READ_ONLY, READ_WRITE = 1, 3
 #: the status of every value while the controller sends no frame
 STALE = Status.BadOutOfService
 
@@ -145,6 +148,7 @@ class PlantServer:
         self._events["controller"] = await srv.get_event_generator(
             ua.ObjectIds.BaseEventType, self.space.controller)
         self._hook_writes()
+        self._hook_access()
         self.limits.install()
         await srv.start()
         log.info("OPC UA server on %s (feed %s)", self.endpoint, self.feed_path)
@@ -185,6 +189,28 @@ class PlantServer:
                     out.append(await self._client_write(wv, user))
             return out
         service.write = write
+
+    def _hook_access(self) -> None:
+        """UserAccessLevel as the reading session may act: read and write on a writable
+        name for a writer, read only for everyone else (asyncua answers the node's
+        AccessLevel to every session)."""
+        space = self.space
+
+        async def post_read(event: ServerItemCallback, dispatcher: Any) -> None:
+            results = event.response_params
+            if not results:
+                return
+            for k, rv in enumerate(event.request_params.NodesToRead):
+                if (rv.AttributeId != ua.AttributeIds.UserAccessLevel
+                        or rv.NodeId.NamespaceIndex != NS or not results[k].StatusCode.is_good()
+                        or rv.NodeId not in space.all_vars):
+                    continue
+                i = space.by_node.get(rv.NodeId)
+                may = (i is not None and space.names[i] in self.opc.writable
+                       and event.user is not None and self.may_write(event.user))
+                results[k] = ua.DataValue(ua.Variant(READ_WRITE if may else READ_ONLY,
+                                                     ua.VariantType.Byte))
+        self.server.iserver.callback_service.addListener(CallbackType.PostRead, post_read)
 
     # -- writes ------------------------------------------------------------------
     async def _client_write(self, wv: ua.WriteValue, user: User) -> ua.StatusCode:
