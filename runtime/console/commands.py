@@ -18,6 +18,7 @@ from drivers.durations import LITERAL_IN_TEXT, format_ns, parse_literal
 from runtime.console import changing
 from runtime.console.protocol import HELP, MIN_EVERY_MS, STATUS_FAULTS, Reply
 from runtime.console.streams import Stream, feeds_text
+from runtime.controller.alarms import alarm_lines
 from runtime.engine.names import CommandError, printable
 from runtime.errors import suggest
 from runtime.language import ast as A
@@ -107,6 +108,7 @@ def cmd_status(session: Session, args: list[str]) -> Reply:
               for n, s in data["steps"].items()]
     lines += [f"SFCError {n}: step {s}" for n, s in data["errors"].items()]
     lines += [f"forced {k}={v}" for k, v in data["forced"].items()]
+    lines += alarm_lines(data.get("alarms", []))
     lines += [f"fault at {_clock_text(f['time'])}: {f['reason']}" for f in data["faults"]]
     if data.get("reload"):
         lines.append(changing.last_reload_text(data["reload"]))

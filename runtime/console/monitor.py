@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any, Protocol
 
+from runtime.controller.alarms import alarm_lines
 from runtime.errors import Loc, SoftplcError, SourceError
 from runtime.language.runtimedir import expand
 
@@ -532,6 +533,7 @@ class View:
         out.append("")
         out.append("forced   " + (", ".join(f"{k}={v}" for k, v in forced.items())
                                   if forced else "-") + "      (* = forced)")
+        out += alarm_lines(st.get("alarms", []))
         for f in st.get("faults", [])[-3:]:
             when = time.strftime("%H:%M:%S", time.localtime(f["time"]))
             out.append(f"fault {when} {f['reason']}")

@@ -26,6 +26,7 @@ from collections.abc import Callable, Collection
 from types import FrameType
 from typing import IO, Any, TypeVar
 
+from runtime.controller.alarms import AlarmBoard
 from runtime.controller.events import EventWatcher
 from runtime.controller.notify import Notifier
 from runtime.controller.realtime import lock_memory, reduce_timer_slack, set_fifo_priority
@@ -153,6 +154,8 @@ class Daemon:
         self._stats_cache: tuple[int, dict[str, Any]] | None = None
         #: logs step changes (``log: steps``), SFCError and overrun bursts
         self.events = EventWatcher(self.plant, self.scan_stats, clock)
+        #: the plant's alarms and their states (runtime/controller/alarms.py)
+        self.alarms = AlarmBoard(self)
         #: online change (``reload``): its flow and history (runtime/controller/reload.py)
         self.reloader = Reloader(self)
         #: while a reload reopens drivers: no scan, no driver read or written
@@ -185,6 +188,8 @@ class Daemon:
             self.add_listener(self._trace)
         self.events.start()
         self.add_listener(self.events)
+        self.alarms.start()
+        self.add_listener(self.alarms.on_scan)
         self._thread.start()
         self.watchdog.start()
         log.info("running %s: %d instance(s), cycle %s ms, watchdog %s ms", self.pdef.path,
@@ -209,6 +214,7 @@ class Daemon:
                     d.inhibit(True)
         self.stopped = True
         self.events.close()  # the scan thread is over: nothing more to watch
+        self.alarms.close()
         sys.setswitchinterval(self._switch_was)
         self.watchdog.stop()
         self.plant.safe_state()
@@ -518,7 +524,8 @@ class Daemon:
                 "scans": self.scan_stats.count, "uptime_s": round(self.uptime_s(), 3),
                 "cycle_ms": self.plant.cycle_ns / 1e6, "freezes": self.scan_stats.freezes,
                 "faults": [{"time": t, "reason": r} for t, r in self.faults],
-                "retain": self.retain_status(), "reload": self.reloader.last()}
+                "retain": self.retain_status(), "reload": self.reloader.last(),
+                "alarms": self.alarms.as_list()}
 
     def retain_status(self) -> dict[str, Any] | None:
         """``status``'s ``retain`` entry: state ok | failing | lost, since (wall time), text;

@@ -29,10 +29,16 @@ Messages, one JSON object per line (``"\\n"``):
   since the previous frame. ``scan`` is the trace's ``cycle`` number; times are in ns;
 - ``{"c": {...}}``: the controller's status (state, fault, overruns, skipped, freezes,
   uptime_s, cycle_ms, drivers: name -> [health, fault reason, ok], lateness_us: p50, p99,
-  max), before the frame it goes with, only when it changed (the scan count is the
-  frame's scan + 1);
-- ``{"r": [id, ok, text]}``: the answer to a ``set``;
-- client -> server ``{"set": [id, name, value]}`` (value in the name's type; times in ns).
+  max, alarms: the alarm board's conditions, ``AlarmBoard.as_list``), before the frame it
+  goes with, only when it changed (the scan count is the frame's scan + 1);
+- ``{"r": [id, ok, text, code]}``: the answer to a request, ``code`` an OPC UA status name
+  (Good, BadInvalidState, BadTimeout, BadConditionBranchAlreadyAcked, ...);
+- client -> server ``{"set": [id, name, value]}`` (value in the name's type; times in ns);
+  ``{"call": [id, target, method, who]}``: a method of an instance (``METHODS``:
+  Acknowledge, Reset, Pause, Resume) or of ``controller`` (Ack), applied between two
+  scans and logged with ``who`` (the server lets only writers call them);
+  ``{"alarm": [id, key, "ack" | "confirm", who, comment]}``: acknowledge or confirm an
+  alarm of the board (runtime/controller/alarms.py).
 """
 
 from __future__ import annotations
@@ -52,8 +58,10 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from drivers.durations import format_ns
+from runtime.controller.alarms import AlarmRefused
 from runtime.controller.paths import unix_listener
 from runtime.controller.window import ScanWindow
+from runtime.engine.commands import CommandRefused
 from runtime.engine.instance import coerce
 from runtime.engine.names import Catalogue, Image
 from runtime.language import ast as A
@@ -79,6 +87,11 @@ STATS_EVERY_NS = 1_000_000_000
 POLL_S = 0.05
 #: a write not applied by the scan thread in this long is answered with an error, seconds
 SET_TIMEOUT_S = 2.0
+#: the methods of an instance: name -> (the chart flag, and True to pulse it for one scan
+#: or the value it is set to)
+METHODS: dict[str, tuple[str, bool | None]] = {
+    "Acknowledge": ("SFCQuitError", None), "Reset": ("SFCReset", None),
+    "Pause": ("SFCPause", True), "Resume": ("SFCPause", False)}
 #: requests taken from one client per turn of the feed thread (a turn per scan window)
 LINES_PER_TURN = 8
 #: writes of one client handed to the scan thread and not yet answered; more wait
@@ -94,9 +107,10 @@ class _Client:
     #: the next frame it gets is a whole one (it has none yet)
     fresh: bool = True
     status: dict[str, Any] | None = None
-    #: its writes handed to the scan thread, oldest first: (id, name, shown value, the
-    #: call, monotonic deadline); answered in this order
-    pending: deque[tuple[Any, str, str, ScanCall, float]] = field(default_factory=deque)
+    #: its writes and method calls handed to the scan thread, oldest first: (id, the
+    #: call, monotonic deadline, the text of its answer); answered in this order
+    pending: deque[tuple[Any, ScanCall, float, Callable[[Any], str]]] = field(
+        default_factory=deque)
     #: its socket is watched for input (not while its unhandled input is at IN_MAX)
     reading: bool = True
     #: the selector events its socket is registered for (0: not registered)
@@ -132,6 +146,9 @@ class FeedServer:
         self._schema_line = b""
         self._stats: dict[str, Any] = {}
         self._stats_at = 0
+        #: the alarms (AlarmBoard.as_list) as of the board's version
+        self._alarms: list[dict[str, Any]] = []
+        self._alarms_version = -1
         #: counters (tests, logs): frames built, clients dropped for not reading
         self.frames = 0
         self.dropped = 0
@@ -298,7 +315,7 @@ class FeedServer:
         for c in list(self._clients):
             pending = c.pending
             while (pending and c in self._clients
-                   and (pending[0][3].done.is_set() or now > pending[0][4])):
+                   and (pending[0][1].done.is_set() or now > pending[0][2])):
                 self._answer(c, *pending.popleft())
             taken = 0
             while (taken < LINES_PER_TURN and len(pending) < PENDING_MAX
@@ -345,69 +362,113 @@ class FeedServer:
     def _request(self, c: _Client, line: bytes) -> None:
         try:
             msg = json.loads(line)
-            ident, name, value = msg["set"]
+            if "set" in msg:
+                ident, name, value = msg["set"]
+                refused, fn, done = self._prepare_set(str(name), value)
+            elif "call" in msg:
+                ident, target, method, who = msg["call"]
+                refused, fn, done = self._prepare_call(str(target), str(method), str(who))
+            elif "alarm" in msg:
+                ident, key, action, who, comment = msg["alarm"]
+                self._queue(c, _line({"r": [ident, *self._alarm(str(key), str(action),
+                                                                str(who), str(comment))]}))
+                return
+            else:
+                raise KeyError("set, call or alarm")
         except (ValueError, KeyError, TypeError, RecursionError):
             self._drop(c, "a malformed request")
             return
-        name = str(name)
-        refused, shown, fn = self._prepare_set(name, value)
         if refused is not None:
-            self._queue(c, _line({"r": [ident, False, refused]}))
+            self._queue(c, _line({"r": [ident, False, refused, "BadInvalidArgument"]}))
             return
-        assert fn is not None
-        c.pending.append((ident, name, shown, self.daemon.submit(fn),
-                          time.monotonic() + SET_TIMEOUT_S))
+        assert fn is not None and done is not None
+        c.pending.append((ident, self.daemon.submit(fn), time.monotonic() + SET_TIMEOUT_S,
+                          done))
 
-    def _answer(self, c: _Client, ident: Any, name: str, shown: str, call: ScanCall,
-                deadline: float) -> None:
+    def _answer(self, c: _Client, ident: Any, call: ScanCall, deadline: float,
+                done: Callable[[Any], str]) -> None:
+        """The answer to a write or a method call the scan thread ran (or did not)."""
+        code = "Good"
         if not call.done.is_set():
             call.abandoned = True
-            ok, text = False, "the scan did not answer in time"
+            ok, text, code = False, "the scan did not answer in time", "BadTimeout"
         elif call.error is not None:
-            ok, text = False, str(call.error)
+            ok, text, code = False, str(call.error), "BadInvalidState"
         else:
-            log.info("opcua: set %s = %s", name, shown)
-            ok, text = True, f"{name} set to {shown}"
-        self._queue(c, _line({"r": [ident, ok, text]}))
+            ok, text = True, done(call.result)
+        self._queue(c, _line({"r": [ident, ok, text, code]}))
 
-    def _prepare_set(self, name: str, value: Any
-                     ) -> tuple[str | None, str, Callable[[], Any] | None]:
-        """A client's write checked: (None, the value as shown, the function the scan
-        thread runs), or (why it is refused, "", None). Only a name of ``opcua:
+    def _prepare_set(self, name: str, value: Any) -> tuple[str | None, Callable[[], Any]
+                                                            | None, Callable[[Any], str] | None]:
+        """A client's write checked: (None, the function the scan thread runs, the text
+        of its answer), or (why it is refused, None, None). Only a name of ``opcua:
         writable:``, a value of its type and in range."""
         if name not in self.opc.writable:
-            return f"{name} is not writable over OPC UA (opcua: writable)", "", None
+            return f"{name} is not writable over OPC UA (opcua: writable)", None, None
         sig = self._cat.names.get(name)
         if sig is None:
-            return f"unknown name '{name}'", "", None
+            return f"unknown name '{name}'", None, None
         try:
             if sig.type is A.Type.BOOL and isinstance(value, float):
                 raise ValueError(f"expected a bool, found {value!r}")
             v = coerce(sig.type, value)
         except (ValueError, TypeError, OverflowError) as exc:
-            return f"bad value for {name}: {exc}", "", None
+            return f"bad value for {name}: {exc}", None, None
         problem = value_problem(sig.type, v)
         if problem is not None:
-            return f"bad value for {name}: {problem}", "", None
-        daemon = self.daemon
-        # the running plant, read in the scan thread: an online change may replace it
-        return None, sig.show(v), lambda: daemon.plant.set(name, v)
+            return f"bad value for {name}: {problem}", None, None
+        daemon, shown = self.daemon, sig.show(v)
 
-    def apply_set(self, name: str, value: Any) -> tuple[bool, str]:
-        """A client's write, waited for (the feed thread never does: ``_request``); as
-        the console's ``set``, between two scans. (ok, text)."""
-        refused, shown, fn = self._prepare_set(name, value)
-        if refused is not None:
-            return False, refused
-        assert fn is not None
+        def done(result: Any) -> str:
+            log.info("opcua: set %s = %s", name, shown)
+            return f"{name} set to {shown}"
+        # the running plant, read in the scan thread: an online change may replace it
+        return None, lambda: daemon.plant.set(name, v), done
+
+    def _prepare_call(self, target: str, method: str, who: str
+                      ) -> tuple[str | None, Callable[[], Any] | None,
+                                 Callable[[Any], str] | None]:
+        """A method of an instance (``METHODS``) or of the controller (``Ack``), for a
+        writer ``who`` (the server checked it): (None, the function the scan thread runs,
+        the text of its answer), or (why it is refused, None, None)."""
+        daemon = self.daemon
+        if target == "controller":
+            if method != "Ack":
+                return f"the controller has no method '{method}' (Ack)", None, None
+            fn: Callable[[], Any] = daemon.ack
+        elif target in daemon.pdef.instances:
+            if method not in METHODS:
+                return (f"{target} has no method '{method}' ({', '.join(METHODS)})", None,
+                        None)
+            flag, value = METHODS[method]
+            bound = daemon.pdef.instances[target].inputs.get(flag)
+            if bound is not None:
+                return (f"{target}.{flag} is bound to {bound.source}, which sets it before "
+                        "every scan", None, None)
+            fn = _instance_method(daemon, target, flag, value)
+        else:
+            return f"no instance '{target}'", None, None
+
+        def done(result: Any) -> str:
+            text = str(result) if result else f"{target}.{method} done"
+            log.warning("opcua: %s called %s.%s: %s", who, target, method, text)
+            return text
+        return None, fn, done
+
+    def _alarm(self, key: str, action: str, who: str, comment: str) -> list[Any]:
+        """Acknowledge or confirm an alarm (the board's lock, no wait for the scan):
+        [ok, text, OPC UA status name]."""
+        board = self.daemon.alarms
         try:
-            self.daemon.call(fn, timeout=SET_TIMEOUT_S)
-        except TimeoutError:
-            return False, "the scan did not answer in time"
-        except Exception as exc:  # noqa: BLE001 - the client gets the reason
-            return False, str(exc)
-        log.info("opcua: set %s = %s", name, shown)
-        return True, f"{name} set to {shown}"
+            if action == "ack":
+                text = board.acknowledge(key, who, comment)
+            elif action == "confirm":
+                text = board.confirm(key, who, comment)
+            else:
+                return [False, f"unknown alarm action '{action}'", "BadInvalidArgument"]
+        except AlarmRefused as exc:
+            return [False, str(exc), exc.code]
+        return [True, text, "Good"]
 
     def _publish(self, scan: int, wall: float, img: Image, live: tuple[Any, ...]) -> None:
         """One frame to every client: whole to new ones, the changes to the others."""
@@ -448,10 +509,13 @@ class FeedServer:
             late = d.scan_stats.lateness().as_dict()
             self._stats = {k: late[k] for k in ("p50", "p99", "max")}
         state, fault, overruns, skipped, freezes, drivers = live
+        board = d.alarms
+        if board.version != self._alarms_version:
+            self._alarms_version, self._alarms = board.version, board.as_list()
         return {"state": state, "fault": fault, "overruns": overruns, "skipped": skipped,
                 "freezes": freezes, "uptime_s": round(d.uptime_s()),
                 "cycle_ms": d.plant.cycle_ns / 1e6, "lateness_us": self._stats,
-                "drivers": drivers}
+                "drivers": drivers, "alarms": self._alarms}
 
     def _queue(self, c: _Client, data: bytes) -> None:
         c.out += data
@@ -505,6 +569,27 @@ class FeedServer:
     @property
     def clients(self) -> int:
         return len(self._clients)
+
+
+def _instance_method(daemon: Daemon, name: str, flag: str, value: bool | None
+                     ) -> Callable[[], str]:
+    """Scan thread: a method of instance ``name`` on its running plant: pulse ``flag``
+    for one scan (``value`` None; Acknowledge only while SFCError is set), or set it."""
+    def run() -> str:
+        plant = daemon.plant
+        inst = plant.instances.get(name)
+        if inst is None:
+            raise CommandRefused(f"no instance '{name}' (an online change removed it)")
+        if value is None:
+            if flag == "SFCQuitError" and not inst.get("SFCError"):
+                raise CommandRefused(f"nothing to acknowledge: {name} has no SFCError")
+            step = inst.get("SFCErrorStep") if flag == "SFCQuitError" else ""
+            plant.pulse(name, flag)
+            return (f"{name}: SFCError{f' ({step})' if step else ''} acknowledged"
+                    if flag == "SFCQuitError" else f"{name}: {flag} for one scan")
+        plant.set(f"{name}.{flag}", value)
+        return f"{name}: {flag} {'set' if value else 'cleared'}"
+    return run
 
 
 def value_problem(t: A.Type, value: Any) -> str | None:
@@ -571,6 +656,11 @@ class FeedState:
         return self.values[self.index[name]]
 
 
+def request_line(kind: str, ident: int, *args: Any) -> bytes:
+    """A client's request (``set``, ``call``, ``alarm``: the module docstring), one line."""
+    return _line({kind: [ident, *args]})
+
+
 def set_request(ident: int, name: str, value: Any) -> bytes:
     """A client's write request, as one line."""
-    return _line({"set": [ident, name, value]})
+    return request_line("set", ident, name, value)

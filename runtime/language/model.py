@@ -261,6 +261,22 @@ class OpcuaSecurity:
     loc: Loc | None = None
 
 
+#: the kinds of alarm (docs/daemon.md, "Alarms") and their default severities (1-1000)
+ALARM_SEVERITY = {"fault": 900, "driver": 800, "sfcerror": 700, "maxtime": 700,
+                  "overruns": 500}
+
+
+@dataclass(slots=True)
+class AlarmsDef:
+    """``alarms:`` of a plant file: each kind's severity, and when overruns are an alarm."""
+
+    severity: dict[str, int] = field(default_factory=lambda: dict(ALARM_SEVERITY))
+    #: more overruns than this in ``overrun_window_ns`` make the overruns alarm active
+    overrun_count: int = 10
+    overrun_window_ns: int = 60_000_000_000
+    loc: Loc | None = None
+
+
 @dataclass(slots=True)
 class OpcuaLimits:
     """``opcua: limits:`` (docs/opcua.md, "Limits"): what OPC UA clients may hold of the
@@ -325,6 +341,7 @@ class PlantDef:
     retain_required_loc: Loc | None = None
     realtime_priority: int | None = None
     lock_memory: bool = False
+    alarms: AlarmsDef = field(default_factory=AlarmsDef)
     drivers: dict[str, DriverDef] = field(default_factory=dict)
     instances: dict[str, InstanceDef] = field(default_factory=dict)
     consoles: list[ConsoleEntry] = field(default_factory=list)

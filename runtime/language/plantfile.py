@@ -19,6 +19,7 @@ from drivers.config import ConfigError
 from drivers.registry import DRIVER_KEYS, check_config, check_point
 from runtime.errors import Diagnostic, Loc, SourceError, suggest
 from runtime.language import ast as A
+from runtime.language.alarmconf import load_alarms
 from runtime.language.grafcetfile import (
     check_keys,
     description_text,
@@ -43,7 +44,7 @@ from runtime.language.runtimedir import expand
 from runtime.language.typecheck import FLAGS_BOOL
 from runtime.language.yamlsrc import YMap, load_yaml, source_problem
 
-PLANT_KEYS = ("plc", "drivers", "instances", "monitor", "opcua")
+PLANT_KEYS = ("plc", "drivers", "instances", "monitor", "opcua", "alarms")
 PLC_KEYS = ("cycle", "watchdog", "retain", "retain_interval", "retain_required", "realtime",
             "log")
 INSTANCE_KEYS = ("grafcet", "inputs", "outputs", "description", "log")
@@ -298,6 +299,8 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
         _monitor(p, doc["monitor"], doc.val_locs["monitor"])
     if "opcua" in doc and doc["opcua"] is not None:
         p.opcua = load_opcua(p, doc["opcua"], doc.val_locs["opcua"])
+    if "alarms" in doc and doc["alarms"] is not None:
+        p.alarms = load_alarms(doc["alarms"], doc.val_locs["alarms"])
     return p
 
 

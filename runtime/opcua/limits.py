@@ -47,6 +47,7 @@ from asyncua.common.callback import CallbackType, ServerItemCallback
 from asyncua.common.utils import ServiceError
 
 from runtime.language.model import OpcuaLimits
+from runtime.opcua.methods import peer_text
 
 log = logging.getLogger(__name__)
 
@@ -129,7 +130,7 @@ class Limits:
                 if open_now >= self.limits.sessions:
                     self.rejected_sessions += 1
                     log.warning("opcua: refused a session from %s: %d sessions open "
-                                "(opcua limits: sessions)", _peer(name), open_now)
+                                "(opcua limits: sessions)", peer_text(name), open_now)
                     raise ServiceError(ua.StatusCodes.BadTooManySessions)
                 self.cumulated_sessions += 1
             return plain(name, *args, external=external, **kwargs)
@@ -243,7 +244,7 @@ class Limits:
             self.aborted += 1
             log.warning("opcua: closed the abandoned session %s (%s): its connection is gone "
                         "and it made no request for %.0f s; %d subscription(s) deleted",
-                        session.session_id.to_string(), _peer(session.name), idle, len(subs))
+                        session.session_id.to_string(), peer_text(session.name), idle, len(subs))
 
     def summary(self) -> ua.ServerDiagnosticsSummaryDataType:
         subs = self.server.iserver.subscription_service.subscriptions
@@ -289,10 +290,3 @@ def _nodes_to_read(params: Any) -> Iterable[ua.ReadValueId]:
 def _clamp_queue(p: ua.MonitoringParameters) -> None:
     if not 0 < p.QueueSize <= QUEUE_MAX:
         p.QueueSize = QUEUE_MAX
-
-
-def _peer(name: Any) -> str:
-    """A session's name in asyncua is its client's (address, port)."""
-    if isinstance(name, tuple) and len(name) >= 2:
-        return f"{name[0]}:{name[1]}"
-    return str(name)

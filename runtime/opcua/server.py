@@ -42,9 +42,11 @@ from asyncua import Server, ua
 from asyncua.common.callback import CallbackType, ServerItemCallback
 from asyncua.crypto.permission_rules import User, UserRole
 
-from runtime.controller.feed import FeedState, set_request
+from runtime.controller.feed import FeedState, request_line
 from runtime.language.model import PlantDef
+from runtime.opcua.conditions import Conditions
 from runtime.opcua.limits import Limits
+from runtime.opcua.methods import Methods, track_callers
 from runtime.opcua.space import (
     NAMESPACE,
     NS,
@@ -114,13 +116,15 @@ class PlantServer:
         #: frames applied (tests wait on it)
         self.frames = 0
         self._writer: asyncio.StreamWriter | None = None
-        self._pending: dict[int, asyncio.Future[tuple[bool, str]]] = {}
+        self._pending: dict[int, asyncio.Future[tuple[bool, str, str]]] = {}
         self._ids = itertools.count(1)
         self._names_built: list[tuple[str, ...]] | None = None
         self._events: dict[str, Any] = {}
         self._prev: dict[str, Any] = {}
         self._stop = asyncio.Event()
         self.limits = Limits(self.server, self.opc.limits, self.opc.sample_ns)
+        self.methods = Methods(self)
+        self.conditions = Conditions(self)
         #: event-loop time of the last frame (None: none since the (re)connection, or a
         #: schema being built); whether the values are shown stale now
         self._last_frame: float | None = None
@@ -130,6 +134,7 @@ class PlantServer:
     async def start(self) -> None:
         """Build the fixed part of the address space and open the endpoint."""
         srv = self.server
+        srv.iserver.bind_condition_methods = True  # ConditionRefresh (conditions.py)
         await srv.init()
         srv.set_endpoint(self.endpoint)
         srv.set_server_name(f"softplc {self.pdef.path}")
@@ -147,6 +152,9 @@ class PlantServer:
         assert self.space.controller is not None
         self._events["controller"] = await srv.get_event_generator(
             ua.ObjectIds.BaseEventType, self.space.controller)
+        await self.methods.build()
+        await self.conditions.setup()
+        track_callers(srv)
         self._hook_writes()
         self._hook_access()
         self.limits.install()
@@ -191,23 +199,31 @@ class PlantServer:
         service.write = write
 
     def _hook_access(self) -> None:
-        """UserAccessLevel as the reading session may act: read and write on a writable
-        name for a writer, read only for everyone else (asyncua answers the node's
-        AccessLevel to every session)."""
+        """UserAccessLevel and UserExecutable as the reading session may act: read and
+        write on a writable name, and the methods, for a writer; read only and no method
+        for everyone else (asyncua answers the node's AccessLevel and Executable to every
+        session)."""
         space = self.space
 
         async def post_read(event: ServerItemCallback, dispatcher: Any) -> None:
             results = event.response_params
             if not results:
                 return
+            user = event.user
             for k, rv in enumerate(event.request_params.NodesToRead):
+                if rv.NodeId.NamespaceIndex != NS or not results[k].StatusCode.is_good():
+                    continue
+                if rv.AttributeId == ua.AttributeIds.UserExecutable:
+                    may_run = self.methods.executable(rv.NodeId, user)
+                    if may_run is not None:
+                        results[k] = ua.DataValue(ua.Variant(may_run, ua.VariantType.Boolean))
+                    continue
                 if (rv.AttributeId != ua.AttributeIds.UserAccessLevel
-                        or rv.NodeId.NamespaceIndex != NS or not results[k].StatusCode.is_good()
                         or rv.NodeId not in space.all_vars):
                     continue
                 i = space.by_node.get(rv.NodeId)
                 may = (i is not None and space.names[i] in self.opc.writable
-                       and event.user is not None and self.may_write(event.user))
+                       and user is not None and self.may_write(user))
                 results[k] = ua.DataValue(ua.Variant(READ_WRITE if may else READ_ONLY,
                                                      ua.VariantType.Byte))
         self.server.iserver.callback_service.addListener(CallbackType.PostRead, post_read)
@@ -227,25 +243,29 @@ class PlantServer:
             return ua.StatusCode(Status.BadOutOfRange)
         except (ValueError, TypeError, AttributeError):
             return ua.StatusCode(Status.BadTypeMismatch)
-        writer = self._writer
-        if writer is None:
-            return ua.StatusCode(Status.BadNoCommunication)
-        ident = next(self._ids)
-        fut: asyncio.Future[tuple[bool, str]] = asyncio.get_running_loop().create_future()
-        self._pending[ident] = fut
-        try:
-            writer.write(set_request(ident, name, value))
-            ok, text = await asyncio.wait_for(fut, WRITE_TIMEOUT_S)
-        except TimeoutError:
-            return ua.StatusCode(Status.BadTimeout)
-        except (OSError, ConnectionError):
-            return ua.StatusCode(Status.BadNoCommunication)
-        finally:
-            self._pending.pop(ident, None)
+        ok, text, code = await self.ask("set", name, value)
         if not ok:
             log.info("opcua write of %s refused by the controller: %s", name, text)
-            return ua.StatusCode(Status.BadInvalidState)
-        return ua.StatusCode(Status.Good)
+        return ua.StatusCode(getattr(Status, code, Status.BadInvalidState))
+
+    async def ask(self, kind: str, *args: Any) -> tuple[bool, str, str]:
+        """A request to the controller through the feed (``set``, ``call``, ``alarm``:
+        runtime/controller/feed.py), waited for: (ok, text, OPC UA status name)."""
+        writer = self._writer
+        if writer is None:
+            return False, "no connection to the controller", "BadNoCommunication"
+        ident = next(self._ids)
+        fut: asyncio.Future[tuple[bool, str, str]] = asyncio.get_running_loop().create_future()
+        self._pending[ident] = fut
+        try:
+            writer.write(request_line(kind, ident, *args))
+            return await asyncio.wait_for(fut, WRITE_TIMEOUT_S)
+        except TimeoutError:
+            return False, "the controller did not answer in time", "BadTimeout"
+        except (OSError, ConnectionError):
+            return False, "no connection to the controller", "BadNoCommunication"
+        finally:
+            self._pending.pop(ident, None)
 
     # -- the feed ----------------------------------------------------------------
     async def run(self) -> None:
@@ -317,11 +337,13 @@ class PlantServer:
                 await self._schema(st.schema)
             elif kind == "frame":
                 await self._frame()
+            elif kind == "status":
+                await self.conditions.update(st.status.get("alarms") or [])
             elif kind == "reply":
-                ident, ok, text = _reply(line)
+                ident, ok, text, code = _reply(line)
                 fut = self._pending.get(ident)
                 if fut is not None and not fut.done():
-                    fut.set_result((ok, text))
+                    fut.set_result((ok, text, code))
 
     async def _schema(self, schema: dict[str, Any]) -> None:
         self._last_frame = None  # no stale check while the names change
@@ -477,9 +499,9 @@ def _dv(ptype: str, value: Any, ts: datetime.datetime, now: datetime.datetime,
                         SourceTimestamp=ts, ServerTimestamp=now)
 
 
-def _reply(line: bytes) -> tuple[int, bool, str]:
-    ident, ok, text = json.loads(line)["r"]
-    return int(ident), bool(ok), str(text)
+def _reply(line: bytes) -> tuple[int, bool, str, str]:
+    ident, ok, text, code = json.loads(line)["r"]
+    return int(ident), bool(ok), str(text), str(code)
 
 
 async def serve(pdef: PlantDef, endpoint: str | None = None, feed: str | None = None,

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from runtime.controller.daemon import Daemon
-from runtime.controller.feed import FeedServer, FeedState, set_request
+from runtime.controller.feed import FeedServer, FeedState, request_line, set_request
 from runtime.engine.plant import Plant
 from runtime.language.model import PlantDef
 from runtime.language.plantfile import load_plant
@@ -95,6 +95,8 @@ class FeedReader:
         #: how many schemas came (one at the start, one more after each online change)
         self.schemas = 0
         self.replies: dict[int, tuple[bool, str]] = {}
+        #: the OPC UA status name of each reply
+        self.codes: dict[int, str] = {}
         self.closed = threading.Event()
         self._ids = 0
         self._thread: threading.Thread | None = None
@@ -121,8 +123,9 @@ class FeedReader:
                     elif kind == "status":
                         self.statuses.append(dict(self.state.status))
                     elif kind == "reply":
-                        ident, ok, text = json.loads(line)["r"]
+                        ident, ok, text, code = json.loads(line)["r"]
                         self.replies[ident] = (ok, text)
+                        self.codes[ident] = code
         except OSError:
             pass
         finally:
@@ -134,6 +137,14 @@ class FeedReader:
         self.sock.sendall(set_request(ident, name, value))
         wait_until(lambda: ident in self.replies, timeout, f"the answer to set {name}")
         return self.replies[ident]
+
+    def request(self, kind: str, *args: Any, timeout: float = 10.0) -> tuple[bool, str, str]:
+        """A ``call`` or ``alarm`` request: (ok, text, code)."""
+        self._ids += 1
+        ident = self._ids
+        self.sock.sendall(request_line(kind, ident, *args))
+        wait_until(lambda: ident in self.replies, timeout, f"the answer to {kind}")
+        return (*self.replies[ident], self.codes[ident])
 
     def close(self) -> None:
         self.sock.close()

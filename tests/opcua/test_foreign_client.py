@@ -186,7 +186,8 @@ def test_node_opcua_browses_reads_and_sees_the_trace(open_plant: Running,
     assert {k: objects[k] for k in ("t1", "t2", "io", "Controller")} == {
         "t1": nid("t1"), "t2": nid("t2"), "io": nid("driver.io"),
         "Controller": nid("controller")}
-    assert set(browse[nid("t1")]) == {"Inputs", "Outputs", "Memory", "Steps", "Flags"}
+    assert set(browse[nid("t1")]) == {"Inputs", "Outputs", "Memory", "Steps", "Flags", "Alarms",
+                                      "Acknowledge", "Reset", "Pause", "Resume"}
     chart = yaml.safe_load(CHART)
     assert browse[nid("t1/Memory")] == {n: nid(f"t1.{n}") for n in chart["memory"]}
     assert set(browse[nid("t1/Steps")]) == set(chart["steps"])

@@ -49,7 +49,10 @@ def test_browse_the_tree_names_types_and_node_ids(tmp_path: Path) -> None:
                     "Flags": ["SFCInit", "SFCReset", "SFCPause", "SFCError", "SFCEnableLimit",
                               "SFCQuitError", "SFCTipMode", "SFCTip", "SFCErrorStep",
                               "SFCCurrentStep"],
-                    "Steps": ["gsA", "gsB", "gsJam"]}
+                    "Steps": ["gsA", "gsB", "gsJam"],
+                    # its methods and its alarms (tests/opcua/test_alarms.py)
+                    "Acknowledge": [], "Reset": [], "Pause": [], "Resume": [],
+                    "Alarms": ["SFCError", "gsJam.maxtime"]}
                 step = [x.nodeid.to_string() for x in
                         await c.get_node("ns=2;s=t1.gsB").get_children()]
                 assert step == ["ns=2;s=t1.gsB.X", "ns=2;s=t1.gsB.T"]
