@@ -148,3 +148,26 @@ async def wait_serving(url: str, deadline: float) -> None:
         if time.monotonic() > deadline:
             raise TimeoutError(f"{url}: no good value before the deadline")
         await asyncio.sleep(0.2)
+
+
+DRAWER = ROOT / "configs" / "drawer_tester"
+
+
+def drawer_plant(tmp: Path, extra: str = "") -> Path:
+    """configs/drawer_tester/plant_sim.yaml as shipped (its I/O list in Spanish), with an
+    ``opcua:`` section (policy None, the writer :data:`WRITER`; tester1.sParo writable)
+    and ``extra`` at the end; its chart named by its path, its retain file in ``tmp``, no
+    console."""
+    text = (DRAWER / "plant_sim.yaml").read_text(encoding="utf-8")
+    text = text.replace("grafcet: drawer_tester.yaml",
+                        f"grafcet: {DRAWER / 'drawer_tester.yaml'}")
+    text = text.replace("${RUNTIME_DIR}/drawer_tester_sim.retain.json",
+                        str(tmp / "retain.json"))
+    text = text[:text.index("monitor:")]
+    path = tmp / "plant.yaml"
+    path.write_text(text + (
+        f"opcua:\n  endpoint: opc.tcp://127.0.0.1:{free_port()}\n  feed: {tmp}/feed.sock\n"
+        "  writable: [tester1.sParo]\n"
+        f"  security: {{policies: [None], users: {{{WRITER}: '{WRITER_HASH}'}}}}\n") + extra,
+        encoding="utf-8")
+    return path

@@ -10,7 +10,6 @@ import asyncio
 import json
 import os
 import re
-import shutil
 import signal
 import subprocess
 import sys
@@ -26,10 +25,10 @@ import yaml
 from runtime.controller.pin import hash_pin
 from runtime.opcua import security
 from tests.opcua.kit import CHART, free_port, wait_serving, write_plant
+from tests.opcua.nodekit import NEEDS_NODE, NODE_DIR
 from tests.opcua.seckit import Certs, make_certs
 
 ROOT = Path(__file__).resolve().parents[2]
-NODE_DIR = Path(__file__).resolve().parent / "node"
 #: how long a start or a client run may take on a loaded machine, s
 DEADLINE_S = 90.0
 #: how long the foreign client stays subscribed, s
@@ -38,10 +37,7 @@ SUBSCRIBED_S = 3.0
 WATCHED = ["controller.scan", "t1.sN", "t1.gsB.X", "t1.oLamp", "t1.sStop", "t2.sN",
            "t2.gsA.X"]
 
-pytestmark = pytest.mark.skipif(
-    shutil.which("node") is None or not (NODE_DIR / "node_modules" / "node-opcua-client").is_dir(),
-    reason="node-opcua is not installed: cd tests/opcua/node && npm ci (scripts/test.sh "
-           "does it)")
+pytestmark = NEEDS_NODE
 
 
 @dataclass

@@ -16,29 +16,9 @@ from asyncua import Client, ua
 
 from runtime.language.plantfile import load_plant
 from tests.opcua.feedkit import ServerThread, serving, wait_until
-from tests.opcua.kit import WRITER, WRITER_HASH, free_port, writer
+from tests.opcua.kit import drawer_plant, free_port, writer
 
-ROOT = Path(__file__).resolve().parents[2]
-DRAWER = ROOT / "configs" / "drawer_tester"
 CEFACT = "http://www.opcfoundation.org/UA/units/un/cefact"
-
-
-def drawer_plant(tmp: Path) -> Path:
-    """configs/drawer_tester/plant_sim.yaml as shipped, with an ``opcua:`` section (and
-    its chart and retain file where a test may have them)."""
-    text = (DRAWER / "plant_sim.yaml").read_text(encoding="utf-8")
-    text = text.replace("grafcet: drawer_tester.yaml",
-                        f"grafcet: {DRAWER / 'drawer_tester.yaml'}")
-    text = text.replace("${RUNTIME_DIR}/drawer_tester_sim.retain.json",
-                        str(tmp / "retain.json"))
-    text = text[:text.index("monitor:")]
-    path = tmp / "plant.yaml"
-    path.write_text(text + (
-        f"opcua:\n  endpoint: opc.tcp://127.0.0.1:{free_port()}\n  feed: {tmp}/feed.sock\n"
-        "  writable: [tester1.sParo]\n"
-        f"  security: {{policies: [None], users: {{{WRITER}: '{WRITER_HASH}'}}}}\n"),
-        encoding="utf-8")
-    return path
 
 
 @contextmanager
