@@ -130,8 +130,16 @@ def test_methods_are_for_writers_and_applied_between_two_scans(tmp_path: Path) -
             assert writer.ask(call="ns=2;s=t1", method="ns=2;s=t1.Resume") == {
                 "call": "Good"}
             assert d.call(lambda: t1.get("SFCPause")) is False
+            # Reset: the chart back to its initial situation; held in gsA (sStop), gsA is
+            # entered again and its time restarts
+            d.call(lambda: d.plant.set("t1.sStop", True))
+            wait_until(lambda: d.call(lambda: t1.get("gsA.T")) > 300_000_000,
+                       what="t1 held in gsA")
             assert writer.ask(call="ns=2;s=t1", method="ns=2;s=t1.Reset") == {
                 "call": "Good"}
+            assert d.call(lambda: t1.get("gsA.X")) is True
+            assert d.call(lambda: t1.get("gsA.T")) < 300_000_000
+            d.call(lambda: d.plant.set("t1.sStop", False))
             # nothing to acknowledge: the controller refuses
             assert writer.ask(call="ns=2;s=t1", method="ns=2;s=t1.Acknowledge") == {
                 "call": "BadInvalidState"}
