@@ -192,9 +192,10 @@ class Limits:
             refused = len(asked) - room
             if refused > 0:
                 self.rejected_requests += 1
-                log.warning("opcua: refused %d monitored item(s) of session %s: %d held "
-                            "(opcua limits: items %d per session, items_total %d)", refused,
-                            sub.session_id.to_string(), mine + room, self.limits.items,
+                log.warning("opcua: refused %d monitored item(s) of session %s: %d held, "
+                            "%d by all sessions (opcua limits: items %d per session, "
+                            "items_total %d)", refused, sub.session_id.to_string(),
+                            mine + room, total + room, self.limits.items,
                             self.limits.items_total)
                 out += [ua.MonitoredItemCreateResult(
                     StatusCode=ua.StatusCode(ua.StatusCodes.BadTooManyMonitoredItems))

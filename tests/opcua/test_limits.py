@@ -140,7 +140,8 @@ def test_killed_hoarding_clients_never_wedge_the_server(tmp_path: Path) -> None:
             except (OSError, TimeoutError, ua.UaStatusCodeError) as exc:
                 served = None
                 sys.stderr.write(f"probe: {type(exc).__name__}: {exc}\n")
-            assert time.monotonic() - killed < CLOSED_WITHIN_S, (served, said)
+            assert time.monotonic() - killed < CLOSED_WITHIN_S, (
+                served, said, (tmp_path / "opcua.log").read_text(encoding="utf-8")[-4000:])
         after_s = time.monotonic() - killed
         watch.close()
     finally:
@@ -164,9 +165,14 @@ def test_killed_hoarding_clients_never_wedge_the_server(tmp_path: Path) -> None:
     assert sum(rates) >= RATE_TOTAL - 1, rates  # the attackers took all there was
     assert all(s["items"] <= ITEMS for s in let_in), said
     assert sum(s["items"] for s in let_in) == ITEMS_TOTAL, said
-    assert all("BadTooManyMonitoredItems" in s["refusals"] for s in let_in), said
+    # a session that got a subscription asked for more items than it may hold; one that
+    # came after the publishing rates were taken got none (BadTooManySubscriptions)
+    assert all("BadTooManyMonitoredItems" in s["refusals"] if s["subscriptions"] else
+               s["refusals"] == ["BadTooManySubscriptions"] for s in let_in), said
     assert served is not None and served["subscriptions"] == 0, served
-    assert served["aborted"] >= SESSIONS, served
+    # closed here: every session that held a subscription (asyncua closes one without
+    # any when its connection goes)
+    assert served["aborted"] >= len([s for s in let_in if s["subscriptions"]]), served
     assert served["rejected"] >= ATTACKERS - SESSIONS, served
     log = (tmp_path / "opcua.log").read_text(encoding="utf-8")
     assert "closed the abandoned session" in log, log[-3000:]
