@@ -163,6 +163,18 @@ def test_the_drawer_tester_carries_its_io_list_in_spanish() -> None:
     assert all(r.meaning.description for r in iol.rows)
 
 
+@pytest.mark.parametrize("plant", sorted(ROOT.glob("configs/*/plant*.yaml")),
+                         ids=lambda p: p.parent.name)
+def test_every_example_plant_carries_its_io_list(plant: Path) -> None:
+    """Issue 29: each example plant says what each of its signals is, and each instance
+    what it is."""
+    pdef = load_plant(str(plant))
+    iol = IOList(pdef)
+    assert iol.rows
+    assert [r.signal for r in iol.rows if not r.meaning.description] == []
+    assert [n for n in pdef.instances if not iol.meaning(n).description] == []
+
+
 def test_softplc_iolist_prints_the_table_and_the_csv(
         capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["iolist", str(DRAWER)]) == 0
