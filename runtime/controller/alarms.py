@@ -126,7 +126,7 @@ class _Causes:
                                                prog.var_index("SFCErrorStep")]))
         self.drivers = list(plant.drivers.values())
 
-    def read(self, fault: bool, overruns: int) -> tuple[Any, ...]:
+    def read(self, fault: str | None, overruns: int) -> tuple[Any, ...]:
         return (tuple(g() for g in self.getters),
                 tuple((d.health, d.fault_reason or "") for d in self.drivers), fault,
                 overruns)
@@ -200,7 +200,8 @@ class AlarmBoard:
         if causes is None or causes.plant is not d.plant:
             self._wake.set()  # an online change: the board's thread builds the new ones
             return
-        snap = causes.read(d.fault is not None, d.scan_stats.overruns)
+        # the fault's reason copied now: it may be acknowledged before the board looks
+        snap = causes.read(d.fault, d.scan_stats.overruns)
         if snap != self._last:
             self._last = self._slot = snap
             self._wake.set()
@@ -247,8 +248,8 @@ class AlarmBoard:
             self._window.popleft()
         recent = overruns - self._window[0][1]
         want: dict[str, str] = {}  # key -> message, for every active cause
-        if fault:
-            want["controller.fault"] = f"controller fault: {self.daemon.fault}"
+        if fault is not None:
+            want["controller.fault"] = f"controller fault: {fault}"
         if recent > self.config.overrun_count:
             want["controller.overruns"] = (f"{recent} overruns in the last "
                                            f"{format_ns(self.config.overrun_window_ns)} "

@@ -130,3 +130,20 @@ def test_the_alarms_section_is_checked(tmp_path: Path) -> None:
         path.write_text(path.read_text(encoding="utf-8") + section, encoding="utf-8")
         with pytest.raises(SourceError, match=words):
             load_plant(str(path))
+
+
+def test_the_fault_alarm_names_the_fault_the_scan_saw(tmp_path: Path) -> None:
+    """The board looks at the causes after the scan copied them: a fault acknowledged in
+    between is still named by its reason (it said 'controller fault: None')."""
+    d = daemon(tmp_path, RecordingDriver("io", {"on_fault": "hold"}))
+    try:
+        board = d.alarms
+        board.close()  # its thread stopped: the causes evaluated here, by hand
+        causes = board._causes  # noqa: SLF001 - the scan thread's copy, as on_scan takes it
+        assert causes is not None and d.fault is None
+        board.evaluate(causes.read("frozen for 158 ms", 0))
+        assert [(a.active, a.message) for a in board.alarms()
+                if a.key == "controller.fault"] == [
+            (True, "controller fault: frozen for 158 ms")]
+    finally:
+        d.stop("end of test")
