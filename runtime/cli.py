@@ -50,6 +50,20 @@ def cmd_compile(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_iolist(args: argparse.Namespace) -> int:
+    """The plant's I/O list: one line per bound signal, as a table or CSV (docs/language.md,
+    "The I/O list")."""
+    from runtime.language.iolist import IOList
+    from runtime.language.plantfile import load_plant
+
+    iolist = IOList(load_plant(args.plant))
+    if args.csv:
+        sys.stdout.write(iolist.csv())
+    else:
+        sys.stdout.write("".join(f"{line}\n" for line in iolist.table()))
+    return 0
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
     """The plant on a virtual clock; the trace and VCD are written as far as the run went
     (a scan fault: every scan before it and a last record naming it, then exit 2)."""
@@ -528,6 +542,12 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     c.add_argument("files", nargs="+")
     c.add_argument("--show", action="store_true", help="print the generated Python source")
     c.set_defaults(func=cmd_compile)
+
+    io = sub.add_parser("iolist", help="print a plant's I/O list (signal, point, NC, "
+                                       "description, unit, range)")
+    io.add_argument("plant")
+    io.add_argument("--csv", action="store_true", help="comma-separated, for a spreadsheet")
+    io.set_defaults(func=cmd_iolist)
 
     s = sub.add_parser("simulate", help="run a plant on a virtual clock with simulated I/O")
     s.add_argument("plant")

@@ -19,8 +19,11 @@ from drivers.durations import LITERAL_IN_TEXT, format_ns, parse_literal
 from runtime.console import changing
 from runtime.console.protocol import HELP, MIN_EVERY_MS, STATUS_FAULTS, Pending, Reply
 from runtime.console.streams import Stream, feeds_text
+from runtime.controller.alarms import alarm_lines
 from runtime.engine.names import CommandError, printable
 from runtime.errors import suggest
+from runtime.language import ast as A
+from runtime.language.iolist import Meaning
 
 if TYPE_CHECKING:
     from runtime.console.session import Session
@@ -29,6 +32,8 @@ log = logging.getLogger(__name__)
 
 #: a command: the session it runs in, the words after its name -> its reply
 Command = Callable[["Session", list[str]], Reply | Pending]
+#: the types whose values ``get`` follows with their unit (a time is shown as 1s500ms)
+NUMBERS = (A.Type.INT, A.Type.REAL)
 
 
 def round_times(text: str) -> str:
@@ -83,6 +88,11 @@ def cmd_status(session: Session, args: list[str]) -> Reply:
         data = {**session.ctl.status(), "steps": {}, "forced": {}, "errors": {},
                 "note": "the scan thread did not answer"}
     data["faults"] = data.get("faults", [])[-STATUS_FAULTS:]
+    # what the instances and their active steps are, for a view such as the monitor
+    said = {n: cat.iolist.meaning(n).description
+            for inst, steps in data["steps"].items() for n in (inst, *(
+                f"{inst}.{s}" for s in steps))}
+    data["descriptions"] = {n: d for n, d in said.items() if d}
     held = data.get("held", {})
     state = data["state"] + (f" ({data['fault']})" if data.get("fault") else "")
     if held and data["state"] == "running":  # running, yet some charts do not evolve
@@ -99,6 +109,7 @@ def cmd_status(session: Session, args: list[str]) -> Reply:
               for n, s in data["steps"].items()]
     lines += [f"SFCError {n}: step {s}" for n, s in data["errors"].items()]
     lines += [f"forced {k}={v}" for k, v in data["forced"].items()]
+    lines += alarm_lines(data.get("alarms", []))
     lines += [f"fault at {_clock_text(f['time'])}: {f['reason']}" for f in data["faults"]]
     if data.get("reload"):
         lines.append(changing.last_reload_text(data["reload"]))
@@ -144,24 +155,47 @@ def cmd_get(session: Session, args: list[str]) -> Reply:
         forced = {k: v for k, v in plant.forced_values().items() if k in values}
         return values, forced
     values, forced = session.call(read)
-    lines, shown = [], {}
+    lines, shown, meanings = [], {}, {}
     for n in names:
         v = values[n.text]
+        m = cat.iolist.meaning(n.text)
+        unit = f" {m.unit.symbol}" if m.unit is not None and n.type in NUMBERS else ""
         if n.text in forced and n.role == "point in":
             # a forced input masks the driver during the cycle only: show both
-            note = f" (forced; the driver reads {n.show(v)})"
+            note = f" (forced; the driver reads {n.show(v)}{unit})"
             v = forced[n.text]
         else:
             note = " (forced)" if n.text in forced else ""
         shown[n.text] = n.plain(v)
-        text = f"{n.text}={n.show(v)}{note}"
+        text = f"{n.text}={n.show(v)}{unit}{note}"
         if n.feeds:
             text += "  " + feeds_text(n, v)
         if n.binding and len(names) > 1:
             text += f"  {n.binding}"
+        said = m.description
+        if n.role.startswith("point"):  # what is wired there, as the binding says
+            said = "; ".join(r.meaning.description for r in cat.iolist.bound_to(n.text)
+                             if r.meaning.description)
+        if said:
+            text += f'  "{said}"'
         lines.append(text)
+        if m != Meaning():
+            meanings[n.text] = meaning_data(m)
     return lines, {"values": shown, "forced": sorted(forced),
-                   "roles": {n.text: n.role for n in names}}
+                   "roles": {n.text: n.role for n in names}, "meanings": meanings}
+
+
+def meaning_data(m: Meaning) -> dict[str, Any]:
+    """What the I/O list says of a name, for JSON: description, unit (code and symbol),
+    range [low, high]; only what is known."""
+    out: dict[str, Any] = {}
+    if m.description:
+        out["description"] = m.description
+    if m.unit is not None:
+        out["unit"], out["symbol"] = m.unit.code, m.unit.symbol
+    if m.range is not None:
+        out["range"] = list(m.range)
+    return out
 
 
 def cmd_watch(session: Session, args: list[str]) -> Reply:
@@ -199,9 +233,12 @@ def cmd_why(session: Session, args: list[str]) -> Reply:
                            f"{' '.join(plant.instances)})")
     name = args[0]
     whys = session.call(lambda: plant.explain(name))
+    iolist = session.cat.iolist
     lines, data = [], []
     for sw in whys:
-        lines.append(f"{sw.step} active for {round_times(format_ns(sw.time_ns))}")
+        said = iolist.meaning(f"{name}.{sw.step}").description
+        lines.append(f"{sw.step} active for {round_times(format_ns(sw.time_ns))}"
+                     + (f'  "{said}"' if said else ""))
         for tw in sw.transitions:
             state = ("fires" if tw.condition and not tw.blocked else
                      "blocked" if tw.condition else "false")
@@ -211,6 +248,7 @@ def cmd_why(session: Session, args: list[str]) -> Reply:
             for term in tw.terms:
                 lines.append(f"      {'  ' * term.depth}{term.text} = {term.value}")
         data.append({"step": sw.step, "time_ms": round(sw.time_ns / 1e6),
+                     "description": said,
                      "transitions": [
                          {"text": t.text, "condition": t.condition,
                           "blocked": [round_times(b) for b in t.blocked],

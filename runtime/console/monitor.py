@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any, Protocol
 
+from runtime.controller.alarms import alarm_lines
 from runtime.errors import Loc, SoftplcError, SourceError
 from runtime.language.runtimedir import expand
 
@@ -407,6 +408,8 @@ class View:
     stats: dict[str, Any] = field(default_factory=dict)
     values: dict[str, Any] = field(default_factory=dict)
     roles: dict[str, str] = field(default_factory=dict)
+    #: the I/O list of the names shown: name -> unit symbol
+    units: dict[str, str] = field(default_factory=dict)
     forced_names: set[str] = field(default_factory=set)
     log: deque[str] = field(default_factory=lambda: deque(maxlen=LOG_LINES))
     problem: str = ""
@@ -438,6 +441,8 @@ class View:
             if got.get("ok"):
                 self.values, self.roles = got["values"], got.get("roles", {})
                 self.forced_names = set(got.get("forced", ()))
+                self.units = {n: m["symbol"] for n, m in got.get("meanings", {}).items()
+                              if "symbol" in m and self.roles.get(n) != "step time"}
         self.problem = ""
         self.updated = time.time()
         self.refreshes += 1
@@ -520,9 +525,15 @@ class View:
             out.append("drivers  " + "  ".join(
                 f"{n} {d['health']}" + (f" ({d['reason']})" if d.get("reason") else "")
                 for n, d in drivers.items()))
+        said = st.get("descriptions", {})
         for inst, steps in st.get("steps", {}).items():
             out.append("")
             out.append(f"{inst}  {' '.join(steps) or '(no active step)'}")
+            # what the plant file says of the instance and its active steps
+            about = [said[inst]] if inst in said else []
+            about += [f"{s}: {said[f'{inst}.{s}']}" for s in steps if f"{inst}.{s}" in said]
+            if about:
+                out.append("  " + "; ".join(about))
             for role, label in (("input", "in "), ("output", "out"), ("memory", "mem")):
                 cells = [self._cell(n) for n, r in self.roles.items()
                          if r == role and n.startswith(inst + ".")]
@@ -534,6 +545,7 @@ class View:
         out.append("")
         out.append("forced   " + (", ".join(f"{k}={v}" for k, v in forced.items())
                                   if forced else "-") + "      (* = forced)")
+        out += alarm_lines(st.get("alarms", []))
         for f in st.get("faults", [])[-3:]:
             when = time.strftime("%H:%M:%S", time.localtime(f["time"]))
             out.append(f"fault {when} {f['reason']}")
@@ -544,7 +556,8 @@ class View:
     def _cell(self, name: str) -> str:
         short = name.split(".", 1)[1]
         mark = "*" if name in self.forced_names else " "
-        return f"{short}={self.values.get(name, '?')}{mark}"
+        unit = self.units.get(name, "")
+        return f"{short}={self.values.get(name, '?')}{unit}{mark}"
 
 
 def _now() -> str:

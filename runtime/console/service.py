@@ -39,7 +39,8 @@ class Controller(Protocol):
         """Run ``fn`` in the scan thread at the next scan boundary; return its result."""
 
     def status(self) -> dict[str, Any]:
-        """state, fault, inhibits, held, scans, uptime_s, cycle_ms, freezes, faults, retain."""
+        """state, fault, inhibits, held, scans, uptime_s, cycle_ms, freezes, faults, retain,
+        alarms."""
 
     def next_scan_due(self) -> float:
         """Monotonic seconds at which the next cycle is due (0 before the first)."""

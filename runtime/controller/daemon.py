@@ -26,6 +26,7 @@ from collections.abc import Callable, Collection
 from types import FrameType
 from typing import IO, Any, TypeVar
 
+from runtime.controller.alarms import AlarmBoard
 from runtime.controller.events import EventWatcher
 from runtime.controller.notify import Notifier
 from runtime.controller.realtime import lock_memory, reduce_timer_slack, set_fifo_priority
@@ -90,8 +91,10 @@ class State(enum.Enum):
     STOPPED = "stopped"
 
 
-class _Call:
-    """A function to run in the scan thread at the next scan boundary."""
+class ScanCall:
+    """A function to run in the scan thread at the next scan boundary (``Daemon.submit``):
+    ``done`` is set once it ran, with its ``result`` or its ``error``; a caller that gives
+    up sets ``abandoned`` (a call not started yet is then skipped)."""
 
     __slots__ = ("fn", "done", "result", "error", "abandoned")
 
@@ -167,7 +170,7 @@ class Daemon:
         self.stopped = False
         self._stopping = False
         self.started_ns: int | None = None
-        self._calls: collections.deque[_Call] = collections.deque()
+        self._calls: collections.deque[ScanCall] = collections.deque()
         self._listeners: tuple[Callable[[int], None], ...] = ()
         self._listeners_lock = threading.Lock()
         self._thread: threading.Thread | None = None
@@ -195,6 +198,8 @@ class Daemon:
         self._stats_out: tuple[tuple[int, dict[str, Any]], dict[str, Any]] | None = None
         #: logs step changes (``log: steps``), SFCError and overrun bursts
         self.events = EventWatcher(self.plant, self.scan_stats, clock)
+        #: the plant's alarms and their states (runtime/controller/alarms.py)
+        self.alarms = AlarmBoard(self)
         #: online change (``reload``): its flow and history (runtime/controller/reload.py)
         self.reloader = Reloader(self)
         #: while a reload reopens drivers: no scan, no driver read or written
@@ -227,6 +232,8 @@ class Daemon:
             self.add_listener(self._trace)
         self.events.start()
         self.add_listener(self.events)
+        self.alarms.start()
+        self.add_listener(self.alarms.on_scan)
         self._thread.start()
         self.watchdog.start()
         log.info("running %s: %d instance(s), cycle %s ms, watchdog %s ms", self.pdef.path,
@@ -251,6 +258,7 @@ class Daemon:
                     d.inhibit(True)
         self.stopped = True
         self.events.close()  # the scan thread is over: nothing more to watch
+        self.alarms.close()
         sys.setswitchinterval(self._switch_was)
         self.watchdog.stop()
         self.plant.safe_state()
@@ -463,9 +471,7 @@ class Daemon:
         (its exception is raised here). TimeoutError if the scan does not get to it."""
         if not self._loop_alive or threading.current_thread() is self._thread:
             return fn()
-        c = _Call(fn)
-        self._calls.append(c)
-        self.scheduler.wake()
+        c = self.submit(fn)
         if not c.done.wait(timeout):
             c.abandoned = True
             raise TimeoutError("the scan did not answer in time")
@@ -473,6 +479,18 @@ class Daemon:
             raise c.error
         result: R = c.result
         return result
+
+    def submit(self, fn: Callable[[], Any]) -> ScanCall:
+        """Queue ``fn`` for the scan thread at the next scan boundary and return at once
+        (``call`` without the wait: a thread serving several clients never waits for a
+        scan). Run here and now when no scan thread runs, or from the scan thread."""
+        c = ScanCall(fn)
+        if not self._loop_alive or threading.current_thread() is self._thread:
+            c.run()
+        else:
+            self._calls.append(c)
+            self.scheduler.wake()
+        return c
 
     @property
     def state(self) -> State:
@@ -576,14 +594,15 @@ class Daemon:
     def status(self) -> dict[str, Any]:
         """State, fault, ``inhibits`` (see ``inhibits()``), counts and the last faults;
         ``instance_faults``: the instances in fault by themselves (no active step left),
-        with why."""
+        with why; ``alarms``: the alarm board (``AlarmBoard.as_list``)."""
         return {"state": self.state.value, "fault": self.fault or self.halted,
                 "inhibits": self.inhibits(), "held": self.held(),
                 "scans": self.scan_stats.count, "uptime_s": round(self.uptime_s(), 3),
                 "cycle_ms": self.plant.cycle_ns / 1e6, "freezes": self.scan_stats.freezes,
                 "faults": [{"time": t, "reason": r} for t, r in self.faults],
                 "retain": self.retain_status(), "reload": self.reloader.last(),
-                "instance_faults": dict(self.plant.instance_faults)}
+                "instance_faults": dict(self.plant.instance_faults),
+                "alarms": self.alarms.as_list()}
 
     def retain_status(self) -> dict[str, Any] | None:
         """``status``'s ``retain`` entry: state ok | failing | lost, since (wall time), text;

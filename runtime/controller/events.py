@@ -209,8 +209,11 @@ class EventWatcher:
         if cur[k] and not was_error:
             step = cur[k + 1]
             limit = w.max_ns.get(step)
-            log.warning("%s: SFCError: step %s active longer than its max %s, at scan %d",
-                        w.name, step, format_ns(limit) if limit else "?", n)
+            if limit:
+                log.warning("%s: SFCError: step %s active longer than its max %s, at scan "
+                            "%d", w.name, step, format_ns(limit), n)
+            else:  # written (the console's set, the chart itself), no step's supervision
+                log.warning("%s: SFCError set (no step over its max), at scan %d", w.name, n)
 
     def _say_overruns(self, b: _Burst) -> None:
         cycle = f"{self.cycle_ns / 1e6:g} ms"

@@ -10,8 +10,13 @@ each client the schema once, then one JSON line per snapshot with the values tha
 A client whose unsent output passes OUT_MAX (it stopped reading) is dropped: the scan and
 the other clients never wait for it. Writes come back on the same socket (``set``): only
 names of the ``writable:`` list of the side process that asks (``opcua:``, ``mqtt:``),
-applied between two scans as the console's ``set`` is (``Daemon.call``: the requests read
-together are applied in one call), each answered ok or error.
+with values in range (``value_problem``), applied between two scans as the console's
+``set`` is (``Daemon.submit``), each answered ok or error. The feed thread never waits for
+the scan: a write is handed to the scan thread and answered at a later turn (the writes
+taken in one turn run at the same scan boundary). Work per client per turn is bounded
+(fairness): at most LINES_PER_TURN requests taken, at most PENDING_MAX writes waiting for
+the scan; a client that sends more waits (its socket is not read meanwhile), so one client
+pipelining thousands of writes delays nobody's frames.
 
 Client side (``FeedState``): the schema and the values of the last frame, decoded.
 
@@ -26,37 +31,50 @@ Messages, one JSON object per line (``"\\n"``):
   since the previous frame. ``scan`` is the trace's ``cycle`` number; times are in ns;
 - ``{"c": {...}}``: the controller's status (state, fault, overruns, skipped, freezes,
   uptime_s, cycle_ms, drivers: name -> [health, fault reason, ok], lateness_us: p50, p99,
-  max), before the frame it goes with, only when it changed (the scan count is the
-  frame's scan + 1);
-- ``{"r": [id, ok, text]}``: the answer to a ``set``;
+  max, alarms: the alarm board's conditions, ``AlarmBoard.as_list``), before the frame it
+  goes with, only when it changed (the scan count is the frame's scan + 1);
+- ``{"r": [id, ok, text, code]}``: the answer to a request, ``code`` an OPC UA status name
+  (Good, BadInvalidArgument, BadInvalidState, BadTimeout, BadConditionBranchAlreadyAcked,
+  ...);
 - client -> server ``{"set": [id, name, value, side]}`` (value in the name's type; times in
-  ns; ``side`` is the asking section, ``opcua`` or ``mqtt``: ``opcua`` when left out).
+  ns; ``side`` is the asking section, ``opcua`` or ``mqtt``: ``opcua`` when left out);
+  ``{"call": [id, target, method, who]}``: a method of an instance (``METHODS``:
+  Acknowledge, Reset, Pause, Resume) or of ``controller`` (Ack), applied between two
+  scans and logged with ``who`` (the OPC UA server lets only writers call them);
+  ``{"alarm": [id, key, "ack" | "confirm", who, comment]}``: acknowledge or confirm an
+  alarm of the board (runtime/controller/alarms.py).
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import selectors
 import socket
 import struct
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from drivers.durations import format_ns
+from runtime.controller.alarms import AlarmRefused
 from runtime.controller.paths import remove_socket, unix_listener
 from runtime.controller.window import ScanWindow
+from runtime.engine.commands import CommandRefused
 from runtime.engine.instance import coerce
 from runtime.engine.names import Catalogue, Image
 from runtime.language import ast as A
 from runtime.language.feedconf import SIDE_NAMES
 from runtime.language.model import FeedDef
+from runtime.language.yamlsrc import INT_MAX, INT_MIN, TIME_MAX_NS
 
 if TYPE_CHECKING:
-    from runtime.controller.daemon import Daemon
+    from runtime.controller.daemon import Daemon, ScanCall
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +92,15 @@ STATS_EVERY_NS = 1_000_000_000
 POLL_S = 0.05
 #: a write not applied by the scan thread in this long is answered with an error, seconds
 SET_TIMEOUT_S = 2.0
+#: the methods of an instance: name -> (the chart flag, and True to pulse it for one scan
+#: or the value it is set to)
+METHODS: dict[str, tuple[str, bool | None]] = {
+    "Acknowledge": ("SFCQuitError", None), "Reset": ("SFCReset", None),
+    "Pause": ("SFCPause", True), "Resume": ("SFCPause", False)}
+#: requests taken from one client per turn of the feed thread (a turn per scan window)
+LINES_PER_TURN = 8
+#: writes of one client handed to the scan thread and not yet answered; more wait
+PENDING_MAX = 8
 
 
 @dataclass(slots=True)
@@ -85,6 +112,14 @@ class _Client:
     #: the next frame it gets is a whole one (it has none yet)
     fresh: bool = True
     status: dict[str, Any] | None = None
+    #: its writes and method calls handed to the scan thread, oldest first: (id, the
+    #: call, monotonic deadline, the text of its answer); answered in this order
+    pending: deque[tuple[Any, ScanCall, float, Callable[[Any], str]]] = field(
+        default_factory=deque)
+    #: its socket is watched for input (not while its unhandled input is at IN_MAX)
+    reading: bool = True
+    #: the selector events its socket is registered for (0: not registered)
+    events: int = 0
 
 
 class FeedServer:
@@ -116,6 +151,9 @@ class FeedServer:
         self._schema_line = b""
         self._stats: dict[str, Any] = {}
         self._stats_at = 0
+        #: the alarms (AlarmBoard.as_list) as of the board's version
+        self._alarms: list[dict[str, Any]] = []
+        self._alarms_version = -1
         #: counters (tests, logs): frames built, clients dropped for not reading
         self.frames = 0
         self.dropped = 0
@@ -191,6 +229,7 @@ class FeedServer:
                     if slot[3] is self._cat:  # not an image of a replaced plant
                         self._publish(slot[0], slot[1], slot[2], slot[4])
                         self._flush()
+                self._serve()
                 self._io(max(0.0, min(closes - time.monotonic(), POLL_S)))
         except Exception:  # noqa: BLE001 - the feed dies, never the controller
             log.exception("feed thread failed: OPC UA clients see no more values")
@@ -250,11 +289,12 @@ class FeedServer:
         c = _Client(conn, f"pid {pid} uid {uid}")
         c.out += self._schema_line
         self._clients.append(c)
-        self._sel.register(conn, selectors.EVENT_READ, c)
+        self._interest(c)
         log.info("feed: client connected (%s)", c.peer)
         self._send(c)
 
     def _read(self, c: _Client) -> None:
+        """Take what the client sent into its input buffer (handled by ``_serve``)."""
         try:
             data = c.sock.recv(READ_CHUNK)
         except (BlockingIOError, InterruptedError):
@@ -266,94 +306,178 @@ class FeedServer:
             self._drop(c, None)
             return
         c.inbuf += data
-        lines = []
-        while b"\n" in c.inbuf:
-            line, _, rest = bytes(c.inbuf).partition(b"\n")
-            c.inbuf = bytearray(rest)
-            lines.append(line)
-        if lines:
-            try:
-                self._requests(c, lines)
-            except Exception as exc:  # noqa: BLE001 - one client's line never ends the feed
-                log.warning("feed: a request of %s failed (%s: %s): client dropped", c.peer,
-                            type(exc).__name__, exc)
-                self._drop(c, "a request that failed")
-            if c not in self._clients:
-                return
-        if len(c.inbuf) > IN_MAX:
+        if len(c.inbuf) > IN_MAX and b"\n" not in c.inbuf:
             self._drop(c, "a line too long")
+            return
+        self._watch(c)
 
-    def _requests(self, c: _Client, lines: list[bytes]) -> None:
-        """The ``set`` lines read from ``c`` at once, applied together, each answered."""
-        asked: list[tuple[Any, str, Any, str]] = []
-        for line in lines:
-            try:
-                msg = json.loads(line)
+    def _serve(self) -> None:
+        """One turn for every client: the answers of its writes the scan thread has
+        applied (or that timed out), then at most LINES_PER_TURN of its requests while it
+        has fewer than PENDING_MAX writes waiting."""
+        now = time.monotonic()
+        for c in list(self._clients):
+            pending = c.pending
+            while (pending and c in self._clients
+                   and (pending[0][1].done.is_set() or now > pending[0][2])):
+                self._answer(c, *pending.popleft())
+            taken = 0
+            while (taken < LINES_PER_TURN and len(pending) < PENDING_MAX
+                   and c in self._clients):
+                cut = c.inbuf.find(b"\n")
+                if cut < 0:
+                    break
+                line = bytes(c.inbuf[:cut])
+                del c.inbuf[:cut + 1]
+                taken += 1
+                try:
+                    self._request(c, line)
+                except Exception as exc:  # noqa: BLE001 - one client's line never ends the feed
+                    log.warning("feed: a request of %s failed (%s: %s): client dropped",
+                                c.peer, type(exc).__name__, exc)
+                    self._drop(c, "a request that failed")
+            if c in self._clients:
+                self._watch(c)
+
+    def _watch(self, c: _Client) -> None:
+        """Read from the client only while its unhandled input is below IN_MAX: a client
+        that sends faster than its turns take waits, in its own socket buffer."""
+        reading = len(c.inbuf) < IN_MAX
+        if reading != c.reading:
+            c.reading = reading
+            self._interest(c)
+
+    def _interest(self, c: _Client) -> None:
+        """Watch the client's socket for what it waits for: input while ``reading``,
+        room to send while it has output; for neither, not at all."""
+        assert self._sel is not None
+        events = ((selectors.EVENT_READ if c.reading else 0)
+                  | (selectors.EVENT_WRITE if c.out else 0))
+        if events == c.events:
+            return
+        if not c.events:
+            self._sel.register(c.sock, events, c)
+        elif events:
+            self._sel.modify(c.sock, events, c)
+        else:
+            self._sel.unregister(c.sock)
+        c.events = events
+
+    def _request(self, c: _Client, line: bytes) -> None:
+        try:
+            msg = json.loads(line)
+            if "set" in msg:
                 ident, name, value, *side = msg["set"]
                 if len(side) > 1 or (side and side[0] not in SIDE_NAMES):
                     raise ValueError(side)
-            except (ValueError, KeyError, TypeError, RecursionError):
-                self._drop(c, "a malformed request")
+                refused, fn, done = self._prepare_set(str(name), value,
+                                                      str(side[0]) if side else "opcua")
+            elif "call" in msg:
+                ident, target, method, who = msg["call"]
+                refused, fn, done = self._prepare_call(str(target), str(method), str(who))
+            elif "alarm" in msg:
+                ident, key, action, who, comment = msg["alarm"]
+                self._queue(c, _line({"r": [ident, *self._alarm(str(key), str(action),
+                                                                str(who), str(comment))]}))
                 return
-            asked.append((ident, str(name), value, str(side[0]) if side else "opcua"))
-        answers = self.apply_sets([(name, value, side) for _i, name, value, side in asked])
-        for (ident, *_rest), (ok, text) in zip(asked, answers, strict=True):
-            self._queue(c, _line({"r": [ident, ok, text]}))
+            else:
+                raise KeyError("set, call or alarm")
+        except (ValueError, KeyError, TypeError, RecursionError):
+            self._drop(c, "a malformed request")
+            return
+        if refused is not None:
+            self._queue(c, _line({"r": [ident, False, refused, "BadInvalidArgument"]}))
+            return
+        assert fn is not None and done is not None
+        c.pending.append((ident, self.daemon.submit(fn), time.monotonic() + SET_TIMEOUT_S,
+                          done))
 
-    def apply_set(self, name: str, value: Any, side: str = "opcua") -> tuple[bool, str]:
-        """A client's write (see ``apply_sets``). (ok, text)."""
-        return self.apply_sets([(name, value, side)])[0]
+    def _answer(self, c: _Client, ident: Any, call: ScanCall, deadline: float,
+                done: Callable[[Any], str]) -> None:
+        """The answer to a write or a method call the scan thread ran (or did not)."""
+        code = "Good"
+        if not call.done.is_set():
+            call.abandoned = True
+            ok, text, code = False, "the scan did not answer in time", "BadTimeout"
+        elif call.error is not None:
+            ok, text, code = False, str(call.error), "BadInvalidState"
+        else:
+            ok, text = True, done(call.result)
+        self._queue(c, _line({"r": [ident, ok, text, code]}))
 
-    def apply_sets(self, sets: list[tuple[str, Any, str]]) -> list[tuple[bool, str]]:
-        """Clients' writes (name, value, side process): only names of that side's
-        ``writable:``, applied between two scans as the console's ``set``, all in one call
-        of the scan thread. (ok, text) for each."""
-        out: list[tuple[bool, str]] = [(False, "")] * len(sets)
-        todo: list[tuple[int, str, Any, str]] = []
-        for k, (name, value, side) in enumerate(sets):
-            if name not in self.feed.writable.get(side, ()):
-                out[k] = (False, f"{name} is not writable over {SIDE_NAMES[side]} "
-                                 f"({side}: writable)")
-                continue
-            sig = self._cat.names.get(name)
-            if sig is None:
-                out[k] = (False, f"unknown name '{name}'")
-                continue
-            try:
-                if sig.type is A.Type.BOOL and isinstance(value, float):
-                    raise ValueError(f"expected a bool, found {value!r}")
-                v = coerce(sig.type, value)
-            except (ValueError, TypeError, OverflowError) as exc:
-                out[k] = (False, f"bad value for {name}: {exc}")
-                continue
-            todo.append((k, name, v, sig.show(v)))
-        if not todo:
-            return out
-        daemon = self.daemon
-
-        def apply() -> list[str | None]:
-            # the running plant, read in the scan thread: an online change may replace it
-            errors: list[str | None] = []
-            for _k, name, v, _shown in todo:
-                try:
-                    daemon.plant.set(name, v)
-                    errors.append(None)
-                except Exception as exc:  # noqa: BLE001 - the client gets the reason
-                    errors.append(str(exc) or type(exc).__name__)
-            return errors
+    def _prepare_set(self, name: str, value: Any, side: str
+                     ) -> tuple[str | None, Callable[[], Any] | None,
+                                Callable[[Any], str] | None]:
+        """A client's write checked: (None, the function the scan thread runs, the text
+        of its answer), or (why it is refused, None, None). Only a name of the asking side
+        process's ``writable:`` (``opcua``, ``mqtt``), a value of its type and in range."""
+        if name not in self.feed.writable.get(side, ()):
+            return (f"{name} is not writable over {SIDE_NAMES[side]} ({side}: writable)",
+                    None, None)
+        sig = self._cat.names.get(name)
+        if sig is None:
+            return f"unknown name '{name}'", None, None
         try:
-            errors = daemon.call(apply, timeout=SET_TIMEOUT_S)
-        except TimeoutError:
-            for k, *_rest in todo:
-                out[k] = (False, "the scan did not answer in time")
-            return out
-        for (k, name, _v, shown), error in zip(todo, errors, strict=True):
-            if error is not None:
-                out[k] = (False, error)
-                continue
-            log.info("%s: set %s = %s", sets[k][2], name, shown)
-            out[k] = (True, f"{name} set to {shown}")
-        return out
+            if sig.type is A.Type.BOOL and isinstance(value, float):
+                raise ValueError(f"expected a bool, found {value!r}")
+            v = coerce(sig.type, value)
+        except (ValueError, TypeError, OverflowError) as exc:
+            return f"bad value for {name}: {exc}", None, None
+        problem = value_problem(sig.type, v)
+        if problem is not None:
+            return f"bad value for {name}: {problem}", None, None
+        daemon, shown = self.daemon, sig.show(v)
+
+        def done(result: Any) -> str:
+            log.info("%s: set %s = %s", side, name, shown)
+            return f"{name} set to {shown}"
+        # the running plant, read in the scan thread: an online change may replace it
+        return None, lambda: daemon.plant.set(name, v), done
+
+    def _prepare_call(self, target: str, method: str, who: str
+                      ) -> tuple[str | None, Callable[[], Any] | None,
+                                 Callable[[Any], str] | None]:
+        """A method of an instance (``METHODS``) or of the controller (``Ack``), for a
+        writer ``who`` (the server checked it): (None, the function the scan thread runs,
+        the text of its answer), or (why it is refused, None, None)."""
+        daemon = self.daemon
+        if target == "controller":
+            if method != "Ack":
+                return f"the controller has no method '{method}' (Ack)", None, None
+            fn: Callable[[], Any] = daemon.ack
+        elif target in daemon.pdef.instances:
+            if method not in METHODS:
+                return (f"{target} has no method '{method}' ({', '.join(METHODS)})", None,
+                        None)
+            flag, value = METHODS[method]
+            bound = daemon.pdef.instances[target].inputs.get(flag)
+            if bound is not None:
+                return (f"{target}.{flag} is bound to {bound.source}, which sets it before "
+                        "every scan", None, None)
+            fn = _instance_method(daemon, target, flag, value)
+        else:
+            return f"no instance '{target}'", None, None
+
+        def done(result: Any) -> str:
+            text = str(result) if result else f"{target}.{method} done"
+            log.warning("opcua: %s called %s.%s: %s", who, target, method, text)
+            return text
+        return None, fn, done
+
+    def _alarm(self, key: str, action: str, who: str, comment: str) -> list[Any]:
+        """Acknowledge or confirm an alarm (the board's lock, no wait for the scan):
+        [ok, text, OPC UA status name]."""
+        board = self.daemon.alarms
+        try:
+            if action == "ack":
+                text = board.acknowledge(key, who, comment)
+            elif action == "confirm":
+                text = board.confirm(key, who, comment)
+            else:
+                return [False, f"unknown alarm action '{action}'", "BadInvalidArgument"]
+        except AlarmRefused as exc:
+            return [False, str(exc), exc.code]
+        return [True, text, "Good"]
 
     def _publish(self, scan: int, wall: float, img: Image, live: tuple[Any, ...]) -> None:
         """One frame to every client: whole to new ones, the changes to the others."""
@@ -394,10 +518,13 @@ class FeedServer:
             late = d.scan_stats.lateness().as_dict()
             self._stats = {k: late[k] for k in ("p50", "p99", "max")}
         state, fault, overruns, skipped, freezes, drivers = live
+        board = d.alarms
+        if board.version != self._alarms_version:
+            self._alarms_version, self._alarms = board.version, board.as_list()
         return {"state": state, "fault": fault, "overruns": overruns, "skipped": skipped,
                 "freezes": freezes, "uptime_s": round(d.uptime_s()),
                 "cycle_ms": d.plant.cycle_ns / 1e6, "lateness_us": self._stats,
-                "drivers": drivers}
+                "drivers": drivers, "alarms": self._alarms}
 
     def _queue(self, c: _Client, data: bytes) -> None:
         if c not in self._clients:  # dropped meanwhile (its answers overflowed)
@@ -422,8 +549,7 @@ class FeedServer:
             self._drop(c, str(exc))
             return
         del c.out[:n]
-        events = selectors.EVENT_READ | (selectors.EVENT_WRITE if c.out else 0)
-        self._sel.modify(c.sock, events, c)
+        self._interest(c)
 
     def _drop(self, c: _Client, why: str | None) -> None:
         if c in self._clients:
@@ -433,6 +559,7 @@ class FeedServer:
                 self._sel.unregister(c.sock)
             except (KeyError, ValueError):
                 pass
+        c.events = 0
         c.sock.close()
         if why is None:
             log.info("feed: client gone (%s)", c.peer)
@@ -453,6 +580,41 @@ class FeedServer:
     @property
     def clients(self) -> int:
         return len(self._clients)
+
+
+def _instance_method(daemon: Daemon, name: str, flag: str, value: bool | None
+                     ) -> Callable[[], str]:
+    """Scan thread: a method of instance ``name`` on its running plant: pulse ``flag``
+    for one scan (``value`` None; Acknowledge only while SFCError is set), or set it."""
+    def run() -> str:
+        plant = daemon.plant
+        inst = plant.instances.get(name)
+        if inst is None:
+            raise CommandRefused(f"no instance '{name}' (an online change removed it)")
+        if value is None:
+            if flag == "SFCQuitError" and not inst.get("SFCError"):
+                raise CommandRefused(f"nothing to acknowledge: {name} has no SFCError")
+            step = inst.get("SFCErrorStep") if flag == "SFCQuitError" else ""
+            plant.pulse(name, flag)
+            return (f"{name}: SFCError{f' ({step})' if step else ''} acknowledged"
+                    if flag == "SFCQuitError" else f"{name}: {flag} for one scan")
+        plant.set(f"{name}.{flag}", value)
+        return f"{name}: {flag} {'set' if value else 'cleared'}"
+    return run
+
+
+def value_problem(t: A.Type, value: Any) -> str | None:
+    """Why ``value`` (already of type ``t``, times in ns) may not be written to a plant
+    variable from outside (None if it may): a REAL or TIME must be finite, a TIME within
+    64-bit nanoseconds, an INT within the language's 64-bit range."""
+    if t is A.Type.REAL and not math.isfinite(value):
+        return f"{value!r} is not a finite number"
+    if t is A.Type.TIME and not -TIME_MAX_NS <= value <= TIME_MAX_NS:
+        return (f"out of range: a time is at most {format_ns(TIME_MAX_NS)} (64-bit "
+                "nanoseconds)")
+    if t is A.Type.INT and not INT_MIN <= value <= INT_MAX:
+        return f"out of range: an int is from {INT_MIN} to {INT_MAX} (64 bits)"
+    return None
 
 
 def _line(msg: dict[str, Any]) -> bytes:
@@ -505,6 +667,11 @@ class FeedState:
         return self.values[self.index[name]]
 
 
+def request_line(kind: str, ident: int, *args: Any) -> bytes:
+    """A client's request (``set``, ``call``, ``alarm``: the module docstring), one line."""
+    return _line({kind: [ident, *args]})
+
+
 def set_request(ident: int, name: str, value: Any, side: str = "opcua") -> bytes:
     """A client's write request, as one line (``side``: the asking section)."""
-    return _line({"set": [ident, name, value, side]})
+    return request_line("set", ident, name, value, side)

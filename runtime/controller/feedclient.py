@@ -5,8 +5,11 @@ The protocol is runtime/controller/feed.py's (``FeedState`` decodes it). A side 
 gives three hooks and runs ``FeedClient.run``: ``schema`` after each schema (the first one
 of a connection, and again after an online change), ``frame`` after each frame (the
 state's values are then that scan's), ``lost`` when a connection ends (the controller
-stopped or restarts). It reconnects forever, with a delay doubling from RECONNECT_MIN_S
-to RECONNECT_MAX_S. ``set`` sends a write and waits for the controller's answer.
+stopped or restarts); and optionally ``status`` after each controller status (the
+state's ``status``: with the alarm board). It reconnects forever, with a delay doubling
+from RECONNECT_MIN_S to RECONNECT_MAX_S. ``set`` sends a write and waits for the
+controller's answer; ``ask`` any request (``set``, ``call``, ``alarm``) with the answer's
+OPC UA status name.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ import logging
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from runtime.controller.feed import FeedState, set_request
+from runtime.controller.feed import FeedState, request_line
 from runtime.errors import SoftplcError
 
 log = logging.getLogger(__name__)
@@ -42,13 +45,15 @@ class FeedClient:
     def __init__(self, path: str, side: str,
                  schema: Callable[[dict[str, Any]], Awaitable[None]],
                  frame: Callable[[], Awaitable[None]],
-                 lost: Callable[[], Awaitable[None]]) -> None:
+                 lost: Callable[[], Awaitable[None]],
+                 status: Callable[[], Awaitable[None]] | None = None) -> None:
         self.path = path
         self.side = side
         self.state = FeedState()
         self._on_schema, self._on_frame, self._on_lost = schema, frame, lost
+        self._on_status = status
         self._writer: asyncio.StreamWriter | None = None
-        self._pending: dict[int, asyncio.Future[tuple[bool, str]]] = {}
+        self._pending: dict[int, asyncio.Future[tuple[bool, str, str]]] = {}
         self._ids = itertools.count(1)
         self._stop = asyncio.Event()
 
@@ -95,14 +100,22 @@ class FeedClient:
     async def set(self, name: str, value: Any, timeout: float) -> tuple[bool, str]:
         """Write ``name`` through the controller: its (ok, text). FeedLost if there is no
         connection or it ends first; TimeoutError after ``timeout`` seconds."""
+        ok, text, _code = await self.ask("set", name, value, self.side, timeout=timeout)
+        return ok, text
+
+    async def ask(self, kind: str, *args: Any, timeout: float) -> tuple[bool, str, str]:
+        """A request to the controller (``set``, ``call``, ``alarm``: runtime/controller/
+        feed.py), waited for: (ok, text, OPC UA status name). FeedLost if there is no
+        connection or it ends first; TimeoutError after ``timeout`` seconds."""
         writer = self._writer
         if writer is None:
             raise FeedLost("the controller's feed is not connected")
         ident = next(self._ids)
-        fut: asyncio.Future[tuple[bool, str]] = asyncio.get_running_loop().create_future()
+        fut: asyncio.Future[tuple[bool, str, str]] = (
+            asyncio.get_running_loop().create_future())
         self._pending[ident] = fut
         try:
-            writer.write(set_request(ident, name, value, self.side))
+            writer.write(request_line(kind, ident, *args))
             return await asyncio.wait_for(fut, timeout)
         finally:
             self._pending.pop(ident, None)
@@ -126,8 +139,11 @@ class FeedClient:
                 await self._on_schema(st.schema)
             elif kind == "frame":
                 await self._on_frame()
+            elif kind == "status":
+                if self._on_status is not None:
+                    await self._on_status()
             elif kind == "reply":
-                ident, ok, text = json.loads(line)["r"]
+                ident, ok, text, code = json.loads(line)["r"]
                 fut = self._pending.get(int(ident))
                 if fut is not None and not fut.done():
-                    fut.set_result((bool(ok), str(text)))
+                    fut.set_result((bool(ok), str(text), str(code)))

@@ -16,6 +16,11 @@ crossings on large charts) or from the built-in rule (``--layout python``).
 
 With ``--trace TRACE.jsonl --cycle K`` the steps active in scan K of the trace (keys
 ``INSTANCE.STEP.X``) are filled and carry the GRAFCET token (a dot).
+
+A legend of the I/O goes under the equations: drawing a plant's instance, each bound
+signal with its point (NC when inverted) and what the plant's I/O list says of it
+(language/iolist.py), then the memory variables described; drawing a chart alone, its
+variables that carry a description (none: no legend).
 """
 
 from __future__ import annotations
@@ -43,7 +48,8 @@ from runtime.drawing.layout import (
 from runtime.drawing.svg import Svg, esc, esc_attr
 from runtime.drawing.text import equation_lines, step_times, text_w
 from runtime.errors import Loc, SourceError
-from runtime.language.model import Grafcet
+from runtime.language.iolist import IOList
+from runtime.language.model import Grafcet, PlantDef, VarKind
 
 ACTIVE_FILL = "#ffd54f"
 
@@ -79,6 +85,7 @@ class Drawing:
     def __init__(self, c: Chart, r: Routes, active: set[str]) -> None:
         self.c, self.r, self.active = c, r, active
         self.svg = Svg()
+        self.side_x = 0.0  # where the boxes right of the chart start (equations, legend)
         self.arrivals: dict[str, list[float]] = {}  # step -> x of links reaching its line
         self.drops = shared_and_drops(c, r)
         # steps of a row whose divergence lines would run on one y: one below the other
@@ -313,36 +320,52 @@ class Drawing:
         self.svg.add("</g>")
 
 
-    def draw_equations(self) -> None:
-        """pre and post, right of the chart: what runs every scan outside the steps."""
+    def draw_equations(self) -> float:
+        """pre and post, right of the chart: what runs every scan outside the steps.
+        Returns the y below them (where the legend goes)."""
         g = self.c.g
-        if not g.pre and not g.post:
-            return
         x, y = self.svg.x1 + 40, TOP
+        self.side_x = x
         for title, stmts in (("pre (every scan, before the chart)", g.pre),
                              ("post (every scan, after the chart)", g.post)):
             if not stmts:
                 continue
             lines = [ln for st in stmts for ln in equation_lines(st)]
-            w = max([text_w(ln, 11) for ln in lines] + [text_w(title, 11)]) + 16
-            h = CHAR_H * len(lines) + 8
-            self.svg.text(x, y + 11, title, 11, extra=' class="equations-title"')
-            self.svg.rect(x, y + 16, w, h, extra=' class="equations"')
-            for i, ln in enumerate(lines):
-                body = ln.lstrip("\u00a0")
-                indent = text_w(ln[:len(ln) - len(body)], 11)
-                self.svg.text(x + 8 + indent, y + 16 + 4 + CHAR_H * (i + 1) - 3, body, 11,
-                              extra=' class="equation"')
-            y += 16 + h + 16
+            y = self._box(x, y, title, lines, "equation")
+        return y
+
+    def _box(self, x: float, y: float, title: str, lines: list[str], kind: str) -> float:
+        """A titled box of text lines at (x, y); the y below it."""
+        w = max([text_w(ln, 11) for ln in lines] + [text_w(title, 11)]) + 16
+        h = CHAR_H * len(lines) + 8
+        self.svg.text(x, y + 11, title, 11, extra=f' class="{kind}s-title"')
+        self.svg.rect(x, y + 16, w, h, extra=f' class="{kind}s"')
+        for i, ln in enumerate(lines):
+            body = ln.lstrip("\u00a0")
+            indent = text_w(ln[:len(ln) - len(body)], 11)
+            self.svg.text(x + 8 + indent, y + 16 + 4 + CHAR_H * (i + 1) - 3, body, 11,
+                          extra=f' class="{kind}"')
+        return y + 16 + h + 16
+
+    def draw_legend(self, title: str, rows: list[tuple[str, str, str]], y: float) -> None:
+        """The legend of the signals (name, binding, meaning), under the equations."""
+        if not rows:
+            return
+        widths = [max(len(r[k]) for r in rows) for k in range(2)]
+        lines = ["\u00a0\u00a0".join([r[0].ljust(widths[0]).replace(" ", "\u00a0"),
+                                     r[1].ljust(widths[1]).replace(" ", "\u00a0"),
+                                     r[2]]).rstrip("\u00a0") for r in rows]
+        self._box(self.side_x, y, title, lines, "legend")
 
 
-def render(c: Chart, r: Routes, active: set[str], title: str) -> str:
+def render(c: Chart, r: Routes, active: set[str], title: str,
+           legend: tuple[str, list[tuple[str, str, str]]] = ("", [])) -> str:
     d = Drawing(c, r, active)
     d.draw_frames()
     d.draw_links()
     d.draw_transitions()
     d.draw_steps()
-    d.draw_equations()
+    d.draw_legend(legend[0], legend[1], d.draw_equations())
     svg = d.svg
     title_svg = (f'<text x="0" y="26" font-size="15" font-weight="bold" class="title">'
                  f'{esc(title or c.g.name)}</text>')
@@ -356,8 +379,10 @@ def render(c: Chart, r: Routes, active: set[str], title: str) -> str:
 
 
 def chart_svg(g: Grafcet, active: set[str] | None = None, title: str = "",
-              layout: str = "auto") -> tuple[str, str]:
-    """(SVG text, layout used: "dot" or "python")."""
+              layout: str = "auto",
+              legend: tuple[str, list[tuple[str, str, str]]] = ("", [])
+              ) -> tuple[str, str]:
+    """(SVG text, layout used: "dot" or "python"); ``legend``: its title and rows."""
     c = build_chart(g)
     dot = shutil.which("dot") if layout in ("auto", "dot") else None
     if layout == "dot" and dot is None:
@@ -365,7 +390,8 @@ def chart_svg(g: Grafcet, active: set[str] | None = None, title: str = "",
                            "(apt-get install graphviz)")
     hint = dot_order(c, dot) if dot is not None else None
     r = arrange(c, hint)
-    return render(c, r, active or set(), title), ("dot" if dot is not None else "python")
+    return (render(c, r, active or set(), title, legend),
+            "dot" if dot is not None else "python")
 
 
 # -- trace -----------------------------------------------------------------------------------
@@ -407,8 +433,33 @@ def active_from_trace(g: Grafcet, trace: str, cycle: int,
 
 
 # -- command line ------------------------------------------------------------------------------
-def load_chart(path: str, instance: str | None) -> tuple[Grafcet, str | None]:
-    """The grafcet of FILE (a grafcet file, or a plant file's instance)."""
+def legend(g: Grafcet, pdef: PlantDef | None, instance: str | None
+           ) -> tuple[str, list[tuple[str, str, str]]]:
+    """The legend of the I/O (language/iolist.py): for a plant's instance, each bound
+    signal with its point (NC when inverted) and meaning, then the memory variables
+    described; for a chart alone, its variables that carry a description."""
+    rows: list[tuple[str, str, str]] = []
+    if pdef is not None and instance is not None:
+        iolist = IOList(pdef)
+        idef = pdef.instances[instance]
+        for way, section in (("<-", idef.inputs), ("->", idef.outputs)):
+            for sig, b in section.items():
+                m = iolist.meaning(f"{instance}.{sig}")
+                unit = f" [{m.unit.symbol}]" if m.unit is not None else ""
+                rows.append((sig, f"{way} {b.source}{' NC' if b.invert else ''}",
+                             m.description + unit))
+        memory = [v for v in g.variables.values()
+                  if v.kind is VarKind.MEMORY and v.description]
+        rows += [(v.name, "", v.description) for v in memory]
+        return f"I/O of {instance} ({pdef.instances[instance].description or g.name})", rows
+    rows = [(v.name, "", v.description) for v in g.variables.values() if v.description]
+    return "signals", rows
+
+
+def load_chart(path: str, instance: str | None
+               ) -> tuple[Grafcet, str | None, PlantDef | None]:
+    """The grafcet of FILE (a grafcet file, or a plant file's instance), the instance,
+    and the plant (None for a grafcet file)."""
     from runtime.language.filekind import read_document
     from runtime.language.grafcetfile import load_grafcet
     from runtime.language.plantfile import load_plant
@@ -421,21 +472,22 @@ def load_chart(path: str, instance: str | None) -> tuple[Grafcet, str | None]:
         if instance not in p.instances:
             raise SourceError(Loc(path, 1, 1), f"no instance '{instance}' in the plant "
                                                f"(instances: {', '.join(p.instances)})")
-        return p.instances[instance].grafcet, instance
-    return load_grafcet(path, doc=doc), instance
+        return p.instances[instance].grafcet, instance, p
+    return load_grafcet(path, doc=doc), instance, None
 
 
 def draw(path: str, out: str, trace: str | None = None, cycle: int | None = None,
          instance: str | None = None, layout: str = "auto") -> str:
     """Write the SVG; returns the layout used ("dot" or "python")."""
-    g, instance = load_chart(path, instance)
+    g, instance, pdef = load_chart(path, instance)
     active: set[str] = set()
     title = g.name
+    key = legend(g, pdef, instance)
     if trace is not None:
         k = 0 if cycle is None else cycle
         active, instance, row = active_from_trace(g, trace, k, instance)
         title = f"{g.name} ({instance}) — cycle {k}, t = {row.get('t_ms', '?')} ms"
-    svg, used = chart_svg(g, active, title, layout)
+    svg, used = chart_svg(g, active, title, layout, key)
     with open(out, "w", encoding="utf-8") as f:
         f.write(svg)
     return used

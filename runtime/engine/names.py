@@ -18,6 +18,7 @@ from drivers.base import PointKind
 from drivers.durations import format_ns, parse_literal
 from runtime.errors import SoftplcError, suggest
 from runtime.language import ast as A
+from runtime.language.iolist import IOList
 from runtime.language.model import Binding, PlantDef, Variable, VarKind
 
 if TYPE_CHECKING:
@@ -180,6 +181,8 @@ class Catalogue:
         self.points: dict[str, list[str]] = {}
         #: bound driver output point -> the chart output writing it
         self.written_by: dict[str, str] = {}
+        #: what each name means to a person (the plant file's I/O list)
+        self.iolist = IOList(plant.pdef)
         feeds: dict[str, list[tuple[str, bool]]] = {}
         bindings: dict[str, str] = {}
         for name, idef in plant.pdef.instances.items():

@@ -53,6 +53,8 @@ STEP_KEYS = ("initial", "actions", "min", "max", "macro", "entry", "exit", "desc
              "renamed_from")
 TRANSITION_KEYS = ("from", "to", "when", "name", "description")
 TYPE_NAMES = {"bool": T.BOOL, "int": T.INT, "real": T.REAL, "time": T.TIME}
+#: the longest description of a variable, step or binding, characters (one line)
+DESCRIPTION_MAX = 200
 
 
 def check_keys(m: YMap, allowed: tuple[str, ...], what: str,
@@ -102,6 +104,21 @@ def _yaml11_bool_note(text: str) -> str:
     if text.strip().lower() in _YAML11_BOOLS:
         return " (yes, no, on and off are text in these files: write false or true)"
     return ""
+
+
+def description_text(value: Any, loc: Loc) -> str:
+    """A ``description:`` (of a chart, step, variable, instance or binding): one line of
+    text, at most DESCRIPTION_MAX characters; a number is taken as its text."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        value = str(value)
+    text = str(expect_type(value, loc, str, "a text for description")).strip()
+    if "\n" in text or any(ord(c) < 32 for c in text):
+        raise SourceError(loc, "description: expected one line of text, found a line break "
+                               "or a control character")
+    if len(text) > DESCRIPTION_MAX:
+        raise SourceError(loc, f"description: expected at most {DESCRIPTION_MAX} characters, "
+                               f"found {len(text)}")
+    return text
 
 
 def time_value(value: Any, loc: Loc, what: str) -> int:
@@ -255,20 +272,30 @@ class GrafcetLoader:
         items = expect_type(items, d.val_locs[key], YList, f"a list of {key}")
         for item, loc in zip(items, items.locs, strict=True):
             typ = T.BOOL
+            text = ""
             if isinstance(item, YMap):
                 if len(item) != 1:
                     raise SourceError(loc, f"expected one '{{name: type}}' per typed signal, "
                                            f"found {len(item)} keys")
                 (name, tname), = item.items()
+                tloc = item.val_locs[name]
+                if isinstance(tname, YMap):  # {name: {type: int, description: ...}}
+                    check_keys(tname, ("type", "description"), f"{key[:-1]} '{name}'")
+                    if "description" in tname:
+                        text = description_text(tname["description"],
+                                                tname.val_locs["description"])
+                    tloc = tname.val_locs.get("type", tloc)
+                    tname = tname.get("type", "bool")
                 if not isinstance(tname, str) or tname not in TYPE_NAMES:
-                    raise SourceError(item.val_locs[name], f"unknown type '{tname}': expected "
-                                                           "bool, int, real or time")
+                    raise SourceError(tloc, f"unknown type '{tname}': expected bool, int, "
+                                            "real or time")
                 typ = TYPE_NAMES[tname]
                 loc = item.key_locs[name]
             else:
                 name = item
             name = self._declare(name, loc, f"an {key[:-1]}")
-            self.g.variables[name] = Variable(name, kind, typ, _zero(typ), loc)
+            self.g.variables[name] = Variable(name, kind, typ, _zero(typ), loc,
+                                              description=text)
 
     def _memory(self) -> None:
         d = self.doc
@@ -280,9 +307,13 @@ class GrafcetLoader:
             self._declare(name, loc, "a memory variable")
             retain = False
             was: str | None = None
+            text = ""
             vloc = mem.val_locs[name]
             if isinstance(spec, YMap):
-                check_keys(spec, ("init", "retain", "renamed_from"), f"memory '{name}'")
+                check_keys(spec, ("init", "retain", "renamed_from", "description"),
+                           f"memory '{name}'")
+                if "description" in spec:
+                    text = description_text(spec["description"], spec.val_locs["description"])
                 retain = expect_type(spec.get("retain", False), spec.val_locs.get("retain", loc),
                                      bool, "true or false for retain")
                 if "renamed_from" in spec:
@@ -292,7 +323,7 @@ class GrafcetLoader:
                 spec = spec.get("init", False)
             typ, init = _initial(spec, vloc, name)
             self.g.variables[name] = Variable(name, VarKind.MEMORY, typ, init, loc, retain,
-                                              renamed_from=was)
+                                              renamed_from=was, description=text)
 
     def _timers_blocks(self) -> None:
         d = self.doc
@@ -353,7 +384,10 @@ class GrafcetLoader:
                 return None
 
             check_keys(spec, STEP_KEYS, f"step '{name}'", in_step)
-            st = Step(name, loc, parent=parent, description=str(spec.get("description", "")))
+            st = Step(name, loc, parent=parent)
+            if "description" in spec:
+                st.description = description_text(spec["description"],
+                                                  spec.val_locs["description"])
             for flag in ("initial", "entry", "exit"):
                 if flag in spec:
                     val = expect_type(spec[flag], spec.val_locs[flag], bool, "true or false")

@@ -9,6 +9,7 @@ from typing import Any
 
 from runtime.errors import Loc
 from runtime.language import ast as A
+from runtime.language.units import Unit
 
 #: The file place of character ``i`` of a text read from a user's file (a condition, an
 #: action, a statement), whatever its YAML style (quoted, block, folded).
@@ -59,6 +60,8 @@ class Variable:
     retain: bool = False
     #: the name this variable had before an edit (``renamed_from:``, online change)
     renamed_from: str | None = None
+    #: what it means, for a person (``description:``; docs/language.md, "The I/O list")
+    description: str = ""
 
 
 @dataclass(slots=True)
@@ -199,6 +202,11 @@ class Binding:
     point: str | None = None
     instance: str | None = None  # set for a link to another instance
     ref: str | None = None  # that instance's name: "oX", "gsA.X", "SFCError"
+    #: the I/O list (docs/language.md, "The I/O list"): what the signal is, its unit of
+    #: measure and, for a number, its engineering range (low, high)
+    description: str = ""
+    unit: Unit | None = None
+    range: tuple[float, float] | None = None
 
 
 @dataclass(slots=True)
@@ -208,6 +216,8 @@ class InstanceDef:
     loc: Loc
     inputs: dict[str, Binding] = field(default_factory=dict)  # inputs and chart flags
     outputs: dict[str, Binding] = field(default_factory=dict)
+    #: what this machine is (``description:``), for a person
+    description: str = ""
     #: log every step activation and deactivation (``log: steps``, of the instance or the
     #: plant's ``plc:``; docs/daemon.md, "Logging")
     log_steps: bool = False
@@ -251,6 +261,44 @@ class OpcuaSecurity:
     loc: Loc | None = None
 
 
+#: the kinds of alarm (docs/daemon.md, "Alarms") and their default severities (1-1000)
+ALARM_SEVERITY = {"fault": 900, "driver": 800, "sfcerror": 700, "maxtime": 700,
+                  "overruns": 500}
+
+
+@dataclass(slots=True)
+class AlarmsDef:
+    """``alarms:`` of a plant file: each kind's severity, and when overruns are an alarm."""
+
+    severity: dict[str, int] = field(default_factory=lambda: dict(ALARM_SEVERITY))
+    #: more overruns than this in ``overrun_window_ns`` make the overruns alarm active
+    overrun_count: int = 10
+    overrun_window_ns: int = 60_000_000_000
+    loc: Loc | None = None
+
+
+@dataclass(slots=True)
+class OpcuaLimits:
+    """``opcua: limits:`` (docs/opcua.md, "Limits"): what OPC UA clients may hold of the
+    server, so that no client, nor all of them, can wedge it or take the controller's CPU."""
+
+    #: sessions open at once (a connection gone counts until its session is closed)
+    sessions: int = 10
+    #: subscriptions per session (each publishes at most once per ``sample``)
+    subscriptions: int = 5
+    #: publishes per second a session's subscriptions may add up to, and all sessions'
+    publish_rate: float = 50.0
+    publish_rate_total: float = 200.0
+    #: monitored items per session, and in all sessions together
+    items: int = 5000
+    items_total: int = 20000
+    #: the longest session timeout granted to a client that asks for more, ns
+    session_timeout_ns: int = 60_000_000_000
+    #: a session whose connection is gone is closed after this long without a request, ns
+    abandoned_ns: int = 10_000_000_000
+    loc: Loc | None = None
+
+
 @dataclass(slots=True)
 class OpcuaDef:
     """``opcua:`` of a plant file: the OPC UA server (``softplc opcua``) and its feed."""
@@ -263,6 +311,7 @@ class OpcuaDef:
     #: ``instance.name`` of the variables and chart flags OPC UA clients may write
     writable: list[str] = field(default_factory=list)
     security: OpcuaSecurity = field(default_factory=OpcuaSecurity)
+    limits: OpcuaLimits = field(default_factory=OpcuaLimits)
     loc: Loc | None = None
     #: where each key given (endpoint, feed ...) has its value, for errors at run time
     locs: dict[str, Loc] = field(default_factory=dict)
@@ -381,6 +430,7 @@ class PlantDef:
     #: set, DEFAULT_REALTIME_PRIORITY where permitted; 0: ``realtime: false``, none
     realtime_priority: int | None = None
     lock_memory: bool = False
+    alarms: AlarmsDef = field(default_factory=AlarmsDef)
     drivers: dict[str, DriverDef] = field(default_factory=dict)
     instances: dict[str, InstanceDef] = field(default_factory=dict)
     consoles: list[ConsoleEntry] = field(default_factory=list)

@@ -1,4 +1,4 @@
-"""The ``opcua:`` section of a plant file (docs/opcua.md): endpoint, feed, writable names,
+"""The ``opcua:`` section of a plant file (docs/opcua.md): endpoint, feed, writable names, limits,
 security. Checked against the plant: a writable name must be a variable or chart flag an
 OPC UA client may set between two scans."""
 
@@ -9,12 +9,23 @@ from typing import Any
 
 from runtime.errors import Loc, SourceError, suggest
 from runtime.language.feedconf import feed_key, sample_key, writable_names
-from runtime.language.grafcetfile import check_keys, expect_type
-from runtime.language.model import OPCUA_POLICIES, OpcuaDef, OpcuaSecurity, PlantDef
+from runtime.language.grafcetfile import check_keys, expect_type, time_value
+from runtime.language.model import OPCUA_POLICIES, OpcuaDef, OpcuaLimits, OpcuaSecurity, PlantDef
 from runtime.language.plantpaths import path_value
 from runtime.language.yamlsrc import YMap
 
-OPCUA_KEYS = ("endpoint", "sample", "feed", "writable", "security")
+OPCUA_KEYS = ("endpoint", "sample", "feed", "writable", "security", "limits")
+#: ``limits:`` counts: key -> (attribute, least, greatest)
+LIMIT_COUNTS = {"sessions": ("sessions", 1, 1000),
+                "subscriptions": ("subscriptions", 1, 100),
+                "items": ("items", 1, 1_000_000),
+                "items_total": ("items_total", 1, 10_000_000)}
+#: ``limits:`` rates (publishes a second): key -> (attribute, least, greatest)
+LIMIT_RATES = {"publish_rate": ("publish_rate", 0.1, 10_000.0),
+               "publish_rate_total": ("publish_rate_total", 0.1, 100_000.0)}
+#: ``limits:`` times: key -> (attribute, least, greatest), ns
+LIMIT_TIMES = {"session_timeout": ("session_timeout_ns", 10_000_000_000, 3_600_000_000_000),
+               "abandoned": ("abandoned_ns", 1_000_000_000, 3_600_000_000_000)}
 SECURITY_KEYS = ("policies", "certificate", "private_key", "trusted_clients",
                  "trusted_readers", "anonymous", "users")
 #: the snapshot period when the plant does not say (never below the cycle), ns
@@ -25,7 +36,7 @@ _ENDPOINT = re.compile(r"^opc\.tcp://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,
 def load_opcua(p: PlantDef, value: Any, loc: Loc) -> OpcuaDef:
     """``opcua:`` -> OpcuaDef; SourceError at the faulty key or value."""
     m = expect_type(value, loc, YMap, "a mapping (endpoint, sample, feed, writable, "
-                                      "security)")
+                                      "security, limits)")
     check_keys(m, OPCUA_KEYS, "opcua")
     o = OpcuaDef(loc=loc, sample_ns=max(DEFAULT_SAMPLE_NS, p.cycle_ns),
                  locs=dict(m.val_locs))
@@ -45,7 +56,54 @@ def load_opcua(p: PlantDef, value: Any, loc: Loc) -> OpcuaDef:
         o.writable = writable_names(p, m["writable"], m.val_locs["writable"], "opcua")
     if "security" in m:
         o.security = _security(m["security"], m.val_locs["security"])
+    if "limits" in m:
+        o.limits = _limits(m["limits"], m.val_locs["limits"])
     return o
+
+
+def _limits(value: Any, loc: Loc) -> OpcuaLimits:
+    keys = (*LIMIT_COUNTS, *LIMIT_RATES, *LIMIT_TIMES)
+    m = expect_type(value, loc, YMap, f"a mapping ({', '.join(keys)})")
+    check_keys(m, keys, "opcua limits")
+    lim = OpcuaLimits(loc=loc)
+    for key, (attr, least, most) in LIMIT_COUNTS.items():
+        if key in m:
+            vloc = m.val_locs[key]
+            n = expect_type(m[key], vloc, int, "a whole number")
+            if not least <= n <= most:
+                raise SourceError(vloc, f"opcua limits {key}: expected {least} to {most}, "
+                                        f"found {n}")
+            setattr(lim, attr, n)
+    for key, (attr, low, high) in LIMIT_RATES.items():
+        if key in m:
+            vloc = m.val_locs[key]
+            rate = expect_type(m[key], vloc, (int, float), "publishes a second (a number)")
+            if not low <= rate <= high:
+                raise SourceError(vloc, f"opcua limits {key}: expected {low:g} to {high:g} "
+                                        f"publishes a second, found {rate:g}")
+            setattr(lim, attr, float(rate))
+    for key, (attr, least, most) in LIMIT_TIMES.items():
+        if key in m:
+            vloc = m.val_locs[key]
+            ns = time_value(m[key], vloc, f"opcua limits {key}")
+            if not least <= ns <= most:
+                raise SourceError(vloc, f"opcua limits {key}: expected {least // 10**9} s to "
+                                        f"{most // 10**9} s, found {ns / 1e9:g} s")
+            setattr(lim, attr, ns)
+    if lim.items > lim.items_total:
+        where = m.val_locs.get("items", m.val_locs.get("items_total", loc))
+        raise SourceError(where, f"opcua limits: items ({lim.items}) per session is more than "
+                                 f"items_total ({lim.items_total}), the limit of all sessions")
+    if lim.publish_rate > lim.publish_rate_total:
+        where = m.val_locs.get("publish_rate", m.val_locs.get("publish_rate_total", loc))
+        raise SourceError(where, f"opcua limits: publish_rate ({lim.publish_rate:g}) per "
+                                 "session is more than publish_rate_total "
+                                 f"({lim.publish_rate_total:g}), the limit of all sessions")
+    if lim.abandoned_ns > lim.session_timeout_ns:
+        raise SourceError(m.val_locs.get("abandoned", loc),
+                          f"opcua limits abandoned ({lim.abandoned_ns / 1e9:g} s) is longer "
+                          f"than session_timeout ({lim.session_timeout_ns / 1e9:g} s)")
+    return lim
 
 
 def _security(value: Any, loc: Loc) -> OpcuaSecurity:

@@ -20,8 +20,16 @@ from drivers.durations import format_ns
 from drivers.registry import BAUDRATES, DRIVER_KEYS, check_config, check_point
 from runtime.errors import Diagnostic, Loc, SourceError, suggest
 from runtime.language import ast as A
+from runtime.language.alarmconf import load_alarms
 from runtime.language.feedconf import settle_feed
-from runtime.language.grafcetfile import check_keys, expect_type, load_grafcet, time_value
+from runtime.language.grafcetfile import (
+    check_keys,
+    description_text,
+    expect_type,
+    load_grafcet,
+    time_value,
+)
+from runtime.language.iolist import IO_KEYS, check_io_entry, io_entry
 from runtime.language.lexer import is_name
 from runtime.language.model import (
     Binding,
@@ -39,10 +47,11 @@ from runtime.language.plantpaths import path_value
 from runtime.language.typecheck import FLAGS_BOOL
 from runtime.language.yamlsrc import SourceFileError, YMap, load_yaml
 
-PLANT_KEYS = ("plc", "drivers", "instances", "monitor", "opcua", "mqtt")
+PLANT_KEYS = ("plc", "drivers", "instances", "monitor", "opcua", "mqtt", "alarms")
 PLC_KEYS = ("cycle", "watchdog", "retain", "retain_interval", "retain_required", "realtime",
             "log")
 INSTANCE_KEYS = ("grafcet", "inputs", "outputs", "description", "log")
+BINDING_KEYS = ("from", "invert", *IO_KEYS)
 #: values of ``log:`` (plant-wide under ``plc:``, or per instance) -> whether step changes
 #: are logged
 LOG_VALUES = {"steps": True, "none": False}
@@ -137,12 +146,14 @@ def _retain_path(base: str, value: Any, loc: Loc) -> str:
 
 def _binding(signal: str, spec: Any, loc: Loc) -> Binding:
     invert = False
+    listed: YMap | None = None
     if isinstance(spec, YMap):
-        check_keys(spec, ("from", "invert"), f"the binding of '{signal}'")
+        check_keys(spec, BINDING_KEYS, f"the binding of '{signal}'")
         if "from" not in spec:
             raise SourceError(spec.loc, f"binding of '{signal}' needs 'from: driver.point'")
         invert = expect_type(spec.get("invert", False), spec.val_locs.get("invert", loc), bool,
                              "true or false for invert")
+        listed = spec
         loc = spec.val_locs["from"]
         spec = spec["from"]
     source = expect_type(spec, loc, str, f"'driver.point' or {{from: ..., invert: true}} for "
@@ -150,7 +161,10 @@ def _binding(signal: str, spec: Any, loc: Loc) -> Binding:
     if "." not in source:
         raise SourceError(loc, f"expected 'driver.point' or 'instance.signal' for '{signal}', "
                                f"found '{source}'")
-    return Binding(signal, str(source), loc, invert)
+    b = Binding(signal, str(source), loc, invert)
+    if listed is not None:
+        io_entry(b, listed)
+    return b
 
 
 def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> PlantDef:
@@ -252,6 +266,12 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
             load.report(exc)
             continue  # the instance is left out
         inst = InstanceDef(name, g, loc, log_steps=log_steps)
+        if "description" in spec:
+            try:
+                inst.description = description_text(spec["description"],
+                                                    spec.val_locs["description"])
+            except SourceError as exc:
+                load.report(exc)
         if "log" in spec:
             try:
                 inst.log_steps = _log_steps(spec["log"], spec.val_locs["log"])
@@ -288,6 +308,11 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
                 if b.invert and v is not None and v.type is not A.Type.BOOL:
                     load.report(SourceError(b.loc, f"invert applies to bools only; '{sig}' is "
                                                    f"{v.type}"))
+                if v is not None and isinstance(bspec, YMap):
+                    try:
+                        check_io_entry(b, bspec, v.type)
+                    except SourceError as exc:
+                        load.report(exc)
                 getattr(inst, key)[sig] = b
         for key, signals in (("inputs", g.inputs), ("outputs", g.outputs)):
             for var in signals:
@@ -308,6 +333,8 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
             if isinstance(section, YMap) and "feed" in section:
                 named[key] = section.val_locs["feed"]
     settle_feed(p, named)
+    if "alarms" in doc and doc["alarms"] is not None:
+        p.alarms = load_alarms(doc["alarms"], doc.val_locs["alarms"])
     return p
 
 

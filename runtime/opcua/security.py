@@ -20,8 +20,9 @@ The rules (docs/opcua.md, "Security"):
   whose password matches its hash in ``users`` (``softplc hash-pin`` format) is a writer; a
   wrong password or an unknown user is refused; an anonymous session without a certificate
   (only possible on a ``None`` endpoint) is a *reader* with ``anonymous: read`` (the
-  default) and refused with ``anonymous: none``. A reader may browse, read and subscribe;
-  its writes (and method calls) fail with ``BadUserAccessDenied``. Nobody is administrator:
+  default) and refused with ``anonymous: none``. A reader may browse, read, subscribe and
+  call ConditionRefresh; its writes and its calls of the methods that change something
+  fail with ``BadUserAccessDenied``. Nobody is administrator:
   no client adds or deletes nodes.
 
 Why the certificate is checked in the user manager and not only by asyncua's certificate
@@ -77,6 +78,7 @@ from runtime.controller.pin import check_pin
 from runtime.errors import Loc, SourceError
 from runtime.language.model import OpcuaSecurity
 from runtime.language.safefile import UnfitFile, read_bounded
+from runtime.opcua.methods import peer_text
 
 log = logging.getLogger(__name__)
 
@@ -102,9 +104,10 @@ def _ids(numbers: Iterable[int]) -> frozenset[ua.NodeId]:
     return frozenset(ua.NodeId(ua.Int32(n)) for n in numbers)
 
 
-#: services that change something: a reader may not call them
-_CHANGING = _ids((ObjectIds.WriteRequest_Encoding_DefaultBinary,
-                  ObjectIds.CallRequest_Encoding_DefaultBinary))
+#: services that change something: a reader may not call them (Call is let through:
+#: ConditionRefresh is for readers too; the methods that change something answer
+#: BadUserAccessDenied themselves, runtime/opcua/methods.py and conditions.py)
+_CHANGING = _ids((ObjectIds.WriteRequest_Encoding_DefaultBinary,))
 #: every service of a session (asyncua's list for its User role: no node management)
 _WRITER_IDS = _ids(USER_TYPES)
 _READER_IDS = _WRITER_IDS - _CHANGING
@@ -119,7 +122,8 @@ def secured(sec: OpcuaSecurity) -> bool:
 
 class Rules(SimpleRoleRuleset):  # type: ignore[misc]  # asyncua is Any to mypy
     """Which services each role may call: writers every service of a session, readers all
-    but Write and Call, anyone else nothing (asyncua answers BadUserAccessDenied)."""
+    but Write (a changing method answers them BadUserAccessDenied), anyone else nothing
+    (asyncua answers BadUserAccessDenied)."""
 
     def check_validity(self, user: User, action_type_id: ua.NodeId, body: Any) -> bool:
         if user.role is UserRole.User:
@@ -192,25 +196,29 @@ class Users(UserManager):  # type: ignore[misc]  # asyncua is Any to mypy
         #: user -> clock seconds until which its password is not checked (a wrong one
         #: holds that user only: guessing one user's password never locks out another)
         self._hold_until: dict[str, float] = {}
+        #: why the last session was refused ("" if it was not)
+        self.refusal = ""
 
     def get_user(self, iserver: Any, username: str | None = None,
                  password: str | None = None, certificate: Any = None) -> User | None:
-        """The session's User, or None to refuse it (BadUserAccessDenied)."""
+        """The session's User, or None to refuse it (BadUserAccessDenied; why in
+        ``refusal``, which the session's log line says: ``log_refusals``)."""
+        self.refusal = ""
         if not certificate:  # asyncua passes b"" for a channel without a certificate
             certificate = None
             if not self.allow_none:
-                log.warning("opcua: refused a session on a channel without security (the "
-                            "plant lists no None policy)")
+                self.refusal = ("a channel without security (the plant lists no None "
+                                "policy)")
                 return None
         writer = bool(certificate) and self.trusted.trusts(bytes(certificate))
         if certificate and not writer and not self.readers.trusts(bytes(certificate)):
-            log.warning("opcua: refused a client certificate in neither trusted_clients nor "
-                        "trusted_readers (%s)", _subject(certificate))
+            self.refusal = ("a client certificate in neither trusted_clients nor "
+                            "trusted_readers (or out of its dates)")
             return None
         if username is not None:
             if self._password_ok(username, password or ""):
                 return User(role=UserRole.User, name=username)
-            log.warning("opcua: refused user '%s': wrong password or unknown user", username)
+            self.refusal = f"user '{username}': wrong password or unknown user"
             return None
         if writer and not self.allow_none:
             return User(role=UserRole.User, name=_subject(certificate))
@@ -218,7 +226,7 @@ class Users(UserManager):  # type: ignore[misc]  # asyncua is Any to mypy
             return User(role=UserRole.Anonymous, name=_subject(certificate))
         if self.sec.anonymous == "read":
             return User(role=UserRole.Anonymous)
-        log.warning("opcua: refused an anonymous session (anonymous: none)")
+        self.refusal = "an anonymous session (anonymous: none)"
         return None
 
     def _password_ok(self, username: str, password: str) -> bool:
@@ -279,6 +287,7 @@ async def apply(server: Server, sec: OpcuaSecurity, where: Loc | None = None) ->
     server.set_identity_tokens([ua.AnonymousIdentityToken, ua.UserNameIdentityToken])
     users = Users(sec)
     server.iserver.set_user_manager(users)
+    log_refusals(server, users)
     if not users.allow_none:
         # clients name their certificate in CreateSession on None channels too (node-opcua,
         # UaExpert), where it proves nothing: checked there only when None is not offered
@@ -292,6 +301,45 @@ def _format(path: str) -> str:
     """How asyncua reads a certificate or key file given as bytes: PEM for a ``.pem``,
     else DER (what it decides from the name when it reads the file itself)."""
     return "pem" if path.lower().endswith(".pem") else "der"
+
+
+def log_refusals(server: Server, users: Users) -> None:
+    """One log line for each session refused at CreateSession or ActivateSession, naming
+    the client's address, the subject of the certificate it showed, why and the status:
+    ``opcua: refused the client at 10.0.0.7:50122 (certificate CN=panel 3): a client
+    certificate in neither trusted_clients nor trusted_readers (BadUserAccessDenied)``."""
+    iserver = server.iserver
+    plain = iserver.create_session
+
+    def create_session(name: Any, *args: Any, **kwargs: Any) -> Any:
+        session = plain(name, *args, **kwargs)
+        create, activate = session.create_session, session.activate_session
+
+        def said(exc: Exception, certificate: Any, why: str) -> None:
+            code = getattr(exc, "code", StatusCodes.BadUserAccessDenied)
+            log.warning("opcua: refused the client at %s (certificate %s): %s (%s)",
+                        peer_text(session.name),
+                        _subject(certificate) if certificate else "none",
+                        why or "refused", ua.StatusCode(code).name)
+
+        async def created(params: Any, *a: Any, **k: Any) -> Any:
+            try:
+                return await create(params, *a, **k)
+            except (ServiceError, ua.UaStatusCodeError) as exc:
+                said(exc, params.ClientCertificate, "a client certificate in neither "
+                     "trusted_clients nor trusted_readers (or out of its dates)")
+                raise
+
+        def activated(params: Any, peer_certificate: Any) -> Any:
+            users.refusal = ""
+            try:
+                return activate(params, peer_certificate)
+            except (ServiceError, ua.UaStatusCodeError) as exc:
+                said(exc, peer_certificate, users.refusal)
+                raise
+        session.create_session, session.activate_session = created, activated
+        return session
+    iserver.create_session = create_session
 
 
 def _validator(*trusted: TrustedClients) -> Callable[[x509.Certificate, Any], Any]:

@@ -8,10 +8,18 @@ controller's feed socket (runtime/controller/feed.py), never in the scan's way.
   notifications), each with the frame's source timestamp (the scan's wall-clock time). The
   subscriptions publish from their own tasks, so a publish sees all of a frame or none of
   it. A subscription's publishing interval is revised to at least ``sample`` (a requested
-  0, "publish on every change", would publish in the middle of a frame).
+  0, "publish on every change", would publish in the middle of a frame: limits.py).
+- Stale values: when no frame came for ``stale_after_s`` (the controller is frozen,
+  stopped by a signal, or stuck in a scan while its watchdog holds the outputs off),
+  every variable turns BadOutOfService (no value: a Bad value carries none), with the
+  last frame's SourceTimestamp, until the next frame. A value OPC UA cannot carry (an
+  INT beyond Int64) is BadOutOfRange (``space.to_ua``).
 - Writes: only the nodes of ``opcua: writable:`` (AccessLevel CurrentWrite) are forwarded
   to the feed; the controller's answer is the write's status. Any other value write is
-  BadNotWritable.
+  BadNotWritable; a value out of range (a non-finite REAL or TIME, a TIME past 64-bit
+  nanoseconds) BadOutOfRange.
+- Clients are held to ``opcua: limits:`` (limits.py). The server lowers its own CPU
+  priority to SERVER_NICE, wherever it is started (its unit sets the same).
 - Events (BaseEventType, severity and message) derived from successive frames: SFCError
   set/cleared (on the instance object), driver fault/recovery (on the driver object),
   controller fault and its acknowledgement (on the Controller object). A change shorter
@@ -24,18 +32,24 @@ import asyncio
 import datetime
 import importlib
 import logging
+import os
 from collections.abc import Callable
 from typing import Any
 
 from asyncua import Server, ua
+from asyncua.common.callback import CallbackType, ServerItemCallback
 from asyncua.crypto.permission_rules import User, UserRole
 
 from runtime.controller.feedclient import FeedClient, FeedLost
 from runtime.language.model import PlantDef
+from runtime.opcua.conditions import Conditions
+from runtime.opcua.limits import Limits
+from runtime.opcua.methods import Methods, track_callers
 from runtime.opcua.space import (
     NAMESPACE,
     NS,
     TYPES,
+    OutOfRange,
     Space,
     build_fixed,
     build_names,
@@ -50,8 +64,24 @@ log = logging.getLogger(__name__)
 WRITE_TIMEOUT_S = 3.0
 #: event severities (1-1000)
 SEVERITY = {"fault": 900, "sfcerror": 700, "driver": 800, "cleared": 300}
+#: values are stale when no frame came for this many samples, and at least STALE_MIN_S
+STALE_SAMPLES = 4
+STALE_MIN_S = 1.0
+#: the niceness the server gives itself (as its systemd unit's Nice=): the controller's
+#: scan, at niceness 0 or real time, gets the CPU first
+SERVER_NICE = 10
 
 Status = ua.StatusCodes
+#: AccessLevel bits: CurrentRead, CurrentRead | CurrentWrite
+READ_ONLY, READ_WRITE = 1, 3
+#: the status of every value while the controller sends no frame
+STALE = Status.BadOutOfService
+
+
+def stale_after_s(sample_ns: int) -> float:
+    """How long without a frame makes the values stale, seconds (checked every sample)."""
+    return max(STALE_SAMPLES * sample_ns / 1e9, STALE_MIN_S)
+
 #: the user of the server's own writes (asyncua's default for its attribute service)
 INTERNAL = User(role=UserRole.Admin)
 
@@ -70,7 +100,8 @@ class PlantServer:
         self.space = Space()
         #: the controller's feed (runtime/controller/feedclient.py): its state is the last
         #: frame
-        self.feed = FeedClient(self.feed_path, "opcua", self._schema, self._frame, self._lost)
+        self.feed = FeedClient(self.feed_path, "opcua", self._schema, self._frame, self._lost,
+                               self._status)
         self.state = self.feed.state
         #: may this session's user write? Only a writer (UserRole.User: a user with its
         #: password, or a trusted client certificate, runtime/opcua/security.py), checked
@@ -84,11 +115,19 @@ class PlantServer:
         self._names_built: list[tuple[str, ...]] | None = None
         self._events: dict[str, Any] = {}
         self._prev: dict[str, Any] = {}
+        self.limits = Limits(self.server, self.opc.limits, self.opc.sample_ns)
+        self.methods = Methods(self)
+        self.conditions = Conditions(self)
+        #: event-loop time of the last frame (None: none since the (re)connection, or a
+        #: schema being built); whether the values are shown stale now
+        self._last_frame: float | None = None
+        self.stale = False
 
     # -- set-up ------------------------------------------------------------------
     async def start(self) -> None:
         """Build the fixed part of the address space and open the endpoint."""
         srv = self.server
+        srv.iserver.bind_condition_methods = True  # ConditionRefresh (conditions.py)
         await srv.init()
         srv.set_endpoint(self.endpoint)
         srv.set_server_name(f"softplc {self.pdef.path}")
@@ -106,8 +145,12 @@ class PlantServer:
         assert self.space.controller is not None
         self._events["controller"] = await srv.get_event_generator(
             ua.ObjectIds.BaseEventType, self.space.controller)
+        await self.methods.build()
+        await self.conditions.setup()
+        track_callers(srv)
         self._hook_writes()
-        self._hook_subscriptions()
+        self._hook_access()
+        self.limits.install()
         await srv.start()
         log.info("OPC UA server on %s (feed %s)", self.endpoint, self.feed_path)
 
@@ -148,18 +191,35 @@ class PlantServer:
             return out
         service.write = write
 
-    def _hook_subscriptions(self) -> None:
-        """A publishing interval below ``sample`` is revised up to it (see the module)."""
-        service = self.server.iserver.subscription_service
-        plain = service.create_subscription
-        least_ms = self.opc.sample_ns / 1e6
+    def _hook_access(self) -> None:
+        """UserAccessLevel and UserExecutable as the reading session may act: read and
+        write on a writable name, and the methods, for a writer; read only and no method
+        for everyone else (asyncua answers the node's AccessLevel and Executable to every
+        session)."""
+        space = self.space
 
-        async def create(params: ua.CreateSubscriptionParameters, *args: Any,
-                         **kwargs: Any) -> ua.CreateSubscriptionResult:
-            if params.RequestedPublishingInterval < least_ms:
-                params.RequestedPublishingInterval = least_ms
-            return await plain(params, *args, **kwargs)
-        service.create_subscription = create
+        async def post_read(event: ServerItemCallback, dispatcher: Any) -> None:
+            results = event.response_params
+            if not results:
+                return
+            user = event.user
+            for k, rv in enumerate(event.request_params.NodesToRead):
+                if rv.NodeId.NamespaceIndex != NS or not results[k].StatusCode.is_good():
+                    continue
+                if rv.AttributeId == ua.AttributeIds.UserExecutable:
+                    may_run = self.methods.executable(rv.NodeId, user)
+                    if may_run is not None:
+                        results[k] = ua.DataValue(ua.Variant(may_run, ua.VariantType.Boolean))
+                    continue
+                if (rv.AttributeId != ua.AttributeIds.UserAccessLevel
+                        or rv.NodeId not in space.all_vars):
+                    continue
+                i = space.by_node.get(rv.NodeId)
+                may = (i is not None and space.names[i] in self.opc.writable
+                       and user is not None and self.may_write(user))
+                results[k] = ua.DataValue(ua.Variant(READ_WRITE if may else READ_ONLY,
+                                                     ua.VariantType.Byte))
+        self.server.iserver.callback_service.addListener(CallbackType.PostRead, post_read)
 
     # -- writes ------------------------------------------------------------------
     async def _client_write(self, wv: ua.WriteValue, user: User) -> ua.StatusCode:
@@ -171,23 +231,38 @@ class PlantServer:
             return ua.StatusCode(Status.BadUserAccessDenied)
         try:
             value = from_ua(self.space.types[i], wv.Value.Value)
+        except OutOfRange as exc:
+            log.info("opcua write of %s refused: %s", name, exc)
+            return ua.StatusCode(Status.BadOutOfRange)
         except (ValueError, TypeError, AttributeError):
             return ua.StatusCode(Status.BadTypeMismatch)
-        try:
-            ok, text = await self.feed.set(name, value, WRITE_TIMEOUT_S)
-        except TimeoutError:
-            return ua.StatusCode(Status.BadTimeout)
-        except (OSError, FeedLost):
-            return ua.StatusCode(Status.BadNoCommunication)
+        ok, text, code = await self.ask("set", name, value, self.feed.side)
         if not ok:
             log.info("opcua write of %s refused by the controller: %s", name, text)
-            return ua.StatusCode(Status.BadInvalidState)
-        return ua.StatusCode(Status.Good)
+        return ua.StatusCode(getattr(Status, code, Status.BadInvalidState))
+
+    async def ask(self, kind: str, *args: Any) -> tuple[bool, str, str]:
+        """A request to the controller through the feed (``set``, ``call``, ``alarm``:
+        runtime/controller/feed.py), waited for: (ok, text, OPC UA status name)."""
+        try:
+            return await self.feed.ask(kind, *args, timeout=WRITE_TIMEOUT_S)
+        except TimeoutError:
+            return False, "the controller did not answer in time", "BadTimeout"
+        except (OSError, FeedLost):
+            return False, "no connection to the controller", "BadNoCommunication"
 
     # -- the feed ----------------------------------------------------------------
     async def run(self) -> None:
-        """Follow the feed until ``stop()``: reconnect forever."""
-        await self.feed.run()
+        """Follow the feed until ``stop()``: reconnect forever; meanwhile watch for stale
+        values and keep the limits."""
+        watchers = [asyncio.create_task(self._watch_stale()),
+                    asyncio.create_task(self.limits.housekeeping())]
+        try:
+            await self.feed.run()
+        finally:
+            for task in watchers:
+                task.cancel()
+            await asyncio.gather(*watchers, return_exceptions=True)
 
     def stop(self) -> None:
         """End ``run()``: the feed connection is closed (a read waiting on it ends)."""
@@ -196,29 +271,48 @@ class PlantServer:
     async def _lost(self) -> None:
         """The feed's connection ended: every value BadNoCommunication until it is back."""
         self.connected.clear()
+        self._last_frame, self.stale = None, False
         self._prev = {}  # the next frame is a state, not a change from this one
         await self._all_bad(Status.BadNoCommunication)
 
+    async def _status(self) -> None:
+        """The controller's status (with its alarm board) came: the conditions follow."""
+        await self.conditions.update(self.state.status.get("alarms") or [])
+
     async def _schema(self, schema: dict[str, Any]) -> None:
+        self._last_frame = None  # no stale check while the names change
         names = [tuple(n) for n in schema["names"]]
         if names != self._names_built:  # names, types and roles: an online change
             await build_names(schema, self.space, lambda n: n in self.opc.writable,
                               self.server)
             self._names_built = names
             log.info("address space: %d plant names", len(names))
+        self._last_frame = asyncio.get_running_loop().time()
         self.connected.set()
 
     async def _frame(self) -> None:
         """Every value of the frame, one batch, the frame's source timestamp. No await in
         here suspends (see the module docstring): a publish never splits the batch."""
+        self._last_frame = asyncio.get_running_loop().time()
+        if self.stale:
+            self.stale = False
+            log.warning("frames from the controller again: values good")
+        ts = datetime.datetime.fromtimestamp(self.state.wall, datetime.UTC)
+        await self._write_values(ts, None)
+        self.frames += 1
+        await self._derive_events(ts)
+
+    async def _write_values(self, ts: datetime.datetime, status: int | None) -> None:
+        """The last frame's values, with ``ts`` as their source timestamp; with their own
+        status (Good, or BadOutOfRange: ``to_ua``), or all with ``status``."""
         st, space = self.state, self.space
-        ts = datetime.datetime.fromtimestamp(st.wall, datetime.UTC)
         now = datetime.datetime.now(datetime.UTC)
         write = self.server.iserver.aspace.write_attribute_value
         value_attr = ua.AttributeIds.Value
         for i, node_id in enumerate(space.nodes):
             ptype = space.types[i]
-            await write(node_id, value_attr, _dv(ptype, to_ua(ptype, st.values[i]), ts, now))
+            value, code = to_ua(ptype, st.values[i])
+            await write(node_id, value_attr, _dv(ptype, value, ts, now, status or code))
         c = st.status
         lat = c.get("lateness_us") or {}
         ctl = {"state": c.get("state", ""), "fault": c.get("fault") or "",
@@ -226,17 +320,43 @@ class PlantServer:
                "overruns": c.get("overruns", 0), "lateness_p50": lat.get("p50", 0.0),
                "lateness_p99": lat.get("p99", 0.0), "lateness_max": lat.get("max", 0.0),
                "uptime": float(c.get("uptime_s", 0))}
+        good = status or Status.Good
         for key, value in ctl.items():
             ptype = space.all_vars[nid(f"controller.{key}")]
-            await write(nid(f"controller.{key}"), value_attr, _dv(ptype, value, ts, now))
+            await write(nid(f"controller.{key}"), value_attr,
+                        _dv(ptype, value, ts, now, good))
         for dname, (health, reason, _ok) in (c.get("drivers") or {}).items():
             if dname in space.drivers:
                 await write(nid(f"driver.{dname}.health"), value_attr,
-                            _dv("string", health, ts, now))
+                            _dv("string", health, ts, now, good))
                 await write(nid(f"driver.{dname}.fault"), value_attr,
-                            _dv("string", reason, ts, now))
-        self.frames += 1
-        await self._derive_events(ts)
+                            _dv("string", reason, ts, now, good))
+
+    async def _watch_stale(self) -> None:
+        """Every sample: no frame for ``stale_after_s``, every value BadOutOfService (with
+        the last frame's source timestamp); the next frame makes them good."""
+        loop = asyncio.get_running_loop()
+        period = self.opc.sample_ns / 1e9
+        bound = stale_after_s(self.opc.sample_ns)
+        while True:
+            await asyncio.sleep(period)
+            last = self._last_frame
+            if self.stale or last is None or loop.time() - last <= bound:
+                continue
+            # a frame the loop has read but not yet applied (the loop was busy) goes first
+            for _ in range(3):
+                await asyncio.sleep(0)
+            last = self._last_frame
+            if self.stale or last is None or loop.time() - last <= bound:
+                continue
+            if len(self.state.values) != len(self.space.nodes):
+                continue  # a schema without its first frame: nothing good shown yet
+            self.stale = True
+            log.warning("no frame from the controller for %.1f s (stopped, frozen, or stuck "
+                        "in a scan): every value BadOutOfService until it sends again",
+                        loop.time() - last)
+            await self._write_values(
+                datetime.datetime.fromtimestamp(self.state.wall, datetime.UTC), STALE)
 
     async def _all_bad(self, code: int) -> None:
         dv = ua.DataValue(StatusCode=ua.StatusCode(code),
@@ -296,16 +416,28 @@ def _event_text(key: str, old: Any, new: Any) -> tuple[str, int]:
     return "", 0
 
 
-def _dv(ptype: str, value: Any, ts: datetime.datetime,
-        now: datetime.datetime) -> ua.DataValue:
-    return ua.DataValue(ua.Variant(value, TYPES[ptype][0]), SourceTimestamp=ts,
-                        ServerTimestamp=now)
+#: one StatusCode object per code a value may carry (a frame writes thousands)
+_CODES: dict[int, ua.StatusCode] = {}
+
+
+def _dv(ptype: str, value: Any, ts: datetime.datetime, now: datetime.datetime,
+        code: int) -> ua.DataValue:
+    """A value with its status; a Bad one without its value (Part 4, 7.7.1: its value
+    is to be ignored, asyncua sets it null)."""
+    sc = _CODES.get(code)
+    if sc is None:
+        sc = _CODES[code] = ua.StatusCode(code)
+    if sc.is_bad():
+        return ua.DataValue(StatusCode=sc, SourceTimestamp=ts, ServerTimestamp=now)
+    return ua.DataValue(ua.Variant(value, TYPES[ptype][0]), StatusCode=sc,
+                        SourceTimestamp=ts, ServerTimestamp=now)
 
 
 async def serve(pdef: PlantDef, endpoint: str | None = None, feed: str | None = None,
                 ready: Callable[[PlantServer], None] | None = None,
                 stop: asyncio.Event | None = None) -> None:
     """Run the server until ``stop`` is set (or forever)."""
+    yield_cpu()
     ps = PlantServer(pdef, endpoint, feed)
     await ps.start()
     task = asyncio.create_task(ps.run())
@@ -320,3 +452,16 @@ async def serve(pdef: PlantDef, endpoint: str | None = None, feed: str | None = 
             await task
     finally:
         await ps.server.stop()
+
+
+def yield_cpu() -> None:
+    """Lower this process's priority to SERVER_NICE (never raise it): a server swamped by
+    clients slows itself, not the controller, also when started by hand."""
+    try:
+        now = os.nice(0)
+        if now < SERVER_NICE:
+            os.nice(SERVER_NICE - now)
+            log.info("OPC UA server at niceness %d: the controller gets the CPU first",
+                     SERVER_NICE)
+    except OSError as exc:
+        log.warning("OPC UA server: niceness not changed (%s)", exc)

@@ -17,6 +17,7 @@ NodeIds are strings in namespace 2 (``urn:softplc:plant``):
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -24,7 +25,12 @@ from typing import Any
 from asyncua import Server, ua
 from asyncua.common.node import Node
 
+from runtime.controller.feed import value_problem
+from runtime.language import ast as A
+from runtime.language.iolist import IOList, Meaning
 from runtime.language.model import PlantDef
+from runtime.language.units import CEFACT_URI
+from runtime.language.yamlsrc import TIME_MAX_NS
 
 NAMESPACE = "urn:softplc:plant"
 NS = 2
@@ -36,6 +42,8 @@ TYPES: dict[str, tuple[ua.VariantType, int]] = {
     "time": (ua.VariantType.Double, ua.ObjectIds.Duration),
     "string": (ua.VariantType.String, ua.ObjectIds.String),
 }
+#: plant type name -> the language's type
+PLANT_TYPES = {t.value: t for t in A.Type}
 #: a value of each type for the creation of its node (its status is bad until a frame)
 ZERO: dict[str, Any] = {"bool": False, "int": 0, "real": 0.0, "time": 0.0, "string": ""}
 #: the role of a name in the feed's schema -> the instance folder it goes in
@@ -66,23 +74,53 @@ def qname(text: str) -> ua.QualifiedName:
     return ua.QualifiedName(text, NS)
 
 
-def to_ua(ptype: str, value: Any) -> Any:
-    """A feed value (times in ns) -> the node's value (times in ms)."""
+#: what an Int64 holds
+INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
+GOOD = ua.StatusCodes.Good
+OUT_OF_RANGE = ua.StatusCodes.BadOutOfRange
+
+
+class OutOfRange(ValueError):
+    """A client's value of the right type that no plant variable may hold (BadOutOfRange)."""
+
+
+def to_ua(ptype: str, value: Any) -> tuple[Any, int]:
+    """A feed value (times in ns) -> (the node's value (times in ms), its status code).
+    An INT beyond Int64, a TIME beyond 64-bit nanoseconds, or a REAL beyond a Double is
+    (None, BadOutOfRange) (docs/opcua.md, "Values out of range"): the language's integers
+    have no fixed width, OPC UA's have; and a Bad value carries no value (Part 4, 7.7.1)."""
+    if ptype == "int":
+        if INT64_MIN <= value <= INT64_MAX:
+            return value, GOOD
+        return None, OUT_OF_RANGE
     if ptype == "time":
-        return value / 1e6
+        if -TIME_MAX_NS <= value <= TIME_MAX_NS:
+            return value / 1e6, GOOD
+        return None, OUT_OF_RANGE
     if ptype == "real":
-        return float(value)
-    return value
+        try:
+            return float(value), GOOD
+        except OverflowError:  # an integer past a Double (a REAL holds floats only)
+            return None, OUT_OF_RANGE
+    return value, GOOD
 
 
 def from_ua(ptype: str, variant: ua.Variant) -> Any:
-    """A client's written Variant -> the feed value; ValueError on a type mismatch."""
+    """A client's written Variant -> the feed value; ValueError on a type mismatch,
+    OutOfRange for a value of the right type no plant variable may hold (a non-finite
+    REAL or TIME, a TIME past 64-bit nanoseconds: ``controller.feed.value_problem``)."""
     vt, _ = TYPES[ptype]
     if variant.VariantType != vt:
         raise ValueError(f"expected {vt.name}, found {variant.VariantType.name}")
+    value = variant.Value
     if ptype == "time":
-        return round(variant.Value * 1e6)
-    return variant.Value
+        if not math.isfinite(value):
+            raise OutOfRange(f"{value!r} ms is not a finite time")
+        value = round(value * 1e6)
+    problem = value_problem(PLANT_TYPES[ptype], value)
+    if problem is not None:
+        raise OutOfRange(problem)
+    return value
 
 
 @dataclass
@@ -106,37 +144,67 @@ class Space:
     built: dict[str, tuple[str, str]] = field(default_factory=dict)
     folders: dict[str, Node] = field(default_factory=dict)
     steps: dict[str, Node] = field(default_factory=dict)
+    #: the plant file's I/O list (what each name means), read at the server's start
+    iolist: IOList | None = None
+    #: the reference type from a driver point to the signal bound to it
+    bound: ua.NodeId | None = None
+
+
+async def _describe(node: Node, text: str) -> None:
+    await node.write_attribute(ua.AttributeIds.Description, ua.DataValue(
+        ua.Variant(ua.LocalizedText(text), ua.VariantType.LocalizedText)))
 
 
 async def _var(parent: Node, text: str, leaf: str, ptype: str, space: Space,
-               description: str = "") -> Node:
+               meaning: Meaning | str = "") -> Node:
+    """A variable of the plant, status BadWaitingForInitialData, with its Description,
+    and, for a number with a unit or a range, its EngineeringUnits (UN/CEFACT) and EURange
+    properties (as an AnalogItem has them)."""
+    m = Meaning(meaning) if isinstance(meaning, str) else meaning
     vt, dt = TYPES[ptype]
     node = await parent.add_variable(nid(text), qname(leaf), ua.Variant(ZERO[ptype], vt),
                                      datatype=ua.NodeId(dt))
     await node.write_attribute(ua.AttributeIds.Value, ua.DataValue(
         StatusCode=ua.StatusCode(ua.StatusCodes.BadWaitingForInitialData)))
-    if description:
-        await node.write_attribute(ua.AttributeIds.Description, ua.DataValue(
-            ua.Variant(ua.LocalizedText(description), ua.VariantType.LocalizedText)))
+    if m.description:
+        await _describe(node, m.description)
+    if m.unit is not None and ptype in ("int", "real", "time"):
+        eu = ua.EUInformation(NamespaceUri=CEFACT_URI, UnitId=m.unit.unit_id,
+                              DisplayName=ua.LocalizedText(m.unit.symbol),
+                              Description=ua.LocalizedText(m.unit.name))
+        await node.add_property(nid(f"{text}.EngineeringUnits"),
+                                qname("EngineeringUnits"), eu,
+                                datatype=ua.NodeId(ua.ObjectIds.EUInformation))
+    if m.range is not None and ptype in ("int", "real"):
+        await node.add_property(nid(f"{text}.EURange"), qname("EURange"),
+                                ua.Range(Low=m.range[0], High=m.range[1]),
+                                datatype=ua.NodeId(ua.ObjectIds.Range))
     space.all_vars[nid(text)] = ptype
     return node
+
+
+def meaning_of(space: Space, name: str) -> Meaning:
+    return space.iolist.meaning(name) if space.iolist is not None else Meaning()
 
 
 async def build_fixed(server: Server, pdef: PlantDef, space: Space) -> None:
     """What the plant file alone gives: one object per instance (its chart's description)
     and per driver, and the Controller object with its variables."""
     objects = server.nodes.objects
+    space.iolist = IOList(pdef)
+    space.bound = nid("BoundSignal")
+    refs = server.get_node(ua.NodeId(ua.ObjectIds.NonHierarchicalReferences))
+    await refs.add_reference_type(space.bound, qname("BoundSignal"), symmetric=False,
+                                  inversename="BoundPoint")
     for name, idef in pdef.instances.items():
         obj = await objects.add_object(nid(name), qname(name))
-        text = idef.grafcet.description or f"instance of chart {idef.grafcet.name}"
-        await obj.write_attribute(ua.AttributeIds.Description, ua.DataValue(
-            ua.Variant(ua.LocalizedText(text), ua.VariantType.LocalizedText)))
+        text = (idef.description or idef.grafcet.description
+                or f"instance of chart {idef.grafcet.name}")
+        await _describe(obj, text)
         space.instances[name] = obj
     for dname, ddef in pdef.drivers.items():
         obj = await objects.add_object(nid(f"driver.{dname}"), qname(dname))
-        await obj.write_attribute(ua.AttributeIds.Description, ua.DataValue(
-            ua.Variant(ua.LocalizedText(f"driver {dname} ({ddef.type})"),
-                       ua.VariantType.LocalizedText)))
+        await _describe(obj, f"driver {dname} ({ddef.type})")
         for leaf, (ptype, text) in DRIVER_VARS.items():
             await _var(obj, f"driver.{dname}.{leaf}", leaf, ptype, space, text)
         space.drivers[dname] = obj
@@ -162,9 +230,25 @@ async def build_names(schema: dict[str, Any], space: Space,
     space.types = [p for _, p, _ in entries]
     space.nodes = [nid(t) for t in space.names]
     space.by_node = {node_id: i for i, node_id in enumerate(space.nodes)}
+    added = []
     for text, ptype, role in entries:
         if text not in space.built and await _add(space, text, ptype, role, writable):
             space.built[text] = (ptype, role)
+            added.append(text)
+    if server is not None:
+        await _bind(server, space, added)
+
+
+async def _bind(server: Server, space: Space, names: list[str]) -> None:
+    """A BoundSignal reference from each driver point of ``names`` to the signals bound
+    to it (inverse BoundPoint), as the plant file's I/O list says."""
+    if space.iolist is None or space.bound is None:
+        return
+    for text in names:
+        for row in space.iolist.bound_to(text):
+            if row.signal in space.built:
+                await server.get_node(nid(text)).add_reference(
+                    nid(row.signal), space.bound, forward=True, bidirectional=True)
 
 
 async def _add(space: Space, text: str, ptype: str, role: str,
@@ -176,7 +260,7 @@ async def _add(space: Space, text: str, ptype: str, role: str,
         if role != "driver health":
             key = f"driver.{head}/{'Inputs' if role == 'point in' else 'Outputs'}"
             parent = await _folder(space.drivers[head], key, key.rsplit("/", 1)[1], space)
-        await _var(parent, text, rest, ptype, space)
+        await _var(parent, text, rest, ptype, space, meaning_of(space, text))
         return True
     inst = space.instances.get(head)
     if inst is None:
@@ -187,13 +271,18 @@ async def _add(space: Space, text: str, ptype: str, role: str,
         obj = space.steps.get(f"{head}.{step}")
         if obj is None:
             obj = await fold.add_object(nid(f"{head}.{step}"), qname(step))
+            said = meaning_of(space, f"{head}.{step}").description
+            if said:
+                await _describe(obj, said)
             space.steps[f"{head}.{step}"] = obj
+        m = meaning_of(space, text)
+        what = "step active" if leaf == "X" else "time the step has been active, ms"
         await _var(obj, text, leaf, ptype, space,
-                   "step active" if leaf == "X" else "time the step has been active, ms")
+                   Meaning(f"{m.description}: {what}" if m.description else what, m.unit))
         return True
     fname = FOLDERS.get(role, "Memory")
     fold = await _folder(inst, f"{head}/{fname}", fname, space)
-    node = await _var(fold, text, rest, ptype, space)
+    node = await _var(fold, text, rest, ptype, space, meaning_of(space, text))
     if writable(text):
         await node.set_writable(True)
     return True

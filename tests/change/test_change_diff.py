@@ -137,8 +137,8 @@ def test_a_driver_whose_bus_config_changed_is_refused(tmp_path):
 
 def test_bindings_and_new_points(tmp_path):
     base = plant_text()
-    got, refused = plants(tmp_path, base, base.replace("oTest:   mb.Q3", "oTest:   mb.Q4")
-                          .replace("iMarcha:  mb.I1", "iMarcha:  {from: mb.I1, invert: true}"))
+    got, refused = plants(tmp_path, base, base.replace("{from: mb.Q3,", "{from: mb.Q4,")
+                          .replace("{from: mb.I1,", "{from: mb.I1, invert: true,"))
     assert got == ["driver mb: new points Q4 (output)",
                    "tester1: input iMarcha: mb.I1 -> mb.I1 inverted",
                    "tester1: output oTest: mb.Q3 -> mb.Q4"]

@@ -83,9 +83,11 @@ def test_get_values_names_and_errors(rig: Rig) -> None:
     start_t1(rig)
     s = rig.serial()
     assert s.ok("get t1.oAbrir t1.gsAbrir.X t1.SFCPause rio.Q0") == [
-        "t1.oAbrir=1  -> rio.Q0", "t1.gsAbrir.X=1", "t1.SFCPause=0", "rio.Q0=1"]
+        "t1.oAbrir=1  -> rio.Q0", 't1.gsAbrir.X=1  "Opening the drawer"',
+        't1.SFCPause=0  "while true: the chart is paused (no transition fires)"',
+        "rio.Q0=1"]
     (line,) = s.ok("get t1.gsAbrir.T")
-    assert re.fullmatch(r"t1\.gsAbrir\.T=(\d+s)?(\d+ms)?", line), line  # rounded to ms
+    assert re.fullmatch(r't1\.gsAbrir\.T=(\d+s)?(\d+ms)?  "Opening the drawer"', line), line
     # the physical stop button (NC, released = 1) and what the chart sees
     assert s.ok("get rio.I0") == ["rio.I0=1  t1.iParo=0 inverted"]
     inst = s.ok("get t1")
@@ -152,7 +154,8 @@ def test_why_explains_each_transition_with_its_terms(rig: Rig) -> None:
     start_t1(rig)
     s = rig.serial()
     out = s.ok("why t1")
-    assert re.fullmatch(r"gsAbrir active for (\d+s)?(\d+ms)?", out[0]), out[0]
+    assert re.fullmatch(r'gsAbrir active for (\d+s)?(\d+ms)?  "Opening the drawer"',
+                        out[0]), out[0]
     assert "us" not in out[0] and "ns" not in out[0]
     assert out[1:] == ["  [false] gsAbrir -> gsCerrar when iAbierto",
                        "      iAbierto = 0",

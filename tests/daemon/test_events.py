@@ -191,3 +191,15 @@ def test_softplc_run_writes_the_step_lines_to_its_log(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr
     assert re.search(r" INFO runtime\.controller\.events: t: step s1 activated at scan \d+$",
                      proc.stderr, re.M), proc.stderr
+
+
+def test_an_sfc_error_set_by_hand_names_no_step(make_daemon: MakeDaemon,
+                                                caplog: pytest.LogCaptureFixture) -> None:
+    """SFCError written (console ``set``, the chart itself): no step was over its max, and
+    the line says so (it said 'step  active longer than its max ?')."""
+    d, drv = make_daemon()
+    d.call(lambda: d.plant.set("m.SFCError", True))
+    wait_until(lambda: said(caplog, "SFCError"), what="the SFCError line")
+    got = lines(caplog, "SFCError")
+    assert len(got) == 1 and got[0].startswith(
+        "m: SFCError set (no step over its max), at scan "), got

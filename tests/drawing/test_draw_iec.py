@@ -144,3 +144,17 @@ def test_drawer_tester_equations_are_drawn(tmp_path: Path) -> None:
     assert "tParo := iCerrado·(sParo + (sCierres >= 1000))" in eq
     assert "oParado := gsParado.X + sParo·Clock_1Hz + gsAveria.X·Clock_2Hz" in eq
     assert "sParo.Set(1, iParo)" in eq
+
+
+def test_a_plant_instance_is_drawn_with_the_legend_of_its_io(tmp_path: Path) -> None:
+    """Issue 29: the plant's I/O list as a legend (signal, point, NC, meaning); a chart
+    drawn alone has none when its variables carry no description."""
+    root = _draw(ROOT / "configs/drawer_tester/plant_sim.yaml", tmp_path, "python")
+    legend = [" ".join(t.replace("\u00a0", " ").split()) for t in _texts(root, "legend")]
+    assert legend[0] == "iParo <- sim.I0 NC Pulsador de paro SJP (NC)"
+    assert legend[4] == "oAbrir -> sim.Q0 Contactor QAA, abrir el cajón"
+    assert len(legend) == 8
+    assert _texts(root, "legends-title") == [
+        "I/O of tester1 (Banco de ensayo de guías de cajón 1)"]
+    alone = _draw(ROOT / "configs/drawer_tester/drawer_tester.yaml", tmp_path, "python")
+    assert _texts(alone, "legend") == []

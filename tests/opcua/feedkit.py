@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import inspect
 import json
 import socket
 import threading
@@ -10,10 +11,11 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from runtime.controller.daemon import Daemon
-from runtime.controller.feed import FeedServer, FeedState, set_request
+from runtime.controller.feed import FeedServer, FeedState, request_line, set_request
+from runtime.engine.plant import Plant
 from runtime.language.model import PlantDef
 from runtime.language.plantfile import load_plant
 from runtime.opcua.server import PlantServer, serve
@@ -29,25 +31,50 @@ def wait_until(pred: Callable[[], bool], timeout: float = 10.0, what: str = "") 
         time.sleep(0.005)
 
 
+async def until(pred: Callable[[], Any], timeout: float = 15.0, what: str = "") -> None:
+    """In an event loop: poll ``pred`` (a value or an awaitable) until it holds; fail
+    after ``timeout`` s."""
+    end = asyncio.get_running_loop().time() + timeout
+    while True:
+        got = pred()
+        if inspect.isawaitable(got):
+            got = await got
+        if got:
+            return
+        if asyncio.get_running_loop().time() > end:
+            raise AssertionError(f"timed out waiting for {what or pred}")
+        await asyncio.sleep(0.01)
+
+
+@contextmanager
+def serving(pdef: PlantDef, plant: Plant | None = None, trace: IO[str] | None = None
+            ) -> Iterator[tuple[Daemon, FeedServer]]:
+    """A running Daemon of ``pdef`` (on sim I/O, or on ``plant``) with its FeedServer."""
+    feed_def = pdef.feed()
+    assert feed_def is not None
+    d = Daemon(pdef, plant=plant, sim=plant is None, trace=trace, manage_gc=False)
+    d.start()
+    feed = FeedServer(d, feed_def)
+    feed.start()
+    try:
+        yield d, feed
+    finally:
+        feed.stop()
+        d.stop("end of test")
+
+
 @contextmanager
 def controller(tmp: Path, trace: bool = True, port: int = 4840, **plant: Any
                ) -> Iterator[tuple[Daemon, FeedServer, Path]]:
     """A running Daemon on sim I/O with its FeedServer; (daemon, feed, trace path)."""
     path = write_plant(tmp, port=port, **plant)
     pdef = load_plant(str(path))
-    feed_def = pdef.feed()
-    assert feed_def is not None
     trace_path = tmp / "trace.jsonl"
     out = open(trace_path, "w", encoding="utf-8") if trace else None  # noqa: SIM115
-    d = Daemon(pdef, sim=True, trace=out, manage_gc=False)
-    d.start()
-    feed = FeedServer(d, feed_def)
-    feed.start()
     try:
-        yield d, feed, trace_path
+        with serving(pdef, trace=out) as (d, feed):
+            yield d, feed, trace_path
     finally:
-        feed.stop()
-        d.stop()
         if out is not None:
             out.close()
 
@@ -69,6 +96,8 @@ class FeedReader:
         #: how many schemas came (one at the start, one more after each online change)
         self.schemas = 0
         self.replies: dict[int, tuple[bool, str]] = {}
+        #: the OPC UA status name of each reply
+        self.codes: dict[int, str] = {}
         self.closed = threading.Event()
         self._ids = 0
         self._thread: threading.Thread | None = None
@@ -95,8 +124,9 @@ class FeedReader:
                     elif kind == "status":
                         self.statuses.append(dict(self.state.status))
                     elif kind == "reply":
-                        ident, ok, text = json.loads(line)["r"]
+                        ident, ok, text, code = json.loads(line)["r"]
                         self.replies[ident] = (ok, text)
+                        self.codes[ident] = code
         except OSError:
             pass
         finally:
@@ -108,6 +138,14 @@ class FeedReader:
         self.sock.sendall(set_request(ident, name, value))
         wait_until(lambda: ident in self.replies, timeout, f"the answer to set {name}")
         return self.replies[ident]
+
+    def request(self, kind: str, *args: Any, timeout: float = 10.0) -> tuple[bool, str, str]:
+        """A ``call`` or ``alarm`` request: (ok, text, code)."""
+        self._ids += 1
+        ident = self._ids
+        self.sock.sendall(request_line(kind, ident, *args))
+        wait_until(lambda: ident in self.replies, timeout, f"the answer to {kind}")
+        return (*self.replies[ident], self.codes[ident])
 
     def close(self) -> None:
         self.sock.close()

@@ -11,6 +11,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -219,3 +220,40 @@ def test_a_reload_that_removes_the_opcua_section_ends_the_writes(tmp_path: Path)
         n = len(r.frames)
         wait_until(lambda: len(r.frames) >= n + 2, what="frames after the reload")
         r.close()
+
+
+@pytest.mark.slow
+def test_a_client_pipelining_writes_never_stalls_the_frames_of_another(
+        tmp_path: Path) -> None:
+    """Issue 31: one client pipelining 10000 writes stalled the frames of every other
+    client up to 742 ms (each write waited for the scan thread in the feed thread). The
+    work per client per turn is bounded: the other client's frames keep coming every
+    ``sample`` (no snapshot skipped beyond two), and every write is answered."""
+    writes = 10000
+    with controller(tmp_path, trace=False, cycle="10ms", sample="50ms") as (d, feed, _):
+        watcher = FeedReader(feed.path)
+        wait_until(lambda: len(watcher.frames) >= 3, what="frames")
+        flood = FeedReader(feed.path)
+        wait_until(lambda: len(flood.frames) >= 1, what="the flooder's first frame")
+        first = len(watcher.frames)
+        t0 = time.monotonic()
+        lines = b"".join(feedmod.set_request(k, "t1.sRate", float(k % 7))
+                         for k in range(1, writes + 1))
+        sender = threading.Thread(target=flood.sock.sendall, args=(lines,), daemon=True)
+        sender.start()
+        wait_until(lambda: len(flood.replies) == writes or time.monotonic() - t0 > 60,
+                   90.0, "the flood answered")
+        answered_s = time.monotonic() - t0
+        during = watcher.frames[first - 1:]
+        answered = len(flood.replies)
+        refused = [r for r in flood.replies.values() if not r[0]]
+        sender.join(10.0)
+        watcher.close()
+        flood.close()
+    gaps = [b[0] - a[0] for a, b in zip(during, during[1:], strict=False)]
+    walls = [(b[1] - a[1]) * 1000 for a, b in zip(during, during[1:], strict=False)]
+    sys.stderr.write(f"{answered} writes answered in {answered_s:.1f} s; the other client's "
+                     f"frames: {len(during)}, largest gap {max(gaps)} scans, "
+                     f"{max(walls):.0f} ms\n")
+    assert answered == writes and not refused, refused[:3]
+    assert max(gaps) <= 3 * feed.every, gaps

@@ -10,7 +10,6 @@ import asyncio
 import json
 import os
 import re
-import shutil
 import signal
 import subprocess
 import sys
@@ -22,15 +21,14 @@ from typing import Any
 
 import pytest
 import yaml
-from asyncua import Client
 
 from runtime.controller.pin import hash_pin
 from runtime.opcua import security
-from tests.opcua.kit import CHART, free_port, write_plant
+from tests.opcua.kit import CHART, free_port, wait_serving, write_plant
+from tests.opcua.nodekit import NEEDS_NODE, NODE_DIR
 from tests.opcua.seckit import Certs, make_certs
 
 ROOT = Path(__file__).resolve().parents[2]
-NODE_DIR = Path(__file__).resolve().parent / "node"
 #: how long a start or a client run may take on a loaded machine, s
 DEADLINE_S = 90.0
 #: how long the foreign client stays subscribed, s
@@ -39,10 +37,7 @@ SUBSCRIBED_S = 3.0
 WATCHED = ["controller.scan", "t1.sN", "t1.gsB.X", "t1.oLamp", "t1.sStop", "t2.sN",
            "t2.gsA.X"]
 
-pytestmark = pytest.mark.skipif(
-    shutil.which("node") is None or not (NODE_DIR / "node_modules" / "node-opcua-client").is_dir(),
-    reason="node-opcua is not installed: cd tests/opcua/node && npm ci (scripts/test.sh "
-           "does it)")
+pytestmark = NEEDS_NODE
 
 
 @dataclass
@@ -72,22 +67,6 @@ def softplc(*args: str, log: Path) -> subprocess.Popen[bytes]:
     with open(log, "wb") as f:
         return subprocess.Popen([sys.executable, "-m", "runtime.cli", *args], cwd=ROOT,
                                 stdout=f, stderr=subprocess.STDOUT)
-
-
-async def wait_serving(url: str, deadline: float) -> None:
-    """Until the server answers with a good controller.scan (the first frame arrived)."""
-    while True:
-        try:
-            async with Client(url, timeout=5) as c:
-                dv = await c.get_node("ns=2;s=controller.scan").read_data_value(
-                    raise_on_bad_status=False)
-                if dv.StatusCode.is_good():
-                    return
-        except (OSError, TimeoutError):
-            pass
-        if time.monotonic() > deadline:
-            raise TimeoutError(f"{url}: no good value before the deadline")
-        await asyncio.sleep(0.2)
 
 
 def start(tmp: Path, security_yaml: str) -> Running:
@@ -203,7 +182,8 @@ def test_node_opcua_browses_reads_and_sees_the_trace(open_plant: Running,
     assert {k: objects[k] for k in ("t1", "t2", "io", "Controller")} == {
         "t1": nid("t1"), "t2": nid("t2"), "io": nid("driver.io"),
         "Controller": nid("controller")}
-    assert set(browse[nid("t1")]) == {"Inputs", "Outputs", "Memory", "Steps", "Flags"}
+    assert set(browse[nid("t1")]) == {"Inputs", "Outputs", "Memory", "Steps", "Flags", "Alarms",
+                                      "Acknowledge", "Reset", "Pause", "Resume"}
     chart = yaml.safe_load(CHART)
     assert browse[nid("t1/Memory")] == {n: nid(f"t1.{n}") for n in chart["memory"]}
     assert set(browse[nid("t1/Steps")]) == set(chart["steps"])

@@ -77,6 +77,20 @@ def test_the_full_section(tmp_path: Path) -> None:
     assert (s.certificate, s.private_key, s.trusted_clients, s.trusted_readers,
             s.anonymous) == ("/etc/c.der", "/etc/k.pem", "/etc/t", "/etc/r", "none")
     assert list(s.users) == ["operator"]
+    assert o.limits.sessions == 10  # the defaults
+
+
+def test_the_limits(tmp_path: Path) -> None:
+    pdef = load_plant(str(plant_with(tmp_path, (
+        "opcua:\n  limits: {sessions: 3, subscriptions: 2, items: 100, items_total: 250,\n"
+        "           session_timeout: 30s, abandoned: 5s, publish_rate: 10,\n"
+        "           publish_rate_total: 25.5}\n"))))
+    assert pdef.opcua is not None
+    lim = pdef.opcua.limits
+    assert (lim.sessions, lim.subscriptions, lim.items, lim.items_total,
+            lim.session_timeout_ns, lim.abandoned_ns) == (3, 2, 100, 250, 30 * 10**9,
+                                                          5 * 10**9)
+    assert (lim.publish_rate, lim.publish_rate_total) == (10.0, 25.5)
 
 
 @pytest.mark.parametrize(("writable", "col", "words"), [
@@ -113,6 +127,18 @@ def test_a_chart_flag_bound_to_a_point_is_not_writable(tmp_path: Path) -> None:
     ("opcua:\n  security: {anonymous: write}\n", 14, 25, "expected read or none"),
     ("opcua:\n  security: {users: {op: secret}}\n", 14, 26, "made by 'softplc hash-pin'"),
     ("opcua:\n  security: {pin: 1}\n", 14, 14, "unknown key 'pin' in opcua security"),
+    ("opcua:\n  limits: {sessions: 0}\n", 14, 22, "sessions: expected 1 to 1000, found 0"),
+    ("opcua:\n  limits: {items: 50, items_total: 20}\n", 14, 19,
+     "items (50) per session is more than items_total (20)"),
+    ("opcua:\n  limits: {session_timeout: 2h}\n", 14, 29,
+     "session_timeout: expected 10 s to 3600 s, found 7200 s"),
+    ("opcua:\n  limits: {abandoned: 2m, session_timeout: 1m}\n", 14, 23,
+     "abandoned (120 s) is longer than session_timeout (60 s)"),
+    ("opcua:\n  limits: {clients: 3}\n", 14, 12, "unknown key 'clients' in opcua limits"),
+    ("opcua:\n  limits: {publish_rate: 0}\n", 14, 26,
+     "publish_rate: expected 0.1 to 10000 publishes a second, found 0"),
+    ("opcua:\n  limits: {publish_rate: 300}\n", 14, 26,
+     "publish_rate (300) per session is more than publish_rate_total (200)"),
 ])
 def test_bad_values_are_placed(tmp_path: Path, opcua: str, line: int, col: int,
                                words: str) -> None:

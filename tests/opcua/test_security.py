@@ -4,6 +4,7 @@ endpoints are offered, which client certificates are let in, who may write."""
 from __future__ import annotations
 
 import asyncio
+import logging
 import os
 import stat
 from collections.abc import Iterator
@@ -135,6 +136,33 @@ def test_untrusted_certificate_is_refused(secure_only: ServerThread, certs: Cert
             await read(c, "tester1.iMarcha")
     with pytest.raises(uaerrors.BadCertificateUntrusted):
         run(go())
+
+
+def test_a_refused_client_is_named_in_the_log(secure_only: ServerThread, certs: Certs,
+                                               with_none: ServerThread,
+                                               caplog: pytest.LogCaptureFixture) -> None:
+    """Issue 29: the log names a refused client: its address, its certificate's subject,
+    why and the status (before, the untrusted certificate's line had no address, the
+    validator's refusal no line at all)."""
+    caplog.set_level(logging.WARNING, "runtime.opcua.security")
+    subject = x509.load_der_x509_certificate(
+        Path(certs.stranger_cert).read_bytes()).subject.rfc4514_string()
+
+    async def go(url: str, **kw: object) -> None:
+        async with session(url, certs, **kw) as c:  # type: ignore[arg-type]
+            await read(c, "tester1.iMarcha")
+    with pytest.raises(uaerrors.BadCertificateUntrusted):
+        run(go(secure_only.url, cert=certs.stranger_cert, key=certs.stranger_key))
+    with pytest.raises(REFUSED):
+        run(go(with_none.url, user="intruder", password="wrong"))  # no hold on a user
+    said = [r.getMessage() for r in caplog.records if "refused the client" in r.getMessage()]
+    assert len(said) == 2, said
+    assert said[0].startswith("opcua: refused the client at 127.0.0.1:")
+    assert said[0].endswith(f"(certificate {subject}): a client certificate in neither "
+                            "trusted_clients nor trusted_readers (or out of its dates) "
+                            "(BadCertificateUntrusted)")
+    assert said[1].endswith("(certificate none): user 'intruder': wrong password or "
+                            "unknown user (BadUserAccessDenied)")
 
 
 def test_trusting_a_client_needs_no_restart(secure_only: ServerThread, certs: Certs) -> None:

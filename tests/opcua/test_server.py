@@ -6,7 +6,6 @@ stopped and started again, events."""
 from __future__ import annotations
 
 import asyncio
-import inspect
 from pathlib import Path
 from typing import Any
 
@@ -14,26 +13,12 @@ from asyncua import Client, ua
 from asyncua.common.subscription import Subscription
 
 from drivers.base import DriverError
-from runtime.controller.daemon import Daemon
-from runtime.controller.feed import FeedServer
 from runtime.engine.plant import Plant
 from runtime.language.plantfile import load_plant
 from tests.daemon.daemonkit import RecordingDriver
-from tests.opcua.feedkit import ServerThread, controller, read_trace, wait_until
+from tests.opcua.feedkit import ServerThread, controller, read_trace, serving, wait_until
+from tests.opcua.feedkit import until as _until
 from tests.opcua.kit import free_port, write_plant, writer
-
-
-async def _until(pred: Any, timeout: float = 15.0, what: str = "") -> None:
-    end = asyncio.get_running_loop().time() + timeout
-    while True:
-        got = pred()
-        if inspect.isawaitable(got):
-            got = await got
-        if got:
-            return
-        if asyncio.get_running_loop().time() > end:
-            raise AssertionError(f"timed out waiting for {what or pred}")
-        await asyncio.sleep(0.01)
 
 
 def started(tmp: Path, **kw: Any) -> tuple[Any, int]:
@@ -64,7 +49,10 @@ def test_browse_the_tree_names_types_and_node_ids(tmp_path: Path) -> None:
                     "Flags": ["SFCInit", "SFCReset", "SFCPause", "SFCError", "SFCEnableLimit",
                               "SFCQuitError", "SFCTipMode", "SFCTip", "SFCErrorStep",
                               "SFCCurrentStep"],
-                    "Steps": ["gsA", "gsB", "gsJam"]}
+                    "Steps": ["gsA", "gsB", "gsJam"],
+                    # its methods and its alarms (tests/opcua/test_alarms.py)
+                    "Acknowledge": [], "Reset": [], "Pause": [], "Resume": [],
+                    "Alarms": ["SFCError", "gsJam.maxtime"]}
                 step = [x.nodeid.to_string() for x in
                         await c.get_node("ns=2;s=t1.gsB").get_children()]
                 assert step == ["ns=2;s=t1.gsB.X", "ns=2;s=t1.gsB.T"]
@@ -378,16 +366,9 @@ def test_a_driver_fault_and_its_recovery_are_events_of_the_driver(tmp_path: Path
     """A real driver object that fails and comes back (the recording driver of the daemon
     tests, on_fault: hold so the controller runs on): the driver object's events."""
     pdef = load_plant(str(write_plant(tmp_path, port=free_port())))
-    assert pdef.opcua is not None
     drv = RecordingDriver("io", {"on_fault": "hold"})
-    d = Daemon(pdef, plant=Plant(pdef, drivers={"io": drv}), manage_gc=False)
-    d.start()
-    feed_def = pdef.feed()
-    assert feed_def is not None
-    feed = FeedServer(d, feed_def)
-    feed.start()
     handler = Collect()
-    try:
+    with serving(pdef, Plant(pdef, drivers={"io": drv})) as (d, feed):
         with ServerThread(d.pdef) as srv:
             wait_until(lambda: srv.ps is not None and srv.ps.frames > 0,
                        what="a first frame")
@@ -402,9 +383,6 @@ def test_a_driver_fault_and_its_recovery_are_events_of_the_driver(tmp_path: Path
                     await _until(lambda: len(handler.events) >= 2, what="the recovery")
                     await sub.delete()
             asyncio.run(main())
-    finally:
-        feed.stop()
-        d.stop("end of test")
     texts = [(e.Message.Text, e.Severity, e.SourceName) for e in handler.events]
     assert texts[0][1:] == (800, "io") and texts[0][0].startswith("driver io: fault: ")
     assert "bus gone" in texts[0][0]

@@ -1,0 +1,96 @@
+"""Units of measure of the I/O list (``unit:`` of a binding): UN/CEFACT Recommendation 20
+codes, as OPC UA's EngineeringUnits carries them (Part 8, 5.6.3).
+
+A unit is written as its code (``CEL``), its symbol (``°C``) or one of a few ASCII
+spellings (``degC``); :data:`UNITS` is the table known here, the units of automation
+(temperatures, pressures, lengths, flows, masses, forces, power and energy, electrical
+quantities, speeds, times, ratios). Codes, symbols and names as the OPC Foundation's
+UNECE-to-OPC UA table gives them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+#: EngineeringUnits' namespace for UN/CEFACT codes (OPC UA Part 8, 5.6.3)
+CEFACT_URI = "http://www.opcfoundation.org/UA/units/un/cefact"
+
+
+@dataclass(frozen=True, slots=True)
+class Unit:
+    """A unit of measure: its UN/CEFACT code, symbol and English name."""
+
+    code: str
+    symbol: str
+    name: str
+
+    @property
+    def unit_id(self) -> int:
+        """OPC UA's UnitId of the code: its characters as bytes of one integer."""
+        n = 0
+        for ch in self.code:
+            n = (n << 8) | ord(ch)
+        return n
+
+
+_TABLE = (
+    # temperature
+    ("CEL", "°C", "degree Celsius"), ("FAH", "°F", "degree Fahrenheit"),
+    ("KEL", "K", "kelvin"),
+    # pressure
+    ("BAR", "bar", "bar"), ("MBR", "mbar", "millibar"), ("PAL", "Pa", "pascal"),
+    ("A97", "hPa", "hectopascal"), ("KPA", "kPa", "kilopascal"),
+    ("MPA", "MPa", "megapascal"), ("PS", "lbf/in²", "pound-force per square inch"),
+    # length, area, volume
+    ("4H", "µm", "micrometre"), ("MMT", "mm", "millimetre"), ("CMT", "cm", "centimetre"),
+    ("MTR", "m", "metre"), ("KMT", "km", "kilometre"), ("MTK", "m²", "square metre"),
+    ("MLT", "ml", "millilitre"), ("LTR", "l", "litre"), ("MTQ", "m³", "cubic metre"),
+    # speed, acceleration, rotation, angle
+    ("C16", "mm/s", "millimetre per second"), ("MTS", "m/s", "metre per second"),
+    ("KMH", "km/h", "kilometre per hour"), ("MSK", "m/s²", "metre per second squared"),
+    ("RPM", "r/min", "revolutions per minute"), ("2A", "rad/s", "radian per second"),
+    ("DD", "°", "degree (angle)"), ("C81", "rad", "radian"),
+    # flow
+    ("L2", "l/min", "litre per minute"), ("MQH", "m³/h", "cubic metre per hour"),
+    ("MQS", "m³/s", "cubic metre per second"), ("E93", "kg/h", "kilogram per hour"),
+    # mass, force, torque
+    ("GRM", "g", "gram"), ("KGM", "kg", "kilogram"), ("TNE", "t", "tonne"),
+    ("NEW", "N", "newton"), ("B47", "kN", "kilonewton"), ("NU", "N·m", "newton metre"),
+    # power, energy
+    ("WTT", "W", "watt"), ("KWT", "kW", "kilowatt"), ("MAW", "MW", "megawatt"),
+    ("WHR", "W·h", "watt hour"), ("KWH", "kW·h", "kilowatt hour"),
+    ("MWH", "MW·h", "megawatt hour"), ("JOU", "J", "joule"), ("KJO", "kJ", "kilojoule"),
+    ("D46", "V·A", "volt-ampere"), ("KVA", "kV·A", "kilovolt-ampere"),
+    ("KVR", "kvar", "kilovar"),
+    # electrical
+    ("2Z", "mV", "millivolt"), ("VLT", "V", "volt"), ("KVT", "kV", "kilovolt"),
+    ("4K", "mA", "milliampere"), ("AMP", "A", "ampere"), ("B22", "kA", "kiloampere"),
+    ("OHM", "Ω", "ohm"), ("HTZ", "Hz", "hertz"), ("KHZ", "kHz", "kilohertz"),
+    # time
+    ("C26", "ms", "millisecond"), ("SEC", "s", "second"), ("MIN", "min", "minute"),
+    ("HUR", "h", "hour"), ("DAY", "d", "day"),
+    # ratios, counts, light, sound
+    ("P1", "%", "percent"), ("59", "ppm", "part per million"), ("C62", "1", "one"),
+    ("LUX", "lx", "lux"), ("2N", "dB", "decibel"),
+)
+#: every unit known here, by code
+UNITS: dict[str, Unit] = {code: Unit(code, sym, name) for code, sym, name in _TABLE}
+#: symbols and ASCII spellings -> code
+_SPELLINGS: dict[str, str] = {u.symbol: u.code for u in UNITS.values()}
+_SPELLINGS.update({"L": "LTR", "degC": "CEL", "degF": "FAH", "deg": "DD", "um": "4H",
+                   "m2": "MTK", "m3": "MTQ", "m3/h": "MQH", "m3/s": "MQS", "m/s2": "MSK",
+                   "rpm": "RPM", "Nm": "NU", "Wh": "WHR", "kWh": "KWH", "MWh": "MWH",
+                   "VA": "D46", "kVA": "KVA", "ohm": "OHM", "psi": "PS", "pct": "P1"})
+#: the unit of every TIME value shown in a number (OPC UA's Duration, the console's ms)
+MILLISECOND = UNITS["C26"]
+
+
+def find_unit(text: str) -> Unit | None:
+    """The unit written ``text`` (a code, a symbol or an ASCII spelling), or None."""
+    code = text if text in UNITS else _SPELLINGS.get(text)
+    return UNITS[code] if code is not None else None
+
+
+def spellings() -> list[str]:
+    """Every way a unit may be written (for suggestions)."""
+    return [*UNITS, *_SPELLINGS]

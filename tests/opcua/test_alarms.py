@@ -1,0 +1,157 @@
+"""Alarms and Conditions and the plant's methods (issue 29), with a client not built on
+asyncua: node-opcua (tests/opcua/node/alarms.js) subscribed to the Server object's
+events, against the server fed by a running controller. A step over its max time raises
+an AlarmConditionType condition (ConditionRefresh shows it), a writer acknowledges it (it
+stays active until its cause clears), the instance's Acknowledge method clears the cause,
+Confirm ends it; readers are refused the changing methods; each call is logged with the
+caller's identity, and the console's status says the same states."""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from runtime.controller.alarms import alarm_lines
+from runtime.language.plantfile import load_plant
+from tests.opcua.feedkit import ServerThread, serving, wait_until
+from tests.opcua.kit import WRITER, WRITER_PASSWORD, free_port, write_plant
+from tests.opcua.nodekit import NEEDS_NODE, AlarmClient
+
+KEY = "t1.gsJam.maxtime"
+CONDITION = f"ns=2;s=alarm.{KEY}"
+
+pytestmark = NEEDS_NODE
+
+
+@contextmanager
+def running(tmp: Path) -> Iterator[tuple[Any, ServerThread]]:
+    path = write_plant(tmp, port=free_port(), extra="")
+    text = path.read_text(encoding="utf-8").replace("  t1:\n", "  t1:\n    description: Banco 1\n")
+    # a loaded test machine overruns now and then: that alarm kept quiet here
+    path.write_text(text + "alarms:\n  overruns: {count: 1000000}\n", encoding="utf-8")
+    pdef = load_plant(str(path))
+    with serving(pdef) as (d, feed), ServerThread(pdef) as srv:
+        wait_until(lambda: srv.ps is not None and srv.ps.frames > 0, what="a first frame")
+        yield d, srv
+
+
+def test_a_max_time_alarm_refreshed_acknowledged_and_confirmed(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.INFO)
+    with running(tmp_path) as (d, srv):
+        writer = AlarmClient(srv.url, WRITER, WRITER_PASSWORD)
+        reader = AlarmClient(srv.url)
+        try:
+            assert writer.refresh() == []  # nothing to show
+            d.call(lambda: d.plant.set("t1.sJam", True))
+            raised = writer.wait_event(lambda e: e["ConditionName"] == KEY and e["Active"],
+                                       "the alarm raised")
+            assert {k: raised[k] for k in ("ConditionId", "SourceName", "Severity", "Retain",
+                                           "Acked", "Confirmed", "Message")} == {
+                "ConditionId": CONDITION, "SourceName": "t1", "Severity": 700,
+                "Retain": True, "Acked": False, "Confirmed": False,
+                "Message": "t1 (Banco 1): step gsJam over its max time 50ms"}
+            assert raised["EventType"] == "ns=0;i=2915"  # AlarmConditionType
+            shown = reader.refresh()  # a panel starting now sees it too
+            assert [(e["ConditionId"], e["Active"], e["Acked"]) for e in shown] == [
+                (CONDITION, True, False)]
+            # a reader may not acknowledge
+            assert reader.ask(ack=CONDITION, eventId=raised["EventId"],
+                              comment="no") == {"ack": "BadUserAccessDenied"}
+            # an EventId that is not the condition's last
+            assert writer.ask(ack=CONDITION, eventId="00", comment="x") == {
+                "ack": "BadEventIdUnknown"}
+            assert writer.ask(ack=CONDITION, eventId=raised["EventId"],
+                              comment="visto") == {"ack": "Good"}
+            acked = writer.wait_event(lambda e: e["ConditionName"] == KEY and e["Acked"],
+                                      "the acknowledged state")
+            assert (acked["Active"], acked["Confirmed"], acked["Retain"],
+                    acked["Comment"]) == (True, False, True, "visto")
+            assert acked["ClientUserId"].startswith(f"{WRITER} (127.0.0.1:")
+            assert writer.ask(ack=CONDITION, eventId=acked["EventId"], comment="") == {
+                "ack": "BadConditionBranchAlreadyAcked"}
+            time.sleep(0.3)
+            assert [a.active for a in d.alarms.alarms() if a.key == KEY] == [True]
+            assert alarm_lines(d.status()["alarms"]) == [
+                f"alarm {KEY} (700) active, acknowledged, unconfirmed: t1 (Banco 1): step "
+                "gsJam over its max time 50ms"]
+            # the cause cleared: the jam released and the chart's SFCError acknowledged
+            # by the instance's method
+            d.call(lambda: d.plant.set("t1.sJam", False))
+            assert reader.ask(call="ns=2;s=t1", method="ns=2;s=t1.Acknowledge") == {
+                "call": "BadUserAccessDenied"}
+            assert writer.ask(call="ns=2;s=t1", method="ns=2;s=t1.Acknowledge") == {
+                "call": "Good"}
+            cleared = writer.wait_event(lambda e: e["ConditionName"] == KEY and
+                                        not e["Active"], "the alarm inactive")
+            assert (cleared["Acked"], cleared["Confirmed"], cleared["Retain"]) == (
+                True, False, True)
+            assert writer.ask(confirm=CONDITION, eventId=cleared["EventId"],
+                              comment="cajón liberado") == {"confirm": "Good"}
+            done = writer.wait_event(lambda e: e["ConditionName"] == KEY and e["Confirmed"],
+                                     "the confirmed state")
+            assert done["Retain"] is False
+            assert writer.refresh() == []  # nothing left to show
+        finally:
+            writer.close()
+            reader.close()
+    said = [r.getMessage() for r in caplog.records]
+    assert any(m.startswith(f"alarm {KEY} acknowledged by {WRITER} (127.0.0.1:")
+               and m.endswith(": visto (active, acknowledged, unconfirmed)") for m in said)
+    assert any(m.startswith(f"opcua: {WRITER} (127.0.0.1:") and
+               m.endswith("called t1.Acknowledge: t1: SFCError (gsJam) acknowledged")
+               for m in said), said
+    assert any(m.startswith("opcua: t1.Acknowledge refused to anonymous (127.0.0.1:")
+               for m in said)
+
+
+def test_methods_are_for_writers_and_applied_between_two_scans(tmp_path: Path) -> None:
+    with running(tmp_path) as (d, srv):
+        writer = AlarmClient(srv.url, WRITER, WRITER_PASSWORD)
+        reader = AlarmClient(srv.url)
+        t1 = d.plant.instances["t1"]
+        try:
+            for who, expected in ((writer, True), (reader, False)):
+                for node in ("ns=2;s=t1.Pause", "ns=2;s=controller.Ack"):
+                    assert who.ask(executable=node) == {"executable": expected,
+                                                        "status": "Good"}
+            assert reader.ask(call="ns=2;s=t1", method="ns=2;s=t1.Pause") == {
+                "call": "BadUserAccessDenied"}
+            assert d.call(lambda: t1.get("SFCPause")) is False
+            assert writer.ask(call="ns=2;s=t1", method="ns=2;s=t1.Pause") == {
+                "call": "Good"}
+            assert d.call(lambda: t1.get("SFCPause")) is True
+            assert writer.ask(call="ns=2;s=t1", method="ns=2;s=t1.Resume") == {
+                "call": "Good"}
+            assert d.call(lambda: t1.get("SFCPause")) is False
+            # Reset: the chart back to its initial situation; held in gsA (sStop), gsA is
+            # entered again and its time restarts
+            d.call(lambda: d.plant.set("t1.sStop", True))
+            wait_until(lambda: d.call(lambda: t1.get("gsA.T")) > 300_000_000,
+                       what="t1 held in gsA")
+            assert writer.ask(call="ns=2;s=t1", method="ns=2;s=t1.Reset") == {
+                "call": "Good"}
+            assert d.call(lambda: t1.get("gsA.X")) is True
+            assert d.call(lambda: t1.get("gsA.T")) < 300_000_000
+            d.call(lambda: d.plant.set("t1.sStop", False))
+            # nothing to acknowledge: the controller refuses
+            assert writer.ask(call="ns=2;s=t1", method="ns=2;s=t1.Acknowledge") == {
+                "call": "BadInvalidState"}
+            assert writer.ask(call="ns=2;s=controller",
+                              method="ns=2;s=controller.Ack") == {"call": "BadInvalidState"}
+            # a fault, acknowledged by the controller's Ack
+            d.call(lambda: d.plant.set("t1.sDiv", 0))
+            wait_until(lambda: d.fault is not None, what="the fault")
+            d.call(lambda: d.plant.set("t1.sDiv", 1))
+            assert writer.ask(call="ns=2;s=controller",
+                              method="ns=2;s=controller.Ack") == {"call": "Good"}
+            assert d.fault is None
+        finally:
+            writer.close()
+            reader.close()

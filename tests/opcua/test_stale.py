@@ -1,0 +1,127 @@
+"""Stale values turn bad (issue 31): a controller frozen by SIGSTOP, or stuck in one scan
+while its watchdog has switched the outputs off, sends no frame; the server's values must
+not stay Good with a frozen SourceTimestamp. Within the documented bound (docs/opcua.md,
+"Stale values": no frame for max(4 x sample, 1 s), checked every sample) every variable
+reads BadOutOfService (without a value: a Bad value carries none, Part 4 7.7.1), with
+the last frame's SourceTimestamp; Good again with the next frame."""
+
+from __future__ import annotations
+
+import asyncio
+import datetime
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from asyncua import Client, ua
+
+from runtime.engine.plant import Plant
+from runtime.language.plantfile import load_plant
+from tests.daemon.daemonkit import RecordingDriver
+from tests.opcua.feedkit import ServerThread, serving, until, wait_until
+from tests.opcua.kit import end, free_port, softplc, write_plant
+
+#: the documented bound at the plants' sample (50 ms): max(4 x 50 ms, 1 s), plus one check
+#: period (the sample)
+BOUND_S = 1.0 + 0.05
+#: what a loaded test machine may add to it (the server's event loop, a publish), s
+SLACK_S = 1.0
+WATCHED = ("t1.sN", "t1.oLamp", "controller.state", "controller.scans", "io.Q0")
+
+
+class Changes:
+    """Every data change received: (name, DataValue, the time it was received)."""
+
+    def __init__(self) -> None:
+        self.items: list[tuple[str, ua.DataValue, float]] = []
+
+    def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+        self.items.append((node.nodeid.Identifier, data.monitored_item.Value, time.time()))
+
+    def last(self, name: str) -> ua.DataValue | None:
+        for n, dv, _ in reversed(self.items):
+            if n == name:
+                return dv
+        return None
+
+    def all_are(self, status: str) -> bool:
+        last = [self.last(n) for n in WATCHED]
+        return all(dv is not None and dv.StatusCode.name == status for dv in last)
+
+
+def _ts(dt: datetime.datetime | None) -> float:
+    assert dt is not None
+    return dt.replace(tzinfo=datetime.UTC).timestamp() if dt.tzinfo is None else dt.timestamp()
+
+
+async def _watch_a_stall(url: str, stall: Any, resume: Any) -> tuple[float, dict[str, Any]]:
+    """Subscribe to WATCHED, call ``stall()`` once every value is good, wait for every
+    value to turn BadOutOfService, ``resume()``, wait for Good again; (how long after the
+    last good frame the values turned bad by the server's clock, the bad DataValues)."""
+    changes = Changes()
+    async with Client(url, timeout=30) as c:
+        sub = await c.create_subscription(100, changes)
+        await sub.subscribe_data_change([c.get_node(f"ns=2;s={n}") for n in WATCHED],
+                                        queuesize=100)
+        await until(lambda: changes.all_are("Good"), 20, "good values")
+        stall()
+        await until(lambda: changes.all_are("BadOutOfService"), 30,
+                     "every value BadOutOfService")
+        bad = {n: changes.last(n) for n in WATCHED}
+        resume()
+        await until(lambda: changes.all_are("Good"), 30, "good values again")
+        await sub.delete()
+    scans = bad["controller.scans"]
+    assert scans is not None
+    # the stale value has the last frame's SourceTimestamp and no value; its
+    # ServerTimestamp is when the server decided it was stale
+    good = [dv for n, dv, _ in changes.items
+            if n == "controller.scans" and dv.StatusCode.is_good()
+            and _ts(dv.ServerTimestamp) < _ts(scans.ServerTimestamp)]
+    assert good[-1].SourceTimestamp == scans.SourceTimestamp
+    assert all(dv is not None and dv.Value.Value is None for dv in bad.values())
+    delay = _ts(scans.ServerTimestamp) - _ts(scans.SourceTimestamp)
+    return delay, bad
+
+
+def test_a_controller_stopped_by_sigstop_turns_every_value_bad(tmp_path: Path) -> None:
+    port = free_port()
+    plant = write_plant(tmp_path, port=port, cycle="10ms", sample="50ms")
+    ctl = softplc("run", "--sim", str(plant), cwd=tmp_path, log=tmp_path / "run.log")
+    try:
+        wait_until(lambda: os.path.exists(tmp_path / "feed.sock") or ctl.poll() is not None,
+                   30.0, "the feed socket")
+        assert ctl.poll() is None, (tmp_path / "run.log").read_text()
+        with ServerThread(load_plant(str(plant))) as srv:
+            delay, bad = asyncio.run(_watch_a_stall(
+                srv.url, lambda: ctl.send_signal(signal.SIGSTOP),
+                lambda: ctl.send_signal(signal.SIGCONT)))
+    finally:
+        end(ctl)
+    assert delay <= BOUND_S + SLACK_S, delay
+    sys.stderr.write(f"SIGSTOP: values BadOutOfService {delay * 1000:.0f} ms after the last "
+                     "frame\n")
+
+
+def test_a_scan_stuck_with_its_outputs_off_turns_every_value_bad(tmp_path: Path) -> None:
+    """A scan stuck in a driver call (a hung bus): the watchdog thread switches the
+    outputs off at once, the scan ends only 4 s later (then a fault)."""
+    pdef = load_plant(str(write_plant(tmp_path, port=free_port(), watchdog="200ms")))
+    drv = RecordingDriver("io", {"on_fault": "stop"})
+    with serving(pdef, Plant(pdef, drivers={"io": drv})):
+        with ServerThread(pdef) as srv:
+            def stall() -> None:
+                drv.block_s = 4.0
+            delay, bad = asyncio.run(_watch_a_stall(srv.url, stall, lambda: None))
+
+            async def state() -> str:
+                async with Client(srv.url) as c:
+                    return str(await c.get_node("ns=2;s=controller.state").read_value())
+            assert asyncio.run(state()) == "fault"
+    assert drv.wrote_safe.is_set()  # the watchdog switched the outputs off meanwhile
+    assert delay <= BOUND_S + SLACK_S, delay
+    sys.stderr.write(f"stuck scan: values BadOutOfService {delay * 1000:.0f} ms after the last "
+                     "frame\n")
