@@ -142,9 +142,12 @@ def diff_plants(old: PlantDef, new: PlantDef) -> ChangeSet:
                                        "of the controller", False))
     _sides(cs)
     # what the new plant brings with it (the retain interval is read at each save; the
-    # console's PIN, limits and forces policy are applied at the swap, console/service.py)
+    # console's PIN, limits and forces policy are applied at the swap, console/service.py;
+    # the alarms' severities and overrun threshold when the alarm board takes the new
+    # plant, controller/alarms.py)
     brought: tuple[tuple[str, object, object], ...] = (
         ("retain interval", old.retain_interval_ns, new.retain_interval_ns),
+        ("alarms", replace(old.alarms, loc=None), replace(new.alarms, loc=None)),
         ("console PIN", old.pin_hash, new.pin_hash),
         ("release_forces_on_disconnect", old.release_forces_on_disconnect,
          new.release_forces_on_disconnect),

@@ -158,13 +158,17 @@ class AlarmBoard:
 
     # -- conditions ----------------------------------------------------------------------
     def _build(self, plant: Plant) -> None:
-        """The conditions of ``plant`` (those of the same key keep their state)."""
+        """The conditions of ``plant`` (those of the same key keep their state; the
+        plant file's ``alarms:`` settings, severities included, are the new plant's)."""
+        self.config = plant.pdef.alarms
         sev = self.config.severity
         iolist = IOList(plant.pdef)
         fresh: dict[str, Alarm] = {}
 
         def add(key: str, kind: Kind, source: str) -> None:
             old = self._alarms.get(key)
+            if old is not None:
+                old.severity = sev[kind.value]
             fresh[key] = old if old is not None else Alarm(key, kind, source, sev[kind.value])
         add("controller.fault", Kind.FAULT, "controller")
         add("controller.overruns", Kind.OVERRUNS, "controller")

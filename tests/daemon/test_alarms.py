@@ -147,3 +147,22 @@ def test_the_fault_alarm_names_the_fault_the_scan_saw(tmp_path: Path) -> None:
             (True, "controller fault: frozen for 158 ms")]
     finally:
         d.stop("end of test")
+
+
+def test_an_online_change_of_the_alarms_section_is_said_and_applied(tmp_path: Path) -> None:
+    """Merge of issue 29 with issue 25's diff: ``alarms:`` is a setting of the plant, so a
+    reload that changes it says so and the board takes the new severities at the swap (the
+    board kept the start's settings, and the diff did not name the section)."""
+    d = daemon(tmp_path, RecordingDriver("io", {"on_fault": "hold"}),
+               "alarms:\n  severity: {driver: 650}\n")
+    try:
+        path = Path(d.pdef.path)
+        text = path.read_text(encoding="utf-8")
+        path.write_text(text.replace("{driver: 650}", "{driver: 640}"), encoding="utf-8")
+        result = d.reload()
+        assert result.applied, result.refusals
+        assert "plant: alarms changed" in result.lines
+        wait_for(lambda: next(a.severity for a in d.alarms.alarms()
+                              if a.key == "driver.io") == 640, "the new severity")
+    finally:
+        d.stop("end of test")
