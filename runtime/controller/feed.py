@@ -13,10 +13,10 @@ names of the ``writable:`` list of the side process that asks (``opcua:``, ``mqt
 with values in range (``value_problem``), applied between two scans as the console's
 ``set`` is (``Daemon.submit``), each answered ok or error. The feed thread never waits for
 the scan: a write is handed to the scan thread and answered at a later turn (the writes
-taken in one turn run at the same scan boundary). Work per client per turn is bounded
-(fairness): at most LINES_PER_TURN requests taken, at most PENDING_MAX writes waiting for
-the scan; a client that sends more waits (its socket is not read meanwhile), so one client
-pipelining thousands of writes delays nobody's frames.
+of a client taken in one turn are applied in one call, at the same scan boundary). Work
+per client per turn is bounded (fairness): at most LINES_PER_TURN requests taken, at most
+PENDING_MAX writes waiting for the scan; a client that sends more waits (its socket is not
+read meanwhile), so one client pipelining thousands of writes delays nobody's frames.
 
 Client side (``FeedState``): the schema and the values of the last frame, decoded.
 
@@ -113,8 +113,9 @@ class _Client:
     fresh: bool = True
     status: dict[str, Any] | None = None
     #: its writes and method calls handed to the scan thread, oldest first: (id, the
-    #: call, monotonic deadline, the text of its answer); answered in this order
-    pending: deque[tuple[Any, ScanCall, float, Callable[[Any], str]]] = field(
+    #: call, its place in the call's results, monotonic deadline, the text of its
+    #: answer); answered in this order
+    pending: deque[tuple[Any, ScanCall, int, float, Callable[[Any], str]]] = field(
         default_factory=deque)
     #: its socket is watched for input (not while its unhandled input is at IN_MAX)
     reading: bool = True
@@ -314,15 +315,18 @@ class FeedServer:
     def _serve(self) -> None:
         """One turn for every client: the answers of its writes the scan thread has
         applied (or that timed out), then at most LINES_PER_TURN of its requests while it
-        has fewer than PENDING_MAX writes waiting."""
+        has fewer than PENDING_MAX writes waiting. The writes and method calls taken in
+        one turn go to the scan thread as one call (``_together``): they are applied at
+        the same scan boundary, in the order sent (an MQTT command's writes together)."""
         now = time.monotonic()
         for c in list(self._clients):
             pending = c.pending
             while (pending and c in self._clients
-                   and (pending[0][1].done.is_set() or now > pending[0][2])):
+                   and (pending[0][1].done.is_set() or now > pending[0][3])):
                 self._answer(c, *pending.popleft())
             taken = 0
-            while (taken < LINES_PER_TURN and len(pending) < PENDING_MAX
+            batch: list[tuple[Any, Callable[[], Any], Callable[[Any], str]]] = []
+            while (taken < LINES_PER_TURN and len(pending) + len(batch) < PENDING_MAX
                    and c in self._clients):
                 cut = c.inbuf.find(b"\n")
                 if cut < 0:
@@ -331,11 +335,19 @@ class FeedServer:
                 del c.inbuf[:cut + 1]
                 taken += 1
                 try:
-                    self._request(c, line)
+                    asked = self._request(c, line)
                 except Exception as exc:  # noqa: BLE001 - one client's line never ends the feed
                     log.warning("feed: a request of %s failed (%s: %s): client dropped",
                                 c.peer, type(exc).__name__, exc)
                     self._drop(c, "a request that failed")
+                    break
+                if asked is not None:
+                    batch.append(asked)
+            if batch and c in self._clients:
+                call = self.daemon.submit(_together([fn for _i, fn, _d in batch]))
+                deadline = time.monotonic() + SET_TIMEOUT_S
+                for k, (ident, _fn, done) in enumerate(batch):
+                    pending.append((ident, call, k, deadline, done))
             if c in self._clients:
                 self._watch(c)
 
@@ -363,7 +375,10 @@ class FeedServer:
             self._sel.unregister(c.sock)
         c.events = events
 
-    def _request(self, c: _Client, line: bytes) -> None:
+    def _request(self, c: _Client, line: bytes
+                 ) -> tuple[Any, Callable[[], Any], Callable[[Any], str]] | None:
+        """One request line: answered here (a refusal, an alarm's acknowledgement), or
+        (id, the function the scan thread runs, the text of its answer)."""
         try:
             msg = json.loads(line)
             if "set" in msg:
@@ -379,30 +394,32 @@ class FeedServer:
                 ident, key, action, who, comment = msg["alarm"]
                 self._queue(c, _line({"r": [ident, *self._alarm(str(key), str(action),
                                                                 str(who), str(comment))]}))
-                return
+                return None
             else:
                 raise KeyError("set, call or alarm")
         except (ValueError, KeyError, TypeError, RecursionError):
             self._drop(c, "a malformed request")
-            return
+            return None
         if refused is not None:
             self._queue(c, _line({"r": [ident, False, refused, "BadInvalidArgument"]}))
-            return
+            return None
         assert fn is not None and done is not None
-        c.pending.append((ident, self.daemon.submit(fn), time.monotonic() + SET_TIMEOUT_S,
-                          done))
+        return ident, fn, done
 
-    def _answer(self, c: _Client, ident: Any, call: ScanCall, deadline: float,
+    def _answer(self, c: _Client, ident: Any, call: ScanCall, k: int, deadline: float,
                 done: Callable[[Any], str]) -> None:
-        """The answer to a write or a method call the scan thread ran (or did not)."""
+        """The answer to a write or a method call, the ``k``-th of ``call`` (``_together``),
+        the scan thread ran (or did not)."""
         code = "Good"
         if not call.done.is_set():
             call.abandoned = True
             ok, text, code = False, "the scan did not answer in time", "BadTimeout"
-        elif call.error is not None:
-            ok, text, code = False, str(call.error), "BadInvalidState"
         else:
-            ok, text = True, done(call.result)
+            result, error = call.result[k] if call.error is None else (None, call.error)
+            if error is not None:
+                ok, text, code = False, str(error) or type(error).__name__, "BadInvalidState"
+            else:
+                ok, text = True, done(result)
         self._queue(c, _line({"r": [ident, ok, text, code]}))
 
     def _prepare_set(self, name: str, value: Any, side: str
@@ -580,6 +597,20 @@ class FeedServer:
     @property
     def clients(self) -> int:
         return len(self._clients)
+
+
+def _together(fns: list[Callable[[], Any]]) -> Callable[[], list[tuple[Any, Exception | None]]]:
+    """Scan thread: ``fns`` one after the other, in one call: (result, None) or (None, the
+    exception) for each (one refused write never stops the others)."""
+    def run() -> list[tuple[Any, Exception | None]]:
+        out: list[tuple[Any, Exception | None]] = []
+        for fn in fns:
+            try:
+                out.append((fn(), None))
+            except Exception as exc:  # noqa: BLE001 - the client gets the reason
+                out.append((None, exc))
+        return out
+    return run
 
 
 def _instance_method(daemon: Daemon, name: str, flag: str, value: bool | None

@@ -80,6 +80,29 @@ def test_writes_only_to_writable_names_between_two_scans(tmp_path: Path) -> None
     assert all(row["t2.sStop"] == 0 for row in rows.values())
 
 
+def test_writes_sent_together_are_applied_at_one_scan_boundary(tmp_path: Path) -> None:
+    """The writes a client sends together (an MQTT command's metrics) are taken in one turn
+    and applied by the scan thread in one call: no scan sees some of them without the
+    others; a refused one among them refuses only itself."""
+    with controller(tmp_path) as (d, feed, trace):
+        r = FeedReader(feed.path)
+        wait_until(lambda: len(r.frames) >= 1)
+        r.sock.sendall(feedmod.set_request(1, "t1.sStop", True, "opcua")
+                       + feedmod.set_request(2, "t1.oLamp", True, "opcua")
+                       + feedmod.set_request(3, "t1.sRate", 2.5, "opcua")
+                       + feedmod.set_request(4, "t1.sDiv", 3, "opcua"))
+        wait_until(lambda: len(r.replies) == 4, what="the four answers")
+        assert [r.replies[k][0] for k in (1, 2, 3, 4)] == [True, False, True, True]
+        assert r.codes[2] == "BadInvalidArgument"
+        wait_until(lambda: r.state.get("t1.sDiv") == 3, what="the writes in a frame")
+        r.close()
+        d.stop()
+    rows = read_trace(trace)
+    firsts = {name: min(c for c, row in rows.items() if row[name] == value)
+              for name, value in (("t1.sStop", 1), ("t1.sRate", 2.5), ("t1.sDiv", 3))}
+    assert len(set(firsts.values())) == 1, firsts
+
+
 def test_a_client_that_stops_reading_is_dropped_without_the_scan_noticing(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(feedmod, "OUT_MAX", 16384)
