@@ -154,6 +154,8 @@ class AlarmBoard:
         self._wake = threading.Event()
         self._stop = False
         self._thread: threading.Thread | None = None
+        #: an online change switched the causes: the conditions are built again
+        self._rebuild = False
         self._build(daemon.plant)
 
     # -- conditions ----------------------------------------------------------------------
@@ -191,7 +193,21 @@ class AlarmBoard:
                     log.warning("alarm %s gone with an online change (it was active)", key)
             self._alarms = fresh
             self.version += 1
-        self._causes = _Causes(plant)
+        if self._causes is None or self._causes.plant is not plant:
+            self._causes = _Causes(plant)
+
+    def prepare_switch(self, plant: Plant) -> Callable[[], None]:
+        """Reload worker thread: the new plant's causes, built now; the returned function
+        (scan thread, at the swap) puts them in place of the old plant's, which the board
+        then holds no more (a replaced plant is freed by reference counting alone), and
+        has the board's thread build the new plant's conditions."""
+        causes = _Causes(plant)
+
+        def commit() -> None:
+            self._causes, self._slot, self._last = causes, None, None
+            self._rebuild = True
+            self._wake.set()
+        return commit
 
     # -- the scan thread -----------------------------------------------------------------
     def on_scan(self, n: int) -> None:
@@ -230,13 +246,19 @@ class AlarmBoard:
                 self._wake.clear()
                 if self._stop:
                     break
-                causes = self._causes
-                if causes is None or causes.plant is not self.daemon.plant:
-                    self._build(self.daemon.plant)
-                    continue
-                self.evaluate(self._slot)
+                self._turn()
         except Exception:  # noqa: BLE001 - the alarms die, never the controller
             log.exception("alarm board failed: alarms are no longer updated")
+
+    def _turn(self) -> None:
+        """One wake-up of the board's thread (a function of its own: no local of it holds
+        a replaced plant while the thread waits)."""
+        causes = self._causes
+        if self._rebuild or causes is None or causes.plant is not self.daemon.plant:
+            self._rebuild = False
+            self._build(self.daemon.plant)
+            return
+        self.evaluate(self._slot)
 
     def evaluate(self, snap: tuple[Any, ...] | None) -> None:
         """The alarms' states from the causes ``snap`` (``_Causes.read``) and the overrun

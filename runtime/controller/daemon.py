@@ -721,15 +721,17 @@ class Daemon:
 
     def prepare_switch(self, plant: Plant, pdef: PlantDef) -> Callable[[], None]:
         """Reload worker thread: what the daemon's own holders of the plant need (trace
-        columns, event watcher, retained variables), built now; the returned function
-        switches them in the scan thread."""
+        columns, event watcher, alarm board, retained variables), built now; the returned
+        function switches them in the scan thread."""
         commit_events = self.events.prepare_switch(plant)
+        commit_alarms = self.alarms.prepare_switch(plant)
         trace = self._trace
         columns = trace_columns(plant) if trace is not None else []
         retained = RetainedVars.of(pdef)
 
         def commit() -> None:
             commit_events()
+            commit_alarms()
             if trace is not None:
                 trace.plant, trace.columns = plant, columns
             if self.retain is not None:
