@@ -319,13 +319,16 @@ def _sight(p: Plan, pdef: PlantDef, softplc: str, check_exec: bool) -> None:
     for what, path in chain:
         python = what.startswith("the Python")
         # a link whose target is in the chain too is said once, at the target
-        directive = hidden_by(path, follow=os.path.realpath(path) not in listed - {path})
+        to_listed = os.path.realpath(path) in listed - {path}
+        directive = hidden_by(path, follow=not to_listed)
         if directive is not None:
             fix = VENV_FIX if python else ("install softplc into a venv the service can "
                                            "see, e.g. /opt/softplc/venv (pip install "
                                            "/path/to/softplc, not pip install -e)")
             line = (f"ExecStart: {path} ({what}) is hidden from the service by "
                     f"{directive}: {fix}")
+        elif to_listed:  # whether the service may use it is said at the target
+            line = ""
         else:
             why = unreadable(path, uid, gids, execute=what == "the program" or python)
             line = "" if why is None else \
