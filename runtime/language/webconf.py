@@ -36,6 +36,21 @@ def is_loopback(host: str) -> bool:
         return False
 
 
+def listen_value(text: str, tls: bool, loc: Loc) -> tuple[str, int]:
+    """``HOST:PORT`` -> (host, port); port 0 takes a free port (tests). Without ``tls``,
+    only a loopback address. SourceError at ``loc``."""
+    match = _LISTEN.match(text)
+    if match is None or not 0 <= int(match.group(2)) < 65536:
+        raise SourceError(loc, f"web listen: expected HOST:PORT (e.g. 127.0.0.1:8080, "
+                               f"0.0.0.0:8443), found '{text}'")
+    host = match.group(1).strip("[]")
+    if not tls and not is_loopback(host):
+        raise SourceError(loc, f"web listen: {host} is reachable from other machines: serve "
+                               "it over HTTPS (web: tls: {certificate: ..., private_key: "
+                               "...}, docs/web.md), or listen on 127.0.0.1")
+    return host, int(match.group(2))
+
+
 def load_web(p: PlantDef, value: Any, loc: Loc) -> WebDef:
     """``web:`` -> WebDef; SourceError at the faulty key or value. An empty ``web:`` (``web:
     {}``) serves the page read-only on 127.0.0.1:8080."""
@@ -44,12 +59,8 @@ def load_web(p: PlantDef, value: Any, loc: Loc) -> WebDef:
     w = WebDef(loc=loc, sample_ns=max(DEFAULT_SAMPLE_NS, p.cycle_ns), locs=dict(m.val_locs))
     if "listen" in m:
         vloc = m.val_locs["listen"]
-        text = str(expect_type(m["listen"], vloc, str, "HOST:PORT"))
-        match = _LISTEN.match(text)
-        if match is None or not 0 < int(match.group(2)) < 65536:
-            raise SourceError(vloc, f"web listen: expected HOST:PORT (e.g. 127.0.0.1:8080, "
-                                    f"0.0.0.0:8443), found '{text}'")
-        w.host, w.port = match.group(1).strip("[]"), int(match.group(2))
+        w.host, w.port = listen_value(expect_type(m["listen"], vloc, str, "HOST:PORT"),
+                                      True, vloc)
     if "sample" in m:
         w.sample_ns = sample_key(p, m, "web")
     if "feed" in m:  # the default: runtime/language/feedconf.py, once every section is read
@@ -62,11 +73,8 @@ def load_web(p: PlantDef, value: Any, loc: Loc) -> WebDef:
             if key not in tls:
                 raise SourceError(vloc, f"web tls: expected {key} (a PEM file), found none")
             setattr(w, key, path_value(tls[key], tls.val_locs[key], f"web tls {key}"))
-    if not is_loopback(w.host) and w.certificate is None:
-        raise SourceError(m.val_locs["listen"],
-                          f"web listen: {w.host} is reachable from other machines: serve it "
-                          "over HTTPS (web: tls: {certificate: ..., private_key: ...}, "
-                          "docs/web.md), or listen on 127.0.0.1")
+    if "listen" in m:
+        listen_value(str(m["listen"]), w.certificate is not None, m.val_locs["listen"])
     if "users" in m:
         vloc = m.val_locs["users"]
         users = expect_type(m["users"], vloc, YMap, "a mapping user: password hash")
