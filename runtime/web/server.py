@@ -85,6 +85,8 @@ class Page:
     ws: web.WebSocketResponse
     address: str
     login: Login | None
+    #: its connection (aborted when it does not read)
+    transport: asyncio.Transport | None = None
     queue: asyncio.Queue[str] = field(default_factory=lambda: asyncio.Queue(PAGE_QUEUE))
     #: its next frame is a whole one
     fresh: bool = True
@@ -270,7 +272,7 @@ class WebView:
                                                   "(web: max_pages): try again later")
         ws = web.WebSocketResponse(max_msg_size=MAX_BODY, heartbeat=20.0)
         await ws.prepare(request)
-        page = Page(ws, request.remote or "?", self._login_of(request))
+        page = Page(ws, request.remote or "?", self._login_of(request), request.transport)
         if page.login is not None:
             page.login.pages.add(page)
         self.pages.add(page)
@@ -317,8 +319,12 @@ class WebView:
                 text = await page.queue.get()
                 await asyncio.wait_for(page.ws.send_str(text), SEND_TIMEOUT_S)
         except TimeoutError:
+            # a close frame would wait behind what it does not read: the connection ends
             log.warning("web: the page of %s did not read for %g s: closed", page.address,
                         SEND_TIMEOUT_S)
+            if page.transport is not None:
+                page.transport.abort()
+            return
         except (ConnectionError, RuntimeError):
             pass
         await page.ws.close()
