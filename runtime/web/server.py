@@ -42,6 +42,7 @@ from aiohttp import WSMsgType, web
 from runtime.controller.feedclient import FeedClient
 from runtime.controller.pin import Passwords
 from runtime.language.model import PlantDef, WebDef
+from runtime.language.runtimedir import locate
 from runtime.web.consolelink import ACTIONS, VALUE_RE, ConsoleLink, ConsoleUnavailable
 from runtime.web.plantview import chart_of, describe
 
@@ -108,10 +109,13 @@ class WebView:
         self.passwords = Passwords(self.conf.users, clock)
         self.logins: dict[str, Login] = {}
         self.pages: set[Page] = set()
-        self.feed = FeedClient(feed or self.conf.feed, "web", self._on_schema,
+        where = locate(pdef)  # the controller's sockets, as every side process finds them
+        self.feed = FeedClient(feed or where.feed or self.conf.feed, "web", self._on_schema,
                                self._on_frame, self._on_lost)
+        #: the console socket the acting pages connect to (a Unix socket: the console
+        #: knows this process's user there, docs/web.md)
         self.console_path = next((c.address for c in pdef.consoles if c.kind == "socket"),
-                                 None)
+                                 None) if where.console else None
         self._plant_json = json.dumps(describe(pdef))
         self._charts: dict[str, str] = {}
         self._last_values: list[Any] = []
