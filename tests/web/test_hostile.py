@@ -219,3 +219,52 @@ def test_the_page_waits_for_a_controller_that_is_not_there(tmp_path: Path) -> No
     assert hello == {"t": "hello", "connected": False, "user": None}
     assert not (tmp_path / "no-feed.sock").exists()
     wait_until(lambda: True)
+
+
+def test_https_with_the_documented_certificate(tmp_path: Path) -> None:
+    """docs/web.md's openssl command makes the certificate; the page is served over HTTPS
+    only, and the login cookie is Secure, HttpOnly, SameSite=Strict."""
+    import shutil
+    import ssl
+    import subprocess
+
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl is not installed")
+    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
+    subprocess.run(["openssl", "req", "-x509", "-newkey", "ec", "-pkeyopt",
+                    "ec_paramgen_curve:P-256", "-nodes", "-days", "3650", "-subj",
+                    "/CN=localhost", "-addext", "subjectAltName=DNS:localhost,IP:127.0.0.1",
+                    "-keyout", str(key), "-out", str(cert)], check=True, capture_output=True)
+    plant = write_plant(tmp_path, web=f"  tls: {{certificate: {cert}, private_key: {key}}}\n")
+    pdef = load_plant(str(plant))
+    from tests.web.kit import PASSWORD, USER
+
+    async def run() -> tuple[int, Any, str]:
+        view = WebView(pdef, feed=str(tmp_path / "no-feed.sock"))
+        stop = asyncio.Event()
+        ports: list[int] = []
+        task = asyncio.create_task(view.run(stop, lambda v, p: ports.append(p)))
+        while not ports:
+            await asyncio.sleep(0.01)
+        url = f"https://127.0.0.1:{ports[0]}/"
+        ctx = ssl.create_default_context(cafile=str(cert))
+        async with aiohttp.ClientSession() as s:
+            async with s.post(url + "api/login", json={"user": USER, "password": PASSWORD},
+                              headers={"Origin": url.rstrip("/")}, ssl=ctx) as resp:
+                status, cookie = resp.status, resp.cookies.get("softplc_session")
+            hsts = ""
+            async with s.get(url, ssl=ctx) as resp:
+                hsts = resp.headers.get("Strict-Transport-Security", "")
+            try:  # plain HTTP on the same port is no page
+                async with s.get(f"http://127.0.0.1:{ports[0]}/") as resp:
+                    plain = resp.status
+            except aiohttp.ClientError:
+                plain = 0
+            assert plain != 200
+        stop.set()
+        await task
+        return status, cookie, hsts
+    status, cookie, hsts = asyncio.run(run())
+    assert status == 200 and cookie is not None
+    assert cookie["secure"] and cookie["httponly"] and cookie["samesite"] == "Strict"
+    assert hsts.startswith("max-age=")
