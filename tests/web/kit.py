@@ -113,20 +113,21 @@ class Rig:
     def rundir(self) -> Path:
         return self.tmp / "softplc"
 
-    def console(self, *lines: str) -> list[str]:
-        """Each line on a fresh console session of the plant's socket, acting for the test
-        (``web``: the test runs as the controller's user); the replies' text."""
+    def console(self, *lines: str, act: bool = True) -> list[str]:
+        """The lines on a fresh console session of the plant's socket, first acting for
+        the test (``web``: the test runs as the controller's user) unless ``act`` is
+        False; the replies' text."""
         out = []
         with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
             s.connect(str(self.rundir / "console.sock"))
             f = s.makefile("rw", encoding="utf-8", newline="\n")
-            for line in ("web test local", *lines):
+            for line in (("web test local",) if act else ()) + lines:
                 f.write(line + "\n")
                 f.flush()
                 while True:
                     reply = f.readline()
                     assert reply, "the console closed the session"
-                    out.append(reply.rstrip("\n"))
+                    out.append(reply.rstrip("\r\n"))
                     if reply.startswith(("ok", "error")):
                         break
         return out
