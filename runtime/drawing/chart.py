@@ -285,8 +285,8 @@ class Drawing:
             if times:  # supervision times, as a vendor's SFC editor shows them
                 self.svg.text(x, y + 11, times, TIMES_SIZE, "middle",
                               extra=' class="step-times"')
-            if st.name in self.active:
-                self.svg.add(f'<circle cx="{x:.1f}" cy="{y0 + STEP_H - 5:.1f}" r="2.5" '
+            if st.name in self.active:  # top left, clear of the name and the times
+                self.svg.add(f'<circle cx="{x0 + 8:.1f}" cy="{y0 + 8:.1f}" r="2.5" '
                              'fill="black" class="token"/>')
             self.svg.add("</g>")
             if st.name in c.actions:

@@ -144,3 +144,35 @@ def test_drawer_tester_equations_are_drawn(tmp_path: Path) -> None:
     assert "tParo := iCerrado·(sParo + (sCierres >= 1000))" in eq
     assert "oParado := gsParado.X + sParo·Clock_1Hz + gsAveria.X·Clock_2Hz" in eq
     assert "sParo.Set(1, iParo)" in eq
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_the_token_covers_no_text_of_its_step(layout: str, tmp_path: Path) -> None:
+    """Issue 27: the active step's token was drawn on its "max 5s" label. Every step of
+    the shared-failure chart active at once: the token's disc is clear of the step's name
+    and times, and inside its box (inside the inner box of an initial step)."""
+    from runtime.drawing.text import text_w
+    from runtime.language.grafcetfile import load_grafcet
+
+    g = load_grafcet(str(HERE / "fallo.yaml"))
+    svg, _ = draw.chart_svg(g, active=set(g.steps), layout=layout)
+    root = ET.fromstring(svg)
+    for group in root.iter(f"{SVG}g"):
+        if "step-group" not in _classes(group):
+            continue
+        token = next(c for c in group.iter(f"{SVG}circle") if "token" in _classes(c))
+        cx, cy, r = (float(token.get(k, "0")) for k in ("cx", "cy", "r"))
+        box = next(e for e in group.iter(f"{SVG}rect") if "step" in _classes(e))
+        inner = next((e for e in group.iter(f"{SVG}rect") if "initial" in _classes(e)), box)
+        x0, y0 = float(inner.get("x", "0")), float(inner.get("y", "0"))
+        x1 = x0 + float(inner.get("width", "0"))
+        y1 = y0 + float(inner.get("height", "0"))
+        assert x0 < cx - r and cx + r < x1 and y0 < cy - r and cy + r < y1, group.get("data-step")
+        for t in group.iter(f"{SVG}text"):
+            size = float(t.get("font-size", "12"))
+            w = text_w("".join(t.itertext()), size)
+            tx = float(t.get("x", "0"))
+            left = {"start": tx, "middle": tx - w / 2, "end": tx - w}[t.get("text-anchor", "start")]
+            top, bottom = float(t.get("y", "0")) - size * 0.8, float(t.get("y", "0")) + 2
+            clear = (cx + r <= left or cx - r >= left + w or cy + r <= top or cy - r >= bottom)
+            assert clear, (group.get("data-step"), "".join(t.itertext()), (cx, cy))

@@ -74,11 +74,11 @@ async function instanceBox(inst) {
   for (const g of svg.querySelectorAll("g.step-group")) {
     const rect = g.querySelector("rect.step");
     const x = +rect.getAttribute("x"), y = +rect.getAttribute("y");
-    const w = +rect.getAttribute("width"), hh = +rect.getAttribute("height");
+    const w = +rect.getAttribute("width");
     const ns = "http://www.w3.org/2000/svg";
     const tok = document.createElementNS(ns, "circle");
-    tok.setAttribute("cx", x + 6); tok.setAttribute("cy", y + hh - 6);
-    tok.setAttribute("r", "3"); tok.setAttribute("class", "live-token");
+    tok.setAttribute("cx", x + 8); tok.setAttribute("cy", y + 8);
+    tok.setAttribute("r", "2.5"); tok.setAttribute("class", "live-token");
     const t = document.createElementNS(ns, "text");
     t.setAttribute("x", x + w + 3); t.setAttribute("y", y + 9);
     t.setAttribute("class", "live-t");
