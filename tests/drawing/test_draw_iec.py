@@ -176,3 +176,46 @@ def test_the_token_covers_no_text_of_its_step(layout: str, tmp_path: Path) -> No
             top, bottom = float(t.get("y", "0")) - size * 0.8, float(t.get("y", "0")) + 2
             clear = (cx + r <= left or cx - r >= left + w or cy + r <= top or cy - r >= bottom)
             assert clear, (group.get("data-step"), "".join(t.itertext()), (cx, cy))
+
+
+def shared_failure_chart(seed: int) -> str:
+    """A generated chart as a new user writes one from the course exercises: a line of 3
+    to 7 steps closed by a return to the initial step, failure transitions from some of
+    its steps into one shared failure step, whose reset goes back to the first or the
+    second step of the line."""
+    import random
+
+    rnd = random.Random(seed)
+    n = rnd.randint(3, 7)
+    steps = [f"s{i}" for i in range(n)]
+    fails = set(rnd.sample(steps[1:], rnd.randint(1, n - 1)))
+    lines = [f"grafcet: Gen{seed}", "inputs: [a, f, r]", "steps:", "  s0: {initial: true}",
+             *[f"  {s}: {{}}" for s in steps[1:]], "  sF: {}", "transitions:"]
+    for i, s in enumerate(steps):
+        lines.append(f"  - {{from: {s}, to: {steps[(i + 1) % n]}, when: a}}")
+        if s in fails:
+            lines.append(f"  - {{from: {s}, to: sF, when: f}}")
+    lines.append(f"  - {{from: sF, to: {rnd.choice(steps[:2])}, when: r}}")
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_generated_charts_with_a_shared_failure_step_have_no_crossing(
+        layout: str, tmp_path: Path) -> None:
+    """Issue 27: a failure link across the main line, a return link across another. Over
+    60 generated charts, none has a crossing and no failure step sits under the normal
+    sequence, on the main line (before the fix, in each layout: 26 had a crossing, 36 the
+    failure step on the main line)."""
+    from runtime.language.grafcetfile import load_grafcet
+
+    crossed = []
+    for seed in range(60):
+        path = tmp_path / f"gen{seed}.yaml"
+        path.write_text(shared_failure_chart(seed), encoding="utf-8")
+        svg, _ = draw.chart_svg(load_grafcet(str(path)), layout=layout)
+        root = ET.fromstring(svg)
+        if _crossings(root):
+            crossed.append(seed)
+        xs = _step_x(root)
+        assert abs(xs["sF"] - xs["s0"]) > 1, seed
+    assert crossed == []
