@@ -7,7 +7,12 @@ from __future__ import annotations
 
 import asyncio
 import json
+import shutil
 import socket
+import ssl
+import subprocess
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
 
@@ -17,8 +22,23 @@ import pytest
 from runtime.language.plantfile import load_plant
 from runtime.web import server as web_server
 from runtime.web.server import WebView
-from tests.opcua.feedkit import wait_until
-from tests.web.kit import Rig, rig, write_plant
+from tests.web.kit import PASSWORD, USER, Rig, rig, write_plant
+
+
+@asynccontextmanager
+async def served(pdef: Any, tmp: Path) -> AsyncIterator[tuple[WebView, int]]:
+    """A WebView of ``pdef`` in this event loop, with no controller: (view, its port)."""
+    view = WebView(pdef, feed=str(tmp / "no-feed.sock"))
+    stop = asyncio.Event()
+    ports: list[int] = []
+    task = asyncio.create_task(view.run(stop, lambda v, p: ports.append(p)))
+    while not ports:
+        await asyncio.sleep(0.01)
+    try:
+        yield view, ports[0]
+    finally:
+        stop.set()
+        await task
 
 
 def origin(r: Rig) -> str:
@@ -153,44 +173,39 @@ def test_a_page_that_does_not_read_is_bounded_then_closed(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """In this process (no controller needed): a WebSocket client that never reads, on a
     small receive buffer. Its queue never holds more than PAGE_QUEUE messages (it is
-    resynchronised instead), and once one send waits SEND_TIMEOUT_S it is closed."""
+    resynchronised instead), and once one send waits SEND_TIMEOUT_S it is closed (before
+    the fix, the page was never closed: its close frame waited behind the unread data)."""
     monkeypatch.setattr(web_server, "SEND_TIMEOUT_S", 1.0)
     pdef = load_plant(str(write_plant(tmp_path)))
 
     async def run() -> tuple[int, int, int]:
-        view = WebView(pdef, feed=str(tmp_path / "no-feed.sock"))
-        stop = asyncio.Event()
-        ports: list[int] = []
-        task = asyncio.create_task(view.run(stop, lambda v, p: ports.append(p)))
-        while not ports:
-            await asyncio.sleep(0.01)
-        sock = socket.socket()
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-        sock.connect(("127.0.0.1", ports[0]))
-        sock.sendall((f"GET /ws HTTP/1.1\r\nHost: 127.0.0.1:{ports[0]}\r\n"
-                      f"Origin: http://127.0.0.1:{ports[0]}\r\nUpgrade: websocket\r\n"
-                      "Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
-                      "Sec-WebSocket-Version: 13\r\n\r\n").encode())
-        while not view.pages:
-            await asyncio.sleep(0.01)
-        page = next(iter(view.pages))
-        most = 0
-        big = json.dumps({"t": "d", "changes": ["x" * 60_000]})
-        for _ in range(2000):  # frames faster than it reads: ~120 MB offered
-            view._send(page, big)
-            most = max(most, page.queue.qsize())
-            await asyncio.sleep(0.001)
-            if page not in view.pages:
-                break
-        for _ in range(500):
-            if page not in view.pages:
-                break
-            await asyncio.sleep(0.01)
-        closed = int(page not in view.pages)
-        sock.close()
-        stop.set()
-        await task
-        return most, page.resyncs, closed
+        async with served(pdef, tmp_path) as (view, port):
+            sock = socket.socket()
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+            sock.connect(("127.0.0.1", port))
+            sock.sendall((f"GET /ws HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n"
+                          f"Origin: http://127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
+                          "Connection: Upgrade\r\n"
+                          "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+                          "Sec-WebSocket-Version: 13\r\n\r\n").encode())
+            while not view.pages:
+                await asyncio.sleep(0.01)
+            page = next(iter(view.pages))
+            most = 0
+            big = json.dumps({"t": "d", "changes": ["x" * 60_000]})
+            for _ in range(2000):  # frames faster than it reads: ~120 MB offered
+                view._send(page, big)
+                most = max(most, page.queue.qsize())
+                await asyncio.sleep(0.001)
+                if page not in view.pages:
+                    break
+            for _ in range(500):
+                if page not in view.pages:
+                    break
+                await asyncio.sleep(0.01)
+            closed = int(page not in view.pages)
+            sock.close()
+            return most, page.resyncs, closed
     most, resyncs, closed = asyncio.run(run())
     assert most <= web_server.PAGE_QUEUE and resyncs > 0 and closed == 1
 
@@ -201,33 +216,20 @@ def test_the_page_waits_for_a_controller_that_is_not_there(tmp_path: Path) -> No
     pdef = load_plant(str(write_plant(tmp_path)))
 
     async def run() -> dict[str, Any]:
-        view = WebView(pdef, feed=str(tmp_path / "no-feed.sock"))
-        stop = asyncio.Event()
-        ports: list[int] = []
-        task = asyncio.create_task(view.run(stop, lambda v, p: ports.append(p)))
-        while not ports:
-            await asyncio.sleep(0.01)
-        url = f"http://127.0.0.1:{ports[0]}/"
-        async with aiohttp.ClientSession() as s:
-            ws = await s.ws_connect(url + "ws", headers={"Origin": url.rstrip("/")})
+        async with served(pdef, tmp_path) as (_view, port), aiohttp.ClientSession() as s:
+            url = f"http://127.0.0.1:{port}"
+            ws = await s.ws_connect(url + "/ws", headers={"Origin": url})
             hello = json.loads((await ws.receive()).data)
             await ws.close()
-        stop.set()
-        await task
         return dict(hello)
     hello = asyncio.run(run())
     assert hello == {"t": "hello", "connected": False, "user": None}
     assert not (tmp_path / "no-feed.sock").exists()
-    wait_until(lambda: True)
 
 
 def test_https_with_the_documented_certificate(tmp_path: Path) -> None:
     """docs/web.md's openssl command makes the certificate; the page is served over HTTPS
     only, and the login cookie is Secure, HttpOnly, SameSite=Strict."""
-    import shutil
-    import ssl
-    import subprocess
-
     if shutil.which("openssl") is None:
         pytest.skip("openssl is not installed")
     cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
@@ -237,34 +239,23 @@ def test_https_with_the_documented_certificate(tmp_path: Path) -> None:
                     "-keyout", str(key), "-out", str(cert)], check=True, capture_output=True)
     plant = write_plant(tmp_path, web=f"  tls: {{certificate: {cert}, private_key: {key}}}\n")
     pdef = load_plant(str(plant))
-    from tests.web.kit import PASSWORD, USER
 
-    async def run() -> tuple[int, Any, str]:
-        view = WebView(pdef, feed=str(tmp_path / "no-feed.sock"))
-        stop = asyncio.Event()
-        ports: list[int] = []
-        task = asyncio.create_task(view.run(stop, lambda v, p: ports.append(p)))
-        while not ports:
-            await asyncio.sleep(0.01)
-        url = f"https://127.0.0.1:{ports[0]}/"
+    async def run() -> tuple[int, Any, str, int]:
         ctx = ssl.create_default_context(cafile=str(cert))
-        async with aiohttp.ClientSession() as s:
-            async with s.post(url + "api/login", json={"user": USER, "password": PASSWORD},
-                              headers={"Origin": url.rstrip("/")}, ssl=ctx) as resp:
+        async with served(pdef, tmp_path) as (_view, port), aiohttp.ClientSession() as s:
+            url = f"https://127.0.0.1:{port}"
+            async with s.post(url + "/api/login", json={"user": USER, "password": PASSWORD},
+                              headers={"Origin": url}, ssl=ctx) as resp:
                 status, cookie = resp.status, resp.cookies.get("softplc_session")
-            hsts = ""
-            async with s.get(url, ssl=ctx) as resp:
+            async with s.get(url + "/", ssl=ctx) as resp:
                 hsts = resp.headers.get("Strict-Transport-Security", "")
             try:  # plain HTTP on the same port is no page
-                async with s.get(f"http://127.0.0.1:{ports[0]}/") as resp:
+                async with s.get(f"http://127.0.0.1:{port}/") as resp:
                     plain = resp.status
             except aiohttp.ClientError:
                 plain = 0
-            assert plain != 200
-        stop.set()
-        await task
-        return status, cookie, hsts
-    status, cookie, hsts = asyncio.run(run())
-    assert status == 200 and cookie is not None
+        return status, cookie, hsts, plain
+    status, cookie, hsts, plain = asyncio.run(run())
+    assert status == 200 and cookie is not None and plain != 200
     assert cookie["secure"] and cookie["httponly"] and cookie["samesite"] == "Strict"
     assert hsts.startswith("max-age=")
