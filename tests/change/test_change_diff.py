@@ -13,7 +13,7 @@ from runtime.cli import main
 from runtime.errors import SourceError
 from runtime.language.grafcetfile import load_grafcet
 from runtime.language.plantfile import load_plant
-from tests.change.changekit import DATA, DRAWER_PLANT, ROOT
+from tests.change.changekit import DATA, DRAWER_PLANT, ROOT, without_web
 
 CHART = """\
 grafcet: Press
@@ -240,7 +240,8 @@ def test_the_opcua_section_is_named_by_the_diff(tmp_path, old_extra: str, new_ex
                                                 capsys: pytest.CaptureFixture[str]) -> None:
     """Issue 25: adding ``opcua:`` to a plant was `no change` and `can be applied online`."""
     drawer = Path(DRAWER_PLANT)
-    src = drawer.read_text(encoding="utf-8").replace("grafcet: ", f"grafcet: {drawer.parent}/")
+    src = without_web(drawer.read_text(encoding="utf-8")).replace(
+        "grafcet: ", f"grafcet: {drawer.parent}/")
     (tmp_path / "old.yaml").write_text(src + old_extra, encoding="utf-8")
     (tmp_path / "new.yaml").write_text(src + new_extra, encoding="utf-8")
     status = main(["diff", str(tmp_path / "old.yaml"), str(tmp_path / "new.yaml")])

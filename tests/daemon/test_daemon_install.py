@@ -33,6 +33,7 @@ from runtime.controller.install import (
     unit_text,
 )
 from runtime.language.plantfile import load_plant
+from tests.change.changekit import without_web
 
 ROOT = Path(__file__).resolve().parents[2]
 SOFTPLC = str(Path(sys.executable).parent / "softplc")
@@ -370,7 +371,8 @@ def test_a_reinstall_knows_what_a_running_controller_needs(tmp_path: Path) -> No
     d = tmp_path / "press"
     d.mkdir()
     (d / "drawer_tester.yaml").write_bytes((DRAWER.parent / "drawer_tester.yaml").read_bytes())
-    (d / "plant.yaml").write_bytes(DRAWER.read_bytes())
+    drawer = without_web(DRAWER.read_text(encoding="utf-8"))  # a plant with no feed yet
+    (d / "plant.yaml").write_text(drawer, encoding="utf-8")
     stage = str(tmp_path / "stage")
     apply(plan(str(d / "plant.yaml"), SOFTPLC, root=stage), root=stage)
     p = plan(str(d / "plant.yaml"), SOFTPLC, root=stage)
@@ -379,8 +381,7 @@ def test_a_reinstall_knows_what_a_running_controller_needs(tmp_path: Path) -> No
     chart.write_text(chart.read_text(encoding="utf-8") + "# edited\n", encoding="utf-8")
     p = plan(str(d / "plant.yaml"), SOFTPLC, root=stage)
     assert (p.changed, p.restart_reasons) == (True, [])
-    (d / "plant.yaml").write_text(DRAWER.read_text(encoding="utf-8") +
-                                  "opcua: {endpoint: 'opc.tcp://127.0.0.1:4850'}\n",
+    (d / "plant.yaml").write_text(drawer + "opcua: {endpoint: 'opc.tcp://127.0.0.1:4850'}\n",
                                   encoding="utf-8")
     p = plan(str(d / "plant.yaml"), SOFTPLC, root=stage)
     assert p.changed and p.opcua
