@@ -52,6 +52,8 @@ GAP = 24.0  # between neighbours of a row
 ACTION_GAP = 22.0  # from a step's right side to its action block
 TOP = 62.0  # room for the title and the links into the first row
 LANE = 16.0  # between lanes
+#: between the horizontals of links leaving one row (issue 27: 6 px looked like one line)
+LINK_GAP = 12.0
 FRAME_PAD = 10.0  # between a macro-step's frame and what it holds
 
 
@@ -687,8 +689,8 @@ def _rows(c: Chart, r: Routes, groups: dict[str, list[str]]) -> None:
         out = leaving.get(layer, [])
         lefts = sorted((o for o in out if o[2] < 0), key=lambda o: c.nodes[o[0]].x)
         rights = sorted((o for o in out if o[2] > 0), key=lambda o: -c.nodes[o[0]].x)
-        for i, (u, v, _) in enumerate(lefts + rights):
-            r.leave[(u, v)] = first + 6 * i
-        gap = max(30.0, first - bottom + 6 * len(out) + 14)
+        for i, (u, v, _) in enumerate(lefts + rights):  # apart enough to be told apart
+            r.leave[(u, v)] = first + LINK_GAP * i
+        gap = max(30.0, first - bottom + LINK_GAP * len(out) + 14)
         y = bottom + gap
 

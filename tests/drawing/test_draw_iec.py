@@ -219,3 +219,24 @@ def test_generated_charts_with_a_shared_failure_step_have_no_crossing(
         xs = _step_x(root)
         assert abs(xs["sF"] - xs["s0"]) > 1, seed
     assert crossed == []
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+@pytest.mark.parametrize("chart", NO_CROSSING, ids=[p.stem for p in NO_CROSSING])
+def test_links_back_up_are_told_apart(chart: Path, layout: str, tmp_path: Path) -> None:
+    """Issue 27: two links back up whose horizontals ran 6 px apart looked like one lane.
+    Horizontals of links back up that overlap side by side are at least 10 px apart."""
+    root = _draw(chart, tmp_path, layout)
+    hs = []
+    for pl in root.iter(f"{SVG}polyline"):
+        if "back" not in _classes(pl):
+            continue
+        pts = [(float(a), float(b)) for a, b in
+               (xy.split(",") for xy in (pl.get("points") or "").split())]
+        hs += [(p, q) for p, q in itertools.pairwise(pts)
+               if abs(p[1] - q[1]) < 0.01 and abs(p[0] - q[0]) > 0.01]
+    for (a, b), (p, q) in itertools.combinations(hs, 2):
+        overlap = min(max(a[0], b[0]), max(p[0], q[0])) - max(min(a[0], b[0]),
+                                                               min(p[0], q[0]))
+        if overlap > 1 and abs(a[1] - p[1]) > 0.01:
+            assert abs(a[1] - p[1]) >= 10, ((a, b), (p, q))
