@@ -251,6 +251,8 @@ class Drawing:
             if not n.startswith("t:"):
                 continue
             x, y = self.x(n), self.mid(n)
+            # one group per transition, named by its index (the page marks it live)
+            self.svg.add(f'<g class="transition-group" data-transition="{n[2:]}">')
             self.svg.line([(x - BAR_W / 2, y), (x + BAR_W / 2, y)], width=4, cls="transition")
             lines = c.labels[n]
             y0 = y + 4 - CHAR_H * (len(lines) - 1) / 2
@@ -260,6 +262,7 @@ class Drawing:
             if n in c.names:
                 self.svg.text(x - BAR_W / 2 - 6, y + 4, c.names[n], 12, "end",
                               extra=' class="transition-name"')
+            self.svg.add("</g>")
 
     def draw_steps(self) -> None:
         c = self.c
@@ -269,7 +272,7 @@ class Drawing:
             w = 2 * c.nodes[n].left
             x0, y0 = x - w / 2, y - STEP_H / 2
             fill = ACTIVE_FILL if st.name in self.active else "white"
-            self.svg.add('<g class="step-group">')
+            self.svg.add(f'<g class="step-group" data-step="{esc_attr(st.name)}">')
             if st.description:
                 self.svg.add(f"<title>{esc(st.description)}</title>")
             self.svg.rect(x0, y0, w, STEP_H, fill, extra=' class="step"')
@@ -282,8 +285,8 @@ class Drawing:
             if times:  # supervision times, as a vendor's SFC editor shows them
                 self.svg.text(x, y + 11, times, TIMES_SIZE, "middle",
                               extra=' class="step-times"')
-            if st.name in self.active:
-                self.svg.add(f'<circle cx="{x:.1f}" cy="{y0 + STEP_H - 5:.1f}" r="2.5" '
+            if st.name in self.active:  # top left, clear of the name and the times
+                self.svg.add(f'<circle cx="{x0 + 8:.1f}" cy="{y0 + 8:.1f}" r="2.5" '
                              'fill="black" class="token"/>')
             self.svg.add("</g>")
             if st.name in c.actions:

@@ -52,6 +52,8 @@ GAP = 24.0  # between neighbours of a row
 ACTION_GAP = 22.0  # from a step's right side to its action block
 TOP = 62.0  # room for the title and the links into the first row
 LANE = 16.0  # between lanes
+#: between the horizontals of links leaving one row (issue 27: 6 px looked like one line)
+LINK_GAP = 12.0
 FRAME_PAD = 10.0  # between a macro-step's frame and what it holds
 
 
@@ -379,8 +381,16 @@ def _place(c: Chart, hint: dict[str, float] | None, root_x: dict[str, float],
 
 def _straight(c: Chart, kids: list[str], pref: dict[str, float]) -> str:
     """The child that goes right under its parent: the first transition whose target goes
-    under it (the main line goes on), not a link back up or aside; else the first."""
+    under it (the main line goes on), not a link back up or aside; else the first. A step's
+    first transition in file order that leads back up (the normal sequence closing the
+    cycle) stays on the main line: the others (a failure) go aside, their steps off the
+    main line (issue 27: the failure step sat under the normal sequence)."""
     first = sorted(kids, key=pref.__getitem__)
+    ts = [k for k in kids if k.startswith("t:")]
+    if len(ts) > 1 and len(ts) == len(kids):
+        by_file = min(ts, key=lambda k: int(k[2:]))
+        if c.is_back_transition(by_file):
+            return by_file
     for k in first:
         if k.startswith("t:") and any(c.primary_pred(d) == k for d in c.fout(k)):
             return k
@@ -504,21 +514,43 @@ def route(c: Chart) -> Routes:
                 best = m
         return best
 
+    def horizontals(v: str, lane: float) -> list[tuple[int, float, float]]:
+        """(row, x0, x1) of the horizontals to and from a lane of ``v`` at ``lane``."""
+        ends = [*groups[v], v]
+        return [(c.nodes[u].layer, min(c.nodes[u].x, lane), max(c.nodes[u].x, lane))
+                for u in ends]
+
     def crossings(v: str, lane: float) -> int:
-        """Links that the horizontals to and from a lane at ``lane`` would cross."""
+        """Links that the horizontals to and from a lane at ``lane`` would cross: the
+        elements between, and the lanes placed already (their verticals crossed by these
+        horizontals, or their horizontals crossing this lane's vertical; issue 27: a
+        return link across another)."""
         def between(row: int, x: float, skip: str) -> int:
             lo, hi = min(x, lane), max(x, lane)
             return sum(1 for n in c.layers[row] if n != skip and lo < c.nodes[n].x < hi)
-        return (sum(between(c.nodes[u].layer, c.nodes[u].x, u) for u in groups[v])
-                + between(c.nodes[v].layer, c.nodes[v].x, v))
+        n = (sum(between(c.nodes[u].layer, c.nodes[u].x, u) for u in groups[v])
+             + between(c.nodes[v].layer, c.nodes[v].x, v))
+        rows = span(v)
+        for w, wx in r.lane.items():
+            wrows = span(w)
+            n += sum(1 for row, x0, x1 in horizontals(v, lane)
+                     if x0 < wx < x1 and wrows.start < row < wrows.stop - 1)
+            n += sum(1 for row, x0, x1 in horizontals(w, wx)
+                     if x0 < lane < x1 and rows.start < row < rows.stop - 1)
+        return n
 
     def place_lanes(targets: list[str]) -> None:
-        """Each target's lane, on the side where its horizontals cross fewer links (the
-        left on a tie); a lane that spans another goes outside it."""
+        """Each target's lane, on the side where its horizontals cross fewer links (on a
+        tie, the left, unless every link into it comes from the right of it); a lane that
+        spans another goes outside it."""
         for v in sorted(targets, key=lambda v: (len(span(v)), -c.nodes[v].layer)):
             left = min(_extent(c, layer, extra)[0] for layer in span(v)) - LANE
             right = max(_extent(c, layer, extra)[1] for layer in span(v)) + LANE
-            x = left if crossings(v, left) <= crossings(v, right) else right
+            cl, cr = crossings(v, left), crossings(v, right)
+            # on a tie, the side its links come from (a return link from a branch on the
+            # right goes up on the right, leaving the left to the main line's)
+            aside = min(c.nodes[u].x for u in groups[v]) > c.nodes[v].x
+            x = left if cl < cr or (cl == cr and not aside) else right
             r.lane[v] = x
             row = c.nodes[v].layer
             r.lane_level[v] = sum(1 for w in r.lane if w != v and c.nodes[w].layer == row
@@ -657,8 +689,8 @@ def _rows(c: Chart, r: Routes, groups: dict[str, list[str]]) -> None:
         out = leaving.get(layer, [])
         lefts = sorted((o for o in out if o[2] < 0), key=lambda o: c.nodes[o[0]].x)
         rights = sorted((o for o in out if o[2] > 0), key=lambda o: -c.nodes[o[0]].x)
-        for i, (u, v, _) in enumerate(lefts + rights):
-            r.leave[(u, v)] = first + 6 * i
-        gap = max(30.0, first - bottom + 6 * len(out) + 14)
+        for i, (u, v, _) in enumerate(lefts + rights):  # apart enough to be told apart
+            r.leave[(u, v)] = first + LINK_GAP * i
+        gap = max(30.0, first - bottom + LINK_GAP * len(out) + 14)
         y = bottom + gap
 

@@ -144,3 +144,99 @@ def test_drawer_tester_equations_are_drawn(tmp_path: Path) -> None:
     assert "tParo := iCerrado·(sParo + (sCierres >= 1000))" in eq
     assert "oParado := gsParado.X + sParo·Clock_1Hz + gsAveria.X·Clock_2Hz" in eq
     assert "sParo.Set(1, iParo)" in eq
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_the_token_covers_no_text_of_its_step(layout: str, tmp_path: Path) -> None:
+    """Issue 27: the active step's token was drawn on its "max 5s" label. Every step of
+    the shared-failure chart active at once: the token's disc is clear of the step's name
+    and times, and inside its box (inside the inner box of an initial step)."""
+    from runtime.drawing.text import text_w
+    from runtime.language.grafcetfile import load_grafcet
+
+    g = load_grafcet(str(HERE / "fallo.yaml"))
+    svg, _ = draw.chart_svg(g, active=set(g.steps), layout=layout)
+    root = ET.fromstring(svg)
+    for group in root.iter(f"{SVG}g"):
+        if "step-group" not in _classes(group):
+            continue
+        token = next(c for c in group.iter(f"{SVG}circle") if "token" in _classes(c))
+        cx, cy, r = (float(token.get(k, "0")) for k in ("cx", "cy", "r"))
+        box = next(e for e in group.iter(f"{SVG}rect") if "step" in _classes(e))
+        inner = next((e for e in group.iter(f"{SVG}rect") if "initial" in _classes(e)), box)
+        x0, y0 = float(inner.get("x", "0")), float(inner.get("y", "0"))
+        x1 = x0 + float(inner.get("width", "0"))
+        y1 = y0 + float(inner.get("height", "0"))
+        assert x0 < cx - r and cx + r < x1 and y0 < cy - r and cy + r < y1, group.get("data-step")
+        for t in group.iter(f"{SVG}text"):
+            size = float(t.get("font-size", "12"))
+            w = text_w("".join(t.itertext()), size)
+            tx = float(t.get("x", "0"))
+            left = {"start": tx, "middle": tx - w / 2, "end": tx - w}[t.get("text-anchor", "start")]
+            top, bottom = float(t.get("y", "0")) - size * 0.8, float(t.get("y", "0")) + 2
+            clear = (cx + r <= left or cx - r >= left + w or cy + r <= top or cy - r >= bottom)
+            assert clear, (group.get("data-step"), "".join(t.itertext()), (cx, cy))
+
+
+def shared_failure_chart(seed: int) -> str:
+    """A generated chart as a new user writes one from the course exercises: a line of 3
+    to 7 steps closed by a return to the initial step, failure transitions from some of
+    its steps into one shared failure step, whose reset goes back to the first or the
+    second step of the line."""
+    import random
+
+    rnd = random.Random(seed)
+    n = rnd.randint(3, 7)
+    steps = [f"s{i}" for i in range(n)]
+    fails = set(rnd.sample(steps[1:], rnd.randint(1, n - 1)))
+    lines = [f"grafcet: Gen{seed}", "inputs: [a, f, r]", "steps:", "  s0: {initial: true}",
+             *[f"  {s}: {{}}" for s in steps[1:]], "  sF: {}", "transitions:"]
+    for i, s in enumerate(steps):
+        lines.append(f"  - {{from: {s}, to: {steps[(i + 1) % n]}, when: a}}")
+        if s in fails:
+            lines.append(f"  - {{from: {s}, to: sF, when: f}}")
+    lines.append(f"  - {{from: sF, to: {rnd.choice(steps[:2])}, when: r}}")
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_generated_charts_with_a_shared_failure_step_have_no_crossing(
+        layout: str, tmp_path: Path) -> None:
+    """Issue 27: a failure link across the main line, a return link across another. Over
+    60 generated charts, none has a crossing and no failure step sits under the normal
+    sequence, on the main line (before the fix, in each layout: 26 had a crossing, 36 the
+    failure step on the main line)."""
+    from runtime.language.grafcetfile import load_grafcet
+
+    crossed = []
+    for seed in range(60):
+        path = tmp_path / f"gen{seed}.yaml"
+        path.write_text(shared_failure_chart(seed), encoding="utf-8")
+        svg, _ = draw.chart_svg(load_grafcet(str(path)), layout=layout)
+        root = ET.fromstring(svg)
+        if _crossings(root):
+            crossed.append(seed)
+        xs = _step_x(root)
+        assert abs(xs["sF"] - xs["s0"]) > 1, seed
+    assert crossed == []
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+@pytest.mark.parametrize("chart", NO_CROSSING, ids=[p.stem for p in NO_CROSSING])
+def test_links_back_up_are_told_apart(chart: Path, layout: str, tmp_path: Path) -> None:
+    """Issue 27: two links back up whose horizontals ran 6 px apart looked like one lane.
+    Horizontals of links back up that overlap side by side are at least 10 px apart."""
+    root = _draw(chart, tmp_path, layout)
+    hs = []
+    for pl in root.iter(f"{SVG}polyline"):
+        if "back" not in _classes(pl):
+            continue
+        pts = [(float(a), float(b)) for a, b in
+               (xy.split(",") for xy in (pl.get("points") or "").split())]
+        hs += [(p, q) for p, q in itertools.pairwise(pts)
+               if abs(p[1] - q[1]) < 0.01 and abs(p[0] - q[0]) > 0.01]
+    for (a, b), (p, q) in itertools.combinations(hs, 2):
+        overlap = min(max(a[0], b[0]), max(p[0], q[0])) - max(min(a[0], b[0]),
+                                                               min(p[0], q[0]))
+        if overlap > 1 and abs(a[1] - p[1]) > 0.01:
+            assert abs(a[1] - p[1]) >= 10, ((a, b), (p, q))
