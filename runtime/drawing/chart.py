@@ -29,6 +29,8 @@ from runtime.drawing.layout import (
     ACTION_GAP,
     BAR_W,
     CHAR_H,
+    DROP_GAP,
+    LINK_GAP,
     STEP_H,
     TIMES_SIZE,
     TOP,
@@ -46,10 +48,6 @@ from runtime.errors import Loc, SourceError
 from runtime.language.model import Grafcet
 
 ACTIVE_FILL = "#ffd54f"
-
-
-#: between the links of an AND convergence that shares its steps with another one, px
-DROP_GAP = 8.0
 
 
 def shared_and_drops(c: Chart, r: Routes) -> dict[tuple[str, str], float]:
@@ -109,7 +107,8 @@ class Drawing:
 
     def join_y(self, s: str) -> float:
         """The OR convergence line above a step: where every link into it arrives."""
-        return self.r.top[self.c.nodes[s].layer] - 8
+        return (self.r.top[self.c.nodes[s].layer] - 8
+                - LINK_GAP * self.r.join_level.get(s, 0))
 
     def split_y(self, s: str) -> float:
         """The OR divergence line below a step (below its action block)."""
@@ -195,19 +194,25 @@ class Drawing:
         c, xt, bar = self.c, self.x(t), self.mid(t)
         fw = c.fout(t)
         short = [d for d in fw if d not in self.r.bus or t not in long_links(c, d)]
+        y = self.and_out_y(t)
         for d in fw:
-            if d not in short:  # into a channel on the right
-                y = self.r.leave[(t, d)]
-                self.svg.line([(xt, bar + 2), (xt, y), (self.r.bus[d], y)])
-        if len(short) > 1 or (len(fw) > 1 and short):  # AND divergence
-            y = self.and_out_y(t)
-            xs = [self.x(d) for d in short] + [xt]
+            if d not in short:  # into a channel on the right (from its own double bar)
+                x, start = self.r.split_drops.get((t, d), xt), bar + 2
+                if (t, d) in self.r.split_drops:
+                    start = y + 2
+                ly = self.r.leave[(t, d)]
+                self.svg.line([(x, start), (x, ly), (self.r.bus[d], ly)])
+        if len(fw) > 1 and (short or any((t, d) in self.r.split_drops for d in fw)):
+            # AND divergence
+            drop = {d: self.r.split_drops.get((t, d), self.x(d)) for d in fw
+                    if d in short or (t, d) in self.r.split_drops}
+            xs = [*drop.values(), xt]
             self.svg.line([(xt, bar + 2), (xt, y - 2)])
             for dy in (-2.0, 2.0):
                 self.svg.line([(min(xs) - 12, y + dy), (max(xs) + 12, y + dy)],
                               cls="and divergence")
             for d in short:
-                self.arrive(d, self.x(d), y + 2)
+                self.arrive(d, drop[d], y + 2)
         elif short:
             self.arrive(short[0], xt, bar + 2)
 

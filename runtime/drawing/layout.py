@@ -450,6 +450,65 @@ class Routes:
     lane_level: dict[str, int] = field(default_factory=dict)  # lanes into the same row on
     # the same side arrive one above the other (outer ones higher)
     pad: list[float] = field(default_factory=list)  # room below a row for closing frames
+    split_drops: dict[tuple[str, str], float] = field(default_factory=dict)  # (AND
+    # divergence, step) -> x where its link leaves the transition's own short double bar
+    join_level: dict[str, int] = field(default_factory=dict)  # steps those links reach:
+    # their OR convergence lines one above the other (LINK_GAP per level)
+
+
+#: between the links that reach a short double bar of an AND convergence, px
+DROP_GAP = 8.0
+
+
+def shared_splits(c: Chart, r: Routes) -> dict[str, list[str]]:
+    """AND divergence -> its targets in the order their links leave its double bar, left
+    to right (the steps drawn under it by x, then those reached by a channel by the
+    channel's x), for the divergences that share a target step with another one, or whose
+    targets are all reached by channels. IEC 60848 has a double bar follow one
+    transition: each of these gets its own short bar under its transition, rather than
+    one bar spanning the steps, which several transitions would share (or none at all)."""
+    def long(t: str, d: str) -> bool:
+        return d in r.bus and t in long_links(c, d)
+    splits = {t: c.fout(t) for t in c.nodes if t.startswith("t:") and len(c.fout(t)) > 1}
+    out = {}
+    for t, ds in splits.items():
+        if (all(long(t, d) for d in ds)
+                or any(o != t and d in splits[o] for o in splits for d in ds)):
+            out[t] = sorted(ds, key=lambda d: (long(t, d), r.bus[d] if long(t, d)
+                                               else c.nodes[d].x))
+    return out
+
+
+def _split_links(c: Chart, r: Routes) -> None:
+    """Where the links leave the short double bars of shared_splits(), and the levels of
+    the OR convergence lines of the steps they reach under the bars: in each row, the
+    order (left one highest, or right one highest) whose lines are crossed least by the
+    links and the steps' own verticals."""
+    for t, ds in shared_splits(c, r).items():
+        for j, d in enumerate(ds):
+            r.split_drops[(t, d)] = c.nodes[t].x + (j - (len(ds) - 1) / 2) * LINK_GAP
+    rows: dict[int, set[str]] = {}
+    for t, d in r.split_drops:
+        if d not in r.bus or t not in long_links(c, d):
+            rows.setdefault(c.nodes[d].layer, set()).add(d)
+    for steps in rows.values():
+        into = {d: [x for (t, e), x in r.split_drops.items() if e == d
+                    and (d not in r.bus or t not in long_links(c, d))]
+                + ([r.bus[d]] if d in r.bus else []) for d in steps}
+        span = {d: (min(into[d] + [c.nodes[d].x]), max(into[d] + [c.nodes[d].x]))
+                for d in steps}
+
+        def crossed(order: list[str]) -> int:
+            n = 0
+            for hi, lo in itertools.combinations(order, 2):  # hi's line above lo's
+                a, b = span[hi]
+                n += sum(1 for x in into[lo] if a < x < b)
+                n += 1 if span[lo][0] < c.nodes[hi].x < span[lo][1] else 0
+            return n
+        by_x = sorted(steps, key=lambda d: c.nodes[d].x)
+        order = min((by_x, by_x[::-1]), key=crossed)
+        for k, d in enumerate(order):
+            r.join_level[d] = len(order) - 1 - k
 
 
 def long_links(c: Chart, step: str) -> list[str]:
@@ -609,6 +668,7 @@ def route(c: Chart) -> Routes:
             for layer in rows:
                 extra.setdefault(layer, []).append((x - 3, x + 3))
     place_lanes([v for v in groups if v not in r.lane])
+    _split_links(c, r)
     _rows(c, r, groups)
     return r
 
@@ -654,10 +714,13 @@ def _rows(c: Chart, r: Routes, groups: dict[str, list[str]]) -> None:
         for u in us:
             side = -1 if r.lane[v] < c.nodes[u].x else 1
             leaving.setdefault(c.nodes[u].layer, []).append((u, v, side))
-    arriving: dict[int, int] = {}
-    for v, k in r.lane_level.items():
+    arriving: dict[int, float] = {}  # room above a row for lines one above the other, px
+    for v in {*r.lane_level, *r.join_level}:
         row = c.nodes[v].layer
-        arriving[row] = max(arriving.get(row, 0), k)
+        k = 6 * r.lane_level.get(v, 0)
+        if v in r.join_level:  # and the highest line apart from the bars above
+            k += LINK_GAP * (r.join_level[v] + 1)
+        arriving[row] = max(arriving.get(row, 0.0), k)
     for v in r.bus:
         for t in long_links(c, v):
             leaving.setdefault(c.nodes[t].layer, []).append((t, v, 1))
@@ -671,7 +734,7 @@ def _rows(c: Chart, r: Routes, groups: dict[str, list[str]]) -> None:
     y = TOP
     for layer, ids in enumerate(c.layers):
         opening = sorted(starts.get(layer, []), key=lambda m: _depth(c.g, m))
-        y += 16 * len(opening) + 6 * arriving.get(layer, 0)
+        y += 16 * len(opening) + arriving.get(layer, 0.0)
         h = max((c.nodes[n].height for n in ids), default=STEP_H)
         r.top.append(y)
         r.height.append(h)
@@ -688,7 +751,8 @@ def _rows(c: Chart, r: Routes, groups: dict[str, list[str]]) -> None:
         first = max(mid + 20, base + 12) if layer % 2 else base + 14
         out = leaving.get(layer, [])
         lefts = sorted((o for o in out if o[2] < 0), key=lambda o: c.nodes[o[0]].x)
-        rights = sorted((o for o in out if o[2] > 0), key=lambda o: -c.nodes[o[0]].x)
+        rights = sorted((o for o in out if o[2] > 0),
+                        key=lambda o: -r.split_drops.get((o[0], o[1]), c.nodes[o[0]].x))
         for i, (u, v, _) in enumerate(lefts + rights):  # apart enough to be told apart
             r.leave[(u, v)] = first + LINK_GAP * i
         gap = max(30.0, first - bottom + LINK_GAP * len(out) + 14)

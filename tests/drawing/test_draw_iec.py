@@ -82,11 +82,13 @@ NO_CROSSING = [*EXERCISES, *CHARTS]
 @pytest.mark.parametrize("layout", LAYOUTS)
 @pytest.mark.parametrize("chart", NO_CROSSING, ids=[p.stem for p in NO_CROSSING])
 def test_no_link_crosses_another(chart: Path, layout: str, tmp_path: Path) -> None:
-    """A loop lane goes round a branch, never across it. The press's AND convergence left
-    by two transitions is the one exception: its two steps each feed both double bars, so
-    one crossing cannot be avoided (a plain crossing, no bar crossed)."""
+    """A loop lane goes round a branch, never across it. Steps shared by several AND
+    convergences or divergences are the exception: the press's two steps each feed both
+    double bars of the transitions leaving them, so one crossing cannot be avoided; the
+    three modes' transitions each reach both steps of the parallel tasks, so two cannot
+    (one per transition after the first; plain crossings, no bar crossed)."""
     root = _draw(chart, tmp_path, layout)
-    allowed = 1 if chart.stem == "prensa" else 0
+    allowed = {"prensa": 1, "modos": 2}.get(chart.stem, 0)
     assert len(_crossings(root)) <= allowed, _crossings(root)
 
 
@@ -121,6 +123,99 @@ def test_each_and_convergence_has_its_own_double_bar(layout: str, tmp_path: Path
         if abs(p[0] - q[0]) < 0.01 and x0 < p[0] < x1:
             assert not min(p[1], q[1]) < y - 2.5 < y + 2.5 < max(p[1], q[1]), (p, q, y)
     assert len(_bars(root, "divergence")) == 1
+
+
+# three transitions from one step into the same two steps (the course's exercise with the
+# three modes has them from three steps)
+SAME_SOURCE = """\
+grafcet: Tres
+inputs: [iA, iB, iC, iD]
+outputs: [oX, oY]
+steps:
+  gs0: {initial: true}
+  gsP: {actions: [oX]}
+  gsQ: {actions: [oY]}
+transitions:
+  - {from: gs0, to: [gsP, gsQ], when: iA}
+  - {from: gs0, to: [gsP, gsQ], when: iB}
+  - {from: gs0, to: [gsP, gsQ], when: iC}
+  - {from: [gsP, gsQ], to: gs0, when: iD}
+"""
+
+# two transitions into the same two steps from different rows: the upper one's links reach
+# them by channels (it had no double bar at all)
+TWO_ROWS = """\
+grafcet: Dos
+inputs: [iA, iB, iC, iD]
+outputs: [oX, oY]
+steps:
+  gs0: {initial: true}
+  gsA: {}
+  gsP: {actions: [oX]}
+  gsQ: {actions: [oY]}
+transitions:
+  - {from: gs0, to: [gsP, gsQ], when: iA}
+  - {from: gs0, to: gsA, when: iB}
+  - {from: gsA, to: [gsP, gsQ], when: iC}
+  - {from: [gsP, gsQ], to: gs0, when: iD}
+"""
+
+
+def _transition_xy(root: ET.Element) -> dict[str, Point]:
+    """Transition index -> the middle of its bar."""
+    out = {}
+    for group in root.iter(f"{SVG}g"):
+        if "transition-group" in _classes(group):
+            bar = next(p for p in group.iter(f"{SVG}polyline") if "transition" in _classes(p))
+            pts = [(float(a), float(b)) for a, b in
+                   (xy.split(",") for xy in (bar.get("points") or "").split())]
+            out[group.get("data-transition", "")] = ((pts[0][0] + pts[-1][0]) / 2, pts[0][1])
+    return out
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+@pytest.mark.parametrize("which", ["modos", "same-source", "two-rows"])
+def test_each_and_divergence_has_its_own_double_bar(which: str, layout: str,
+                                                    tmp_path: Path) -> None:
+    """Issue 27: three transitions into the same two steps were drawn on one shared double
+    bar, which IEC 60848 has no reading for (a double bar follows one transition). Each
+    transition with several targets has its own double bar, which spans its own bar and no
+    other transition's, apart from the others (the upper one of two transitions in
+    different rows had none)."""
+    from runtime.language.grafcetfile import load_grafcet
+
+    if which == "modos":
+        path = HERE / "modos.yaml"
+    else:
+        path = tmp_path / "c.yaml"
+        path.write_text(SAME_SOURCE if which == "same-source" else TWO_ROWS, encoding="utf-8")
+    g = load_grafcet(str(path))
+    split = [str(k) for k, t in enumerate(g.transitions) if len(set(t.dst_steps)) > 1]
+    assert len(split) == (2 if which == "two-rows" else 3)
+    root = _draw(path, tmp_path, layout)
+    lines = []
+    for pl in root.iter(f"{SVG}polyline"):
+        if {"and", "divergence"} <= _classes(pl):
+            (x0, y), (x1, _) = [(float(a), float(b)) for a, b in
+                                (xy.split(",") for xy in (pl.get("points") or "").split())]
+            lines.append((round(y, 2), min(x0, x1), max(x0, x1)))
+    assert len(set(lines)) == len(lines) == 2 * len(split), lines  # no bar drawn twice
+    bars = [(y + 2, x0, x1) for y, x0, x1 in lines if (y + 4, x0, x1) in lines]
+    assert len(bars) == len(split), bars
+    at = _transition_xy(root)
+    for k in split:
+        x, y = at[k]
+        mine = [b for b in bars if b[1] < x < b[2] and 0 < b[0] - y < 30]  # right under it
+        assert len(mine) == 1, (k, bars)
+        others = [j for j, (xj, yj) in at.items()
+                  if j != k and abs(yj - y) < 1 and mine[0][1] <= xj <= mine[0][2]]
+        assert not others, (k, others)
+    for a, b in itertools.combinations(bars, 2):
+        assert abs(a[0] - b[0]) > 6 or a[2] < b[1] or b[2] < a[1], (a, b)
+    for (p, q), (y, x0, x1) in itertools.product(  # links end on a bar or leave it
+            _segments(root, {"transition", "and"}), bars):
+        if abs(p[0] - q[0]) < 0.01 and x0 < p[0] < x1:
+            assert not min(p[1], q[1]) < y - 2.5 < y + 2.5 < max(p[1], q[1]), (p, q, y)
 
 
 def test_pre_post_min_max_and_action_conditions_in_the_seed_notation(tmp_path: Path) -> None:
