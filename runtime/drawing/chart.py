@@ -21,6 +21,7 @@ With ``--trace TRACE.jsonl --cycle K`` the steps active in scan K of the trace (
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import shutil
 import sys
@@ -363,17 +364,52 @@ def render(c: Chart, r: Routes, active: set[str], title: str) -> str:
         f'<rect x="{x0:.0f}" width="{width:.0f}" height="100%" fill="white"/>', title_svg])
 
 
-def chart_svg(g: Grafcet, active: set[str] | None = None, title: str = "",
-              layout: str = "auto") -> tuple[str, str]:
-    """(SVG text, layout used: "dot" or "python")."""
-    c = build_chart(g)
+def link_crossings(c: Chart, r: Routes) -> int:
+    """Points where a link runs straight across another (a vertical through a horizontal,
+    neither ending there; bars and double bars left out)."""
+    d = Drawing(c, r, set())
+    d.draw_links()
+    flat, upright = [], []
+    for pts, cls in d.svg.polylines:
+        if {"transition", "and"} & set(cls.split()):
+            continue
+        for (x0, y0), (x1, y1) in itertools.pairwise(pts):
+            if abs(y0 - y1) < 0.01 < abs(x0 - x1):
+                flat.append((y0, min(x0, x1), max(x0, x1)))
+            elif abs(x0 - x1) < 0.01 < abs(y0 - y1):
+                upright.append((x0, min(y0, y1), max(y0, y1)))
+    return sum(1 for y, a, b in flat for x, lo, hi in upright
+               if a + 0.5 < x < b - 0.5 and lo + 0.5 < y < hi - 0.5)
+
+
+def laid_out(g: Grafcet, layout: str = "auto") -> tuple[Chart, Routes, str]:
+    """The chart placed and routed, and the layout used ("dot" or "python"). Each step goes
+    under its nearest predecessor; if links then cross, it goes under the one the
+    depth-first walk reached it from instead (the normal sequence, a link from higher up
+    running straight down past a branch: issue 27, a return link into the third step
+    across the failure channel), when that crosses fewer."""
     dot = shutil.which("dot") if layout in ("auto", "dot") else None
     if layout == "dot" and dot is None:
         raise RuntimeError("--layout dot: Graphviz's 'dot' is not installed "
                            "(apt-get install graphviz)")
-    hint = dot_order(c, dot) if dot is not None else None
-    r = arrange(c, hint)
-    return render(c, r, active or set(), title), ("dot" if dot is not None else "python")
+    best: tuple[int, Chart, Routes] | None = None
+    for follow in (False, True):
+        c = build_chart(g, follow_tree=follow)
+        r = arrange(c, dot_order(c, dot) if dot is not None else None)
+        n = link_crossings(c, r)
+        if best is None or n < best[0]:
+            best = (n, c, r)
+        if n == 0:
+            break
+    assert best is not None
+    return best[1], best[2], ("dot" if dot is not None else "python")
+
+
+def chart_svg(g: Grafcet, active: set[str] | None = None, title: str = "",
+              layout: str = "auto") -> tuple[str, str]:
+    """(SVG text, layout used: "dot" or "python")."""
+    c, r, used = laid_out(g, layout)
+    return render(c, r, active or set(), title), used
 
 
 # -- trace -----------------------------------------------------------------------------------

@@ -84,6 +84,9 @@ class Chart:
     labels: dict[str, list[str]]
     names: dict[str, str]
     layers: list[list[str]] = field(default_factory=list)
+    tree: dict[str, str] = field(default_factory=dict)  # element -> the one it was
+    # discovered from in the depth-first walk (the sequence it continues)
+    follow_tree: bool = False  # primary_pred: that one first
 
     def fout(self, n: str) -> list[str]:
         return [c for c in self.out[n] if (n, c) not in self.back]
@@ -93,17 +96,21 @@ class Chart:
 
     def primary_pred(self, n: str) -> str | None:
         """The predecessor an element goes under: the nearest one (deepest row), then the
-        first in file order."""
+        first in file order; with ``follow_tree``, the one the depth-first walk reached it
+        from first (the sequence it continues: a link from higher up then runs straight
+        down to it past what the nearer one leads to)."""
         preds = self.fin(n)
         if not preds:
             return None
+        if self.follow_tree and self.tree.get(n) in preds:
+            return self.tree[n]
         return max(preds, key=lambda p: (self.nodes[p].layer, -self.inc[n].index(p)))
 
     def is_back_transition(self, t: str) -> bool:
         return bool(self.out[t]) and all((t, d) in self.back for d in self.out[t])
 
 
-def build_chart(g: Grafcet) -> Chart:
+def build_chart(g: Grafcet, follow_tree: bool = False) -> Chart:
     nodes: dict[str, Node] = {}
     actions: dict[str, list[tuple[str, list[str]]]] = {}
     cols: dict[str, tuple[float, float]] = {}
@@ -140,12 +147,13 @@ def build_chart(g: Grafcet) -> Chart:
         for d in dict.fromkeys(t.dst_steps):
             out[tid].append("s:" + d)
             inc["s:" + d].append(tid)
-    back, dfs = _back_links(g, nodes, out)
+    back, dfs, tree = _back_links(g, nodes, out)
     for st in g.leaf_steps():
         nodes["s:" + st.name].macro = st.parent
     for k, m in macro_of_transition(g).items():
         nodes[f"t:{k}"].macro = m
-    c = Chart(g, nodes, out, inc, back, dfs, actions, cols, labels, names)
+    c = Chart(g, nodes, out, inc, back, dfs, actions, cols, labels, names, tree=tree,
+              follow_tree=follow_tree)
     _layers(c)
     # a step's transitions, left to right: those that lead back up first (the lanes of the
     # ones leading higher further out), then the others in file order
@@ -166,16 +174,18 @@ def row_h(lines: list[str]) -> float:
     return max(20.0, CHAR_H * len(lines) + 6)
 
 
-def _back_links(g: Grafcet, nodes: dict[str, Node],
-                out: dict[str, list[str]]) -> tuple[set[tuple[str, str]], list[str]]:
+def _back_links(g: Grafcet, nodes: dict[str, Node], out: dict[str, list[str]]
+                ) -> tuple[set[tuple[str, str]], list[str], dict[str, str]]:
     """Links that close a cycle in a depth-first walk from the initial steps (transitions in
-    file order): they are drawn going back up."""
+    file order): they are drawn going back up. Also the discovery order, and the element
+    each one was discovered from."""
     roots = ["s:" + s.name for s in g.leaf_steps() if s.initial]
     roots += [f"t:{k}" for k, t in enumerate(g.transitions) if not t.src_steps]
     roots += list(nodes)
     state: dict[str, int] = {}  # 1 on the current path, 2 done
     back: set[tuple[str, str]] = set()
     order: list[str] = []
+    tree: dict[str, str] = {}
     for root in roots:
         if root in state:
             continue
@@ -193,8 +203,9 @@ def _back_links(g: Grafcet, nodes: dict[str, Node],
             elif c not in state:
                 state[c] = 1
                 order.append(c)
+                tree[c] = n
                 stack.append((c, iter(list(out[c]))))
-    return back, order
+    return back, order, tree
 
 
 def _layers(c: Chart) -> None:
@@ -318,7 +329,8 @@ def _frame_rights(c: Chart, nodes: list[str]) -> list[tuple[int, int, float]]:
 
 def _place(c: Chart, hint: dict[str, float] | None, root_x: dict[str, float],
            skip: set[str]) -> None:
-    long_and = [(s, t) for s, t in and_links(c) if s not in skip and t not in skip]
+    long_and = [(s, t) for s, t in [*and_links(c), *straight_links(c)]
+                if s not in skip and t not in skip]
     for layer, every in enumerate(c.layers):
         ids = [n for n in every if n not in skip]
         desired: dict[str, float] = {}
@@ -497,23 +509,38 @@ def _split_links(c: Chart, r: Routes) -> None:
                 + ([r.bus[d]] if d in r.bus else []) for d in steps}
         span = {d: (min(into[d] + [c.nodes[d].x]), max(into[d] + [c.nodes[d].x]))
                 for d in steps}
-
-        def crossed(order: list[str]) -> int:
-            n = 0
-            for hi, lo in itertools.combinations(order, 2):  # hi's line above lo's
-                a, b = span[hi]
-                n += sum(1 for x in into[lo] if a < x < b)
-                n += 1 if span[lo][0] < c.nodes[hi].x < span[lo][1] else 0
-            return n
         by_x = sorted(steps, key=lambda d: c.nodes[d].x)
-        order = min((by_x, by_x[::-1]), key=crossed)
+        order = min((by_x, by_x[::-1]), key=lambda o: _joins_crossed(c, o, into, span))
         for k, d in enumerate(order):
             r.join_level[d] = len(order) - 1 - k
 
 
+def _joins_crossed(c: Chart, order: list[str], into: dict[str, list[float]],
+                   span: dict[str, tuple[float, float]]) -> int:
+    """Crossings of OR convergence lines one above the other in ``order`` (the first
+    highest): links into a lower line across a higher one, a higher one's step's vertical
+    across a lower line."""
+    n = 0
+    for hi, lo in itertools.combinations(order, 2):
+        a, b = span[hi]
+        n += sum(1 for x in into[lo] if a < x < b)
+        n += 1 if span[lo][0] < c.nodes[hi].x < span[lo][1] else 0
+    return n
+
+
 def long_links(c: Chart, step: str) -> list[str]:
-    """Transitions that lead to ``step`` from more than one row above (a channel)."""
-    return [t for t in c.fin(step) if c.nodes[step].layer - c.nodes[t].layer > 1]
+    """Transitions that lead to ``step`` from more than one row above (a channel), but the
+    one it goes under (a straight line down, see straight_links)."""
+    return [t for t in c.fin(step) if c.nodes[step].layer - c.nodes[t].layer > 1
+            and c.primary_pred(step) != t]
+
+
+def straight_links(c: Chart) -> list[tuple[str, str]]:
+    """(transition, step) links that skip rows into a step drawn under the transition: a
+    vertical line through the rows between, which the elements of those rows keep clear
+    of (the main line goes on straight past a branch drawn beside it)."""
+    return [(t, n) for n in c.nodes if n.startswith("s:")
+            and (t := c.primary_pred(n)) is not None and c.nodes[n].layer - c.nodes[t].layer > 1]
 
 
 def _extent(c: Chart, layer: int, extra: dict[int, list[tuple[float, float]]]
@@ -551,7 +578,7 @@ def _within(g: Grafcet, inner: str, outer: str) -> bool:
 def route(c: Chart) -> Routes:
     r = Routes()
     extra: dict[int, list[tuple[float, float]]] = {}
-    for s, t in and_links(c):
+    for s, t in [*and_links(c), *straight_links(c)]:
         for layer in range(c.nodes[s].layer + 1, c.nodes[t].layer):
             x = c.nodes[s].x
             extra.setdefault(layer, []).append((x - 3, x + 3))
@@ -717,7 +744,7 @@ def _rows(c: Chart, r: Routes, groups: dict[str, list[str]]) -> None:
     arriving: dict[int, float] = {}  # room above a row for lines one above the other, px
     for v in {*r.lane_level, *r.join_level}:
         row = c.nodes[v].layer
-        k = 6 * r.lane_level.get(v, 0)
+        k = 6.0 * r.lane_level.get(v, 0)
         if v in r.join_level:  # and the highest line apart from the bars above
             k += LINK_GAP * (r.join_level[v] + 1)
         arriving[row] = max(arriving.get(row, 0.0), k)

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from runtime.drawing import chart as draw
+from runtime.language.model import Grafcet
 from tests.drawing.test_draw_layout import CHARTS, LAYOUTS, ROOT, SVG
 
 HERE = Path(__file__).resolve().parent / "charts"
@@ -273,11 +274,11 @@ def test_the_token_covers_no_text_of_its_step(layout: str, tmp_path: Path) -> No
             assert clear, (group.get("data-step"), "".join(t.itertext()), (cx, cy))
 
 
-def shared_failure_chart(seed: int) -> str:
+def shared_failure_chart(seed: int, back_to: int = 2) -> str:
     """A generated chart as a new user writes one from the course exercises: a line of 3
     to 7 steps closed by a return to the initial step, failure transitions from some of
-    its steps into one shared failure step, whose reset goes back to the first or the
-    second step of the line."""
+    its steps into one shared failure step, whose reset goes back to one of the first
+    ``back_to`` steps of the line."""
     import random
 
     rnd = random.Random(seed)
@@ -290,7 +291,7 @@ def shared_failure_chart(seed: int) -> str:
         lines.append(f"  - {{from: {s}, to: {steps[(i + 1) % n]}, when: a}}")
         if s in fails:
             lines.append(f"  - {{from: {s}, to: sF, when: f}}")
-    lines.append(f"  - {{from: sF, to: {rnd.choice(steps[:2])}, when: r}}")
+    lines.append(f"  - {{from: sF, to: {rnd.choice(steps[:back_to])}, when: r}}")
     return "\n".join(lines) + "\n"
 
 
@@ -314,6 +315,46 @@ def test_generated_charts_with_a_shared_failure_step_have_no_crossing(
         xs = _step_x(root)
         assert abs(xs["sF"] - xs["s0"]) > 1, seed
     assert crossed == []
+
+
+def _forced(g: Grafcet) -> bool:
+    """Does the reset of a generated chart go back to a step ``s_k`` with failures both
+    from a step above it and from ``s_k`` or one below? Then its link must cross one: it
+    enters ``s_k`` from above, on the side of the failure links (the other side has the
+    line's own return, whose lane spans ``s_k``), inside the region closed by the line
+    from the upper failing step to the lower one, their failure links and the failure
+    step's OR convergence line; and it leaves from under that line."""
+    line = [s for s in g.steps if s != "sF"]
+    fails = [line.index(t.src_steps[0]) for t in g.transitions if t.dst_steps == ["sF"]]
+    k = line.index(next(t.dst_steps[0] for t in g.transitions if t.src_steps == ["sF"]))
+    return any(i < k for i in fails) and any(j >= k for j in fails)
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_a_reset_into_any_step_crosses_only_where_it_must(layout: str,
+                                                          tmp_path: Path) -> None:
+    """Issue 27: a reset back to the third step or lower crossed a link though the chart
+    allows a drawing without. Over 200 generated charts whose reset goes back to any
+    step, the charts with a crossing are exactly those where one cannot be avoided
+    (``_forced``), with one crossing each (before the fix, in each layout: 76 crossed,
+    67 of them forced)."""
+    from runtime.language.grafcetfile import load_grafcet
+
+    crossed, forced = {}, []
+    for seed in range(200):
+        text = shared_failure_chart(seed, back_to=7)
+        path = tmp_path / f"gen{seed}.yaml"
+        path.write_text(text, encoding="utf-8")
+        g = load_grafcet(str(path))
+        svg, _ = draw.chart_svg(g, layout=layout)
+        n = len(_crossings(ET.fromstring(svg)))
+        if n:
+            crossed[seed] = n
+        if _forced(g):
+            forced.append(seed)
+    assert len(forced) == 67  # the generator's
+    assert sorted(crossed) == forced
+    assert set(crossed.values()) == {1}
 
 
 @pytest.mark.parametrize("layout", LAYOUTS)
