@@ -234,7 +234,7 @@ def make_pki(directory: str) -> dict[str, str]:
 def start_daemon(path: str, testers: int, feed: bool) -> tuple[Daemon, FeedServer | None]:
     pdef = load_plant(path)
     if not feed:  # the plant without its side processes' sections: no feed
-        pdef.opcua = pdef.mqtt = None
+        pdef.opcua = pdef.mqtt = pdef.web = None
     daemon = Daemon(pdef, sim=True, manage_gc=True)
     daemon.add_listener(DrawerModel(daemon, testers))
     fs = None

@@ -320,6 +320,30 @@ def cmd_mqtt(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_web(args: argparse.Namespace) -> int:
+    """The plant's live view in the browser, fed by its running controller (docs/web.md)."""
+    pdef = _side_plant(args.plant, "web", "serve this plant's page")
+    try:
+        from runtime.web.server import serve
+    except ImportError as exc:
+        raise _missing_extra(exc, "web") from None
+    w = pdef.web
+    if args.listen:  # the same checks as the plant's key
+        from runtime.language.webconf import listen_value
+
+        w.host, w.port = listen_value(args.listen, w.certificate is not None,
+                                      Loc("--listen", 1, 1))
+    logging.getLogger("aiohttp.access").setLevel(logging.WARNING)
+    try:
+        _until_signal(lambda stop: serve(pdef, args.feed, stop=stop))
+    except OSError as exc:  # the port is taken, a certificate cannot be read
+        where = getattr(exc, "filename", None)
+        sys.stderr.write(f"softplc web: error: {where + ': ' if where else ''}"
+                         f"{w.host}:{w.port}: {getattr(exc, 'strerror', None) or exc}\n")
+        return 2
+    return 0
+
+
 def _opcua_cannot_serve(pdef: Any, endpoint: str, feed: str, endpoint_given: bool,
                         feed_given: bool) -> str | None:
     """Why ``softplc opcua`` cannot serve, as its one line (at the plant's line of the
@@ -632,6 +656,13 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     mq.add_argument("plant")
     mq.add_argument("--feed", help="override mqtt: feed (the controller's feed socket)")
     mq.set_defaults(func=cmd_mqtt)
+
+    wb = sub.add_parser("web", help="serve a running plant's live page in the browser "
+                                    "(its own process)")
+    wb.add_argument("plant")
+    wb.add_argument("--listen", help="override web: listen (HOST:PORT)")
+    wb.add_argument("--feed", help="override web: feed (the controller's feed socket)")
+    wb.set_defaults(func=cmd_web)
 
     command = None if argv is None else next((a for a in argv if not a.startswith("-")), "")
     known = command in sub.choices or command in MODULE_COMMANDS

@@ -34,6 +34,9 @@ if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
   dpkg -s python3-venv >/dev/null 2>&1 || missing="$missing python3-venv"
   # the MQTT tests' broker (tests/mqtt: started by the tests on a loopback port)
   command -v mosquitto >/dev/null || [ -x /usr/sbin/mosquitto ] || missing="$missing mosquitto"
+  # the browser of the web view's tests (tests/web: Debian's chromium driven by playwright,
+  # which never downloads a browser of its own)
+  [ -x /usr/bin/chromium ] || missing="$missing chromium"
   if [ -n "$missing" ]; then
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $missing >/dev/null || \
       echo "test.sh: could not install:$missing (the tests that need them will skip)" >&2

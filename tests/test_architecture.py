@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PARTS = (
     "runtime.cli", "runtime.errors", "runtime.language", "runtime.compiler", "runtime.engine",
     "runtime.controller", "runtime.console", "runtime.checker", "runtime.drawing", "drivers",
-    "runtime.change", "runtime.opcua", "runtime.plcopen", "runtime.mqtt",
+    "runtime.change", "runtime.opcua", "runtime.plcopen", "runtime.mqtt", "runtime.web",
 )
 
 #: drivers modules with no bus library (the driver contract, lookup by type, durations, and
@@ -51,6 +51,9 @@ ALLOWED: dict[str, frozenset[str]] = {
                                "runtime.controller.feed", "runtime.controller.feedclient"}),
     "runtime.plcopen": frozenset({"runtime.errors", "runtime.language", "runtime.drawing",
                                   "drivers.contract"}),
+    "runtime.web": frozenset({"runtime.errors", "runtime.language", "runtime.drawing",
+                              "runtime.controller.feed", "runtime.controller.feedclient",
+                              "runtime.controller.pin"}),
     "runtime.cli": frozenset({"*"}),
     "runtime.change": frozenset({"runtime.errors", "runtime.language", "runtime.compiler",
                                  "runtime.engine", "drivers.contract"}),

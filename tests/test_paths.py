@@ -261,10 +261,15 @@ def test_the_demo_script_prints_the_socket_it_opens(tmp: Path) -> None:
     env = {k: v for k, v in os.environ.items()
            if k not in ("RUNTIME_DIRECTORY", "XDG_RUNTIME_DIR")}
     env["TMPDIR"] = str(tmp)
-    r = subprocess.run([str(tree / "scripts" / "run-demo.sh"), "--for", "0.3s"],
+    env["WEB_LISTEN"] = "127.0.0.1:0"  # any free port (the demo's is 8080)
+    r = subprocess.run([str(tree / "scripts" / "run-demo.sh"), "--for", "4s"],
                        capture_output=True, text=True, timeout=120, env=env)
     sock = f"{tmp}/softplc-{os.geteuid()}/drawer.sock"
     assert r.returncode == 0, r.stderr
     assert f"run-demo: console on {sock}; in a second terminal: .venv/bin/softplc monitor " \
            f"{sock}\n" in r.stderr
     assert f"console listening on {sock} (trusted)" in r.stderr
+    # softplc web beside it: it said where its page is, followed the feed, and stopped
+    assert "run-demo: the live page on http://127.0.0.1:0/" in r.stderr
+    assert re.search(r"web: the page of \S+ is at http://127\.0\.0\.1:\d+/", r.stderr), r.stderr
+    assert "connected to the controller's feed" in r.stderr

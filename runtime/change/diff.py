@@ -175,17 +175,22 @@ def diff_plants(old: PlantDef, new: PlantDef) -> ChangeSet:
     return cs
 
 
-# -- the side processes' sections (opcua:, mqtt:) ------------------------------------------
+# -- the side processes' sections (opcua:, mqtt:, web:) ------------------------------------
 #: section -> its process and unit, as the diff names them
 SIDES = {"opcua": ("OPC UA server", "softplc opcua; systemctl restart softplc-opcua@NAME"),
-         "mqtt": ("MQTT edge node", "softplc mqtt; systemctl restart softplc-mqtt@NAME")}
+         "mqtt": ("MQTT edge node", "softplc mqtt; systemctl restart softplc-mqtt@NAME"),
+         "web": ("web view", "softplc web; systemctl restart softplc-web@NAME")}
+#: what of ``web:`` is the web view's own (read at its start)
+WEB_OWN = ("host", "port", "certificate", "private_key", "users", "read", "idle_logout_ns",
+           "max_pages")
 #: what of ``mqtt:`` is the edge node's own (read at its start)
 MQTT_OWN = ("brokers", "group_id", "edge_node_id", "client_id", "username", "password_file",
             "tls", "primary_host", "publish", "statistics_ns", "keepalive_ns", "buffer")
 
 
 def _sides(cs: ChangeSet) -> None:
-    """``opcua:`` and ``mqtt:``: the controller serves their one feed from its start, so
+    """``opcua:``, ``mqtt:`` and ``web:``: the controller serves their one feed from its
+    start, so
     what changes the feed (its socket, its sample: the shortest of the sections') is
     refused until a restart, and so is a section added to a plant that had no feed; a
     removal applies the fail-safe part at once (that side's writes end, the feed serves
@@ -196,7 +201,8 @@ def _sides(cs: ChangeSet) -> None:
                     and (ofeed.path, ofeed.sample_ns) != (nfeed.path, nfeed.sample_ns))
     add = cs._lines.append
     sections: tuple[tuple[str, Any, Any], ...] = (
-        ("opcua", cs.old.opcua, cs.new.opcua), ("mqtt", cs.old.mqtt, cs.new.mqtt))
+        ("opcua", cs.old.opcua, cs.new.opcua), ("mqtt", cs.old.mqtt, cs.new.mqtt),
+        ("web", cs.old.web, cs.new.web))
     for key, old, new in sections:
         process, restart = SIDES[key]
         if old is None and new is None:
@@ -213,6 +219,9 @@ def _sides(cs: ChangeSet) -> None:
                                            f"restart the controller, then start its "
                                            f"{process}", False))
             continue
+        if new is None and key == "web":  # it acts through the console, never the feed
+            add("plant: web: removed: stop its web view (systemctl stop softplc-web@NAME)")
+            continue
         if new is None:
             add(f"plant: {key}: removed: {SIDE_NAMES[key]} writes refused from now on; the "
                 "feed serves values until the controller restarts")
@@ -225,7 +234,7 @@ def _sides(cs: ChangeSet) -> None:
                 add(f"plant: {key} {what} changed")
                 cs.refusals.append(Refusal(f"{key}: {what} changed: it takes effect only at "
                                            "a restart of the controller", False))
-            elif key == "mqtt":  # the edge node reports at most once per its own sample
+            elif key in ("mqtt", "web"):  # each sends at most once per its own sample
                 add(f"plant: {key} {what} changed: applied when the {process} restarts "
                     f"({restart})")
             else:
@@ -238,6 +247,8 @@ def _sides(cs: ChangeSet) -> None:
             own: list[tuple[str, object, object]] = [
                 ("endpoint", old.endpoint, new.endpoint),
                 ("security", replace(old.security, loc=None), replace(new.security, loc=None))]
+        elif key == "web":
+            own = [(f, getattr(old, f), getattr(new, f)) for f in WEB_OWN]
         else:  # (the TLS files' place in the file is no setting)
             own = [(f.removesuffix("_ns"), getattr(old, f), getattr(new, f))
                    for f in MQTT_OWN if f != "tls"]

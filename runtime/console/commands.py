@@ -282,11 +282,38 @@ def cmd_lock(session: Session, args: list[str]) -> Reply:
                if session.trusted else "")], {"released": released}
 
 
+#: what ``web`` accepts as a user name and an address (they go into log lines)
+_WEB_WORD = re.compile(r"^[A-Za-z0-9_.:\[\]@-]{1,64}$")
+
+
+def cmd_web(session: Session, args: list[str]) -> Reply:
+    """``web USER ADDRESS``: ``softplc web`` says that this session acts for the page of a
+    user it logged in (docs/web.md). Only from root or the controller's own user on a Unix
+    socket (the web view runs as the controller's user), and only on a plant with a
+    ``web:`` section. The session may then change the machine without a PIN; what it
+    holds is owned and ended as any session's (it is named ``web:USER@ADDRESS`` in the
+    log and in ``status``)."""
+    if session.plant.pdef.web is None:
+        raise CommandError("web: the plant has no web: section")
+    if session.name.startswith("web:"):
+        raise CommandError(f"web: this session already acts for {session.name}")
+    if not session.service_account():
+        raise CommandError("web: only the web view may say whom it acts for (root or the "
+                           "controller's own user, on a Unix socket)")
+    if len(args) != 2 or not all(_WEB_WORD.match(a) for a in args):
+        raise CommandError("usage: web USER ADDRESS")
+    before = session.name
+    session.name = f"web:{args[0]}@{args[1]}"
+    session.trusted = True
+    log.info("console %s: acts for %s", before, session.name)
+    return [f"acting for {session.name}"]
+
+
 #: every command by name (protocol.READ_ONLY and protocol.CHANGING name the same ones)
 COMMANDS: dict[str, Command] = {
     "help": cmd_help, "status": cmd_status, "stats": cmd_stats, "get": cmd_get,
     "watch": cmd_watch, "trace": cmd_trace, "why": cmd_why, "json": cmd_json,
-    "unlock": cmd_unlock, "lock": cmd_lock,
+    "unlock": cmd_unlock, "lock": cmd_lock, "web": cmd_web,
     "set": changing.cmd_set, "force": changing.cmd_force, "unforce": changing.cmd_unforce,
     "pause": changing.cmd_pause, "resume": changing.cmd_resume, "cycle": changing.cmd_cycle,
     "init": changing.cmd_init, "reset": changing.cmd_reset, "iocheck": changing.cmd_iocheck,

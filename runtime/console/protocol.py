@@ -43,7 +43,7 @@ MIN_EVERY_MS = 10
 
 #: commands any session may run
 READ_ONLY = ("help", "status", "stats", "get", "watch", "trace", "why", "json", "unlock",
-             "lock")
+             "lock", "web")
 #: commands that change the plant: they need ``unlock PIN`` or a trusted console
 CHANGING = ("set", "force", "unforce", "pause", "resume", "cycle", "init", "reset",
             "iocheck", "ack", "reload")
@@ -77,6 +77,8 @@ HELP = {
     "unlock": "unlock PIN : allow the commands marked *",
     "lock": "forbid them again; releases every force",
     "json": "json on|off : replies as one JSON object per line",
+    "web": "web USER ADDRESS : (softplc web only: root or the controller's own user on a "
+           "Unix socket, a plant with web:) this session acts for USER's page from ADDRESS",
 }
 
 #: what a command returns: its reply lines, and with them the data of its JSON reply

@@ -31,11 +31,18 @@ Messages, one JSON object per line (``"\\n"``):
   since the previous frame. ``scan`` is the trace's ``cycle`` number; times are in ns;
 - ``{"c": {...}}``: the controller's status (state, fault, overruns, skipped, freezes,
   uptime_s, cycle_ms, drivers: name -> [health, fault reason, ok], lateness_us: p50, p99,
-  max, alarms: the alarm board's conditions, ``AlarmBoard.as_list``), before the frame it
-  goes with, only when it changed (the scan count is the frame's scan + 1);
+  max, alarms: the alarm board's conditions, ``AlarmBoard.as_list``, forced: the forced
+  names), before the frame it goes with, only when it changed (the scan count is the
+  frame's scan + 1);
+- ``{"w": {INSTANCE: [[step, T ns, [[transition index, condition, [blocked...],
+  [[term, depth, value]...]]...]]...]}}``: what ``why INSTANCE`` says (the console's),
+  computed by the feed thread on the frame's copy of the state, for the instances the
+  client follows, before the frame it goes with, only when it changed;
 - ``{"r": [id, ok, text, code]}``: the answer to a request, ``code`` an OPC UA status name
   (Good, BadInvalidArgument, BadInvalidState, BadTimeout, BadConditionBranchAlreadyAcked,
   ...);
+- client -> server ``{"why": [INSTANCE, ...]}``: follow those instances' transitions
+  (at most MAX_WHY; ``[]`` stops);
 - client -> server ``{"set": [id, name, value, side]}`` (value in the name's type; times in
   ns; ``side`` is the asking section, ``opcua`` or ``mqtt``: ``opcua`` when left out);
   ``{"call": [id, target, method, who]}``: a method of an instance (``METHODS``:
@@ -66,7 +73,7 @@ from runtime.controller.alarms import AlarmRefused
 from runtime.controller.paths import remove_socket, unix_listener
 from runtime.controller.window import ScanWindow
 from runtime.engine.commands import CommandRefused
-from runtime.engine.instance import coerce
+from runtime.engine.instance import coerce, explain
 from runtime.engine.names import Catalogue, Image
 from runtime.language import ast as A
 from runtime.language.feedconf import SIDE_NAMES
@@ -90,6 +97,8 @@ MAX_CLIENTS = 8
 STATS_EVERY_NS = 1_000_000_000
 #: how long the feed thread waits for I/O when there is nothing to do, seconds
 POLL_S = 0.05
+#: instances whose transitions one client may follow (``{"why": [...]}``)
+MAX_WHY = 8
 #: a write not applied by the scan thread in this long is answered with an error, seconds
 SET_TIMEOUT_S = 2.0
 #: the methods of an instance: name -> (the chart flag, and True to pulse it for one scan
@@ -121,6 +130,10 @@ class _Client:
     reading: bool = True
     #: the selector events its socket is registered for (0: not registered)
     events: int = 0
+    #: the instances whose transitions it follows (``{"why": [...]}``), and what it was
+    #: last sent of each
+    why: list[str] = field(default_factory=list)
+    whys: dict[str, Any] = field(default_factory=dict)
 
 
 class FeedServer:
@@ -210,7 +223,9 @@ class FeedServer:
         # image of one scan beside the controller's or a driver's state of a later one
         live = (d.state.value, d.fault or d.halted, st.overruns, st.skipped, st.freezes,
                 {name: [drv.health.value, drv.fault_reason or "", drv.ok]
-                 for name, drv in d.plant.drivers.items()})
+                 for name, drv in d.plant.drivers.items()},
+                d.plant.forced_names() if d.plant.forced or d.plant.forced_points else (),
+                d.plant.last_up)
         self._slot = (n - 1, self.wall(), cat.capture(n - 1), cat, live)
 
     # -- the feed thread ------------------------------------------------------------
@@ -252,6 +267,8 @@ class FeedServer:
         self._values = None
         for c in list(self._clients):
             c.fresh, c.status = True, None
+            c.why = [n for n in c.why if n in self._cat.plant.instances]
+            c.whys = {}
             self._queue(c, self._schema_line)
         log.info("feed: plant replaced: the new schema sent to %d client(s)",
                  len(self._clients))
@@ -381,6 +398,9 @@ class FeedServer:
         (id, the function the scan thread runs, the text of its answer)."""
         try:
             msg = json.loads(line)
+            if "why" in msg:
+                self._follow_why(c, msg["why"])
+                return None
             if "set" in msg:
                 ident, name, value, *side = msg["set"]
                 if len(side) > 1 or (side and side[0] not in SIDE_NAMES):
@@ -396,7 +416,7 @@ class FeedServer:
                                                                 str(who), str(comment))]}))
                 return None
             else:
-                raise KeyError("set, call or alarm")
+                raise KeyError("set, call, alarm or why")
         except (ValueError, KeyError, TypeError, RecursionError):
             self._drop(c, "a malformed request")
             return None
@@ -509,12 +529,15 @@ class FeedServer:
                     changes += (i, v)
             delta = _line({"d": [scan, wall, changes]})
         whole = None
+        explained: dict[str, Any] = {}
         status = self._status(live)
         self.frames += 1
         for c in self._clients:
             if status != c.status:
                 c.status = status
                 self._queue(c, _line({"c": status}))
+            if c.why:
+                self._queue_why(c, img, live[-1], explained)
             if c.fresh or delta is None:
                 if whole is None:
                     whole = _line({"f": [scan, wall, values]})
@@ -522,6 +545,42 @@ class FeedServer:
                 self._queue(c, whole)
             else:
                 self._queue(c, delta)
+
+    def _follow_why(self, c: _Client, names: Any) -> None:
+        """``{"why": [INSTANCE, ...]}``: from the next frame on, ``c`` gets the
+        transitions of those instances (``{"w": ...}``) whenever they change; ``[]`` stops
+        it. At most MAX_WHY instances per client; unknown names are left out."""
+        if not isinstance(names, list):
+            raise ValueError("why: expected a list of instances")
+        known = self.daemon.plant.instances
+        c.why = [str(n) for n in names if isinstance(n, str) and n in known][:MAX_WHY]
+        c.whys = {}
+
+    def _queue_why(self, c: _Client, img: Image, up: int, explained: dict[str, Any]) -> None:
+        """The explanations of ``c``'s instances that changed since it was last sent them,
+        each computed once per frame (``explained``) on the frame's copy of the state."""
+        changed: dict[str, Any] = {}
+        for name in c.why:
+            why = explained.get(name)
+            if why is None:
+                why = explained[name] = self._explain(name, img, up)
+            if c.whys.get(name) != why:
+                c.whys[name] = why
+                changed[name] = why
+        if changed:
+            self._queue(c, _line({"w": changed}))
+
+    def _explain(self, name: str, img: Image, up: int) -> list[Any]:
+        """``Instance.explain`` of instance ``name`` on the frame's state copy (feed thread:
+        never in the scan's), as plain lists: [step, T ns, [[transition index, condition,
+        [blocked...], [[term, depth, value]...]]...]] per active step."""
+        k = self._cat.instance_index(name)
+        prog = self._cat.plant.instances[name].program
+        return [[sw.step, sw.time_ns,
+                 [[t.index, t.condition, t.blocked, [[x.text, x.depth, x.value]
+                                                      for x in t.terms]]
+                  for t in sw.transitions]]
+                for sw in explain(prog, img.m[k], up)]
 
     def _status(self, live: tuple[Any, ...]) -> dict[str, Any]:
         """The controller's status with a frame: its state, fault, counters and drivers
@@ -534,14 +593,14 @@ class FeedServer:
             self._stats_at = now
             late = d.scan_stats.lateness().as_dict()
             self._stats = {k: late[k] for k in ("p50", "p99", "max")}
-        state, fault, overruns, skipped, freezes, drivers = live
+        state, fault, overruns, skipped, freezes, drivers, forced, _up = live
         board = d.alarms
         if board.version != self._alarms_version:
             self._alarms_version, self._alarms = board.version, board.as_list()
         return {"state": state, "fault": fault, "overruns": overruns, "skipped": skipped,
                 "freezes": freezes, "uptime_s": round(d.uptime_s()),
                 "cycle_ms": d.plant.cycle_ns / 1e6, "lateness_us": self._stats,
-                "drivers": drivers, "alarms": self._alarms}
+                "drivers": drivers, "alarms": self._alarms, "forced": list(forced)}
 
     def _queue(self, c: _Client, data: bytes) -> None:
         if c not in self._clients:  # dropped meanwhile (its answers overflowed)
@@ -663,6 +722,8 @@ class FeedState:
     schema: dict[str, Any] = field(default_factory=dict)
     values: list[Any] = field(default_factory=list)
     status: dict[str, Any] = field(default_factory=dict)
+    #: instance -> its transitions as the feed last sent them (``{"w": ...}``)
+    whys: dict[str, Any] = field(default_factory=dict)
     scan: int = -1
     wall: float = 0.0
 
@@ -682,6 +743,9 @@ class FeedState:
         if "c" in msg:
             self.status = msg["c"]
             return "status"
+        if "w" in msg:
+            self.whys.update(msg["w"])
+            return "why"
         if "schema" in msg:
             self.schema = msg["schema"]
             self.names = [n[0] for n in self.schema["names"]]
@@ -689,6 +753,7 @@ class FeedState:
             self.roles = [n[2] for n in self.schema["names"]]
             self.index = {n: i for i, n in enumerate(self.names)}
             self.values = []
+            self.whys = {}
             return "schema"
         if "r" in msg:
             return "reply"
@@ -701,6 +766,11 @@ class FeedState:
 def request_line(kind: str, ident: int, *args: Any) -> bytes:
     """A client's request (``set``, ``call``, ``alarm``: the module docstring), one line."""
     return _line({kind: [ident, *args]})
+
+
+def why_request(instances: list[str]) -> bytes:
+    """A client's request to follow these instances' transitions (``[]``: none)."""
+    return _line({"why": instances})
 
 
 def set_request(ident: int, name: str, value: Any, side: str = "opcua") -> bytes:

@@ -21,7 +21,7 @@ import logging
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from runtime.controller.feed import FeedState, request_line
+from runtime.controller.feed import FeedState, request_line, why_request
 from runtime.errors import SoftplcError
 
 log = logging.getLogger(__name__)
@@ -56,6 +56,8 @@ class FeedClient:
         self._pending: dict[int, asyncio.Future[tuple[bool, str, str]]] = {}
         self._ids = itertools.count(1)
         self._stop = asyncio.Event()
+        #: the instances whose transitions it follows (asked again on each connection)
+        self._why: list[str] = []
 
     @property
     def connected(self) -> bool:
@@ -75,6 +77,8 @@ class FeedClient:
             delay = RECONNECT_MIN_S
             log.info("connected to the controller's feed %s", self.path)
             self._writer = writer
+            if self._why:
+                writer.write(why_request(self._why))
             try:
                 await self._follow(reader)
             except (OSError, ValueError, asyncio.IncompleteReadError, KeyError,
@@ -96,6 +100,15 @@ class FeedClient:
         self._stop.set()
         if self._writer is not None:
             self._writer.close()
+
+    def follow_why(self, instances: list[str]) -> None:
+        """Follow these instances' transitions (``state.whys``), on this connection and
+        the next ones; ``[]`` stops."""
+        if instances == self._why:
+            return
+        self._why = list(instances)
+        if self._writer is not None:
+            self._writer.write(why_request(self._why))
 
     async def set(self, name: str, value: Any, timeout: float) -> tuple[bool, str]:
         """Write ``name`` through the controller: its (ok, text). FeedLost if there is no

@@ -1,7 +1,8 @@
 """``softplc install-service``: the plant NAME under /etc/softplc/NAME, a ``softplc`` system
 user, the template units softplc@.service (and softplc-opcua@.service for a plant with
-``opcua:``, softplc-mqtt@.service for one with ``mqtt:``), the instances softplc@NAME (and
-softplc-opcua@NAME, softplc-mqtt@NAME) enabled, and with ``--now`` put in service.
+``opcua:``, softplc-mqtt@.service for one with ``mqtt:``, softplc-web@.service for one with
+``web:``), the instances softplc@NAME (and softplc-opcua@NAME, softplc-mqtt@NAME,
+softplc-web@NAME) enabled, and with ``--now`` put in service.
 
 The plant file and every grafcet file it names are copied into /etc/softplc/NAME, the
 plant's ``grafcet:`` paths rewritten to the copies (comments and layout kept). A file
@@ -77,13 +78,15 @@ _SOURCE_TREE = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(_
 UNIT_DIRS = (os.path.join(_SOURCE_TREE, "systemd"), os.path.join(sys.prefix, "share", "softplc"))
 USER = "softplc"
 GROUPS = ("gpio", "i2c", "dialout")
-#: the template units: the controller, its OPC UA server, its MQTT edge node
+#: the template units: the controller, its OPC UA server, its MQTT edge node, its web view
 CONTROLLER = "softplc@.service"
 OPCUA = "softplc-opcua@.service"
 MQTT = "softplc-mqtt@.service"
+WEB = "softplc-web@.service"
 #: the side processes: plant section -> (template unit, command, what it is)
 SIDES = {"opcua": (OPCUA, "opcua", "OPC UA server"),
-         "mqtt": (MQTT, "mqtt", "MQTT edge node")}
+         "mqtt": (MQTT, "mqtt", "MQTT edge node"),
+         "web": (WEB, "web", "web view")}
 #: the units of the single-plant layout before the templates (refused: remove them first)
 LEGACY = ("softplc.service", "softplc-opcua.service")
 #: how to make a venv the service can run
@@ -150,6 +153,10 @@ class Plan:
     mqtt: bool = False
     #: the installed plant had one and this one has not (softplc-mqtt@NAME is disabled)
     mqtt_removed: bool = False
+    #: the plant has a ``web:`` section (softplc-web@NAME is installed)
+    web: bool = False
+    #: the installed plant had one and this one has not (softplc-web@NAME is disabled)
+    web_removed: bool = False
     #: a file to install differs from what is installed (or nothing is installed)
     changed: bool = True
     #: why a running controller must restart to run this plant (empty: an online change)
@@ -169,10 +176,15 @@ class Plan:
     def edge_node(self) -> str:
         return instance(MQTT, self.name)
 
+    @property
+    def web_view(self) -> str:
+        return instance(WEB, self.name)
+
     def sides(self) -> list[tuple[str, bool, bool, str]]:
         """(section, installed, removed, its unit) for each side process."""
         return [("opcua", self.opcua, self.opcua_removed, self.server),
-                ("mqtt", self.mqtt, self.mqtt_removed, self.edge_node)]
+                ("mqtt", self.mqtt, self.mqtt_removed, self.edge_node),
+                ("web", self.web, self.web_removed, self.web_view)]
 
 
 def instance(template: str, name: str) -> str:
@@ -264,7 +276,8 @@ def plan(plant_path: str, softplc: str, etc: str = INSTALL_DIR,
     with service_view(name):  # ${RUNTIME_DIR} as the service sees it: /run/softplc/NAME
         pdef = load_plant(plant_path)  # refuses a broken plant before anything is installed
     home = os.path.join(etc, name)
-    p = Plan(name=name, start=start, opcua=pdef.opcua is not None, mqtt=pdef.mqtt is not None)
+    p = Plan(name=name, start=start, opcua=pdef.opcua is not None, mqtt=pdef.mqtt is not None,
+             web=pdef.web is not None)
     p.files[etc] = Entry(CONFIG_DIR_MODE, Owner.CONFIG)
     p.files[home] = Entry(CONFIG_DIR_MODE, Owner.CONFIG)
     p.files[STATE_DIR] = Entry(STATE_DIR_MODE, Owner.SERVICE)
@@ -319,13 +332,16 @@ def _sight(p: Plan, pdef: PlantDef, softplc: str, check_exec: bool) -> None:
     for what, path in chain:
         python = what.startswith("the Python")
         # a link whose target is in the chain too is said once, at the target
-        directive = hidden_by(path, follow=os.path.realpath(path) not in listed - {path})
+        to_listed = os.path.realpath(path) in listed - {path}
+        directive = hidden_by(path, follow=not to_listed)
         if directive is not None:
             fix = VENV_FIX if python else ("install softplc into a venv the service can "
                                            "see, e.g. /opt/softplc/venv (pip install "
                                            "/path/to/softplc, not pip install -e)")
             line = (f"ExecStart: {path} ({what}) is hidden from the service by "
                     f"{directive}: {fix}")
+        elif to_listed:  # whether the service may use it is said at the target
+            line = ""
         else:
             why = unreadable(path, uid, gids, execute=what == "the program" or python)
             line = "" if why is None else \
@@ -353,6 +369,8 @@ def _sight(p: Plan, pdef: PlantDef, softplc: str, check_exec: bool) -> None:
         sockets.append(("opcua: feed", pdef.opcua.feed))
     elif pdef.mqtt is not None:  # (one feed: opcua's is mqtt's when both are there)
         sockets.append(("mqtt: feed", pdef.mqtt.feed))
+    elif pdef.web is not None:
+        sockets.append(("web: feed", pdef.web.feed))
     for key, path in sockets:
         if below(os.path.abspath(path), rdir):
             continue
@@ -374,6 +392,10 @@ def _sight(p: Plan, pdef: PlantDef, softplc: str, check_exec: bool) -> None:
                            ("mqtt: tls: private_key", tls.private_key),
                            ("mqtt: password_file", pdef.mqtt.password_file)],
                        "the edge node cannot connect without it, docs/mqtt.md", uid, gids)
+    if pdef.web is not None:
+        _service_reads(p, [(f"web: tls: {key}", getattr(pdef.web, key))
+                           for key in ("certificate", "private_key")],
+                       "docs/web.md says how to make one", uid, gids)
     if not pdef.consoles or all(c.kind == "serial" for c in pdef.consoles):
         p.warnings.append(f"monitor: no console socket or TCP port: `systemctl reload "
                           f"{p.controller}` (online change) needs one; add monitor: socket: "
@@ -413,6 +435,8 @@ def _ports(pdef: PlantDef) -> dict[str, str]:
     if pdef.opcua is not None:
         port = pdef.opcua.endpoint.rsplit(":", 1)[1].split("/")[0]
         out[f"port {port}"] = f"the opcua: endpoint port {port}"
+    if pdef.web is not None and pdef.web.port:
+        out[f"port {pdef.web.port}"] = f"the web: listen port {pdef.web.port}"
     for c in pdef.consoles:
         if c.kind == "tcp":
             port = c.address.rsplit(":", 1)[1]
@@ -482,6 +506,7 @@ def _changes(p: Plan, pdef: PlantDef, home: str, root: str | None) -> None:
         return
     p.opcua_removed = old.opcua is not None and pdef.opcua is None
     p.mqtt_removed = old.mqtt is not None and pdef.mqtt is None
+    p.web_removed = old.web is not None and pdef.web is None
     p.restart_reasons += diff_plants(old, pdef).static_refusals()
 
 
@@ -608,8 +633,8 @@ def _active(unit: str) -> bool:
 def bring_up(p: Plan, root: str | None = None) -> list[str]:
     """``--now``: start the plant, or give the running controller the new plant the way
     the diff allows (an online change, else a restart), and say which; the same for its
-    side processes (its OPC UA server, its MQTT edge node: each reads the plant at its
-    start). NowRefused if the controller refused the online change (it runs on with its
+    side processes (its OPC UA server, its MQTT edge node, its web view: each reads the plant
+    at its start). NowRefused if the controller refused the online change (it runs on with its
     previous program)."""
     ctl = p.controller
     if root:
@@ -705,7 +730,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                        description="Copy the plant and its charts to /etc/softplc/NAME, "
                                    "create the softplc user, install the template units "
                                    "and enable softplc@NAME (and softplc-opcua@NAME, "
-                                   "softplc-mqtt@NAME).")
+                                   "softplc-mqtt@NAME, softplc-web@NAME).")
     c.add_argument("plant", help="the plant file to run")
     c.add_argument("--name", help="the plant's name, its unit's instance (default: the "
                                   "name of the plant file's directory)")

@@ -1,5 +1,6 @@
-"""Console PINs and OPC UA user passwords: stored as a salted scrypt hash in the plant file,
-never in clear (one home: the console and the OPC UA server both check them here).
+"""Console PINs and the passwords of OPC UA and web users: stored as a salted scrypt hash
+in the plant file, never in clear (one home: the console, the OPC UA server and the web
+view check them here; ``Passwords`` holds a user's checks after a failed one).
 
 A PIN is short, so whoever can read the plant file can try every PIN offline: the hash is
 made slow and memory-hard on purpose. scrypt with N=2**15, r=8, p=4 uses 32 MiB and takes
@@ -17,6 +18,8 @@ import hmac
 import logging
 import os
 import threading
+import time
+from collections.abc import Callable
 
 log = logging.getLogger(__name__)
 
@@ -75,3 +78,49 @@ def check_pin(pin: str, stored: str) -> bool:
                   "realtime: lock_memory, raise LimitMEMLOCK)", 128 * SCRYPT_N * SCRYPT_R >> 20)
         return False
     return hmac.compare_digest(digest.hex(), hash_hex)
+
+
+#: after a failed password check, that user's checks are refused without hashing this
+#: long, s (the OPC UA server's and the web view's logins)
+FAIL_HOLD_S = 1.0
+
+
+class Passwords:
+    """The users of a side process (OPC UA ``security: users``, ``web: users``) and their
+    hashes, checked with the same rules everywhere: after a failed check, that user's
+    checks are refused without hashing for FAIL_HOLD_S (a held login is refused, not
+    delayed; other users are not held), so guessing costs at most one hash per second and
+    per user name; a successful check is remembered as an HMAC under a key drawn at start
+    (never the password), so logging in again costs no hash."""
+
+    def __init__(self, users: dict[str, str],
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.users = users
+        self._clock = clock
+        self._key = os.urandom(32)
+        self._known: set[bytes] = set()
+        #: user -> clock seconds until which its password is not checked
+        self._hold_until: dict[str, float] = {}
+
+    def held(self, user: str) -> bool:
+        """Whether ``user``'s checks are held now (a failed check less than FAIL_HOLD_S
+        ago)."""
+        return self._clock() < self._hold_until.get(user, 0.0)
+
+    def check(self, user: str, password: str) -> bool:
+        """Whether ``password`` is ``user``'s. An unknown user, a held one or a wrong
+        password: False."""
+        stored = self.users.get(user)
+        if stored is None:
+            return False
+        tag = hmac.new(self._key, f"{user}\0{password}\0{stored}".encode(),
+                       hashlib.sha256).digest()
+        if tag in self._known:
+            return True
+        if self.held(user):
+            return False
+        if check_pin(password, stored):
+            self._known.add(tag)
+            return True
+        self._hold_until[user] = self._clock() + FAIL_HOLD_S
+        return False

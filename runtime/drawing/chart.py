@@ -26,6 +26,7 @@ variables that carry a description (none: no legend).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import shutil
 import sys
@@ -34,6 +35,8 @@ from runtime.drawing.layout import (
     ACTION_GAP,
     BAR_W,
     CHAR_H,
+    DROP_GAP,
+    LINK_GAP,
     STEP_H,
     TIMES_SIZE,
     TOP,
@@ -52,10 +55,6 @@ from runtime.language.iolist import IOList
 from runtime.language.model import Grafcet, PlantDef, VarKind
 
 ACTIVE_FILL = "#ffd54f"
-
-
-#: between the links of an AND convergence that shares its steps with another one, px
-DROP_GAP = 8.0
 
 
 def shared_and_drops(c: Chart, r: Routes) -> dict[tuple[str, str], float]:
@@ -116,7 +115,8 @@ class Drawing:
 
     def join_y(self, s: str) -> float:
         """The OR convergence line above a step: where every link into it arrives."""
-        return self.r.top[self.c.nodes[s].layer] - 8
+        return (self.r.top[self.c.nodes[s].layer] - 8
+                - LINK_GAP * self.r.join_level.get(s, 0))
 
     def split_y(self, s: str) -> float:
         """The OR divergence line below a step (below its action block)."""
@@ -202,19 +202,25 @@ class Drawing:
         c, xt, bar = self.c, self.x(t), self.mid(t)
         fw = c.fout(t)
         short = [d for d in fw if d not in self.r.bus or t not in long_links(c, d)]
+        y = self.and_out_y(t)
         for d in fw:
-            if d not in short:  # into a channel on the right
-                y = self.r.leave[(t, d)]
-                self.svg.line([(xt, bar + 2), (xt, y), (self.r.bus[d], y)])
-        if len(short) > 1 or (len(fw) > 1 and short):  # AND divergence
-            y = self.and_out_y(t)
-            xs = [self.x(d) for d in short] + [xt]
+            if d not in short:  # into a channel on the right (from its own double bar)
+                x, start = self.r.split_drops.get((t, d), xt), bar + 2
+                if (t, d) in self.r.split_drops:
+                    start = y + 2
+                ly = self.r.leave[(t, d)]
+                self.svg.line([(x, start), (x, ly), (self.r.bus[d], ly)])
+        if len(fw) > 1 and (short or any((t, d) in self.r.split_drops for d in fw)):
+            # AND divergence
+            drop = {d: self.r.split_drops.get((t, d), self.x(d)) for d in fw
+                    if d in short or (t, d) in self.r.split_drops}
+            xs = [*drop.values(), xt]
             self.svg.line([(xt, bar + 2), (xt, y - 2)])
             for dy in (-2.0, 2.0):
                 self.svg.line([(min(xs) - 12, y + dy), (max(xs) + 12, y + dy)],
                               cls="and divergence")
             for d in short:
-                self.arrive(d, self.x(d), y + 2)
+                self.arrive(d, drop[d], y + 2)
         elif short:
             self.arrive(short[0], xt, bar + 2)
 
@@ -258,6 +264,8 @@ class Drawing:
             if not n.startswith("t:"):
                 continue
             x, y = self.x(n), self.mid(n)
+            # one group per transition, named by its index (the page marks it live)
+            self.svg.add(f'<g class="transition-group" data-transition="{n[2:]}">')
             self.svg.line([(x - BAR_W / 2, y), (x + BAR_W / 2, y)], width=4, cls="transition")
             lines = c.labels[n]
             y0 = y + 4 - CHAR_H * (len(lines) - 1) / 2
@@ -267,6 +275,7 @@ class Drawing:
             if n in c.names:
                 self.svg.text(x - BAR_W / 2 - 6, y + 4, c.names[n], 12, "end",
                               extra=' class="transition-name"')
+            self.svg.add("</g>")
 
     def draw_steps(self) -> None:
         c = self.c
@@ -276,7 +285,7 @@ class Drawing:
             w = 2 * c.nodes[n].left
             x0, y0 = x - w / 2, y - STEP_H / 2
             fill = ACTIVE_FILL if st.name in self.active else "white"
-            self.svg.add('<g class="step-group">')
+            self.svg.add(f'<g class="step-group" data-step="{esc_attr(st.name)}">')
             if st.description:
                 self.svg.add(f"<title>{esc(st.description)}</title>")
             self.svg.rect(x0, y0, w, STEP_H, fill, extra=' class="step"')
@@ -289,8 +298,8 @@ class Drawing:
             if times:  # supervision times, as a vendor's SFC editor shows them
                 self.svg.text(x, y + 11, times, TIMES_SIZE, "middle",
                               extra=' class="step-times"')
-            if st.name in self.active:
-                self.svg.add(f'<circle cx="{x:.1f}" cy="{y0 + STEP_H - 5:.1f}" r="2.5" '
+            if st.name in self.active:  # top left, clear of the name and the times
+                self.svg.add(f'<circle cx="{x0 + 8:.1f}" cy="{y0 + 8:.1f}" r="2.5" '
                              'fill="black" class="token"/>')
             self.svg.add("</g>")
             if st.name in c.actions:
@@ -378,20 +387,54 @@ def render(c: Chart, r: Routes, active: set[str], title: str,
         f'<rect x="{x0:.0f}" width="{width:.0f}" height="100%" fill="white"/>', title_svg])
 
 
+def link_crossings(c: Chart, r: Routes) -> int:
+    """Points where a link runs straight across another (a vertical through a horizontal,
+    neither ending there; bars and double bars left out)."""
+    d = Drawing(c, r, set())
+    d.draw_links()
+    flat, upright = [], []
+    for pts, cls in d.svg.polylines:
+        if {"transition", "and"} & set(cls.split()):
+            continue
+        for (x0, y0), (x1, y1) in itertools.pairwise(pts):
+            if abs(y0 - y1) < 0.01 < abs(x0 - x1):
+                flat.append((y0, min(x0, x1), max(x0, x1)))
+            elif abs(x0 - x1) < 0.01 < abs(y0 - y1):
+                upright.append((x0, min(y0, y1), max(y0, y1)))
+    return sum(1 for y, a, b in flat for x, lo, hi in upright
+               if a + 0.5 < x < b - 0.5 and lo + 0.5 < y < hi - 0.5)
+
+
+def laid_out(g: Grafcet, layout: str = "auto") -> tuple[Chart, Routes, str]:
+    """The chart placed and routed, and the layout used ("dot" or "python"). Each step goes
+    under its nearest predecessor; if links then cross, it goes under the one the
+    depth-first walk reached it from instead (the normal sequence, a link from higher up
+    running straight down past a branch: issue 27, a return link into the third step
+    across the failure channel), when that crosses fewer."""
+    dot = shutil.which("dot") if layout in ("auto", "dot") else None
+    if layout == "dot" and dot is None:
+        raise RuntimeError("--layout dot: Graphviz's 'dot' is not installed "
+                           "(apt-get install graphviz)")
+    best: tuple[int, Chart, Routes] | None = None
+    for follow in (False, True):
+        c = build_chart(g, follow_tree=follow)
+        r = arrange(c, dot_order(c, dot) if dot is not None else None)
+        n = link_crossings(c, r)
+        if best is None or n < best[0]:
+            best = (n, c, r)
+        if n == 0:
+            break
+    assert best is not None
+    return best[1], best[2], ("dot" if dot is not None else "python")
+
+
 def chart_svg(g: Grafcet, active: set[str] | None = None, title: str = "",
               layout: str = "auto",
               legend: tuple[str, list[tuple[str, str, str]]] = ("", [])
               ) -> tuple[str, str]:
     """(SVG text, layout used: "dot" or "python"); ``legend``: its title and rows."""
-    c = build_chart(g)
-    dot = shutil.which("dot") if layout in ("auto", "dot") else None
-    if layout == "dot" and dot is None:
-        raise RuntimeError("--layout dot: Graphviz's 'dot' is not installed "
-                           "(apt-get install graphviz)")
-    hint = dot_order(c, dot) if dot is not None else None
-    r = arrange(c, hint)
-    return (render(c, r, active or set(), title, legend),
-            "dot" if dot is not None else "python")
+    c, r, used = laid_out(g, layout)
+    return render(c, r, active or set(), title, legend), used
 
 
 # -- trace -----------------------------------------------------------------------------------

@@ -52,6 +52,8 @@ GAP = 24.0  # between neighbours of a row
 ACTION_GAP = 22.0  # from a step's right side to its action block
 TOP = 62.0  # room for the title and the links into the first row
 LANE = 16.0  # between lanes
+#: between the horizontals of links leaving one row (issue 27: 6 px looked like one line)
+LINK_GAP = 12.0
 FRAME_PAD = 10.0  # between a macro-step's frame and what it holds
 
 
@@ -82,6 +84,9 @@ class Chart:
     labels: dict[str, list[str]]
     names: dict[str, str]
     layers: list[list[str]] = field(default_factory=list)
+    tree: dict[str, str] = field(default_factory=dict)  # element -> the one it was
+    # discovered from in the depth-first walk (the sequence it continues)
+    follow_tree: bool = False  # primary_pred: that one first
 
     def fout(self, n: str) -> list[str]:
         return [c for c in self.out[n] if (n, c) not in self.back]
@@ -91,17 +96,21 @@ class Chart:
 
     def primary_pred(self, n: str) -> str | None:
         """The predecessor an element goes under: the nearest one (deepest row), then the
-        first in file order."""
+        first in file order; with ``follow_tree``, the one the depth-first walk reached it
+        from first (the sequence it continues: a link from higher up then runs straight
+        down to it past what the nearer one leads to)."""
         preds = self.fin(n)
         if not preds:
             return None
+        if self.follow_tree and self.tree.get(n) in preds:
+            return self.tree[n]
         return max(preds, key=lambda p: (self.nodes[p].layer, -self.inc[n].index(p)))
 
     def is_back_transition(self, t: str) -> bool:
         return bool(self.out[t]) and all((t, d) in self.back for d in self.out[t])
 
 
-def build_chart(g: Grafcet) -> Chart:
+def build_chart(g: Grafcet, follow_tree: bool = False) -> Chart:
     nodes: dict[str, Node] = {}
     actions: dict[str, list[tuple[str, list[str]]]] = {}
     cols: dict[str, tuple[float, float]] = {}
@@ -138,12 +147,13 @@ def build_chart(g: Grafcet) -> Chart:
         for d in dict.fromkeys(t.dst_steps):
             out[tid].append("s:" + d)
             inc["s:" + d].append(tid)
-    back, dfs = _back_links(g, nodes, out)
+    back, dfs, tree = _back_links(g, nodes, out)
     for st in g.leaf_steps():
         nodes["s:" + st.name].macro = st.parent
     for k, m in macro_of_transition(g).items():
         nodes[f"t:{k}"].macro = m
-    c = Chart(g, nodes, out, inc, back, dfs, actions, cols, labels, names)
+    c = Chart(g, nodes, out, inc, back, dfs, actions, cols, labels, names, tree=tree,
+              follow_tree=follow_tree)
     _layers(c)
     # a step's transitions, left to right: those that lead back up first (the lanes of the
     # ones leading higher further out), then the others in file order
@@ -164,16 +174,18 @@ def row_h(lines: list[str]) -> float:
     return max(20.0, CHAR_H * len(lines) + 6)
 
 
-def _back_links(g: Grafcet, nodes: dict[str, Node],
-                out: dict[str, list[str]]) -> tuple[set[tuple[str, str]], list[str]]:
+def _back_links(g: Grafcet, nodes: dict[str, Node], out: dict[str, list[str]]
+                ) -> tuple[set[tuple[str, str]], list[str], dict[str, str]]:
     """Links that close a cycle in a depth-first walk from the initial steps (transitions in
-    file order): they are drawn going back up."""
+    file order): they are drawn going back up. Also the discovery order, and the element
+    each one was discovered from."""
     roots = ["s:" + s.name for s in g.leaf_steps() if s.initial]
     roots += [f"t:{k}" for k, t in enumerate(g.transitions) if not t.src_steps]
     roots += list(nodes)
     state: dict[str, int] = {}  # 1 on the current path, 2 done
     back: set[tuple[str, str]] = set()
     order: list[str] = []
+    tree: dict[str, str] = {}
     for root in roots:
         if root in state:
             continue
@@ -191,8 +203,9 @@ def _back_links(g: Grafcet, nodes: dict[str, Node],
             elif c not in state:
                 state[c] = 1
                 order.append(c)
+                tree[c] = n
                 stack.append((c, iter(list(out[c]))))
-    return back, order
+    return back, order, tree
 
 
 def _layers(c: Chart) -> None:
@@ -316,7 +329,8 @@ def _frame_rights(c: Chart, nodes: list[str]) -> list[tuple[int, int, float]]:
 
 def _place(c: Chart, hint: dict[str, float] | None, root_x: dict[str, float],
            skip: set[str]) -> None:
-    long_and = [(s, t) for s, t in and_links(c) if s not in skip and t not in skip]
+    long_and = [(s, t) for s, t in [*and_links(c), *straight_links(c)]
+                if s not in skip and t not in skip]
     for layer, every in enumerate(c.layers):
         ids = [n for n in every if n not in skip]
         desired: dict[str, float] = {}
@@ -379,8 +393,16 @@ def _place(c: Chart, hint: dict[str, float] | None, root_x: dict[str, float],
 
 def _straight(c: Chart, kids: list[str], pref: dict[str, float]) -> str:
     """The child that goes right under its parent: the first transition whose target goes
-    under it (the main line goes on), not a link back up or aside; else the first."""
+    under it (the main line goes on), not a link back up or aside; else the first. A step's
+    first transition in file order that leads back up (the normal sequence closing the
+    cycle) stays on the main line: the others (a failure) go aside, their steps off the
+    main line (issue 27: the failure step sat under the normal sequence)."""
     first = sorted(kids, key=pref.__getitem__)
+    ts = [k for k in kids if k.startswith("t:")]
+    if len(ts) > 1 and len(ts) == len(kids):
+        by_file = min(ts, key=lambda k: int(k[2:]))
+        if c.is_back_transition(by_file):
+            return by_file
     for k in first:
         if k.startswith("t:") and any(c.primary_pred(d) == k for d in c.fout(k)):
             return k
@@ -440,11 +462,85 @@ class Routes:
     lane_level: dict[str, int] = field(default_factory=dict)  # lanes into the same row on
     # the same side arrive one above the other (outer ones higher)
     pad: list[float] = field(default_factory=list)  # room below a row for closing frames
+    split_drops: dict[tuple[str, str], float] = field(default_factory=dict)  # (AND
+    # divergence, step) -> x where its link leaves the transition's own short double bar
+    join_level: dict[str, int] = field(default_factory=dict)  # steps those links reach:
+    # their OR convergence lines one above the other (LINK_GAP per level)
+
+
+#: between the links that reach a short double bar of an AND convergence, px
+DROP_GAP = 8.0
+
+
+def shared_splits(c: Chart, r: Routes) -> dict[str, list[str]]:
+    """AND divergence -> its targets in the order their links leave its double bar, left
+    to right (the steps drawn under it by x, then those reached by a channel by the
+    channel's x), for the divergences that share a target step with another one, or whose
+    targets are all reached by channels. IEC 60848 has a double bar follow one
+    transition: each of these gets its own short bar under its transition, rather than
+    one bar spanning the steps, which several transitions would share (or none at all)."""
+    def long(t: str, d: str) -> bool:
+        return d in r.bus and t in long_links(c, d)
+    splits = {t: c.fout(t) for t in c.nodes if t.startswith("t:") and len(c.fout(t)) > 1}
+    out = {}
+    for t, ds in splits.items():
+        if (all(long(t, d) for d in ds)
+                or any(o != t and d in splits[o] for o in splits for d in ds)):
+            out[t] = sorted(ds, key=lambda d: (long(t, d), r.bus[d] if long(t, d)
+                                               else c.nodes[d].x))
+    return out
+
+
+def _split_links(c: Chart, r: Routes) -> None:
+    """Where the links leave the short double bars of shared_splits(), and the levels of
+    the OR convergence lines of the steps they reach under the bars: in each row, the
+    order (left one highest, or right one highest) whose lines are crossed least by the
+    links and the steps' own verticals."""
+    for t, ds in shared_splits(c, r).items():
+        for j, d in enumerate(ds):
+            r.split_drops[(t, d)] = c.nodes[t].x + (j - (len(ds) - 1) / 2) * LINK_GAP
+    rows: dict[int, set[str]] = {}
+    for t, d in r.split_drops:
+        if d not in r.bus or t not in long_links(c, d):
+            rows.setdefault(c.nodes[d].layer, set()).add(d)
+    for steps in rows.values():
+        into = {d: [x for (t, e), x in r.split_drops.items() if e == d
+                    and (d not in r.bus or t not in long_links(c, d))]
+                + ([r.bus[d]] if d in r.bus else []) for d in steps}
+        span = {d: (min(into[d] + [c.nodes[d].x]), max(into[d] + [c.nodes[d].x]))
+                for d in steps}
+        by_x = sorted(steps, key=lambda d: c.nodes[d].x)
+        order = min((by_x, by_x[::-1]), key=lambda o: _joins_crossed(c, o, into, span))
+        for k, d in enumerate(order):
+            r.join_level[d] = len(order) - 1 - k
+
+
+def _joins_crossed(c: Chart, order: list[str], into: dict[str, list[float]],
+                   span: dict[str, tuple[float, float]]) -> int:
+    """Crossings of OR convergence lines one above the other in ``order`` (the first
+    highest): links into a lower line across a higher one, a higher one's step's vertical
+    across a lower line."""
+    n = 0
+    for hi, lo in itertools.combinations(order, 2):
+        a, b = span[hi]
+        n += sum(1 for x in into[lo] if a < x < b)
+        n += 1 if span[lo][0] < c.nodes[hi].x < span[lo][1] else 0
+    return n
 
 
 def long_links(c: Chart, step: str) -> list[str]:
-    """Transitions that lead to ``step`` from more than one row above (a channel)."""
-    return [t for t in c.fin(step) if c.nodes[step].layer - c.nodes[t].layer > 1]
+    """Transitions that lead to ``step`` from more than one row above (a channel), but the
+    one it goes under (a straight line down, see straight_links)."""
+    return [t for t in c.fin(step) if c.nodes[step].layer - c.nodes[t].layer > 1
+            and c.primary_pred(step) != t]
+
+
+def straight_links(c: Chart) -> list[tuple[str, str]]:
+    """(transition, step) links that skip rows into a step drawn under the transition: a
+    vertical line through the rows between, which the elements of those rows keep clear
+    of (the main line goes on straight past a branch drawn beside it)."""
+    return [(t, n) for n in c.nodes if n.startswith("s:")
+            and (t := c.primary_pred(n)) is not None and c.nodes[n].layer - c.nodes[t].layer > 1]
 
 
 def _extent(c: Chart, layer: int, extra: dict[int, list[tuple[float, float]]]
@@ -482,7 +578,7 @@ def _within(g: Grafcet, inner: str, outer: str) -> bool:
 def route(c: Chart) -> Routes:
     r = Routes()
     extra: dict[int, list[tuple[float, float]]] = {}
-    for s, t in and_links(c):
+    for s, t in [*and_links(c), *straight_links(c)]:
         for layer in range(c.nodes[s].layer + 1, c.nodes[t].layer):
             x = c.nodes[s].x
             extra.setdefault(layer, []).append((x - 3, x + 3))
@@ -504,21 +600,43 @@ def route(c: Chart) -> Routes:
                 best = m
         return best
 
+    def horizontals(v: str, lane: float) -> list[tuple[int, float, float]]:
+        """(row, x0, x1) of the horizontals to and from a lane of ``v`` at ``lane``."""
+        ends = [*groups[v], v]
+        return [(c.nodes[u].layer, min(c.nodes[u].x, lane), max(c.nodes[u].x, lane))
+                for u in ends]
+
     def crossings(v: str, lane: float) -> int:
-        """Links that the horizontals to and from a lane at ``lane`` would cross."""
+        """Links that the horizontals to and from a lane at ``lane`` would cross: the
+        elements between, and the lanes placed already (their verticals crossed by these
+        horizontals, or their horizontals crossing this lane's vertical; issue 27: a
+        return link across another)."""
         def between(row: int, x: float, skip: str) -> int:
             lo, hi = min(x, lane), max(x, lane)
             return sum(1 for n in c.layers[row] if n != skip and lo < c.nodes[n].x < hi)
-        return (sum(between(c.nodes[u].layer, c.nodes[u].x, u) for u in groups[v])
-                + between(c.nodes[v].layer, c.nodes[v].x, v))
+        n = (sum(between(c.nodes[u].layer, c.nodes[u].x, u) for u in groups[v])
+             + between(c.nodes[v].layer, c.nodes[v].x, v))
+        rows = span(v)
+        for w, wx in r.lane.items():
+            wrows = span(w)
+            n += sum(1 for row, x0, x1 in horizontals(v, lane)
+                     if x0 < wx < x1 and wrows.start < row < wrows.stop - 1)
+            n += sum(1 for row, x0, x1 in horizontals(w, wx)
+                     if x0 < lane < x1 and rows.start < row < rows.stop - 1)
+        return n
 
     def place_lanes(targets: list[str]) -> None:
-        """Each target's lane, on the side where its horizontals cross fewer links (the
-        left on a tie); a lane that spans another goes outside it."""
+        """Each target's lane, on the side where its horizontals cross fewer links (on a
+        tie, the left, unless every link into it comes from the right of it); a lane that
+        spans another goes outside it."""
         for v in sorted(targets, key=lambda v: (len(span(v)), -c.nodes[v].layer)):
             left = min(_extent(c, layer, extra)[0] for layer in span(v)) - LANE
             right = max(_extent(c, layer, extra)[1] for layer in span(v)) + LANE
-            x = left if crossings(v, left) <= crossings(v, right) else right
+            cl, cr = crossings(v, left), crossings(v, right)
+            # on a tie, the side its links come from (a return link from a branch on the
+            # right goes up on the right, leaving the left to the main line's)
+            aside = min(c.nodes[u].x for u in groups[v]) > c.nodes[v].x
+            x = left if cl < cr or (cl == cr and not aside) else right
             r.lane[v] = x
             row = c.nodes[v].layer
             r.lane_level[v] = sum(1 for w in r.lane if w != v and c.nodes[w].layer == row
@@ -577,6 +695,7 @@ def route(c: Chart) -> Routes:
             for layer in rows:
                 extra.setdefault(layer, []).append((x - 3, x + 3))
     place_lanes([v for v in groups if v not in r.lane])
+    _split_links(c, r)
     _rows(c, r, groups)
     return r
 
@@ -622,10 +741,13 @@ def _rows(c: Chart, r: Routes, groups: dict[str, list[str]]) -> None:
         for u in us:
             side = -1 if r.lane[v] < c.nodes[u].x else 1
             leaving.setdefault(c.nodes[u].layer, []).append((u, v, side))
-    arriving: dict[int, int] = {}
-    for v, k in r.lane_level.items():
+    arriving: dict[int, float] = {}  # room above a row for lines one above the other, px
+    for v in {*r.lane_level, *r.join_level}:
         row = c.nodes[v].layer
-        arriving[row] = max(arriving.get(row, 0), k)
+        k = 6.0 * r.lane_level.get(v, 0)
+        if v in r.join_level:  # and the highest line apart from the bars above
+            k += LINK_GAP * (r.join_level[v] + 1)
+        arriving[row] = max(arriving.get(row, 0.0), k)
     for v in r.bus:
         for t in long_links(c, v):
             leaving.setdefault(c.nodes[t].layer, []).append((t, v, 1))
@@ -639,7 +761,7 @@ def _rows(c: Chart, r: Routes, groups: dict[str, list[str]]) -> None:
     y = TOP
     for layer, ids in enumerate(c.layers):
         opening = sorted(starts.get(layer, []), key=lambda m: _depth(c.g, m))
-        y += 16 * len(opening) + 6 * arriving.get(layer, 0)
+        y += 16 * len(opening) + arriving.get(layer, 0.0)
         h = max((c.nodes[n].height for n in ids), default=STEP_H)
         r.top.append(y)
         r.height.append(h)
@@ -656,9 +778,10 @@ def _rows(c: Chart, r: Routes, groups: dict[str, list[str]]) -> None:
         first = max(mid + 20, base + 12) if layer % 2 else base + 14
         out = leaving.get(layer, [])
         lefts = sorted((o for o in out if o[2] < 0), key=lambda o: c.nodes[o[0]].x)
-        rights = sorted((o for o in out if o[2] > 0), key=lambda o: -c.nodes[o[0]].x)
-        for i, (u, v, _) in enumerate(lefts + rights):
-            r.leave[(u, v)] = first + 6 * i
-        gap = max(30.0, first - bottom + 6 * len(out) + 14)
+        rights = sorted((o for o in out if o[2] > 0),
+                        key=lambda o: -r.split_drops.get((o[0], o[1]), c.nodes[o[0]].x))
+        for i, (u, v, _) in enumerate(lefts + rights):  # apart enough to be told apart
+            r.leave[(u, v)] = first + LINK_GAP * i
+        gap = max(30.0, first - bottom + LINK_GAP * len(out) + 14)
         y = bottom + gap
 

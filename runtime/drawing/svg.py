@@ -27,6 +27,7 @@ class Svg:
 
     def __init__(self) -> None:
         self.parts: list[str] = []
+        self.polylines: list[tuple[list[tuple[float, float]], str]] = []  # points, class
         self.x0 = self.y0 = float("inf")
         self.x1 = self.y1 = float("-inf")
 
@@ -48,6 +49,7 @@ class Svg:
             return
         for x, y in pts:
             self._grow(x, y)
+        self.polylines.append((pts, cls))
         d = " ".join(f"{x:.1f},{y:.1f}" for x, y in pts)
         extra = f' class="{cls}"' if cls else ""
         self.add(f'<polyline points="{d}" fill="none" stroke="black" '

@@ -13,7 +13,7 @@ from typing import Any
 
 from drivers.durations import format_ns, parse_literal
 from runtime.compiler.evolution import min_timed
-from runtime.compiler.program import Program, State
+from runtime.compiler.program import Memory, Program, State
 from runtime.language import ast as A
 from runtime.language.model import Step, Transition, VarKind
 from runtime.language.unparse import transition_text
@@ -142,59 +142,63 @@ class Instance:
         """For each active step, each outgoing transition and why it does (not) fire.
 
         Values are those of the last scan (edges as they were sampled in it)."""
-        g, m, prog = self.grafcet, self.m, self.program
-        now = prog.scan_time(m)
-        up = self.last_up
-        paused = prog.chart_paused(m)
-        tipmode = bool(prog.read(m, "SFCTipMode"))
-        held = [f for f in ("SFCInit", "SFCReset") if prog.read(m, f)]
-        out = []
-        values: dict[int, bool] = {}
-        for t in g.transitions:
-            probes = self.program.probes[t.index]
-            values[t.index] = bool(probes[0].fn(m, now, up))
+        return explain(self.program, self.m, self.last_up)
 
-        def early(t: Transition) -> list[Step]:
-            """The steps left by ``t`` whose min time is not reached."""
-            return [st for st in min_timed(g, t) if self.step_time(st.name) < (st.min_ns or 0)]
 
-        # the firing rule of semantics.md, on the situation and values of the last scan
-        fires: dict[int, bool] = {}
-        taken: set[str] = set()
+def explain(prog: Program, m: Memory, up: int) -> list[StepWhy]:
+    """``Instance.explain`` on a state ``m``: the live one between two scans, or a copy
+    of it (``m[:]``, as the feed captures it; its function blocks are the live objects)."""
+    g = prog.grafcet
+    now = prog.scan_time(m)
+    paused = prog.chart_paused(m)
+    tipmode = bool(prog.read(m, "SFCTipMode"))
+    held = [f for f in ("SFCInit", "SFCReset") if prog.read(m, f)]
+    out = []
+    values: dict[int, bool] = {}
+    for t in g.transitions:
+        values[t.index] = bool(prog.probes[t.index][0].fn(m, now, up))
+
+    def early(t: Transition) -> list[Step]:
+        """The steps left by ``t`` whose min time is not reached."""
+        return [st for st in min_timed(g, t) if prog.step_time(m, st.name) < (st.min_ns or 0)]
+
+    # the firing rule of semantics.md, on the situation and values of the last scan
+    fires: dict[int, bool] = {}
+    taken: set[str] = set()
+    for t in g.transitions:
+        src = set(t.src_steps)
+        fires[t.index] = (all(prog.step_active(m, s) for s in src) and not (src & taken)
+                          and not early(t) and values[t.index])
+        if fires[t.index]:
+            taken |= src
+    for step in [s.name for s in g.leaf_steps() if prog.step_active(m, s.name)]:
+        whys = []
         for t in g.transitions:
-            src = set(t.src_steps)
-            fires[t.index] = (all(prog.step_active(m, s) for s in src) and not (src & taken)
-                              and not early(t) and values[t.index])
-            if fires[t.index]:
-                taken |= src
-        for step in self.active_steps():
-            whys = []
-            for t in g.transitions:
-                if step not in t.src_steps:
-                    continue
-                blocked = [f"{f}: the chart is held in its initial situation" for f in held]
-                if paused:
-                    blocked.append("chart paused (SFCPause/SFCQuitError)")
-                if tipmode:
-                    blocked.append("SFCTipMode: fires only on ↑SFCTip")
-                for s in t.src_steps:
-                    if not prog.step_active(m, s):
-                        blocked.append(f"source step {s} not active")
-                for st in early(t):
-                    blocked.append(f"min time of {st.name}: "
-                                   f"{format_ns(self.step_time(st.name))} of "
-                                   f"{format_ns(st.min_ns or 0)}")
-                for e in g.transitions[:t.index]:
-                    if set(e.src_steps) & set(t.src_steps) and fires[e.index]:
-                        blocked.append(f"earlier transition has priority: "
-                                       f"{','.join(e.sources)} -> {','.join(e.targets)} "
-                                       f"when {e.text}")
-                terms = [TermWhy(p.text, p.depth, _plain(p.fn(m, now, up)))
-                         for p in self.program.probes[t.index]]
-                whys.append(TransitionWhy(t.index, transition_text(t), values[t.index],
-                                          blocked, terms))
-            out.append(StepWhy(step, self.step_time(step), whys))
-        return out
+            if step not in t.src_steps:
+                continue
+            blocked = [f"{f}: the chart is held in its initial situation" for f in held]
+            if paused:
+                blocked.append("chart paused (SFCPause/SFCQuitError)")
+            if tipmode:
+                blocked.append("SFCTipMode: fires only on ↑SFCTip")
+            for s in t.src_steps:
+                if not prog.step_active(m, s):
+                    blocked.append(f"source step {s} not active")
+            for st in early(t):
+                blocked.append(f"min time of {st.name}: "
+                               f"{format_ns(prog.step_time(m, st.name))} of "
+                               f"{format_ns(st.min_ns or 0)}")
+            for e in g.transitions[:t.index]:
+                if set(e.src_steps) & set(t.src_steps) and fires[e.index]:
+                    blocked.append(f"earlier transition has priority: "
+                                   f"{','.join(e.sources)} -> {','.join(e.targets)} "
+                                   f"when {e.text}")
+            terms = [TermWhy(p.text, p.depth, _plain(p.fn(m, now, up)))
+                     for p in prog.probes[t.index]]
+            whys.append(TransitionWhy(t.index, transition_text(t), values[t.index],
+                                      blocked, terms))
+        out.append(StepWhy(step, prog.step_time(m, step), whys))
+    return out
 
 
 def _plain(v: Any) -> Any:

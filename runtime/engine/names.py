@@ -175,6 +175,8 @@ class Catalogue:
     def __init__(self, plant: Plant) -> None:
         self.plant = plant
         self.names: dict[str, Signal] = {}
+        #: instance -> the position of its state in an Image (``img.m[k]``)
+        self._instances = {n: k for k, n in enumerate(plant.instances)}
         #: instance -> {"inputs": [...], "outputs": [...], "memory": [...]}
         self.groups: dict[str, dict[str, list[str]]] = {}
         #: driver -> its point names
@@ -265,6 +267,10 @@ class Catalogue:
 
     def physical_inputs(self) -> list[Signal]:
         return [n for n in self.names.values() if n.role == "point in"]
+
+    def instance_index(self, name: str) -> int:
+        """Where instance ``name``'s state is in an Image: ``img.m[k]``."""
+        return self._instances[name]
 
     def capture(self, scan: int) -> Image:
         """A copy of the process image (scan thread, between cycles: a few list copies)."""

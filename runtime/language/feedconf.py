@@ -42,7 +42,7 @@ def settle_feed(p: PlantDef, named: dict[str, Loc]) -> None:
     """Give every side process section of ``p`` the plant's one feed path. ``named``:
     section -> the place of its ``feed:`` value, for the sections that have the key (their
     ``feed`` holds the expanded path); two sections naming two paths is an error."""
-    sections = [(k, s) for k, s in (("opcua", p.opcua), ("mqtt", p.mqtt)) if s is not None]
+    sections = [(k, s) for k, s in p.side_sections() if s is not None]
     if not sections:
         return
     path = ""
@@ -67,7 +67,7 @@ def settle_feed(p: PlantDef, named: dict[str, Loc]) -> None:
 
 
 #: how a section's side process is named in messages
-SIDE_NAMES = {"opcua": "OPC UA", "mqtt": "MQTT"}
+SIDE_NAMES = {"opcua": "OPC UA", "mqtt": "MQTT", "web": "the web view"}
 
 
 def writable_names(p: PlantDef, value: Any, loc: Loc, section: str) -> list[str]:

@@ -383,6 +383,35 @@ class MqttDef:
 
 
 @dataclass(slots=True)
+class WebDef:
+    """``web:`` of a plant file: the live view in the browser (``softplc web``, docs/web.md)."""
+
+    #: the address and port it listens on; anything but a loopback address needs HTTPS
+    host: str = "127.0.0.1"
+    port: int = 8080
+    #: how often the controller sends a snapshot of its image to the feed, ns
+    sample_ns: int = 100_000_000
+    #: the feed's local socket (the controller serves it, the web view connects)
+    feed: str = ""
+    #: HTTPS: the certificate (PEM, its chain after it) and its private key (PEM)
+    certificate: str | None = None
+    private_key: str | None = None
+    #: who may act from the page: user -> password hash (``softplc hash-pin``)
+    users: dict[str, str] = field(default_factory=dict)
+    #: who may look: "anyone" who reaches the address, or only logged-in "users"
+    read: str = "anyone"
+    #: a login ends after this long without an action from its pages, ns
+    idle_logout_ns: int = 600_000_000_000
+    #: pages open at once (WebSocket connections), in all
+    max_pages: int = 20
+    #: the writable names (the feed's; the page acts through the console, docs/web.md)
+    writable: list[str] = field(default_factory=list)
+    loc: Loc | None = None
+    #: where each key given has its value, for errors at run time
+    locs: dict[str, Loc] = field(default_factory=dict)
+
+
+@dataclass(slots=True)
 class FeedDef:
     """The controller's feed (runtime/controller/feed.py) as the plant's side processes
     (``opcua:``, ``mqtt:``) need it: one socket, one snapshot period, and the names each
@@ -441,11 +470,16 @@ class PlantDef:
     opcua: OpcuaDef | None = None
     #: the MQTT Sparkplug B edge node's section (``mqtt:``), None without one
     mqtt: MqttDef | None = None
+    #: the web view's section (``web:``), None without one
+    web: WebDef | None = None
+
+    def side_sections(self) -> list[tuple[str, OpcuaDef | MqttDef | WebDef | None]]:
+        """The sections of the side processes fed by the controller, present or not."""
+        return [("opcua", self.opcua), ("mqtt", self.mqtt), ("web", self.web)]
 
     def feed(self) -> FeedDef | None:
         """The feed the controller serves for its side processes, None if it has none."""
-        sides = {k: v for k, v in (("opcua", self.opcua), ("mqtt", self.mqtt))
-                 if v is not None}
+        sides = {k: v for k, v in self.side_sections() if v is not None}
         if not sides:
             return None
         first = next(iter(sides.values()))

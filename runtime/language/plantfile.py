@@ -45,9 +45,10 @@ from runtime.language.mqttconf import load_mqtt
 from runtime.language.opcuaconf import load_opcua
 from runtime.language.plantpaths import path_value
 from runtime.language.typecheck import FLAGS_BOOL
+from runtime.language.webconf import load_web
 from runtime.language.yamlsrc import SourceFileError, YMap, load_yaml
 
-PLANT_KEYS = ("plc", "drivers", "instances", "monitor", "opcua", "mqtt", "alarms")
+PLANT_KEYS = ("plc", "drivers", "instances", "monitor", "opcua", "mqtt", "alarms", "web")
 PLC_KEYS = ("cycle", "watchdog", "retain", "retain_interval", "retain_required", "realtime",
             "log")
 INSTANCE_KEYS = ("grafcet", "inputs", "outputs", "description", "log")
@@ -326,7 +327,7 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
     if "monitor" in doc and doc["monitor"] is not None:
         _monitor(p, doc["monitor"], doc.val_locs["monitor"])
     named: dict[str, Loc] = {}  # side process section -> its feed: value's place
-    for key, load_side in (("opcua", load_opcua), ("mqtt", load_mqtt)):
+    for key, load_side in (("opcua", load_opcua), ("mqtt", load_mqtt), ("web", load_web)):
         if key in doc and doc[key] is not None:
             setattr(p, key, load_side(p, doc[key], doc.val_locs[key]))
             section = doc[key]

@@ -174,8 +174,8 @@ class Whereabouts:
     #: the console to reach it by: its first socket, else its first TCP port
     #: ("127.0.0.1:PORT"); None without either
     console: str | None
-    #: the feed socket of its side processes (``opcua: feed``, ``mqtt: feed``: one per
-    #: plant); None without ``opcua:`` or ``mqtt:``
+    #: the feed socket of its side processes; None without a side process section
+    #: (``opcua:``, ``mqtt:``, ``web:``)
     feed: str | None
 
 

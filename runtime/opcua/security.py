@@ -52,8 +52,6 @@ reconnects does not pay it again.
 from __future__ import annotations
 
 import datetime
-import hashlib
-import hmac
 import ipaddress
 import logging
 import os
@@ -74,7 +72,7 @@ from cryptography import x509
 from cryptography.hazmat.primitives import serialization
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
-from runtime.controller.pin import check_pin
+from runtime.controller.pin import FAIL_HOLD_S, Passwords  # noqa: F401 - FAIL_HOLD_S: its rule
 from runtime.errors import Loc, SourceError
 from runtime.language.model import OpcuaSecurity
 from runtime.language.safefile import UnfitFile, read_bounded
@@ -90,8 +88,6 @@ APPLICATION_URI = "urn:softplc:opcua:server"
 CLIENT_URI = "urn:softplc:opcua:client"
 #: the largest certificate or key file read (a certificate is 1-2 kB), bytes
 CERTIFICATE_MAX_BYTES = 64 * 1024
-#: after a failed password check, further checks are refused without hashing this long, s
-FAIL_HOLD_S = 1.0
 #: plant policy name -> asyncua's endpoint type
 POLICIES: dict[str, ua.SecurityPolicyType] = {
     "None": ua.SecurityPolicyType.NoSecurity,
@@ -190,12 +186,9 @@ class Users(UserManager):  # type: ignore[misc]  # asyncua is Any to mypy
         self.trusted = TrustedClients(sec.trusted_clients)
         self.readers = TrustedClients(sec.trusted_readers)
         self.allow_none = "None" in sec.policies
-        self._clock = clock
-        self._key = os.urandom(32)
-        self._known: set[bytes] = set()
-        #: user -> clock seconds until which its password is not checked (a wrong one
-        #: holds that user only: guessing one user's password never locks out another)
-        self._hold_until: dict[str, float] = {}
+        #: the users' passwords (a wrong one holds that user only: guessing one user's
+        #: password never locks out another)
+        self.passwords = Passwords(sec.users, clock)
         #: why the last session was refused ("" if it was not)
         self.refusal = ""
 
@@ -230,20 +223,7 @@ class Users(UserManager):  # type: ignore[misc]  # asyncua is Any to mypy
         return None
 
     def _password_ok(self, username: str, password: str) -> bool:
-        stored = self.sec.users.get(username)
-        if stored is None:
-            return False
-        tag = hmac.new(self._key, f"{username}\0{password}\0{stored}".encode(),
-                       hashlib.sha256).digest()
-        if tag in self._known:
-            return True
-        if self._clock() < self._hold_until.get(username, 0.0):
-            return False
-        if check_pin(password, stored):
-            self._known.add(tag)
-            return True
-        self._hold_until[username] = self._clock() + FAIL_HOLD_S
-        return False
+        return self.passwords.check(username, password)
 
 
 def _subject(der: Any) -> str:

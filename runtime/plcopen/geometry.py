@@ -10,18 +10,8 @@ file).
 
 from __future__ import annotations
 
-import shutil
-
-from runtime.drawing.chart import Drawing
-from runtime.drawing.layout import (
-    ACTION_GAP,
-    STEP_H,
-    Chart,
-    arrange,
-    build_chart,
-    dot_order,
-    row_h,
-)
+from runtime.drawing.chart import Drawing, laid_out
+from runtime.drawing.layout import ACTION_GAP, STEP_H, row_h
 from runtime.language.model import Grafcet
 
 Point = tuple[float, float]
@@ -37,13 +27,7 @@ class Geometry:
 
     def __init__(self, g: Grafcet, layout: str = "python") -> None:
         self.g = g
-        c: Chart = build_chart(g)
-        dot = shutil.which("dot") if layout in ("auto", "dot") else None
-        if layout == "dot" and dot is None:
-            raise RuntimeError("--layout dot: Graphviz's 'dot' is not installed "
-                               "(apt-get install graphviz)")
-        self.used = "dot" if dot is not None else "python"
-        r = arrange(c, dot_order(c, dot) if dot is not None else None)
+        c, r, self.used = laid_out(g, layout)
         self.c, self.r = c, r
         self.d = Drawing(c, r, set())
 

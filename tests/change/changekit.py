@@ -17,6 +17,12 @@ from runtime.language.plantfile import load_plant
 ROOT = Path(__file__).resolve().parents[2]
 DATA = Path(__file__).resolve().parent / "data"
 DRAWER_PLANT = str(ROOT / "configs/drawer_tester/plant_sim.yaml")
+
+
+def without_web(text: str) -> str:
+    """The demo plant's text without its ``web:`` section (its last): a plant with no feed,
+    as the side sections' tests start from."""
+    return text.split("\nweb:\n")[0] + "\n"
 STORY = str(ROOT / "configs/drawer_tester/story.yaml")
 
 

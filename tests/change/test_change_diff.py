@@ -13,7 +13,7 @@ from runtime.cli import main
 from runtime.errors import SourceError
 from runtime.language.grafcetfile import load_grafcet
 from runtime.language.plantfile import load_plant
-from tests.change.changekit import DATA, DRAWER_PLANT, ROOT
+from tests.change.changekit import DATA, DRAWER_PLANT, ROOT, without_web
 
 CHART = """\
 grafcet: Press
@@ -240,7 +240,8 @@ def test_the_opcua_section_is_named_by_the_diff(tmp_path, old_extra: str, new_ex
                                                 capsys: pytest.CaptureFixture[str]) -> None:
     """Issue 25: adding ``opcua:`` to a plant was `no change` and `can be applied online`."""
     drawer = Path(DRAWER_PLANT)
-    src = drawer.read_text(encoding="utf-8").replace("grafcet: ", f"grafcet: {drawer.parent}/")
+    src = without_web(drawer.read_text(encoding="utf-8")).replace(
+        "grafcet: ", f"grafcet: {drawer.parent}/")
     (tmp_path / "old.yaml").write_text(src + old_extra, encoding="utf-8")
     (tmp_path / "new.yaml").write_text(src + new_extra, encoding="utf-8")
     status = main(["diff", str(tmp_path / "old.yaml"), str(tmp_path / "new.yaml")])
@@ -309,3 +310,28 @@ def test_every_setting_of_a_plant_is_compared_by_the_diff() -> None:
         if f.name in not_compared:
             continue
         assert f".{f.name}" in source, f"PlantDef.{f.name} is not compared by change/diff.py"
+
+
+WEB = """\
+web:
+  listen: 127.0.0.1:8090
+"""
+
+
+@pytest.mark.parametrize(("old_extra", "new_extra", "out", "refused"), [
+    ("", WEB, ["plant: web: added"],
+     ["web: added: the feed is served from the controller's start: restart the "
+      "controller, then start its web view"]),
+    (OPCUA, OPCUA + WEB, ["plant: web: added"], []),
+    (OPCUA + WEB, OPCUA, ["plant: web: removed: stop its web view (systemctl stop "
+                          "softplc-web@NAME)"], []),
+    (WEB, WEB.replace("8090", "8091"),
+     ["plant: web port changed: applied when the web view restarts (softplc web; "
+      "systemctl restart softplc-web@NAME)"], []),
+], ids=["added", "added-beside-opcua", "removed", "listen"])
+def test_the_web_section_is_named_by_the_diff(tmp_path, old_extra: str, new_extra: str,
+                                              out: list[str], refused: list[str],
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 27: ``web:`` is named as ``opcua:`` and ``mqtt:`` are."""
+    test_the_opcua_section_is_named_by_the_diff(tmp_path, old_extra, new_extra, out, refused,
+                                                capsys)

@@ -80,6 +80,19 @@ class Pipe:
                 self.dropped += len(view)  # the line is full: lost, as on a real line
                 return
 
+    def write_all(self, data: bytes, timeout: float) -> bool:
+        """Write all of ``data``, waiting while the line is full (an operator typing after
+        a flood): whether it all went within ``timeout`` seconds."""
+        view = memoryview(data)
+        end = time.monotonic() + timeout
+        while view and time.monotonic() < end:
+            select.select([], [self.fd], [], 0.05)
+            try:
+                view = view[os.write(self.fd, view):]
+            except BlockingIOError:
+                continue
+        return not view
+
     def read(self, timeout: float) -> bytes:
         ready, _, _ = select.select([self.fd], [], [], timeout)
         if not ready:
@@ -155,8 +168,9 @@ def flood(seconds: float, rate: int) -> dict[str, float]:
         next_t += tick
         time.sleep(max(0.0, next_t - time.monotonic()))
     elapsed = time.monotonic() - start
-    # the console still answers on the same line once the flood is over
-    pipe.write(b"\x03get t1.sCierres\r\n")
+    # the console still answers on the same line once the flood is over (typed as an
+    # operator types: after the line has room again)
+    pipe.write_all(b"\x03get t1.sCierres\r\n", 10.0)
     end = time.monotonic() + 10
     while not counter.final and time.monotonic() < end:
         time.sleep(0.01)

@@ -83,7 +83,9 @@ def test_a_flood_on_the_console_does_not_disturb_the_scan(rigs: Callable[..., Ri
     msg = f"quiet {quiet}, flooded {loud}"
     # the flood reached the console and was answered, and so was the trace client
     assert sent["rate"] >= 800 and sent["sent_lines"] >= 0.8 * 1000 * SECONDS, msg
-    assert sent["errors"] > 1000 and sent["ok"] > 50, msg
+    # answered within the console's tenth of a processor (docs/console.md): some 250 lines
+    # a second of this garbage on a quiet machine, where all 1000 were before the budget
+    assert sent["errors"] > 450 and sent["ok"] > 25, msg
     assert sent["answers_after"], msg
     assert traced["trace_lines"] > 0.5 * SECONDS * 100, msg
     # and the scan did not notice

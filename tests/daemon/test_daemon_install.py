@@ -22,6 +22,7 @@ from runtime.controller.install import (
     CONTROLLER,
     MQTT,
     OPCUA,
+    WEB,
     InstallError,
     NowRefused,
     apply,
@@ -32,6 +33,7 @@ from runtime.controller.install import (
     unit_text,
 )
 from runtime.language.plantfile import load_plant
+from tests.change.changekit import without_web
 
 ROOT = Path(__file__).resolve().parents[2]
 SOFTPLC = str(Path(sys.executable).parent / "softplc")
@@ -43,7 +45,8 @@ needs_systemd = pytest.mark.skipif(shutil.which("systemd-analyze") is None,
 def staged_units(tmp_path: Path) -> list[Path]:
     out = []
     for name, text in ((CONTROLLER, unit_text(SOFTPLC)), (OPCUA, opcua_unit_text(SOFTPLC)),
-                       (MQTT, side_unit_text("mqtt", SOFTPLC))):
+                       (MQTT, side_unit_text("mqtt", SOFTPLC)),
+                       (WEB, side_unit_text("web", SOFTPLC))):
         unit = tmp_path / name.replace("@.", "@demo.")  # an instance, as systemd loads it
         unit.write_text(text, encoding="utf-8")
         out.append(unit)
@@ -198,6 +201,10 @@ def test_paths_the_service_cannot_see_or_write_are_refused(tmp_path: Path) -> No
         "ProtectHome=yes: use /var/lib/softplc/site.retain.json",
         "monitor: socket: /tmp/drawer.sock is outside the runtime directory /run/softplc/site:"
         " nobody outside the service would reach it (PrivateTmp=yes); put it in "
+        "'${RUNTIME_DIR}/'",
+        # the web view's feed, by default beside the console socket, moved with it
+        "web: feed: /tmp/feed.sock is outside the runtime directory /run/softplc/site: "
+        "nobody outside the service would reach it (PrivateTmp=yes); put it in "
         "'${RUNTIME_DIR}/'"]
     got = refusals(tmp_path, text.replace("${RUNTIME_DIR}/drawer_tester_sim.retain.json",
                                           "/srv/drawer.retain.json"))
@@ -364,7 +371,8 @@ def test_a_reinstall_knows_what_a_running_controller_needs(tmp_path: Path) -> No
     d = tmp_path / "press"
     d.mkdir()
     (d / "drawer_tester.yaml").write_bytes((DRAWER.parent / "drawer_tester.yaml").read_bytes())
-    (d / "plant.yaml").write_bytes(DRAWER.read_bytes())
+    drawer = without_web(DRAWER.read_text(encoding="utf-8"))  # a plant with no feed yet
+    (d / "plant.yaml").write_text(drawer, encoding="utf-8")
     stage = str(tmp_path / "stage")
     apply(plan(str(d / "plant.yaml"), SOFTPLC, root=stage), root=stage)
     p = plan(str(d / "plant.yaml"), SOFTPLC, root=stage)
@@ -373,8 +381,7 @@ def test_a_reinstall_knows_what_a_running_controller_needs(tmp_path: Path) -> No
     chart.write_text(chart.read_text(encoding="utf-8") + "# edited\n", encoding="utf-8")
     p = plan(str(d / "plant.yaml"), SOFTPLC, root=stage)
     assert (p.changed, p.restart_reasons) == (True, [])
-    (d / "plant.yaml").write_text(DRAWER.read_text(encoding="utf-8") +
-                                  "opcua: {endpoint: 'opc.tcp://127.0.0.1:4850'}\n",
+    (d / "plant.yaml").write_text(drawer + "opcua: {endpoint: 'opc.tcp://127.0.0.1:4850'}\n",
                                   encoding="utf-8")
     p = plan(str(d / "plant.yaml"), SOFTPLC, root=stage)
     assert p.changed and p.opcua
@@ -455,3 +462,34 @@ def test_every_unit_is_shipped_with_the_package() -> None:
     shipped = data["tool"]["setuptools"]["data-files"]["share/softplc"]
     assert sorted(shipped) == sorted(f"systemd/{u.name}" for u in (ROOT / "systemd").glob("*"))
     assert {f"systemd/{u}" for u in (CONTROLLER, OPCUA, MQTT)} <= set(shipped)
+
+
+def test_a_plant_with_web_gets_its_web_view_unit(tmp_path: Path, systemctl: Path) -> None:
+    """install-service writes softplc-web@.service for a plant with ``web:`` (as for
+    ``opcua:``), enables softplc-web@NAME, and --now starts it; a reinstall without the
+    section disables it."""
+    d = tmp_path / "press"
+    d.mkdir()
+    (d / "drawer_tester.yaml").write_bytes((DRAWER.parent / "drawer_tester.yaml").read_bytes())
+    text = DRAWER.read_text(encoding="utf-8")
+    text = text[:text.index("\nmonitor:")] + (
+        "\nmonitor:\n  socket: {path: '${RUNTIME_DIR}/console.sock'}\n"
+        "web: {listen: 127.0.0.1:8090}\n")
+    (d / "plant.yaml").write_text(text, encoding="utf-8")
+    stage = str(tmp_path / "stage")
+    p = plan(str(d / "plant.yaml"), SOFTPLC, root=stage)
+    assert p.web and p.web_view == "softplc-web@press.service"
+    unit = p.files["/etc/systemd/system/" + WEB].data
+    assert unit is not None
+    keys = unit_keys(unit.decode())
+    assert keys["ExecStart"] == f"{SOFTPLC} web /etc/softplc/%i/plant.yaml"
+    assert keys["RuntimeDirectory"] == "softplc/%i" and keys["User"] == "softplc"
+    assert ["systemctl", "enable", "softplc@press.service",
+            "softplc-web@press.service"] in p.commands
+    assert bring_up(install.Plan(name="press", web=True, start=True)) == [
+        "started softplc@press.service", "started softplc-web@press.service"]
+    apply(p, root=stage)
+    (d / "plant.yaml").write_text(text.replace("web: {listen: 127.0.0.1:8090}\n", ""),
+                                  encoding="utf-8")
+    p = plan(str(d / "plant.yaml"), SOFTPLC, root=stage)
+    assert p.web_removed and ["systemctl", "disable", "softplc-web@press.service"] in p.commands

@@ -16,6 +16,7 @@ from asyncua.ua import uaerrors
 from cryptography import x509
 
 from runtime.cli import main
+from runtime.controller import pin
 from runtime.controller.pin import hash_pin
 from runtime.errors import Loc, SourceError
 from runtime.language.model import OpcuaSecurity
@@ -272,12 +273,12 @@ def test_failed_checks_hold_further_checks_without_hashing(certs: Certs) -> None
     now = [100.0]
     calls: list[str] = []
     users = security.Users(sec(certs, ["None"]), clock=lambda: now[0])
-    real = security.check_pin
+    real = pin.check_pin
 
-    def counting(pin: str, stored: str) -> bool:
-        calls.append(pin)
-        return real(pin, stored)
-    security.check_pin = counting  # type: ignore[assignment]
+    def counting(text: str, stored: str) -> bool:
+        calls.append(text)
+        return real(text, stored)
+    pin.check_pin = counting  # type: ignore[assignment]  # the one home of the checks
     try:
         assert users.get_user(None, "operator", "guess1") is None
         assert users.get_user(None, "operator", "right-pass") is None  # held: not hashed
@@ -291,7 +292,7 @@ def test_failed_checks_hold_further_checks_without_hashing(certs: Certs) -> None
         assert users.get_user(None, "operator", "right-pass") is not None  # remembered
         assert calls == ["guess1", "right-pass"]
     finally:
-        security.check_pin = real  # type: ignore[assignment]
+        pin.check_pin = real  # type: ignore[assignment]
 
 
 # --- start-up checks and the certificate command --------------------------------------

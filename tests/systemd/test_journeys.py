@@ -118,7 +118,7 @@ def plc() -> Iterator[Container]:
              "--exclude=./tests/opcua/node/node_modules --exclude='*.egg-info' -cf - . "
              f"| tar -C {SRC} -xf -")
         c.sh(f"/usr/bin/python3 -m venv {VENV} && {VENV}/bin/pip install -q "
-             f"'{SRC}[opcua,mqtt]' && {SOFTPLC} --version", timeout=900)
+             f"'{SRC}[opcua,mqtt,web]' && {SOFTPLC} --version", timeout=900)
         yield c
     finally:
         c.close()
@@ -183,6 +183,12 @@ def test_each_example_plant_installs_and_runs(plc: Container) -> None:
         "softplc:softplc 750"
     assert "cycle time 10 ms" in console(plc, "/run/softplc/drawer_tester/drawer.sock",
                                          "status")
+    # the drawer testers' web view (web: in their plant) beside them, serving the page
+    plc.wait("systemctl is-active --quiet softplc-web@drawer_tester.service",
+             what="softplc-web@drawer_tester active")
+    plc.wait("/usr/bin/python3 -c 'import urllib.request as u; "
+             "u.urlopen(\"http://127.0.0.1:8080/api/plant\", timeout=5)'",
+             what="the drawer testers' page served")
     # the plants on real I/O: the device is not in a container; the unit says so in one
     # line and tries again every RestartSec (docs/daemon.md), until it is stopped
     for name, what in HARDWARE_PLANTS.items():

@@ -1,0 +1,49 @@
+"""What the page shows of a plant that does not change while it runs: its instances, each
+chart as ``softplc draw`` draws it (SVG, its steps and transitions named for the page to
+mark them live), and the I/O list (every input, output and memory variable with its driver
+point).
+
+Descriptions: the chart's own (``description:`` of the grafcet file) and its steps' (shown
+as the step's tooltip). The plant model has no description of a signal yet (the I/O list of
+issue 29 brings them): the I/O list's description column is empty until then
+(docs/web.md)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from runtime.drawing.chart import chart_svg
+from runtime.language.model import PlantDef, VarKind
+
+
+def describe(pdef: PlantDef) -> dict[str, Any]:
+    """The plant as the page reads it (``/api/plant``): JSON-ready."""
+    instances = []
+    for name, idef in pdef.instances.items():
+        g = idef.grafcet
+        io: list[list[str]] = []
+        for kind, label in ((VarKind.INPUT, "in"), (VarKind.OUTPUT, "out"),
+                            (VarKind.MEMORY, "memory")):
+            for var, v in g.variables.items():
+                if v.kind is not kind:
+                    continue
+                b = idef.inputs.get(var) or idef.outputs.get(var)
+                source = ""
+                if b is not None:
+                    source = b.source + (" (inverted)" if b.invert else "")
+                io.append([f"{name}.{var}", label, source, "", v.type.value])
+        instances.append({
+            "name": name, "grafcet": g.name, "description": g.description,
+            "steps": [s.name for s in g.leaf_steps()],
+            "transitions": [[t.index, t.text] for t in g.transitions],
+            "io": io})
+    return {"plant": pdef.path, "instances": instances, "drivers": list(pdef.drivers)}
+
+
+def chart_of(pdef: PlantDef, instance: str) -> str | None:
+    """The SVG of ``instance``'s chart (None for an unknown instance)."""
+    idef = pdef.instances.get(instance)
+    if idef is None:
+        return None
+    svg, _layout = chart_svg(idef.grafcet, title=f"{instance}: {idef.grafcet.name}")
+    return svg

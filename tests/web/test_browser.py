@@ -1,0 +1,102 @@
+"""The journeys of docs/web.md in a real browser (Debian's chromium, driven by playwright)
+against ``softplc run`` and ``softplc web`` as two real processes on the drawer tester: a
+step becoming active shows within 2 samples; a force set from the page reaches the output;
+closing the page ends in the console's safe reaction; a wrong login is refused. The
+screenshots of docs/web.md are taken here."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+from tests.opcua.feedkit import wait_until
+from tests.web.kit import PASSWORD, SAMPLE_MS, USER, Rig, browser, rig
+
+ROOT = Path(__file__).resolve().parents[2]
+IMG = ROOT / "docs" / "img"
+
+
+def open_page(b: Any, r: Rig) -> Any:
+    page = b.new_page(viewport={"width": 1400, "height": 1000})
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.errors = errors
+    page.goto(r.url)
+    page.wait_for_selector("body[data-link=live]", timeout=30_000)
+    page.wait_for_selector("#inst-tester1 g.step-group[data-step=gsParado].active",
+                           timeout=30_000)
+    return page
+
+
+def log_in(page: Any, password: str = PASSWORD) -> None:
+    page.fill("#user", USER)
+    page.fill("#password", password)
+    page.click("#login button")
+
+
+def test_a_step_becoming_active_shows_within_two_samples(tmp_path: Path) -> None:
+    with rig(tmp_path) as r, browser() as b:
+        page = open_page(b, r)
+        step = "#inst-tester1 g.step-group[data-step=gsAbrir]"
+        assert not page.locator(step).evaluate("e => e.classList.contains('active')")
+        r.console("set sim.I0 1", "set sim.I1 1")  # stop released, start pressed
+        page.wait_for_selector(step + ".active", timeout=30_000)
+        shown = int(page.locator(step).get_attribute("data-shown-scan"))
+        # when the step became active in the controller: the first frame that carries
+        # it, less the step's own time in it (.T) at that frame
+        k = r.feed.state.index["tester1.gsAbrir.X"]
+        kt = r.feed.state.index["tester1.gsAbrir.T"]
+        first = next(f for f in r.feed.frames if f[2][k])
+        cycle_ns = 10_000_000
+        activated = first[0] - first[2][kt] // cycle_ns
+        sample_scans = SAMPLE_MS // 10
+        assert shown - activated <= 2 * sample_scans, (activated, first[0], shown)
+        # the transition it waits on is marked, and the console's why is listed
+        page.wait_for_selector("#inst-tester1 g.transition-group.blocking", timeout=10_000)
+        assert "gsAbrir" in page.inner_text("#inst-tester1 ul.why")
+        page.screenshot(path=str(IMG / "web-page.png"), full_page=False)
+        assert page.errors == []
+
+
+def test_a_wrong_login_is_refused(tmp_path: Path) -> None:
+    with rig(tmp_path) as r, browser() as b:
+        page = open_page(b, r)
+        log_in(page, "not-the-password")
+        page.wait_for_selector("#login-error:has-text('wrong user or password')",
+                               timeout=10_000)
+        assert page.locator("#who").is_hidden()
+        assert all(c["name"] != "softplc_session" for c in page.context.cookies())
+        # the page's own socket may not act either: the server refuses it
+        page.evaluate("() => { S.ws.send(JSON.stringify({act: [1, 'pause']})); }")
+        page.wait_for_selector("#events li:has-text('log in to act')", timeout=10_000)
+        assert r.status()["state"] == "running"
+        assert "login of 'op' from 127.0.0.1 refused" in r.web.log()
+
+
+def test_a_force_from_the_page_reaches_the_output_and_closing_the_page_is_safe(
+        tmp_path: Path) -> None:
+    with rig(tmp_path) as r, browser() as b:
+        page = open_page(b, r)
+        log_in(page)
+        page.wait_for_selector("#who:not([hidden])", timeout=30_000)
+        page.wait_for_selector("body[data-link=live]", timeout=30_000)
+        cookie = next(c for c in page.context.cookies() if c["name"] == "softplc_session")
+        assert cookie["httpOnly"] and cookie["sameSite"] == "Strict"
+        row = '#inst-tester1 tr[data-name="tester1.oTest"]'
+        page.click(row + ' button[data-force="1"]')
+        wait_until(lambda: r.value("sim.Q3") is True, 30.0, "sim.Q3 forced on")
+        page.wait_for_selector(row + ".forced", timeout=10_000)
+        assert "tester1.oTest" in r.status()["forced"]
+        page.screenshot(path=str(IMG / "web-forced.png"), full_page=False)
+        page.close()  # the page closed while it held a force
+        wait_until(lambda: r.status().get("state") == "halted", 30.0, "the safe reaction")
+        outputs = [f"sim.Q{i}" for i in range(8)]
+        try:
+            wait_until(lambda: not any(r.value(q) for q in outputs), 10.0, "outputs off")
+        except AssertionError:
+            raise AssertionError({q: r.value(q) for q in outputs}) from None
+        assert r.status()["forced"] == []
+        log = r.ctl.log()
+        assert "web:op@127.0.0.1" in log and "while it held: force tester1.oTest" in log, log
+        time.sleep(0)  # nothing else: the halt waits for a person's ack
