@@ -114,7 +114,12 @@ def softplc(tmp_path: Path, *args: str, env: dict[str, str] | None = None) -> Ou
     """Run ``softplc ARGS`` in a capped child process (``env``: variables to change)."""
     timing = tmp_path / "timing"
     timing.unlink(missing_ok=True)
-    environ = dict(os.environ, HOSTILE_TIMING=str(timing), PYTHONPATH=str(ROOT), **(env or {}))
+    # a runtime directory of its own, already there: the first run on a fresh machine would
+    # otherwise log that it created ${TMPDIR}/softplc-UID beside the one line looked for
+    tmp = tmp_path / "tmp"
+    (tmp / f"softplc-{os.getuid()}").mkdir(mode=0o700, parents=True, exist_ok=True)
+    environ = {**os.environ, "HOSTILE_TIMING": str(timing), "PYTHONPATH": str(ROOT),
+               "TMPDIR": str(tmp), **(env or {})}
     proc = subprocess.run([sys.executable, "-c", CHILD, *args], capture_output=True, text=True,
                           timeout=CHILD_TIMEOUT_S, env=environ, cwd=tmp_path,
                           preexec_fn=_limit_memory)
