@@ -3,22 +3,24 @@ chart as ``softplc draw`` draws it (SVG, its steps and transitions named for the
 mark them live), and the I/O list (every input, output and memory variable with its driver
 point).
 
-Descriptions: the chart's own (``description:`` of the grafcet file) and its steps' (shown
-as the step's tooltip). The plant model has no description of a signal yet (the I/O list of
-issue 29 brings them): the I/O list's description column is empty until then
-(docs/web.md)."""
+Descriptions: the chart's own (``description:`` of the grafcet file), its steps' (shown as
+the step's tooltip), and each signal's from the plant's I/O list (``language/iolist.py``
+``IOList.meaning``: the binding's description, else the chart variable's), with its unit."""
 
 from __future__ import annotations
 
 from typing import Any
 
 from runtime.drawing.chart import chart_svg
+from runtime.language import ast as A
+from runtime.language.iolist import IOList
 from runtime.language.model import PlantDef, VarKind
 
 
 def describe(pdef: PlantDef) -> dict[str, Any]:
     """The plant as the page reads it (``/api/plant``): JSON-ready."""
     instances = []
+    iolist = IOList(pdef)
     for name, idef in pdef.instances.items():
         g = idef.grafcet
         io: list[list[str]] = []
@@ -31,7 +33,11 @@ def describe(pdef: PlantDef) -> dict[str, Any]:
                 source = ""
                 if b is not None:
                     source = b.source + (" (inverted)" if b.invert else "")
-                io.append([f"{name}.{var}", label, source, "", v.type.value])
+                meaning = iolist.meaning(f"{name}.{var}")
+                text = meaning.description
+                if meaning.unit is not None and v.type is not A.Type.TIME:
+                    text = f"{text} ({meaning.unit.symbol})" if text else meaning.unit.symbol
+                io.append([f"{name}.{var}", label, source, text, v.type.value])
         instances.append({
             "name": name, "grafcet": g.name, "description": g.description,
             "steps": [s.name for s in g.leaf_steps()],
