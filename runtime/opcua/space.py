@@ -26,6 +26,7 @@ from asyncua import Server, ua
 from asyncua.common.node import Node
 
 from runtime.controller.feed import value_problem
+from runtime.errors import SoftplcError
 from runtime.language import ast as A
 from runtime.language.iolist import IOList, Meaning
 from runtime.language.model import PlantDef
@@ -80,7 +81,7 @@ GOOD = ua.StatusCodes.Good
 OUT_OF_RANGE = ua.StatusCodes.BadOutOfRange
 
 
-class OutOfRange(ValueError):
+class OutOfRange(SoftplcError, ValueError):
     """A client's value of the right type that no plant variable may hold (BadOutOfRange)."""
 
 
