@@ -173,7 +173,10 @@ def test_warnings_name_the_services_paths(tmp_path: Path) -> None:
     assert "warning: plc: retain: /run/softplc/drawer_tester/drawer_tester_sim.retain.json " \
            "is in the runtime directory /run/softplc/drawer_tester, emptied at every reboot" \
            in r.stderr
-    assert "/tmp" not in r.stderr
+    # no warning names the installer's own runtime directory (the ExecStart warnings may
+    # name /tmp when the suite runs from a clone there: they are about the program)
+    retain = [ln for ln in r.stderr.splitlines() if "retain" in ln]
+    assert retain and not any("/tmp" in ln for ln in retain), r.stderr
     assert "simulated I/O" in r.stderr
 
 
