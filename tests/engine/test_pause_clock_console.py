@@ -42,7 +42,8 @@ def test_cycle_1_after_a_long_pause_moves_the_step_time_by_one_cycle(rig: Rig) -
     assert s.ok("cycle 1")[1:] == ["nothing changed"]  # step times are left out
     assert rig.read("t1.gsAbrir.T") == frozen + 10 * MS
     (line,) = s.ok("get t1.gsAbrir.T")
-    got = re.fullmatch(r"t1\.gsAbrir\.T=(?:(\d+)s)?(?:(\d+)ms)?", line)
+    # the value, then the step's description from the I/O list (docs/console.md, get)
+    got = re.fullmatch(r"t1\.gsAbrir\.T=(?:(\d+)s)?(?:(\d+)ms)?(?:  \"[^\"]*\")?", line)
     assert got is not None, line
     shown_ms = int(got[1] or 0) * 1000 + int(got[2] or 0)
     assert shown_ms == round((frozen + 10 * MS) / MS)
