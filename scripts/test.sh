@@ -13,8 +13,6 @@ for a in "$@"; do
 done
 # Optional system tools some tests use (systemd-analyze for the unit, graphviz for draw,
 # socat for pty pairs and, with rlwrap, the console commands docs/console.md gives;
-# setpriv and unshare for the permission and full-disk tests; systemd-nspawn for the
-# journeys under a real systemd); tests skip with a reason where a tool is missing.
 # setpriv and unshare for the permission and full-disk tests; ip for the network namespaces
 # of the MQTT tests; mosquitto, their broker); tests skip with a reason where a tool is
 # missing, but in CI the MQTT tests fail instead.
@@ -68,6 +66,10 @@ echo "test.sh: mypy tests bench" >&2
 if [ "$fast" = 1 ]; then
   args=(-m "not slow" "${args[@]}")
 fi
+# a test run never changes the source tree (pictures, configs, docs): what git sees as
+# changed or new after the run that it did not see before is a failure
+tree() { git status --porcelain --untracked-files=all 2>/dev/null | sort || true; }
+before="$(tree)"
 echo "test.sh: pytest ${args[*]}" >&2
 status=0
 "$PY" -m pytest "${args[@]}" || status=$?
@@ -75,5 +77,11 @@ status=0
 if [ "$status" = 5 ]; then
   echo "test.sh: pytest collected no tests" >&2
   exit 1
+fi
+changed="$(comm -13 <(printf '%s\n' "$before") <(tree) | sed '/^$/d')"
+if [ -n "$changed" ]; then
+  echo "test.sh: the tests changed the source tree:" >&2
+  printf '%s\n' "$changed" >&2
+  [ "$status" = 0 ] && status=1
 fi
 exit "$status"

@@ -68,8 +68,12 @@ def reap_stale() -> None:
 class Container:
     """One container; ``boot()`` it, ``sh()`` in it, ``reboot()`` it, ``close()`` it."""
 
-    def __init__(self, source: Path, machine: str = "plc") -> None:
+    def __init__(self, source: Path, machine: str = "plc", shared: tuple[Path, ...] = ()
+                 ) -> None:
+        """``source`` is bound read-only at /srv/co; each of ``shared`` read-only at its own
+        path (the container's /tmp is its own tmpfs: a host directory there is hidden)."""
         self.source = source
+        self.shared = shared
         self.machine = machine
         self.base = Path(tempfile.mkdtemp(prefix=PREFIX, dir="/dev/shm"))
         self.upper, self.work, self.root = (self.base / "u", self.base / "w", self.base / "m")
@@ -97,6 +101,7 @@ class Container:
         self.nspawn = subprocess.Popen(
             ["systemd-nspawn", "-q", "--keep-unit", "--register=no",
              f"--machine={self.machine}", f"--bind-ro={self.source}:/srv/co",
+             *(f"--bind-ro={p}:{p}" for p in self.shared),
              "-D", str(self.root), "--boot", "--", "systemd.firstboot=no"],
             stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
             start_new_session=True)

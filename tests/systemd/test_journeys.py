@@ -17,6 +17,7 @@ import re
 import select
 import shlex
 import socket
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -39,8 +40,11 @@ HARDWARE_PLANTS = {"pi_mcp23017": "driver exp1 (mcp23017): cannot start",
                    "modbus_module": "driver mb (modbus_rtu): cannot start",
                    "canopen_node": "cannot start"}
 #: the host venv's Python (pymodbus for the RTU module), seen in the container through the
-#: overlay of the machine's root
-PEER_PYTHON = str(Path(__import__("sys").executable))
+#: overlay of the machine's root, and its venv bound at its own path: systemd-nspawn mounts
+#: a tmpfs of its own on /tmp, which hides a clone's venv there (CI's first clean-clone run
+#: under /tmp: the peer's command not found, exit 127)
+PEER_PYTHON = sys.executable
+PEER_PREFIX = Path(sys.prefix)
 
 COUNTER = """\
 grafcet: Counter
@@ -106,7 +110,7 @@ def plc() -> Iterator[Container]:
     if reason is not None:
         pytest.skip(reason)
     reap_stale()
-    c = Container(ROOT)
+    c = Container(ROOT, shared=(PEER_PREFIX,))
     try:
         try:
             c.boot()
@@ -359,7 +363,11 @@ def start_peer(plc: Container) -> None:
                      "--log /root/rtu.jsonl")
     assert peer.stdout is not None
     ready, _, _ = select.select([peer.stdout], [], [], 60)
-    assert ready and peer.stdout.readline().strip() == "ready", peer.poll()
+    line = peer.stdout.readline().strip() if ready else ""
+    if line != "ready":
+        code = peer.poll()
+        why = peer.stderr.read()[-2000:] if code is not None and peer.stderr else ""
+        raise AssertionError(f"the RTU peer did not start: {line!r}, exit {code}: {why}")
 
 
 def test_a_frozen_or_killed_controller_is_restarted_with_outputs_off(plc: Container) -> None:

@@ -2,10 +2,13 @@
 against ``softplc run`` and ``softplc web`` as two real processes on the drawer tester: a
 step becoming active shows within 2 samples; a force set from the page reaches the output;
 closing the page ends in the console's safe reaction; a wrong login is refused. The
-screenshots of docs/web.md are taken here."""
+screenshots of docs/web.md are taken here: into the test's own directory, or into the
+directory ``SOFTPLC_PICTURES`` names (scripts/make-pictures.sh sets docs/img); a test run
+never writes into the source tree by itself."""
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -13,8 +16,11 @@ from typing import Any
 from tests.opcua.feedkit import wait_until
 from tests.web.kit import PASSWORD, SAMPLE_MS, USER, Rig, browser, rig
 
-ROOT = Path(__file__).resolve().parents[2]
-IMG = ROOT / "docs" / "img"
+
+def picture(tmp_path: Path, name: str) -> str:
+    """Where the screenshot ``name`` goes: SOFTPLC_PICTURES if set, else ``tmp_path``."""
+    where = os.environ.get("SOFTPLC_PICTURES")
+    return str((Path(where) if where else tmp_path) / name)
 
 
 def open_page(b: Any, r: Rig) -> Any:
@@ -55,7 +61,7 @@ def test_a_step_becoming_active_shows_within_two_samples(tmp_path: Path) -> None
         # the transition it waits on is marked, and the console's why is listed
         page.wait_for_selector("#inst-tester1 g.transition-group.blocking", timeout=10_000)
         assert "gsAbrir" in page.inner_text("#inst-tester1 ul.why")
-        page.screenshot(path=str(IMG / "web-page.png"), full_page=False)
+        page.screenshot(path=picture(tmp_path, "web-page.png"), full_page=False)
         assert page.errors == []
 
 
@@ -88,7 +94,7 @@ def test_a_force_from_the_page_reaches_the_output_and_closing_the_page_is_safe(
         wait_until(lambda: r.value("sim.Q3") is True, 30.0, "sim.Q3 forced on")
         page.wait_for_selector(row + ".forced", timeout=10_000)
         assert "tester1.oTest" in r.status()["forced"]
-        page.screenshot(path=str(IMG / "web-forced.png"), full_page=False)
+        page.screenshot(path=picture(tmp_path, "web-forced.png"), full_page=False)
         page.close()  # the page closed while it held a force
         wait_until(lambda: r.status().get("state") == "halted", 30.0, "the safe reaction")
         outputs = [f"sim.Q{i}" for i in range(8)]
