@@ -423,3 +423,62 @@ def test_script_cycles_or_duration() -> None:
     assert not errors("script", {"duration": "1s", "set": [{"at": "0ms", "sim.I0": 1}]})
     assert not errors("script", {"cycles": 5, "set": [{"at": 0, "t1.iA": True,
                                                        "t1.tTemp": 21.5}]})
+
+
+def _props(kind: str, *path: str | int) -> set[str]:
+    node: Any = load_schema(kind)
+    for step in path:
+        node = node[step]
+    return set(node["properties"])
+
+
+def test_the_schemas_know_every_key_the_loader_reads() -> None:
+    """Each section's keys in the schema are the loader's (an editor flags a key the
+    controller reads as unknown otherwise: ``alarms:`` of issue 29 was missing)."""
+    from runtime.language import alarmconf, filekind, grafcetfile, mqttconf, opcuaconf, webconf
+    from runtime.language import plantfile as pf
+
+    plant = ("plant", "properties")
+    sections: dict[str, tuple[tuple[str, ...], tuple[str | int, ...]]] = {
+        "plant": (pf.PLANT_KEYS, ("plant",)),
+        "plc": (pf.PLC_KEYS, (*plant, "plc")),
+        "monitor": (pf.MONITOR_KEYS, (*plant, "monitor")),
+        "opcua": (opcuaconf.OPCUA_KEYS, (*plant, "opcua")),
+        "opcua security": (opcuaconf.SECURITY_KEYS, (*plant, "opcua", "properties",
+                                                     "security")),
+        "mqtt": (mqttconf.MQTT_KEYS, (*plant, "mqtt")),
+        "mqtt tls": (mqttconf.TLS_KEYS, (*plant, "mqtt", "properties", "tls")),
+        "web": (webconf.WEB_KEYS, (*plant, "web")),
+        "web tls": (webconf.TLS_KEYS, (*plant, "web", "properties", "tls")),
+        "alarms": (alarmconf.ALARMS_KEYS, (*plant, "alarms")),
+        "alarms overruns": (alarmconf.OVERRUNS_KEYS, (*plant, "alarms", "properties",
+                                                      "overruns")),
+        "instance": (pf.INSTANCE_KEYS, ("plant", "$defs", "instance")),
+        "binding": (pf.BINDING_KEYS, ("plant", "$defs", "binding", "oneOf", 1)),
+        "grafcet": (grafcetfile.GRAFCET_KEYS, ("grafcet",)),
+        "step": (grafcetfile.STEP_KEYS, ("grafcet", "$defs", "innerStep")),
+        "transition": (grafcetfile.TRANSITION_KEYS, ("grafcet", "$defs", "transition")),
+        "script": (filekind.SCRIPT_KEYS, ("script",)),
+    }
+    differ = {}
+    for name, (keys, path) in sections.items():
+        try:
+            schema = _props(path[0], *path[1:])  # type: ignore[arg-type]
+        except KeyError:
+            schema = set()
+        if schema != set(keys):
+            differ[name] = (sorted(set(keys) - schema), sorted(schema - set(keys)))
+    assert differ == {}, f"section: (the loader's only, the schema's only): {differ}"
+
+
+def test_the_alarm_severities_of_the_schema_are_the_kinds() -> None:
+    from runtime.language.model import ALARM_SEVERITY
+
+    assert _props("plant", "properties", "alarms", "properties", "severity") == set(
+        ALARM_SEVERITY)
+    doc = y("alarms: {severity: {fault: 1000, driver: 1}, overruns: {count: 0, window: 1h}}")
+    assert not errors("plant", {**MINIMAL_PLANT, **doc})
+    for bad in ("alarms: {severity: {falut: 900}}", "alarms: {severity: {fault: 1001}}",
+                "alarms: {overruns: {count: -1}}", "alarms: {overruns: {window: soon}}",
+                "alarms: {levels: {}}"):
+        assert errors("plant", {**MINIMAL_PLANT, **y(bad)}), f"accepted: {bad}"
