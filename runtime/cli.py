@@ -306,6 +306,11 @@ def cmd_mqtt(args: argparse.Namespace) -> int:
 
     pdef = _side_plant(args.plant, "mqtt", "publish this plant over MQTT")
     feed = args.feed or locate(pdef).feed  # where the controller serves it (one home)
+    assert feed is not None
+    problem = _feed_cannot_serve(pdef, "mqtt", feed, bool(args.feed))
+    if problem is not None:
+        sys.stderr.write(f"{problem}\n")
+        return 2
     try:
         from runtime.mqtt.session import serve
     except ImportError as exc:
@@ -322,7 +327,14 @@ def cmd_mqtt(args: argparse.Namespace) -> int:
 
 def cmd_web(args: argparse.Namespace) -> int:
     """The plant's live view in the browser, fed by its running controller (docs/web.md)."""
+    from runtime.language.runtimedir import locate
+
     pdef = _side_plant(args.plant, "web", "serve this plant's page")
+    feed = args.feed or locate(pdef).feed or pdef.web.feed  # as the view finds it
+    problem = _feed_cannot_serve(pdef, "web", feed, bool(args.feed))
+    if problem is not None:
+        sys.stderr.write(f"{problem}\n")
+        return 2
     try:
         from runtime.web.server import serve
     except ImportError as exc:
@@ -335,13 +347,35 @@ def cmd_web(args: argparse.Namespace) -> int:
                                       Loc("--listen", 1, 1))
     logging.getLogger("aiohttp.access").setLevel(logging.WARNING)
     try:
-        _until_signal(lambda stop: serve(pdef, args.feed, stop=stop))
+        _until_signal(lambda stop: serve(pdef, feed, stop=stop))
     except OSError as exc:  # the port is taken, a certificate cannot be read
         where = getattr(exc, "filename", None)
         sys.stderr.write(f"softplc web: error: {where + ': ' if where else ''}"
                          f"{w.host}:{w.port}: {getattr(exc, 'strerror', None) or exc}\n")
         return 2
     return 0
+
+
+def _feed_cannot_serve(pdef: Any, side: str, feed: str, feed_given: bool) -> str | None:
+    """Why the side process ``side`` (opcua, mqtt, web) cannot follow its controller's
+    feed at ``feed``, as its one line (at the plant's ``feed:``, or naming the option): the
+    path is something other than a socket, where the controller refuses to serve. A
+    missing one is fine: the controller is not running yet. None when it can."""
+    from runtime.controller.paths import file_kind
+
+    try:
+        st = os.lstat(feed)
+    except OSError:
+        return None
+    if stat.S_ISSOCK(st.st_mode):
+        return None
+    text = (f"{feed} is not a socket ({file_kind(st.st_mode)}): the controller serves its "
+            f"feed there; give {side}: feed another path")
+    if feed_given:
+        return f"softplc {side}: error: --feed: {text}"
+    section = getattr(pdef, side)
+    return str(SourceError(section.feed_loc or section.loc or Loc(pdef.path, 1, 1),
+                           f"{side} feed: {text}"))
 
 
 def _opcua_cannot_serve(pdef: Any, endpoint: str, feed: str, endpoint_given: bool,
@@ -353,8 +387,6 @@ def _opcua_cannot_serve(pdef: Any, endpoint: str, feed: str, endpoint_given: boo
     import socket
     from urllib.parse import urlsplit
 
-    from runtime.controller.paths import file_kind
-
     opc = pdef.opcua
     where = opc.loc or Loc(pdef.path, 1, 1)
 
@@ -362,14 +394,9 @@ def _opcua_cannot_serve(pdef: Any, endpoint: str, feed: str, endpoint_given: boo
         if given:
             return f"softplc opcua: error: --{key}: {text}"
         return str(SourceError(opc.locs.get(key, where), f"opcua {key}: {text}"))
-    try:
-        st = os.lstat(feed)
-    except OSError:
-        st = None
-    if st is not None and not stat.S_ISSOCK(st.st_mode):
-        return at("feed", feed_given, f"{feed} is not a socket ({file_kind(st.st_mode)}): "
-                                      "the controller serves its feed there; give opcua: "
-                                      "feed another path")
+    problem = _feed_cannot_serve(pdef, "opcua", feed, feed_given)
+    if problem is not None:
+        return problem
     url = urlsplit(endpoint)
     host, port = url.hostname or "0.0.0.0", url.port or 4840
     try:

@@ -39,6 +39,15 @@ class FeedLost(SoftplcError, ConnectionError):
     For example: a write asked while the controller restarts."""
 
 
+def _why_waiting(exc: OSError) -> str:
+    """Why a connection to the feed failed, in the words of the waiting line."""
+    if isinstance(exc, FileNotFoundError):
+        return "not there: is the controller running?"
+    if isinstance(exc, ConnectionRefusedError):
+        return "nobody serves it: is the controller running?"
+    return exc.strerror or str(exc)
+
+
 class FeedClient:
     """Follows the feed at ``path`` for the side process ``side`` (``opcua``, ``mqtt``)."""
 
@@ -66,15 +75,21 @@ class FeedClient:
     async def run(self) -> None:
         """Follow the feed until ``stop()``: reconnect forever."""
         delay = RECONNECT_MIN_S
+        said = ""  # the last reason for waiting said at INFO: each new one is said once
         while not self._stop.is_set():
             try:
                 reader, writer = await asyncio.open_unix_connection(self.path, limit=LINE_MAX)
             except OSError as exc:
+                why = _why_waiting(exc)
+                if why != said:
+                    log.info("waiting for the controller's feed %s (%s)", self.path, why)
+                    said = why
                 log.debug("feed %s: %s", self.path, exc)
                 await self._wait(delay)
                 delay = min(RECONNECT_MAX_S, delay * 2)
                 continue
             delay = RECONNECT_MIN_S
+            said = ""
             log.info("connected to the controller's feed %s", self.path)
             self._writer = writer
             if self._why:
@@ -93,6 +108,7 @@ class FeedClient:
                 await self._on_lost()
             if not self._stop.is_set():
                 log.warning("lost the controller's feed: waiting for it to come back")
+                said = _why_waiting(FileNotFoundError())  # that line says it already
                 await self._wait(RECONNECT_MIN_S)
 
     def stop(self) -> None:

@@ -62,8 +62,9 @@ def settle_feed(p: PlantDef, named: dict[str, Loc]) -> None:
         if problem is not None:
             raise SourceError(loc, f"{sections[0][0]} feed (by default {path}): {problem}: "
                                    "give 'feed:' a shorter path")
-    for _key, section in sections:
+    for key, section in sections:
         section.feed = path
+        section.feed_loc = named.get(key, section.loc)
 
 
 #: how a section's side process is named in messages

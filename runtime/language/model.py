@@ -308,6 +308,9 @@ class OpcuaDef:
     sample_ns: int = 50_000_000
     #: the feed's local socket (the controller serves it, the server connects)
     feed: str = ""
+    #: where the plant gives ``feed:`` (the section's own line when the path is the
+    #: default), for the side process's start check
+    feed_loc: Loc | None = None
     #: ``instance.name`` of the variables and chart flags OPC UA clients may write
     writable: list[str] = field(default_factory=list)
     security: OpcuaSecurity = field(default_factory=OpcuaSecurity)
@@ -379,6 +382,9 @@ class MqttDef:
     buffer: int = 100_000
     #: the feed's local socket (the controller serves it, ``softplc mqtt`` connects)
     feed: str = ""
+    #: where the plant gives ``feed:`` (the section's own line when the path is the
+    #: default), for the side process's start check
+    feed_loc: Loc | None = None
     loc: Loc | None = None
 
 
@@ -393,6 +399,9 @@ class WebDef:
     sample_ns: int = 100_000_000
     #: the feed's local socket (the controller serves it, the web view connects)
     feed: str = ""
+    #: where the plant gives ``feed:`` (the section's own line when the path is the
+    #: default), for the side process's start check
+    feed_loc: Loc | None = None
     #: HTTPS: the certificate (PEM, its chain after it) and its private key (PEM)
     certificate: str | None = None
     private_key: str | None = None
