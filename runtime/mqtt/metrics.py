@@ -22,6 +22,7 @@ from typing import Any
 
 from runtime.controller.feed import FeedState
 from runtime.language import ast as A
+from runtime.language.iolist import Meaning
 from runtime.language.model import MqttDef
 from runtime.mqtt.payload import PLANT_TYPES, DataType
 
@@ -62,6 +63,9 @@ class Metric:
     ptype: A.Type | None = None
     #: in births only (bdSeq, Node Control/Rebirth), never reported as a change
     birth_only: bool = False
+    #: the I/O list's engineering range (low, high) and description of its plant name
+    limits: tuple[float, float] | None = None
+    description: str = ""
 
 
 @dataclass(slots=True)
@@ -93,7 +97,11 @@ class Layout:
                 for k in where]
 
     @classmethod
-    def build(cls, schema: dict[str, Any], q: MqttDef) -> Layout:
+    def build(cls, schema: dict[str, Any], q: MqttDef,
+              meaning: Callable[[str], Meaning] | None = None) -> Layout:
+        """The metrics of ``schema`` (the feed's) as ``q`` publishes them; ``meaning``
+        gives each plant name's unit, range and description (the plant's I/O list,
+        ``IOList.meaning``); without it a TIME value's unit (ms) only."""
         lay = cls()
         groups = set(q.publish)
         listed = {w for w in q.publish if "." in w}
@@ -138,15 +146,22 @@ class Layout:
                 device_names[head].append((metric, i, ptype, text))
             elif head in drivers:
                 add(f"Drivers/{head}/{metric}", PLANT_TYPES[ptype], _feed(i, ptype),
-                    plant=text, ptype=ptype, unit="ms" if ptype is A.Type.TIME else None)
+                    plant=text, ptype=ptype, **_meant(meaning, text, ptype))
         for inst in instances:
             for metric, i, ptype, text in device_names[inst]:
                 add(metric, PLANT_TYPES[ptype], _feed(i, ptype), device=inst, plant=text,
-                    writable=text in writable, ptype=ptype,
-                    unit="ms" if ptype is A.Type.TIME else None)
+                    writable=text in writable, ptype=ptype, **_meant(meaning, text, ptype))
             add(COMMAND_RESULT, DataType.STRING, _own(f"{COMMAND_RESULT}:{inst}"),
                 device=inst)
         return lay
+
+
+def _meant(meaning: Callable[[str], Meaning] | None, text: str,
+           ptype: A.Type) -> dict[str, Any]:
+    """A plant metric's unit (its symbol), range and description, as ``Metric`` fields."""
+    m = meaning(text) if meaning is not None else Meaning()
+    unit = m.unit.symbol if m.unit is not None else ("ms" if ptype is A.Type.TIME else None)
+    return {"unit": unit, "limits": m.range, "description": m.description}
 
 
 def _metric_name(rest: str, role: str, instance: bool) -> tuple[str, str]:

@@ -38,6 +38,7 @@ from typing import Any
 from runtime.controller.feed import FeedState
 from runtime.errors import SoftplcError
 from runtime.language import ast as A
+from runtime.language.iolist import Meaning
 from runtime.language.model import MqttDef
 from runtime.mqtt.metrics import (
     BDSEQ,
@@ -140,10 +141,14 @@ class EdgeNode:
     """The edge node's state and what it publishes (see the module docstring)."""
 
     def __init__(self, q: MqttDef, state: FeedState,
-                 clock: Callable[[], float] = time.time) -> None:
+                 clock: Callable[[], float] = time.time,
+                 meaning: Callable[[str], Meaning] | None = None) -> None:
+        """``meaning``: a plant name's unit, range and description (the plant's I/O list,
+        read at the edge node's start), given in the births."""
         self.q = q
         self.state = state
         self.clock = clock
+        self.meaning = meaning
         self.topics = Topics(q.group_id, q.edge_node_id)
         self.layout: Layout | None = None
         #: the values last sent (or birthed), by metric position
@@ -230,7 +235,7 @@ class EdgeNode:
         old = self.layout
         was = ({(m.device, m.name): self.sent[k] for k, m in enumerate(old.metrics)}
                if old is not None else {})
-        self.layout = Layout.build(self.state.schema, self.q)
+        self.layout = Layout.build(self.state.schema, self.q, self.meaning)
         for name in self.layout.missing:
             log.warning("mqtt publish: %s is not a name of the running plant: not published",
                         name)
@@ -393,7 +398,8 @@ class EdgeNode:
             m = lay.metrics[k]
             v = m.get(st, own)
             sent[k] = v
-            values.append(Value(m.alias, m.datatype, v, now, name=m.name, unit=m.unit))
+            values.append(Value(m.alias, m.datatype, v, now, name=m.name, unit=m.unit,
+                                limits=m.limits, description=m.description))
         if device:
             self.born.add(device)
             topic = self.topics.device(kind, device)

@@ -126,7 +126,8 @@ _U64 = 1 << 64
 class Value:
     """One metric value to send: ``alias`` (and ``name`` in a birth), its type, the value
     (None: null), its time (ms since the epoch), and whether it is stored-and-forwarded
-    history. ``unit`` becomes the birth's ``engUnit`` property."""
+    history. In a birth, ``unit`` becomes the metric's ``engUnit`` property, ``limits``
+    (low, high) its ``engLow`` and ``engHigh``, ``description`` its ``description``."""
 
     alias: int
     datatype: DataType
@@ -135,6 +136,8 @@ class Value:
     name: str | None = None
     historical: bool = False
     unit: str | None = None
+    limits: tuple[float, float] | None = None
+    description: str = ""
 
 
 def encode(timestamp: int, values: Iterable[Value], seq: int | None) -> bytes:
@@ -148,9 +151,17 @@ def encode(timestamp: int, values: Iterable[Value], seq: int | None) -> bytes:
         if v.name is not None:  # a birth names each metric and gives its type
             m.name = v.name
             m.datatype = v.datatype
+            props = m.properties
             if v.unit is not None:
-                m.properties.keys.append("engUnit")
-                m.properties.values.add(type=DataType.STRING, string_value=v.unit)
+                props.keys.append("engUnit")
+                props.values.add(type=DataType.STRING, string_value=v.unit)
+            if v.limits is not None:
+                props.keys.extend(("engLow", "engHigh"))
+                props.values.add(type=DataType.DOUBLE, double_value=float(v.limits[0]))
+                props.values.add(type=DataType.DOUBLE, double_value=float(v.limits[1]))
+            if v.description:
+                props.keys.append("description")
+                props.values.add(type=DataType.STRING, string_value=v.description)
         if v.historical:
             m.is_historical = True
         _set_value(m, v.datatype, v.value)

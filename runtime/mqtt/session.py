@@ -43,6 +43,7 @@ import aiomqtt
 
 from runtime.controller.feedclient import FeedClient, FeedLost
 from runtime.errors import SoftplcError
+from runtime.language.iolist import IOList
 from runtime.language.model import MqttBroker, MqttDef, PlantDef
 from runtime.mqtt.node import CommandRefused, EdgeNode, Message, Write
 from runtime.mqtt.payload import CommandError, decode_command
@@ -98,7 +99,7 @@ class EdgeSession:
         self.q = q = pdef.mqtt
         self.feed = FeedClient(feed_path or q.feed, "mqtt", self._on_schema, self._on_frame,
                                self._on_lost)
-        self.node = EdgeNode(q, self.feed.state)
+        self.node = EdgeNode(q, self.feed.state, meaning=IOList(pdef).meaning)
         self.tls = tls_context(q) if any(b.tls for b in q.brokers) else None
         if q.password_file is not None:
             read_password(q.password_file)  # at start: a missing file is an error now

@@ -263,3 +263,60 @@ def test_waiting_for_the_primary_host(tmp_path: Path) -> None:
         assert [m["value"] for m in e.host.of("NDEATH")[0]["metrics"]] == [0]
         views = check(e.host.rows)
         assert views[(GROUP, EDGE)].deaths == 1 and e.problems() == []
+
+
+TANK = """\
+grafcet: Tank
+description: Filling a tank
+inputs:
+  - iLevel: {type: int, description: 'level of the chart'}
+outputs: [oPump]
+memory:
+  sMax: {init: 80, description: 'fill up to this level'}
+steps:
+  gsFill: {initial: true, actions: [oPump], description: 'Filling'}
+transitions: []
+"""
+
+
+def test_the_births_carry_the_plants_io_list(tmp_path: Path) -> None:
+    """A plant name's unit (engUnit), engineering range (engLow, engHigh) and description,
+    from the plant's I/O list (issue 29: one home, every reader), read by the host with
+    pysparkplug's own generated module; a TIME value's unit is ms."""
+    (tmp_path / "tank.yaml").write_text(TANK, encoding="utf-8")
+    b = Broker(tmp_path)
+    b.start()
+    host = Host(b)
+    plant = tmp_path / "plant.yaml"
+    plant.write_text(
+        "plc: {cycle: 10ms, watchdog: 5s}\n"
+        "drivers:\n  io: {type: sim}\n"
+        "instances:\n"
+        "  t1:\n    grafcet: tank.yaml\n    description: Depósito 1\n"
+        "    inputs:\n      iLevel: {from: io.IR0, unit: cm, range: [0, 250], "
+        "description: 'Sonda de nivel LT1'}\n"
+        "    outputs:\n      oPump: {from: io.Q0, description: 'Bomba de llenado QM1'}\n"
+        "mqtt:\n"
+        f"  brokers: [{b.url}]\n  group_id: {GROUP}\n  edge_node_id: {EDGE}\n"
+        f"  feed: {tmp_path}/feed.sock\n  keepalive: 2s\n"
+        "  publish: [inputs, outputs, memory, steps, step_times, points]\n",
+        encoding="utf-8")
+    ctl = softplc("run", str(plant), "--sim", cwd=tmp_path, log=tmp_path / "ctl.log")
+    mqtt = softplc("mqtt", str(plant), cwd=tmp_path, log=tmp_path / "mqtt.log")
+    try:
+        with processes(ctl, mqtt):
+            host.wait(lambda _r: bool(host.of("DBIRTH", "t1")), 30, "the DBIRTH of t1")
+            dev = {m["name"]: m.get("properties") for m in host.of("DBIRTH", "t1")[0]["metrics"]}
+            node = {m["name"]: m.get("properties") for m in host.of("NBIRTH")[0]["metrics"]}
+    finally:
+        host.close()
+        b.kill()
+    assert dev["Inputs/iLevel"] == {"engUnit": "cm", "engLow": 0.0, "engHigh": 250.0,
+                                    "description": "Sonda de nivel LT1"}, dev
+    assert dev["Outputs/oPump"] == {"description": "Bomba de llenado QM1"}, dev
+    assert dev["Memory/sMax"] == {"description": "fill up to this level"}, dev
+    assert dev["Steps/gsFill/T"]["engUnit"] == "ms", dev
+    assert dev["Steps/gsFill/X"]["description"].startswith("Filling"), dev
+    # the module's point, with the signal it carries
+    assert node["Drivers/io/Inputs/IR0"]["engUnit"] == "cm", node
+    assert "Sonda de nivel LT1" in node["Drivers/io/Inputs/IR0"]["description"], node

@@ -7,6 +7,7 @@ It subscribes to what edge nodes publish (``spBv1.0/+/NBIRTH/#`` ..., QoS 1) and
 one JSON line per message to stdout:
 ``{"rx": seconds, "topic", "kind", "group", "edge", "device", "timestamp", "seq",
 "metrics": [{"name", "alias", "datatype", "value", "timestamp", "historical"}]}``
+(in a birth, a metric with properties has ``"properties": {key: value}`` too)
 (``"error"`` instead of the payload's fields when pysparkplug cannot decode it). It reads
 JSON lines on stdin: ``{"cmd": TOPIC, "metrics": [[name, datatype name, value], ...]}``
 publishes a command encoded by pysparkplug; ``{"raw": TOPIC, "hex": HEX}`` publishes those
@@ -28,6 +29,21 @@ from typing import Any
 import pysparkplug as spb
 
 OUT = threading.Lock()
+
+
+def metric_properties(payload: bytes) -> dict[str, dict[str, Any]]:
+    """Each named metric's properties (a PropertySet of scalars): name -> {key: value}."""
+    from pysparkplug._protobuf import sparkplug_b_pb2 as pb  # noqa: PLC0415
+
+    p = pb.Payload()
+    p.ParseFromString(payload)
+    out: dict[str, dict[str, Any]] = {}
+    for m in p.metrics:
+        if m.name and m.HasField("properties"):
+            pairs = zip(m.properties.keys, m.properties.values, strict=True)
+            out[m.name] = {k: getattr(v, v.WhichOneof("value")) if v.WhichOneof("value")
+                           else None for k, v in pairs}
+    return out
 
 
 def emit(obj: dict[str, Any]) -> None:
@@ -65,6 +81,8 @@ def main() -> None:
             timestamp=spb.get_current_timestamp(), online=False),
             qos=spb.QoS.AT_LEAST_ONCE, retain=True))
 
+    raw: list[bytes] = []  # the payload being decoded (for the births' properties)
+
     def on_message(_c: Any, m: Any) -> None:
         t = m.topic
         row: dict[str, Any] = {"rx": time.time(), "topic": str(t), "kind": str(t.message_type),
@@ -81,6 +99,12 @@ def main() -> None:
                           for x in (getattr(p, "metrics", None) or
                                     ([p.bd_seq_metric] if hasattr(p, "bd_seq_metric")
                                      else []))]
+        if row["kind"] in ("NBIRTH", "DBIRTH") and raw:
+            # pysparkplug's Metric has no properties: its own generated module reads them
+            props = metric_properties(raw[0])
+            for m in row["metrics"]:
+                if m["name"] in props:
+                    m["properties"] = props[m["name"]]
         emit(row)
 
     def on_raw(_c: Any, _u: Any, msg: Any) -> None:
@@ -108,6 +132,7 @@ def main() -> None:
     original = client._handle_message  # noqa: SLF001
 
     def guarded(mqtt_message: Any) -> Any:
+        raw[:] = [bytes(mqtt_message.payload)]
         try:
             return original(mqtt_message)
         except Exception as exc:  # noqa: BLE001 - reported, the host goes on
