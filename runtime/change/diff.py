@@ -346,6 +346,28 @@ def _transitions(g: Grafcet, rename: dict[str, str]) -> dict[str, Transition]:
     return out
 
 
+def _priorities(name: str, ot: dict[str, Transition], nt: dict[str, Transition],
+                back: dict[str, str], add: Callable[[str], None]) -> None:
+    """The transitions leaving one step, in both charts, taken in another order: the
+    first true one in file order wins (an OR divergence), so the swap may change the
+    branch taken. ``ot``/``nt`` are in priority order, keyed in the old step names;
+    ``back`` maps a new step name to its old one."""
+    common = ot.keys() & nt.keys()
+
+    def leaving(ts: dict[str, Transition], rename: dict[str, str]) -> dict[str, list[str]]:
+        out: dict[str, list[str]] = {}
+        for key, t in ts.items():
+            if key in common:
+                for s in t.sources:
+                    out.setdefault(rename.get(s, s), []).append(key)
+        return out
+    was, now = leaving(ot, {}), leaving(nt, back)
+    for step, keys in was.items():
+        if len(keys) > 1 and now.get(step, keys) != keys:
+            add(f"{name}: transitions from {step}: priority order [{', '.join(keys)}] -> "
+                f"[{', '.join(now[step])}] (the first true one is taken)")
+
+
 def _undriven(ic: InstanceChange, add: Callable[[str], None]) -> None:
     """The variables the new chart no longer drives (``InstanceChange.undriven``): not
     inputs (the plant writes them), not retained (a cold start restores their value), not
@@ -411,6 +433,7 @@ def _instance(name: str, oidef: InstanceDef, idef: InstanceDef, cs: ChangeSet
     for key in ot:
         if key not in nt:
             add(f"{name}: transition {key} removed")
+    _priorities(name, ot, nt, back, add)
     for part in ("pre", "post"):
         _equations(name, part, [" ".join(x.text.split()) for x in getattr(og, part)],
                    [" ".join(x.text.split()) for x in getattr(ng, part)], add)

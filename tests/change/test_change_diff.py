@@ -335,3 +335,28 @@ def test_the_web_section_is_named_by_the_diff(tmp_path, old_extra: str, new_extr
     """Issue 27: ``web:`` is named as ``opcua:`` and ``mqtt:`` are."""
     test_the_opcua_section_is_named_by_the_diff(tmp_path, old_extra, new_extra, out, refused,
                                                 capsys)
+
+
+DIVERGENCE = CHART.replace("  - {from: s0, to: s1, when: a}\n",
+                           "  - {from: s0, to: s1, when: a}\n"
+                           "  - {from: s0, to: s2, when: b, name: tB}\n")
+
+
+def test_a_change_of_priority_in_a_divergence_is_named(tmp_path):
+    """Swapping two transitions of one step changes which is taken when both are true
+    (the first in file order): the swap applies it, so the diff says it (it said "no
+    change")."""
+    swapped = DIVERGENCE.replace(
+        "  - {from: s0, to: s1, when: a}\n  - {from: s0, to: s2, when: b, name: tB}\n",
+        "  - {from: s0, to: s2, when: b, name: tB}\n  - {from: s0, to: s1, when: a}\n")
+    assert swapped != DIVERGENCE
+    assert lines(tmp_path, swapped, DIVERGENCE) == (
+        ["Press: transitions from s0: priority order [s0 -> s1, tB] -> [tB, s0 -> s1] "
+         "(the first true one is taken)"], [])
+    # a transition added at the end keeps the order of the others: no priority line
+    added = DIVERGENCE + "  - {from: s0, to: s0, when: a AND b, name: tSelf}\n"
+    assert lines(tmp_path, added, DIVERGENCE) == (["Press: transition tSelf added"], [])
+    # a step renamed (renamed_from) with the same order: none either
+    renamed = (DIVERGENCE.replace("from: s0", "from: s9").replace("to: s0", "to: s9")
+               .replace("  s0: {initial: true}", "  s9: {initial: true, renamed_from: s0}"))
+    assert lines(tmp_path, renamed, DIVERGENCE) == (["Press: step s9 renamed from s0"], [])
