@@ -440,7 +440,8 @@ def cmd_hash_pin(args: argparse.Namespace) -> int:
 def cmd_reload(args: argparse.Namespace) -> int:
     """Online change through the console of a running controller (docs/online-change.md):
     exit 0 applied, 1 refused (each reason on stderr), 2 cannot connect."""
-    from runtime.console.monitor import ConsoleClient, MonitorError, Target
+    from runtime.console.client import ConsoleClient
+    from runtime.console.links import MonitorError, Target
     from runtime.language.runtimedir import expand
 
     def fail(text: str, status: int) -> int:
