@@ -114,9 +114,10 @@ def _output(path: str, option: str) -> IO[str]:
 
 def cmd_run(args: argparse.Namespace) -> int:
     """The controller: the plant in real time on its drivers (or simulated I/O)."""
-    from runtime.controller.daemon import Daemon, serve
+    from runtime.controller.daemon import Daemon
     from runtime.controller.paths import LEDGER, PathError, plant_files, prepare
     from runtime.controller.plantlock import PlantLock, PlantLocked
+    from runtime.controller.service import serve
     from runtime.language.grafcetfile import time_value
     from runtime.language.plantfile import load_plant
     from runtime.language.runtimedir import locate
