@@ -114,9 +114,10 @@ def _output(path: str, option: str) -> IO[str]:
 
 def cmd_run(args: argparse.Namespace) -> int:
     """The controller: the plant in real time on its drivers (or simulated I/O)."""
-    from runtime.controller.daemon import Daemon, serve
+    from runtime.controller.daemon import Daemon
     from runtime.controller.paths import LEDGER, PathError, plant_files, prepare
     from runtime.controller.plantlock import PlantLock, PlantLocked
+    from runtime.controller.service import serve
     from runtime.language.grafcetfile import time_value
     from runtime.language.plantfile import load_plant
     from runtime.language.runtimedir import locate
@@ -440,7 +441,8 @@ def cmd_hash_pin(args: argparse.Namespace) -> int:
 def cmd_reload(args: argparse.Namespace) -> int:
     """Online change through the console of a running controller (docs/online-change.md):
     exit 0 applied, 1 refused (each reason on stderr), 2 cannot connect."""
-    from runtime.console.monitor import ConsoleClient, MonitorError, Target
+    from runtime.console.client import ConsoleClient
+    from runtime.console.links import MonitorError, Target
     from runtime.language.runtimedir import expand
 
     def fail(text: str, status: int) -> int:

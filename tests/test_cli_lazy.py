@@ -12,7 +12,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: modules only other commands need
 OTHERS = ("runtime.checker.check", "runtime.drawing.chart", "runtime.drawing.chronogram",
-          "runtime.console.monitor", "runtime.controller.install", "importlib.metadata")
+          "runtime.console.monitor", "runtime.controller.install", "importlib.metadata",
+          "runtime.console.links", "runtime.console.client", "runtime.console.view")
 
 CHILD = """
 import sys

@@ -3,6 +3,8 @@
 ``Daemon`` owns the scan thread (``Scheduler``), the scan watchdog, the retain writer and
 the systemd notifications, and offers the console what it needs (``call``, ``status``,
 ``stats``, ``ack``...): every console request runs in the scan thread, between two scans.
+``serve`` (service.py) runs it in the foreground until a stop signal; ``TraceWriter``
+(tracewriter.py) writes ``run --trace``.
 
 States: starting -> running <-> paused/stepping (console), iocheck (bench wiring),
 fault (outputs off, charts stopped: an exception in a scan, a watchdog overrun, a driver
@@ -18,12 +20,10 @@ import enum
 import json
 import logging
 import os
-import signal
 import sys
 import threading
 import time
 from collections.abc import Callable, Collection
-from types import FrameType
 from typing import IO, Any, TypeVar
 
 from runtime.controller.alarms import AlarmBoard
@@ -43,6 +43,7 @@ from runtime.controller.retain import (
 )
 from runtime.controller.scheduler import Scheduler, Watchdog
 from runtime.controller.stats import ScanStats
+from runtime.controller.tracewriter import TraceWriter
 from runtime.engine.commands import CommandRefused
 from runtime.engine.plant import Plant
 from runtime.engine.trace import trace_columns
@@ -76,8 +77,6 @@ STATS_QUANTILES_MAX_AGE_NS = 1_000_000_000
 STATS_PAUSE_S = 0.0001
 #: chart flags that hold an instance (initial situation, reset, frozen situation)
 HOLD_FLAGS = ("SFCInit", "SFCReset", "SFCPause")
-#: signals that stop the controller in order (safe state, retained data saved)
-STOP_SIGNALS = (signal.SIGHUP, signal.SIGINT, signal.SIGTERM, signal.SIGQUIT)
 
 
 class State(enum.Enum):
@@ -190,7 +189,7 @@ class Daemon:
         self._retain_last: dict[str, Any] | None = None
         self._retain_lost: str | None = None  # started without the retained data: why
         self._latch_path = (pdef.retain_path + ".fault") if pdef.retain_path else None
-        self._trace = _TraceWriter(self.plant, trace) if trace is not None else None
+        self._trace = TraceWriter(self.plant, trace) if trace is not None else None
         self._switch_was = sys.getswitchinterval()
         self._stats_cache: tuple[int, dict[str, Any]] | None = None
         self._stats_quantiles: tuple[int, tuple[list[int], list[int]]] | None = None
@@ -762,122 +761,3 @@ class Daemon:
 def _stats_pause() -> None:
     """Between two slices of a percentile computation (not in the scan thread)."""
     time.sleep(STATS_PAUSE_S)
-
-
-class _TraceWriter:
-    """``run --trace FILE``: one JSON line per cycle, built in the scan thread (an opt-in
-    cost of a few µs per instance) and written by a thread of its own."""
-
-    def __init__(self, plant: Plant, out: IO[str]) -> None:
-        self.columns = trace_columns(plant)
-        self.out = out
-        self.plant = plant
-        self._rows: collections.deque[dict[str, Any]] = collections.deque(maxlen=100_000)
-        self._wake = threading.Event()
-        self._stop = False
-        self.dropped = 0
-        self.failed = False  # the file could not be written (a reader gone, a full disk)
-        self._thread = threading.Thread(target=self._run, name="softplc-trace", daemon=True)
-        self._thread.start()
-
-    def __call__(self, n: int) -> None:
-        if self.failed:
-            return
-        row: dict[str, Any] = {"cycle": n - 1, "t_ms": self.plant.last_up // 1_000_000}
-        for key, get in self.columns:
-            row[key] = get()
-        if len(self._rows) == self._rows.maxlen:
-            self.dropped += 1
-        self._rows.append(row)
-        self._wake.set()
-
-    def _run(self) -> None:
-        while True:
-            self._wake.wait(0.2)
-            self._wake.clear()
-            # read before draining: the stop is set after the last row was queued, so every
-            # row is written (read after, a row queued and the stop set between the drain
-            # and the test would be lost, were threads switched there)
-            stop = self._stop
-            try:
-                while self._rows:
-                    self.out.write(json.dumps(self._rows.popleft(), ensure_ascii=False,
-                                              separators=(",", ":")) + "\n")
-                if stop:
-                    self.out.flush()
-                    return
-            except OSError as exc:  # EPIPE (SIGPIPE is ignored), ENOSPC: the plant runs on
-                self.failed = True
-                self._rows.clear()
-                log.error("trace stopped: %s", exc)
-                try:
-                    self.out.close()  # closed even if its last flush fails again
-                except OSError:
-                    pass
-                return
-
-    def close(self) -> None:
-        self._stop = True
-        self._wake.set()
-        self._thread.join(timeout=5.0)
-        if self.dropped:
-            log.warning("trace: %d rows dropped (the disk was too slow)", self.dropped)
-
-
-def serve(daemon: Daemon, for_ns: int | None = None,
-          started: Callable[[], None] | None = None,
-          stopping: Callable[[], None] | None = None) -> int:
-    """Run ``daemon`` in the foreground until a stop signal (or ``for_ns``).
-
-    SIGHUP, SIGINT, SIGTERM and SIGQUIT each stop the controller in order (every output
-    off, retained data saved, one line naming the signal); a SIGHUP that was ignored when
-    the process started (``nohup``) stays ignored. SIGPIPE stays ignored, as Python sets
-    it: a client or reader gone is an ``EPIPE`` error where it was written to.
-
-    ``started`` is called once the scan runs and ``stopping`` before the orderly stop:
-    the console lives between the two, so it never sees a plant that has not restored
-    its retained data nor one whose drivers are closed.
-
-    Returns the exit status: 0 after an orderly stop, 1 if the scan loop itself died
-    (systemd's ``Restart=on-failure`` then restarts the service, which comes up in fault
-    if a fault was recorded)."""
-    stop = threading.Event()
-    why = ["end of --for"]
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        if not stop.is_set():  # the first signal names the stop; more change nothing
-            why[0] = signal.Signals(signum).name
-        stop.set()
-
-    old = {s: signal.signal(s, on_signal) for s in STOP_SIGNALS
-           if not (s is signal.SIGHUP and signal.getsignal(s) is signal.SIG_IGN)}
-    status = 0
-    try:
-        why[0] = "the start failed"  # until the start is complete
-        daemon.ready_held = True
-        daemon.start()
-        if started is not None:
-            started()
-        daemon.release_ready()
-        if why[0] == "the start failed":  # (a signal during the start keeps its name)
-            why[0] = "end of --for"
-        end = None if for_ns is None else time.monotonic() + for_ns / 1e9
-        while not stop.is_set():
-            left = 0.5 if end is None else min(0.5, end - time.monotonic())
-            if left <= 0:
-                break
-            stop.wait(left)
-            if not daemon.wait(0):
-                continue
-            why[0], status = "the scan loop ended", 1
-            break
-    finally:
-        if stopping is not None:
-            try:
-                stopping()
-            except Exception:  # noqa: BLE001 - the plant must still stop safely
-                log.exception("while stopping")
-        daemon.stop(why[0])
-        for s, h in old.items():
-            signal.signal(s, h)
-    return status

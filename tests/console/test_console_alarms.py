@@ -12,7 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from runtime.console.monitor import ConsoleClient, Target, View
+from runtime.console.client import ConsoleClient
+from runtime.console.links import Target
+from runtime.console.view import View
 from tests.console.consolekit import socket_client
 from tests.console.test_console_iolist import DRAWER, console
 

@@ -10,9 +10,11 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from runtime.console.monitor import ConsoleClient, Target, View
+from runtime.console.client import ConsoleClient
+from runtime.console.links import Target
 from runtime.console.server import ConsoleServer
 from runtime.console.service import ConsoleService
+from runtime.console.view import View
 from runtime.controller.daemon import Daemon
 from runtime.language.model import ConsoleEntry
 from runtime.language.plantfile import load_plant

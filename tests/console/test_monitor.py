@@ -18,15 +18,10 @@ from pathlib import Path
 import pytest
 
 from runtime import cli
-from runtime.console.monitor import (
-    ConsoleClient,
-    MonitorError,
-    SerialLink,
-    SocketLink,
-    View,
-    open_link,
-)
+from runtime.console.client import ConsoleClient
+from runtime.console.links import MonitorError, SerialLink, SocketLink, open_link
 from runtime.console.server import ConsoleServer
+from runtime.console.view import View
 from runtime.language.model import ConsoleEntry
 from tests.console.consolekit import DEADLINE_S, ROOT, Rig, TermScreen, wait_for
 

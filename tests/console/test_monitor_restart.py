@@ -16,19 +16,11 @@ import pytest
 
 from runtime import cli
 from runtime.console import server
-from runtime.console.monitor import (
-    MIN_REFRESH_S,
-    REQUEST_TIMEOUT_S,
-    RETRY_MAX_S,
-    Connection,
-    ConsoleClient,
-    Monitor,
-    Target,
-    View,
-    fold,
-    open_link,
-)
+from runtime.console.client import RETRY_MAX_S, Connection, ConsoleClient
+from runtime.console.links import REQUEST_TIMEOUT_S, Target, open_link
+from runtime.console.monitor import MIN_REFRESH_S, Monitor
 from runtime.console.protocol import HELP
+from runtime.console.view import View, fold
 from tests.console.consolekit import DEADLINE_S, ROOT, NullModem, Rig, plant_yaml, wait_for
 from tests.console.test_monitor import Pty
 

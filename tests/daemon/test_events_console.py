@@ -9,7 +9,9 @@ import logging
 
 import pytest
 
-from runtime.console.monitor import ConsoleClient, View, open_link
+from runtime.console.client import ConsoleClient
+from runtime.console.links import open_link
+from runtime.console.view import View
 from tests.console.conftest import rig, rigs  # noqa: F401 - the console's fixtures
 from tests.console.consolekit import Rig, wait_for
 

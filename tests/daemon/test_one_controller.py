@@ -218,8 +218,8 @@ def test_ready_is_sent_only_once_the_start_is_complete(tmp_path: Path,
     said `started`, and install-service with it, for a controller that exited 2 at once.
     READY=1 waits for the end of the start (the consoles and the feed listening, the drivers
     checked), however long it takes."""
-    from runtime.controller.daemon import serve
     from runtime.controller.notify import Notifier
+    from runtime.controller.service import serve
     from tests.daemon.test_daemon_process import NotifySocket
 
     notify = NotifySocket(tmp_path / "notify.sock")

@@ -1,0 +1,189 @@
+"""The monitor's links to a console: a Unix socket, a TCP port or a serial line.
+
+``Target`` is where the console is (its kind decided once, from what the address is);
+``Target.open`` gives a ``Link``, a byte pipe to it. The errors of reaching the controller,
+``MonitorError`` and ``ConnectionLost``, live here, at the bottom of the monitor's layers:
+the links raise them, the client (``client.py``) and the screen (``monitor.py``) too.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import socket
+import stat
+from dataclasses import dataclass
+from enum import Enum
+from typing import Protocol
+
+from runtime.errors import SoftplcError
+
+#: how long a command may take before the controller is considered silent, seconds
+REQUEST_TIMEOUT_S = 5.0
+
+_TCP = re.compile(r"^(?:\[?[\w.:-]*\]?):(\d+)$")
+
+
+class MonitorError(SoftplcError):
+    """The controller cannot be reached or stopped answering.
+
+    Examples: the socket path does not exist; the serial port is held by another
+    program; no reply within REQUEST_TIMEOUT_S."""
+
+
+class ConnectionLost(MonitorError):
+    """The link broke while in use, or the controller stopped answering on it.
+
+    Examples: the controller was restarted or killed (its socket closed: a broken pipe,
+    a reset); a USB serial gadget went away; the console closed an idle connection; no
+    reply within REQUEST_TIMEOUT_S (the link's state is unknown: it is opened again)."""
+
+
+
+class Link(Protocol):
+    """A byte pipe to the console."""
+
+    name: str
+
+    def send(self, data: bytes) -> None: ...
+
+    def recv(self, timeout: float) -> bytes | None:
+        """Bytes that arrived within ``timeout`` s (b"" if none), None once closed."""
+
+    def close(self) -> None: ...
+
+
+class SocketLink:
+    """A Unix socket or a TCP connection."""
+
+    def __init__(self, sock: socket.socket, name: str) -> None:
+        self.sock = sock
+        self.name = name
+
+    def send(self, data: bytes) -> None:
+        try:
+            self.sock.settimeout(REQUEST_TIMEOUT_S)
+            self.sock.sendall(data)
+        except (BrokenPipeError, ConnectionResetError):
+            raise ConnectionLost(f"{self.name}: the controller closed the "
+                                 "connection") from None
+        except OSError as exc:  # a send timeout
+            raise ConnectionLost(f"{self.name}: {_why(exc)}") from None
+
+    def recv(self, timeout: float) -> bytes | None:
+        try:
+            self.sock.settimeout(max(timeout, 0.001))
+            return self.sock.recv(65536) or None
+        except TimeoutError:
+            return b""
+        except OSError:  # ECONNRESET
+            return None
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class SerialLink:
+    """A serial port (pyserial)."""
+
+    def __init__(self, port: str, baudrate: int) -> None:
+        import serial
+
+        try:
+            self.port = serial.Serial(port, baudrate, timeout=0, write_timeout=REQUEST_TIMEOUT_S,
+                                      exclusive=True)
+        except (OSError, serial.SerialException) as exc:
+            raise MonitorError(f"cannot open serial port {port}: {exc}") from None
+        self.name = f"{port} at {baudrate} baud"
+
+    def send(self, data: bytes) -> None:
+        import serial
+
+        try:
+            self.port.write(data)
+        except (OSError, serial.SerialException) as exc:  # unplugged, or a write timeout
+            raise ConnectionLost(f"{self.name}: {_why(exc)}") from None
+
+    def recv(self, timeout: float) -> bytes | None:
+        import select
+
+        import serial
+
+        try:
+            if not self.port.in_waiting:
+                ready, _, _ = select.select([self.port.fileno()], [], [], max(timeout, 0.0))
+                if not ready:
+                    return b""
+            return bytes(self.port.read(self.port.in_waiting or 1))
+        except (OSError, serial.SerialException):
+            return None  # hang-up
+
+    def close(self) -> None:
+        self.port.close()
+
+
+class LinkKind(Enum):
+    """What kind of console a target is."""
+
+    SOCKET = "socket"
+    TCP = "tcp"
+    SERIAL = "serial"
+
+
+@dataclass(frozen=True)
+class Target:
+    """Where the console is. The kind is decided once, from what the address is when the
+    monitor starts: a socket that disappears while its controller restarts is still a
+    socket to connect to again."""
+
+    kind: LinkKind
+    address: str
+    baudrate: int = 115200
+
+    @classmethod
+    def parse(cls, text: str, baudrate: int = 115200) -> Target:
+        """``/run/softplc/console.sock`` (Unix socket), ``HOST:PORT`` (TCP) or a serial
+        device."""
+        try:
+            mode: int | None = os.stat(text).st_mode
+        except OSError:
+            mode = None
+        if mode is not None and stat.S_ISSOCK(mode):
+            return cls(LinkKind.SOCKET, text, baudrate)
+        if mode is None and _TCP.match(text):
+            return cls(LinkKind.TCP, text, baudrate)
+        if mode is None:
+            raise MonitorError(f"{text}: no such socket or serial port (or HOST:PORT for TCP)")
+        return cls(LinkKind.SERIAL, text, baudrate)
+
+    def open(self, timeout: float = REQUEST_TIMEOUT_S) -> Link:
+        """A new link (MonitorError when it cannot be opened now)."""
+        if self.kind is LinkKind.SERIAL:
+            return SerialLink(self.address, self.baudrate)
+        if self.kind is LinkKind.SOCKET:
+            sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            try:
+                sock.connect(self.address)
+            except OSError as exc:
+                sock.close()
+                raise MonitorError(f"cannot connect to {self.address}: {_why(exc)}") from None
+            return SocketLink(sock, self.address)
+        m = _TCP.match(self.address)
+        assert m is not None
+        host = self.address[:m.start(1) - 1].strip("[]") or "127.0.0.1"
+        try:
+            sock = socket.create_connection((host, int(m.group(1))), timeout=timeout)
+        except OSError as exc:
+            raise MonitorError(f"cannot connect to {self.address}: {_why(exc)}") from None
+        return SocketLink(sock, self.address)
+
+
+def open_link(target: str, baudrate: int = 115200) -> Link:
+    """A link to ``target`` as ``Target.parse`` reads it."""
+    return Target.parse(target, baudrate).open()
+
+
+def _why(exc: Exception) -> str:
+    """An OSError's text without its ``[Errno N]``."""
+    return (exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)) or \
+        type(exc).__name__
