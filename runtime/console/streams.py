@@ -50,6 +50,8 @@ class Stream:
         #: monotonic seconds when the next ``every`` line is due
         self.next_due = 0.0
         self.images: deque[Image] = deque(maxlen=STREAM_SCANS)
+        #: scans not shown (the line too slow) since the last line: said by the next line
+        self.unshown = 0
 
     def begin(self, ctl: Controller) -> None:
         """Scan thread: the values when the stream starts, and the cycle count then."""
@@ -85,19 +87,23 @@ class Stream:
             self.last_scan = images[-1].scan
             return [*out, self.line("watch", values, images[-1].scan, 0, as_json)]
         # the first image kept is compared with the last one shown: no change is lost,
-        # only the cycles in between are not shown one by one
+        # only the cycles in between are not shown one by one; their count goes with the
+        # next line (the first image kept may show no change, e.g. a blinking lamp seen
+        # an even number of scans later)
         for img in images[-STREAM_LINES_PER_POLL:]:
-            skipped = (max(0, img.scan - self.last_scan - 1) if self.last_scan is not None
-                       else 0)
+            if self.last_scan is not None:
+                self.unshown += max(0, img.scan - self.last_scan - 1)
             self.last_scan = img.scan
             values = {n.text: n.read(img) for n in self.names}
             last = self.last
             if self.kind == "trace":
                 changed = {k: v for k, v in values.items() if last.get(k) != v}
                 if changed:
-                    out.append(self.line("trace", changed, img.scan, skipped, as_json))
+                    out.append(self.line("trace", changed, img.scan, self.unshown, as_json))
+                    self.unshown = 0
             elif values != last:
-                out.append(self.line("watch", values, img.scan, skipped, as_json))
+                out.append(self.line("watch", values, img.scan, self.unshown, as_json))
+                self.unshown = 0
             self.last = values
         return out
 

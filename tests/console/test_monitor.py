@@ -104,7 +104,9 @@ def test_view_shows_steps_io_forced_marks_stats_and_faults(rig: Rig,
     view.refresh(client)
     text = "\n".join(view.lines(100))
     assert text.splitlines()[0] == "softplc monitor bench   state RUNNING"
-    assert re.search(r"^cycle 10 ms   scans \d+   uptime \d+\.\d s   overruns 0$", text, re.M)
+    # (the layout is checked: a loaded machine may make a scan overrun meanwhile)
+    assert re.search(r"^cycle 10 ms   scans \d+   uptime \d+\.\d s   overruns \d+$", text,
+                     re.M)
     assert re.search(r"^lateness us  last \d+  mean \d+  p99 \d+  max \d+$", text, re.M)
     assert "drivers  rio ok" in text
     assert "t1  gsParado" in text and "t2  gsParado" in text
