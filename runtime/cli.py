@@ -331,7 +331,8 @@ def cmd_web(args: argparse.Namespace) -> int:
     from runtime.language.runtimedir import locate
 
     pdef = _side_plant(args.plant, "web", "serve this plant's page")
-    feed = args.feed or locate(pdef).feed or pdef.web.feed  # as the view finds it
+    feed = args.feed or locate(pdef).feed  # where the controller serves it (one home)
+    assert feed is not None
     problem = _feed_cannot_serve(pdef, "web", feed, bool(args.feed))
     if problem is not None:
         sys.stderr.write(f"{problem}\n")

@@ -315,12 +315,9 @@ class AlarmBoard:
             if a.acked:
                 raise AlarmRefused(f"alarm {key} is already acknowledged",
                                    "BadConditionBranchAlreadyAcked")
-            a.acked, a.comment, a.by, a.time = True, comment, who, self.wall()
-            self.version += 1
-            text = a.state_text()
-        log.warning("alarm %s acknowledged by %s%s (%s)", key, who,
-                    f": {comment}" if comment else "", text)
-        return f"alarm {key} acknowledged ({text})"
+            a.acked = True
+            text = self._done_by(a, who, comment)
+        return _said(key, "acknowledged", who, comment, text)
 
     def confirm(self, key: str, who: str, comment: str = "") -> str:
         """Confirm alarm ``key`` (acknowledged first) for ``who``; AlarmRefused if not."""
@@ -332,12 +329,15 @@ class AlarmBoard:
             if a.confirmed:
                 raise AlarmRefused(f"alarm {key} is already confirmed",
                                    "BadConditionBranchAlreadyConfirmed")
-            a.confirmed, a.comment, a.by, a.time = True, comment, who, self.wall()
-            self.version += 1
-            text = a.state_text()
-        log.warning("alarm %s confirmed by %s%s (%s)", key, who,
-                    f": {comment}" if comment else "", text)
-        return f"alarm {key} confirmed ({text})"
+            a.confirmed = True
+            text = self._done_by(a, who, comment)
+        return _said(key, "confirmed", who, comment, text)
+
+    def _done_by(self, a: Alarm, who: str, comment: str) -> str:
+        """Under the lock: ``who`` acted on ``a`` now, saying ``comment``; its state text."""
+        a.comment, a.by, a.time = comment, who, self.wall()
+        self.version += 1
+        return a.state_text()
 
     def _get(self, key: str) -> Alarm:
         a = self._alarms.get(key)
@@ -354,6 +354,13 @@ class AlarmBoard:
     def as_list(self) -> list[dict[str, Any]]:
         return [a.as_dict() for a in self.alarms()]
 
+
+
+def _said(key: str, what: str, who: str, comment: str, text: str) -> str:
+    """The log line and the answer of an acknowledgement or a confirmation."""
+    log.warning("alarm %s %s by %s%s (%s)", key, what, who, f": {comment}" if comment else "",
+                text)
+    return f"alarm {key} {what} ({text})"
 
 
 def alarm_lines(alarms: list[dict[str, Any]]) -> list[str]:
