@@ -15,8 +15,8 @@ from runtime.engine.instance import coerce
 from runtime.engine.names import PlantNames, ScriptInput, UnknownName
 from runtime.errors import Loc, SourceError
 from runtime.language import ast as A
-from runtime.language.filekind import SCRIPT_KEYS
-from runtime.language.grafcetfile import check_keys, expect_type, time_value
+from runtime.language.filekind import SCRIPT
+from runtime.language.shape import expect_type, time_value
 from runtime.language.yamlsrc import YList, YMap, load_yaml
 
 if TYPE_CHECKING:
@@ -57,12 +57,12 @@ def read_script(path: str, names: PlantNames, need_length: bool = True) -> Scrip
     doc = load_yaml(path)
     if not isinstance(doc, YMap):
         raise SourceError(Loc(path, 1, 1), "expected a mapping with 'duration:' or 'cycles:'")
-    check_keys(doc, SCRIPT_KEYS, "a simulation script")
+    SCRIPT.check(doc)
     duration = cycles = None
     if "duration" in doc:
         duration = time_value(doc["duration"], doc.val_locs["duration"], "duration")
     if "cycles" in doc:
-        cycles = expect_type(doc["cycles"], doc.val_locs["cycles"], int, "a number of cycles")
+        cycles = SCRIPT.value(doc, "cycles", "a number of cycles")
     if need_length and duration is None and cycles is None:
         raise SourceError(doc.loc, "the script needs 'duration:' or 'cycles:'")
     changes: list[Change] = []

@@ -5,10 +5,33 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
+from runtime.language.shape import Bool, Doc, Int, Key, ListOf, Number, Section, Text, Time, any_of
 from runtime.language.yamlsrc import YMap, load_yaml
 
-#: the top-level keys of a simulation script
-SCRIPT_KEYS = ("duration", "cycles", "set", "description")
+#: an entry of a simulation script's ``set:`` (runtime/engine/script.py reads it)
+SET_ENTRY = Section((
+    Key("at", Time(), "When the values are written.", required=True),
+), other=Doc(any_of(Number(), Bool()),
+             "instance.input = logical value (after inversion; instance.SFCPause and the "
+             "other chart flags too), or driver.point = physical value (before inversion)."),
+   extra={"minProperties": 2, "propertyNames": {"pattern": r"^(at|[^.\s]+\.[^\s]+)$"}})
+#: a simulation script (runtime/engine/script.py reads it)
+SCRIPT = Section((
+    Key("duration", Time(), "Simulated time: scans at t = 0, cycle, 2·cycle, ... while t < "
+                            "duration."),
+    Key("cycles", Int(0), "Number of scans (instead of duration; --cycles overrides both). "
+                          "With neither, 'softplc simulate' needs --cycles N."),
+    Key("set", ListOf(SET_ENTRY), "Input changes: {at: TIME, key: value, ...}."),
+    Key("description", Text(), "Free text."),
+), "a simulation script",
+    "Input changes for 'softplc simulate PLANT --script SCRIPT' (docs/language.md, 'The "
+    "simulation script'). Scan k runs at t = k·cycle; a change at time t is seen by the "
+    "first scan at t or later. The length is --cycles N if given, else 'cycles:', else "
+    "'duration:': a script meant for --cycles may have neither (it then needs 'set:').",
+    extra={"anyOf": [{"required": ["duration"]}, {"required": ["cycles"]},
+                     {"required": ["set"]}]})
+#: the keys that make a YAML file a simulation script (with no other keys than SCRIPT's)
+_SCRIPT_MARKS = ("duration", "cycles", "set")
 
 FileKind = Literal["grafcet", "plant", "script", "other"]
 
@@ -33,6 +56,6 @@ def doc_kind(doc: Any) -> FileKind:
             return "grafcet"
         if "instances" in doc or "drivers" in doc or "plc" in doc:
             return "plant"
-        if set(doc) <= set(SCRIPT_KEYS) and set(doc) & {"duration", "cycles", "set"}:
+        if set(doc) <= set(SCRIPT.names) and set(doc) & set(_SCRIPT_MARKS):
             return "script"
     return "other"

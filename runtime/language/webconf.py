@@ -9,21 +9,53 @@ import re
 from typing import Any
 
 from runtime.errors import Loc, SourceError
-from runtime.language.feedconf import feed_key, sample_key
-from runtime.language.grafcetfile import check_keys, expect_type, time_value
+from runtime.language.feedconf import FEED_KEY, feed_key, sample_key
 from runtime.language.model import PlantDef, WebDef
-from runtime.language.plantpaths import path_value
+from runtime.language.plantpaths import PATH, path_value
+from runtime.language.shape import (
+    Choice,
+    Int,
+    Key,
+    MapOf,
+    Section,
+    Text,
+    Time,
+    expect_type,
+    time_value,
+)
 from runtime.language.yamlsrc import YMap
 
-WEB_KEYS = ("listen", "sample", "feed", "tls", "users", "read", "idle_logout", "max_pages")
-TLS_KEYS = ("certificate", "private_key")
 #: the snapshot period when the plant does not say (never below the cycle), ns
 DEFAULT_SAMPLE_NS = 100_000_000
-#: pages (WebSocket connections) at most, whatever the plant says
-MAX_PAGES_LIMIT = 200
 _LISTEN = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
 #: what a user name may be (it goes into log lines and console commands)
 USER_RE = re.compile(r"^[A-Za-z0-9_.-]{1,32}$")
+#: who may look at the page
+READ = ("anyone", "users")
+
+# -- the shape of ``web:`` (runtime/language/shape.py)
+TLS = Section((
+    Key("certificate", PATH, "The certificate (PEM, its chain after it).", required=True),
+    Key("private_key", PATH, "Its private key (PEM).", required=True),
+), "web tls", "HTTPS: the server's certificate and key (PEM).")
+WEB = Section((
+    Key("listen", Text(_LISTEN.pattern), "HOST:PORT (default 127.0.0.1:8080); any address but "
+                                         "a loopback one needs tls."),
+    Key("sample", Time(), "How often the page is updated (the feed's sample; default 100ms, "
+                          "never below the cycle)."),
+    FEED_KEY,
+    Key("tls", TLS),
+    Key("users", MapOf(Text(), names=USER_RE.pattern),
+        "user: password hash made by softplc hash-pin: who may act from the page (through "
+        "the plant's console socket)."),
+    Key("read", Choice(READ), "Who may look: anyone who reaches the address (default) or only "
+                              "users logged in."),
+    Key("idle_logout", Time(60_000_000_000, 86_400_000_000_000),
+        "A login ends after this long without an action (default 10m, 1m to 24h); what its "
+        "pages held is released as a console session's."),
+    Key("max_pages", Int(1, 200), "Pages open at once (default 20)."),
+), "web", "The live view in the browser, `softplc web PLANT` (docs/web.md): where it listens, "
+          "HTTPS, who may act and who may look.", null=True)
 
 
 def is_loopback(host: str) -> bool:
@@ -55,7 +87,7 @@ def load_web(p: PlantDef, value: Any, loc: Loc) -> WebDef:
     """``web:`` -> WebDef; SourceError at the faulty key or value. An empty ``web:`` (``web:
     {}``) serves the page read-only on 127.0.0.1:8080."""
     m = expect_type(value, loc, YMap, "a mapping (listen, sample, tls, users, read, ...)")
-    check_keys(m, WEB_KEYS, "web")
+    WEB.check(m)
     w = WebDef(loc=loc, sample_ns=max(DEFAULT_SAMPLE_NS, p.cycle_ns), locs=dict(m.val_locs))
     if "listen" in m:
         vloc = m.val_locs["listen"]
@@ -68,8 +100,8 @@ def load_web(p: PlantDef, value: Any, loc: Loc) -> WebDef:
     if "tls" in m:
         vloc = m.val_locs["tls"]
         tls = expect_type(m["tls"], vloc, YMap, "a mapping (certificate, private_key)")
-        check_keys(tls, TLS_KEYS, "web tls")
-        for key in TLS_KEYS:
+        TLS.check(tls)
+        for key in TLS.names:
             if key not in tls:
                 raise SourceError(vloc, f"web tls: expected {key} (a PEM file), found none")
             setattr(w, key, path_value(tls[key], tls.val_locs[key], f"web tls {key}"))
@@ -93,7 +125,7 @@ def load_web(p: PlantDef, value: Any, loc: Loc) -> WebDef:
                                     "add monitor: socket: {path: '${RUNTIME_DIR}/console.sock'}")
     if "read" in m:
         vloc = m.val_locs["read"]
-        if m["read"] not in ("anyone", "users"):
+        if m["read"] not in READ:
             raise SourceError(vloc, f"web read: expected anyone or users, found "
                                     f"'{m['read']}'")
         w.read = str(m["read"])
@@ -102,13 +134,13 @@ def load_web(p: PlantDef, value: Any, loc: Loc) -> WebDef:
     if "idle_logout" in m:
         vloc = m.val_locs["idle_logout"]
         w.idle_logout_ns = time_value(m["idle_logout"], vloc, "web idle_logout")
-        if not 60_000_000_000 <= w.idle_logout_ns <= 86_400_000_000_000:
+        if not WEB["idle_logout"].low <= w.idle_logout_ns <= WEB["idle_logout"].high:
             raise SourceError(vloc, "web idle_logout: expected 1m to 24h")
     if "max_pages" in m:
         vloc = m.val_locs["max_pages"]
-        n = expect_type(m["max_pages"], vloc, int, "a number of pages")
-        if not 1 <= n <= MAX_PAGES_LIMIT:
-            raise SourceError(vloc, f"web max_pages: expected 1 to {MAX_PAGES_LIMIT}, "
-                                    f"found {n}")
+        n = WEB.value(m, "max_pages", "a number of pages")
+        low, high = WEB["max_pages"].low, WEB["max_pages"].high
+        if not low <= n <= high:
+            raise SourceError(vloc, f"web max_pages: expected {low} to {high}, found {n}")
         w.max_pages = int(n)
     return w
