@@ -329,8 +329,8 @@ def _frame_rights(c: Chart, nodes: list[str]) -> list[tuple[int, int, float]]:
 
 def _place(c: Chart, hint: dict[str, float] | None, root_x: dict[str, float],
            skip: set[str]) -> None:
-    long_and = [(s, t) for s, t in [*and_links(c), *straight_links(c)]
-                if s not in skip and t not in skip]
+    straight = [(s, t) for s, t in straight_links(c) if s not in skip and t not in skip]
+    long_and = [(s, t) for s, t in and_links(c) if s not in skip and t not in skip]
     for layer, every in enumerate(c.layers):
         ids = [n for n in every if n not in skip]
         desired: dict[str, float] = {}
@@ -370,25 +370,55 @@ def _place(c: Chart, hint: dict[str, float] | None, root_x: dict[str, float],
             order: list[str] = sorted(ids, key=lambda n: hint[n])
         else:
             order = sorted(ids, key=lambda n: (desired[n], rank[n]))
-        # vertical lines that pass through this row (AND convergences skipping rows)
-        lines = sorted(c.nodes[s].x for s, t in long_and
-                       if c.nodes[s].layer < layer < c.nodes[t].layer)
-        items: list[str | float] = []
-        for n in order:
-            while lines and lines[0] <= desired[n]:
-                items.append(lines.pop(0))
-            items.append(n)
-        items += lines
-        if not items:
-            continue
-        des = [desired[i] if isinstance(i, str) else i for i in items]
-        wts = [weight[i] if isinstance(i, str) else 1e6 for i in items]
-        seps = [_sep(c.nodes[a] if isinstance(a, str) else None,
-                     c.nodes[b] if isinstance(b, str) else None)
-                for a, b in itertools.pairwise(items)]
-        for item, x in zip(items, _spread(des, wts, seps), strict=True):
-            if isinstance(item, str):
-                c.nodes[item].x = x
+
+        def through(links: list[tuple[str, str]], row: int = layer) -> list[float]:
+            return [c.nodes[s].x for s, t in links
+                    if c.nodes[s].layer < row < c.nodes[t].layer]
+        # vertical lines that pass through this row (a link straight down past it, an AND
+        # convergence's source skipping rows): its elements keep clear of them. Where they
+        # cannot (the elements between two lines need more room than there is), the AND
+        # convergences' lines give way: route() takes those round what is in the way
+        # (a channel), while a straight link has no other way down (nor may the step at
+        # its foot leave it); between two straight links too close, the row's elements go
+        # right of them all.
+        lines = sorted(through(straight))
+        ends = {t for _, t in straight if t in desired}  # steps at the foot of a straight link
+        for n in ends:  # its line is drawn down to where the step is: the others move
+            weight[n] = 1e6
+        spread = (_row(c, order, desired, weight, sorted(lines + through(long_and)), ends)
+                  or _row(c, order, desired, weight, lines, ends)
+                  or _row(c, order, desired, weight, lines, ends, beside=True))
+        for n, x in spread.items():
+            c.nodes[n].x = x
+
+
+def _row(c: Chart, order: list[str], desired: dict[str, float], weight: dict[str, float],
+         lines: list[float], ends: set[str], beside: bool = False) -> dict[str, float]:
+    """x of the elements of a row in ``order``, as near to ``desired`` as they may be, kept
+    clear of the vertical ``lines`` that pass through it (each where it is nearest, or with
+    ``beside`` all right of the lines); {} if they cannot be (a line would have to move,
+    or one of ``ends``, steps that must stay under their straight link, would), unless
+    ``beside``."""
+    items: list[str | float] = list(lines) if beside else []
+    rest = [] if beside else list(lines)
+    for n in order:
+        while rest and rest[0] <= desired[n]:
+            items.append(rest.pop(0))
+        items.append(n)
+    items += rest
+    if not order:
+        return {}
+    des = [desired[i] if isinstance(i, str) else i for i in items]
+    wts = [weight[i] if isinstance(i, str) else 1e9 for i in items]
+    seps = [_sep(c.nodes[a] if isinstance(a, str) else None,
+                 c.nodes[b] if isinstance(b, str) else None)
+            for a, b in itertools.pairwise(items)]
+    xs = _spread(des, wts, seps)
+    if not beside and any(abs(x - (desired[i] if isinstance(i, str) else i)) > 0.5
+                          for i, x in zip(items, xs, strict=True)
+                          if not isinstance(i, str) or i in ends):
+        return {}  # a line, or a step under its straight link, would have had to move
+    return {i: x for i, x in zip(items, xs, strict=True) if isinstance(i, str)}
 
 
 def _straight(c: Chart, kids: list[str], pref: dict[str, float]) -> str:
