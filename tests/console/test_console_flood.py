@@ -7,10 +7,14 @@ sixteen local clients pipelining ``stats`` at normal priority never block the sc
 (the time its own process kept it waiting, schedprobe.py).
 
 The clients are separate processes (flooder.py), as a laptop at the other end of the
-cable would be. The bounds are generous on purpose (a loaded, shared 2-core VM): at most
-one overrun more than the quiet run (none at a 10 ms cycle on an idle machine), every
-cycle ran, lateness p99 at most twice the quiet run's or 2.5 ms more. The figures
-themselves are measured by bench/console.py."""
+cable would be. What is held is what the console does to the scan, whatever else the
+machine runs: the wake-ups of the scan thread *blocked* by its own process (the GIL held
+by a console thread; schedprobe.py) for more than 1 ms, at most twice those of a lone
+thread paced the same way, in a process of its own, at the same time, plus 5. Overruns and
+lateness compared with a quiet run before the flood said as much about the other jobs of
+a loaded machine as about the console (2 overruns against 0 with the machine at a load of
+2 to 7: another job's burst in the flooded window). The figures themselves are measured by
+bench/console.py."""
 
 from __future__ import annotations
 
@@ -40,30 +44,67 @@ FLOODER = str(Path(__file__).with_name("flooder.py"))
 SECONDS = 3.0
 
 
-def window(rig: Rig, run: Callable[[], Any]) -> dict[str, Any]:
-    """Cycle statistics of the daemon while ``run()`` runs (reset at the start, in the
-    scan thread)."""
-    stats = rig.daemon.scan_stats
-    rig.daemon.call(stats.reset)
-    t0 = time.monotonic()
-    extra = run()
-    elapsed = time.monotonic() - t0
-    count, overruns = rig.daemon.call(lambda: (stats.count, stats.overruns))
-    late = stats.lateness()
-    return {"cycles": count, "expected": elapsed / 0.010, "overruns": overruns,
-            "p99_us": late.p99 / 1e3, "max_us": late.max / 1e3, "extra": extra}
+needs_schedstat = pytest.mark.skipif(
+    not schedprobe.available(), reason="the kernel keeps no per-thread scheduler "
+    "statistics (/proc/thread-self/schedstat, CONFIG_SCHED_INFO)")
+
+
+def fifo_permitted() -> bool:
+    """Whether this process may make a thread SCHED_FIFO (tried on a thread of its own)."""
+    got: list[bool] = []
+    t = threading.Thread(target=lambda: got.append(set_fifo_priority(50)[0]))
+    t.start()
+    t.join()
+    return got[0]
+
+
+@dataclass
+class Probed:
+    """What a window of the daemon's scan saw (``wakes``) against a lone thread paced the
+    same way at the same time (``machine``), and what ``run()`` returned."""
+
+    wakes: Wakes
+    machine: Wakes
+    extra: Any
+
+    def console_blocked_the_scan(self) -> bool:
+        """The console's own doing: more wake-ups blocked over 1 ms by the daemon's process
+        than twice the lone thread's (the machine's host counts there too), plus 5."""
+        return self.wakes.blocked_over_1ms > 2 * self.machine.blocked_over_1ms + 5
+
+
+def probed(rig: Rig, probe: SchedProbe, run: Callable[[], Any], seconds: float,
+           priority: int) -> Probed:
+    """The scan thread's wake-ups (``probe``, wrapped in by the rig) while ``run()`` runs,
+    and those of a lone thread at the scan thread's ``priority`` (0: normal) for
+    ``seconds`` meanwhile."""
+    lone = subprocess.Popen([sys.executable, "-m", "tests.console.schedprobe", str(seconds),
+                             "10", str(priority)], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    probe.start()
+    try:
+        extra = run()
+    finally:
+        wakes = probe.stop()
+    machine = Wakes(**json.loads(lone.communicate(timeout=seconds + 120)[0]))
+    return Probed(wakes, machine, extra)
+
+
+def scan_priority() -> int:
+    """The scan thread's priority as the rig leaves it: SCHED_FIFO 50 where permitted."""
+    return 50 if fifo_permitted() else 0
 
 
 @pytest.mark.slow
+@needs_schedstat
 def test_a_flood_on_the_console_does_not_disturb_the_scan(rigs: Callable[..., Rig]) -> None:
     flooder = subprocess.Popen([sys.executable, FLOODER, "flood", str(SECONDS), "1000"],
                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
         assert flooder.stdout is not None and flooder.stdin is not None
         port = json.loads(flooder.stdout.readline())["port"]
-        rig = rigs(serial_path=port, blink=True)
+        probe = SchedProbe()
+        rig = rigs(serial_path=port, blink=True, probe=probe)
         assert rig.socket_path is not None
-        quiet = window(rig, lambda: time.sleep(SECONDS))
 
         def flood() -> Any:
             assert rig.socket_path is not None
@@ -74,13 +115,15 @@ def test_a_flood_on_the_console_does_not_disturb_the_scan(rigs: Callable[..., Ri
             out, _ = flooder.communicate(timeout=60)
             traced, _ = tracer.communicate(timeout=60)
             return json.loads(out), json.loads(traced)
-        loud = window(rig, flood)
+        faults = len(rig.daemon.faults)
+        loud = probed(rig, probe, flood, SECONDS, scan_priority())
+        faults = len(rig.daemon.faults) - faults
     finally:
         if flooder.poll() is None:
             flooder.kill()
             flooder.wait()
-    sent, traced = loud["extra"]
-    msg = f"quiet {quiet}, flooded {loud}"
+    sent, traced = loud.extra
+    msg = f"{loud}"
     # the flood reached the console and was answered, and so was the trace client
     assert sent["rate"] >= 800 and sent["sent_lines"] >= 0.8 * 1000 * SECONDS, msg
     # answered within the console's tenth of a processor (docs/console.md): some 250 lines
@@ -88,13 +131,12 @@ def test_a_flood_on_the_console_does_not_disturb_the_scan(rigs: Callable[..., Ri
     assert sent["errors"] > 450 and sent["ok"] > 25, msg
     assert sent["answers_after"], msg
     assert traced["trace_lines"] > 0.5 * SECONDS * 100, msg
-    # and the scan did not notice
-    # A console thread can delay a cycle by the GIL's switch interval (5 ms) at most, never
-    # by a whole 10 ms cycle; one late cycle may still come from another job on the shared
-    # VM in either window, so one is tolerated, a second is not.
-    assert loud["overruns"] <= quiet["overruns"] + 1, msg
-    assert loud["cycles"] >= 0.95 * loud["expected"], msg
-    assert loud["p99_us"] < max(2 * quiet["p99_us"], quiet["p99_us"] + 2500), msg
+    # and the scan did not notice: no fault, and the console never blocked it (a console
+    # thread can hold the GIL for its switch interval, 5 ms, at most: a wake-up blocked
+    # over 1 ms is rare, and the lone thread sees what the machine's host adds)
+    assert faults == 0, msg
+    assert not loud.console_blocked_the_scan(), msg
+    assert loud.wakes.count >= 0.9 * loud.machine.count, msg  # every cycle ran
     # nothing changed on the machine, and the console still answers
     assert not rig.plant.forced and not rig.plant.forced_points
     assert rig.state() == "running" and rig.steps("t1") == ["gsParado"]
@@ -141,31 +183,38 @@ def pipelining(addresses: list[str], commands: list[str], seconds: float, nice: 
 
 
 @pytest.mark.slow
+@needs_schedstat
 @pytest.mark.parametrize("command", ["stats", "help"])
 def test_eight_tcp_clients_pipelining_do_not_starve_the_scan(
         rigs: Callable[..., Rig], command: str) -> None:
     """The attack of issue 12: eight local clients sending ``stats`` (or ``help``), no PIN
-    needed, as fast as the replies come. The scan keeps its cycle: no watchdog fault, no
-    more overruns than a quiet run, every cycle ran; and every client is answered. The
-    garbage collector is run as the daemon runs it (in the scan's idle time): a collection
-    triggered by a console thread's allocations would hold the GIL for tens of ms."""
-    rig = rigs(serial_port=False, manage_gc=True)
+    needed, as fast as the replies come. The scan keeps its cycle: no watchdog fault, and
+    the console never blocks the scan thread (its wake-ups blocked by its own process,
+    against a lone thread's at the same time); and every client is answered. The garbage
+    collector is run as the daemon runs it (in the scan's idle time): a collection
+    triggered by a console thread's allocations would hold the GIL for tens of ms.
+
+    Before (held to overruns and lateness against a quiet run of the same daemon just
+    before), a machine loaded by other work failed it: 2 overruns against 0, lateness up
+    to 80 ms, all of it the other jobs' doing."""
+    probe = SchedProbe()
+    rig = rigs(serial_port=False, manage_gc=True, probe=probe)
     server = ConsoleServer(rig.service, [ConsoleEntry("tcp", "127.0.0.1:0")])
     server.start()
     try:
-        quiet = window(rig, lambda: time.sleep(SECONDS))
-        loud = window(rig, pipelining([server.addresses[0]] * 8, [command], SECONDS))
-        faults = list(rig.daemon.faults)
+        faults = len(rig.daemon.faults)
+        loud = probed(rig, probe, pipelining([server.addresses[0]] * 8, [command], SECONDS),
+                      SECONDS, scan_priority())
+        faults = len(rig.daemon.faults) - faults
     finally:
         server.stop()
-    msg = f"quiet {quiet}, flooded {loud}"
-    assert not faults and rig.state() == "running", f"{faults}; {msg}"
-    for client in loud["extra"]:
+    msg = f"{loud}"
+    assert faults == 0 and rig.state() == "running", msg
+    for client in loud.extra:
         assert not client["closed_by_server"] and client["ok"] > 0, msg
         assert client["replies"] == client["sent"], msg  # throttled lines are answered too
-    assert loud["overruns"] <= quiet["overruns"] + 1, msg
-    assert loud["cycles"] >= 0.95 * loud["expected"], msg
-    assert loud["p99_us"] < max(2 * quiet["p99_us"], quiet["p99_us"] + 2500), msg
+    assert not loud.console_blocked_the_scan(), msg
+    assert loud.wakes.count >= 0.9 * loud.machine.count, msg  # every cycle ran
 
 
 @pytest.mark.slow
@@ -245,20 +294,6 @@ def attack(rig: Rig, probe: SchedProbe, machine_priority: int) -> Attack:
     assert all(c["replies"] == c["sent"] and not c["closed_by_server"] for c in seen), done
     assert wakes.count > 0.9 * ATTACK_S / 0.010, done
     return done
-
-
-needs_schedstat = pytest.mark.skipif(
-    not schedprobe.available(), reason="the kernel keeps no per-thread scheduler "
-    "statistics (/proc/thread-self/schedstat, CONFIG_SCHED_INFO)")
-
-
-def fifo_permitted() -> bool:
-    """Whether this process may make a thread SCHED_FIFO (tried on a thread of its own)."""
-    got: list[bool] = []
-    t = threading.Thread(target=lambda: got.append(set_fifo_priority(50)[0]))
-    t.start()
-    t.join()
-    return got[0]
 
 
 @pytest.mark.slow
