@@ -66,9 +66,11 @@ class Wakes:
     blocked_ms: float
     #: wake-ups later than LATE_US
     late: int
-    #: wake-ups a whole cycle late or more (a scan paced so would have overrun), when the
-    #: cycle is known (``control``)
+    #: wake-ups a whole cycle late or more (a scan paced so would have overrun), and the
+    #: deadlines they passed over (it would have skipped), when the cycle is known
+    #: (``control``)
     missed: int = 0
+    skipped: int = 0
 
 
 class SchedProbe:
@@ -137,38 +139,42 @@ class SchedProbe:
                      q(blocked, 0.5), q(blocked, 0.99), q(blocked, 1.0),
                      sum(1 for b in blocked if b > 1_000_000), sum(blocked) / 1e6,
                      sum(1 for x in late if x > LATE_US * 1e3),
-                     sum(1 for x in late if x >= cycle_ns) if cycle_ns else 0)
+                     sum(1 for x in late if x >= cycle_ns) if cycle_ns else 0,
+                     sum(x // cycle_ns for x in late if x >= cycle_ns) if cycle_ns else 0)
 
 
 #: the neighbour of a control's paced thread: bursts of Python this long (holding the GIL),
 #: then a sleep as long (releasing it), s
 NEIGHBOUR_BURST_S = 0.0005
+#: the neighbours a control may have: "bursts" (a console thread keeping its work short),
+#: "busy" (a feed thread serving a flood: Python all the time, the GIL given up only at
+#: the interpreter's switch interval)
+NEIGHBOURS = ("bursts", "busy")
 
 
-def _neighbour(stop: list[int]) -> None:
-    """Pure-Python work in short bursts, at normal priority: a thread of a controller's
-    process that keeps its work short (a console or feed thread), which the machine may
-    still take the processor from while it holds the GIL."""
+def _neighbour(stop: list[int], kind: str) -> None:
+    """Pure-Python work at normal priority (``NEIGHBOURS``): a thread of a controller's
+    process, which the machine may take the processor from while it holds the GIL."""
     while not stop:
         end = time.perf_counter() + NEIGHBOUR_BURST_S
         while time.perf_counter() < end:
             pass
-        time.sleep(NEIGHBOUR_BURST_S)
+        if kind == "bursts":
+            time.sleep(NEIGHBOUR_BURST_S)
 
 
 def control(seconds: float, cycle_ms: float = 10.0, priority: int = 0,
-            ready: Callable[[], None] | None = None, neighbour: bool = False) -> Wakes:
+            ready: Callable[[], None] | None = None, neighbour: str = "") -> Wakes:
     """Wake-ups of a thread alone in its process (this one's main thread), paced to
     absolute deadlines every ``cycle_ms`` for ``seconds`` (or until SIGTERM), with the scan
     thread's timer slack (and SCHED_FIFO ``priority`` if not 0, where permitted): what the
-    machine alone does to a scan thread's wake-ups. With ``neighbour``, a second thread of
-    the process works in short bursts meanwhile (``_neighbour``): what the machine does to
-    a scan thread whose process has a well-behaved busy thread (held behind the GIL while
-    the machine keeps that thread from the processor). ``ready()`` is called as it
-    starts."""
+    machine alone does to a scan thread's wake-ups. With a ``neighbour`` (``NEIGHBOURS``), a
+    second thread of the process works meanwhile (``_neighbour``): what the machine does
+    to a scan thread whose process has a busy thread (held behind the GIL while the
+    machine keeps that thread from the processor). ``ready()`` is called as it starts."""
     stop: list[int] = []
     if neighbour:  # started first: it keeps normal priority
-        threading.Thread(target=_neighbour, args=(stop,), daemon=True).start()
+        threading.Thread(target=_neighbour, args=(stop, neighbour), daemon=True).start()
     reduce_timer_slack()
     if priority:
         set_fifo_priority(priority)
@@ -193,14 +199,19 @@ def beyond_the_machine(missed: Mapping[str, int], lone: Wakes, watchdog_ms: floa
                        ) -> list[str]:
     """What a controller missed (``missed``: its overruns, skipped deadlines and freezes
     over a window) beyond what the machine did to ``lone``, a control paced like its scan
-    over the same window (``lone_thread``, with a neighbour: the controller's process has
-    its feed and console threads): overruns, and skipped deadlines, more than twice the
-    control's wake-ups a cycle late plus 1; a freeze where the control was never held for
-    a watchdog. Empty when the controller missed nothing of its own doing; on a quiet
-    machine the control misses nothing, and neither may the controller (but one)."""
-    allowed = 2 * lone.missed + 1
-    out = [f"{missed[k]} {k} against {lone.missed} wake-ups a cycle late of a lone thread"
-           for k in ("overruns", "skipped") if missed[k] > allowed]
+    over the same window (``lone_thread`` with a "busy" neighbour: the controller's process
+    has its feed and console threads): overruns more than twice the control's wake-ups a
+    cycle late, skipped deadlines more than twice those it passed over, each plus 1; a
+    freeze where the control was never held for a watchdog. Empty when the controller
+    missed nothing of its own doing; on a quiet machine the control misses nothing, and
+    neither may the controller (but one)."""
+    out = []
+    if missed["overruns"] > 2 * lone.missed + 1:
+        out.append(f"{missed['overruns']} overruns against {lone.missed} wake-ups a cycle "
+                   "late of the control")
+    if missed["skipped"] > 2 * lone.skipped + 1:
+        out.append(f"{missed['skipped']} skipped deadlines against {lone.skipped} of the "
+                   "control")
     if missed["freezes"] and lone.late_max < watchdog_ms * 1e3:
         out.append(f"{missed['freezes']} freezes, the lone thread at most "
                    f"{lone.late_max / 1e3:.0f} ms late")
@@ -208,13 +219,13 @@ def beyond_the_machine(missed: Mapping[str, int], lone: Wakes, watchdog_ms: floa
 
 
 @contextmanager
-def lone_thread(cycle_ms: float, priority: int, neighbour: bool = False,
+def lone_thread(cycle_ms: float, priority: int, neighbour: str = "",
                 most_s: float = 900.0) -> Iterator[list[Wakes]]:
     """A lone thread paced like a scan (``control``, with its busy ``neighbour`` if asked),
     in a process of its own, running through the ``with`` block (at most ``most_s``): the
     list holds its Wakes after it. The block starts once the thread runs."""
     lone = subprocess.Popen([sys.executable, "-m", "tests.console.schedprobe", str(most_s),
-                             str(cycle_ms), str(priority), "neighbour" if neighbour else "-"],
+                             str(cycle_ms), str(priority), neighbour or "-"],
                             stdout=subprocess.PIPE, text=True,
                             cwd=Path(__file__).resolve().parents[2])
     assert lone.stdout is not None
@@ -236,5 +247,5 @@ if __name__ == "__main__":
         sys.stdout.flush()
     wakes = control(float(argv[0]), float(argv[1]) if len(argv) > 1 else 10.0,
                     int(argv[2]) if len(argv) > 2 else 0, say_ready,
-                    neighbour=argv[3:4] == ["neighbour"])
+                    neighbour=argv[3] if argv[3:4] and argv[3] in NEIGHBOURS else "")
     sys.stdout.write(json.dumps(asdict(wakes)) + "\n")

@@ -83,7 +83,7 @@ def probed(rig: Rig, probe: SchedProbe, run: Callable[[], Any], priority: int) -
     """The scan thread's wake-ups (``probe``, wrapped in by the rig) while ``run()`` runs,
     and those of a control meanwhile: a thread paced the same way at the scan thread's
     ``priority`` (0: normal), beside a busy neighbour (``schedprobe.lone_thread``)."""
-    with lone_thread(10, priority, neighbour=True) as lone:
+    with lone_thread(10, priority, neighbour="bursts") as lone:
         probe.start()
         try:
             extra = run()
@@ -292,7 +292,7 @@ def attack(rig: Rig, probe: SchedProbe, machine_priority: int) -> Attack:
     faults = len(rig.daemon.faults)
     clients.go()
     time.sleep(1.0)
-    with lone_thread(10, machine_priority, neighbour=True) as lone:
+    with lone_thread(10, machine_priority, neighbour="bursts") as lone:
         probe.start()
         time.sleep(ATTACK_S)
         wakes = probe.stop()

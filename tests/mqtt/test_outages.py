@@ -174,7 +174,7 @@ def test_a_flood_of_dcmds_is_bounded_and_the_scan_untouched(tmp_path: Path) -> N
         # what the machine does meanwhile to a control paced as the scan (at a load of 12
         # on 2 cores the controller overran: its feed thread, kept from the processor while
         # it held the GIL, held the scan thread)
-        with lone_thread(10, 20, neighbour=True) as lone:
+        with lone_thread(10, 20, neighbour="busy") as lone:
             before = dict(watch.statuses[-1])
             scan0 = watch.frames[-1][0]
             e.host.send({"flood": topic("DCMD", "t1"),

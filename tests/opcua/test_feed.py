@@ -113,7 +113,7 @@ def test_a_client_that_stops_reading_is_dropped_without_the_scan_noticing(
     # threads among them) some did: the overruns are held to those of a control paced
     # the same way, at the same priority, in a process of its own beside a busy thread
     # (schedprobe.beyond_the_machine).
-    with lone_thread(10, 20, neighbour=True) as lone, controller(
+    with lone_thread(10, 20, neighbour="busy") as lone, controller(
             tmp_path, trace=False, cycle="10ms", sample="10ms",
             plc=", realtime: {priority: 20}") as (d, feed, _):
         good = FeedReader(feed.path)

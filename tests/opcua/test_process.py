@@ -69,7 +69,7 @@ def test_killing_the_server_never_costs_the_controller_a_cycle(tmp_path: Path) -
         wait_until(lambda: len(watch.frames) > 0 and bool(watch.statuses), 30.0)
         # what the machine does meanwhile to a control paced as the scan (at a load of 12
         # on 2 cores the controller overran: the machine's doing, not the server's)
-        with lone_thread(20, 20, neighbour=True) as lone:
+        with lone_thread(20, 20, neighbour="busy") as lone:
             scan0, wall0, _ = watch.frames[-1]
             before = dict(watch.statuses[-1])
             server.send_signal(signal.SIGKILL)
