@@ -61,6 +61,16 @@ FLAG_TEXT = {
 HEALTH_TEXT = "true while the driver is healthy"
 
 
+def sfcerror_cause(step: str, about: str = "") -> str:
+    """Who set an instance's SFCError, as every display says it (the log, the alarms, the
+    console and the monitor, the OPC UA events): ``set by step NAME`` (``about``, the step's
+    description, in brackets) when a step over its max time set it, ``set by the chart``
+    when SFCErrorStep is empty (the chart, or a write to the flag, set it)."""
+    if not step:
+        return "set by the chart"
+    return f"set by step {step}" + (f" ({about})" if about else "")
+
+
 @dataclass(frozen=True, slots=True)
 class Meaning:
     """What a plant name means to a person: its description, its unit of measure, and its
