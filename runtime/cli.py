@@ -252,7 +252,9 @@ def _side_plant(path: str, section: str, doing: str) -> Any:
 
 
 def _missing_extra(exc: ImportError, extra: str) -> ImportError:
-    return ImportError(f"{exc}: install the {extra} extra (pip install 'softplc[{extra}]')")
+    from drivers.registry import install_hint
+
+    return ImportError(f"{exc}: install the {extra} extra: {install_hint(extra)}")
 
 
 def _until_signal(serve: Callable[[Any], Awaitable[None]]) -> None:
