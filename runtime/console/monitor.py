@@ -226,6 +226,10 @@ def cmd_monitor(args: argparse.Namespace) -> int:
         sys.stderr.write(f"softplc monitor: error: --interval {interval:g} is under "
                          f"{MIN_REFRESH_S:g} s (the console runs at most 50 lines/s)\n")
         return 2
+    if not args.once and not (sys.stdin.isatty() and sys.stdout.isatty()):
+        sys.stderr.write("softplc monitor: error: not a terminal (a screen needs one): use "
+                         "--once\n")
+        return 2
     try:
         target = Target.parse(address, args.baudrate)
         view = View(target=address)
