@@ -250,7 +250,7 @@ def test_plant_checks_its_charts_once(write: Callable[[str, str], str]) -> None:
     res = check_files([path])
     assert [r.path.rsplit("/", 1)[-1] for r in res] == ["plant.yaml", "bad.yaml"]
     assert [d.code for d in res[1].diags].count("G103") == 1
-    assert exit_status(res) == 1
+    assert exit_status(res) == 2
 
 
 def test_register_and_cli(write: Callable[[str, str], str], chart: str,
@@ -260,7 +260,7 @@ def test_register_and_cli(write: Callable[[str, str], str], chart: str,
     register(sub)
     bad = write("bad.yaml", CHART.replace("to: gsA, when", "to: gsB, when"))
     args = p.parse_args(["check", chart, bad])
-    assert args.func(args) == 1
+    assert args.func(args) == 2
     out = capsys.readouterr()
     lines = out.out.splitlines()
     assert len(lines) == 1 and ": error G103: " in lines[0] and lines[0].startswith(bad)
@@ -283,5 +283,5 @@ def test_plant_whose_chart_breaks_a_rule(write: Callable[[str, str], str]) -> No
             outputs: {oX: sim.Q0, oY: sim.Q1}
         """)
     res = check_files([path])
-    assert exit_status(res) == 1  # the chart's rule error, not a loading failure
+    assert exit_status(res) == 2  # the chart's rule error: an error, whoever finds it
     assert [d.code for r in res for d in r.diags] == ["G300", "G105"]
