@@ -95,7 +95,12 @@ def test_a_chart_without_bindings_descriptions_falls_back_on_the_chart(
 
 @pytest.mark.parametrize(("binding", "col", "words"), [
     ("{from: io.level, unit: CELSIUS}", 38, "unknown unit 'CELSIUS'"),
-    ("{from: io.level, unit: degc}", 38, "(did you mean 'deg'?)"),
+    # letter case and a plural first, each candidate with what it measures (a level is a
+    # length: 'cms' suggested 'ms' alone, 'degc' the angle 'deg')
+    ("{from: io.level, unit: degc}", 38, "(did you mean 'degC' (degree Celsius, a "
+                                         "temperature) or 'deg' (degree (angle), an angle)"),
+    ("{from: io.level, unit: cms}", 38, "(did you mean 'cm' (centimetre, a length) or 'ms' "
+                                        "(millisecond, a time)"),
     ("{from: io.level, range: [10, 0]}", 39, "range: expected low < high, found [10, 0]"),
     ("{from: io.level, range: [0, .inf]}", 39, "two finite numbers"),
     ("{from: io.level, range: 5}", 39, "expected [low, high]"),
