@@ -213,3 +213,30 @@ def test_softplc_iolist_with_units_and_ranges(tmp_path: Path,
     bad.write_text("instances: {}\nnonsense: 1\n", encoding="utf-8")
     assert main(["iolist", str(bad)]) == 2
     assert "unknown key 'nonsense'" in capsys.readouterr().err
+
+
+def test_an_output_may_be_bound_with_to(tmp_path: Path) -> None:
+    """``oBomba: {to: io.Q0}``: an output's value goes to its point (``from:`` stays
+    accepted, as every plant before wrote it)."""
+    iol = IOList(load_plant(str(plant(tmp_path, GOOD.replace(
+        "oBomba:  {from: io.Q0,", "oBomba:  {to: io.Q0,")))))
+    assert [(r.signal, r.direction, r.source) for r in iol.rows][-1] == (
+        "t1.oBomba", "out", "io.Q0")
+    assert iol.meaning("io.Q0").description == "<- t1.oBomba: bomba P1"
+
+
+@pytest.mark.parametrize(("bindings", "col", "words"), [
+    (GOOD.replace("iNivel:  {from: io.level,", "iNivel:  {to: io.level,"), 17,
+     "'to:' binds an output (its value goes to the point): an input's value comes from its "
+     "point: write 'from: io.level'"),
+    (GOOD.replace("oBomba:  {from: io.Q0,", "oBomba:  {from: io.Q0, to: io.Q1,"), 30,
+     "the binding of 'oBomba' names its point twice ('from:' and 'to:'): keep one"),
+    (GOOD.replace("oBomba:  {from: io.Q0,", "oBomba:  {"), 16,
+     "binding of 'oBomba' needs 'to: driver.point' (or 'from:')"),
+])
+def test_to_binds_outputs_only_and_once(tmp_path: Path, bindings: str, col: int,
+                                        words: str) -> None:
+    with pytest.raises(SourceError) as err:
+        load_plant(str(plant(tmp_path, bindings)))
+    assert err.value.loc.col == col, err.value
+    assert words in err.value.message, err.value
