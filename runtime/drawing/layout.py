@@ -17,7 +17,13 @@ import subprocess
 from collections import deque
 from dataclasses import dataclass, field
 
-from runtime.drawing.text import action_parts, condition_lines, seed_text, step_times, text_w
+from runtime.drawing.text import (
+    action_parts,
+    condition_lines,
+    expression_text,
+    step_times,
+    text_w,
+)
 from runtime.language.model import Grafcet
 
 
@@ -87,6 +93,7 @@ class Chart:
     tree: dict[str, str] = field(default_factory=dict)  # element -> the one it was
     # discovered from in the depth-first walk (the sequence it continues)
     follow_tree: bool = False  # primary_pred: that one first
+    notation: str = "written"  # conditions as the file wrote them, or "seed" (text.py)
 
     def fout(self, n: str) -> list[str]:
         return [c for c in self.out[n] if (n, c) not in self.back]
@@ -110,7 +117,7 @@ class Chart:
         return bool(self.out[t]) and all((t, d) in self.back for d in self.out[t])
 
 
-def build_chart(g: Grafcet, follow_tree: bool = False) -> Chart:
+def build_chart(g: Grafcet, follow_tree: bool = False, notation: str = "written") -> Chart:
     nodes: dict[str, Node] = {}
     actions: dict[str, list[tuple[str, list[str]]]] = {}
     cols: dict[str, tuple[float, float]] = {}
@@ -120,7 +127,7 @@ def build_chart(g: Grafcet, follow_tree: bool = False) -> Chart:
         w = max(64.0, text_w(s.name) + 22, text_w(step_times(s), TIMES_SIZE) + 16)
         right, height = w / 2, STEP_H
         if s.actions:
-            rows = [action_parts(a) for a in s.actions]
+            rows = [action_parts(a, notation) for a in s.actions]
             actions[s.name] = rows
             q = max(text_w(r[0], 11) for r in rows) + 12
             b = max(text_w(ln, 11) for r in rows for ln in r[1]) + 14
@@ -130,7 +137,7 @@ def build_chart(g: Grafcet, follow_tree: bool = False) -> Chart:
         nodes["s:" + s.name] = Node("s:" + s.name, w / 2, right, height)
     for k, t in enumerate(g.transitions):
         tid = f"t:{k}"
-        labels[tid] = condition_lines(seed_text(t.cond))
+        labels[tid] = condition_lines(expression_text(t.text, t.cond, notation))
         left = BAR_W / 2
         if t.name:
             names[tid] = t.name
@@ -153,7 +160,7 @@ def build_chart(g: Grafcet, follow_tree: bool = False) -> Chart:
     for k, m in macro_of_transition(g).items():
         nodes[f"t:{k}"].macro = m
     c = Chart(g, nodes, out, inc, back, dfs, actions, cols, labels, names, tree=tree,
-              follow_tree=follow_tree)
+              follow_tree=follow_tree, notation=notation)
     _layers(c)
     # a step's transitions, left to right: those that lead back up first (the lanes of the
     # ones leading higher further out), then the others in file order
