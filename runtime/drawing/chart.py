@@ -38,6 +38,7 @@ from runtime.drawing.layout import (
     CHAR_H,
     DROP_GAP,
     LINK_GAP,
+    LIVE_SIZE,
     STEP_H,
     TIMES_SIZE,
     TOP,
@@ -299,6 +300,8 @@ class Drawing:
             if times:  # supervision times, as a vendor's SFC editor shows them
                 self.svg.text(x, y + 11, times, TIMES_SIZE, "middle",
                               extra=' class="step-times"')
+            if c.live_room:  # the live page writes the step's time here, above the link
+                self.svg.text(x + w / 2 + 3, y - 4, "", LIVE_SIZE, extra=' class="live-t"')
             if st.name in self.active:  # top left, clear of the name and the times
                 self.svg.add(f'<circle cx="{x0 + 8:.1f}" cy="{y0 + 8:.1f}" r="2.5" '
                              'fill="black" class="token"/>')
@@ -309,7 +312,7 @@ class Drawing:
     def draw_actions(self, step: str, x_right: float, y: float) -> None:
         rows = self.c.actions[step]
         qw, bw = self.c.action_cols[step]
-        ax = x_right + ACTION_GAP
+        ax = x_right + self.c.live_room + ACTION_GAP
         total = sum(row_h(lines) for _, lines in rows)
         yy = y - total / 2
         self.svg.line([(x_right, y), (ax, y)])
@@ -406,8 +409,8 @@ def link_crossings(c: Chart, r: Routes) -> int:
                if a + 0.5 < x < b - 0.5 and lo + 0.5 < y < hi - 0.5)
 
 
-def laid_out(g: Grafcet, layout: str = "auto", notation: str = "written"
-             ) -> tuple[Chart, Routes, str]:
+def laid_out(g: Grafcet, layout: str = "auto", notation: str = "written",
+             live: bool = False) -> tuple[Chart, Routes, str]:
     """The chart placed and routed, and the layout used ("dot" or "python"). Each step goes
     under its nearest predecessor; if links then cross, it goes under the one the
     depth-first walk reached it from instead (the normal sequence, a link from higher up
@@ -419,7 +422,7 @@ def laid_out(g: Grafcet, layout: str = "auto", notation: str = "written"
                            "(apt-get install graphviz)")
     best: tuple[int, Chart, Routes] | None = None
     for follow in (False, True):
-        c = build_chart(g, follow_tree=follow, notation=notation)
+        c = build_chart(g, follow_tree=follow, notation=notation, live=live)
         r = arrange(c, dot_order(c, dot) if dot is not None else None)
         n = link_crossings(c, r)
         if best is None or n < best[0]:
@@ -433,10 +436,12 @@ def laid_out(g: Grafcet, layout: str = "auto", notation: str = "written"
 def chart_svg(g: Grafcet, active: set[str] | None = None, title: str = "",
               layout: str = "auto",
               legend: tuple[str, list[tuple[str, str, str]]] = ("", []),
-              notation: str = "written") -> tuple[str, str]:
+              notation: str = "written", live: bool = False) -> tuple[str, str]:
     """(SVG text, layout used: "dot" or "python"); ``legend``: its title and rows;
-    ``notation``: conditions as written or in the seed notation (text.py)."""
-    c, r, used = laid_out(g, layout, notation)
+    ``notation``: conditions as written or in the seed notation (text.py); ``live``: the
+    live page's drawing, with an empty ``text.live-t`` right of each step box (room kept
+    for it) where the page writes the active step's time."""
+    c, r, used = laid_out(g, layout, notation, live)
     return render(c, r, active or set(), title, legend), used
 
 
