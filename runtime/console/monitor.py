@@ -178,6 +178,9 @@ def run_screen(mon: Monitor) -> int:
         return int(curses.wrapper(main))
     except KeyboardInterrupt:
         return 0
+    except curses.error as exc:  # a terminal curses does not know (TERM), too small...
+        raise MonitorError(f"the terminal cannot show the screen ({exc}): use --once") \
+            from None
 
 
 def _draw(scr: Any, view: View, line: str, streaming: bool) -> None:

@@ -237,6 +237,19 @@ def test_the_screen_without_a_terminal_is_one_line(rig: Rig) -> None:
                        timeout=DEADLINE_S, cwd=ROOT, check=False)
     assert (r.returncode, r.stderr) == (2, "softplc monitor: error: not a terminal (a screen "
                                            "needs one): use --once\n"), r.stderr
+    # a terminal curses does not know: one line too
+    master, slave = os.openpty()
+    try:
+        p = subprocess.Popen([sys.executable, "-m", "runtime.cli", "monitor", rig.socket_path],
+                             stdin=slave, stdout=slave, stderr=subprocess.PIPE, text=True,
+                             cwd=ROOT, env={**os.environ, "TERM": "nosuchterm"})
+        os.close(slave)
+        _, err = p.communicate(timeout=DEADLINE_S)
+    finally:
+        os.close(master)
+    assert p.returncode == 1 and "Traceback" not in err, err
+    assert err.startswith("softplc monitor: error: the terminal cannot show the screen ("), err
+    assert err.endswith("): use --once\n") and err.count("\n") == 1, err
 
 
 def test_a_socket_not_found_is_looked_for_in_the_runtime_directory(tmp_path: Path) -> None:
