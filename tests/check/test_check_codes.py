@@ -617,7 +617,7 @@ def test_g209_bounded_exploration(write: Callable[[str, str], str],
     p = argparse.ArgumentParser(prog="softplc")
     register(p.add_subparsers(dest="command", required=True))
     args = p.parse_args(["check", "--limit", "50", "-q", path])
-    assert args.func(args) == 1  # G102 is an error
+    assert args.func(args) == 2  # G102 is an error
     assert "G209" in capsys.readouterr().out
 
 
