@@ -135,10 +135,12 @@ class Methods:
                 log.warning("opcua: %s.%s refused to %s: writers only", target, method, who)
                 return ua.StatusCode(ua.StatusCodes.BadUserAccessDenied)
             ok, text, code = await self.ps.ask("call", target, method, who)
-            log.info("opcua: %s called %s.%s: %s", who, target, method, text)
-            if not ok:
+            if not ok:  # the one line of a refusal (the controller logs only what it did)
+                log.info("opcua: %s called %s.%s: refused (%s): %s", who, target, method,
+                         code, text)
                 return ua.StatusCode(getattr(ua.StatusCodes, code,
                                              ua.StatusCodes.BadInvalidState))
+            log.info("opcua: %s called %s.%s: %s", who, target, method, text)
             return []
         return call
 
