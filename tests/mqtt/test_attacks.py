@@ -146,7 +146,8 @@ def test_the_newest_state_is_not_carried_to_the_next_session(tmp_path: Path) -> 
 def test_a_retained_command_is_refused_at_every_session(tmp_path: Path) -> None:
     """A DCMD published once with retain: before, the broker handed it to every new session
     of the node and it was applied each time (1, 2, 3 writes over 3 starts); now it is
-    refused with one warning line each time, and a command without retain still works."""
+    refused with one warning line each time, and a command without retain still works.
+    A retained NCMD Rebirth likewise (before: a rebirth at every start)."""
     with edge(tmp_path, trace=True, plc=REALTIME) as e:
         births_seen(e)
         watch = TraceWatch(tmp_path / "trace.jsonl")
@@ -161,6 +162,12 @@ def test_a_retained_command_is_refused_at_every_session(tmp_path: Path) -> None:
                 int(time.time() * 1000), [Command("Memory/sRate", None, DataType.DOUBLE,
                                                   2.5)]), retain=True, qos=1)
             wait_until(lambda: e.host.acks > acks, 20, "the retained DCMD sent")
+            acks = e.host.acks
+            e.host.raw(topic("NCMD"), command_payload(
+                int(time.time() * 1000), [Command("Node Control/Rebirth", None,
+                                                  DataType.BOOLEAN, True)]),
+                retain=True, qos=1)
+            wait_until(lambda: e.host.acks > acks, 20, "the retained NCMD sent")
             for k in range(3):
                 log = tmp_path / f"mqtt-{k}.log"
                 logs.append(log)
@@ -169,23 +176,30 @@ def test_a_retained_command_is_refused_at_every_session(tmp_path: Path) -> None:
                     births_seen(e, k + 2)
 
                     def seen(log: Path = log, k: int = k) -> bool:
-                        return ("refused" in log.read_text()
+                        return ("DCMD to t1 refused" in log.read_text()
                                 or ctl_log.read_text().count("mqtt: set t1.sRate") > k)
                     wait_until(seen, 20, "the retained DCMD applied or refused")
                     reports_go_on(e)
             writes = ctl_log.read_text().count("mqtt: set t1.sRate")
             refusals = [line for log in logs for line in log.read_text().splitlines()
                         if "refused" in line]
+            rebirths = [line for log in logs for line in log.read_text().splitlines()
+                        if "mqtt: rebirth" in line]
             assert writes == 0, f"{writes} writes of the retained DCMD over 3 starts"
-            assert len(refusals) == 3 and all("retain" in line for line in refusals), refusals
+            assert len([r for r in refusals if "DCMD to t1 refused: a retained" in r]) == 3, (
+                refusals)
+            # the retained NCMD: refused too (it was a rebirth at every start)
+            assert len([r for r in refusals if "NCMD refused: a retained" in r]) == 3, (
+                refusals, rebirths)
+            assert len(refusals) == 6 and rebirths == [], (refusals, rebirths)
             # the edge node serves on: a command without retain is applied
             e.mqtt = softplc("mqtt", str(e.plant), cwd=tmp_path, log=tmp_path / "mqtt.log")
             with processes(e.mqtt):
                 births_seen(e, 5)
                 e.host.command(topic("DCMD", "t1"), [("Memory/sStop", "BOOLEAN", True)])
                 e.host.wait(lambda _r: e.host.latest("t1", "Memory/sStop") is True, 20)
-                # (the retained one comes with this session too: refused once more)
-                wait_until(lambda: "refused" in e.log(), 20)
+                # (the retained ones come with this session too: refused once more)
+                wait_until(lambda: "DCMD to t1 refused" in e.log(), 20)
                 assert ctl_log.read_text().count("mqtt: set t1.sRate") == 0
         assert p.scans is not None
         held(p.scans, control, "retained DCMD")
@@ -212,14 +226,17 @@ def test_a_flood_of_rebirth_requests_is_folded(tmp_path: Path) -> None:
                                                               "BOOLEAN", True]],
                          "rate": 6000, "seconds": 2, "count": 300})
             wait_until(lambda: e.host.acks > acks, 30, "the flood sent")
-            reports_go_on(e, 20)  # some two seconds of reports after it
+            # the first request served at once, the others folded into one rebirth later
+            e.host.wait(lambda _r: len(e.host.of("NBIRTH")) >= births0 + 2, 20,
+                        "the folded rebirth")
+            reports_go_on(e, 20)  # a second or two of reports after it
             span = time.monotonic() - t0
         births = len(e.host.of("NBIRTH")) - births0
         dbirths = len([r for r in e.host.rows[rows0:] if r.get("kind") == "DBIRTH"])
         sys.stderr.write(f"rebirth flood: {births} NBIRTH, {dbirths} DBIRTH in {span:.1f} s "
                          f"({len(e.host.rows) - rows0} messages; {quiet_rows} before)\n")
-        assert 1 <= births <= span + 1, f"{births} NBIRTH in {span:.1f} s"
-        lines = [line for line in e.log().splitlines() if "rebirth" in line.lower()]
+        assert 2 <= births <= span + 1, f"{births} NBIRTH in {span:.1f} s"
+        lines = [line for line in e.log().splitlines() if "mqtt: rebirth" in line]
         assert len(lines) <= births + 1, lines
         assert p.scans is not None
         held(p.scans, control, "rebirth flood")
