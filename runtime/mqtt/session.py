@@ -406,11 +406,13 @@ class EdgeSession:
             return
         ahead = ts - int(self.node.clock() * 1000)
         if ahead > STATE_AHEAD_MAX_MS:
-            # one such STATE, taken, would make every real one look older
+            # one such STATE, taken, would make every real one look older; the line's
+            # template is fixed, so that the log's rate limit holds back a flood of them
             if not again:
-                _warn(f"mqtt: STATE of {self.q.primary_host} ignored: its timestamp {ts} is "
-                      f"{_ahead(ahead)} ahead of this machine's clock (at most "
-                      f"{STATE_AHEAD_MAX_MS // 1000} s; are both clocks set?)")
+                log.warning("mqtt: STATE of %s ignored: its timestamp %d is %s ahead of this "
+                            "machine's clock (at most %d s; are both clocks set?)",
+                            self.q.primary_host, ts, _ahead(ahead),
+                            STATE_AHEAD_MAX_MS // 1000)
             self._state_ahead = data
             return
         self._state_ahead = None

@@ -82,7 +82,8 @@ class TraceWatch:
             if self.rows:
                 return self.rows[-1][0]
             if time.monotonic() > end:
-                raise AssertionError(f"no trace rows in {self.path}")
+                size = self.path.stat().st_size if self.path.exists() else None
+                raise AssertionError(f"no trace rows in {self.path} ({size} bytes)")
             time.sleep(0.05)
 
     @contextmanager

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from runtime.controller.logsetup import RateLimit
 from runtime.language.plantfile import load_plant
 from runtime.mqtt.session import STATE_AHEAD_MAX_MS, EdgeSession, SessionEnded
 from tests.mqtt.kit import write_plant
@@ -78,3 +79,24 @@ def test_an_older_state_is_ignored_and_a_timestamp_must_be_an_integer(
     es._state(state(True, NOW_MS))
     es._state(state(False, NOW_MS - 5))  # a Will of an older connection of the host
     assert es.host_online
+
+
+def test_a_flood_of_forged_states_is_a_few_lines(tmp_path: Path) -> None:
+    """Each forged STATE carries its own timestamp: the line's template is fixed, so the
+    log's rate limit (5 lines of a template in 10 s) holds back a flood of them."""
+    es, _clock = session(tmp_path)
+    lines: list[str] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            lines.append(record.getMessage())
+    keep = Keep()
+    keep.addFilter(RateLimit())
+    logger = logging.getLogger("runtime.mqtt.session")
+    logger.addHandler(keep)
+    try:
+        for k in range(1000):
+            es._state(state(k % 2 == 0, (1 << 62) + k))
+    finally:
+        logger.removeHandler(keep)
+    assert len(lines) == 5 and not es.host_online, lines
