@@ -28,14 +28,20 @@ class Scans:
     late: int
     worst_ms: int
 
+    @property
+    def missed(self) -> float:
+        """Cycles the span should hold that did not run."""
+        return max(0.0, self.expected - self.cycles)
+
     def within(self, quiet: Scans) -> bool:
-        """Every cycle ran (95 % of the span's, as the console flood test holds it), and
-        no more late wake-ups per cycle than twice the quiet phase's, plus 5 per quiet
-        phase's length (a shared machine's own: its host takes the processors away now
-        and then, for tens of ms, whatever runs)."""
-        ratio = self.cycles / max(1, quiet.cycles)
-        return (self.cycles >= 0.95 * self.expected
-                and self.late <= (2 * quiet.late + 5) * max(1.0, ratio))
+        """No more cycles missed than twice the quiet phase's plus 5 % of its (every cycle
+        ran, as the console flood test holds it), and no more late wake-ups than twice
+        the quiet phase's plus 5; both per quiet phase's length (a shared machine's own
+        allowance: its host takes the processors away now and then, for tens of ms,
+        whatever runs)."""
+        scale = max(1.0, self.cycles / max(1, quiet.cycles))
+        return (self.missed <= (2 * quiet.missed + 0.05 * quiet.expected) * scale
+                and self.late <= (2 * quiet.late + 5) * scale)
 
 
 @dataclass

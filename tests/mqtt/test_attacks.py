@@ -21,6 +21,8 @@ import re
 import signal
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from runtime.mqtt.payload import Command, DataType, command_payload
@@ -33,8 +35,9 @@ from tests.mqtt.kit import (
     topic,
     wait_until,
 )
-from tests.mqtt.scans import Scans, TraceWatch
+from tests.mqtt.scans import Phase, Scans, TraceWatch
 from tests.mqtt.test_sparkplug import Edge, births_seen, edge
+from tests.opcua.feedkit import FeedReader
 
 #: the controller's scan thread as the installed service runs it
 REALTIME = ", realtime: {priority: 20}"
@@ -48,10 +51,21 @@ def quiet(e: Edge, watch: TraceWatch, seconds: float = QUIET_S) -> Scans:
     """The control phase: the edge node reporting, nothing attacking it."""
     n = len(e.host.rows)
     with watch.phase() as p:
-        time.sleep(seconds)
+        time.sleep(seconds)  # a measuring window
     assert len(e.host.rows) > n, f"no report in the quiet phase: {e.log()[-1500:]}"
     assert p.scans is not None
     return p.scans
+
+
+@contextmanager
+def attacked(watch: TraceWatch, at_least: float = QUIET_S) -> Iterator[Phase]:
+    """The attack's phase, measured for at least as long as the quiet one (the edge node
+    serving on meanwhile): a phase shorter than the control would hold one hiccup of the
+    shared machine against the attack."""
+    t0 = time.monotonic()
+    with watch.phase() as p:
+        yield p
+        time.sleep(max(0.0, at_least - (time.monotonic() - t0)))  # a measuring window
 
 
 def held(attack: Scans, control: Scans, what: str) -> None:
@@ -85,7 +99,7 @@ def test_a_retained_state_from_the_far_future_is_refused(tmp_path: Path) -> None
         watch = TraceWatch(tmp_path / "trace.jsonl")
         control = quiet(e, watch)
         where = "spBv1.0/STATE/SCADA"
-        with watch.phase() as p:
+        with attacked(watch) as p:
             acks = e.host.acks
             e.host.raw(where, state(True, FAR), retain=True, qos=1)
             wait_until(lambda: e.host.acks > acks, 20, "the forged STATE sent")
@@ -154,7 +168,7 @@ def test_a_retained_command_is_refused_at_every_session(tmp_path: Path) -> None:
         control = quiet(e, watch)
         ctl_log = tmp_path / "ctl.log"
         logs = []
-        with watch.phase() as p:
+        with attacked(watch) as p:
             e.mqtt.send_signal(signal.SIGTERM)
             e.mqtt.wait(timeout=20)
             acks = e.host.acks
@@ -218,7 +232,7 @@ def test_a_flood_of_rebirth_requests_is_folded(tmp_path: Path) -> None:
         watch = TraceWatch(tmp_path / "trace.jsonl")
         control = quiet(e, watch)
         quiet_rows = len(e.host.rows)
-        with watch.phase() as p:
+        with attacked(watch) as p:
             t0, rows0 = time.monotonic(), len(e.host.rows)
             births0 = len(e.host.of("NBIRTH"))
             acks = e.host.acks
@@ -259,26 +273,25 @@ def sn_seen(host: Host) -> dict[int, bool]:
     return out
 
 
-def missing(values: dict[int, bool], low: int, high: int) -> list[int]:
-    return [v for v in range(low, high + 1) if v not in values]
-
-
 def test_a_stalled_broker_loses_no_change(tmp_path: Path) -> None:
     """The broker accepts and then stalls (SIGSTOP, 10 s, then SIGCONT): before, some 4 s
     of changes were lost (neither live nor as history: 43 consecutive values of a counter);
     now the stall is seen (the broker does not answer), the session ends, and what was
     published since the broker last answered is sent again as history after the next
-    births: the host gets every value of t1's counter, live or as history, with every
-    sequence number right."""
+    births: every value of t1's counter that the controller's feed gave (a second client
+    of the feed, in this test, sees the same frames as the edge node) reaches the host,
+    live or as history, with every sequence number right. (A value the feed itself never
+    gave, its frames overwritten while the feed thread waited for a processor on this
+    loaded machine, is no fault of the edge node: counted apart.)"""
     with edge(tmp_path, primary=True, host_id="SCADA", mqtt=PRIMARY, host_keepalive=60,
               trace=True, plc=REALTIME) as e:
         births_seen(e)
+        fed = FeedReader(str(tmp_path / "feed.sock"))
         watch = TraceWatch(tmp_path / "trace.jsonl")
         control = quiet(e, watch)
-        seen0 = sn_seen(e.host)
-        first = max(seen0)
+        first = max(sn_seen(e.host))
         assert e.broker.proc is not None
-        with watch.phase() as p:
+        with attacked(watch) as p:
             e.broker.proc.send_signal(signal.SIGSTOP)
             try:
                 time.sleep(10.0)  # the attack's length
@@ -289,16 +302,28 @@ def test_a_stalled_broker_loses_no_change(tmp_path: Path) -> None:
             e.host.wait(lambda _r: e.host.latest("t1", "Memory/sN") is not None and int(
                 str(e.host.latest("t1", "Memory/sN"))) > first + 100, 30, "live again")
             last = int(str(e.host.latest("t1", "Memory/sN")))
+            index = fed.state.index["t1.sN"]
+
+            def given() -> set[int]:
+                return {int(vals[index]) for _s, _w, vals in list(fed.frames)
+                        if first <= int(vals[index]) <= last}
+
+            def lost() -> list[int]:
+                seen = sn_seen(e.host)
+                return sorted(v for v in given() if v not in seen)
             with contextlib.suppress(AssertionError):  # what is missing is said below
-                wait_until(lambda: len(missing(sn_seen(e.host), first, last)) <= 1, 20,
-                           "every value")
+                wait_until(lambda: not lost(), 20, "every value")
+        fed.close()
         seen = sn_seen(e.host)
-        lost = missing(seen, first, last)
+        with open(tmp_path / "host.jsonl", "w") as f:  # what the host saw, for a post-mortem
+            f.writelines(json.dumps(r) + "\n" for r in e.host.rows)
         history = [v for v in range(first, last + 1) if v in seen and not seen[v]]
-        sys.stderr.write(f"stalled broker: values {first}..{last}, lost {len(lost)} "
-                         f"{_runs(lost)}, {len(history)} only as history\n")
-        # at most one value a loaded machine's late frame hides (never the stall's)
-        assert len(lost) <= 1, f"lost {_runs(lost)}"
+        never = sorted(set(range(first, last + 1)) - given())
+        sys.stderr.write(f"stalled broker: values {first}..{last}, lost {len(lost())} "
+                         f"{_runs(lost())}, {len(history)} only as history; never given by "
+                         f"the feed {_runs(never)}\n")
+        assert lost() == [], f"lost {_runs(lost())}"
+        assert len(given()) >= 0.9 * (last - first + 1), f"the feed gave {_runs(never)}"
         assert history, "nothing came as history"
         assert e.problems() == []
         assert re.search(r"did not answer", e.log()), e.log()[-2000:]
