@@ -734,7 +734,7 @@ class _PouImporter:
         if ref is not None:
             name = ref.get("name") or ""
             return self._reference(a, where, q, dtext, name, plain(name, ref.loc))
-        body = self._statements(inline, where) if inline is not None else None
+        body = self._statements(inline, where, a.loc) if inline is not None else None
         if inline is None:
             self.note(a.loc, f"{where} left out: it has no reference and no inline body")
         if body is None:
@@ -747,7 +747,7 @@ class _PouImporter:
             return [self._text(body)]  # softplc's 'on EVENT do'
         return [self._text(compose([prefix + " ", body], a.loc))]
 
-    def _statements(self, body: Element, where: str) -> YStr | None:
+    def _statements(self, body: Element, where: str, at: Loc) -> YStr | None:
         """The statements of an action's body: its ST, or its FBD/LD network as ST (the
         comments of the network as ``//`` lines first); None if it cannot be read (noted)."""
         st = body.find("ST", PLCOPEN_NS)
@@ -776,8 +776,8 @@ class _PouImporter:
                 texts.append(line)
             return compose(texts, net.loc) if lines else plain("", net.loc)
         found = body.children[0].tag if body.children else None
-        self.note(body.loc, f"{where} left out: " + (
-            f"its body is written in {found} (softplc reads ST, FBD and LD)" if found else
+        self.note(at, f"{where} left out: " + (
+            f"it is written in {found} (softplc reads ST, FBD and LD)" if found else
             "its body is empty"))
         return None
 
@@ -802,7 +802,7 @@ class _PouImporter:
         if body_e is None:
             self.note(a.loc, f"{where}: action '{name}' left out: it has no body")
             return []
-        body = self._statements(body_e, f"{where}: action '{name}'")
+        body = self._statements(body_e, f"{where}: action '{name}'", a.loc)
         if body is None:
             return []
         if q in ("S", "R", "SD", "DS", "SL"):

@@ -108,6 +108,7 @@ class _Program:
                 self.declared[name.lower()] = (name, self.charts[kind].get("name") or "", v)
         self.instances: list[PlantInstance] = []
         self.wiring: dict[str, list[tuple[str, YStr]]] = {}  # instance -> (input, feed)
+        self.typed: set[str] = set()  # variables of derived types noted
 
     def read(self) -> list[PlantInstance]:
         body = self.pou.find("body", PLCOPEN_NS)
@@ -191,7 +192,7 @@ class _Program:
                 if var is not None:
                     inst.descriptions.setdefault(m.group(3), documentation(
                         var[1], lambda *a, **k: None, ""))
-            else:
+            elif "?" not in str(value):  # (a block left out is noted once, at the block)
                 self.note(target.loc, f"program '{self.name}': '{target} := {value}' left "
                                       "out (a plant binds chart instances; it has no "
                                       "statements)", True)
@@ -206,6 +207,7 @@ class _Program:
                 var = self.variables.get(m.group(2).lower()) if m and not m.group(3) else None
                 if m and var is not None:
                     key = var[0].lower()
+                    self._typed(var)
                     if key in fed:
                         inst.inputs[param] = Wire(link=fed[key], invert=invert)
                     else:
@@ -218,6 +220,17 @@ class _Program:
                                     f"'{text}' in program '{self.name}': bound to a point of "
                                     "its own (a binding reads a point or another instance's "
                                     "signal)", True)
+
+    def _typed(self, var: tuple[str, Element]) -> None:
+        """A variable of a type of its own (an HMI's, a structure) wired to an instance: a
+        point of the plant, what its type adds left out (said once)."""
+        t = var[1].find("type", PLCOPEN_NS)
+        d = t.find("derived", PLCOPEN_NS) if t is not None else None
+        if d is not None and var[0] not in self.typed:
+            self.typed.add(var[0])
+            self.note(var[1].loc, f"variable '{var[0]}' of program '{self.name}' is a point of "
+                                  f"the plant: what its type {d.get('name')} adds is left out",
+                      True)
 
     def _said(self, name: str, var: tuple[str, Element] | None) -> str:
         """The note beside a binding: the program's variable and its address."""
