@@ -42,7 +42,8 @@ def plant_text(path: str, result: ImportResult, files: dict[str, str]) -> str:
         "and output of the imported charts bound to simulated I/O (driver sim), so that",
         "softplc simulate and softplc run --sim work at once. Bind them to real points",
         "(docs/language.md, \"The plant file\"; docs/drivers.md). Once edited, softplc",
-        "import never overwrites this file (--chart-only updates the charts alone)."])
+        "import never overwrites this file (--chart-only updates the charts alone).",
+        *(f"Comment of program {c}" for c in result.plan.comments)])
     return text + f"{FINGERPRINT}{_digest(text)}\n"
 
 

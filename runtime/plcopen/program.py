@@ -26,7 +26,8 @@ from runtime.plcopen.globalvars import Global
 from runtime.plcopen.interface import documentation
 from runtime.plcopen.network import Network, NotCarried
 from runtime.plcopen.schema import PLCOPEN_NS
-from runtime.plcopen.texts import plain
+from runtime.plcopen.sfcgraph import position
+from runtime.plcopen.texts import formatted, plain
 from runtime.plcopen.xmltree import Element
 
 #: told of what is left out or changed: (place, message, lost)
@@ -59,6 +60,7 @@ class PlantInstance:
 class Plan:
     instances: list[PlantInstance] = field(default_factory=list)
     cycle_ns: int | None = None
+    comments: list[str] = field(default_factory=list)  # the programs' comments, one line each
 
 
 def task_of(root: Element) -> dict[str, tuple[str, int | None, Element]]:
@@ -109,6 +111,7 @@ class _Program:
         self.instances: list[PlantInstance] = []
         self.wiring: dict[str, list[tuple[str, YStr]]] = {}  # instance -> (input, feed)
         self.typed: set[str] = set()  # variables of derived types noted
+        self.comments: list[str] = []
 
     def read(self) -> list[PlantInstance]:
         body = self.pou.find("body", PLCOPEN_NS)
@@ -124,6 +127,14 @@ class _Program:
                                  "inputs are bound to points of their own", True)
                 self.instances.append(PlantInstance(self.prefix + name, pou))
             return self.instances
+        for c in sorted((c for c in net_e.children if c.tag == "comment"),
+                        key=lambda c: (position(c)[1], position(c)[0])):
+            content = c.find("content", PLCOPEN_NS)
+            text = " ".join(str(formatted(content)).split()) if content is not None else ""
+            if text:
+                self.comments.append(f"{self.name}: {text}")
+                self.note(c.loc, f"localId {c.get('localId')}: comment of program "
+                                 f"'{self.name}' kept as a comment of the plant", False)
         resolve = {(p.get("name") or "").upper(): self.block for p in self.charts.values()}
         net = Network(net_e, resolve=resolve, other=self.other)
         try:
@@ -260,6 +271,7 @@ def plan(root: Element, pous: list[Element], charts: dict[str, Element],
         if prefix:
             prog.prefix = f"{task[0] if task else name}_"
         out.instances += prog.read()
+        out.comments += prog.comments
         if task is not None and task[1]:
             cycles.append((task[1], task[2].loc))
     taken = {i.pou.lower() for i in out.instances}

@@ -55,12 +55,18 @@ def _plain(value: Any, key: str = "") -> Any:
     if isinstance(value, YList) or isinstance(value, list):
         items = [_plain(v, "transition" if key == "transitions" else "") for v in value]
         if key in ("inputs", "outputs", "timers", "from", "to") and all(
-                _short(v) for v in items):
+                _short(v) and not _nested(v) for v in items):
             return _FlowList(items)
         return items
     if isinstance(value, str):
         return str(value)
     return value
+
+
+def _nested(v: Any) -> bool:
+    """A mapping holding a mapping (a signal with its description): written in block
+    style."""
+    return isinstance(v, dict) and any(isinstance(x, dict) for x in v.values())
 
 
 def _short(v: Any) -> bool:
@@ -90,7 +96,7 @@ def plant_yaml(instances: list[tuple[PlantInstance, str, list[Signal], list[Sign
     bound to it; one wired to a variable of the program reads that variable's point (shared
     by its readers); the others have a point of their own. The sim driver's points are bits
     by any name and numbers on IR.../HR... (drivers/registry.py)."""
-    out = [f"# {h}" for h in header]
+    out = [f"# {_line(h)}" for h in header]
     out += ["plc:", f"  cycle: {format_ns(cycle_ns or 10_000_000)}", "drivers:",
             "  sim: {type: sim}", "instances:"]
     count = {"I": 0, "Q": 0, "IR": 0, "HR": 0}
