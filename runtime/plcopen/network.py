@@ -275,6 +275,9 @@ class Network:
         after the calls of the blocks it reads."""
         ordered, outputs, blocks = [], [], []
         for ref, e in self.elements.items():
+            if e.tag in ("jump", "label", "return", "vendorElement"):
+                raise NotCarried(e.loc, f"localId {ref}: a {e.tag}: softplc's statements "
+                                        "have no jumps, labels or returns; write it in ST")
             if e.tag not in ("outVariable", "inOutVariable", "coil", "block"):
                 continue
             n = _order(e)
