@@ -415,3 +415,26 @@ def test_encodings_of_the_editors(tmp_path: Path, declaration: str, encoding: st
     g = import_file(str(p)).charts[0].grafcet
     assert g.transitions[0].text == "Señal"
     assert [v.name for v in g.inputs] == ["Señal", "b", "c"]
+
+
+@pytest.mark.parametrize(("qualifier", "duration"), [("L", None), ("D", None), ("D", ""),
+                                                     ("SD", None)])
+def test_a_timed_qualifier_without_a_duration_is_an_error(
+        tmp_path: Path, qualifier: str, duration: str | None) -> None:
+    """IEC 61131-3 times L, D, SD, DS and SL: without a duration the association has no
+    meaning (was: left out with a warning, exit status 0)."""
+    text = MIXER.read_text(encoding="utf-8")
+    was = '<action localId="0" qualifier="D" duration="T#1s">'
+    now = f'<action localId="0" qualifier="{qualifier}"' + (
+        f' duration="{duration}">' if duration is not None else ">")
+    assert was in text
+    xml = tmp_path / "m.xml"
+    xml.write_text(text.replace(was, now), encoding="utf-8")
+    with pytest.raises(SourceError) as e:
+        import_file(str(xml))
+    assert e.value.loc.line == 1 + text.splitlines().index(
+        next(ln for ln in text.splitlines() if was in ln))
+    assert e.value.message == (
+        f"localId 12 (action block of step 'Heating'), action 2: qualifier {qualifier} "
+        f"without a duration: IEC 61131-3 times {qualifier} (expected duration=\"T#2s\" or "
+        "another time)")
