@@ -90,17 +90,17 @@ def main() -> int:
                 f"{we:>9.3f} {ce:>7.3f} {wi:>9.3f} {ci:>7.3f}")
     out("")
     out(f"{'test file':<24} {'kB':>5} {'charts':>6} {'import s':>9} {'(cpu)':>7}")
-    for xpath in sorted(DATA.glob("*.xml"), key=lambda p: p.stat().st_size):
+    for data in sorted(DATA.glob("*.xml"), key=lambda p: p.stat().st_size):
         def whole() -> int:
-            result = import_file(str(xpath))  # noqa: B023 - run at once
+            result = import_file(str(data))  # noqa: B023 - run at once
             files = chart_files(result)
-            for c in result.charts:
-                yaml_text(str(xpath), c)  # noqa: B023
-            plant_text(str(xpath), result, files)  # noqa: B023
+            for chart in result.charts:
+                yaml_text(str(data), chart)  # noqa: B023
+            plant_text(str(data), result, files)  # noqa: B023
             return len(result.charts)
 
         w, c, n = best(whole, args.repeat)
-        out(f"{xpath.name:<24} {xpath.stat().st_size / 1000:>5.0f} {n:>6} {w:>9.3f} {c:>7.3f}")
+        out(f"{data.name:<24} {data.stat().st_size / 1000:>5.0f} {n:>6} {w:>9.3f} {c:>7.3f}")
     return 0
 
 

@@ -641,7 +641,7 @@ class _PouImporter:
                     if point is None:
                         raise SourceError(e.loc, f"{what}: its {e.tag} is not connected")
                     network = Network(net, self.fbs)
-                    text = self._carried(lambda: network.point(point))
+                    text = self._carried(lambda: network.point(point))  # noqa: B023 - now
                     self.calls += network.program
                     for c in net.children:
                         if c.tag == "comment":

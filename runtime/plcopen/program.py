@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from drivers.durations import parse_literal, strip_time_prefix
-from runtime.errors import Loc
+from runtime.errors import Loc, SourceError
 from runtime.language.lexer import KEYWORDS, is_name
 from runtime.language.yamlsrc import YStr
 from runtime.plcopen.globalvars import Global
@@ -161,6 +161,10 @@ class _Program:
                 self.note(e.loc, f"localId {ref}: block {e.get('typeName')} '{raw}' left out: "
                                  f"program '{self.name}' declares no such instance", True)
                 return plain("?", e.loc)
+            if not _is_name(name):
+                raise SourceError(e.loc, f"localId {ref}: instance '{name}' of program "
+                                         f"'{self.name}': expected a name (letters, digits "
+                                         "and '_') for the plant's instance")
             inst = PlantInstance(self.prefix + name, decl[1])
             self.instances.append(inst)
             feeds = []
