@@ -23,7 +23,8 @@ from runtime.controller.alarms import alarm_lines
 from runtime.engine.names import CommandError, printable
 from runtime.errors import suggest
 from runtime.language import ast as A
-from runtime.language.iolist import Meaning, sfcerror_cause
+from runtime.language.flagtexts import sfcerror_cause
+from runtime.language.iolist import Meaning
 
 if TYPE_CHECKING:
     from runtime.console.session import Session

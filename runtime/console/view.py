@@ -12,7 +12,7 @@ from typing import Any
 
 from runtime.console.client import LOG_LINES, ConsoleClient, reply_timeout
 from runtime.controller.alarms import alarm_lines
-from runtime.language.iolist import sfcerror_cause
+from runtime.language.flagtexts import sfcerror_cause
 
 #: two starts of the controller estimated this far apart are two runs of it, seconds (each
 #: estimate is exact to the time a ``status`` takes, plus the 1 ms of its rounding)

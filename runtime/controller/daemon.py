@@ -48,7 +48,7 @@ from runtime.engine.commands import CommandRefused
 from runtime.engine.plant import Plant
 from runtime.engine.trace import trace_columns
 from runtime.errors import Loc, SourceError
-from runtime.language.iolist import sfcerror_cause
+from runtime.language.flagtexts import sfcerror_cause
 from runtime.language.model import DEFAULT_REALTIME_PRIORITY, PlantDef
 from runtime.language.runtimedir import locate
 from runtime.language.safefile import UnfitFile, read_bounded

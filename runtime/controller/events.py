@@ -23,7 +23,7 @@ from typing import Any
 from drivers.durations import format_ns
 from runtime.controller.stats import ScanStats
 from runtime.engine.plant import Plant
-from runtime.language.iolist import sfcerror_cause
+from runtime.language.flagtexts import sfcerror_cause
 
 log = logging.getLogger(__name__)
 

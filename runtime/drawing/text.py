@@ -49,7 +49,7 @@ def expression_text(written: str, node: A.Node, notation: str = "written") -> st
     ``node`` in the seed's notation."""
     if notation == "seed":
         return seed_text(node)
-    return " ".join(_COMMENT.sub(" ", written).split())
+    return " ".join(_COMMENT.sub(" ", written).split()) or seed_text(node)
 
 
 # -- the seed notation -----------------------------------------------------------------------
@@ -209,11 +209,11 @@ def wrap(words: list[str], width: int, lead: int = 0) -> list[str]:
 
 
 def condition_lines(text: str, width: int = LINE_CHARS) -> list[str]:
-    """A condition on one line, or split after its ``·``/``+`` (before its ``AND``/``OR``)
-    when too long (3 lines at most)."""
+    """A condition on one line, or split after its ``·``/``+`` (``AND``/``OR``) when too
+    long (3 lines at most)."""
     if len(text) <= width:
         return [text]
-    pieces = re.split(r"(?<=·)|(?<= \+ )|(?= AND )|(?= OR )", text)
+    pieces = re.split(r"(?<=·)|(?<= \+ )|(?<= AND )|(?<= OR )", text)
     lines = [""]
     for p in pieces:
         if lines[-1] and len(lines[-1]) + len(p) > width:

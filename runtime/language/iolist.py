@@ -38,6 +38,7 @@ from typing import Any
 
 from runtime.errors import Loc, SourceError
 from runtime.language import ast as A
+from runtime.language.flagtexts import FLAG_TEXT, HEALTH_TEXT
 from runtime.language.grafcetfile import description_text, expect_type
 from runtime.language.model import Binding, InstanceDef, PlantDef
 from runtime.language.units import MILLISECOND, Unit, find_unit, suggest_unit
@@ -45,30 +46,7 @@ from runtime.language.yamlsrc import YList, YMap
 
 #: the I/O list's keys of a binding (beside ``from`` and ``invert``)
 IO_KEYS = ("description", "unit", "range")
-#: what the chart flags and the driver health mean (the language's own, not the plant's)
-FLAG_TEXT = {
-    "SFCInit": "while true: the chart is held in its initial situation",
-    "SFCReset": "while true: the chart is reset to its initial situation",
-    "SFCPause": "while true: the chart is paused (no transition fires)",
-    "SFCError": "set by a step over its max time, until acknowledged",
-    "SFCErrorStep": "the step that set SFCError",
-    "SFCEnableLimit": "max time supervision on (default true)",
-    "SFCQuitError": "while true: SFCError cleared and the chart paused",
-    "SFCTipMode": "while true: the chart steps only on SFCTip",
-    "SFCTip": "in tip mode: one step per rising edge",
-    "SFCCurrentStep": "the active step (the first, in file order)",
-}
-HEALTH_TEXT = "true while the driver is healthy"
 
-
-def sfcerror_cause(step: str, about: str = "") -> str:
-    """Who set an instance's SFCError, as every display says it (the log, the alarms, the
-    console and the monitor, the OPC UA events): ``set by step NAME`` (``about``, the step's
-    description, in brackets) when a step over its max time set it, ``set by the chart``
-    when SFCErrorStep is empty (the chart, or a write to the flag, set it)."""
-    if not step:
-        return "set by the chart"
-    return f"set by step {step}" + (f" ({about})" if about else "")
 
 
 @dataclass(frozen=True, slots=True)
