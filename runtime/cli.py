@@ -11,7 +11,7 @@ import stat
 import sys
 import time
 from collections.abc import Awaitable, Callable, Iterator, Sequence
-from typing import IO, Any
+from typing import IO, Any, NoReturn
 
 from runtime import package_version
 from runtime.errors import Loc, SoftplcError, SourceError
@@ -252,7 +252,9 @@ def _side_plant(path: str, section: str, doing: str) -> Any:
 
 
 def _missing_extra(exc: ImportError, extra: str) -> ImportError:
-    return ImportError(f"{exc}: install the {extra} extra (pip install 'softplc[{extra}]')")
+    from drivers.registry import install_hint
+
+    return ImportError(f"{exc}: install the {extra} extra: {install_hint(extra)}")
 
 
 def _until_signal(serve: Callable[[Any], Awaitable[None]]) -> None:
@@ -717,11 +719,27 @@ MODULE_COMMANDS = {
 }
 
 
+def _unrecognized(parser: argparse.ArgumentParser, args: argparse.Namespace,
+                  rest: list[str]) -> NoReturn:
+    """Exit 2 with the usage of the command ``args`` is for and what was left over; a file
+    left over by a command that takes ``--script`` is pointed there."""
+    command = parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            command = action.choices.get(args.command, parser)
+    hint = ""
+    if len(rest) == 1 and not rest[0].startswith("-") and getattr(args, "script", 0) is None:
+        hint = f" (a script is given with --script: --script {rest[0]})"
+    command.error(f"unrecognized arguments: {' '.join(rest)}{hint}")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     if argv is None:
         argv = sys.argv[1:]
     parser = build_parser(argv)
-    args = parser.parse_args(argv)
+    args, rest = parser.parse_known_args(argv)
+    if rest:  # said by the command's own parser: its usage, not every command's
+        _unrecognized(parser, args, rest)
     from runtime.controller.logsetup import setup_logging
 
     setup_logging(args.verbose)

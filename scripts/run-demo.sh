@@ -8,8 +8,8 @@
 # (WEB_LISTEN=HOST:PORT to change it; log in as demo, password demo, to act). The script
 # prints the socket's path, the command for a second terminal, e.g.
 #     .venv/bin/softplc monitor /run/user/1000/softplc/drawer.sock
-# and the page's address. Stop with Ctrl-C (every output is written off; the page's
-# process stops with it). Extra arguments go to `softplc run` (e.g. --for 30s).
+# and the page's address once softplc web listens. Stop with Ctrl-C (every output is
+# written off; the page's process stops with it). Extra arguments go to `softplc run` (e.g. --for 30s).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh web
@@ -20,8 +20,19 @@ from runtime.language.plantfile import load_plant
 from runtime.language.runtimedir import locate
 print(locate(load_plant(sys.argv[1])).console)' "$plant")
 echo "run-demo: console on $sock; in a second terminal: .venv/bin/softplc monitor $sock" >&2
-.venv/bin/softplc web "$plant" --listen "$listen" &
+# softplc web's log passed on, and the page's address said once it listens: the line it
+# logs then names the port it has (a browser opened at once is not refused)
+announce() {
+  local line
+  while IFS= read -r line; do
+    printf '%s\n' "$line" >&2
+    if [[ $line =~ is\ at\ (https?://[^[:space:]]+/) ]]; then
+      echo "run-demo: the live page on ${BASH_REMATCH[1]} (softplc web; user demo," \
+           "password demo)" >&2
+    fi
+  done
+}
+.venv/bin/softplc web "$plant" --listen "$listen" 2> >(announce) &
 web=$!
 trap 'kill -TERM $web 2>/dev/null; wait $web 2>/dev/null || true' EXIT
-echo "run-demo: the live page on http://$listen/ (softplc web; user demo, password demo)" >&2
 .venv/bin/softplc run "$plant" --sim --script configs/drawer_tester/story.yaml "$@"

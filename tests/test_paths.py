@@ -249,8 +249,10 @@ def test_run_uses_the_private_runtime_dir(tmp: Path) -> None:
     assert mode(rdir) == 0o700 and (rdir / "r.json").exists()
 
 
-def test_the_demo_script_prints_the_socket_it_opens(tmp: Path) -> None:
-    """scripts/run-demo.sh as shipped, its venv set-up replaced by the existing .venv."""
+def demo_tree(tmp: Path) -> tuple[Path, dict[str, str]]:
+    """scripts/run-demo.sh as shipped in a tree of ``tmp``, its venv set-up replaced by the
+    existing .venv; the environment to run it in (runtime directory below ``tmp``, the page
+    on any free port)."""
     tree = tmp / "tree"
     (tree / "scripts").mkdir(parents=True)
     shutil.copy(ROOT / "scripts" / "run-demo.sh", tree / "scripts" / "run-demo.sh")
@@ -262,6 +264,12 @@ def test_the_demo_script_prints_the_socket_it_opens(tmp: Path) -> None:
            if k not in ("RUNTIME_DIRECTORY", "XDG_RUNTIME_DIR")}
     env["TMPDIR"] = str(tmp)
     env["WEB_LISTEN"] = "127.0.0.1:0"  # any free port (the demo's is 8080)
+    return tree, env
+
+
+def test_the_demo_script_prints_the_socket_it_opens(tmp: Path) -> None:
+    """scripts/run-demo.sh as shipped, its venv set-up replaced by the existing .venv."""
+    tree, env = demo_tree(tmp)
     r = subprocess.run([str(tree / "scripts" / "run-demo.sh"), "--for", "4s"],
                        capture_output=True, text=True, timeout=120, env=env)
     sock = f"{tmp}/softplc-{os.geteuid()}/drawer.sock"
@@ -270,6 +278,33 @@ def test_the_demo_script_prints_the_socket_it_opens(tmp: Path) -> None:
            f"{sock}\n" in r.stderr
     assert f"console listening on {sock} (trusted)" in r.stderr
     # softplc web beside it: it said where its page is, followed the feed, and stopped
-    assert "run-demo: the live page on http://127.0.0.1:0/" in r.stderr
-    assert re.search(r"web: the page of \S+ is at http://127\.0\.0\.1:\d+/", r.stderr), r.stderr
+    at = re.search(r"web: the page of \S+ is at (http://127\.0\.0\.1:\d+/)", r.stderr)
+    assert at, r.stderr
+    assert f"run-demo: the live page on {at.group(1)} " in r.stderr
     assert "connected to the controller's feed" in r.stderr
+
+
+def test_the_demo_script_says_the_page_s_address_once_it_listens(tmp: Path) -> None:
+    """A browser opened at the address run-demo.sh prints gets the page: the address is
+    printed once ``softplc web`` listens, the port it listens on (it was printed before
+    softplc web started: the port of --listen, 0 here, a browser opened at once refused)."""
+    import urllib.request
+
+    tree, env = demo_tree(tmp)
+    p = subprocess.Popen([str(tree / "scripts" / "run-demo.sh"), "--for", "20s"],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
+    seen: list[str] = []
+    try:
+        assert p.stderr is not None
+        for line in p.stderr:
+            seen.append(line)
+            m = re.match(r"run-demo: the live page on (\S+) ", line)
+            if m:
+                with urllib.request.urlopen(m.group(1), timeout=10) as page:  # noqa: S310
+                    assert page.status == 200 and b"softplc" in page.read()
+                break
+        else:
+            raise AssertionError("".join(seen))
+    finally:
+        p.terminate()
+        p.wait(timeout=60)

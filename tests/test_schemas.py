@@ -250,6 +250,12 @@ set:
 """
 
 
+def test_an_output_bound_with_to_validates() -> None:
+    doc = {**MINIMAL_PLANT, **y("""\
+        instances: {t1: {grafcet: g.yaml, outputs: {oA: {to: sim.Q0, invert: true}}}}""")}
+    assert not errors("plant", doc), errors("plant", doc)
+
+
 @pytest.mark.parametrize("kind, text", [("grafcet", SPEC_GRAFCET), ("plant", SPEC_PLANT),
                                         ("script", SPEC_SCRIPT)])
 def test_contract_examples_validate(kind: str, text: str) -> None:
@@ -357,6 +363,9 @@ PLANT_BAD = {
     "binding without from": "instances: {t1: {grafcet: g.yaml, inputs: {iA: {invert: true}}}}",
     "binding unknown key": """\
         instances: {t1: {grafcet: g.yaml, outputs: {oA: {from: sim.Q0, negate: true}}}}""",
+    "input bound with to": "instances: {t1: {grafcet: g.yaml, inputs: {iA: {to: sim.I0}}}}",
+    "output bound with from and to": """\
+        instances: {t1: {grafcet: g.yaml, outputs: {oA: {from: sim.Q0, to: sim.Q1}}}}""",
     "monitor unknown key": "monitor: {telnet: 23}",
     "monitor serial without port": "monitor: {serial: {baudrate: 115200}}",
     "monitor trusted not a bool": "monitor: {socket: {path: /tmp/s.sock, trusted: 1}}",
@@ -455,6 +464,8 @@ def test_the_schemas_know_every_key_the_loader_reads() -> None:
                                                       "overruns")),
         "instance": (pf.INSTANCE_KEYS, ("plant", "$defs", "instance")),
         "binding": (pf.BINDING_KEYS, ("plant", "$defs", "binding", "oneOf", 1)),
+        "output binding": (pf.OUTPUT_BINDING_KEYS, ("plant", "$defs", "outputBinding", "oneOf",
+                                                    1)),
         "grafcet": (grafcetfile.GRAFCET_KEYS, ("grafcet",)),
         "step": (grafcetfile.STEP_KEYS, ("grafcet", "$defs", "innerStep")),
         "transition": (grafcetfile.TRANSITION_KEYS, ("grafcet", "$defs", "transition")),

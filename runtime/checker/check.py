@@ -278,11 +278,11 @@ def check_files(paths: Iterable[str], limit: int = LIMIT,
 
 
 def exit_status(results: Iterable[FileResult]) -> int:
+    """2 if any file has an error (a loading error or a rule's), as every command exits on
+    an error in a file; else 0: warnings and notes never change it."""
     results = list(results)
-    if any(r.failure for r in results):
+    if any(r.failure or any(d.severity == "error" for d in r.diags) for r in results):
         return 2
-    if any(d.severity == "error" for r in results for d in r.diags):
-        return 1
     return 0
 
 

@@ -23,6 +23,7 @@ from runtime.controller.alarms import alarm_lines
 from runtime.engine.names import CommandError, printable
 from runtime.errors import suggest
 from runtime.language import ast as A
+from runtime.language.flagtexts import sfcerror_cause
 from runtime.language.iolist import Meaning
 
 if TYPE_CHECKING:
@@ -107,7 +108,7 @@ def cmd_status(session: Session, args: list[str]) -> Reply:
     lines += [f"{n}: {' '.join(s) or '(no active step)'}"
               + (f" (held by {', '.join(held[n])})" if n in held else "")
               for n, s in data["steps"].items()]
-    lines += [f"SFCError {n}: step {s}" for n, s in data["errors"].items()]
+    lines += [f"SFCError {n}: {sfcerror_cause(s)}" for n, s in data["errors"].items()]
     lines += [f"forced {k}={v}" for k, v in data["forced"].items()]
     lines += alarm_lines(data.get("alarms", []))
     lines += [f"fault at {_clock_text(f['time'])}: {f['reason']}" for f in data["faults"]]

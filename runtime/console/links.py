@@ -17,11 +17,14 @@ from enum import Enum
 from typing import Protocol
 
 from runtime.errors import SoftplcError
+from runtime.language.runtimedir import PLACEHOLDER, SERVICE_RUNTIME, runtime_dir
 
 #: how long a command may take before the controller is considered silent, seconds
 REQUEST_TIMEOUT_S = 5.0
 
 _TCP = re.compile(r"^(?:\[?[\w.:-]*\]?):(\d+)$")
+#: at most this many sockets of the runtime directory named when the one asked is not there
+SOCKETS_NAMED = 5
 
 
 class MonitorError(SoftplcError):
@@ -153,7 +156,8 @@ class Target:
         if mode is None and _TCP.match(text):
             return cls(LinkKind.TCP, text, baudrate)
         if mode is None:
-            raise MonitorError(f"{text}: no such socket or serial port (or HOST:PORT for TCP)")
+            raise MonitorError(f"{text}: no such socket or serial port (or HOST:PORT for "
+                               f"TCP){_where_to_look(text)}")
         return cls(LinkKind.SERIAL, text, baudrate)
 
     def open(self, timeout: float = REQUEST_TIMEOUT_S) -> Link:
@@ -181,6 +185,42 @@ class Target:
 def open_link(target: str, baudrate: int = 115200) -> Link:
     """A link to ``target`` as ``Target.parse`` reads it."""
     return Target.parse(target, baudrate).open()
+
+
+def _is_socket(path: str) -> bool:
+    try:
+        return stat.S_ISSOCK(os.stat(path).st_mode)
+    except OSError:
+        return False
+
+
+def _where_to_look(text: str) -> str:
+    """Where a controller's console socket would be, for a path that is not there: the
+    ``${RUNTIME_DIR}`` of a plant run by hand (the socket of that name there, or those
+    there), or an installed plant's runtime directory holding a socket of that name."""
+    if text.startswith("/dev/"):
+        return ""  # a serial port
+    rdir = runtime_dir()
+    name = os.path.basename(text)
+    mine = os.path.abspath(text)
+    try:
+        installed = sorted(os.path.join(SERVICE_RUNTIME, d, name)
+                           for d in os.listdir(SERVICE_RUNTIME))
+    except OSError:
+        installed = []
+    found = [p for p in [os.path.join(rdir, name), *installed] if p != mine and _is_socket(p)]
+    where = (f"; a controller started by hand makes its console socket in {PLACEHOLDER}, "
+             f"here {rdir} (its log says 'console listening on PATH')")
+    if found:
+        return f"{where}: did you mean {found[0]}?"
+    try:
+        there = sorted(e for e in os.listdir(rdir) if _is_socket(os.path.join(rdir, e)))
+    except OSError:
+        there = []
+    if not there:
+        return f"{where}: no socket there now"
+    more = f" and {len(there) - SOCKETS_NAMED} more" if len(there) > SOCKETS_NAMED else ""
+    return f"{where}: sockets there: {', '.join(there[:SOCKETS_NAMED])}{more}"
 
 
 def _why(exc: Exception) -> str:

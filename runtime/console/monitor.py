@@ -178,6 +178,9 @@ def run_screen(mon: Monitor) -> int:
         return int(curses.wrapper(main))
     except KeyboardInterrupt:
         return 0
+    except curses.error as exc:  # a terminal curses does not know (TERM), too small...
+        raise MonitorError(f"the terminal cannot show the screen ({exc}): use --once") \
+            from None
 
 
 def _draw(scr: Any, view: View, line: str, streaming: bool) -> None:
@@ -225,6 +228,10 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     if interval is not None and interval < MIN_REFRESH_S:
         sys.stderr.write(f"softplc monitor: error: --interval {interval:g} is under "
                          f"{MIN_REFRESH_S:g} s (the console runs at most 50 lines/s)\n")
+        return 2
+    if not args.once and not (sys.stdin.isatty() and sys.stdout.isatty()):
+        sys.stderr.write("softplc monitor: error: not a terminal (a screen needs one): use "
+                         "--once\n")
         return 2
     try:
         target = Target.parse(address, args.baudrate)

@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING, Any
 from drivers.base import Health
 from drivers.durations import format_ns
 from runtime.errors import SoftplcError
+from runtime.language.flagtexts import sfcerror_cause
 from runtime.language.iolist import IOList
 
 if TYPE_CHECKING:
@@ -292,8 +293,8 @@ class AlarmBoard:
                 want[f"{name}.{step}.maxtime"] = (f"{who}: step {about} over its max time "
                                                   f"{format_ns(maxes[step])}")
             else:
-                want[f"{name}.SFCError"] = (f"{who}: SFCError" +
-                                            (f", step {about}" if step else ""))
+                want[f"{name}.SFCError"] = (f"{who}: SFCError "
+                                            f"{sfcerror_cause(step, steps.get(step, ''))}")
         with self._lock:
             for key, a in self._alarms.items():
                 msg = want.get(key)

@@ -78,6 +78,7 @@ from runtime.engine.instance import coerce, explain
 from runtime.engine.names import Catalogue, Image
 from runtime.language import ast as A
 from runtime.language.feedconf import SIDE_NAMES
+from runtime.language.flagtexts import sfcerror_cause
 from runtime.language.model import FeedDef
 from runtime.language.yamlsrc import INT_MAX, INT_MIN, TIME_MAX_NS
 
@@ -691,7 +692,7 @@ def _instance_method(daemon: Daemon, name: str, flag: str, value: bool | None
                 raise CommandRefused(f"nothing to acknowledge: {name} has no SFCError")
             step = inst.get("SFCErrorStep") if flag == "SFCQuitError" else ""
             plant.pulse(name, flag)
-            return (f"{name}: SFCError{f' ({step})' if step else ''} acknowledged"
+            return (f"{name}: SFCError ({sfcerror_cause(step)}) acknowledged"
                     if flag == "SFCQuitError" else f"{name}: {flag} for one scan")
         plant.set(f"{name}.{flag}", value)
         return f"{name}: {flag} {'set' if value else 'cleared'}"

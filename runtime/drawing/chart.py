@@ -1,8 +1,9 @@
 """``softplc draw FILE -o OUT.svg``: a chart drawn in IEC 60848 style, as SVG.
 
 What is drawn (seed 000's symbols): steps as boxes, initial steps as double boxes;
-transitions as short thick bars with their condition in the seed notation on the right
-(``↑iMarcha·iParo'``, whatever notation the file uses) and their name, if any, on the left;
+transitions as short thick bars with their condition on the right, as the file wrote it
+(``--notation seed``: in the seed notation, ``↑iMarcha·iParo'``, whatever notation the file
+uses) and their name, if any, on the left;
 actions as boxes beside their step (qualifier | body; comments left out, long bodies on
 several lines); AND divergences and convergences as double horizontal lines, OR divergences
 and convergences as single lines; links that go back up run in lanes on the left with an
@@ -37,6 +38,7 @@ from runtime.drawing.layout import (
     CHAR_H,
     DROP_GAP,
     LINK_GAP,
+    LIVE_SIZE,
     STEP_H,
     TIMES_SIZE,
     TOP,
@@ -49,7 +51,7 @@ from runtime.drawing.layout import (
     row_h,
 )
 from runtime.drawing.svg import Svg, esc, esc_attr
-from runtime.drawing.text import equation_lines, step_times, text_w
+from runtime.drawing.text import NOTATIONS, equation_lines, step_times, text_w
 from runtime.errors import Loc, SourceError
 from runtime.language.iolist import IOList
 from runtime.language.model import Grafcet, PlantDef, VarKind
@@ -298,6 +300,8 @@ class Drawing:
             if times:  # supervision times, as a vendor's SFC editor shows them
                 self.svg.text(x, y + 11, times, TIMES_SIZE, "middle",
                               extra=' class="step-times"')
+            if c.live_room:  # the live page writes the step's time here, above the link
+                self.svg.text(x + w / 2 + 3, y - 4, "", LIVE_SIZE, extra=' class="live-t"')
             if st.name in self.active:  # top left, clear of the name and the times
                 self.svg.add(f'<circle cx="{x0 + 8:.1f}" cy="{y0 + 8:.1f}" r="2.5" '
                              'fill="black" class="token"/>')
@@ -308,7 +312,7 @@ class Drawing:
     def draw_actions(self, step: str, x_right: float, y: float) -> None:
         rows = self.c.actions[step]
         qw, bw = self.c.action_cols[step]
-        ax = x_right + ACTION_GAP
+        ax = x_right + self.c.live_room + ACTION_GAP
         total = sum(row_h(lines) for _, lines in rows)
         yy = y - total / 2
         self.svg.line([(x_right, y), (ax, y)])
@@ -339,7 +343,7 @@ class Drawing:
                              ("post (every scan, after the chart)", g.post)):
             if not stmts:
                 continue
-            lines = [ln for st in stmts for ln in equation_lines(st)]
+            lines = [ln for st in stmts for ln in equation_lines(st, self.c.notation)]
             y = self._box(x, y, title, lines, "equation")
         return y
 
@@ -405,7 +409,8 @@ def link_crossings(c: Chart, r: Routes) -> int:
                if a + 0.5 < x < b - 0.5 and lo + 0.5 < y < hi - 0.5)
 
 
-def laid_out(g: Grafcet, layout: str = "auto") -> tuple[Chart, Routes, str]:
+def laid_out(g: Grafcet, layout: str = "auto", notation: str = "written",
+             live: bool = False) -> tuple[Chart, Routes, str]:
     """The chart placed and routed, and the layout used ("dot" or "python"). Each step goes
     under its nearest predecessor; if links then cross, it goes under the one the
     depth-first walk reached it from instead (the normal sequence, a link from higher up
@@ -417,7 +422,7 @@ def laid_out(g: Grafcet, layout: str = "auto") -> tuple[Chart, Routes, str]:
                            "(apt-get install graphviz)")
     best: tuple[int, Chart, Routes] | None = None
     for follow in (False, True):
-        c = build_chart(g, follow_tree=follow)
+        c = build_chart(g, follow_tree=follow, notation=notation, live=live)
         r = arrange(c, dot_order(c, dot) if dot is not None else None)
         n = link_crossings(c, r)
         if best is None or n < best[0]:
@@ -430,10 +435,13 @@ def laid_out(g: Grafcet, layout: str = "auto") -> tuple[Chart, Routes, str]:
 
 def chart_svg(g: Grafcet, active: set[str] | None = None, title: str = "",
               layout: str = "auto",
-              legend: tuple[str, list[tuple[str, str, str]]] = ("", [])
-              ) -> tuple[str, str]:
-    """(SVG text, layout used: "dot" or "python"); ``legend``: its title and rows."""
-    c, r, used = laid_out(g, layout)
+              legend: tuple[str, list[tuple[str, str, str]]] = ("", []),
+              notation: str = "written", live: bool = False) -> tuple[str, str]:
+    """(SVG text, layout used: "dot" or "python"); ``legend``: its title and rows;
+    ``notation``: conditions as written or in the seed notation (text.py); ``live``: the
+    live page's drawing, with an empty ``text.live-t`` right of each step box (room kept
+    for it) where the page writes the active step's time."""
+    c, r, used = laid_out(g, layout, notation, live)
     return render(c, r, active or set(), title, legend), used
 
 
@@ -520,7 +528,7 @@ def load_chart(path: str, instance: str | None
 
 
 def draw(path: str, out: str, trace: str | None = None, cycle: int | None = None,
-         instance: str | None = None, layout: str = "auto") -> str:
+         instance: str | None = None, layout: str = "auto", notation: str = "written") -> str:
     """Write the SVG; returns the layout used ("dot" or "python")."""
     g, instance, pdef = load_chart(path, instance)
     active: set[str] = set()
@@ -530,7 +538,7 @@ def draw(path: str, out: str, trace: str | None = None, cycle: int | None = None
         k = 0 if cycle is None else cycle
         active, instance, row = active_from_trace(g, trace, k, instance)
         title = f"{g.name} ({instance}) — cycle {k}, t = {row.get('t_ms', '?')} ms"
-    svg, used = chart_svg(g, active, title, layout, key)
+    svg, used = chart_svg(g, active, title, layout, key, notation)
     with open(out, "w", encoding="utf-8") as f:
         f.write(svg)
     return used
@@ -541,7 +549,8 @@ def cmd_draw(args: argparse.Namespace) -> int:
         sys.stderr.write("softplc draw: error: --cycle needs --trace\n")
         return 2
     try:
-        used = draw(args.file, args.output, args.trace, args.cycle, args.instance, args.layout)
+        used = draw(args.file, args.output, args.trace, args.cycle, args.instance, args.layout,
+                    args.notation)
     except SourceError as exc:
         sys.stderr.write(f"{exc}\n")
         return 2
@@ -565,4 +574,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                                                       "(needed when several run the chart)")
     d.add_argument("--layout", choices=("auto", "dot", "python"), default="auto",
                    help="auto: Graphviz's dot if installed, else the built-in layout")
+    d.add_argument("--notation", choices=NOTATIONS, default="written",
+                   help="conditions, action conditions and equations as the file wrote them "
+                        "(written), or in the seed's notation: ↑ · + ' (seed)")
     d.set_defaults(func=cmd_draw)

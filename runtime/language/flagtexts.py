@@ -5,6 +5,7 @@ console's ``get`` and the web page. tests/engine/test_flag_texts.py holds each t
 the engine does (a chart with two active steps, a step over its max time, tip mode...):
 a text that no longer says what the flag does fails there. docs/language.md ("Built-in
 variables and chart flags") and docs/semantics.md ("Chart flags") say the same at length.
+``sfcerror_cause`` words who set an SFCError, for every display that says it.
 """
 
 from __future__ import annotations
@@ -24,3 +25,13 @@ FLAG_TEXT = {
 }
 #: what a driver's ``ok`` point means
 HEALTH_TEXT = "true while the driver is healthy"
+
+
+def sfcerror_cause(step: str, about: str = "") -> str:
+    """Who set an instance's SFCError, as every display says it (the log, the alarms, the
+    console and the monitor, the OPC UA events): ``set by step NAME`` (``about``, the step's
+    description, in brackets) when a step over its max time set it, ``set by the chart``
+    when SFCErrorStep is empty (the chart, or a write to the flag, set it)."""
+    if not step:
+        return "set by the chart"
+    return f"set by step {step}" + (f" ({about})" if about else "")

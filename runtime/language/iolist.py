@@ -36,16 +36,17 @@ import re
 from dataclasses import dataclass
 from typing import Any
 
-from runtime.errors import Loc, SourceError, suggest
+from runtime.errors import Loc, SourceError
 from runtime.language import ast as A
 from runtime.language.flagtexts import FLAG_TEXT, HEALTH_TEXT
 from runtime.language.grafcetfile import description_text, expect_type
 from runtime.language.model import Binding, InstanceDef, PlantDef
-from runtime.language.units import MILLISECOND, Unit, find_unit, spellings
+from runtime.language.units import MILLISECOND, Unit, find_unit, suggest_unit
 from runtime.language.yamlsrc import YList, YMap
 
 #: the I/O list's keys of a binding (beside ``from`` and ``invert``)
 IO_KEYS = ("description", "unit", "range")
+
 
 
 @dataclass(frozen=True, slots=True)
@@ -91,7 +92,7 @@ def io_entry(b: Binding, spec: YMap) -> None:
         if unit is None:
             raise SourceError(loc, f"unknown unit '{text}': expected a UN/CEFACT code (CEL, "
                                    f"BAR, MMT, ...) or a symbol (°C, bar, mm, ...)"
-                                   f"{suggest(text, spellings())}")
+                                   f"{suggest_unit(text.strip())}")
         b.unit = unit
     if "range" in spec:
         b.range = _range(spec["range"], spec.val_locs["range"])

@@ -461,7 +461,9 @@ DEFAULT_REALTIME_PRIORITY = 50
 class PlantDef:
     path: str
     cycle_ns: int = 10_000_000
-    watchdog_ns: int = 100_000_000
+    #: the default from bench/sidestart.py's figures (docs/daemon.md, "The watchdog's
+    #: default"): longer than the worst lateness of a loaded controller starting a side process
+    watchdog_ns: int = 1_000_000_000
     retain_path: str | None = None
     #: where ``plc: retain`` is written (errors about the retained data point there)
     retain_loc: Loc | None = None

@@ -40,6 +40,7 @@ from asyncua.common.callback import CallbackType, ServerItemCallback
 from asyncua.crypto.permission_rules import User, UserRole
 
 from runtime.controller.feedclient import FeedClient, FeedLost
+from runtime.language.flagtexts import sfcerror_cause
 from runtime.language.model import PlantDef
 from runtime.opcua.conditions import Conditions
 from runtime.opcua.limits import Limits
@@ -385,7 +386,7 @@ def _event_text(key: str, old: Any, new: Any) -> tuple[str, int]:
     if key.startswith("i:"):
         name = key[2:]
         if new[0] and not old[0]:
-            return (f"{name}: SFCError set{f' (step {new[1]})' if new[1] else ''}",
+            return (f"{name}: SFCError {sfcerror_cause(new[1])}",
                     SEVERITY["sfcerror"])
         if old[0] and not new[0]:
             return f"{name}: SFCError cleared", SEVERITY["cleared"]

@@ -51,5 +51,6 @@ def chart_of(pdef: PlantDef, instance: str) -> str | None:
     idef = pdef.instances.get(instance)
     if idef is None:
         return None
-    svg, _layout = chart_svg(idef.grafcet, title=f"{instance}: {idef.grafcet.name}")
+    svg, _layout = chart_svg(idef.grafcet, title=f"{instance}: {idef.grafcet.name}",
+                             live=True)
     return svg

@@ -77,6 +77,9 @@ class Login:
     #: monotonic seconds of the last login or action
     last: float
     pages: set[Page] = field(default_factory=set)
+    #: the login's number since this web view started, in its log lines (a user may hold
+    #: several logins: one per browser)
+    number: int = 0
 
 
 @dataclass(eq=False)
@@ -108,6 +111,7 @@ class WebView:
         self.tls = self.conf.certificate is not None
         self.passwords = Passwords(self.conf.users, clock)
         self.logins: dict[str, Login] = {}
+        self._logins_made = 0
         self.pages: set[Page] = set()
         where = locate(pdef)  # the controller's sockets, as every side process finds them
         self.feed = FeedClient(feed or where.feed or self.conf.feed, "web", self._on_schema,
@@ -232,9 +236,15 @@ class WebView:
                         "held after a failed one" if held else "wrong user or password")
             return web.json_response({"ok": False, "error": "wrong user or password (a "
                                       "failed login holds that user for 1 s)"}, status=403)
+        old = request.cookies.get(COOKIE)
+        if old is not None and old in self.logins and not self.logins[old].pages:
+            # the browser's cookie now names the new login: nobody can use the old one
+            await self._end_login(old, self.logins[old], "replaced by a new login from the "
+                                                         "same browser")
         token = secrets.token_urlsafe(32)
-        self.logins[token] = Login(user, address, self.clock())
-        log.info("web: %s logged in from %s", user, address)
+        self._logins_made += 1
+        self.logins[token] = Login(user, address, self.clock(), number=self._logins_made)
+        log.info("web: %s logged in from %s (login %d)", user, address, self._logins_made)
         resp = web.json_response({"ok": True, "user": user})
         resp.set_cookie(COOKIE, token, httponly=True, secure=self.tls, samesite="Strict",
                         path="/")
@@ -253,8 +263,10 @@ class WebView:
     async def _end_login(self, token: str, login: Login, why: str) -> None:
         """A login ends: its pages' console sessions end (what they held is released by
         the console, docs/console.md) and its pages are told."""
-        self.logins.pop(token, None)
-        log.info("web: %s's login from %s ended (%s)", login.user, login.address, why)
+        if self.logins.pop(token, None) is None:
+            return  # ended already (logged out meanwhile): said once
+        log.info("web: %s's login %d from %s ended (%s)", login.user, login.number,
+                 login.address, why)
         for page in list(login.pages):
             page.login = None
             await self._close_console(page)

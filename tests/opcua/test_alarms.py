@@ -105,7 +105,7 @@ def test_a_max_time_alarm_refreshed_acknowledged_and_confirmed(
     assert any(m.startswith(f"alarm {KEY} acknowledged by {WRITER} (127.0.0.1:")
                and m.endswith(": visto (active, acknowledged, unconfirmed)") for m in said)
     assert any(m.startswith(f"opcua: {WRITER} (127.0.0.1:") and
-               m.endswith("called t1.Acknowledge: t1: SFCError (gsJam) acknowledged")
+               m.endswith("called t1.Acknowledge: t1: SFCError (set by step gsJam) acknowledged")
                for m in said), said
     assert any(m.startswith("opcua: t1.Acknowledge refused to anonymous (127.0.0.1:")
                for m in said)
