@@ -9,7 +9,8 @@ process of its own fed by the controller's feed (the scan never waits for it).
 - **Fan-out.** One feed connection for every page. Each frame becomes one delta message
   (the values that changed since the previous frame), the same bytes for every page. Each
   page has a queue of PAGE_QUEUE messages: a page whose queue is full (a slow reader) loses
-  what waits in it and gets a whole frame next; a send that takes SEND_TIMEOUT_S closes it.
+  the frames that wait in it (not its replies and notices) and gets a whole frame next; a
+  send that takes SEND_TIMEOUT_S closes it.
 - **Acting** (logged in only): over the page's WebSocket, each action becomes one console
   command on the page's own console session (runtime/web/consolelink.py): the console's
   ownership rules, limits and log lines hold. Closing the page, losing its WebSocket or its
@@ -127,7 +128,9 @@ class Page:
     login: Login | None
     #: its connection (aborted when it does not read)
     transport: asyncio.Transport | None = None
-    queue: asyncio.Queue[str] = field(default_factory=lambda: asyncio.Queue(PAGE_QUEUE))
+    #: (kept when the page falls behind, the message)
+    queue: asyncio.Queue[tuple[bool, str]] = field(
+        default_factory=lambda: asyncio.Queue(PAGE_QUEUE))
     #: its next frame is a whole one
     fresh: bool = True
     console: ConsoleLink | None = None
@@ -326,7 +329,7 @@ class WebView:
         for page in list(login.pages):
             page.login = None
             await self._close_console(page)
-            self._send(page, json.dumps({"t": "logout", "why": why}))
+            self._send(page, json.dumps({"t": "logout", "why": why}), keep=True)
         login.pages.clear()
 
     # -- pages -------------------------------------------------------------------------
@@ -373,7 +376,8 @@ class WebView:
     def _hello(self, page: Page) -> None:
         st = self.feed.state
         self._send(page, json.dumps({"t": "hello", "connected": self.feed.connected,
-                                     "user": page.login.user if page.login else None}))
+                                     "user": page.login.user if page.login else None}),
+                   keep=True)
         if self.feed.connected and st.values:
             self._send(page, json.dumps({"t": "s", "status": st.status}))
             self._send(page, json.dumps({"t": "w", "whys": st.whys}))
@@ -381,19 +385,31 @@ class WebView:
                                          "names": st.names, "values": st.values}))
             page.fresh = False
 
-    def _send(self, page: Page, text: str) -> None:
+    def _send(self, page: Page, text: str, keep: bool = False) -> None:
+        """Queue ``text`` for ``page``. A page whose queue is full (it reads too slowly)
+        loses the frames waiting for it and gets a whole one next; what is ``keep``
+        (an action's reply, the console's notices, a new schema, the feed lost, the
+        login ended: nothing a later frame says again) is kept, PAGE_QUEUE // 2 at
+        most."""
         try:
-            page.queue.put_nowait(text)
-        except asyncio.QueueFull:  # a slow reader: it loses what waits, gets a whole frame
+            page.queue.put_nowait((keep, text))
+        except asyncio.QueueFull:
+            kept = []
             while not page.queue.empty():
-                page.queue.get_nowait()
+                item = page.queue.get_nowait()
+                if item[0]:
+                    kept.append(item)
+            for item in kept[-(PAGE_QUEUE // 2):]:
+                page.queue.put_nowait(item)
             page.fresh = True
             page.resyncs += 1
+            if keep:
+                page.queue.put_nowait((keep, text))
 
     async def _sender(self, page: Page) -> None:
         try:
             while True:
-                text = await page.queue.get()
+                _keep, text = await page.queue.get()
                 await asyncio.wait_for(page.ws.send_str(text), SEND_TIMEOUT_S)
         except TimeoutError:
             # a close frame would wait behind what it does not read: the connection ends
@@ -411,10 +427,11 @@ class WebView:
             ident, action, args = action_of(loads(data))
         except ValueError:
             self._send(page, json.dumps({"t": "r", "id": None, "ok": False,
-                                         "text": "malformed message"}))
+                                         "text": "malformed message"}), keep=True)
             return
         ok, text = await self._act(page, action, args)
-        self._send(page, json.dumps({"t": "r", "id": ident, "ok": ok, "text": text}))
+        self._send(page, json.dumps({"t": "r", "id": ident, "ok": ok, "text": text}),
+                   keep=True)
 
     async def _act(self, page: Page, action: str, args: list[str]) -> tuple[bool, str]:
         login = page.login
@@ -433,7 +450,8 @@ class WebView:
             if page.console is None:
                 page.console = await ConsoleLink.open(
                     self.console_path, login.user, page.address,
-                    lambda text: self._send(page, json.dumps({"t": "n", "text": text})),
+                    lambda text: self._send(page, json.dumps({"t": "n", "text": text}),
+                                            keep=True),
                     lambda why: self._console_ended(page, why))
             reply = await page.console.call(" ".join([action, *args]))
         except ConsoleUnavailable as exc:
@@ -445,7 +463,7 @@ class WebView:
 
     def _console_ended(self, page: Page, why: str) -> None:
         page.console = None
-        self._send(page, json.dumps({"t": "n", "text": why}))
+        self._send(page, json.dumps({"t": "n", "text": why}), keep=True)
 
     async def _close_console(self, page: Page) -> None:
         if page.console is not None:
@@ -462,13 +480,13 @@ class WebView:
         self._last_status, self._last_whys = None, {}
         for page in self.pages:
             page.fresh = True
-            self._send(page, json.dumps({"t": "schema"}))
+            self._send(page, json.dumps({"t": "schema"}), keep=True)
 
     async def _on_lost(self) -> None:
         self._last_values = []
         for page in self.pages:
             page.fresh = True
-            self._send(page, json.dumps({"t": "lost"}))
+            self._send(page, json.dumps({"t": "lost"}), keep=True)
 
     async def _on_frame(self) -> None:
         st = self.feed.state

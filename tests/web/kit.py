@@ -77,12 +77,14 @@ class Proc:
         return "\n".join(self.lines)
 
 
-def start(tmp: Path, *args: str, nofile: int | None = None) -> Proc:
+def start(tmp: Path, *args: str, nofile: int | None = None, nice: int = 0) -> Proc:
     """``softplc ARGS`` in ``tmp``; ``nofile``: its open-file limit (RLIMIT_NOFILE), as a
-    unit's ``LimitNOFILE=`` sets it."""
+    unit's ``LimitNOFILE=`` sets it; ``nice``: its nice level (``Nice=``)."""
     def limit() -> None:
         if nofile is not None:
             resource.setrlimit(resource.RLIMIT_NOFILE, (nofile, nofile))
+        if nice:
+            os.nice(nice)
     p = subprocess.Popen([sys.executable, "-m", "runtime.cli", *args], cwd=str(tmp),
                          env=_env(tmp), text=True, stdout=subprocess.DEVNULL,
                          stderr=subprocess.PIPE, preexec_fn=limit)

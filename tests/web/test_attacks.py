@@ -24,11 +24,11 @@ from runtime.controller import pin
 from runtime.controller.pin import hash_pin
 from runtime.language.plantfile import load_plant
 from tests.opcua.feedkit import wait_until
-from tests.web.attacker import DEEP, source
+from tests.web.clients import DEEP, source
 from tests.web.kit import PASSWORD, ROOT, USER, Rig, rig, unit_nofile, write_plant
 from tests.web.test_hostile import served
 
-ATTACKER = [sys.executable, "-m", "tests.web.attacker"]
+ATTACKER = [sys.executable, "-m", "tests.web.clients"]
 
 
 def origin(r: Rig) -> str:
@@ -53,14 +53,18 @@ async def log_in(s: aiohttp.ClientSession, url: str, password: str = PASSWORD,
         return resp.status, await resp.json()
 
 
-async def reply(ws: aiohttp.ClientWebSocketResponse) -> dict[str, Any]:
-    """The next action reply ({"t": "r"}) on a page's WebSocket."""
-    while True:
-        msg = await asyncio.wait_for(ws.receive(), 30)
-        assert msg.type is aiohttp.WSMsgType.TEXT, (msg.type, msg.data, ws.close_code)
-        data = json.loads(msg.data)
-        if data["t"] == "r":
-            return dict(data)
+async def reply(ws: aiohttp.ClientWebSocketResponse, timeout: float = 30.0
+                ) -> dict[str, Any]:
+    """The next action reply ({"t": "r"}) on a page's WebSocket, within ``timeout`` s
+    (the frames that come meanwhile are passed over)."""
+    async def next_reply() -> dict[str, Any]:
+        while True:
+            msg = await ws.receive()
+            assert msg.type is aiohttp.WSMsgType.TEXT, (msg.type, msg.data, ws.close_code)
+            data = json.loads(msg.data)
+            if data["t"] == "r":
+                return dict(data)
+    return await asyncio.wait_for(next_reply(), timeout)
 
 
 def started(cmd: list[str]) -> tuple[subprocess.Popen[str], Any]:
@@ -308,6 +312,33 @@ def test_a_set_the_next_scan_overwrites_is_refused_from_the_page(tmp_path: Path)
         assert done["ok"] is True and done["text"] == "tester1.sCierres set to 7"
         wait_until(lambda: r.value("tester1.sCierres") == 7, 10.0, "the memory set")
         assert r.value("sim.Q0") is False
+
+
+def test_a_page_that_falls_behind_still_gets_its_replies(tmp_path: Path) -> None:
+    """A page's queue overflows (the event loop was busy: found under the flood of
+    half-sent requests, where an action of the operator's page got no answer in 30 s):
+    the frames waiting are dropped and a whole one follows, as before, but the action's
+    reply is kept. Before the fix the whole queue was dropped, the reply with it."""
+    from runtime.web.server import PAGE_QUEUE
+
+    pdef = load_plant(str(write_plant(tmp_path)))
+
+    async def run() -> tuple[dict[str, Any], int]:
+        async with served(pdef, tmp_path) as (view, port), aiohttp.ClientSession() as s:
+            url = f"http://127.0.0.1:{port}"
+            ws = await s.ws_connect(url + "/ws", headers={"Origin": url})
+            while not view.pages:
+                await asyncio.sleep(0.01)
+            page = next(iter(view.pages))
+            # the reply queued, then frames beyond the queue, nothing sent in between
+            await view._on_message(page, json.dumps({"act": [7, "pause"]}))
+            for i in range(2 * PAGE_QUEUE):
+                view._send(page, json.dumps({"t": "d", "scan": i, "wall": 0, "changes": []}))
+            got = await reply(ws, 10.0)
+            await ws.close()
+            return got, page.resyncs
+    got, resyncs = asyncio.run(run())
+    assert resyncs >= 1 and got == {"t": "r", "id": 7, "ok": False, "text": "log in to act"}
 
 
 # -- a browser that freezes -------------------------------------------------------------
