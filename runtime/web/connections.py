@@ -55,9 +55,10 @@ LOG_EVERY_S = 10.0
 ACCEPT_RETRY_S = 1.0
 
 
-def total_bound(limit: int = MAX_CONNECTIONS) -> int:
-    """MAX_CONNECTIONS, or fewer when the open-file limit (RLIMIT_NOFILE) would not hold
-    them beside NOFILE_RESERVE."""
+def total_bound(limit: int | None = None) -> int:
+    """``limit`` (MAX_CONNECTIONS), or fewer when the open-file limit (RLIMIT_NOFILE)
+    would not hold them beside NOFILE_RESERVE."""
+    limit = MAX_CONNECTIONS if limit is None else limit
     soft, _hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     if soft == resource.RLIM_INFINITY:
         return limit
@@ -121,12 +122,12 @@ class Listener:
     within the bounds of the module docstring."""
 
     def __init__(self, factory: Callable[[], Any], ssl_context: ssl.SSLContext | None,
-                 total: int | None = None, per_address: int = PER_ADDRESS,
+                 total: int | None = None, per_address: int | None = None,
                  clock: Callable[[], float] = time.monotonic) -> None:
         self.factory = factory
         self.ssl_context = ssl_context
         self.total = total_bound() if total is None else total
-        self.per_address = per_address
+        self.per_address = PER_ADDRESS if per_address is None else per_address
         self.clock = clock
         #: address -> its connections
         self.by_address: dict[str, set[Conn]] = {}

@@ -73,6 +73,7 @@ WHY_MAX = 8
 CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
        "connect-src 'self'; base-uri 'none'; form-action 'self'; frame-ancestors 'none'")
 STATIC = ("index.html", "app.js", "app.css")
+TYPES = {"html": "text/html", "js": "text/javascript", "css": "text/css"}
 #: a request for a host that is not this server is logged at most this often, s
 HOST_LOG_EVERY_S = 10.0
 #: of ``web: page_timeout``, the part after which a silent page is sent a ping (aiohttp's
@@ -99,13 +100,14 @@ def action_of(msg: Any) -> tuple[Any, str, list[str]]:
     if len(act) < 2 or not isinstance(act[1], str):
         raise ValueError("no action")
     ident, action, *args = act
-    if ident is not None and not isinstance(ident, (int, float, str)) or (
-            isinstance(ident, str) and len(ident) > 64):
-        raise ValueError("bad id")
+    if isinstance(ident, str):
+        if len(ident) > 64:
+            raise ValueError("an id too long")
+    elif ident is not None and not isinstance(ident, (int, float)):
+        raise ValueError("an id that is not a number or a text")
     if not all(isinstance(a, str) for a in args):
         raise ValueError("arguments are texts")
     return ident, action, args
-TYPES = {"html": "text/html", "js": "text/javascript", "css": "text/css"}
 
 
 @dataclass(eq=False)

@@ -411,6 +411,71 @@ def test_a_request_whose_headers_or_body_do_not_come_is_dropped(
     assert got[0] == b"" and got[1].startswith(b"HTTP/1.1 408 "), got
 
 
+def test_connections_are_bounded_per_address_and_in_all_fairly(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The bounds of runtime/web/connections.py, made small (3 per address, 6 in all),
+    with half-sent requests: an address beyond its 3 is closed at once; with the total
+    reached, an address that holds fewer takes the place of the connection idle longest of
+    the address holding most, and one that would hold as many is refused; an open page
+    (its WebSocket: a request being handled) is never dropped. Before the fix nothing
+    was bounded (the server ran out of descriptors instead: the test below)."""
+    from runtime.web import connections
+    from runtime.web import server as web_server
+
+    monkeypatch.setattr(connections, "PER_ADDRESS", 3)
+    monkeypatch.setattr(connections, "MAX_CONNECTIONS", 6)
+    monkeypatch.setattr(web_server, "HEADER_TIMEOUT_S", 60.0, raising=False)
+    pdef = load_plant(str(write_plant(tmp_path)))
+
+    async def run() -> dict[str, Any]:
+        async with served(pdef, tmp_path) as (view, port):
+            url = f"http://127.0.0.1:{port}"
+
+            async def half(address: str) -> tuple[asyncio.StreamReader, Any]:
+                reader, writer = await asyncio.open_connection(
+                    "127.0.0.1", port, local_addr=(address, 0))
+                writer.write(f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n".encode())
+                await writer.drain()
+                await asyncio.sleep(0.05)  # accepted in this order
+                return reader, writer
+
+            async def closed(conns: list[tuple[asyncio.StreamReader, Any]]) -> list[bool]:
+                async def one(conn: tuple[asyncio.StreamReader, Any]) -> bool:
+                    try:
+                        return await asyncio.wait_for(conn[0].read(), 1.0) == b""
+                    except TimeoutError:
+                        return False
+                    except ConnectionError:
+                        return True
+                return list(await asyncio.gather(*(one(c) for c in conns)))
+            out: dict[str, Any] = {}
+            async with aiohttp.ClientSession() as s:
+                page = await s.ws_connect(url + "/ws", headers={"Origin": url})  # 1
+                assert json.loads((await page.receive()).data)["t"] == "hello"
+                a = [await half(source(0)) for _ in range(4)]  # 127.0.0.2: 3 of 4
+                out["a"] = await closed(a)
+                b = [await half(source(1)) for _ in range(3)]  # 127.0.0.3: 2 (then 6)
+                out["b"] = await closed(b)
+                c = await half(source(2))  # 127.0.0.4 holds none: a's oldest makes room
+                out["c"], out["a_after"] = await closed([c]), await closed(a[:3])
+                d = await half(source(0))  # 127.0.0.2 again: it would hold as many
+                out["d"] = await closed([d])
+                await page.send_str(json.dumps({"act": [1, "pause"]}))
+                out["page"] = (await reply(page))["text"]
+                await page.close()
+            for conn in (*a, *b, c, d):
+                conn[1].close()
+            assert view.listener is not None
+            out["refused"], out["dropped"] = view.listener.refused, view.listener.dropped
+            return out
+    out = asyncio.run(run())
+    assert out["a"] == [False, False, False, True], out
+    assert out["b"] == [False, False, True] and out["c"] == [False], out
+    assert out["a_after"] == [True, False, False] and out["d"] == [True], out
+    assert out["page"] == "log in to act", out
+    assert (out["refused"], out["dropped"]) == (3, 1), out
+
+
 @pytest.mark.slow
 def test_half_sent_requests_at_the_open_file_limit_leave_the_page_usable(
         tmp_path: Path) -> None:
