@@ -193,6 +193,7 @@ def test_the_attacks_cost_the_scan_nothing_and_the_operator_keeps_the_page(
     # the control: the quiet phases before and after the attacks, the worse of the two
     quiet = {k: max(phases["quiet"][k], phases["quiet2"][k]) for k in ("overruns", "p99_us")}
     msg = json.dumps(phases, indent=1)
+    sys.stderr.write(msg + "\n")  # the figures, for the record (pytest -s)
     assert not faults, f"{faults}; {msg}"
     for name, p in phases.items():
         o = p["operator"]
@@ -209,4 +210,3 @@ def test_the_attacks_cost_the_scan_nothing_and_the_operator_keeps_the_page(
     assert phases["logins"]["extra"]["posts"] >= 4, msg
     assert phases["flood"]["extra"]["opened"] >= 1100, msg
     assert phases["deep"]["extra"]["malformed"] >= 10, msg
-    sys.stderr.write(msg + "\n")  # the figures, for the record (pytest -s)
