@@ -14,7 +14,7 @@ from collections.abc import Awaitable, Callable, Iterator, Sequence
 from typing import IO, Any
 
 from runtime import package_version
-from runtime.errors import Loc, SourceError
+from runtime.errors import Loc, SoftplcError, SourceError
 
 log = logging.getLogger("softplc")
 
@@ -729,6 +729,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except SourceError as exc:
         sys.stderr.write(f"{exc}\n")
+        return 2
+    except SoftplcError as exc:
+        from runtime.compiler.guard import GeneratedCodeRefused
+
+        if not isinstance(exc, GeneratedCodeRefused):
+            raise
+        sys.stderr.write(f"softplc: error: {exc}\n")
         return 2
     except ImportError as exc:
         sys.stderr.write(f"softplc: error: {exc}\n")

@@ -4,7 +4,7 @@ scan, and the supervision of steps' max times."""
 
 from __future__ import annotations
 
-from runtime.compiler.emit import Emitter, ident
+from runtime.compiler.emit import Emitter, comment, ident
 from runtime.compiler.expressions import ExprEmitter
 from runtime.compiler.layout import StateLayout, bool_targets
 from runtime.compiler.statements import StmtEmitter
@@ -37,8 +37,8 @@ class ActionEmitter:
 
     def bool_action(self, out: Emitter, target: str, assocs: list[Action]) -> None:
         """The value of ``target`` from every action that drives it (a reset wins)."""
-        out(f"# action control of {target}: " + "; ".join(
-            f"{a.qualifier.value} in {a.step}" for a in assocs))
+        out(comment(f"action control of {target}: " + "; ".join(
+            f"{a.qualifier.value} in {a.step}" for a in assocs)))
         terms: list[str] = []
         resets = [self.active(a.step) for a in assocs if a.qualifier is Qualifier.R]
         r = None
@@ -86,11 +86,10 @@ class ActionEmitter:
         q, st = a.qualifier, a.step
         x, ta = ident("x", st), ident("ta", st)
         ent, left = ident("a", st), ident("l", st)
-        text = a.text.replace("\n", " ")
-        label = f"{q.value if q is not Qualifier.EVENT else 'on'} in {st}: {text[:60]}"
+        label = f"{q.value if q is not Qualifier.EVENT else 'on'} in {st}: {a.text[:60]}"
         held = f"cq{a.index}" if self.codesys and q in (Qualifier.L, Qualifier.D) else None
         if final_scan:
-            out(f"# final scan of {label}")
+            out(comment(f"final scan of {label}"))
             # an L/D action runs once more only if it was running in the previous scan
             out(f"if {left} and {held}:" if held else f"if {left}:")
             self.stmts.block(out, a.body or [])
@@ -107,7 +106,7 @@ class ActionEmitter:
             cond = left
         else:  # EVENT
             cond = f"{self.active(st)} and {self.exprs.ex(a.event)}"  # type: ignore[arg-type]
-        out(f"# {label}")
+        out(comment(label))
         if held:
             out(self.state.let(held, value=cond))
             cond = held

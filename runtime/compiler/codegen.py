@@ -28,9 +28,10 @@ from typing import Any
 
 from runtime.compiler.actions import ActionEmitter
 from runtime.compiler.codebook import CodeBook, compile_code
-from runtime.compiler.emit import Emitter, ident, renamed
+from runtime.compiler.emit import Emitter, comment, ident, renamed
 from runtime.compiler.evolution import Evolution, unstable_chart
 from runtime.compiler.expressions import HELPERS, ExprEmitter
+from runtime.compiler.guard import checked_eval, restricted_builtins
 from runtime.compiler.layout import SLOW_FLAGS, SLOW_MEMORY, StateLayout, macro_initial
 from runtime.compiler.program import Probe, Program
 from runtime.compiler.statements import StmtEmitter
@@ -39,7 +40,8 @@ from runtime.language.model import Grafcet, ScanModel, Step, VarKind
 
 #: the names a generated scan reads from its module: the integer helpers and the builder of
 #: the unstable-chart error (the plant's inlined scans read them from its cycle's module)
-SCAN_GLOBALS: dict[str, Any] = {**HELPERS, "_Unstable": unstable_chart}
+SCAN_GLOBALS: dict[str, Any] = {**HELPERS, "_Unstable": unstable_chart,
+                                 "__builtins__": restricted_builtins()}
 #: a read of an entered (``a_``) or left (``l_``) mark in a line of generated code
 _MARK_READ = re.compile(r"\b([al]_\w+)\b(?!\s*=[^=])")
 #: the fast path's first line: the chart clock, its base's distance to now (the plant's
@@ -73,7 +75,7 @@ class Compiler:
         params = "".join(f", {ident('in', v)}" for v in self.inputs())
         outs = "".join(f"{ident('v', v)}, " for v in self.outputs())
         ret = f"return ({outs})" if outs else "return None"
-        head = [f"# softplc: generated scan of grafcet {g.name} ({g.path})",
+        head = [comment(f"softplc: generated scan of grafcet {g.name} ({g.path})"),
                 f"# scan model: {g.scan.value}; {len(self.evolution.leaf)} steps, "
                 f"{len(g.transitions)} transitions, {len(self.state.slots)} state slots",
                 "def make(m, init):",
@@ -270,7 +272,7 @@ class Compiler:
     def probes(self) -> dict[int, list[Probe]]:
         """Sub-terms of every transition condition, compiled against the state list."""
         out: dict[int, list[Probe]] = {}
-        env = HELPERS
+        env: dict[str, Any] = dict(HELPERS)
 
         def visit(n: A.Node, depth: int, terms: list[tuple[A.Node, int]]) -> None:
             terms.append((n, depth))
@@ -286,7 +288,7 @@ class Compiler:
             lst = []
             for n, depth in terms:
                 code = self.exprs.ex(n, self.exprs.ref_state)
-                fn = eval(f"lambda m, now, up: {code}", dict(env))  # noqa: S307 - our own code
+                fn = checked_eval(f"lambda m, now, up: {code}", env)
                 lst.append(Probe(t.text[n.start:n.end], depth, fn))
             out[t.index] = lst
         return out
@@ -299,7 +301,7 @@ def compile_grafcet(g: Grafcet, book: CodeBook | None = None) -> Program:
     source = c.generate()
     digest = hashlib.sha1(source.encode()).hexdigest()[:8]
     env = dict(SCAN_GLOBALS)
-    code = compile_code(source, f"<grafcet {g.name} {digest}>", book)
+    code = compile_code(source, f"<grafcet {g.name} {digest}>", env.keys(), book)
     exec(code, env)  # noqa: S102 - generated from the checked model
     return Program(g, source, env["make"], c.state.slots, c.probes(), c.inputs(), c.outputs(),
                    c.fast)

@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Callable
 
-from runtime.compiler.emit import Emitter, ident
+from runtime.compiler.emit import Emitter, comment, ident
 from runtime.compiler.expressions import ExprEmitter
 from runtime.compiler.layout import StateLayout, macro_initial
 from runtime.errors import SoftplcError
@@ -87,7 +87,7 @@ class Evolution:
                 terms.append(f"(ct - {ident('t0', st.name)}) >= {st.min_ns}")
             terms += [f"not {ident('h', s)}" for s in srcs if s in seen]
             terms.append(self.exprs.ex(t.cond))
-            out(f"# {transition_text(t)}")
+            out(comment(transition_text(t)))
             out(self.state.let(f, value=" and ".join(terms)))
             for s in srcs:
                 left[s] -= 1

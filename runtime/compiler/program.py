@@ -18,6 +18,7 @@ from types import CellType, CodeType, FunctionType
 from typing import Any
 
 from runtime.compiler import blocks as B
+from runtime.compiler.guard import checked_eval
 from runtime.language import ast as A
 from runtime.language.model import Grafcet
 
@@ -114,7 +115,7 @@ class State:
         i.e. the instance's life)."""
         env = {f"c{k}": self.cells[i] for k, i in enumerate(slots)}
         code = "lambda: (" + "".join(f"c{k}.cell_contents, " for k in range(len(env))) + ")"
-        fn: Callable[[], tuple[Any, ...]] = eval(code, env)  # noqa: S307 - our own code
+        fn: Callable[[], tuple[Any, ...]] = checked_eval(code, env, ("cell_contents",))
         return fn
 
     def __iter__(self) -> Iterator[Any]:
@@ -262,7 +263,7 @@ class Program:
             ix = self._by_key
             code = step_time_code(f"m[{ix[step + '.X']}]", f"m[{ix['#ct']}]",
                                   f"m[{ix[step + '.T0']}]", f"m[{ix[step + '.TK']}]")
-            fn = eval(f"lambda m: int({code})", {})  # noqa: S307 - our own code
+            fn = checked_eval(f"lambda m: int({code})", {})
             self._step_times[step] = fn
         return fn
 

@@ -46,8 +46,9 @@ Messages, one JSON object per line (``"\\n"``):
 - client -> server ``{"set": [id, name, value, side]}`` (value in the name's type; times in
   ns; ``side`` is the asking section, ``opcua`` or ``mqtt``: ``opcua`` when left out);
   ``{"call": [id, target, method, who]}``: a method of an instance (``METHODS``:
-  Acknowledge, Reset, Pause, Resume) or of ``controller`` (Ack), applied between two
-  scans and logged with ``who`` (the OPC UA server lets only writers call them);
+  Acknowledge, Reset, Pause, Resume; refused while no chart runs: ``charts_stopped``) or
+  of ``controller`` (Ack), applied between two scans and logged with ``who`` (the OPC UA
+  server lets only writers call them);
   ``{"alarm": [id, key, "ack" | "confirm", who, comment]}``: acknowledge or confirm an
   alarm of the board (runtime/controller/alarms.py).
 """
@@ -675,8 +676,12 @@ def _together(fns: list[Callable[[], Any]]) -> Callable[[], list[tuple[Any, Exce
 def _instance_method(daemon: Daemon, name: str, flag: str, value: bool | None
                      ) -> Callable[[], str]:
     """Scan thread: a method of instance ``name`` on its running plant: pulse ``flag``
-    for one scan (``value`` None; Acknowledge only while SFCError is set), or set it."""
+    for one scan (``value`` None; Acknowledge only while SFCError is set), or set it.
+    Refused while the charts are stopped (``charts_stopped``): it would be lost."""
     def run() -> str:
+        stopped = charts_stopped(daemon)
+        if stopped is not None:
+            raise CommandRefused(stopped)
         plant = daemon.plant
         inst = plant.instances.get(name)
         if inst is None:
@@ -691,6 +696,21 @@ def _instance_method(daemon: Daemon, name: str, flag: str, value: bool | None
         plant.set(f"{name}.{flag}", value)
         return f"{name}: {flag} {'set' if value else 'cleared'}"
     return run
+
+
+def charts_stopped(daemon: Daemon) -> str | None:
+    """Scan thread: why no chart runs now, so that a method of an instance would do
+    nothing (the controller's Ack restarts every chart from its initial situation, which
+    drops what was set or pulsed meanwhile); None while the charts run."""
+    if daemon.fault is not None:
+        return (f"the controller is in fault ({daemon.fault}): Ack it first (the "
+                "Controller's Ack, the console's 'ack'; it restarts the charts)")
+    if daemon.halted is not None:
+        return (f"the controller is halted ({daemon.halted}): Ack it first (the "
+                "Controller's Ack, the console's 'ack'; it restarts the charts)")
+    if daemon.plant.iocheck:
+        return "iocheck on: the charts are stopped"
+    return None
 
 
 def value_problem(t: A.Type, value: Any) -> str | None:

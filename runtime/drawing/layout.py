@@ -130,7 +130,7 @@ def build_chart(g: Grafcet, follow_tree: bool = False) -> Chart:
         nodes["s:" + s.name] = Node("s:" + s.name, w / 2, right, height)
     for k, t in enumerate(g.transitions):
         tid = f"t:{k}"
-        labels[tid] = condition_lines(seed_text(t.cond))
+        labels[tid] = condition_lines(" ".join(t.text.split()) or seed_text(t.cond))
         left = BAR_W / 2
         if t.name:
             names[tid] = t.name

@@ -183,11 +183,11 @@ def wrap(words: list[str], width: int, lead: int = 0) -> list[str]:
 
 
 def condition_lines(text: str, width: int = LINE_CHARS) -> list[str]:
-    """A condition on one line, or split after its ``·``/``+`` when too long (3 lines at
-    most)."""
+    """A condition on one line, or split after its ``·``/``+`` (``AND``/``OR``) when too
+    long (3 lines at most)."""
     if len(text) <= width:
         return [text]
-    pieces = re.split(r"(?<=·)|(?<= \+ )", text)
+    pieces = re.split(r"(?<=·)|(?<= \+ )|(?<= AND )|(?<= OR )", text)
     lines = [""]
     for p in pieces:
         if lines[-1] and len(lines[-1]) + len(p) > width:

@@ -158,7 +158,7 @@ class Plant:
                              book)
         self.source = writer.source()
         self._inliner = writer.inliner
-        exec(compile_code(self.source, "<plant cycle>", book), env)  # noqa: S102 - generated
+        exec(compile_code(self.source, "<plant cycle>", env.keys(), book), env)  # noqa: S102 - generated
         #: the cycle with no force and no pulse (semantics unchanged, less to do)
         self._cycle_fast: FastCycle = self._fast_cycle()
         #: the cycle with forces and pulses applied around each scan

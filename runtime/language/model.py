@@ -248,6 +248,8 @@ class OpcuaSecurity:
     """``opcua: security:`` (docs/opcua.md): what the server offers and whom it lets in."""
 
     policies: list[str] = field(default_factory=lambda: ["Basic256Sha256_SignAndEncrypt"])
+    #: the server's certificate and its key (absolute: a relative path in the plant file
+    #: is read from the plant file's directory)
     certificate: str | None = None
     private_key: str | None = None
     #: a directory of trusted client certificates (DER or PEM): their sessions may write
@@ -259,6 +261,9 @@ class OpcuaSecurity:
     #: user -> password hash (``softplc hash-pin`` format)
     users: dict[str, str] = field(default_factory=dict)
     loc: Loc | None = None
+    #: where each key given (certificate, private_key ...) has its value, for the errors
+    #: of the server's start
+    locs: dict[str, Loc] = field(default_factory=dict)
 
 
 #: the kinds of alarm (docs/daemon.md, "Alarms") and their default severities (1-1000)

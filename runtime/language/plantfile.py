@@ -43,7 +43,7 @@ from runtime.language.model import (
 )
 from runtime.language.mqttconf import load_mqtt
 from runtime.language.opcuaconf import load_opcua
-from runtime.language.plantpaths import path_value
+from runtime.language.plantpaths import path_value, plant_path, resolve
 from runtime.language.typecheck import FLAGS_BOOL
 from runtime.language.webconf import load_web
 from runtime.language.yamlsrc import SourceFileError, YMap, load_yaml
@@ -115,17 +115,12 @@ class PlantLoad:
         self.diagnostics.append(error.diagnostic)
 
 
-def _resolve(base: str, path: str) -> str:
-    return path if os.path.isabs(path) else os.path.normpath(
-        os.path.join(os.path.dirname(os.path.abspath(base)), path))
-
-
 def _retain_path(base: str, value: Any, loc: Loc) -> str:
     """``plc: retain``: a regular file, or one not yet there, never a directory."""
     text = path_value(value, loc, "plc retain")
     if text.endswith(("/", os.sep)):
         raise SourceError(loc, f"plc retain: '{text}' names a directory, expected a file")
-    path = _resolve(base, text)
+    path = resolve(base, text)
     try:
         mode = os.lstat(path).st_mode
     except FileNotFoundError:
@@ -257,7 +252,7 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
             if "grafcet" not in spec:
                 raise SourceError(spec.loc, f"instance '{name}' needs 'grafcet: FILE'")
             gloc = spec.val_locs["grafcet"]
-            gpath = _resolve(path, path_value(spec["grafcet"], gloc, "grafcet"))
+            gpath = plant_path(path, spec["grafcet"], gloc, "grafcet")
             if not os.path.exists(gpath):
                 raise SourceError(gloc, f"grafcet file not found: {gpath}")
             if gpath not in load.chart_files:

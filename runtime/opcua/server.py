@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import asyncio
 import datetime
-import importlib
 import logging
 import os
 from collections.abc import Callable
@@ -45,6 +44,8 @@ from runtime.language.model import PlantDef
 from runtime.opcua.conditions import Conditions
 from runtime.opcua.limits import Limits
 from runtime.opcua.methods import Methods, track_callers
+from runtime.opcua.security import apply as apply_security
+from runtime.opcua.security import read_credentials
 from runtime.opcua.space import (
     NAMESPACE,
     NS,
@@ -96,6 +97,9 @@ class PlantServer:
         self.opc = pdef.opcua
         self.endpoint = endpoint or self.opc.endpoint
         self.feed_path = feed or self.opc.feed
+        #: the certificate and key, read first: a file that is wrong is said at once (a
+        #: SourceError at its line), not after asyncua's seconds of set-up
+        self.credentials = read_credentials(self.opc.security, self.opc.loc)
         self.server = Server()
         self.space = Space()
         #: the controller's feed (runtime/controller/feedclient.py): its state is the last
@@ -131,7 +135,7 @@ class PlantServer:
         await srv.init()
         srv.set_endpoint(self.endpoint)
         srv.set_server_name(f"softplc {self.pdef.path}")
-        await self._security()
+        await apply_security(srv, self.opc.security, self.opc.loc, self.credentials)
         idx = await srv.register_namespace(NAMESPACE)
         if idx != NS:
             raise RuntimeError(f"namespace {NAMESPACE} got index {idx}, expected {NS}")
@@ -153,21 +157,6 @@ class PlantServer:
         self.limits.install()
         await srv.start()
         log.info("OPC UA server on %s (feed %s)", self.endpoint, self.feed_path)
-
-    async def _security(self) -> None:
-        """Only policy None until the security module is there (runtime/opcua/security.py);
-        with it, ``apply`` sets the policies, certificates and users."""
-        try:
-            security = importlib.import_module("runtime.opcua.security")
-        except ModuleNotFoundError:
-            security = None
-        if security is not None:
-            await security.apply(self.server, self.opc.security, self.opc.loc)
-            return
-        if "None" not in self.opc.security.policies:
-            raise RuntimeError("opcua security: only policy None is available in this build: "
-                               "list it in opcua: security: policies")
-        self.server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
 
     def _hook_writes(self) -> None:
         service = self.server.iserver.attribute_service
@@ -437,8 +426,8 @@ async def serve(pdef: PlantDef, endpoint: str | None = None, feed: str | None = 
                 ready: Callable[[PlantServer], None] | None = None,
                 stop: asyncio.Event | None = None) -> None:
     """Run the server until ``stop`` is set (or forever)."""
+    ps = PlantServer(pdef, endpoint, feed)  # its certificate and key read: at once
     yield_cpu()
-    ps = PlantServer(pdef, endpoint, feed)
     await ps.start()
     task = asyncio.create_task(ps.run())
     if ready is not None:

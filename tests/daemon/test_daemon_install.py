@@ -218,13 +218,16 @@ def test_paths_the_service_cannot_see_or_write_are_refused(tmp_path: Path) -> No
 
 def test_certificates_the_service_cannot_see_are_refused(tmp_path: Path) -> None:
     """Issue 25: certificate paths under /tmp were written into the unit without a word."""
-    cert = tmp_path / "server-cert.der"
+    cert, key = tmp_path / "server-cert.der", tmp_path / "server-key.pem"
     cert.write_bytes(b"x")
+    key.write_bytes(b"x")  # there (a missing one is refused when the plant is loaded)
     text = DRAWER.read_text(encoding="utf-8") + (
         "opcua:\n  security:\n"
-        f"    certificate: {cert}\n    private_key: /etc/softplc/opcua/server-key.pem\n")
+        f"    certificate: {cert}\n    private_key: {key}\n")
     got = refusals(tmp_path, text)
     assert got == [f"opcua: security: certificate: {cert} is hidden from the service by "
+                   "PrivateTmp=yes: keep it under /etc/softplc",
+                   f"opcua: security: private_key: {key} is hidden from the service by "
                    "PrivateTmp=yes: keep it under /etc/softplc"]
 
 

@@ -230,8 +230,8 @@ def test_pre_post_min_max_and_action_conditions_in_the_seed_notation(tmp_path: P
     assert "oRefrigerar if iPieza·iPuerta'" in actions
     assert "↑iAbajo" in _texts(root, "qualifier")
     assert "sPiezas := sPiezas + 1" in actions
-    # the condition of the first transition, for comparison: the same notation
-    assert "↑iMarcha·iPieza·tParo'" in _texts(root, "condition")
+    # a condition is drawn as written (here in ST), not rewritten in the seed's notation
+    assert "RE iMarcha AND iPieza AND NOT tParo" in _texts(root, "condition")
 
 
 def test_drawer_tester_equations_are_drawn(tmp_path: Path) -> None:
