@@ -183,6 +183,9 @@ class Catalogue:
         self.points: dict[str, list[str]] = {}
         #: bound driver output point -> the chart output writing it
         self.written_by: dict[str, str] = {}
+        #: the chart names their scan writes at every scan, whatever the situation (bool
+        #: action targets, top-level pre/post assignments): a ``set`` is overwritten
+        self.rewritten: set[str] = set()
         #: what each name means to a person (the plant file's I/O list)
         self.iolist = IOList(plant.pdef)
         feeds: dict[str, list[tuple[str, bool]]] = {}
@@ -219,7 +222,10 @@ class Catalogue:
         self.traced = [n for n in self.names.values() if n.role != "step time"]
 
     def _instance(self, i: int, name: str, inst: Any, bindings: dict[str, str]) -> None:
+        from runtime.compiler.layout import written  # lazy: the controller's side only
+
         g, prog = inst.grafcet, inst.program
+        self.rewritten.update(f"{name}.{v}" for v in written(g)[0])
         groups: dict[str, list[str]] = {"inputs": [], "outputs": [], "memory": []}
         for key in inst.names():
             text = f"{name}.{key}"

@@ -418,6 +418,12 @@ class WebDef:
     idle_logout_ns: int = 600_000_000_000
     #: pages open at once (WebSocket connections), in all
     max_pages: int = 20
+    #: a page that answers nothing (not even the server's ping) for this long is closed,
+    #: and what it held released (a browser frozen, a laptop asleep), ns
+    page_timeout_ns: int = 30_000_000_000
+    #: names besides its own (listen address, loopback, certificate) the page is reached
+    #: by: any other Host is refused (DNS rebinding)
+    hosts: list[str] = field(default_factory=list)
     #: the writable names (the feed's; the page acts through the console, docs/web.md)
     writable: list[str] = field(default_factory=list)
     loc: Loc | None = None

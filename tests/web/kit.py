@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import re
+import resource
 import shutil
 import signal
 import socket
@@ -76,10 +77,17 @@ class Proc:
         return "\n".join(self.lines)
 
 
-def start(tmp: Path, *args: str) -> Proc:
+def start(tmp: Path, *args: str, nofile: int | None = None, nice: int = 0) -> Proc:
+    """``softplc ARGS`` in ``tmp``; ``nofile``: its open-file limit (RLIMIT_NOFILE), as a
+    unit's ``LimitNOFILE=`` sets it; ``nice``: its nice level (``Nice=``)."""
+    def limit() -> None:
+        if nofile is not None:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (nofile, nofile))
+        if nice:
+            os.nice(nice)
     p = subprocess.Popen([sys.executable, "-m", "runtime.cli", *args], cwd=str(tmp),
                          env=_env(tmp), text=True, stdout=subprocess.DEVNULL,
-                         stderr=subprocess.PIPE)
+                         stderr=subprocess.PIPE, preexec_fn=limit)
     proc = Proc(p)
     threading.Thread(target=proc.follow, daemon=True).start()
     return proc
@@ -140,8 +148,19 @@ class Rig:
         return self.feed.statuses[-1] if self.feed.statuses else {}
 
 
+def unit_nofile() -> int:
+    """The open-file limit of the web view's unit (``LimitNOFILE=`` of
+    systemd/softplc-web@.service), else systemd's default soft limit for a service,
+    1024."""
+    text = (ROOT / "systemd/softplc-web@.service").read_text(encoding="utf-8")
+    found = re.search(r"^LimitNOFILE=(\d+)", text, re.M)
+    return int(found.group(1)) if found else 1024
+
+
 @contextmanager
-def rig(tmp: Path, web: str = "", users: bool = True) -> Iterator[Rig]:
+def rig(tmp: Path, web: str = "", users: bool = True,
+        nofile: int | None = None) -> Iterator[Rig]:
+    """The controller and its web view (its open-file limit ``nofile`` if given)."""
     plant = write_plant(tmp, web, users)
     ctl = start(tmp, "run", str(plant), "--sim")
     webp = None
@@ -151,7 +170,7 @@ def rig(tmp: Path, web: str = "", users: bool = True) -> Iterator[Rig]:
         wait_until(lambda: feed_path.exists() or ctl.popen.poll() is not None, 30.0,
                    "the feed socket")
         assert ctl.popen.poll() is None, ctl.log()
-        webp = start(tmp, "web", str(plant))
+        webp = start(tmp, "web", str(plant), nofile=nofile)
         found: list[str] = []
 
         def listening() -> bool:

@@ -100,8 +100,9 @@ def test_two_hundred_connections_and_more_pages_than_allowed(tmp_path: Path) -> 
         before = len(r.ctl.lines)
         host, port = r.url.split("//")[1].rstrip("/").split(":")
         idle = []
-        for _ in range(200):  # connections that never send a request
-            s = socket.create_connection((host, int(port)))
+        for i in range(200):  # connections that never send a request, from 4 addresses
+            s = socket.create_connection((host, int(port)),
+                                         source_address=(f"127.0.0.{2 + i % 4}", 0))
             idle.append(s)
 
         async def pages() -> tuple[list[int], int]:
