@@ -714,6 +714,7 @@ MODULE_COMMANDS = {
     "monitor": "runtime.console.monitor",
     "import": "runtime.plcopen.commands",
     "export": "runtime.plcopen.commands",
+    "test": "runtime.scenario.commands",
 }
 
 

@@ -8,7 +8,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from runtime.compiler.emit import ident
-from runtime.compiler.program import Slot, SlotKind
+from runtime.compiler.program import COVERAGE, Slot, SlotKind
 from runtime.language import ast as A
 from runtime.language.model import Action, Grafcet, Qualifier, ScanModel, Step, VarKind
 from runtime.language.unparse import unparse
@@ -70,11 +70,20 @@ def activation_timed(g: Grafcet) -> set[str]:
     return {a.step for a in g.actions() if a.qualifier in ACTIVATION_TIMED}
 
 
+def coverage_key(kind: str, ref: str | int) -> str:
+    """The slot key of the counter of a step's activations (``kind`` "step", ``ref`` its
+    name), a transition's firings ("transition", its index) or an action's runs ("action",
+    its position in ``Grafcet.actions()``)."""
+    return f"{COVERAGE}{kind}:{ref}"
+
+
 class StateLayout:
     """The slots of one chart's state list, and the locals stored into them."""
 
-    def __init__(self, g: Grafcet) -> None:
+    def __init__(self, g: Grafcet, coverage: bool = False) -> None:
         self.g = g
+        #: count what the chart does (``coverage_key``): a scenario's coverage
+        self.coverage = coverage
         self.slots: list[Slot] = []
         self.index: dict[str, int] = {}  # slot key -> index
         self.edges: dict[int, int] = {}  # id(node) -> edge number
@@ -103,6 +112,13 @@ class StateLayout:
                 line += f"; slow = slow or {t}"
                 self.flag_stores += 1
         return line
+
+    def count(self, kind: str, ref: str | int, delta: str = "1") -> str:
+        """The statement adding ``delta`` to a coverage counter, or "" when the chart is
+        compiled without coverage."""
+        if not self.coverage:
+            return ""
+        return f"{self.slots[self.index[coverage_key(kind, ref)]].local} += {delta}"
 
     def add(self, target: str, delta: str) -> str:
         """``target += delta``, stored like ``let``."""
@@ -155,6 +171,13 @@ class StateLayout:
                     key = self._stable(f"#{a.qualifier.value}:{a.step}:{target}")
                     self.slot(f"{key}.F", f"f{tag}", False)
                     self.slot(f"{key}.T", f"t{tag}", 0)
+        if self.coverage:
+            for s in g.steps.values():
+                self.slot(coverage_key("step", s.name), ident("k", s.name), 0)
+            for t in g.transitions:
+                self.slot(coverage_key("transition", t.index), f"kt{t.index}", 0)
+            for n, _a in enumerate(g.actions()):
+                self.slot(coverage_key("action", n), f"ka{n}", 0)
         # edges: every RE/FE node of the chart
         for where, n in self._all_nodes():
             if isinstance(n, A.Unary) and n.op in ("RE", "FE"):
