@@ -4,13 +4,15 @@ expected and what the trace holds, and the nearest scan where it would have held
 
 from __future__ import annotations
 
+import operator
 from collections.abc import Callable
 from dataclasses import dataclass
+from itertools import repeat
 from typing import Any
 
 from drivers.durations import format_ns
 from runtime.errors import Loc, SourceError
-from runtime.scenario.spec import Check, Expectation
+from runtime.scenario.spec import OPS, Check, Expectation
 
 
 @dataclass
@@ -26,18 +28,31 @@ class Trace:
     def at(self, k: int) -> str:
         return f"cycle {k} (t = {format_ns(k * self.cycle_ns)})"
 
+    def mask(self, checks: tuple[Check, ...], first: int = 0, last: int | None = None
+             ) -> list[bool]:
+        """Whether every check holds, for each scan of ``first``..``last`` (default: the
+        whole run), computed a column at a time."""
+        last = self.scans - 1 if last is None else last
+        out: list[bool] | None = None
+        for c in checks:
+            col = self.cols[c.column][first:last + 1]
+            m = list(map(OPS[c.op], col, repeat(c.value, len(col))))
+            out = m if out is None else list(map(operator.and_, out, m))
+        return out or []
+
     def holds(self, checks: tuple[Check, ...]) -> Callable[[int], bool]:
-        """Whether every check holds in scan k."""
-        cols = [(c, self.cols[c.column]) for c in checks]
-        return lambda k: all(c.test(col[k]) for c, col in cols)
+        """Whether every check holds in scan k (the whole run's mask, made once)."""
+        return self.mask(checks).__getitem__
 
     def rises(self, column: str, first: int, last: int, falls: bool = False) -> list[int]:
         """The scans of ``first``..``last`` where the bool ``column`` goes from 0 to 1
         (``falls``: 1 to 0) since the scan before (never in cycle 0)."""
         col = self.cols[column]
-        want = 0 if falls else 1
-        return [k for k in range(max(first, 1), last + 1)
-                if bool(col[k]) == bool(want) and bool(col[k - 1]) != bool(want)]
+        start = max(first, 1)
+        pairs = zip(col[start - 1:last], col[start:last + 1], strict=True)
+        if falls:
+            return [start + i for i, (a, b) in enumerate(pairs) if a and not b]
+        return [start + i for i, (a, b) in enumerate(pairs) if b and not a]
 
 
 def failure(e: Expectation, tr: Trace) -> str | None:
@@ -88,18 +103,18 @@ def _scans(n: int) -> str:
 
 def _at(e: Expectation, tr: Trace) -> Found:
     k = e.first
-    holds = tr.holds(e.checks)
-    if holds(k):
+    if all(c.test(tr.cols[c.column][k]) for c in e.checks):
         return None
+    holds = tr.holds(e.checks)
     return (_first_false(e.checks, tr, k).loc,
             f"{tr.at(k)}: expected {_expected(e.checks)}; the trace holds "
             f"{_holds_text(e.checks, tr, k)}; {nearest(holds, k, k, tr)}")
 
 
 def _within(e: Expectation, tr: Trace) -> Found:
-    holds = tr.holds(e.checks)
-    if any(holds(k) for k in range(e.first, e.last + 1)):
+    if any(tr.mask(e.checks, e.first, e.last)):
         return None
+    holds = tr.holds(e.checks)
     seen = []
     for c in e.checks:
         values = list(dict.fromkeys(tr.cols[c.column][e.first:e.last + 1]))
@@ -113,8 +128,7 @@ def _within(e: Expectation, tr: Trace) -> Found:
 
 
 def _never(e: Expectation, tr: Trace) -> Found:
-    holds = tr.holds(e.checks)
-    bad = [k for k in range(e.first, e.last + 1) if holds(k)]
+    bad = [e.first + i for i, h in enumerate(tr.mask(e.checks, e.first, e.last)) if h]
     if not bad:
         return None
     return (e.checks[0].loc,
@@ -123,8 +137,7 @@ def _never(e: Expectation, tr: Trace) -> Found:
 
 
 def _always(e: Expectation, tr: Trace) -> Found:
-    holds = tr.holds(e.checks)
-    bad = [k for k in range(e.first, e.last + 1) if not holds(k)]
+    bad = [e.first + i for i, h in enumerate(tr.mask(e.checks, e.first, e.last)) if not h]
     if not bad:
         return None
     return (_first_false(e.checks, tr, bad[0]).loc,
@@ -149,11 +162,12 @@ def _on_edge(e: Expectation, tr: Trace) -> Found:
         return (t.loc, f"never reached: expected {t.name} to {verb} {e.span}; it never "
                        f"does (it is {', then '.join(t.show(v) for v in values[:4])}); "
                        f"nothing was checked")
-    holds = tr.holds(e.checks)
-    bad = [k for k in edges if not holds(k)]
+    ok = tr.mask(e.checks, e.first, e.last)
+    bad = [k for k in edges if not ok[k - e.first]]
     if not bad:
         return None
     k = bad[0]
+    holds = tr.holds(e.checks)
     of = f" ({len(bad)} of {len(edges)} {verb}s fail)" if len(edges) > 1 else ""
     return (_first_false(e.checks, tr, k).loc,
             f"{tr.at(k)}, where {t.name} {verb}s: expected {_expected(e.checks)}; the "
