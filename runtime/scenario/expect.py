@@ -191,8 +191,9 @@ def _rises(e: Expectation, tr: Trace) -> Found:
         best = min(ends, key=lambda k: (abs(k - e.last), k), default=None)
         where = ("no end of the window makes it hold" if best is None else
                  f"it holds for a window ending at {tr.at(best)}")
-        want = f"{c.op} {c.value}" if c.op != "==" else str(c.value)
-        return (c.loc, f"{e.span}: expected {want} rising edges of {c.name}; the trace "
+        want = (f"{c.value} rising edge{'s' if c.value != 1 else ''}" if c.op == "=="
+                else f"{c.op} {c.value} rising edges")
+        return (c.loc, f"{e.span}: expected {want} of {c.name}; the trace "
                        f"holds {len(edges)}" + (f" (at cycles {shown})" if edges else "")
                        + f"; {where}")
     return None

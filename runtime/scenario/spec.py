@@ -216,9 +216,9 @@ class _Reader:
         if "cycle" in m and "at" not in kinds:
             kinds.insert(0, "at")
         if len(kinds) != 1:
-            what = ("one of 'at:'/'cycle:' with 'expect:', 'on_rise:'/'on_fall:' with "
-                    "'expect:', 'never:', 'always:', 'rises:'")
-            raise SourceError(m.loc, f"an expectation needs {what}" if not kinds else
+            what = ("'at:'/'cycle:' with 'expect:', 'on_rise:'/'on_fall:' with 'expect:', "
+                    "'never:', 'always:', 'rises:'")
+            raise SourceError(m.loc, f"an expectation needs one of {what}" if not kinds else
                               f"an expectation has one of {what}: this one has "
                               f"{', '.join(kinds)}")
         kind = kinds[0]
@@ -283,8 +283,7 @@ class _Reader:
                                            "driver.point)")
         column, typ = self.resolve(name, loc)
         if (bool_only or counts) and typ is not T.BOOL:
-            raise SourceError(loc, f"'{name}' is a {typ.value.lower()}: rising edges are of "
-                                   "bools")
+            raise SourceError(loc, f"'{name}' is {_a(typ)}: edges are of bools")
         if value is None:
             return Check(name, column, typ, "==", 1, loc)
         vloc = vloc or loc
@@ -357,5 +356,11 @@ def _typed(typ: A.Type, v: Any, loc: Loc, name: str) -> Any:
             return float(text)
         return text if isinstance(text, int) else int(str(text), 10)
     except ValueError:
-        raise SourceError(loc, f"'{name}' is a {typ.value.lower()}: expected a number, "
-                               f"found {text!r}") from None
+        raise SourceError(loc, f"'{name}' is {_a(typ)}: expected a number, found "
+                               f"{text!r}") from None
+
+
+def _a(typ: A.Type) -> str:
+    """``an int``, ``a time``."""
+    word = typ.value.lower()
+    return f"{'an' if word[0] in 'aeiou' else 'a'} {word}"
