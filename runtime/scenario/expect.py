@@ -194,6 +194,7 @@ def _rises(e: Expectation, tr: Trace) -> Found:
         want = (f"{c.value} rising edge{'s' if c.value != 1 else ''}" if c.op == "=="
                 else f"{c.op} {c.value} rising edges")
         return (c.loc, f"{e.span}: expected {want} of {c.name}; the trace "
-                       f"holds {len(edges)}" + (f" (at cycles {shown})" if edges else "")
+                       f"holds {len(edges)}"
+                       + (f" (at cycle{'s' if len(edges) > 1 else ''} {shown})" if edges else "")
                        + f"; {where}")
     return None

@@ -76,7 +76,7 @@ def col(entry: str, name: str) -> int:
      "50, 110); it holds for a window ending at cycle 109 (t = 1s90ms)"),
     ("{from: 0s, to: 1s, rises: {tester1.oCerrar: '>= 2'}}", "tester1.oCerrar",
      "from 0s to 1s: expected >= 2 rising edges of tester1.oCerrar; the trace holds 1 (at "
-     "cycles 80); no end of the window makes it hold"),
+     "cycle 80); no end of the window makes it hold"),
     ("{name: the drawer closes, on_fall: tester1.iAbierto, expect: {tester1.oCerrar: 0}}",
      "tester1.oCerrar",
      "the drawer closes: cycle 90 (t = 900ms), where tester1.iAbierto falls: expected "
