@@ -28,8 +28,7 @@ import tempfile
 import time
 
 from runtime.engine.simulate import Simulation
-from runtime.scenario.run import play
-from runtime.scenario.spec import load_scenario
+from runtime.scenario.run import load_scenario, play
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PLANT = os.path.join(ROOT, "configs", "drawer_tester", "plant_sim.yaml")

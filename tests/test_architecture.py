@@ -43,7 +43,7 @@ ALLOWED: dict[str, frozenset[str]] = {
                                   "drivers.contract"}),
     "runtime.checker": frozenset({"runtime.errors", "runtime.language", "runtime.compiler",
                                   "runtime.engine.names", "runtime.engine.script",
-                                  "drivers.contract"}),
+                                  "runtime.scenario.spec", "drivers.contract"}),
     "runtime.drawing": frozenset({"runtime.errors", "runtime.language", "drivers.contract"}),
     "runtime.opcua": frozenset({"runtime.errors", "runtime.language", "runtime.engine.names",
                                 "runtime.controller.feed", "runtime.controller.feedclient",

@@ -171,13 +171,6 @@ class StateLayout:
                     key = self._stable(f"#{a.qualifier.value}:{a.step}:{target}")
                     self.slot(f"{key}.F", f"f{tag}", False)
                     self.slot(f"{key}.T", f"t{tag}", 0)
-        if self.coverage:
-            for s in g.steps.values():
-                self.slot(coverage_key("step", s.name), ident("k", s.name), 0)
-            for t in g.transitions:
-                self.slot(coverage_key("transition", t.index), f"kt{t.index}", 0)
-            for n, _a in enumerate(g.actions()):
-                self.slot(coverage_key("action", n), f"ka{n}", 0)
         # edges: every RE/FE node of the chart
         for where, n in self._all_nodes():
             if isinstance(n, A.Unary) and n.op in ("RE", "FE"):
@@ -188,6 +181,13 @@ class StateLayout:
                 self.slot(f"{key}.prev", f"ep{k}", n.op == "RE")
                 self.slot(key, f"e{k}", False)
                 self.index[f"#edge{k}"] = self.index[key]
+        if self.coverage:  # the counters last: the other slots keep their places
+            for st in g.steps.values():
+                self.slot(coverage_key("step", st.name), ident("k", st.name), 0)
+            for t in g.transitions:
+                self.slot(coverage_key("transition", t.index), f"kt{t.index}", 0)
+            for i in range(len(g.actions())):
+                self.slot(coverage_key("action", i), f"ka{i}", 0)
 
     def _stable(self, key: str) -> str:
         """``key``, numbered if it is taken: the keys of the scan's own memory are made of

@@ -12,11 +12,11 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from runtime.engine.simulate import ScanFault
+from runtime.engine.simulate import ScanFault, Simulation
 from runtime.errors import Loc, SourceError
 from runtime.language.coverage import ChartCoverage, counted
 from runtime.scenario.expect import Trace, failure
-from runtime.scenario.spec import Scenario, load_scenario
+from runtime.scenario.spec import Expectation, read_scenario
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +46,25 @@ class Outcome:
         return [c for c in self.cases if c.failure is not None]
 
 
+@dataclass
+class Scenario:
+    """A scenario ready to run: its simulation (plant built, its charts counting what they
+    do) and its expectations."""
+
+    path: str
+    sim: Simulation
+    expectations: list[Expectation]
+    columns: list[str]  # the trace's columns the expectations read
+
+
+def load_scenario(path: str) -> Scenario:
+    """The scenario at ``path`` read and its plant built; SourceError at the first fault."""
+    spec = read_scenario(path)
+    sim = Simulation(spec.plant_path, cycles=spec.cycles, pdef=spec.pdef,
+                     changes=spec.changes, coverage=True)
+    return Scenario(path, sim, spec.expectations, spec.columns)
+
+
 def run_scenario(path: str) -> Outcome:
     """Load and run the scenario at ``path``; never raises (a fault is in the Outcome)."""
     t0 = time.perf_counter()
@@ -68,6 +87,9 @@ def play(scenario: Scenario) -> Outcome:
     sim = scenario.sim
     wanted = scenario.columns
     sim.columns = [(key, get) for key, get in sim.columns if key in set(wanted)]
+    missing = set(wanted) - {key for key, _ in sim.columns}
+    if missing:  # the names read from the definition are the trace's: never here
+        raise SourceError(Loc(scenario.path, 1, 1), f"not in the trace: {sorted(missing)}")
     cols: dict[str, list[Any]] = {key: [] for key in wanted}
     adds = [(key, cols[key].append) for key in wanted]
     fault = None

@@ -1,6 +1,8 @@
-"""A scenario file read and checked against its plant: the simulation script's ``set:`` (or
-a ``script:`` it names) and the expectations of ``expect:``, every name resolved to a column
-of the trace and every time to a scan (docs/testing-charts.md, "The scenario file").
+"""A scenario file read and checked against its plant's definition: the simulation
+script's ``set:`` (or a ``script:`` it names) and the expectations of ``expect:``, every name
+resolved to a column of the trace and every time to a scan (docs/testing-charts.md, "The
+scenario file"). No plant is built (``softplc check`` reads scenarios too); ``run.py``
+builds it.
 
 Every fault is a SourceError at its place in the file, before anything runs.
 """
@@ -15,14 +17,13 @@ from dataclasses import dataclass
 from typing import Any
 
 from drivers.durations import format_ns
-from runtime.engine.names import Catalogue, PlantNames
+from runtime.engine.names import PlantNames
 from runtime.engine.script import Change, read_script, script_of
-from runtime.engine.simulate import Simulation
-from runtime.engine.trace import trace_columns
 from runtime.errors import Loc, SourceError, suggest
 from runtime.language import ast as A
 from runtime.language.filekind import SCENARIO_KEYS
 from runtime.language.grafcetfile import check_keys, expect_type, time_value
+from runtime.language.model import PlantDef, VarKind
 from runtime.language.plantfile import load_plant
 from runtime.language.signatures import FB_MEMBERS
 from runtime.language.yamlsrc import YList, YMap, load_yaml
@@ -97,12 +98,15 @@ class Expectation:
 
 
 @dataclass
-class Scenario:
-    """A scenario ready to run: its simulation (plant built, coverage counted) and its
-    expectations."""
+class ScenarioSpec:
+    """A scenario read: its plant's file and definition, the input changes (sorted by time,
+    file order kept at equal times), its number of scans, its expectations."""
 
     path: str
-    sim: Simulation
+    plant_path: str
+    pdef: PlantDef
+    changes: list[Change]
+    cycles: int
     expectations: list[Expectation]
 
     @property
@@ -113,9 +117,9 @@ class Scenario:
         return sorted(cols)
 
 
-def load_scenario(path: str, coverage: bool = True) -> Scenario:
-    """The scenario at ``path``, its plant built (``coverage``: its charts count what they
-    do); SourceError at the first fault."""
+def read_scenario(path: str) -> ScenarioSpec:
+    """The scenario at ``path``, checked against its plant's definition; SourceError at the
+    first fault."""
     doc = load_yaml(path)
     if not isinstance(doc, YMap) or "expect" not in doc:
         raise SourceError(Loc(path, 1, 1), "expected a scenario: a mapping with 'plant:', "
@@ -143,15 +147,14 @@ def load_scenario(path: str, coverage: bool = True) -> Scenario:
     if cycles is None:
         assert duration is not None
         cycles = -(-duration // pdef.cycle_ns)
-    sim = Simulation(plant_path, cycles=cycles, pdef=pdef, changes=changes, coverage=coverage)
-    reader = _Reader(sim)
+    reader = _Reader(pdef, names, cycles)
     items = expect_type(doc["expect"], doc.val_locs["expect"], YList,
                         "a list of expectations ({at: TIME, expect: {name: value}}, ...)")
     exps = [reader.expectation(item, loc)
             for item, loc in zip(items, getattr(items, "locs", []), strict=True)]
     if not exps:
         raise SourceError(doc.val_locs["expect"], "expected at least one expectation")
-    return Scenario(path, sim, exps)
+    return ScenarioSpec(path, plant_path, pdef, changes, cycles, exps)
 
 
 def _beside(path: str, doc: YMap, key: str) -> str:
@@ -160,21 +163,40 @@ def _beside(path: str, doc: YMap, key: str) -> str:
     return os.path.join(os.path.dirname(path), value)
 
 
-class _Reader:
-    """Reads expectations against one built plant: its trace's columns and the types of
-    its names, its cycle and the number of scans of the run."""
+def traced(pdef: PlantDef, names: PlantNames) -> dict[str, tuple[str, A.Type | None]]:
+    """Every name an expectation may read, with its trace column and its type (None for a
+    driver's point: a raw number), as the trace has them (docs/semantics.md, the trace):
+    an instance's variables and flags, each step's X and T (column ``.T_ms``), each
+    function block's outputs; each driver's declared points and ``ok``."""
+    out: dict[str, tuple[str, A.Type | None]] = {}
+    for iname, idef in pdef.instances.items():
+        g = idef.grafcet
+        for v in g.variables.values():
+            if v.kind is not VarKind.SYSTEM:
+                out[f"{iname}.{v.name}"] = (f"{iname}.{v.name}", v.type)
+        for s in g.steps:
+            out[f"{iname}.{s}.X"] = (f"{iname}.{s}.X", T.BOOL)
+            out[f"{iname}.{s}.T"] = (f"{iname}.{s}.T_ms", T.TIME)
+        for b in g.blocks.values():
+            for member, (mtype, is_input) in FB_MEMBERS[b.kind].items():
+                if not is_input:
+                    key = f"{iname}.{b.name}.{member}"
+                    out[key] = (key, mtype)
+    for dname, (ins, outs) in names.points.items():
+        for p in [*ins, *outs]:
+            out[f"{dname}.{p}"] = (f"{dname}.{p}", None)
+        out[f"{dname}.ok"] = (f"{dname}.ok", T.BOOL)
+    return out
 
-    def __init__(self, sim: Simulation) -> None:
-        plant = sim.plant
-        self.cycle_ns = plant.cycle_ns
-        self.scans = sim.cycles
-        self.types: dict[str, A.Type] = {n: s.type for n, s in Catalogue(plant).names.items()}
-        for iname, inst in plant.instances.items():  # function blocks' outputs
-            for b in inst.grafcet.blocks.values():
-                for member, (mtype, is_input) in FB_MEMBERS[b.kind].items():
-                    if not is_input:
-                        self.types[f"{iname}.{b.name}.{member}"] = mtype
-        self.columns = {key for key, _ in trace_columns(plant)}
+
+class _Reader:
+    """Reads expectations against one plant's definition: the names the trace has and
+    their types, its cycle and the number of scans of the run."""
+
+    def __init__(self, pdef: PlantDef, names: PlantNames, scans: int) -> None:
+        self.cycle_ns = pdef.cycle_ns
+        self.scans = scans
+        self.names = traced(pdef, names)
 
     # -- times and scans ---------------------------------------------------------------
     def end(self) -> str:
@@ -281,9 +303,10 @@ class _Reader:
         """The check of ``name`` against ``value`` (None: only resolve the name)."""
         name = expect_type(name, loc, str, "a name (instance.signal, instance.STEP.X, "
                                            "driver.point)")
-        column, typ = self.resolve(name, loc)
-        if (bool_only or counts) and typ is not T.BOOL:
-            raise SourceError(loc, f"'{name}' is {_a(typ)}: edges are of bools")
+        column, typed = self.resolve(name, loc)
+        if (bool_only or counts) and typed not in (T.BOOL, None):
+            raise SourceError(loc, f"'{name}' is {_a(typed)}: edges are of bools")
+        typ = T.INT if typed is None else typed  # a point: a raw number
         if value is None:
             return Check(name, column, typ, "==", 1, loc)
         vloc = vloc or loc
@@ -295,17 +318,18 @@ class _Reader:
             return Check(name, column, T.INT, op, count, loc)
         op, operand = _operator(value, vloc, tuple(OPS) if typ in (T.INT, T.REAL, T.TIME)
                                 else ("==", "!="))
+        if typed is None and isinstance(operand, bool):  # a point's bit: 0 or 1
+            operand = int(operand)
         return Check(name, column, typ, op, _typed(typ, operand, vloc, name), loc)
 
-    def resolve(self, name: str, loc: Loc) -> tuple[str, A.Type]:
-        """The trace column of ``name`` and its type (a step's ``.T``: ``.T_ms``)."""
-        typ = self.types.get(name)
-        column = name[:-2] + ".T_ms" if typ is T.TIME and name.endswith(".T") else name
-        if typ is None or column not in self.columns:
+    def resolve(self, name: str, loc: Loc) -> tuple[str, A.Type | None]:
+        """The trace column of ``name`` and its type (None: a driver's point)."""
+        found = self.names.get(name)
+        if found is None:
             raise SourceError(loc, f"unknown name '{name}': expected instance.variable, "
                                    f"instance.STEP.X, instance.STEP.T or driver.point"
-                                   f"{suggest(name, self.types)}")
-        return column, typ
+                                   f"{suggest(name, self.names)}")
+        return found
 
 
 def _operator(value: Any, loc: Loc, allowed: tuple[str, ...]) -> tuple[str, Any]:

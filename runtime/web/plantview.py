@@ -12,8 +12,8 @@ from __future__ import annotations
 from typing import Any
 
 from runtime.drawing.chart import chart_svg
-from runtime.language.coverage import ChartCoverage, of_chart, shading
 from runtime.language import ast as A
+from runtime.language.coverage import ChartCoverage, of_chart, shading
 from runtime.language.iolist import IOList
 from runtime.language.model import PlantDef, VarKind
 

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from runtime.language.filekind import file_kind
+from runtime.cli import main
 from tests.scenario.kit import DRAWER, PLANT, STORY, cli, run, write
 
 
@@ -132,3 +133,12 @@ def test_a_scenario_is_a_kind_of_file(tmp_path: Path) -> None:
     assert file_kind(str(path)) == "scenario"
     assert file_kind(str(DRAWER / "story.yaml")) == "script"
     assert file_kind(str(DRAWER / "story.test.yaml")) == "scenario"
+
+
+def test_softplc_check_reads_a_scenario_as_softplc_test_does(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    good, _ = write(tmp_path, ["{at: 0s, expect: {tester1.oAbrir: 0}}"], name="g.test.yaml")
+    bad, _ = write(tmp_path, ["{at: 0s, expect: {tester1.oAbrr: 1}}"], name="b.test.yaml")
+    assert main(["check", str(good)]) == 0
+    assert main(["check", str(bad)]) == 2
+    assert f"{bad}:{LAST}:23: error: unknown name 'tester1.oAbrr'" in capsys.readouterr().out
