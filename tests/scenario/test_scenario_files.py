@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from runtime.language.filekind import file_kind
 from runtime.cli import main
+from runtime.language.filekind import file_kind
 from tests.scenario.kit import DRAWER, PLANT, STORY, cli, run, write
 
 
