@@ -29,6 +29,7 @@ import time
 
 from runtime.engine.simulate import Simulation
 from runtime.scenario.run import load_scenario, play
+from runtime.scenario.spec import read_scenario
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PLANT = os.path.join(ROOT, "configs", "drawer_tester", "plant_sim.yaml")
@@ -81,8 +82,8 @@ def main(argv: list[str] | None = None) -> int:
             loads.append(t1 - t0)
             runs.append(t2 - t1)
             n_exp, failed = len(out.cases), len(out.failed)
-            sim = Simulation(PLANT, cycles=args.scans, pdef=sc.sim.pdef,
-                             changes=[e for e in _changes(sc)])
+            spec = read_scenario(path)
+            sim = Simulation(PLANT, cycles=args.scans, pdef=spec.pdef, changes=spec.changes)
             t3 = time.perf_counter()
             for _row in sim.run(trace=False):
                 pass
@@ -97,18 +98,6 @@ def main(argv: list[str] | None = None) -> int:
         f"  total                              {med(loads) + med(runs):.3f} s\n"
         f"  bare simulation, no trace          {med(bares):.3f} s\n")
     return 0
-
-
-def _changes(sc: object) -> list:  # type: ignore[type-arg]
-    """The scenario's input changes, for the bare run."""
-    from runtime.engine.names import PlantNames
-    from runtime.engine.script import script_of
-    from runtime.language.filekind import SCENARIO_KEYS
-    from runtime.language.yamlsrc import load_yaml
-
-    path = sc.path  # type: ignore[attr-defined]
-    return script_of(load_yaml(path), PlantNames(sc.sim.pdef),  # type: ignore[attr-defined]
-                     need_length=False, keys=SCENARIO_KEYS).changes
 
 
 if __name__ == "__main__":

@@ -126,3 +126,16 @@ def test_scenarios_beside_a_copied_plant(tmp_path: Path) -> None:
     assert status == 0, out
     assert out.splitlines()[0].startswith(f"{tmp_path / 'drawer' / 'story.test.yaml'}: "
                                           "50 passed (1750 scans, ")
+
+
+def test_the_bench_scenario_passes(tmp_path: Path) -> None:
+    """bench/scenario.py times a scenario that holds (its numbers mean a whole check, not
+    failures being described); 2,000 scans here, not a timing test."""
+    from bench.scenario import scenario_text
+    from runtime.scenario.run import run_scenario
+
+    path = tmp_path / "bench.test.yaml"
+    path.write_text(scenario_text(2000), encoding="utf-8")
+    out = run_scenario(str(path))
+    assert out.error is None and out.scans == 2000
+    assert len(out.cases) == 24 and out.failed == []
