@@ -35,7 +35,7 @@ def missed_transitions(svg: str) -> list[str]:
 
 def test_draw_shades_the_chart_by_the_coverage_of_its_scenarios(tmp_path: Path) -> None:
     cov = tmp_path / "cov.json"
-    status, out = cli("test", str(DOOR / "story.test.yaml"), "--coverage-file", str(cov))
+    status, out = cli("test", str(DOOR / "security_door.test.yaml"), "--coverage-file", str(cov))
     assert status == 0, out
     svg_path = tmp_path / "door.svg"
     assert cli("draw", str(DOOR / "security_door.yaml"), "--coverage", str(cov), "-o",
@@ -75,7 +75,7 @@ def test_the_page_shades_the_chart_by_coverage(tmp_path: Path) -> None:
     plant = write_plant(run, users=False)
     # a scenario of this plant that never raises a failure
     path, _ = write(tmp_path, ["{at: 500ms, expect: {tester1.gsAbrir.X: 1}}"],
-                    head=(DRAWER / "story.test.yaml").read_text(encoding="utf-8")
+                    head=(DRAWER / "drawer_tester.test.yaml").read_text(encoding="utf-8")
                     .split("expect:")[0].replace("plant: plant_sim.yaml", f"plant: {plant}")
                     .replace("script: story.yaml", "") + "duration: 2s\nset:\n"
                     "  - {at: 0ms, sim.I0: 1, tester1.iCerrado: 1}\n"

@@ -23,14 +23,14 @@ def test_the_example_plants_scenarios_pass_with_the_coverage_the_docs_give(
     lines = out.splitlines()
     runs = [re.sub(r" \(\d+ scans, [0-9.]+ s\)$", "", ln) for ln in lines
             if ln.startswith("configs/") and " passed" in ln]
-    assert runs == ["configs/carriage/story.test.yaml: 11 passed",
-                    "configs/compactadora/story.test.yaml: 18 passed",
-                    "configs/drawer_tester/story.test.yaml: 50 passed",
-                    "configs/reactor/story.test.yaml: 32 passed",
+    assert runs == ["configs/carriage/carriage.test.yaml: 11 passed",
+                    "configs/compactadora/compactadora.test.yaml: 18 passed",
+                    "configs/drawer_tester/drawer_tester.test.yaml: 50 passed",
+                    "configs/reactor/reactor.test.yaml: 32 passed",
                     "configs/security_door/alarms.test.yaml: 15 passed",
-                    "configs/security_door/story.test.yaml: 30 passed",
-                    "configs/seed004_codesys/story.test.yaml: 9 passed",
-                    "configs/seed004_codesys/story_simultaneous.test.yaml: 10 passed"]
+                    "configs/security_door/security_door.test.yaml: 30 passed",
+                    "configs/seed004_codesys/seed004.test.yaml: 9 passed",
+                    "configs/seed004_codesys/seed004_simultaneous.test.yaml: 10 passed"]
     # the coverage report, line for line, as the docs show it
     start = lines.index("coverage (steps active, transitions fired, actions run, divergence "
                         "branches taken):")
@@ -43,7 +43,7 @@ def test_the_example_plants_scenarios_pass_with_the_coverage_the_docs_give(
 def test_a_broken_chart_is_caught_by_its_scenario(tmp_path: Path) -> None:
     """The drawer tester's scenario, run on the broken copy: the stop at the end of the
     cycle is not obeyed (and what follows from it)."""
-    text = (DRAWER / "story.test.yaml").read_text(encoding="utf-8")
+    text = (DRAWER / "drawer_tester.test.yaml").read_text(encoding="utf-8")
     text = text.replace("plant: plant_sim.yaml", f"plant: {BROKEN / 'plant_sim.yaml'}")
     text = text.replace("script: story.yaml", f"script: {DRAWER / 'story.yaml'}")
     scenario = tmp_path / "broken.test.yaml"

@@ -132,7 +132,7 @@ def test_a_scenario_is_a_kind_of_file(tmp_path: Path) -> None:
     path, _ = write(tmp_path, ["{at: 0s, expect: {tester1.oAbrir: 0}}"])
     assert file_kind(str(path)) == "scenario"
     assert file_kind(str(DRAWER / "story.yaml")) == "script"
-    assert file_kind(str(DRAWER / "story.test.yaml")) == "scenario"
+    assert file_kind(str(DRAWER / "drawer_tester.test.yaml")) == "scenario"
 
 
 def test_softplc_check_reads_a_scenario_as_softplc_test_does(

@@ -124,7 +124,7 @@ def test_scenarios_beside_a_copied_plant(tmp_path: Path) -> None:
     shutil.copytree(DRAWER, tmp_path / "drawer")
     status, out = cli("test", str(tmp_path / "drawer"))
     assert status == 0, out
-    assert out.splitlines()[0].startswith(f"{tmp_path / 'drawer' / 'story.test.yaml'}: "
+    assert out.splitlines()[0].startswith(f"{tmp_path / 'drawer' / 'drawer_tester.test.yaml'}: "
                                           "50 passed (1750 scans, ")
 
 
