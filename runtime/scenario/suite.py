@@ -7,6 +7,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 
 from runtime.errors import Loc, SourceError
@@ -54,7 +55,15 @@ def run_all(files: list[str], jobs: int) -> list[Outcome]:
     method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
     with ProcessPoolExecutor(max_workers=min(jobs, len(files)),
                              mp_context=multiprocessing.get_context(method)) as pool:
-        return list(pool.map(run_scenario, files))
+        futures = [pool.submit(run_scenario, f) for f in files]
+        out = []
+        for f, fut in zip(files, futures, strict=True):
+            try:
+                out.append(fut.result())
+            except BrokenProcessPool as exc:  # a worker killed (out of memory ...)
+                out.append(Outcome(f, error=str(SourceError(
+                    Loc(f, 1, 1), f"the worker process running it ended: {exc}"))))
+        return out
 
 
 @dataclass

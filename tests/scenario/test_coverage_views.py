@@ -8,6 +8,8 @@ import re
 import urllib.request
 from pathlib import Path
 
+import pytest
+
 from runtime.drawing.chart import COVERED_FILL, MISSED_FILL, MISSED_STROKE
 from tests.opcua.feedkit import wait_until
 from tests.scenario.kit import DRAWER, ROOT, cli, write
@@ -59,12 +61,16 @@ def test_draw_shades_the_chart_by_the_coverage_of_its_scenarios(tmp_path: Path) 
 
 
 def test_draw_says_when_the_file_has_no_coverage_of_the_chart(
-        tmp_path: Path, capsys: object) -> None:
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     cov = tmp_path / "cov.json"
     cli("test", str(DRAWER), "--coverage-file", str(cov))
+    capsys.readouterr()
     status, _ = cli("draw", str(DOOR / "security_door.yaml"), "--coverage", str(cov), "-o",
                     str(tmp_path / "x.svg"))
     assert status == 2
+    assert capsys.readouterr().err == (
+        f"{cov}:1:1: error: no coverage of grafcet SecurityDoor "
+        f"({DOOR / 'security_door.yaml'}) in this file\n")
     assert not (tmp_path / "x.svg").exists()
 
 
@@ -107,9 +113,13 @@ def test_the_page_shades_the_chart_by_coverage(tmp_path: Path) -> None:
     assert step_fill(svg, "gsCerrar") == MISSED_FILL
 
 
-def test_the_page_refuses_a_coverage_file_that_is_not_one(tmp_path: Path) -> None:
+def test_the_page_refuses_a_coverage_file_that_is_not_one(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     plant = write_plant(tmp_path, users=False)
     bad = tmp_path / "cov.json"
     bad.write_text("[]", encoding="utf-8")
     status, _ = cli("web", str(plant), "--coverage", str(bad))
     assert status == 2
+    assert capsys.readouterr().err == (
+        f"{bad}:1:1: error: not a coverage file: expected the JSON that softplc test "
+        "--coverage-file writes (format 'softplc-coverage', version 1)\n")

@@ -139,3 +139,32 @@ def test_the_bench_scenario_passes(tmp_path: Path) -> None:
     out = run_scenario(str(path))
     assert out.error is None and out.scans == 2000
     assert len(out.cases) == 24 and out.failed == []
+
+
+def _dying(path: str) -> Any:
+    """run_scenario, but a worker given ``dies.test.yaml`` is killed."""
+    import os
+    import signal
+
+    from runtime.scenario.run import run_scenario
+
+    if path.endswith("dies.test.yaml"):
+        os.kill(os.getpid(), signal.SIGKILL)
+    return run_scenario(path)
+
+
+def test_a_worker_that_dies_is_a_file_error_not_a_traceback(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A worker killed while it runs a scenario (out of memory, a signal): that scenario is
+    in error, one line (and any scenario left unfinished with it), never a traceback."""
+    import runtime.scenario.suite as suite
+
+    monkeypatch.setattr(suite, "run_scenario", _dying)
+    write(tmp_path, [PASSING], name="a.test.yaml")
+    write(tmp_path, [PASSING], name="dies.test.yaml")
+    files, _ = discover([str(tmp_path)])
+    outcomes = run_all(files, 2)
+    assert [o.path for o in outcomes] == files
+    dead = outcomes[1]
+    assert dead.error is not None and dead.error.startswith(
+        f"{tmp_path / 'dies.test.yaml'}:1:1: error: the worker process running it ended")
