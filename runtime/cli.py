@@ -349,9 +349,14 @@ def cmd_web(args: argparse.Namespace) -> int:
 
         w.host, w.port = listen_value(args.listen, w.certificate is not None,
                                       Loc("--listen", 1, 1))
+    coverage = None
+    if args.coverage:  # read before serving: a bad file is one line, exit 2
+        from runtime.language.coverage import load
+
+        coverage = load(args.coverage)
     logging.getLogger("aiohttp.access").setLevel(logging.WARNING)
     try:
-        _until_signal(lambda stop: serve(pdef, feed, stop=stop))
+        _until_signal(lambda stop: serve(pdef, feed, stop=stop, coverage=coverage))
     except OSError as exc:  # the port is taken, a certificate cannot be read
         where = getattr(exc, "filename", None)
         sys.stderr.write(f"softplc web: error: {where + ': ' if where else ''}"
@@ -694,6 +699,8 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     wb.add_argument("plant")
     wb.add_argument("--listen", help="override web: listen (HOST:PORT)")
     wb.add_argument("--feed", help="override web: feed (the controller's feed socket)")
+    wb.add_argument("--coverage", metavar="COVERAGE.json",
+                    help="shade the charts by the coverage softplc test --coverage-file wrote")
     wb.set_defaults(func=cmd_web)
 
     command = None if argv is None else next((a for a in argv if not a.startswith("-")), "")
@@ -716,6 +723,7 @@ MODULE_COMMANDS = {
     "monitor": "runtime.console.monitor",
     "import": "runtime.plcopen.commands",
     "export": "runtime.plcopen.commands",
+    "test": "runtime.scenario.commands",
 }
 
 

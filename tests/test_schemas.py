@@ -23,7 +23,7 @@ from jsonschema import Draft202012Validator  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"
 SCHEMA_DIR = CONFIGS / "schema"
-KINDS = ("grafcet", "plant", "script")
+KINDS = ("grafcet", "plant", "script", "scenario")
 YAML_FILES = sorted(p for p in CONFIGS.rglob("*") if p.suffix in (".yaml", ".yml")
                     and "schema" not in p.relative_to(CONFIGS).parts)
 
@@ -37,12 +37,15 @@ VALIDATORS = {k: Draft202012Validator(load_schema(k)) for k in KINDS}
 
 
 def kind_of(doc: Any) -> str:
-    """The file kind from its top-level keys (language.md: grafcet, plant, script)."""
+    """The file kind from its top-level keys (language.md: grafcet, plant, script;
+    testing-charts.md: scenario)."""
     if isinstance(doc, dict):
         if "grafcet" in doc:
             return "grafcet"
         if "instances" in doc:
             return "plant"
+        if "expect" in doc:
+            return "scenario"
         if {"set", "duration", "cycles"} & set(doc):
             return "script"
     return "unknown"
@@ -470,6 +473,7 @@ def test_the_schemas_know_every_key_the_loader_reads() -> None:
         "step": (grafcetfile.STEP_KEYS, ("grafcet", "$defs", "innerStep")),
         "transition": (grafcetfile.TRANSITION_KEYS, ("grafcet", "$defs", "transition")),
         "script": (filekind.SCRIPT_KEYS, ("script",)),
+        "scenario": (filekind.SCENARIO_KEYS, ("scenario",)),
     }
     differ = {}
     for name, (keys, path) in sections.items():

@@ -141,6 +141,8 @@ class CheckRun:
             res = self._plant(path)
         elif kind == "script":
             res = [self._script(path)]
+        elif kind == "scenario":
+            res = [self._scenario(path)]
         else:
             res = [FileResult(path, [], f"{path}:1:1: error: expected a grafcet file "
                                         "('grafcet:' and 'steps:'), a plant file "
@@ -206,6 +208,17 @@ class CheckRun:
             return FileResult(path, [diag(Loc(path, 1, 1), "note", "G401", "the script has "
                                           "neither 'duration:' nor 'cycles:': run it with "
                                           "softplc simulate PLANT --script S --cycles N")])
+        return FileResult(path, [])
+
+    def _scenario(self, path: str) -> FileResult:
+        """A scenario (``softplc test``) is read as softplc test reads it, against the plant
+        it names: its inputs, names, values and times (docs/testing-charts.md)."""
+        from runtime.scenario.spec import read_scenario
+
+        try:
+            read_scenario(path)
+        except SourceError as exc:
+            return FileResult(path, [], str(exc))
         return FileResult(path, [])
 
     def _grafcet(self, path: str, g: Grafcet | None = None) -> FileResult:

@@ -23,6 +23,8 @@ class ActionEmitter:
         self.stmts = stmts
         self.stable = g.scan is ScanModel.STABLE
         self.codesys = g.scan is ScanModel.CODESYS
+        #: each action's position in ``g.actions()`` (its coverage counter's number)
+        self.number = {id(a): n for n, a in enumerate(g.actions())}
 
     def reset_stored(self, out: Emitter) -> None:
         """Reset every stored action's memory (S targets, SD SL DS flags, CODESYS's Q)."""
@@ -51,34 +53,54 @@ class ActionEmitter:
             out(self.state.let(s, value=f"({s} or {' or '.join(sets)})"
                                + (" and not _r" if r else "")))
             terms.append(s)
+        for a in assocs:  # with coverage: a set or a reset runs while its step is active
+            if a.qualifier in (Qualifier.S, Qualifier.R):
+                self.count(out, a, self.active(a.step))
         for k, a in enumerate(assocs):
             q, st = a.qualifier, a.step
             x, ta = ident("x", st), ident("ta", st)  # ta: since X rose (layout.py)
             if q is Qualifier.N:
-                terms.append(f"({x} and {self.exprs.ex(a.cond)})" if a.cond is not None else x)
+                terms.append(self.counted(out, a, f"({x} and {self.exprs.ex(a.cond)})"
+                                          if a.cond is not None else x))
             elif q is Qualifier.L:
-                terms.append(f"({x} and ct - {ta} < {a.time_ns})")
+                terms.append(self.counted(out, a, f"({x} and ct - {ta} < {a.time_ns})"))
             elif q is Qualifier.D:
-                terms.append(f"({x} and ct - {ta} >= {a.time_ns})")
+                terms.append(self.counted(out, a, f"({x} and ct - {ta} >= {a.time_ns})"))
             elif q is Qualifier.P:
-                terms.append(ident("a", st))
+                terms.append(self.counted(out, a, ident("a", st)))
             elif q in (Qualifier.SD, Qualifier.SL, Qualifier.DS):
                 tag = f"{q.value.lower()}{k}_{target}"
                 ff, tt = f"f{tag}", f"t{tag}"
                 if q is Qualifier.DS:
                     out(f"if {x} and ct - {ta} >= {a.time_ns}: {self.state.let(ff, value='True')}")
-                    terms.append(ff)
+                    terms.append(self.counted(out, a, ff))
                 else:
                     out(f"if {self.active(st)} and not {ff}: {self.state.let(ff, value='True')}; "
                         f"{self.state.let(tt, value='ct')}")
                     cmp = ">=" if q is Qualifier.SD else "<"
-                    terms.append(f"({ff} and ct - {tt} {cmp} {a.time_ns})")
+                    terms.append(self.counted(out, a, f"({ff} and ct - {tt} {cmp} {a.time_ns})"))
                 if r:
                     out(f"if _r: {self.state.let(ff, value='False')}")
         value = " or ".join(terms) or "False"
         if r:
             value = f"not _r and ({value})"
         out(self.state.let(ident("v", target), value=value))
+
+    def count(self, out: Emitter, a: Action, term: str) -> None:
+        """With coverage: count a run of ``a`` in a scan where ``term`` holds."""
+        count = self.state.count("action", self.number[id(a)], term)
+        if count:
+            out(count)
+
+    def counted(self, out: Emitter, a: Action, term: str) -> str:
+        """``term``, the part of ``a`` in its target's value; with coverage, computed once
+        into a temporary (``cvN``) whose truth counts a run of ``a``."""
+        if not self.state.coverage:
+            return term
+        n = self.number[id(a)]
+        out(f"cv{n} = {term}")
+        self.count(out, a, f"cv{n}")
+        return f"cv{n}"
 
     def statement_action(self, out: Emitter, a: Action, final_scan: bool = False) -> None:
         """``if <the action's Q>: body``; with ``final_scan``, CODESYS's extra run of an IEC
@@ -92,6 +114,7 @@ class ActionEmitter:
             out(comment(f"final scan of {label}"))
             # an L/D action runs once more only if it was running in the previous scan
             out(f"if {left} and {held}:" if held else f"if {left}:")
+            self.run_counted(out, a)
             self.stmts.block(out, a.body or [])
             return
         if q is Qualifier.N:
@@ -111,7 +134,16 @@ class ActionEmitter:
             out(self.state.let(held, value=cond))
             cond = held
         out(f"if {cond}:")
+        self.run_counted(out, a)
         self.stmts.block(out, a.body or [])
+
+    def run_counted(self, out: Emitter, a: Action) -> None:
+        """With coverage, the first line of a statement action's body: a run counted."""
+        count = self.state.count("action", self.number[id(a)])
+        if count:
+            out.indent()
+            out(count)
+            out.dedent()
 
     def ordered_actions(self, out: Emitter) -> None:
         """Every action in the scan model's order, then the supervision of max times."""

@@ -53,11 +53,11 @@ class Compiler:
     """Generates the scan function of one grafcet, from the parts that generate each piece
     (all of them share the one state layout)."""
 
-    def __init__(self, g: Grafcet) -> None:
+    def __init__(self, g: Grafcet, coverage: bool = False) -> None:
         self.g = g
         self.codesys = g.scan is ScanModel.CODESYS
         self.stable = g.scan is ScanModel.STABLE
-        self.state = StateLayout(g)
+        self.state = StateLayout(g, coverage)
         self.exprs = ExprEmitter(self.state)
         self.stmts = StmtEmitter(g, self.state, self.exprs)
         self.evolution = Evolution(g, self.state, self.exprs)
@@ -224,8 +224,8 @@ class Compiler:
         self.evolution.to_initial(out, mark_entered=False)
         out("if not resetprev:")
         out.indent()
-        out("; ".join(L(ident("a", s.name), value="True") for s in steps
-                      if s.initial or macro_initial(g, s)))
+        out("; ".join(L(ident("a", s.name), value="True") + self.evolution.counted(s.name)
+                      for s in steps if s.initial or macro_initial(g, s)))
         out.dedent()
         out("frozen = True")
         out.dedent()
@@ -294,10 +294,13 @@ class Compiler:
         return out
 
 
-def compile_grafcet(g: Grafcet, book: CodeBook | None = None) -> Program:
+def compile_grafcet(g: Grafcet, book: CodeBook | None = None, coverage: bool = False
+                    ) -> Program:
     """Compile ``g`` into a Program (source, scan factory, state layout); ``book``: code
-    compiled in another process, used when it holds this source (codebook.py)."""
-    c = Compiler(g)
+    compiled in another process, used when it holds this source (codebook.py).
+    ``coverage``: the scan also counts each step's activations, each transition's firings
+    and each action's runs (``Program.coverage``; ``softplc test --coverage``)."""
+    c = Compiler(g, coverage)
     source = c.generate()
     digest = hashlib.sha1(source.encode()).hexdigest()[:8]
     env = dict(SCAN_GLOBALS)

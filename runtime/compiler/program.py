@@ -24,6 +24,9 @@ from runtime.language.model import Grafcet
 
 #: a name in generated code
 _WORD = re.compile(r"[A-Za-z_]\w*")
+#: the first part of the key of a coverage counter's slot (``compile_grafcet(coverage=True)``,
+#: layout.coverage_key)
+COVERAGE = "#cover:"
 
 
 class SlotKind(enum.Enum):
@@ -271,6 +274,13 @@ class Program:
         """Monotonic time (ns) of the last scan of ``m``: its clock base plus its chart
         clock (the base is set so at every scan)."""
         return int(m[self._by_key["#clockbase"]] + m[self._by_key["#ct"]])
+
+    def coverage(self, m: Memory) -> dict[str, int]:
+        """The counters of a program compiled with ``coverage=True``, by what they count:
+        ``step:NAME`` (activations), ``transition:INDEX`` (firings), ``action:N`` (runs of
+        the N-th action of ``Grafcet.actions()``); empty without coverage."""
+        return {s.key[len(COVERAGE):]: int(m[s.index]) for s in self.slots
+                if s.key.startswith(COVERAGE)}
 
     def chart_paused(self, m: Memory) -> bool:
         """Whether the last scan of ``m`` was paused (SFCPause/SFCQuitError)."""

@@ -53,10 +53,13 @@ from runtime.drawing.layout import (
 from runtime.drawing.svg import Svg, esc, esc_attr
 from runtime.drawing.text import NOTATIONS, equation_lines, step_times, text_w
 from runtime.errors import Loc, SourceError
+from runtime.language.coverage import Shading
 from runtime.language.iolist import IOList
 from runtime.language.model import Grafcet, PlantDef, VarKind
 
 ACTIVE_FILL = "#ffd54f"
+#: ``--coverage``: an element the scenarios reached, one they never reached
+COVERED_FILL, MISSED_FILL, MISSED_STROKE = "#c8e6c9", "#ffcdd2", "#c62828"
 
 
 def shared_and_drops(c: Chart, r: Routes) -> dict[tuple[str, str], float]:
@@ -83,8 +86,10 @@ def shared_and_drops(c: Chart, r: Routes) -> dict[tuple[str, str], float]:
 class Drawing:
     """Draws a placed and routed chart."""
 
-    def __init__(self, c: Chart, r: Routes, active: set[str]) -> None:
+    def __init__(self, c: Chart, r: Routes, active: set[str],
+                 shading: Shading | None = None) -> None:
         self.c, self.r, self.active = c, r, active
+        self.shading = shading
         self.svg = Svg()
         self.side_x = 0.0  # where the boxes right of the chart start (equations, legend)
         self.arrivals: dict[str, list[float]] = {}  # step -> x of links reaching its line
@@ -269,6 +274,10 @@ class Drawing:
             # one group per transition, named by its index (the page marks it live)
             self.svg.add(f'<g class="transition-group" data-transition="{n[2:]}">')
             self.svg.line([(x - BAR_W / 2, y), (x + BAR_W / 2, y)], width=4, cls="transition")
+            if self.shading and self.shading.transitions.get(int(n[2:])) is False:
+                self.svg.add(f'<polyline points="{x - BAR_W / 2:.1f},{y:.1f} '
+                             f'{x + BAR_W / 2:.1f},{y:.1f}" fill="none" '
+                             f'stroke="{MISSED_STROKE}" stroke-width="4" class="missed"/>')
             lines = c.labels[n]
             y0 = y + 4 - CHAR_H * (len(lines) - 1) / 2
             for i, ln in enumerate(lines):
@@ -286,7 +295,8 @@ class Drawing:
             x, y = self.x(n), self.mid(n)
             w = 2 * c.nodes[n].left
             x0, y0 = x - w / 2, y - STEP_H / 2
-            fill = ACTIVE_FILL if st.name in self.active else "white"
+            fill = ACTIVE_FILL if st.name in self.active else self.shade(
+                self.shading.steps.get(st.name) if self.shading else None)
             self.svg.add(f'<g class="step-group" data-step="{esc_attr(st.name)}">')
             if st.description:
                 self.svg.add(f"<title>{esc(st.description)}</title>")
@@ -317,10 +327,11 @@ class Drawing:
         yy = y - total / 2
         self.svg.line([(x_right, y), (ax, y)])
         self.svg.add(f'<g class="actions" data-step="{esc_attr(step)}">')
-        for q, lines in rows:
+        for k, (q, lines) in enumerate(rows):
             h = row_h(lines)
-            self.svg.rect(ax, yy, qw, h)
-            self.svg.rect(ax + qw, yy, bw, h)
+            fill = self.shade(self.shading.actions.get((step, k)) if self.shading else None)
+            self.svg.rect(ax, yy, qw, h, fill)
+            self.svg.rect(ax + qw, yy, bw, h, fill)
             y0 = yy + h / 2 + 4 - CHAR_H * (len(lines) - 1) / 2
             self.svg.text(ax + qw / 2, yy + h / 2 + 4, q, 11, "middle",
                           extra=' class="qualifier"')
@@ -332,6 +343,11 @@ class Drawing:
             yy += h
         self.svg.add("</g>")
 
+
+    @staticmethod
+    def shade(reached: bool | None) -> str:
+        """The fill of an element by coverage: reached, never reached, not measured."""
+        return "white" if reached is None else COVERED_FILL if reached else MISSED_FILL
 
     def draw_equations(self) -> float:
         """pre and post, right of the chart: what runs every scan outside the steps.
@@ -372,8 +388,9 @@ class Drawing:
 
 
 def render(c: Chart, r: Routes, active: set[str], title: str,
-           legend: tuple[str, list[tuple[str, str, str]]] = ("", [])) -> str:
-    d = Drawing(c, r, active)
+           legend: tuple[str, list[tuple[str, str, str]]] = ("", []),
+           shading: Shading | None = None) -> str:
+    d = Drawing(c, r, active, shading)
     d.draw_frames()
     d.draw_links()
     d.draw_transitions()
@@ -436,13 +453,15 @@ def laid_out(g: Grafcet, layout: str = "auto", notation: str = "written",
 def chart_svg(g: Grafcet, active: set[str] | None = None, title: str = "",
               layout: str = "auto",
               legend: tuple[str, list[tuple[str, str, str]]] = ("", []),
-              notation: str = "written", live: bool = False) -> tuple[str, str]:
+              notation: str = "written", live: bool = False,
+              shading: Shading | None = None) -> tuple[str, str]:
     """(SVG text, layout used: "dot" or "python"); ``legend``: its title and rows;
     ``notation``: conditions as written or in the seed notation (text.py); ``live``: the
     live page's drawing, with an empty ``text.live-t`` right of each step box (room kept
-    for it) where the page writes the active step's time."""
+    for it) where the page writes the active step's time; ``shading``: the chart's coverage
+    (steps, transitions and actions reached in green, never reached in red)."""
     c, r, used = laid_out(g, layout, notation, live)
-    return render(c, r, active or set(), title, legend), used
+    return render(c, r, active or set(), title, legend, shading), used
 
 
 # -- trace -----------------------------------------------------------------------------------
@@ -528,7 +547,8 @@ def load_chart(path: str, instance: str | None
 
 
 def draw(path: str, out: str, trace: str | None = None, cycle: int | None = None,
-         instance: str | None = None, layout: str = "auto", notation: str = "written") -> str:
+         instance: str | None = None, layout: str = "auto", notation: str = "written",
+         coverage: str | None = None) -> str:
     """Write the SVG; returns the layout used ("dot" or "python")."""
     g, instance, pdef = load_chart(path, instance)
     active: set[str] = set()
@@ -538,10 +558,28 @@ def draw(path: str, out: str, trace: str | None = None, cycle: int | None = None
         k = 0 if cycle is None else cycle
         active, instance, row = active_from_trace(g, trace, k, instance)
         title = f"{g.name} ({instance}) — cycle {k}, t = {row.get('t_ms', '?')} ms"
-    svg, used = chart_svg(g, active, title, layout, key, notation)
+    shading = None
+    if coverage is not None:
+        shading, said = coverage_of(g, coverage)
+        title = f"{title} — {said}"
+    svg, used = chart_svg(g, active, title, layout, key, notation, shading=shading)
     with open(out, "w", encoding="utf-8") as f:
         f.write(svg)
     return used
+
+
+def coverage_of(g: Grafcet, path: str) -> tuple[Shading, str]:
+    """The shading of ``g`` from the coverage file at ``path`` (``softplc test
+    --coverage-file``), and what the title says of it; SourceError if the file holds no
+    coverage of ``g``."""
+    from runtime.language import coverage as C
+
+    cov = C.of_chart(C.load(path), g)
+    if cov is None:
+        raise SourceError(Loc(path, 1, 1), f"no coverage of grafcet {g.name} ({g.path}) in "
+                                           "this file")
+    return C.shading(g, cov), (f"coverage {cov.percent():.1f}% over {cov.scenarios} "
+                               "scenario(s): green reached, red never")
 
 
 def cmd_draw(args: argparse.Namespace) -> int:
@@ -550,7 +588,7 @@ def cmd_draw(args: argparse.Namespace) -> int:
         return 2
     try:
         used = draw(args.file, args.output, args.trace, args.cycle, args.instance, args.layout,
-                    args.notation)
+                    args.notation, args.coverage)
     except SourceError as exc:
         sys.stderr.write(f"{exc}\n")
         return 2
@@ -577,4 +615,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     d.add_argument("--notation", choices=NOTATIONS, default="written",
                    help="conditions, action conditions and equations as the file wrote them "
                         "(written), or in the seed's notation: ↑ · + ' (seed)")
+    d.add_argument("--coverage", metavar="COVERAGE.json",
+                   help="shade the chart by the coverage softplc test --coverage-file wrote: "
+                        "reached in green, never reached in red")
     d.set_defaults(func=cmd_draw)

@@ -168,6 +168,24 @@ def cmd_import(args: argparse.Namespace) -> int:
     else:
         sys.stderr.write(f"{plant}: plant skeleton on simulated I/O "
                          f"({len(result.plan.instances)} instance(s))\n")
+    if args.scenario:
+        return _scenario(plant, args.file)
+    return 0
+
+
+def _scenario(plant: str, source: str) -> int:
+    """``--scenario``: the scenario skeleton beside the plant, never over an existing one."""
+    from runtime.scenario.skeleton import write_skeleton
+
+    try:
+        path = write_skeleton(plant, os.path.basename(source))
+    except FileExistsError as exc:
+        sys.stderr.write(f"{exc.filename}: exists: kept (a scenario is never overwritten; "
+                         "remove it for a new skeleton)\n")
+        return 0
+    except OSError as exc:
+        return _fail("import", exc)
+    sys.stderr.write(f"{path}: scenario skeleton (softplc test {os.path.dirname(path)})\n")
     return 0
 
 
@@ -209,6 +227,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    help="overwrite existing files (never a plant file edited since)")
     i.add_argument("--chart-only", action="store_true",
                    help="write (and replace) the charts only, never the plant file")
+    i.add_argument("--scenario", action="store_true",
+                   help="also write a scenario skeleton, plant.test.yaml: the inputs to set, "
+                        "the outputs to expect (softplc test; never overwritten)")
     i.set_defaults(func=cmd_import)
     e = sub.add_parser("export", help="export a chart as a PLCopen XML project",
                        description="Write a PLCopen TC6 XML v2.01 project holding the chart as "

@@ -47,6 +47,7 @@ from aiohttp import WSMsgType, web
 
 from runtime.controller.feedclient import FeedClient
 from runtime.controller.pin import BUSY, HELD, OK, Passwords
+from runtime.language.coverage import ChartCoverage
 from runtime.language.model import PlantDef, WebDef
 from runtime.language.runtimedir import locate
 from runtime.web.connections import HEADER_TIMEOUT_S, Listener
@@ -147,9 +148,13 @@ class WebView:
     """The web view of one plant: the feed's client, the pages, the logins."""
 
     def __init__(self, pdef: PlantDef, feed: str | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic,
+                 coverage: list[ChartCoverage] | None = None) -> None:
+        """``coverage``: the charts' coverage (``softplc web --coverage``), their drawings
+        shaded by it."""
         assert pdef.web is not None
         self.pdef = pdef
+        self.coverage = coverage
         self.conf: WebDef = pdef.web
         self.clock = clock
         self.tls = self.conf.certificate is not None
@@ -271,7 +276,7 @@ class WebView:
         name = request.match_info["instance"]
         svg = self._charts.get(name)
         if svg is None:
-            svg = await asyncio.to_thread(chart_of, self.pdef, name)
+            svg = await asyncio.to_thread(chart_of, self.pdef, name, self.coverage)
             if svg is None:
                 raise web.HTTPNotFound(text=f"no instance {name}")
             self._charts[name] = svg
@@ -589,6 +594,7 @@ class WebView:
 
 
 async def serve(pdef: PlantDef, feed: str | None = None, stop: asyncio.Event | None = None,
-                ready: Callable[[WebView, int], None] | None = None) -> None:
+                ready: Callable[[WebView, int], None] | None = None,
+                coverage: list[ChartCoverage] | None = None) -> None:
     """Run the web view of ``pdef`` until ``stop`` is set (or forever)."""
-    await WebView(pdef, feed).run(stop or asyncio.Event(), ready)
+    await WebView(pdef, feed, coverage=coverage).run(stop or asyncio.Event(), ready)
