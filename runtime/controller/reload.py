@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 
 from runtime.change.plan import Applied, Prepared, apply, file_hashes, prepare
 from runtime.compiler.codebook import CodeBook
-from runtime.controller.reloadchild import compile_apart, load_apart
+from runtime.controller.reloadchild import INTERNAL, compile_apart, load_apart
 from runtime.engine.plant import Plant
 from runtime.errors import SoftplcError
 from runtime.language.model import PlantDef
@@ -232,9 +232,9 @@ class Reloader:
                 box.append(fn())
             except SoftplcError as exc:
                 box.append(f"compile error: {exc}")
-            except Exception as exc:  # noqa: BLE001 - a bug: said in one line, logged
+            except Exception:  # noqa: BLE001 - a bug: said in one line, logged
                 log.exception("reload: preparing the new program failed")
-                box.append(f"cannot prepare the new program: {type(exc).__name__}: {exc}")
+                box.append(f"the new program could not be prepared: {INTERNAL}")
         t = threading.Thread(target=run, name="softplc-reload", daemon=True)
         t.start()
         t.join()
