@@ -443,21 +443,21 @@ def cmd_reload(args: argparse.Namespace) -> int:
     """Online change through the console of a running controller (docs/online-change.md):
     exit 0 applied, 1 refused (each reason on stderr), 2 cannot connect."""
     from runtime.console.client import ConsoleClient
-    from runtime.console.links import MonitorError, Target
-    from runtime.language.runtimedir import expand
+    from runtime.console.links import MonitorError, Target, console_of
 
     def fail(text: str, status: int) -> int:
         sys.stderr.write(f"softplc reload: {text}\n")
         return status
     try:
-        address = _console_of(args.target)
-    except SourceError as exc:  # the edited plant does not load: that is the refusal
-        return fail(f"refused: {exc}", 1)
+        address = console_of(args.target)
+    except SourceError as exc:
+        if exc.loc.file == "SOCKET|PORT":  # the target's text
+            return fail(f"error: {exc.message}", 2)
+        return fail(f"refused: {exc}", 1)  # the edited plant does not load: the refusal
     try:
-        client = ConsoleClient(Target.parse(expand(address, Loc("SOCKET|PORT", 1, 1)),
-                                            args.baudrate).open())
-    except (SourceError, MonitorError) as exc:
-        return fail(f"error: {exc.message if isinstance(exc, SourceError) else exc}", 2)
+        client = ConsoleClient(Target.parse(address, args.baudrate).open())
+    except MonitorError as exc:
+        return fail(f"error: {exc}", 2)
     line = "reload" + (" --force" if args.force else "") + (" --back" if args.back else "")
     line += "".join(f" --restart {name}" for name in args.restart)
     try:
@@ -488,27 +488,6 @@ def cmd_reload(args: argparse.Namespace) -> int:
     for x in refusals:
         sys.stderr.write(f"softplc reload: refused: {x}\n")
     return 1
-
-
-def _console_of(target: str) -> str:
-    """The console address ``target`` names: a plant file's console, found the way every
-    process of a plant finds its controller (``runtimedir.locate``; SourceError if the
-    plant does not load), or ``target`` itself (a socket, a TCP port, a serial port)."""
-    from runtime.language.plantfile import load_plant
-    from runtime.language.runtimedir import locate
-
-    try:
-        st = os.stat(target)
-    except OSError:
-        st = None
-    if st is None or not stat.S_ISREG(st.st_mode):
-        return target
-    pdef = load_plant(target)
-    console = locate(pdef).console
-    if console is None:
-        raise SourceError(Loc(pdef.path, 1, 1), "the plant has no console to reload it "
-                                                "through: add monitor: socket: (or tcp:)")
-    return console
 
 
 def cmd_diff(args: argparse.Namespace) -> int:

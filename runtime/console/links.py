@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Protocol
 
-from runtime.errors import SoftplcError
+from runtime.errors import Loc, SoftplcError, SourceError
 
 #: how long a command may take before the controller is considered silent, seconds
 REQUEST_TIMEOUT_S = 5.0
@@ -29,6 +29,37 @@ class MonitorError(SoftplcError):
 
     Examples: the socket path does not exist; the serial port is held by another
     program; no reply within REQUEST_TIMEOUT_S."""
+
+
+def console_of(target: str) -> str:
+    """The console address ``target`` names (``softplc monitor``, ``softplc reload``): a
+    plant file's console, found the way every process of a plant finds its controller
+    (``runtimedir.locate``: SourceError if the plant does not load or has no console), or
+    ``target`` itself (a socket, HOST:PORT, a serial port). ``${RUNTIME_DIR}`` is each
+    plant's own directory: it is expanded only where systemd set it (``$RUNTIME_DIRECTORY``),
+    else refused naming the plant file as the way (SourceError at ``SOCKET|PORT``)."""
+    from runtime.language.plantfile import load_plant
+    from runtime.language.runtimedir import PLACEHOLDER, expand, locate
+
+    try:
+        st: os.stat_result | None = os.stat(target)
+    except OSError:
+        st = None
+    if st is not None and stat.S_ISREG(st.st_mode):
+        pdef = load_plant(target)
+        console = locate(pdef).console
+        if console is None:
+            raise SourceError(Loc(pdef.path, 1, 1), "the plant has no console to reach it "
+                                                    "by: add monitor: socket: (or tcp:)")
+        return console
+    loc = Loc("SOCKET|PORT", 1, 1)
+    if "${" in target.replace(PLACEHOLDER, "") or PLACEHOLDER not in target:
+        return expand(target, loc)  # as it is, or an unknown placeholder refused
+    if not os.path.isabs(os.environ.get("RUNTIME_DIRECTORY", "").split(":")[0]):
+        raise SourceError(loc, f"{PLACEHOLDER} is each plant's own directory: name the "
+                               "plant file instead (it finds the plant's console), or the "
+                               "socket's path as the controller printed it")
+    return expand(target, loc)
 
 
 class ConnectionLost(MonitorError):
