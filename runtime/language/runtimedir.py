@@ -211,7 +211,7 @@ def locate(pdef: PlantDef) -> Whereabouts:
     """Where the controller of ``pdef`` is (``pdef`` loaded by ``load_plant``: its paths are
     already expanded the way the controller's are)."""
     real = os.path.realpath(pdef.path)
-    home = os.path.dirname(real)
+    home = plant_home(pdef.path)
     rdir = runtime_dir(plant=pdef.path)
     name = plant_name(pdef.path)
     digest = _digest(home)[:12]
