@@ -497,6 +497,7 @@ def cmd_diff(args: argparse.Namespace) -> int:
     from runtime.language.filekind import read_document
     from runtime.language.grafcetfile import load_grafcet
     from runtime.language.plantfile import load_plant
+    from runtime.language.runtimedir import version_of
 
     (old_kind, old_doc), (new_kind, new_doc) = read_document(args.old), read_document(args.new)
     kinds = [old_kind, new_kind]
@@ -508,7 +509,9 @@ def cmd_diff(args: argparse.Namespace) -> int:
         raise SourceError(Loc(args.new, 1, 1), f"expected a {kinds[0]} file like {args.old}, "
                                                f"found a {kinds[1]} file")
     if kinds[0] == "plant":
-        old, new = load_plant(args.old, doc=old_doc), load_plant(args.new, doc=new_doc)
+        old = load_plant(args.old, doc=old_doc)
+        with version_of(args.old):  # ${RUNTIME_DIR} is the running plant's, as in reload
+            new = load_plant(args.new, doc=new_doc)
     else:
         g = load_grafcet(args.old, doc=old_doc)
         old, new = chart_plant(g), chart_plant(load_grafcet(args.new, doc=new_doc), g.name)

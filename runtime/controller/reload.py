@@ -119,6 +119,9 @@ class Reloader:
         self.hashes: dict[str, str] = file_hashes(daemon.pdef)
         self._lock = threading.Lock()
         self._hooks: list[ReloadHook] = []
+        #: the plant file the controller started with: its identity and runtime directory
+        #: stay, whatever file a reload loads
+        self.plant_path = daemon.pdef.path
 
     def add_hook(self, hook: ReloadHook) -> None:
         """Have ``hook`` follow the plant across reloads (see ReloadHook)."""
@@ -154,7 +157,9 @@ class Reloader:
             pdef = new_pdef
             loaded = self._in_worker(lambda: compile_apart(pdef))
         else:
-            loaded = self._in_worker(lambda: load_apart(files or old_pdef.path))
+            # the new version's ${RUNTIME_DIR} is the running plant's (its lock's)
+            loaded = self._in_worker(lambda: load_apart(files or old_pdef.path,
+                                                        self.plant_path))
         if isinstance(loaded, str):
             return self._refused([loaded], back)
         new_pdef, book = loaded

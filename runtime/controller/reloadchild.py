@@ -45,12 +45,13 @@ import subprocess
 import sys
 import traceback
 from collections.abc import Iterator
+from contextlib import nullcontext
 from typing import IO
 
 from runtime.compiler.codebook import CodeBook
 from runtime.engine.plant import Plant
 from runtime.errors import SoftplcError
-from runtime.language import modeldata
+from runtime.language import modeldata, runtimedir
 from runtime.language.model import PlantDef
 from runtime.language.plantfile import load_plant
 
@@ -87,10 +88,13 @@ Loaded = tuple[PlantDef, CodeBook]
 
 
 # -- the controller's side -----------------------------------------------------------------
-def load_apart(path: str) -> Loaded | str:
+def load_apart(path: str, version_of: str | None = None) -> Loaded | str:
     """The plant file at ``path`` and its charts loaded, and their code compiled, by the
-    child; or the one line saying why not (a load error, a compile error, a limit)."""
-    got = _run(["load", os.path.abspath(path)], None)
+    child; or the one line saying why not (a load error, a compile error, a limit).
+    ``version_of``: the running plant's file, whose ``${RUNTIME_DIR}`` the new version's
+    paths are expanded in (``runtimedir.version_of``)."""
+    got = _run(["load", os.path.abspath(path),
+                *([os.path.abspath(version_of)] if version_of else [])], None)
     if isinstance(got, str):
         return got
     pdef, book = got
@@ -211,8 +215,9 @@ def _frame(kind: bytes, payload: bytes) -> bytes:
 
 # -- the child's side --------------------------------------------------------------------
 def main(argv: list[str]) -> int:
-    """The child: ``MEMORY_BYTES CPU_S load PATH`` or ``MEMORY_BYTES CPU_S compile`` (the
-    plant as JSON frames on stdin). Writes its frames to stdout; 0 when it wrote a header."""
+    """The child: ``MEMORY_BYTES CPU_S load PATH [RUNNING_PLANT]`` or ``MEMORY_BYTES CPU_S
+    compile`` (the plant as JSON frames on stdin). Writes its frames to stdout; 0 when it
+    wrote a header."""
     memory, cpu, mode, *rest = argv
     resource.setrlimit(resource.RLIMIT_AS, (int(memory), int(memory)))
     resource.setrlimit(resource.RLIMIT_CPU, (int(cpu), int(cpu) + 1))
@@ -250,7 +255,8 @@ def _work(mode: str, rest: list[str], stdin: IO[bytes]) -> list[bytes]:
 
     if mode == "load":
         try:
-            pdef = load_plant(rest[0])
+            with runtimedir.version_of(rest[1]) if len(rest) > 1 else nullcontext():
+                pdef = load_plant(rest[0])
         except (SoftplcError, OSError) as exc:
             return error(f"load error: {exc}")
     else:

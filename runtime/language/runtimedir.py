@@ -31,7 +31,9 @@ A plant run by hand has a runtime directory of its own, as an installed plant ha
 first KEY_HASH hexadecimal digits of the sha256 of its home). So what two plants name in
 ``${RUNTIME_DIR}`` (``${RUNTIME_DIR}/drawer.sock``, a retain file) and their default feed
 socket are never the same file, even for two clones of one project (the same name, two
-homes). ``runtime_dir`` without a plant is the directory of those directories.
+homes). ``runtime_dir`` without a plant is the directory of those directories. A plant file
+loaded as a version of a running plant (``softplc diff OLD NEW``, ``reload NEW`` of a copy
+kept elsewhere) has the running plant's: ``version_of``.
 
 This module only names things; ``runtime.controller.paths`` creates and checks the
 directories, ``runtime.controller.plantlock`` takes the lock. Nothing else is expanded in a
@@ -76,6 +78,9 @@ KEY_HASH = 8
 #: install-service loads the plant as the service will see it (``service_view``)
 _SERVICE_VIEW: contextvars.ContextVar[str | None] = contextvars.ContextVar(
     "softplc_service_view", default=None)
+#: the plant file whose runtime directory a load uses (``version_of``)
+_VERSION_OF: contextvars.ContextVar[str | None] = contextvars.ContextVar(
+    "softplc_version_of", default=None)
 
 
 def installed_name(plant: str) -> str | None:
@@ -120,6 +125,8 @@ def runtime_dir(env: Mapping[str, str] | None = None, uid: int | None = None,
     viewed = _SERVICE_VIEW.get()
     if viewed is not None:
         return os.path.join(SERVICE_RUNTIME, viewed)
+    if plant is not None:
+        plant = _VERSION_OF.get() or plant
     env = os.environ if env is None else env
     uid = os.geteuid() if uid is None else uid
     systemd = env.get("RUNTIME_DIRECTORY", "").split(":")[0]
@@ -163,6 +170,19 @@ def service_view(name: str) -> Iterator[None]:
         yield
     finally:
         _SERVICE_VIEW.reset(token)
+
+
+@contextlib.contextmanager
+def version_of(plant: str) -> Iterator[None]:
+    """Within it, ``${RUNTIME_DIR}`` is the plant file ``plant``'s, whatever file is
+    loaded: how a new version of a running plant is read (``softplc diff OLD NEW``, a
+    reload), so that the files it names there are the running plant's, wherever the new
+    version is kept."""
+    token = _VERSION_OF.set(plant)
+    try:
+        yield
+    finally:
+        _VERSION_OF.reset(token)
 
 
 def expand(path: str, loc: Loc, env: Mapping[str, str] | None = None) -> str:

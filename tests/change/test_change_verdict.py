@@ -17,6 +17,7 @@ import contextlib
 import copy
 import io
 import shutil
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -102,11 +103,20 @@ def io_list_edited(plant: dict[str, Any], types: dict[str, dict[str, A.Type]]) -
     return units
 
 
+@pytest.fixture
+def short_run() -> Iterator[Path]:
+    """A runtime directory of a short path (a plant's sockets below it: at most 107 bytes)."""
+    run = Path(tempfile.mkdtemp(prefix="v", dir="/tmp"))
+    try:
+        yield run
+    finally:
+        shutil.rmtree(run, ignore_errors=True)
+
+
 @pytest.mark.parametrize("path", PLANTS, ids=lambda p: str(p.relative_to(ROOT / "configs")))
 def test_an_example_plant_with_its_io_list_edited(
-        path: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path / "run"))
-    (tmp_path / "run").mkdir()
+        path: Path, tmp_path: Path, short_run: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(short_run))
     shutil.copytree(ROOT / "configs", tmp_path / "configs")  # charts of sibling folders
     here = tmp_path / "configs" / path.parent.name
     old = here / path.name
@@ -254,3 +264,24 @@ def test_generated_plants_and_edits(gen_dir: Path, monkeypatch: pytest.MonkeyPat
     (where / "run").mkdir()  # ${RUNTIME_DIR}: a directory of this user, the plant's own
     monkeypatch.setenv("XDG_RUNTIME_DIR", str(where / "run"))
     same_verdict(old, new, generated=True)
+
+
+def test_a_version_kept_in_another_directory(tmp_path: Path, short_run: Path,
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """A plant's ``${RUNTIME_DIR}`` is its own (docs/daemon.md): a new version kept
+    elsewhere (an edited copy, a checkout) is read as a version of the running plant by
+    ``softplc diff`` and ``reload``, its paths there the running plant's, so the change is
+    the edit, not "plc: retain changed" and "monitor: consoles changed"."""
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(short_run))
+    shutil.copytree(ROOT / "configs", tmp_path / "configs")
+    old = tmp_path / "configs" / "drawer_tester" / "plant_sim.yaml"
+    aside = tmp_path / "edits"
+    aside.mkdir()
+    shutil.copy(old.parent / "drawer_tester.yaml", aside / "drawer_tester.yaml")
+    new = aside / "plant_sim.yaml"
+    new.write_text(old.read_text(encoding="utf-8").replace(
+        "Piloto PFT, ensayo en marcha", "Piloto PFT"), encoding="utf-8")
+    online, lines = diff_says(old, new)
+    assert online, lines
+    assert not any("retain" in x or "consoles" in x or "feed" in x for x in lines), lines
+    same_verdict(old, new)
