@@ -450,21 +450,21 @@ def cmd_reload(args: argparse.Namespace) -> int:
     """Online change through the console of a running controller (docs/online-change.md):
     exit 0 applied, 1 refused (each reason on stderr), 2 cannot connect."""
     from runtime.console.client import ConsoleClient
-    from runtime.console.links import MonitorError, Target
-    from runtime.language.runtimedir import expand
+    from runtime.console.links import MonitorError, Target, console_of
 
     def fail(text: str, status: int) -> int:
         sys.stderr.write(f"softplc reload: {text}\n")
         return status
     try:
-        address = _console_of(args.target)
-    except SourceError as exc:  # the edited plant does not load: that is the refusal
-        return fail(f"refused: {exc}", 1)
+        address = console_of(args.target)
+    except SourceError as exc:
+        if exc.loc.file == "SOCKET|PORT":  # the target's text
+            return fail(f"error: {exc.message}", 2)
+        return fail(f"refused: {exc}", 1)  # the edited plant does not load: the refusal
     try:
-        client = ConsoleClient(Target.parse(expand(address, Loc("SOCKET|PORT", 1, 1)),
-                                            args.baudrate).open())
-    except (SourceError, MonitorError) as exc:
-        return fail(f"error: {exc.message if isinstance(exc, SourceError) else exc}", 2)
+        client = ConsoleClient(Target.parse(address, args.baudrate).open())
+    except MonitorError as exc:
+        return fail(f"error: {exc}", 2)
     line = "reload" + (" --force" if args.force else "") + (" --back" if args.back else "")
     line += "".join(f" --restart {name}" for name in args.restart)
     try:
@@ -497,27 +497,6 @@ def cmd_reload(args: argparse.Namespace) -> int:
     return 1
 
 
-def _console_of(target: str) -> str:
-    """The console address ``target`` names: a plant file's console, found the way every
-    process of a plant finds its controller (``runtimedir.locate``; SourceError if the
-    plant does not load), or ``target`` itself (a socket, a TCP port, a serial port)."""
-    from runtime.language.plantfile import load_plant
-    from runtime.language.runtimedir import locate
-
-    try:
-        st = os.stat(target)
-    except OSError:
-        st = None
-    if st is None or not stat.S_ISREG(st.st_mode):
-        return target
-    pdef = load_plant(target)
-    console = locate(pdef).console
-    if console is None:
-        raise SourceError(Loc(pdef.path, 1, 1), "the plant has no console to reload it "
-                                                "through: add monitor: socket: (or tcp:)")
-    return console
-
-
 def cmd_diff(args: argparse.Namespace) -> int:
     """What loading NEW into a controller running OLD would do; 1 if it cannot be applied
     online (static refusals), 0 if it can (state checks listed)."""
@@ -525,6 +504,7 @@ def cmd_diff(args: argparse.Namespace) -> int:
     from runtime.language.filekind import read_document
     from runtime.language.grafcetfile import load_grafcet
     from runtime.language.plantfile import load_plant
+    from runtime.language.runtimedir import version_of
 
     (old_kind, old_doc), (new_kind, new_doc) = read_document(args.old), read_document(args.new)
     kinds = [old_kind, new_kind]
@@ -536,7 +516,9 @@ def cmd_diff(args: argparse.Namespace) -> int:
         raise SourceError(Loc(args.new, 1, 1), f"expected a {kinds[0]} file like {args.old}, "
                                                f"found a {kinds[1]} file")
     if kinds[0] == "plant":
-        old, new = load_plant(args.old, doc=old_doc), load_plant(args.new, doc=new_doc)
+        old = load_plant(args.old, doc=old_doc)
+        with version_of(args.old):  # ${RUNTIME_DIR} is the running plant's, as in reload
+            new = load_plant(args.new, doc=new_doc)
     else:
         g = load_grafcet(args.old, doc=old_doc)
         old, new = chart_plant(g), chart_plant(load_grafcet(args.new, doc=new_doc), g.name)

@@ -23,7 +23,10 @@ Client side (``FeedState``): the schema and the values of the last frame, decode
 Messages, one JSON object per line (``"\\n"``):
 
 - server -> client ``{"schema": {...}}`` first, and again after an online change replaced
-  the plant (the client rebuilds what it shows; the next frame is a whole one): ``names``
+  the plant (the client rebuilds what it shows; the next frame is a whole one): ``name``
+  and ``home``, whose feed it is (the plant's name and identity, as its lock and retained
+  data record them: runtime/language/runtimedir.py ``locate``; a side process of another
+  plant refuses it, runtime/controller/feedclient.py), ``plant`` (the file), ``names``
   ([name, type, role] in value order), ``instances``, ``drivers``, ``writable`` (side
   process -> names), ``cycle_ms``, ``sample_ms``;
 - ``{"f": [scan, wall_s, values]}``: a whole frame (first after the schema), values in
@@ -80,6 +83,7 @@ from runtime.language import ast as A
 from runtime.language.feedconf import SIDE_NAMES
 from runtime.language.flagtexts import sfcerror_cause
 from runtime.language.model import FeedDef
+from runtime.language.runtimedir import locate
 from runtime.language.yamlsrc import INT_MAX, INT_MIN, TIME_MAX_NS
 
 if TYPE_CHECKING:
@@ -151,6 +155,9 @@ class FeedServer:
         #: a snapshot every this many scans
         self.every = max(1, feed.sample_ns // cycle_ns)
         self.window = ScanWindow(cycle_ns / 1e9)
+        #: whose feed this is, for the side processes (the plant the controller started
+        #: with: its lock's, whatever file a reload loads)
+        self.owner = locate(daemon.pdef)
         self._cat = Catalogue(daemon.plant)
         self._next = 0
         #: the mailbox: (scan, wall seconds, image, the catalogue that took it, the
@@ -647,6 +654,7 @@ class FeedServer:
     def _schema(self) -> bytes:
         pdef = self.daemon.pdef
         return _line({"schema": {
+            "name": self.owner.name, "home": self.owner.home,
             "plant": pdef.path,
             "names": [[s.text, s.type.value, s.role] for s in self._cat.names.values()],
             "instances": {n: i.grafcet.name for n, i in pdef.instances.items()},

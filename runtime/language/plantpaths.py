@@ -41,7 +41,7 @@ def path_value(value: Any, loc: Loc, what: str, *, socket: bool = False) -> str:
     problem = path_problem(path, socket=socket)
     if problem is not None:
         if PLACEHOLDER in text:
-            problem += f" ({PLACEHOLDER} is {runtime_dir()})"
+            problem += f" ({PLACEHOLDER} is {runtime_dir(plant=loc.file)})"
         raise SourceError(loc, f"{what}: {problem}")
     return path
 

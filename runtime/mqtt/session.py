@@ -127,7 +127,7 @@ class EdgeSession:
         assert pdef.mqtt is not None
         self.q = q = pdef.mqtt
         self.feed = FeedClient(feed_path or q.feed, "mqtt", self._on_schema, self._on_frame,
-                               self._on_lost)
+                               self._on_lost, plant=pdef)
         self.node = EdgeNode(q, self.feed.state, meaning=IOList(pdef).meaning)
         self.tls = tls_context(q) if any(b.tls for b in q.brokers) else None
         if q.password_file is not None:
@@ -185,12 +185,7 @@ class EdgeSession:
     # -- sessions ----------------------------------------------------------------
     async def run(self) -> None:
         """Follow the feed and keep a session on a broker until ``stop()``."""
-        feed = asyncio.create_task(self.feed.run())
-        try:
-            await self._sessions()
-        finally:
-            self.feed.stop()
-            await feed
+        await self.feed.run_beside(self._sessions())  # a feed refused ends it
 
     def stop(self) -> None:
         self._stop.set()

@@ -106,7 +106,7 @@ class PlantServer:
         #: the controller's feed (runtime/controller/feedclient.py): its state is the last
         #: frame
         self.feed = FeedClient(self.feed_path, "opcua", self._schema, self._frame, self._lost,
-                               self._status)
+                               self._status, plant=pdef)
         self.state = self.feed.state
         #: may this session's user write? Only a writer (UserRole.User: a user with its
         #: password, or a trusted client certificate, runtime/opcua/security.py), checked
@@ -436,8 +436,10 @@ async def serve(pdef: PlantDef, endpoint: str | None = None, feed: str | None = 
     try:
         if stop is None:
             await task
-        else:
-            await stop.wait()
+        else:  # until stop, or the feed's end (a feed refused: feedclient.ForeignFeed)
+            waiter = asyncio.ensure_future(stop.wait())
+            await asyncio.wait({task, waiter}, return_when=asyncio.FIRST_COMPLETED)
+            waiter.cancel()
             ps.stop()
             await task
     finally:

@@ -169,7 +169,7 @@ class WebView:
         self.pages: set[Page] = set()
         where = locate(pdef)  # the controller's sockets, as every side process finds them
         self.feed = FeedClient(feed or where.feed or self.conf.feed, "web", self._on_schema,
-                               self._on_frame, self._on_lost)
+                               self._on_frame, self._on_lost, plant=pdef)
         #: the console socket the acting pages connect to (a Unix socket: the console
         #: knows this process's user there, docs/web.md)
         self.console_path = next((c.address for c in pdef.consoles if c.kind == "socket"),
@@ -575,22 +575,19 @@ class WebView:
         port = await self.listener.start(self.conf.host, self.conf.port)
         log.info("web: the page of %s is at %s://%s:%d/", self.pdef.path,
                  "https" if self.tls else "http", self.conf.host, port)
-        feed = asyncio.create_task(self.feed.run())
         idle = asyncio.create_task(self._watch_logins())
         if ready is not None:
             ready(self, port)
         try:
-            await stop.wait()
+            await self.feed.run_beside(stop.wait())  # a feed refused ends it
         finally:
             idle.cancel()
-            self.feed.stop()
             for token, login in list(self.logins.items()):
                 await self._end_login(token, login, "the web view stops")
             for page in list(self.pages):
                 await self._close_console(page)
             self.listener.close()
             await runner.cleanup()
-            feed.cancel()
 
 
 async def serve(pdef: PlantDef, feed: str | None = None, stop: asyncio.Event | None = None,

@@ -25,7 +25,7 @@ def running(path: str) -> Plant:
 
 def test_the_child_compiles_every_source_the_controller_needs() -> None:
     old = running(DRAWER_PLANT)
-    loaded = load_apart(data_plant("timeout"))
+    loaded = load_apart(data_plant("timeout"), DRAWER_PLANT)  # a version of the running plant
     assert not isinstance(loaded, str)
     pdef, book = loaded
     assert book is not None and book.blobs

@@ -253,12 +253,13 @@ def test_the_screen_without_a_terminal_is_one_line(rig: Rig) -> None:
 
 
 def test_a_socket_not_found_is_looked_for_in_the_runtime_directory(tmp_path: Path) -> None:
-    """``softplc monitor tank.sock`` in another directory: the controller made it in
-    ${RUNTIME_DIR}; the error says where that is, and names the socket found there."""
+    """``softplc monitor tank.sock`` in another directory: the controller made it in its
+    plant's ${RUNTIME_DIR} (a directory of its own under $XDG_RUNTIME_DIR/softplc); the
+    error says where that is, and names the socket found there."""
     import socket
 
     rdir = tmp_path / "xdg" / "softplc"
-    rdir.mkdir(parents=True)
+    (rdir / "tank-0123abcd").mkdir(parents=True)
     env = {**os.environ, "XDG_RUNTIME_DIR": str(tmp_path / "xdg"), "PYTHONPATH": str(ROOT)}
     env.pop("RUNTIME_DIRECTORY", None)
 
@@ -269,12 +270,14 @@ def test_a_socket_not_found_is_looked_for_in_the_runtime_directory(tmp_path: Pat
         assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
         return r.stderr
     said = monitor("tank.sock")
+    where = (f"a controller started by hand makes its console socket in ${{RUNTIME_DIR}}, "
+             f"its plant's own directory under {rdir} (its log says 'console listening on "
+             f"PATH'; or name the plant file)")
     assert said == (f"softplc monitor: error: tank.sock: no such socket or serial port (or "
-                    f"HOST:PORT for TCP); a controller started by hand makes its console "
-                    f"socket in ${{RUNTIME_DIR}}, here {rdir} (its log says 'console "
-                    f"listening on PATH'): no socket there now\n"), said
+                    f"HOST:PORT for TCP); {where}: no socket there now\n"), said
     with socket.socket(socket.AF_UNIX) as s:
-        s.bind(str(rdir / "tank.sock"))
+        s.bind(str(rdir / "tank-0123abcd" / "tank.sock"))
         said = monitor("tank.sock")
-    assert said.endswith(f"(its log says 'console listening on PATH'): did you mean "
-                         f"{rdir}/tank.sock?\n"), said
+        assert said.endswith(f"{where}: did you mean {rdir}/tank-0123abcd/tank.sock?\n"), said
+        said = monitor("press.sock")
+    assert said.endswith(f"{where}: sockets there: tank-0123abcd/tank.sock\n"), said
