@@ -16,8 +16,9 @@ plant not checked further because a chart of it breaks a rule above, G301 unboun
 signal, G302 physical output bound twice, G303 driver point that does not exist (or wrong
 direction or type), G304 bad driver configuration, G305 (note) point not checked because the
 driver's library is missing, G306 one input point feeding two inputs of an instance, G307 an
-output bound to an input point. Chart warnings also G210 (a stored action nothing resets)
-and G211 (a timer read stale under ``scan: stable``).
+output bound to an input point, G308 a file of ``opcua: security:`` that is not there.
+Chart warnings also G210 (a stored action nothing resets) and G211 (a timer read stale
+under ``scan: stable``).
 
 A simulation script (``duration:``/``cycles:``, ``set:``) is checked against its plant
 (``--plant``, or the one plant file of its directory), so that ``softplc check

@@ -2,9 +2,10 @@
 security. Checked against the plant: a writable name must be a variable or chart flag an
 OPC UA client may set between two scans. The certificate, key and trusted directories are
 read from the plant file's directory when relative (as every path of a plant file:
-``plantpaths.resolve``) and must be there when the plant is loaded (``credential_problem``:
-a missing one is refused at its value, and making a new pair is advised only when neither
-file of it is there)."""
+``plantpaths.resolve``) and must be there when the OPC UA server starts
+(``security_problems``: ``softplc check`` and ``softplc opcua`` refuse a missing one at its
+value, and making a new pair is advised only when neither file of it is there; the
+controller itself loads the plant without them)."""
 
 from __future__ import annotations
 
@@ -135,17 +136,6 @@ def _security(value: Any, loc: Loc, base: str) -> OpcuaSecurity:
         if key in m:
             vloc = sec.locs[key] = m.val_locs[key]
             setattr(sec, key, plant_path(base, m[key], vloc, f"opcua security {key}"))
-    problem = credential_problem(sec)
-    if problem is not None:
-        raise SourceError(sec.locs[problem[0]], f"opcua security {problem[0]}: {problem[1]}")
-    for key in ("trusted_clients", "trusted_readers"):
-        path = getattr(sec, key)
-        why = missing(path, directory=True) if path else None
-        if why is not None:
-            if why.startswith("no "):
-                why += (" (the directory of the client certificates to trust: make it, "
-                        "docs/opcua.md, 'Step by step')")
-            raise SourceError(sec.locs[key], f"opcua security {key}: {why}")
     if "anonymous" in m:
         vloc = m.val_locs["anonymous"]
         if m["anonymous"] not in ("read", "none"):
@@ -161,6 +151,36 @@ def _security(value: Any, loc: Loc, base: str) -> OpcuaSecurity:
                                   "expected a password hash made by 'softplc hash-pin'")
             sec.users[str(user)] = h
     return sec
+
+
+def security_problems(sec: OpcuaSecurity) -> list[SourceError]:
+    """What of the files ``sec`` names is not there (or not of its kind), each a
+    SourceError at its value: the certificate or key (``credential_problem``), a trusted
+    directory. Not checked at load (``softplc run`` serves no OPC UA and must not be kept
+    from running a machine by a missing certificate): ``softplc check`` reports them as
+    G308 errors and ``softplc opcua`` refuses to start on the first
+    (``check_security``)."""
+    out: list[SourceError] = []
+    problem = credential_problem(sec)
+    if problem is not None:
+        out.append(SourceError(sec.locs[problem[0]], f"opcua security {problem[0]}: "
+                                                     f"{problem[1]}"))
+    for key in ("trusted_clients", "trusted_readers"):
+        path = getattr(sec, key)
+        why = missing(path, directory=True) if path else None
+        if why is not None:
+            if why.startswith("no "):
+                why += (" (the directory of the client certificates to trust: make it, "
+                        "docs/opcua.md, 'Step by step')")
+            out.append(SourceError(sec.locs[key], f"opcua security {key}: {why}"))
+    return out
+
+
+def check_security(sec: OpcuaSecurity) -> None:
+    """Raise the first of ``security_problems`` (the OPC UA server's start)."""
+    problems = security_problems(sec)
+    if problems:
+        raise problems[0]
 
 
 def credential_problem(sec: OpcuaSecurity) -> tuple[str, str] | None:

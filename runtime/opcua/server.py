@@ -42,6 +42,7 @@ from asyncua.crypto.permission_rules import User, UserRole
 from runtime.controller.feedclient import FeedClient, FeedLost
 from runtime.language.flagtexts import sfcerror_cause
 from runtime.language.model import PlantDef
+from runtime.language.opcuaconf import check_security
 from runtime.opcua.conditions import Conditions
 from runtime.opcua.limits import Limits
 from runtime.opcua.methods import Methods, track_callers
@@ -100,6 +101,7 @@ class PlantServer:
         self.feed_path = feed or self.opc.feed
         #: the certificate and key, read first: a file that is wrong is said at once (a
         #: SourceError at its line), not after asyncua's seconds of set-up
+        check_security(self.opc.security)
         self.credentials = read_credentials(self.opc.security, self.opc.loc)
         self.server = Server()
         self.space = Space()

@@ -155,7 +155,8 @@ def test_monitor_once_from_the_command_line(rig: Rig, capsys: pytest.CaptureFixt
     err = capsys.readouterr().err
     assert err.startswith("softplc monitor: error: /nonexistent/console.sock: no such socket "
                           "or serial port (or HOST:PORT for TCP); a controller started by "
-                          "hand makes its console socket in ${RUNTIME_DIR}, here "), err
+                          "hand makes its console socket in ${RUNTIME_DIR}, its plant's own "
+                          "directory under "), err
     assert err.count("\n") == 1, err
 
 

@@ -130,11 +130,15 @@ def chart(d: Draw) -> dict[str, Any]:
     return doc
 
 
-def binding(d: Draw, point: str, number: bool, invert: bool = False) -> Any:
-    """A binding to ``point``: its short form, or its mapping with the I/O list."""
+def binding(d: Draw, point: str, number: bool, invert: bool = False,
+            output: bool = False, key: str | None = None) -> Any:
+    """A binding to ``point``: its short form, or its mapping with the I/O list (an
+    ``output``'s point named by ``from:`` or ``to:``, drawn unless ``key`` says)."""
     if not d.full and not d(st.booleans()):
         return point
-    out: dict[str, Any] = {"from": point}
+    if key is None:
+        key = "to" if output and d(st.booleans()) else "from"
+    out: dict[str, Any] = {key: point}
     if invert and d.has():
         out["invert"] = d(st.booleans())
     if d.has():
@@ -224,10 +228,13 @@ def plant_docs(draw: st.DrawFn, full: bool = False) -> tuple[dict[str, Any], dic
                       "iWait": "sim.IR2"}
     if d.has():
         inst["inputs"]["SFCPause"] = binding(d, "sim.I1", False, invert=True)
-    inst["outputs"] = {"oRun": binding(d, "sim.Q0", False, invert=True),
-                       "oSpeed": binding(d, "sim.HR0", True),
-                       "oValve": binding(d, "sim.HR1", True),
-                       "oLamp": binding(d, "sim.Q1", False, invert=True)}
+    # a full plant names one output's point with to:, one with from:, the others drawn
+    inst["outputs"] = {"oRun": binding(d, "sim.Q0", False, invert=True, output=True,
+                                       key="to" if d.full else None),
+                       "oSpeed": binding(d, "sim.HR0", True, output=True,
+                                         key="from" if d.full else None),
+                       "oValve": binding(d, "sim.HR1", True, output=True),
+                       "oLamp": binding(d, "sim.Q1", False, invert=True, output=True)}
     instances = {"m1": inst}
     if d.has():  # a second instance of the same chart (the load shares it), linked
         instances["m2"] = {"grafcet": "chart.yaml",
@@ -364,6 +371,11 @@ def plant_docs(draw: st.DrawFn, full: bool = False) -> tuple[dict[str, Any], dic
             web["idle_logout"] = d(st.sampled_from(["1m", "10m", "24h"]))
         if d.has():
             web["max_pages"] = d(st.integers(1, 200))
+        if d.has():
+            web["page_timeout"] = d(st.sampled_from(["3s", "30s", "10m"]))
+        if d.has():
+            web["hosts"] = d(st.sampled_from([["plc.example"], ["*.plant.example",
+                                                                "press1"]]))
         plant["web"] = web
     if d.has():
         alarms: dict[str, Any] = {}

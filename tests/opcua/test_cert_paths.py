@@ -2,13 +2,16 @@
 read from the plant file's directory, as every other path of it (it was read from the
 working directory: ``softplc check`` passed and ``softplc opcua``, started elsewhere,
 failed 15 s later advising to make a new certificate); a file that is not there is
-refused when the plant is loaded, at its value (FILE:LINE:COL), by every command; a file
+refused by ``softplc check`` (G308) and by the server, at its value (FILE:LINE:COL), and
+never keeps the controller from loading the plant; a file
 that is there but cannot be read or holds no certificate or key is said at the server's
 start, at once, without advising to make one."""
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import io
 import os
 import subprocess
 import sys
@@ -19,7 +22,9 @@ import pytest
 from asyncua import Client, ua
 
 from runtime.checker.check import check_files
+from runtime.cli import main
 from runtime.errors import SourceError
+from runtime.language.opcuaconf import check_security
 from runtime.language.plantfile import load_plant
 from runtime.opcua import security
 from tests.opcua.kit import free_port, write_plant
@@ -52,9 +57,20 @@ def site(tmp: Path, cert: str = "pki/server-cert.der", key: str = "pki/server-ke
 
 
 def error_at(plant: Path) -> SourceError:
+    """The first missing file of the plant's ``opcua: security:`` as the OPC UA server
+    refuses it (``check_security``), once the controller has loaded the plant without
+    it: ``softplc check`` says the same as an error G308."""
+    sec = load_plant(str(plant)).opcua.security  # type: ignore[union-attr]
     with pytest.raises(SourceError) as err:
-        load_plant(str(plant))
-    return err.value
+        check_security(sec)
+    (result,) = [r for r in check_files([str(plant)]) if r.path == str(plant)]
+    assert result.failure is None
+    e = err.value
+    g308 = [d for d in result.diags if d.code == "G308"]
+    assert g308 and (g308[0].file, g308[0].line, g308[0].col, g308[0].severity,
+                     g308[0].message) == (e.loc.file, e.loc.line, e.loc.col, "error",
+                                          e.message), [str(d) for d in result.diags]
+    return e
 
 
 def test_relative_paths_are_read_from_the_plant_files_directory(
@@ -111,7 +127,8 @@ def test_softplc_opcua_started_elsewhere_serves_with_relative_paths(tmp_path: Pa
     assert "opcua-cert" not in log.read_text(encoding="utf-8")
 
 
-def test_a_missing_certificate_is_refused_at_load_at_its_value(tmp_path: Path) -> None:
+def test_a_missing_certificate_is_refused_by_check_and_the_server_not_the_controller(
+        tmp_path: Path) -> None:
     plant = site(tmp_path, cert="pki/nope.der")
     e = error_at(plant)
     want = (f"opcua security certificate: no file {tmp_path}/site/pki/nope.der (its private "
@@ -119,9 +136,14 @@ def test_a_missing_certificate_is_refused_at_load_at_its_value(tmp_path: Path) -
             "back beside it, or move that one away and make a new pair with 'softplc "
             "opcua-cert', docs/opcua.md)")
     assert (e.loc.file, e.loc.line, e.loc.col, e.message) == (str(plant), *CERT_AT, want)
-    # softplc check says the same line: the plant does not load
-    (result,) = [r for r in check_files([str(plant)]) if r.path == str(plant)]
-    assert result.failure == str(e)
+    # the controller is not kept from running the machine: the plant compiles
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
+        assert main(["compile", str(plant)]) == 0, out.getvalue()
+    # softplc check exits 2 on it
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
+        assert main(["check", str(plant)]) == 2
+    assert f"{plant}:{CERT_AT[0]}:{CERT_AT[1]}: error G308: {want}" in out.getvalue()
 
 
 def test_a_missing_pair_advises_making_one(tmp_path: Path) -> None:

@@ -92,8 +92,9 @@ def test_the_page_shades_the_chart_by_coverage(tmp_path: Path) -> None:
     ctl = start(run, "run", str(plant), "--sim")
     web = None
     try:
-        feed = run / "softplc" / "feed.sock"
-        wait_until(lambda: feed.exists() or ctl.popen.poll() is not None, 30.0, "the feed")
+        # ${RUNTIME_DIR} is the plant's own directory under $XDG_RUNTIME_DIR/softplc
+        wait_until(lambda: any(run.glob("softplc/*/feed.sock")) or ctl.popen.poll() is not None,
+                   30.0, "the feed")
         web = start(run, "web", str(plant), "--coverage", str(cov))
         found: list[str] = []
 
