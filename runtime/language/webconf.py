@@ -12,7 +12,7 @@ from runtime.errors import Loc, SourceError
 from runtime.language.feedconf import feed_key, sample_key
 from runtime.language.grafcetfile import check_keys, expect_type, time_value
 from runtime.language.model import PlantDef, WebDef
-from runtime.language.plantpaths import path_value
+from runtime.language.plantpaths import plant_path
 from runtime.language.yamlsrc import YList, YMap
 
 WEB_KEYS = ("listen", "sample", "feed", "tls", "users", "read", "idle_logout", "max_pages",
@@ -78,7 +78,8 @@ def load_web(p: PlantDef, value: Any, loc: Loc) -> WebDef:
         for key in TLS_KEYS:
             if key not in tls:
                 raise SourceError(vloc, f"web tls: expected {key} (a PEM file), found none")
-            setattr(w, key, path_value(tls[key], tls.val_locs[key], f"web tls {key}"))
+            setattr(w, key, plant_path(p.path, tls[key], tls.val_locs[key],
+                                       f"web tls {key}"))
     if "listen" in m:
         listen_value(str(m["listen"]), w.certificate is not None, m.val_locs["listen"])
     if "users" in m:
