@@ -23,7 +23,9 @@ from jsonschema import Draft202012Validator  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"
 SCHEMA_DIR = CONFIGS / "schema"
-KINDS = ("grafcet", "plant", "script")
+KINDS = ("grafcet", "plant", "script", "scenario")
+#: the kinds whose schema is generated from the declarations (runtime/language/schemas.py)
+GENERATED = ("grafcet", "plant", "script")
 YAML_FILES = sorted(p for p in CONFIGS.rglob("*") if p.suffix in (".yaml", ".yml")
                     and "schema" not in p.relative_to(CONFIGS).parts)
 
@@ -37,12 +39,15 @@ VALIDATORS = {k: Draft202012Validator(load_schema(k)) for k in KINDS}
 
 
 def kind_of(doc: Any) -> str:
-    """The file kind from its top-level keys (language.md: grafcet, plant, script)."""
+    """The file kind from its top-level keys (language.md: grafcet, plant, script;
+    testing-charts.md: scenario)."""
     if isinstance(doc, dict):
         if "grafcet" in doc:
             return "grafcet"
         if "instances" in doc:
             return "plant"
+        if "expect" in doc:
+            return "scenario"
         if {"set", "duration", "cycles"} & set(doc):
             return "script"
     return "unknown"
@@ -250,6 +255,12 @@ set:
 """
 
 
+def test_an_output_bound_with_to_validates() -> None:
+    doc = {**MINIMAL_PLANT, **y("""\
+        instances: {t1: {grafcet: g.yaml, outputs: {oA: {to: sim.Q0, invert: true}}}}""")}
+    assert not errors("plant", doc), errors("plant", doc)
+
+
 @pytest.mark.parametrize("kind, text", [("grafcet", SPEC_GRAFCET), ("plant", SPEC_PLANT),
                                         ("script", SPEC_SCRIPT)])
 def test_contract_examples_validate(kind: str, text: str) -> None:
@@ -357,6 +368,9 @@ PLANT_BAD = {
     "binding without from": "instances: {t1: {grafcet: g.yaml, inputs: {iA: {invert: true}}}}",
     "binding unknown key": """\
         instances: {t1: {grafcet: g.yaml, outputs: {oA: {from: sim.Q0, negate: true}}}}""",
+    "input bound with to": "instances: {t1: {grafcet: g.yaml, inputs: {iA: {to: sim.I0}}}}",
+    "output bound with from and to": """\
+        instances: {t1: {grafcet: g.yaml, outputs: {oA: {from: sim.Q0, to: sim.Q1}}}}""",
     "monitor unknown key": "monitor: {telnet: 23}",
     "monitor serial without port": "monitor: {serial: {baudrate: 115200}}",
     "monitor trusted not a bool": "monitor: {socket: {path: /tmp/s.sock, trusted: 1}}",
@@ -463,6 +477,8 @@ def test_the_schemas_know_every_key_the_loader_reads() -> None:
                                                  "overruns")),
         "instance": (pf.INSTANCE, ("plant", "$defs", "instance")),
         "binding": (pf.BINDING_SPEC, ("plant", "$defs", "binding", "oneOf", 1)),
+        "output binding": (pf.OUTPUT_BINDING_SPEC, ("plant", "$defs", "outputBinding", "oneOf",
+                                                    1)),
         "grafcet": (grafcetfile.GRAFCET, ("grafcet",)),
         "step": (grafcetfile.STEP, ("grafcet", "$defs", "innerStep")),
         "macro": (grafcetfile.MACRO, ("grafcet", "$defs", "macro")),
@@ -483,9 +499,11 @@ def test_the_schemas_know_every_key_the_loader_reads() -> None:
     assert differ == {}, f"section: (the loader's only, the schema's only): {differ}"
     step = _props("grafcet", "$defs", "step")
     assert step == set(grafcetfile.STEP.names) - {"entry", "exit"}  # only inside a macro-step
+    # the scenario's schema is written by hand: its top-level keys held to the loader's
+    assert _props("scenario") == set(filekind.SCENARIO.names)
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", GENERATED)
 def test_the_committed_schemas_are_what_the_declarations_generate(kind: str) -> None:
     """configs/schema/ is generated (scripts/make-schemas.sh): a key declared for the
     loader and missing from an editor's schema, or the reverse, fails here."""
@@ -502,7 +520,7 @@ def test_make_schemas_writes_the_three_files(tmp_path: Path) -> None:
 
     subprocess.run(["bash", str(ROOT / "scripts" / "make-schemas.sh"), str(tmp_path)],
                    check=True, cwd=ROOT, timeout=120)
-    for kind in KINDS:
+    for kind in GENERATED:
         written = (tmp_path / f"{kind}.schema.json").read_text(encoding="utf-8")
         assert written == (SCHEMA_DIR / f"{kind}.schema.json").read_text(encoding="utf-8")
 

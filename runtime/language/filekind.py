@@ -1,11 +1,25 @@
 """What a YAML file of the project is, from its top-level keys: a grafcet (chart), a plant,
-or a simulation script. The one place that tells them apart (compile, check, draw)."""
+a simulation script or a scenario (``softplc test``). The one place that tells them apart
+(compile, check, draw)."""
 
 from __future__ import annotations
 
 from typing import Any, Literal
 
-from runtime.language.shape import Bool, Doc, Int, Key, ListOf, Number, Section, Text, Time, any_of
+from runtime.language.plantpaths import PATH
+from runtime.language.shape import (
+    Anything,
+    Bool,
+    Doc,
+    Int,
+    Key,
+    ListOf,
+    Number,
+    Section,
+    Text,
+    Time,
+    any_of,
+)
 from runtime.language.yamlsrc import YMap, load_yaml
 
 #: an entry of a simulation script's ``set:`` (runtime/engine/script.py reads it)
@@ -32,13 +46,30 @@ SCRIPT = Section((
                      {"required": ["set"]}]})
 #: the keys that make a YAML file a simulation script (with no other keys than SCRIPT's)
 _SCRIPT_MARKS = ("duration", "cycles", "set")
+#: a scenario (a script with expectations: docs/testing-charts.md; runtime/scenario/spec.py
+#: reads it and declares its expectations): the loader's keys. Its editors' schema,
+#: configs/schema/scenario.schema.json, is written by hand; tests/test_schemas.py holds its
+#: keys to these.
+SCENARIO = Section((
+    Key("plant", PATH, "The plant file the scenario runs (on simulated I/O), relative to the "
+                       "scenario.", required=True),
+    SCRIPT["description"],
+    Key("script", PATH, "A simulation script (relative to the scenario) whose set: the "
+                        "scenario plays, and whose duration: or cycles: it takes unless it "
+                        "gives its own."),
+    SCRIPT["duration"],
+    SCRIPT["cycles"],
+    SCRIPT["set"],
+    Key("expect", ListOf(Anything(), min_items=1), "The expectations, each checked against the "
+                                                "trace.", required=True),
+), "a scenario")
 
-FileKind = Literal["grafcet", "plant", "script", "other"]
+FileKind = Literal["grafcet", "plant", "script", "scenario", "other"]
 
 
 def file_kind(path: str) -> FileKind:
-    """'grafcet', 'plant', 'script' (a simulation script) or 'other', from the top-level
-    keys (SourceError if the file is not YAML)."""
+    """'grafcet', 'plant', 'script' (a simulation script), 'scenario' or 'other', from the
+    top-level keys (SourceError if the file is not YAML)."""
     return doc_kind(load_yaml(path))
 
 
@@ -56,6 +87,8 @@ def doc_kind(doc: Any) -> FileKind:
             return "grafcet"
         if "instances" in doc or "drivers" in doc or "plc" in doc:
             return "plant"
+        if "expect" in doc and set(doc) <= set(SCENARIO.names):
+            return "scenario"
         if set(doc) <= set(SCRIPT.names) and set(doc) & set(_SCRIPT_MARKS):
             return "script"
     return "other"

@@ -18,7 +18,7 @@ from runtime.language.model import (
     MqttTls,
     PlantDef,
 )
-from runtime.language.plantpaths import PATH, path_value
+from runtime.language.plantpaths import PATH, plant_path
 from runtime.language.shape import (
     Int,
     Key,
@@ -156,8 +156,10 @@ def _text(m: YMap, key: str, what: str) -> str:
 
 
 def _path(m: YMap, key: str) -> str:
-    """A file's path (``${RUNTIME_DIR}`` expanded), checked as every path a plant names."""
-    return path_value(m[key], m.val_locs[key], f"mqtt {key}")
+    """A file's path (``${RUNTIME_DIR}`` expanded), checked as every path a plant names and
+    read from the plant file's directory when relative (``plantpaths.plant_path``)."""
+    vloc = m.val_locs[key]
+    return plant_path(vloc.file, m[key], vloc, f"mqtt {key}")
 
 
 def _ident(m: YMap, key: str) -> str:

@@ -38,7 +38,7 @@ from runtime.language.model import (
 )
 from runtime.language.mqttconf import MQTT, load_mqtt
 from runtime.language.opcuaconf import OPCUA, load_opcua
-from runtime.language.plantpaths import PATH, SOCKET_PATH, path_value
+from runtime.language.plantpaths import PATH, SOCKET_PATH, path_value, plant_path, resolve
 from runtime.language.shape import (
     DESCRIPTION,
     Bool,
@@ -82,7 +82,7 @@ REALTIME = Section((
 PLC = Section((
     Key("cycle", Time(1 * _MS, 60 * _S), "Scan period, 1ms to 1m (10ms)."),
     Key("watchdog", Time(10 * _MS, 6 * _S), "A scan longer than this is a fault: outputs to "
-                                            "the safe state. 10ms to 6s (100ms)."),
+                                            "the safe state. 10ms to 6s (1s)."),
     Key("retain", any_of(PATH, Null()), "File of the retained memory (absolute, or relative "
                                         "to this file): a regular file or none yet, never a "
                                         "directory."),
@@ -130,11 +130,26 @@ BINDING = Def("binding", one_of(POINT, BINDING_SPEC),
               "'driver.point', or {from: 'driver.point', invert: true} for a signal in "
               "negative logic (an NC contact): inversion happens here and only here; the "
               "mapping form may carry the signal's I/O list: description, unit, range.")
+#: an output's mapping form: its point as ``to:`` (its value goes there) or ``from:`` (as an
+#: input's: every plant written before ``to:``), one of the two
+OUTPUT_BINDING_SPEC = Section((
+    Key("from", POINT),
+    Key("to", POINT),
+    Key("invert", Bool(), "Invert the bool at the binding (bools only).", default=False),
+    *IO_KEYS,
+), extra={"oneOf": [{"required": ["to"], "not": {"required": ["from"]}},
+                    {"required": ["from"], "not": {"required": ["to"]}}]})
+OUTPUT_BINDING = Def("outputBinding", one_of(POINT, OUTPUT_BINDING_SPEC),
+                     "'driver.point', or {to: 'driver.point', invert: true} for an output in "
+                     "negative logic: inversion happens here and only here; the mapping form "
+                     "may carry the signal's I/O list: description, unit, range. An output "
+                     "names its point with to: (its value goes there) or from: (as an input "
+                     "does), one of the two.")
 INSTANCE = Section((
     Key("grafcet", PATH, "The grafcet file, relative to this plant file.", required=True),
     Key("inputs", MapOf(BINDING), "Chart input (or chart flag such as SFCPause) -> binding."),
-    Key("outputs", MapOf(BINDING), "Chart output -> driver point (each physical output bound "
-                                   "once)."),
+    Key("outputs", MapOf(OUTPUT_BINDING), "Chart output -> driver point (each physical "
+                                          "output bound once)."),
     Key("description", DESCRIPTION, "Free text."),
     Key("log", Choice(tuple(LOG_VALUES)), "steps: log every step activation and deactivation "
                                           "of this instance; none: do not (overrides plc "
@@ -220,17 +235,12 @@ class PlantLoad:
         self.diagnostics.append(error.diagnostic)
 
 
-def _resolve(base: str, path: str) -> str:
-    return path if os.path.isabs(path) else os.path.normpath(
-        os.path.join(os.path.dirname(os.path.abspath(base)), path))
-
-
 def _retain_path(base: str, value: Any, loc: Loc) -> str:
     """``plc: retain``: a regular file, or one not yet there, never a directory."""
     text = path_value(value, loc, "plc retain")
     if text.endswith(("/", os.sep)):
         raise SourceError(loc, f"plc retain: '{text}' names a directory, expected a file")
-    path = _resolve(base, text)
+    path = resolve(base, text)
     try:
         mode = os.lstat(path).st_mode
     except FileNotFoundError:
@@ -250,20 +260,34 @@ def _retain_path(base: str, value: Any, loc: Loc) -> str:
     return path
 
 
-def _binding(signal: str, spec: Any, loc: Loc) -> Binding:
+def _binding(signal: str, spec: Any, loc: Loc, output: bool = False) -> Binding:
+    """The binding of ``signal`` (an output's when ``output``): ``driver.point`` or a
+    mapping naming it (``from:``; an output's also ``to:``)."""
     invert = False
     listed: YMap | None = None
     if isinstance(spec, YMap):
-        BINDING_SPEC.check(spec, f"the binding of '{signal}'")
-        if "from" not in spec:
-            raise SourceError(spec.loc, f"binding of '{signal}' needs 'from: driver.point'")
+        def misplaced(key: str) -> str | None:
+            if key != "to":
+                return None
+            return (": 'to:' binds an output (its value goes to the point): an input's value "
+                    f"comes from its point: write 'from: {spec['to']}'")
+        (OUTPUT_BINDING_SPEC if output else BINDING_SPEC).check(
+            spec, f"the binding of '{signal}'", misplaced)
+        key = "to" if output and "to" in spec else "from"
+        if output and "to" in spec and "from" in spec:
+            raise SourceError(spec.key_locs["to"], f"the binding of '{signal}' names its point "
+                                                   "twice ('from:' and 'to:'): keep one")
+        if key not in spec:
+            raise SourceError(spec.loc, f"binding of '{signal}' needs "
+                                        + ("'to: driver.point' (or 'from:')" if output
+                                           else "'from: driver.point'"))
         invert = expect_type(spec.get("invert", False), spec.val_locs.get("invert", loc), bool,
                              "true or false for invert")
         listed = spec
-        loc = spec.val_locs["from"]
-        spec = spec["from"]
-    source = expect_type(spec, loc, str, f"'driver.point' or {{from: ..., invert: true}} for "
-                                         f"'{signal}'")
+        loc = spec.val_locs[key]
+        spec = spec[key]
+    source = expect_type(spec, loc, str, f"'driver.point' or {{{'to' if output else 'from'}: "
+                                         f"..., invert: true}} for '{signal}'")
     if "." not in source:
         raise SourceError(loc, f"expected 'driver.point' or 'instance.signal' for '{signal}', "
                                f"found '{source}'")
@@ -363,7 +387,7 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
             if "grafcet" not in spec:
                 raise SourceError(spec.loc, f"instance '{name}' needs 'grafcet: FILE'")
             gloc = spec.val_locs["grafcet"]
-            gpath = _resolve(path, path_value(spec["grafcet"], gloc, "grafcet"))
+            gpath = plant_path(path, spec["grafcet"], gloc, "grafcet")
             if not os.path.exists(gpath):
                 raise SourceError(gloc, f"grafcet file not found: {gpath}")
             if gpath not in load.chart_files:
@@ -396,7 +420,7 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
             written[key] = section
             for sig, bspec in section.items():
                 try:
-                    b = _binding(sig, bspec, section.val_locs[sig])
+                    b = _binding(sig, bspec, section.val_locs[sig], key == "outputs")
                 except SourceError as exc:
                     load.report(exc)
                     continue  # the binding is left out

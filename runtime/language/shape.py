@@ -230,6 +230,15 @@ class Bool(Value):
 
 
 @dataclass(frozen=True)
+class Anything(Value):
+    """Any value: its shape is the concern of the loader that reads it (a scenario's
+    expectations, runtime/scenario/spec.py, declare theirs)."""
+
+    def schema(self) -> Schema:
+        return {}
+
+
+@dataclass(frozen=True)
 class Null(Value):
     """An empty value (``key:`` with nothing after it)."""
 

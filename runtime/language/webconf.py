@@ -11,11 +11,12 @@ from typing import Any
 from runtime.errors import Loc, SourceError
 from runtime.language.feedconf import FEED_KEY, feed_key, sample_key
 from runtime.language.model import PlantDef, WebDef
-from runtime.language.plantpaths import PATH, path_value
+from runtime.language.plantpaths import PATH, plant_path
 from runtime.language.shape import (
     Choice,
     Int,
     Key,
+    ListOf,
     MapOf,
     Section,
     Text,
@@ -30,6 +31,11 @@ DEFAULT_SAMPLE_NS = 100_000_000
 _LISTEN = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
 #: what a user name may be (it goes into log lines and console commands)
 USER_RE = re.compile(r"^[A-Za-z0-9_.-]{1,32}$")
+#: a host name of ``hosts`` (a ``*.`` name stands for any one label before the rest)
+HOST_RE = re.compile(r"^(\*\.)?[A-Za-z0-9_-]{1,63}(\.[A-Za-z0-9_-]{1,63})*\.?$")
+#: a host of ``hosts`` as editors check it: a name (``HOST_RE``) or an address (the
+#: loader's check of an address is ``ipaddress``'s)
+_HOST = Text(r"^((\*\.)?[A-Za-z0-9_-]{1,63}(\.[A-Za-z0-9_-]{1,63})*\.?|\[?[0-9A-Fa-f:.]+\]?)$")
 #: who may look at the page
 READ = ("anyone", "users")
 
@@ -54,6 +60,14 @@ WEB = Section((
         "A login ends after this long without an action (default 10m, 1m to 24h); what its "
         "pages held is released as a console session's."),
     Key("max_pages", Int(1, 200), "Pages open at once (default 20)."),
+    Key("page_timeout", Time(3_000_000_000, 600_000_000_000),
+        "A page that answers nothing, not even the server's ping, for this long is closed and "
+        "what it held released: a browser frozen or a laptop asleep while it holds a force "
+        "halts the controller after this long (default 30s, 3s to 10m)."),
+    Key("hosts", ListOf(_HOST), "Names the page is reached by besides its listen address, "
+                                "localhost, 127.0.0.1, ::1 and its certificate's names (a *. "
+                                "name matches one label): a request naming another host is "
+                                "refused (DNS rebinding)."),
 ), "web", "The live view in the browser, `softplc web PLANT` (docs/web.md): where it listens, "
           "HTTPS, who may act and who may look.", null=True)
 
@@ -104,7 +118,8 @@ def load_web(p: PlantDef, value: Any, loc: Loc) -> WebDef:
         for key in TLS.names:
             if key not in tls:
                 raise SourceError(vloc, f"web tls: expected {key} (a PEM file), found none")
-            setattr(w, key, path_value(tls[key], tls.val_locs[key], f"web tls {key}"))
+            setattr(w, key, plant_path(p.path, tls[key], tls.val_locs[key],
+                                       f"web tls {key}"))
     if "listen" in m:
         listen_value(str(m["listen"]), w.certificate is not None, m.val_locs["listen"])
     if "users" in m:
@@ -143,4 +158,26 @@ def load_web(p: PlantDef, value: Any, loc: Loc) -> WebDef:
         if not low <= n <= high:
             raise SourceError(vloc, f"web max_pages: expected {low} to {high}, found {n}")
         w.max_pages = int(n)
+    if "page_timeout" in m:
+        vloc = m.val_locs["page_timeout"]
+        w.page_timeout_ns = time_value(m["page_timeout"], vloc, "web page_timeout")
+        if not WEB["page_timeout"].low <= w.page_timeout_ns <= WEB["page_timeout"].high:
+            raise SourceError(vloc, "web page_timeout: expected 3s to 10m")
+    if "hosts" in m:
+        vloc = m.val_locs["hosts"]
+        hosts = WEB.value(m, "hosts", "a list of host names")
+        for h, hloc in zip(hosts, hosts.locs, strict=True):
+            if not isinstance(h, str) or not (HOST_RE.match(h) or _is_address(h)):
+                raise SourceError(hloc, f"web hosts: expected a host name or address "
+                                        f"(e.g. plc.bench.lan, *.bench.lan, 192.168.1.20), "
+                                        f"found '{h}'")
+            w.hosts.append(h)
     return w
+
+
+def _is_address(text: str) -> bool:
+    try:
+        ipaddress.ip_address(text.strip("[]"))
+    except ValueError:
+        return False
+    return True
