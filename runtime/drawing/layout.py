@@ -516,6 +516,9 @@ class Routes:
 
 #: between the links that reach a short double bar of an AND convergence, px
 DROP_GAP = 8.0
+#: between the OR divergence lines of the steps of a row whose links reach short double
+#: bars (one below the other), px
+SPLIT_GAP = 6.0
 
 
 def shared_splits(c: Chart, r: Routes) -> dict[str, list[str]]:
@@ -534,6 +537,26 @@ def shared_splits(c: Chart, r: Routes) -> dict[str, list[str]]:
                 or any(o != t and d in splits[o] for o in splits for d in ds)):
             out[t] = sorted(ds, key=lambda d: (long(t, d), r.bus[d] if long(t, d)
                                                else c.nodes[d].x))
+    return out
+
+
+def shared_and_drops(c: Chart) -> dict[tuple[str, str], float]:
+    """(step, transition) -> x where the link reaches the transition's double bar, for the
+    AND convergences that share a step with another transition leaving it: each gets its
+    own short double bar over its transition (IEC 60848: one synchronisation per
+    transition), the links from its steps side by side on it. Other AND convergences span
+    their steps (empty here)."""
+    out: dict[tuple[str, str], float] = {}
+    for t, nd in c.nodes.items():
+        if not t.startswith("t:") or len(c.fin(t)) < 2:
+            continue
+        # a link from higher up comes straight down (or by its channel) as before
+        srcs = [s for s in c.fin(t) if nd.layer - c.nodes[s].layer == 1]
+        if not any(o != t and len(c.fin(o)) > 1 for s in srcs for o in c.fout(s)):
+            continue
+        srcs.sort(key=lambda s: c.nodes[s].x)
+        for i, s in enumerate(srcs):
+            out[(s, t)] = nd.x + (i - (len(srcs) - 1) / 2) * DROP_GAP
     return out
 
 
@@ -799,6 +822,9 @@ def _rows(c: Chart, r: Routes, groups: dict[str, list[str]]) -> None:
             leaving.setdefault(c.nodes[t].layer, []).append((t, v, 1))
     for src, t in r.and_channel:
         leaving.setdefault(c.nodes[src].layer, []).append((src, t, 1))
+    splits: dict[int, int] = {}  # row -> its steps with OR lines into short AND bars
+    for s in {s for s, _ in shared_and_drops(c)}:
+        splits[c.nodes[s].layer] = splits.get(c.nodes[s].layer, 0) + 1
     starts: dict[int, list[str]] = {}
     ends: dict[int, list[str]] = {}
     for m, box in r.frames.items():
@@ -829,5 +855,12 @@ def _rows(c: Chart, r: Routes, groups: dict[str, list[str]]) -> None:
         for i, (u, v, _) in enumerate(lefts + rights):  # apart enough to be told apart
             r.leave[(u, v)] = first + LINK_GAP * i
         gap = max(30.0, first - bottom + LINK_GAP * len(out) + 14)
+        if layer + 1 < len(c.layers) and splits.get(layer):
+            # the OR divergence lines of the row's steps into short AND bars, one below the
+            # other (SPLIT_GAP apart, the lowest SPLIT_GAP * (n - 1) below the first), stay
+            # above the bars of the row below (at most 14 - h/2 or 6 px above its top)
+            lowest = base + 8 + SPLIT_GAP * (splits[layer] - 1)
+            h_next = max((c.nodes[n].height for n in c.layers[layer + 1]), default=STEP_H)
+            gap = max(gap, lowest + 6 + max(14 - h_next / 2, 6.0) - bottom)
         y = bottom + gap
 

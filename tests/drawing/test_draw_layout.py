@@ -428,6 +428,44 @@ def test_a_row_crowded_by_lines_keeps_clear_of_the_straight_link(name: str, layo
                 assert not segment_hits(p, q, b), f"a line {p}-{q} crosses {what}"
 
 
+#: a step leaving by five AND convergences, each with another step of its row: six OR
+#: lines one below the other (found by test_random_charts_are_drawn_cleanly: they ran
+#: below the short double bars, through the transitions' conditions)
+MANY_SPLITS = """\
+grafcet: F
+inputs: [iA, iB, iC]
+outputs: [oX, oY]
+steps:
+  gsA: {initial: true}
+  gsB: {}
+  gsC: {}
+  gsD: {}
+  gsE: {}
+  gsF: {}
+transitions:
+  - {from: [gsA, gsB], to: [], when: "iA"}
+  - {from: [gsD, gsA], to: [], when: "iA"}
+  - {from: [gsA, gsF], to: [], when: "iA"}
+  - {from: [gsA, gsE], to: [], when: "iA"}
+  - {from: [gsA, gsC], to: [], when: "iA"}
+"""
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_the_or_lines_of_a_row_into_short_and_bars_stay_above_the_bars(layout: str,
+                                                                       tmp_path: Path) -> None:
+    chart = tmp_path / "c.yaml"
+    chart.write_text(MANY_SPLITS, encoding="utf-8")
+    out = str(tmp_path / "c.svg")
+    draw.draw(str(chart), out, layout=layout)
+    boxes, lines = parse(out)
+    assert [w for w, _ in boxes].count("text 'iA'") == 5
+    for what, b in boxes:
+        for pts in lines:
+            for p, q in itertools.pairwise(pts):
+                assert not segment_hits(p, q, b), f"a line {p}-{q} crosses {what}"
+
+
 # -- any chart the loader accepts is drawn, and drawn cleanly -------------------------------
 STEP_NAMES = [f"gs{c}" for c in "ABCDEFG"]
 CONDS = ["iA", "iB'", "↑iC", "iA·iB + iC", "1", "gsA.T >= 2s"]
