@@ -39,14 +39,32 @@ from typing import Any
 from runtime.errors import Loc, SourceError
 from runtime.language import ast as A
 from runtime.language.flagtexts import FLAG_TEXT, HEALTH_TEXT
-from runtime.language.grafcetfile import description_text, expect_type
 from runtime.language.model import Binding, InstanceDef, PlantDef
+from runtime.language.shape import (
+    DESCRIPTION,
+    DESCRIPTION_MAX,
+    Int,
+    Key,
+    ListOf,
+    Number,
+    Text,
+    any_of,
+    description_text,
+    expect_type,
+)
 from runtime.language.units import MILLISECOND, Unit, find_unit, suggest_unit
 from runtime.language.yamlsrc import YList, YMap
 
 #: the I/O list's keys of a binding (beside ``from`` and ``invert``)
-IO_KEYS = ("description", "unit", "range")
-
+IO_KEYS = (
+    Key("description", DESCRIPTION, "The I/O list: what the signal is on the machine (one "
+                                    f"line, at most {DESCRIPTION_MAX} characters)."),
+    Key("unit", any_of(Text(), Int()), "The I/O list: unit of measure of an int or real "
+                                       "signal, a UN/CEFACT code (CEL, BAR, MMT) or a symbol "
+                                       "(°C, bar, mm); docs/language.md lists them."),
+    Key("range", ListOf(Number(), min_items=2, max_items=2),
+        "The I/O list: engineering limits [low, high] of an int or real signal."),
+)
 
 
 @dataclass(frozen=True, slots=True)
