@@ -169,13 +169,18 @@ class CodeCache:
                         "(owner and mode 0700 expected)", self.directory)
             return None
         key = _read_private("key", DIGEST, self._fd)
-        if key is None:
+        if key is None:  # written whole, then linked in: another process sees all or none
+            tmp = f".key-{secrets.token_hex(8)}"
             try:
-                fd = os.open("key", os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW
+                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW
                              | os.O_CLOEXEC, 0o600, dir_fd=self._fd)
                 with os.fdopen(fd, "wb") as f:
                     f.write(secrets.token_bytes(DIGEST))
-            except OSError as e:
+                try:
+                    os.link(tmp, "key", src_dir_fd=self._fd, dst_dir_fd=self._fd)
+                finally:
+                    os.unlink(tmp, dir_fd=self._fd)
+            except OSError as e:  # FileExistsError: another process made it first
                 log.debug("code cache %s: no key made: %s", self.directory, e)
             key = _read_private("key", DIGEST, self._fd)
         if key is None or len(key) != DIGEST:

@@ -64,6 +64,9 @@ def test_an_unchanged_chart_is_compiled_once(tmp_path: Path, cache_dir: Path,
     assert len(compiles) == 1
     assert oct(cache_dir.stat().st_mode & 0o777) == "0o700"
     assert [oct(p.stat().st_mode & 0o777) for p in entries(cache_dir)] == ["0o600"]
+    assert sorted(p.name for p in cache_dir.iterdir() if not p.name.endswith(".code")) \
+        == ["key"]  # nothing left of the key's or the entry's writing
+    assert oct((cache_dir / "key").stat().st_mode & 0o777) == "0o600"
     second = compile_grafcet(chart(tmp_path))  # another process would load it again
     assert len(compiles) == 1  # loaded from the cache
     assert marshal.dumps(second.factory.__code__) == marshal.dumps(first.factory.__code__)
