@@ -4,8 +4,8 @@ reload of an unchanged chart skip CPython's ``compile()`` (a 1000-step chart: 0.
 An entry is the ``marshal`` of a code object that passed :func:`runtime.compiler.guard.
 checked_code`, named by the SHA-256 of what it was compiled from: the generated source, its
 filename, the compiler's version (:data:`COMPILER_VERSION` and a digest of the compiler's
-modules) and the Python that compiled it (version and bytecode magic number). A changed chart, compiler or Python makes another
-name: an entry is never looked up for another text.
+modules) and the Python that compiled it (version and bytecode magic number). A changed
+chart, compiler or Python makes another name: an entry is never looked up for another text.
 
 A marshalled code object is not data: crafted bytecode can do anything in the process that
 loads it (the guard checks operations, names and constants, not every operand), so an entry
