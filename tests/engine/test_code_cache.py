@@ -235,3 +235,30 @@ def test_off_and_small_sources_compile_without_the_cache(
     compile_grafcet(chart(tmp_path, 12, "small.yaml"))
     assert len(compiles) == 4
     assert not d.exists()
+
+
+def test_softplc_compile_as_a_process_uses_the_cache(tmp_path: Path) -> None:
+    """The real command: the first run writes the chart's entry, the second reads it (an
+    entry altered in between is refused with a warning line, then written again)."""
+    import subprocess
+    import sys
+    chart_path = tmp_path / "big.yaml"
+    chart_path.write_text(chart_text(60), encoding="utf-8")
+    d = tmp_path / "cache"
+    env = {**os.environ, codecache.ENV: str(d)}
+
+    def run() -> str:
+        proc = subprocess.run([sys.executable, "-m", "runtime.cli", "compile", str(chart_path)],
+                              env=env, capture_output=True, text=True, check=False)
+        assert proc.returncode == 0, proc.stderr
+        return proc.stderr
+
+    run()
+    [entry] = entries(d)
+    data = bytearray(entry.read_bytes())
+    data[-1] ^= 1
+    entry.write_bytes(bytes(data))
+    err = run()
+    assert "refused (not written with this cache's key)" in err
+    assert "compiled in" in err
+    assert "refused" not in run()  # written again by the second run
