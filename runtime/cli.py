@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import gc
 import importlib
 import logging
 import os
@@ -723,9 +724,26 @@ def _unrecognized(parser: argparse.ArgumentParser, args: argparse.Namespace,
     command.error(f"unrecognized arguments: {' '.join(rest)}{hint}")
 
 
+#: commands that read files, check or compile them and exit: the collector of cyclic
+#: garbage is off while they run (a 4000-step chart: 0.4 s of 3.8 s of processor time
+#: spent collecting, for 8 % more memory at the peak; docs/check.md)
+BATCH_COMMANDS = frozenset({"compile", "check"})
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     if argv is None:
         argv = sys.argv[1:]
+    collecting = gc.isenabled()
+    if next((a for a in argv if not a.startswith("-")), "") in BATCH_COMMANDS:
+        gc.disable()  # its garbage ends with the command (on again after it: a caller's)
+    try:
+        return _main(argv)
+    finally:
+        if collecting:
+            gc.enable()
+
+
+def _main(argv: Sequence[str]) -> int:
     parser = build_parser(argv)
     args, rest = parser.parse_known_args(argv)
     if rest:  # said by the command's own parser: its usage, not every command's

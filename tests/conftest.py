@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
+import os
 import textwrap
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+
+# the disk cache of compiled code (runtime/compiler/codecache.py) is off for the suite and
+# the processes it starts: nothing written in the home of whoever runs the tests;
+# tests/engine/test_code_cache.py turns it on in a temporary directory
+os.environ["SOFTPLC_CODE_CACHE"] = "off"
 
 DRAWER = """\
 grafcet: DrawerTester

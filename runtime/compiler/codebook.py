@@ -6,7 +6,8 @@ runs, so the reload compiles the sources in a child process, which records each 
 object (``CodeBook(record=True)``) and hands the book back marshalled; the controller's
 process then unmarshals them (0.3 ms for the same cycle) instead of compiling. A source
 the book does not hold, or holds for another text, is compiled here as always: the book
-changes how long a load takes, never what it loads.
+changes how long a load takes, never what it loads. What is compiled here (book or not) goes
+through the disk cache of codecache.py, when one is configured.
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ import marshal
 from collections.abc import Collection
 from types import CodeType
 
-from runtime.compiler.guard import check_code, checked_code
+from runtime.compiler.codecache import cached_code
+from runtime.compiler.guard import check_code
 
 
 def _key(source: str, filename: str) -> str:
@@ -51,7 +53,7 @@ class CodeBook:
                 self.hits += 1
                 return code
         self.misses += 1
-        code = checked_code(source, filename, names)
+        code = cached_code(source, filename, names)
         if self.record:
             self.blobs[key] = marshal.dumps(code)
         return code
@@ -60,7 +62,8 @@ class CodeBook:
 def compile_code(source: str, filename: str, names: Collection[str],
                  book: CodeBook | None = None) -> CodeType:
     """Check and compile ``source`` (a module's text; ``names``: the globals it is given),
-    through ``book`` when one is given."""
+    through ``book`` when one is given, else through the disk cache of compiled code
+    (codecache.py) when one is configured."""
     if book is None:
-        return checked_code(source, filename, names)
+        return cached_code(source, filename, names)
     return book.compile(source, filename, names)

@@ -44,6 +44,8 @@ SCAN_GLOBALS: dict[str, Any] = {**HELPERS, "_Unstable": unstable_chart,
                                  "__builtins__": restricted_builtins()}
 #: a read of an entered (``a_``) or left (``l_``) mark in a line of generated code
 _MARK_READ = re.compile(r"\b([al]_\w+)\b(?!\s*=[^=])")
+#: a name in a line of generated code
+_WORD = re.compile(r"[A-Za-z_]\w*")
 #: the fast path's first line: the chart clock, its base's distance to now (the plant's
 #: inlined scans share it between the instances of one base, inline.py)
 FAST_CLOCK = "ct = now - cb"
@@ -67,7 +69,18 @@ class Compiler:
 
     def generate(self) -> str:
         """The source of the factory: the scan closure, whose body is the fast path (no
-        chart flag or outside write pending: ``slow`` false) and then the full one."""
+        chart flag or outside write pending: ``slow`` false), and the slow path.
+
+        Where the fast path leaves the chart flags out (``folded``) and the model is
+        immediate or stable, the slow path is its own closure, ``slowscan``: the clock, the
+        pre equations and the flags' section, then, when the flags leave the evolution and
+        the actions as usual (nothing frozen, no tip mode waiting for its pulse), it
+        returns False and the scan goes on with the fast path's evolution and actions: the
+        evolution, the largest part of a chart's code, is written once. Otherwise (frozen,
+        paused, SFCInit, tip mode) nothing can evolve: ``slowscan`` samples the
+        transitions' edges, runs the actions as the full body does, and returns True.
+        A CODESYS chart, and a chart whose pre equations may set a flag, keep the whole
+        full body after the fast path."""
         g = self.g
         self.state.build()
         locals_ = ", ".join(s.local for s in self.state.slots)
@@ -85,12 +98,32 @@ class Compiler:
                 f"        nonlocal m, slow, {locals_}"]
         if ins:
             head.append("        " + "; ".join(f"{v} = {ident('in', v[2:])}" for v in ins))
-        self.fast = [line[12:] for line in self.body(fast=True)]
-        head.append("        if not slow:  # the usual scan: the fast path")
-        head += ["            " + line for line in self.fast]
-        head.append(f"            {ret}")
-        body = self.body(fast=False)
-        body.append(f"        {ret}")
+        fast, split = self.body(fast=True)
+        self.fast = [line[12:] for line in fast]
+        if split is not None:  # the slow path goes on with the fast path's evolution
+            head.append("        if slow:  # a chart flag or an outside write may be pending")
+            head.append(f"            if slowscan(now, up): {ret}")
+            head.append("        else:  # the usual scan: the fast path")
+            head += ["            " + line for line in self.fast[:split]]
+            head += ["        " + line for line in self.fast[split:]]
+            head.append(f"        {ret}")
+            slow, _ = self.body(fast=False, shared=True)
+            slow.append("        return True")
+            used = set(_WORD.findall("\n".join(slow)))
+            cells = ", ".join(n for n in ("m", "slow", *(s.local for s in self.state.slots))
+                              if n in used)
+            body = ["    def slowscan(now, up):",
+                    "        # the slow path: True when it made the whole scan, False when the",
+                    "        # fast path's evolution and actions are to follow"]
+            if cells:
+                body.append(f"        nonlocal {cells}")
+            body += slow
+        else:
+            head.append("        if not slow:  # the usual scan: the fast path")
+            head += ["            " + line for line in self.fast]
+            head.append(f"            {ret}")
+            body, _ = self.body(fast=False)
+            body.append(f"        {ret}")
         tail = ["    def scan_state(now, up):",
                 f"        return scan(now, up{''.join(f', {v}' for v in ins)})",
                 "    def values():",
@@ -98,10 +131,11 @@ class Compiler:
                 "    return scan, scan_state, values"]
         return "\n".join(head + body + tail) + "\n"
 
-    def body(self, fast: bool) -> list[str]:
+    def body(self, fast: bool, shared: bool = False) -> tuple[list[str], int | None]:
         """The scan's body after the inputs, indented for the scan function (the fast
         path's one level more): clock, pre, chart flags, evolution and actions in the scan
-        model's order, post.
+        model's order, post; and, for the fast path, where its evolution starts when the
+        slow path can go on with it (else None: see :meth:`generate`).
 
         ``fast``: the body for a scan that starts with ``slow`` false: not the first scan,
         the last one not paused, no chart flag set. Unless a pre equation can set a flag,
@@ -110,7 +144,12 @@ class Compiler:
         chart that sets a flag in its actions or post equations (the next scan takes the
         full body, which recomputes it). A pre equation that can set a flag keeps the
         flags' section and the end of scan that records a pause (``wp``) and recomputes
-        ``slow``."""
+        ``slow``.
+
+        ``shared``: the body of ``slowscan``: after the flags' section, ``return False``
+        (``slow`` recomputed first) where the fast path's evolution and actions are to
+        follow; then what a scan that cannot evolve does: the transitions' edges
+        sampled, the actions guarded, post, ``slow`` recomputed."""
         g = self.g
         out = Emitter()
         out.level = 3 if fast else 2
@@ -140,7 +179,16 @@ class Compiler:
         folded = fast and self.state.flag_stores == stores
         if not folded:
             self.flags(out, steps)
+        # where the slow path may go on with the fast path's evolution and actions
+        split = len(out.lines) if folded and not self.codesys else None
+        flags = ["wp", *(ident("v", f) for f in SLOW_FLAGS), *SLOW_MEMORY]
+        recompute = (f"{L('first', value='False')}; {L('wp', value='paused')}; "
+                     f"slow = {' or '.join(flags)}")
         at = [marks, out.level]  # where the marks are cleared
+        if folded and self.stable:  # after pre: in the part the slow path goes on with
+            at = [len(out.lines), out.level]
+            out("")
+            out("")
         if folded and not self.stable:  # cleared where a step changes, else not tested
             def clear_marks() -> None:
                 at[:] = [len(out.lines), out.level]
@@ -158,6 +206,16 @@ class Compiler:
                 out.dedent()
             self.actions.section(out)
             self.evolution.section(out)
+        elif shared:
+            # nothing frozen, no tip mode waiting: as the fast path from here (the flags'
+            # section set no mark and left the clock as the fast path counts it)
+            out("if not frozen and (not v_SFCTipMode or tip):")
+            out.indent()
+            out(recompute)
+            out("return False  # the fast path's evolution and actions follow")
+            out.dedent()
+            self.evolution.frozen(out)
+            self.actions.section(out)
         else:
             self.evolution.section(out, folded)
             self.actions.section(out, folded)
@@ -166,15 +224,20 @@ class Compiler:
             for s in g.post:
                 self.exprs.sample_edges(out, [s.node])
                 self.stmts.stmt(out, s.node)
-        if not folded:  # folded, first and wp are false already, and nothing paused
-            flags = ["wp", *(ident("v", f) for f in SLOW_FLAGS), *SLOW_MEMORY]
-            out(f"if slow: {L('first', value='False')}; {L('wp', value='paused')}; "
-                f"slow = {' or '.join(flags)}")
+        if shared:  # `slow` is set: the slow path is taken
+            out(recompute)
+        elif not folded:  # folded, first and wp are false already, and nothing paused
+            out(f"if slow: {recompute}")
+        # the marks (temporaries of the scan function, or of slowscan) the body reads
         cleared = self.marks(steps, out.lines, at[1])
         out.lines[at[0]:at[0] + 2] = cleared
+        if split is not None and at[0] < split:
+            split += len(cleared) - 2
         if at[0] != marks:
             del out.lines[marks:marks + 2]
-        return out.lines
+            if split is not None:
+                split -= 2
+        return out.lines, split
 
     def fired_or_not(self, out: Emitter, steps: list[Step],
                      clear_marks: Callable[[], None]) -> None:
@@ -270,7 +333,8 @@ class Compiler:
         return [v.name for v in self.g.variables.values() if v.kind is VarKind.OUTPUT]
 
     def probes(self) -> dict[int, list[Probe]]:
-        """Sub-terms of every transition condition, compiled against the state list."""
+        """Sub-terms of every transition condition, compiled against the state list (for
+        ``explain``: ``Program.probes`` calls this on its first use)."""
         out: dict[int, list[Probe]] = {}
         env: dict[str, Any] = dict(HELPERS)
 
@@ -306,7 +370,7 @@ def compile_grafcet(g: Grafcet, book: CodeBook | None = None, coverage: bool = F
     env = dict(SCAN_GLOBALS)
     code = compile_code(source, f"<grafcet {g.name} {digest}>", env.keys(), book)
     exec(code, env)  # noqa: S102 - generated from the checked model
-    return Program(g, source, env["make"], c.state.slots, c.probes(), c.inputs(), c.outputs(),
+    return Program(g, source, env["make"], c.state.slots, c.probes, c.inputs(), c.outputs(),
                    c.fast)
 
 

@@ -286,6 +286,13 @@ class Evolution:
                 out.dedent()
         out.dedent()
 
+    def frozen(self, out: Emitter) -> None:
+        """The evolution of a scan that cannot evolve (frozen, or tip mode without its
+        pulse; immediate and stable models): nothing fires, the transitions' edges are
+        sampled all the same, as :meth:`section` samples them before its guard."""
+        out("# 3. evolution: none (frozen, or tip mode without its pulse); edges sampled")
+        self.exprs.sample_edges(out, [t.cond for t in self.g.transitions])
+
     def fired_or_not(self, out: Emitter, clear_marks: Callable[[], None],
                      actions: Callable[[bool], None]) -> None:
         """The folded evolution with the actions after it (immediate), or before it

@@ -140,7 +140,9 @@ class Program:
     source: str
     factory: Callable[[State, list[Any]], tuple[Scan, ScanState, Callable[[], list[Any]]]]
     slots: list[Slot]
-    probes: dict[int, list[Probe]] = field(default_factory=dict)  # transition -> sub-terms
+    #: builds the sub-terms of every transition's condition for ``explain`` (by transition
+    #: index): called on the first read of :attr:`probes`, not at compile time
+    make_probes: Callable[[], dict[int, list[Probe]]] = dict
     inputs: list[str] = field(default_factory=list)  # scan's arguments after ``up``
     outputs: list[str] = field(default_factory=list)  # what a scan returns, in order
     #: the scan's fast path (``slow`` false at its start), unindented, after the inputs'
@@ -149,11 +151,22 @@ class Program:
     _by_key: dict[str, int] = field(init=False, repr=False)
     _step_times: dict[str, Callable[[Memory], int]] = field(init=False, repr=False)
     _cells: list[str] = field(init=False, repr=False)
+    _probes: dict[int, list[Probe]] | None = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self._by_key = {s.key: s.index for s in self.slots}
         self._step_times = {}
         self._cells = []
+        self._probes = None
+
+    @property
+    def probes(self) -> dict[int, list[Probe]]:
+        """The sub-terms of every transition condition (transition index -> terms, the
+        whole condition first), built on first use: only ``explain`` reads them (a
+        1000-step chart's 1747 sub-terms take 0.1 s of processor time to compile)."""
+        if self._probes is None:
+            self._probes = self.make_probes()
+        return self._probes
 
     def instantiate(self, m: State, init: list[Any] | None = None
                     ) -> tuple[Scan, ScanState]:
@@ -173,8 +186,10 @@ class Program:
         cells["slow"].cell_contents = True  # a chart flag or an outside write may be pending
         fns = {name: FunctionType(codes[name], make.__globals__, name, None,
                                   tuple(cells[n] for n in codes[name].co_freevars))
-               for name in ("scan", "scan_state", "values")}
+               for name in ("scan", "slowscan", "scan_state", "values") if name in codes}
         cells["scan"].cell_contents = scan = fns["scan"]
+        if "slowscan" in fns:  # the slow path, a closure of its own (codegen.py)
+            cells["slowscan"].cell_contents = fns["slowscan"]
         m.values = fns["values"]
         m.cells = [cells[s.local] for s in self.slots]
         m.slow = cells["slow"]
