@@ -31,6 +31,7 @@ from runtime.language.grafcetfile import (
 )
 from runtime.language.iolist import IO_KEYS, check_io_entry, io_entry
 from runtime.language.lexer import is_name
+from runtime.language.modbusconf import load_modbus
 from runtime.language.model import (
     Binding,
     ConsoleEntry,
@@ -48,7 +49,8 @@ from runtime.language.typecheck import FLAGS_BOOL
 from runtime.language.webconf import load_web
 from runtime.language.yamlsrc import SourceFileError, YMap, load_yaml
 
-PLANT_KEYS = ("plc", "drivers", "instances", "monitor", "opcua", "mqtt", "alarms", "web")
+PLANT_KEYS = ("plc", "drivers", "instances", "monitor", "opcua", "mqtt", "alarms", "web",
+              "modbus")
 PLC_KEYS = ("cycle", "watchdog", "retain", "retain_interval", "retain_required", "realtime",
             "log")
 INSTANCE_KEYS = ("grafcet", "inputs", "outputs", "description", "log")
@@ -311,7 +313,7 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
                                                    f"{v.type}"))
                 if v is not None and isinstance(bspec, YMap):
                     try:
-                        check_io_entry(b, bspec, v.type)
+                        check_io_entry(b, bspec, v.type, key[:-1])
                     except SourceError as exc:
                         load.report(exc)
                 getattr(inst, key)[sig] = b
@@ -327,7 +329,8 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
     if "monitor" in doc and doc["monitor"] is not None:
         _monitor(p, doc["monitor"], doc.val_locs["monitor"])
     named: dict[str, Loc] = {}  # side process section -> its feed: value's place
-    for key, load_side in (("opcua", load_opcua), ("mqtt", load_mqtt), ("web", load_web)):
+    for key, load_side in (("opcua", load_opcua), ("mqtt", load_mqtt), ("web", load_web),
+                           ("modbus", load_modbus)):
         if key in doc and doc[key] is not None:
             setattr(p, key, load_side(p, doc[key], doc.val_locs[key]))
             section = doc[key]
