@@ -103,11 +103,12 @@ class Connection:
     paced: bool = False
 
     def refuse(self, kind: str, text: str) -> None:
-        """Count a refusal; its first of ``kind`` is one log line."""
+        """Count a refusal; its first of ``kind`` is one log line (the log's rate limit
+        counts each kind apart: its template names it)."""
         n = self.refused.get(kind, 0)
         self.refused[kind] = n + 1
         if n == 0:
-            log.warning("modbus: %s: %s", self.who, text)
+            log.warning("modbus: %s: " + kind.replace("%", "%%") + ": %s", self.who, text)
 
 
 class ModbusServer:
@@ -346,23 +347,20 @@ class ModbusServer:
         """The reply PDU to request ``pdu``."""
         function = pdu[0] & 0x7F
         if self.conf.unit is not None and unit != self.conf.unit:
-            c.refuse("unit", f"unit {unit} asked: this server is unit {self.conf.unit} "
-                             "(answered with exception 11)")
+            c.refuse("exception 11", f"unit {unit} asked: this server is unit "
+                                     f"{self.conf.unit}")
             return exception_pdu(function, GATEWAY_TARGET_FAILED)
         try:
             req = parse_request(pdu)
         except RequestError as exc:
-            c.refuse(f"exception {exc.code} to FC {pdu[0]}", f"{exc} (answered with "
-                                                              f"exception {exc.code})")
+            c.refuse(f"exception {exc.code} to FC {pdu[0]}", str(exc))
             return exception_pdu(function, exc.code)
         if not (c.may_write if req.writes else c.may_read):
             what = "write" if req.writes else "read"
-            c.refuse(f"may not {what}", f"role '{c.role}' may not {what} (answered with "
-                                        "exception 1)")
+            c.refuse(f"exception 1 to FC {req.function}", f"role '{c.role}' may not {what}")
             return exception_pdu(function, ILLEGAL_FUNCTION)
         if not self.fresh():
-            c.refuse("no values", "no values from the controller (stopped, or no feed): "
-                                  "answered with exception 11")
+            c.refuse("exception 11", "no values from the controller (stopped, or no feed)")
             return exception_pdu(function, GATEWAY_TARGET_FAILED)
         table = TABLE_OF[req.function]
         try:
@@ -371,8 +369,7 @@ class ModbusServer:
             writes = self.tables.writes(table, req.address, list(req.values),
                                         self.writable.__contains__)
         except RequestError as exc:
-            c.refuse(f"exception {exc.code} to FC {req.function}",
-                     f"{exc} (answered with exception {exc.code})")
+            c.refuse(f"exception {exc.code} to FC {req.function}", str(exc))
             return exception_pdu(function, exc.code)
         return await self._write(c, req, pdu, writes)
 
