@@ -28,6 +28,7 @@ from __future__ import annotations
 import asyncio
 import ipaddress
 import logging
+import socket
 import ssl
 import time
 from collections.abc import Callable
@@ -72,6 +73,9 @@ FRAME_TIMEOUT_S = 5.0
 SEND_TIMEOUT_S = 5.0
 #: unsent bytes of one connection before the server waits for the client to read
 WRITE_HIGH = 64 * 1024
+#: the kernel's send buffer of a connection, bytes (fixed: autotuned, it would take
+#: megabytes of replies before a client that reads none is seen)
+SEND_BUFFER = 64 * 1024
 #: a TLS handshake must end within this, seconds
 HANDSHAKE_TIMEOUT_S = 10.0
 #: the feed's answer code -> the exception of a refused write
@@ -269,6 +273,9 @@ class ModbusServer:
         self._connections.add(task)
         transport = writer.transport
         transport.set_write_buffer_limits(high=WRITE_HIGH)
+        sock = writer.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER)
         why = "closed by the client"
         try:
             why = await self._serve(c, reader, writer)
@@ -323,8 +330,9 @@ class ModbusServer:
                     await asyncio.wait_for(writer.drain(), SEND_TIMEOUT_S)
                 except TimeoutError:
                     log.warning("modbus: %s reads no replies (%d bytes waiting for %g s): "
-                                "closed", c.who, transport.get_write_buffer_size(),
+                                "dropped", c.who, transport.get_write_buffer_size(),
                                 SEND_TIMEOUT_S)
+                    transport.abort()  # its replies discarded, the connection reset
                     return "it read no replies"
 
     async def _pace(self, c: Connection) -> None:

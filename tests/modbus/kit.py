@@ -25,10 +25,11 @@ SAMPLE_MS = 50
 MBPOLL = shutil.which("mbpoll")
 
 
-def start_server(tmp: Path, *args: str) -> Proc:
-    """``softplc modbus ARGS`` at niceness 10, as its unit (Nice=10) runs it."""
-    p = subprocess.Popen(["nice", "-n", "10", sys.executable, "-m", "runtime.cli", "modbus",
-                          *args], cwd=str(tmp), env=_env(tmp), text=True,
+def start_server(tmp: Path, *args: str, nice: int = 0) -> Proc:
+    """``softplc modbus ARGS`` (at niceness ``nice``: its unit runs it at 10; the tests at
+    the machine's own, so that the other jobs of a shared test machine do not starve it)."""
+    p = subprocess.Popen(["nice", "-n", str(nice), sys.executable, "-m", "runtime.cli",
+                          "modbus", *args], cwd=str(tmp), env=_env(tmp), text=True,
                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     proc = Proc(p)
     threading.Thread(target=proc.follow, daemon=True).start()
@@ -100,11 +101,11 @@ class Rig:
         return self.feed.statuses[-1] if self.feed.statuses else {}
 
 
-def served(r: Rig) -> bool:
-    """The server has answered one read with values (not exception 11)."""
+def served(port: int) -> bool:
+    """The server on ``port`` has answered one read with values (not exception 11)."""
     from pymodbus.client import ModbusTcpClient
 
-    c = ModbusTcpClient("127.0.0.1", port=r.port, timeout=2, retries=0)
+    c = ModbusTcpClient("127.0.0.1", port=port, timeout=2, retries=0)
     try:
         if not c.connect():
             return False
@@ -117,10 +118,10 @@ def served(r: Rig) -> bool:
 
 
 @contextmanager
-def rig(tmp: Path, modbus: str = "", plc: str = "",
-        server_args: tuple[str, ...] = ()) -> Iterator[Rig]:
-    """The controller (``softplc run --sim``) and ``softplc modbus`` at niceness 10, as its
-    unit runs it, until the block ends."""
+def rig(tmp: Path, modbus: str = "", plc: str = "", server_args: tuple[str, ...] = (),
+        wait_served: bool = True) -> Iterator[Rig]:
+    """The controller (``softplc run --sim``) and ``softplc modbus``, until the block ends;
+    once the server serves values (``wait_served``), else once it listens."""
     plant, port = write_plant(tmp, modbus, plc=plc)
     ctl = start(tmp, "run", str(plant), "--sim")
     server = None
@@ -133,8 +134,12 @@ def rig(tmp: Path, modbus: str = "", plc: str = "",
         server = start_server(tmp, str(plant), *server_args)
         feed = FeedReader(str(feed_path))
         r = Rig(tmp, plant, port, ctl, server, feed)
-        wait_until(lambda: served(r) or server.popen.poll() is not None, 30.0,
-                   "the Modbus server serving values")
+        if wait_served:
+            wait_until(lambda: served(port) or server.popen.poll() is not None, 30.0,
+                       "the Modbus server serving values")
+        else:
+            wait_until(lambda: "Modbus/TCP server on" in server.log()
+                       or server.popen.poll() is not None, 30.0, "the Modbus server")
         assert server.popen.poll() is None, server.log()
         yield r
     finally:
