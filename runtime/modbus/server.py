@@ -132,6 +132,7 @@ class ModbusServer:
         self.state = self.feed.state
         self._networks = [ipaddress.ip_network(c) for c in self.conf.clients]
         self._servers: list[asyncio.Server] = []
+        self._tls: ssl.SSLContext | None = None
         self._connections: set[asyncio.Task[None]] = set()
         self._last_frame: float | None = None
         self._stale_after = stale_after_s(self.conf.sample_ns)
@@ -155,9 +156,10 @@ class ModbusServer:
             log.info("Modbus/TCP server on %s:%d (feed %s)", host, plain, self.feed_path)
         t = self.conf.tls
         if t is not None:
-            ctx = server_context(t)
-            srv = await asyncio.start_server(self._tls_client, t.host, t.port, ssl=ctx,
-                                             ssl_handshake_timeout=HANDSHAKE_TIMEOUT_S,
+            self._tls = server_context(t)
+            # TLS is started by the connection's handler, after the allow-list and the
+            # limit: a handshake that fails is then its one log line
+            srv = await asyncio.start_server(self._tls_client, t.host, t.port,
                                              limit=MAX_PDU + MBAP_SIZE)
             self._servers.append(srv)
             tls = srv.sockets[0].getsockname()[1]
@@ -221,17 +223,28 @@ class ModbusServer:
     # -- clients -----------------------------------------------------------------------
     async def _plain_client(self, reader: asyncio.StreamReader,
                             writer: asyncio.StreamWriter) -> None:
-        await self._client(reader, writer, None)
+        await self._client(reader, writer, False)
 
     async def _tls_client(self, reader: asyncio.StreamReader,
                           writer: asyncio.StreamWriter) -> None:
+        await self._client(reader, writer, True)
+
+    async def _handshake(self, writer: asyncio.StreamWriter, who: str) -> str | None:
+        """TLS on the connection; the role of the client's certificate ("" without one),
+        or None if the handshake failed (one log line)."""
+        assert self._tls is not None
+        try:
+            await writer.start_tls(self._tls, ssl_handshake_timeout=HANDSHAKE_TIMEOUT_S)
+        except (ssl.SSLError, ConnectionError, TimeoutError, OSError) as exc:
+            reason = getattr(exc, "reason", None) or str(exc) or type(exc).__name__
+            log.warning("modbus: TLS connection from %s refused: %s", who, reason)
+            return None
         sslobj = writer.get_extra_info("ssl_object")
         der = sslobj.getpeercert(binary_form=True) if sslobj is not None else None
         try:
-            role = role_of(der) if der else None
+            return (role_of(der) if der else None) or ""
         except DerError:
-            role = None
-        await self._client(reader, writer, role or "")
+            return ""
 
     def _allowed(self, host: str) -> bool:
         if not self._networks:
@@ -245,7 +258,7 @@ class ModbusServer:
         return any(addr in net for net in self._networks)
 
     async def _client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
-                      role: str | None) -> None:
+                      tls: bool) -> None:
         peer = writer.get_extra_info("peername") or ("?", 0)
         host, port = str(peer[0]), int(peer[1])
         who = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
@@ -259,6 +272,15 @@ class ModbusServer:
                         "(modbus: limits: connections)", who, len(self._connections))
             writer.close()
             return
+        assert task is not None
+        self._connections.add(task)
+        role = None
+        if tls:
+            role = await self._handshake(writer, who)
+            if role is None:
+                self._connections.discard(task)
+                writer.close()
+                return
         c = Connection(who, tokens=float(self.conf.limits.rate), filled=time.monotonic())
         if role is not None:  # the TLS listener: the certificate's role decides
             c.role = role
@@ -269,8 +291,6 @@ class ModbusServer:
                      may or "no access")
         else:
             log.info("modbus: %s connected", who)
-        assert task is not None
-        self._connections.add(task)
         transport = writer.transport
         transport.set_write_buffer_limits(high=WRITE_HIGH)
         sock = writer.get_extra_info("socket")

@@ -43,7 +43,7 @@ def free_port() -> int:
 
 
 def write_plant(tmp: Path, modbus: str = "", port: int | None = None,
-                plc: str = "") -> tuple[Path, int]:
+                plc: str = "", sample_ms: int = SAMPLE_MS) -> tuple[Path, int]:
     """The drawer tester (two instances on sim I/O), a console socket, and a ``modbus:``
     section listening on a free port with tester1.sParo and tester1.sCierres writable,
     then ``modbus`` (more keys of the section). (plant path, port)."""
@@ -54,7 +54,7 @@ def write_plant(tmp: Path, modbus: str = "", port: int | None = None,
     text = text.replace("watchdog: 100ms", f"watchdog: 5s{plc}").replace(
         "retain: ${RUNTIME_DIR}/drawer_tester_sim.retain.json", "retain: null")
     text += ("monitor:\n  socket: {path: '${RUNTIME_DIR}/console.sock', trusted: true}\n"
-             f"modbus:\n  listen: 127.0.0.1:{port}\n  sample: {SAMPLE_MS}ms\n"
+             f"modbus:\n  listen: 127.0.0.1:{port}\n  sample: {sample_ms}ms\n"
              "  writable: [tester1.sParo, tester1.sCierres]\n")
     text += modbus
     plant = tmp / "plant.yaml"
@@ -119,10 +119,12 @@ def served(port: int) -> bool:
 
 @contextmanager
 def rig(tmp: Path, modbus: str = "", plc: str = "", server_args: tuple[str, ...] = (),
-        wait_served: bool = True) -> Iterator[Rig]:
-    """The controller (``softplc run --sim``) and ``softplc modbus``, until the block ends;
-    once the server serves values (``wait_served``), else once it listens."""
-    plant, port = write_plant(tmp, modbus, plc=plc)
+        wait_served: bool = True, nice: int = 0, sample_ms: int = SAMPLE_MS
+        ) -> Iterator[Rig]:
+    """The controller (``softplc run --sim``) and ``softplc modbus`` (at niceness
+    ``nice``), until the block ends; once the server serves values (``wait_served``), else
+    once it listens."""
+    plant, port = write_plant(tmp, modbus, plc=plc, sample_ms=sample_ms)
     ctl = start(tmp, "run", str(plant), "--sim")
     server = None
     feed = None
@@ -131,7 +133,7 @@ def rig(tmp: Path, modbus: str = "", plc: str = "", server_args: tuple[str, ...]
         wait_until(lambda: feed_path.exists() or ctl.popen.poll() is not None, 30.0,
                    "the feed socket")
         assert ctl.popen.poll() is None, ctl.log()
-        server = start_server(tmp, str(plant), *server_args)
+        server = start_server(tmp, str(plant), *server_args, nice=nice)
         feed = FeedReader(str(feed_path))
         r = Rig(tmp, plant, port, ctl, server, feed)
         if wait_served:

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import csv
 import io
+import os
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -200,3 +202,19 @@ def test_diff_names_what_the_server_reads_at_its_start(tmp_path: Path) -> None:
     assert any(ln.startswith("plant: modbus map changed: applied when the Modbus/TCP server "
                              "restarts") for ln in lines), lines
     assert not any("listen" in ln or "port" in ln for ln in lines), lines
+
+
+def test_a_port_in_use_is_one_line(tmp_path: Path) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        path = plant(tmp_path, port=port)
+        r = subprocess.run([sys.executable, "-m", "runtime.cli", "modbus", str(path)],
+                           capture_output=True, text=True, cwd=tmp_path, timeout=120,
+                           check=False, env={**os.environ, "PYTHONPATH": str(ROOT),
+                                             "XDG_RUNTIME_DIR": str(tmp_path)})
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(
+        f"softplc modbus: error: 127.0.0.1:{port}: ") and "in use" in lines[0], r.stderr

@@ -131,6 +131,9 @@ def test_roles_from_client_certificates(tmp_path: Path) -> None:
         wait_until(lambda: "role viewer: read" in r.server.log(), 10.0, "the viewer's line")
         assert "role (none): no access" in r.server.log()
         assert "role 'viewer' may not write" in r.server.log()
+        # the two refused handshakes: one line each
+        wait_until(lambda: r.server.log().count("TLS connection from 127.0.0.1:") >= 2, 10.0,
+                   "the refused handshakes' lines")
 
 
 def test_a_client_not_in_the_allow_list_is_refused(tmp_path: Path) -> None:
