@@ -184,7 +184,7 @@ SIDES = {"opcua": ("OPC UA server", "softplc opcua; systemctl restart softplc-op
                     "softplc modbus; systemctl restart softplc-modbus@NAME")}
 #: what of ``web:`` is the web view's own (read at its start)
 WEB_OWN = ("host", "port", "certificate", "private_key", "users", "read", "idle_logout_ns",
-           "max_pages")
+           "max_pages", "page_timeout_ns", "hosts")
 #: what of ``modbus:`` is the Modbus/TCP server's own (read at its start)
 MODBUS_OWN = ("host", "port", "clients", "unit", "points", "words", "tls", "limits")
 #: what of ``mqtt:`` is the edge node's own (read at its start)
@@ -261,7 +261,8 @@ def _sides(cs: ChangeSet) -> None:
                 ("endpoint", old.endpoint, new.endpoint),
                 ("security", replace(old.security, loc=None), replace(new.security, loc=None))]
         elif key == "web":
-            own = [(f, getattr(old, f), getattr(new, f)) for f in WEB_OWN]
+            own = [(f.removesuffix("_ns"), getattr(old, f), getattr(new, f))
+                   for f in WEB_OWN]
         elif key == "modbus":  # (the places in the file are no setting)
             own = [(f if f != "points" else "map", _unplaced(getattr(old, f)),
                     _unplaced(getattr(new, f))) for f in MODBUS_OWN]

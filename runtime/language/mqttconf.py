@@ -12,7 +12,7 @@ from runtime.errors import Loc, SourceError, suggest
 from runtime.language.feedconf import feed_key, sample_key, writable_names
 from runtime.language.grafcetfile import check_keys, expect_type, time_value
 from runtime.language.model import MQTT_GROUPS, MqttBroker, MqttDef, MqttTls, PlantDef
-from runtime.language.plantpaths import path_value
+from runtime.language.plantpaths import plant_path
 from runtime.language.yamlsrc import YList, YMap
 
 MQTT_KEYS = ("brokers", "group_id", "edge_node_id", "client_id", "username", "password_file",
@@ -103,8 +103,10 @@ def _text(m: YMap, key: str, what: str) -> str:
 
 
 def _path(m: YMap, key: str) -> str:
-    """A file's path (``${RUNTIME_DIR}`` expanded), checked as every path a plant names."""
-    return path_value(m[key], m.val_locs[key], f"mqtt {key}")
+    """A file's path (``${RUNTIME_DIR}`` expanded), checked as every path a plant names and
+    read from the plant file's directory when relative (``plantpaths.plant_path``)."""
+    vloc = m.val_locs[key]
+    return plant_path(vloc.file, m[key], vloc, f"mqtt {key}")
 
 
 def _ident(m: YMap, key: str) -> str:

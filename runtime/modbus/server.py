@@ -128,7 +128,7 @@ class ModbusServer:
         self.tables = Tables(self.conf.points, self.conf.words, _time_names(pdef))
         self.writable = set(self.conf.writable)
         self.feed = FeedClient(self.feed_path, "modbus", self._schema, self._frame,
-                               self._lost)
+                               self._lost, plant=pdef)
         self.state = self.feed.state
         self._networks = [ipaddress.ip_network(c) for c in self.conf.clients]
         self._servers: list[asyncio.Server] = []
@@ -448,8 +448,10 @@ async def serve(pdef: PlantDef, feed: str | None = None,
     try:
         if stop is None:
             await task
-        else:
-            await stop.wait()
+        else:  # until stop, or the feed's end (a feed refused: feedclient.ForeignFeed)
+            waiter = asyncio.ensure_future(stop.wait())
+            await asyncio.wait({task, waiter}, return_when=asyncio.FIRST_COMPLETED)
+            waiter.cancel()
             ms.stop()
             await task
     finally:
