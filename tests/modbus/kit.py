@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from tests.opcua.feedkit import FeedReader, wait_until
-from tests.web.kit import Proc, _env, start, stop
+from tests.web.kit import Proc, _env, rundir_of, start, stop
 
 ROOT = Path(__file__).resolve().parents[2]
 #: the feed's sample in the tests, ms (5 scans of 10 ms)
@@ -46,8 +46,12 @@ def write_plant(tmp: Path, modbus: str = "", port: int | None = None,
                 plc: str = "", sample_ms: int = SAMPLE_MS) -> tuple[Path, int]:
     """The drawer tester (two instances on sim I/O), a console socket, and a ``modbus:``
     section listening on a free port with tester1.sParo and tester1.sCierres writable,
-    then ``modbus`` (more keys of the section). (plant path, port)."""
+    then ``modbus`` (more keys of the section). In the directory ``tmp/p``: the plant's
+    name is its runtime directory's (``${RUNTIME_DIR}`` is ``tmp/softplc/p-HASH``), short
+    enough for its sockets below a test's tmp path. (plant path, port)."""
     port = free_port() if port is None else port
+    tmp = tmp / "p"
+    tmp.mkdir(exist_ok=True)
     shutil.copy(ROOT / "configs/drawer_tester/drawer_tester.yaml", tmp / "drawer_tester.yaml")
     text = (ROOT / "configs/drawer_tester/plant_sim.yaml").read_text(encoding="utf-8")
     text = text[:text.index("\nmonitor:")] + "\n"
@@ -73,11 +77,16 @@ class Rig:
     server: Proc
     feed: FeedReader
 
+    @property
+    def rundir(self) -> Path:
+        """The plant's ``${RUNTIME_DIR}`` (its own, below the test's XDG_RUNTIME_DIR)."""
+        return rundir_of(self.tmp, self.plant)
+
     def console(self, *lines: str) -> list[str]:
         """The replies of a fresh console session to ``lines``."""
         out = []
         with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
-            s.connect(str(self.tmp / "softplc" / "console.sock"))
+            s.connect(str(self.rundir / "console.sock"))
             f = s.makefile("rw", encoding="utf-8", newline="\n")
             for line in lines:
                 f.write(line + "\n")
@@ -129,7 +138,7 @@ def rig(tmp: Path, modbus: str = "", plc: str = "", server_args: tuple[str, ...]
     server = None
     feed = None
     try:
-        feed_path = tmp / "softplc" / "feed.sock"
+        feed_path = rundir_of(tmp, plant) / "feed.sock"
         wait_until(lambda: feed_path.exists() or ctl.popen.poll() is not None, 30.0,
                    "the feed socket")
         assert ctl.popen.poll() is None, ctl.log()

@@ -125,7 +125,7 @@ def test_every_refusal_at_its_place(tmp_path: Path, modbus: str, replace: tuple[
                                     words: str) -> None:
     text = error_of(tmp_path, modbus, replace)
     assert words in text, text
-    assert text.startswith(str(tmp_path / "plant.yaml") + ":"), text
+    assert text.startswith(str(tmp_path / "p" / "plant.yaml") + ":"), text
     line, col = (int(x) for x in text.split(":")[1:3])
     assert line > 1 and col >= 1
 
