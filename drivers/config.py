@@ -86,6 +86,11 @@ class ConfigKey:
     #: a further check of a MAPPING's inside: the value -> None, or what is wrong with it
     #: (the refusal says it after ``driver NAME (TYPE): KEY``)
     verify: Callable[[Any], str | None] | None = None
+    #: what the key is, in the words editors show (configs/schema/plant.schema.json)
+    doc: str = ""
+    #: what editors check of a MAPPING's inside, as JSON Schema keywords (``verify`` is the
+    #: loader's check of it)
+    inside: Mapping[str, Any] | None = None
 
     def describe(self) -> str:
         """What the value should be, in the words of a refusal."""

@@ -26,11 +26,22 @@ from __future__ import annotations
 import importlib
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from drivers.base import Direction, Driver, PointError, PointKind
 from drivers.config import ConfigError, ConfigKey, ConfigKeys, Kind
+
+#: type -> what it is, in the words editors show (configs/schema/plant.schema.json)
+DRIVER_WORDS: dict[str, str] = {
+    "sim": "in memory",
+    "gpio": "Linux GPIO character device",
+    "mcp23017": "I2C expander",
+    "pcf8574": "I2C expander",
+    "canopen": "CiA 401 node",
+    "modbus_rtu": "Modbus RTU master",
+    "modbus_tcp": "Modbus TCP master: a device or a gateway",
+}
 
 #: type -> (module, class name, pip package that provides its bus library)
 DRIVERS: dict[str, tuple[str, str, str | None]] = {
@@ -53,25 +64,32 @@ GPIO_MAX_DEBOUNCE_S = 4294
 #: chip, the driver's own for an I2C expander (the same range for both)
 _DEBOUNCE = ConfigKey("debounce", Kind.DURATION, default=0, maximum=GPIO_MAX_DEBOUNCE_S,
                       expected=f"a debounce period from 0 to {GPIO_MAX_DEBOUNCE_S}s such as "
-                               "5ms")
+                               "5ms",
+                      doc="Debounce period of the input lines, by the driver (the chip has "
+                          "none): a change is taken once every read for this long saw it "
+                          "(10ms).")
 
 GPIO_KEYS = ConfigKeys(
     ConfigKey("chip", Kind.TEXT, default="/dev/gpiochip0", pattern=r"/\S+",
-              expected="a GPIO character device such as /dev/gpiochip0 (its full path)"),
+              expected="a GPIO character device such as /dev/gpiochip0 (its full path)",
+              doc="The GPIO character device."),
     ConfigKey("bias", Kind.CHOICE, default="none", choices=("pull_up", "pull_down", "none"),
-              message="{key} '{value}': expected {expected}"),
-    _DEBOUNCE,
+              message="{key} '{value}': expected {expected}", doc="Bias of the input lines."),
+    replace(_DEBOUNCE, doc="Debounce period of the input lines (5ms)."),
 )
 
 #: the keys of an I2C chip: bus and address
 _I2C_BUS = ConfigKey("bus", Kind.INT, required=True, minimum=0,
-                     expected="the I2C bus number (1 for /dev/i2c-1)")
+                     expected="the I2C bus number (1 for /dev/i2c-1)",
+                     doc="I2C bus number: 1 for /dev/i2c-1.")
 
 MCP23017_KEYS = ConfigKeys(
     _I2C_BUS,
     ConfigKey("address", Kind.I2C_ADDRESS, required=True, minimum=0x20, maximum=0x27,
-              expected="an MCP23017 address from 0x20 to 0x27 (pins A2 A1 A0)"),
-    ConfigKey("pull_up", Kind.BOOL, default=True),
+              expected="an MCP23017 address from 0x20 to 0x27 (pins A2 A1 A0)",
+              doc="0x20-0x27 (A2 A1 A0)."),
+    ConfigKey("pull_up", Kind.BOOL, default=True,
+              doc="The chip's 100 kΩ pull-ups on the bound inputs."),
     _DEBOUNCE,
 )
 
@@ -80,7 +98,8 @@ PCF8574_KEYS = ConfigKeys(
     ConfigKey("address", Kind.I2C_ADDRESS, required=True, minimum=0x20, maximum=0x3F,
               ranges=((0x20, 0x27), (0x38, 0x3F)),
               expected="a PCF8574 address from 0x20 to 0x27 or a PCF8574A address from "
-                       "0x38 to 0x3f (pins A2 A1 A0)"),
+                       "0x38 to 0x3f (pins A2 A1 A0)",
+              doc="0x20-0x27 (PCF8574) or 0x38-0x3F (PCF8574A)."),
     _DEBOUNCE,
 )
 
@@ -156,23 +175,32 @@ def _socketcan_channel(params: Mapping[str, Any]) -> tuple[str, str] | None:
 
 CANOPEN_KEYS = ConfigKeys(
     ConfigKey("interface", Kind.CHOICE, default="socketcan", choices=CAN_INTERFACES,
-              expected="a python-can interface: " + ", ".join(CAN_INTERFACES)),
-    ConfigKey("channel", Kind.TEXT_OR_INT, default="can0"),
+              expected="a python-can interface: " + ", ".join(CAN_INTERFACES),
+              doc="python-can interface: socketcan, virtual, udp_multicast, pcan, ..."),
+    ConfigKey("channel", Kind.TEXT_OR_INT, default="can0", doc="python-can channel (can0)."),
     ConfigKey("bitrate", Kind.CHOICE, choices=CAN_BITRATES,
-              expected="a CAN bit rate: " + ", ".join(str(b) for b in CAN_BITRATES)),
+              expected="a CAN bit rate: " + ", ".join(str(b) for b in CAN_BITRATES),
+              doc="Bit rate (250000), passed to python-can."),
     ConfigKey("node", Kind.INT, required=True, minimum=1, maximum=127,
-              expected="a node-ID 1-127"),
+              expected="a node-ID 1-127", doc="Node-ID of the CiA 401 I/O node."),
     ConfigKey("heartbeat", Kind.DURATION, default=1.0, positive=True,
               maximum=CANOPEN_MAX_HEARTBEAT_S,
               expected=f"a positive consumer timeout such as 500ms, at most "
                        f"{CANOPEN_MAX_HEARTBEAT_S}s (the node's heartbeat is a quarter of it, "
-                       "in 16-bit ms)"),
-    ConfigKey("eds", Kind.TEXT),
+                       "in 16-bit ms)",
+              doc="Heartbeat consumer timeout (500ms; default 1 s)."),
+    ConfigKey("eds", Kind.TEXT, doc="EDS/DCF file of the node (PDO mapping taken from it)."),
     ConfigKey("sync", Kind.DURATION, positive=True, maximum=CANOPEN_MAX_SYNC_S,
-              expected=f"a positive SYNC period such as 10ms, at most {CANOPEN_MAX_SYNC_S}s"),
+              expected=f"a positive SYNC period such as 10ms, at most {CANOPEN_MAX_SYNC_S}s",
+              doc="SYNC period (optional): RPDOs on change, SYNC produced at this period."),
     ConfigKey("pdo", Kind.MAPPING, message="{key}: expected {expected}",
               expected="a mapping such as {tpdo1: ['6000:1'], rpdo1: ['6200:1']}",
-              verify=_pdo_problem),
+              verify=_pdo_problem,
+              doc='The PDO mapping itself: {tpdo1: ["6000:1"], rpdo1: ["6200:1"]}.',
+              inside={"propertyNames": {"pattern": "^[tr]pdo[1-4]$"},
+                      "additionalProperties": {"type": "array", "items": {
+                          "type": "string",
+                          "pattern": "^[0-9a-fA-F]{1,4}:[0-9a-fA-F]{1,2}(/[0-9]+)?$"}}}),
     cross=(_socketcan_channel,),
 )
 
@@ -183,17 +211,23 @@ BAUDRATES = (50, 75, 110, 134, 150, 200, 300, 600, 1200, 1800, 2400, 4800, 9600,
 
 MODBUS_RTU_KEYS = ConfigKeys(
     ConfigKey("port", Kind.TEXT, required=True, pattern=r"/\S+",
-              expected="a serial device such as /dev/ttyUSB0 (its full path)"),
+              expected="a serial device such as /dev/ttyUSB0 (its full path)",
+              doc="Serial device (/dev/ttyUSB0); several drivers may share one port."),
     ConfigKey("baudrate", Kind.CHOICE, default=19200, choices=BAUDRATES,
-              expected="a standard baud rate such as 9600, 19200 or 115200 (50 to 4000000)"),
+              expected="a standard baud rate such as 9600, 19200 or 115200 (50 to 4000000)",
+              doc="Baud rate."),
     ConfigKey("parity", Kind.CHOICE, default="N", choices=("N", "E", "O"), any_case=True,
-              aliases=(("NONE", "N"), ("EVEN", "E"), ("ODD", "O")), expected="N, E or O"),
+              aliases=(("NONE", "N"), ("EVEN", "E"), ("ODD", "O")), expected="N, E or O",
+              doc="Parity: N, E or O."),
     ConfigKey("unit", Kind.INT, default=1, minimum=1, maximum=247,
-              expected="a slave address 1-247"),
+              expected="a slave address 1-247", doc="Slave address."),
     ConfigKey("timeout", Kind.DURATION, default=0.1, positive=True,
-              expected="a positive time such as 100ms"),
-    ConfigKey("retries", Kind.INT, default=2, minimum=0, maximum=10, expected="0-10"),
-    ConfigKey("stopbits", Kind.CHOICE, default=1, choices=(1, 2), expected="1 or 2"),
+              expected="a positive time such as 100ms",
+              doc="Response timeout per request (100ms)."),
+    ConfigKey("retries", Kind.INT, default=2, minimum=0, maximum=10, expected="0-10",
+              doc="Further attempts after a timeout or a damaged reply."),
+    ConfigKey("stopbits", Kind.CHOICE, default=1, choices=(1, 2), expected="1 or 2",
+              doc="Stop bits."),
 )
 
 #: a host name or an IP address (IPv6 without brackets)
@@ -202,15 +236,22 @@ _HOST = re.compile(r"[A-Za-z0-9_.-]{1,253}|[0-9A-Fa-f:.]{2,45}")
 MODBUS_TCP_KEYS = ConfigKeys(
     ConfigKey("host", Kind.TEXT, required=True, pattern=_HOST.pattern,
               expected="the device's or gateway's address or host name, such as "
-                       "192.168.10.20"),
+                       "192.168.10.20",
+              doc="The device's or gateway's address or host name (192.168.10.20); drivers "
+                  "naming the same host and port are units behind one gateway and share its "
+                  "connection."),
     ConfigKey("port", Kind.INT, default=502, minimum=1, maximum=65535,
-              expected="a TCP port 1-65535 (Modbus/TCP: 502)"),
+              expected="a TCP port 1-65535 (Modbus/TCP: 502)", doc="TCP port (502)."),
     ConfigKey("unit", Kind.INT, default=1, minimum=0, maximum=255,
               expected="a unit identifier 0-255 (the slave address behind a gateway; "
-                       "often 1 or 255 for a device of its own)"),
+                       "often 1 or 255 for a device of its own)",
+              doc="Unit identifier: the slave address behind a gateway (often 1 or 255 for a "
+                  "device of its own)."),
     ConfigKey("timeout", Kind.DURATION, default=0.2, positive=True,
-              expected="a positive time such as 200ms"),
-    ConfigKey("retries", Kind.INT, default=1, minimum=0, maximum=10, expected="0-10"),
+              expected="a positive time such as 200ms",
+              doc="Response timeout per request (200ms)."),
+    ConfigKey("retries", Kind.INT, default=1, minimum=0, maximum=10, expected="0-10",
+              doc="Further attempts after a timeout or a damaged reply."),
 )
 
 #: driver type -> its config keys; the same types, in the same order, as DRIVERS

@@ -118,9 +118,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     from runtime.controller.paths import LEDGER, PathError, plant_files, prepare
     from runtime.controller.plantlock import PlantLock, PlantLocked
     from runtime.controller.service import serve
-    from runtime.language.grafcetfile import time_value
     from runtime.language.plantfile import load_plant
     from runtime.language.runtimedir import locate
+    from runtime.language.shape import time_value
 
     for_ns = None
     if args.for_ is not None:

@@ -47,6 +47,43 @@ def write(tmp: Path, side: str) -> Path:
     return plant
 
 
+#: how long a side process may take to say what it says or to end, s: a bound that only
+#: a process that hangs reaches (on a loaded 2-core machine the OPC UA server, at niceness
+#: 10, took 60 s to start)
+WAIT_S = 300.0
+
+
+class Lines:
+    """Every line a process writes, read by a thread of its own as they come."""
+
+    def __init__(self, p: subprocess.Popen[str]) -> None:
+        self.lines: list[str] = []
+        self._new = threading.Condition()
+        self._ended = False
+        self._thread = threading.Thread(target=self._read, args=(p,), daemon=True)
+        self._thread.start()
+
+    def _read(self, p: subprocess.Popen[str]) -> None:
+        assert p.stdout is not None
+        for line in p.stdout:
+            with self._new:
+                self.lines.append(line.rstrip("\n"))
+                self._new.notify_all()
+        with self._new:
+            self._ended = True
+            self._new.notify_all()
+
+    def wait_for(self, text: str, p: subprocess.Popen[str]) -> bool:
+        """Whether a line holding ``text`` came before the output ended (or WAIT_S)."""
+        with self._new:
+            return self._new.wait_for(
+                lambda: self._ended or any(text in s for s in self.lines), WAIT_S) and (
+                any(text in s for s in self.lines))
+
+    def join(self) -> None:
+        self._thread.join(WAIT_S)
+
+
 def side(cmd: str, plant: Path, tmp: Path) -> subprocess.Popen[str]:
     env = {**os.environ, "PYTHONPATH": str(ROOT), "XDG_RUNTIME_DIR": str(tmp)}
     env.pop("JOURNAL_STREAM", None)
@@ -61,7 +98,7 @@ def test_a_feed_path_that_is_no_socket_is_one_line_at_once(tmp_path: Path, cmd: 
     (tmp_path / "feed.sock").write_text("not a socket\n", encoding="utf-8")
     p = side(cmd, plant, tmp_path)
     try:
-        out, _ = p.communicate(timeout=30)
+        out, _ = p.communicate(timeout=WAIT_S)
     except subprocess.TimeoutExpired:
         p.kill()
         out, _ = p.communicate()
@@ -76,34 +113,28 @@ def test_a_feed_path_that_is_no_socket_is_one_line_at_once(tmp_path: Path, cmd: 
 
 @pytest.mark.parametrize("cmd", ["mqtt", "web", "opcua", "modbus"])
 def test_no_controller_yet_is_said_once_and_waited_for(tmp_path: Path, cmd: str) -> None:
+    """The lines are read by a thread of their own, as they come (a select() on the
+    buffered pipe missed a line that came in the same read as the one before it), and
+    waited for as long as the process runs (the OPC UA server, at niceness 10 on a loaded
+    2-core machine, took 60 s to start)."""
     plant = write(tmp_path, cmd)
     p = side(cmd, plant, tmp_path)
     want = (f"waiting for the controller's feed {tmp_path}/feed.sock (not there: is the "
             "controller running?)")
-    seen: list[str] = []
-    # its output read line by line in a thread: a select() on the pipe misses lines already
-    # in the reader's buffer (two lines arriving together: the second was never seen)
-    assert p.stdout is not None
-    reader = threading.Thread(target=lambda: seen.extend(
-        line.rstrip("\n") for line in p.stdout or ()), daemon=True)
-    reader.start()
+    seen = Lines(p)
     try:
-        end = time.monotonic() + 60
-        while not any(want in s for s in seen) and p.poll() is None \
-                and time.monotonic() < end:
-            time.sleep(0.05)
-        assert any(want in s for s in seen), seen
-        assert p.poll() is None, seen  # it waits
+        assert seen.wait_for(want, p), seen.lines
+        assert p.poll() is None, seen.lines  # it waits
     finally:
         p.send_signal(signal.SIGTERM)
         try:
-            p.wait(timeout=30)
+            p.wait(timeout=WAIT_S)
         except subprocess.TimeoutExpired:
             p.kill()
             p.wait()
-        reader.join(timeout=10)
-    assert sum(want in s for s in seen) == 1, seen  # said once, not at every retry
-    assert not any("Traceback" in s for s in seen), seen
+        seen.join()
+    assert sum(want in s for s in seen.lines) == 1, seen.lines  # said once, not at every retry
+    assert not any("Traceback" in s for s in seen.lines), seen.lines
 
 
 @pytest.mark.parametrize("cmd", ["mqtt", "web", "opcua", "modbus"])
@@ -124,7 +155,7 @@ def test_the_feed_of_another_plant_is_refused_in_one_line(tmp_path: Path, cmd: s
                             "--sim"], cwd=str(tmp_path), env=env, stdout=subprocess.DEVNULL,
                            stderr=subprocess.PIPE, text=True)
     try:
-        end = time.monotonic() + 60
+        end = time.monotonic() + WAIT_S
         while not feed.is_socket():
             assert ctl.poll() is None and time.monotonic() < end, "the controller's feed"
             time.sleep(0.05)
@@ -136,7 +167,7 @@ def test_the_feed_of_another_plant_is_refused_in_one_line(tmp_path: Path, cmd: s
                          encoding="utf-8")
         p = side(cmd, plant, b)
         try:
-            out, _ = p.communicate(timeout=60)
+            out, _ = p.communicate(timeout=WAIT_S)
         except subprocess.TimeoutExpired:
             p.kill()
             out, _ = p.communicate()
@@ -144,7 +175,7 @@ def test_the_feed_of_another_plant_is_refused_in_one_line(tmp_path: Path, cmd: s
                                  ) from None
     finally:
         ctl.send_signal(signal.SIGTERM)
-        ctl.communicate(timeout=30)
+        ctl.communicate(timeout=WAIT_S)
     want = (f"{plant}:14:9: error: {cmd} feed: {feed} is the feed of plant a ({a}), not of "
             f"this plant b ({b}): not followed; give {cmd}: feed a path of its own (or "
             "leave it out: the default is the plant's own)")

@@ -36,9 +36,9 @@ from runtime.drawing.layout import (
     ACTION_GAP,
     BAR_W,
     CHAR_H,
-    DROP_GAP,
     LINK_GAP,
     LIVE_SIZE,
+    SPLIT_GAP,
     STEP_H,
     TIMES_SIZE,
     TOP,
@@ -49,6 +49,7 @@ from runtime.drawing.layout import (
     dot_order,
     long_links,
     row_h,
+    shared_and_drops,
 )
 from runtime.drawing.svg import Svg, esc, esc_attr
 from runtime.drawing.text import NOTATIONS, equation_lines, step_times, text_w
@@ -62,26 +63,6 @@ ACTIVE_FILL = "#ffd54f"
 COVERED_FILL, MISSED_FILL, MISSED_STROKE = "#c8e6c9", "#ffcdd2", "#c62828"
 
 
-def shared_and_drops(c: Chart, r: Routes) -> dict[tuple[str, str], float]:
-    """(step, transition) -> x where the link reaches the transition's double bar, for the
-    AND convergences that share a step with another transition leaving it: each gets its
-    own short double bar over its transition (IEC 60848: one synchronisation per
-    transition), the links from its steps side by side on it. Other AND convergences span
-    their steps (empty here)."""
-    out: dict[tuple[str, str], float] = {}
-    for t, nd in c.nodes.items():
-        if not t.startswith("t:") or len(c.fin(t)) < 2:
-            continue
-        # a link from higher up comes straight down (or by its channel) as before
-        srcs = [s for s in c.fin(t) if nd.layer - c.nodes[s].layer == 1]
-        if not any(o != t and len(c.fin(o)) > 1 for s in srcs for o in c.fout(s)):
-            continue
-        srcs.sort(key=lambda s: c.nodes[s].x)
-        for i, s in enumerate(srcs):
-            out[(s, t)] = nd.x + (i - (len(srcs) - 1) / 2) * DROP_GAP
-    return out
-
-
 # -- rendering ---------------------------------------------------------------------------------
 class Drawing:
     """Draws a placed and routed chart."""
@@ -93,7 +74,7 @@ class Drawing:
         self.svg = Svg()
         self.side_x = 0.0  # where the boxes right of the chart start (equations, legend)
         self.arrivals: dict[str, list[float]] = {}  # step -> x of links reaching its line
-        self.drops = shared_and_drops(c, r)
+        self.drops = shared_and_drops(c)
         # steps of a row whose divergence lines would run on one y: one below the other
         self.split_level: dict[str, int] = {}
         rows: dict[int, list[str]] = {}
@@ -127,7 +108,7 @@ class Drawing:
 
     def split_y(self, s: str) -> float:
         """The OR divergence line below a step (below its action block)."""
-        return self.bottom(self.c.nodes[s].layer) + 8 + 6 * self.split_level.get(s, 0)
+        return self.bottom(self.c.nodes[s].layer) + 8 + SPLIT_GAP * self.split_level.get(s, 0)
 
     def and_in_y(self, t: str) -> float:
         layer = self.c.nodes[t].layer

@@ -345,8 +345,8 @@ def _frame_rights(c: Chart, nodes: list[str]) -> list[tuple[int, int, float]]:
 
 def _place(c: Chart, hint: dict[str, float] | None, root_x: dict[str, float],
            skip: set[str]) -> None:
-    long_and = [(s, t) for s, t in [*and_links(c), *straight_links(c)]
-                if s not in skip and t not in skip]
+    straight = [(s, t) for s, t in straight_links(c) if s not in skip and t not in skip]
+    long_and = [(s, t) for s, t in and_links(c) if s not in skip and t not in skip]
     for layer, every in enumerate(c.layers):
         ids = [n for n in every if n not in skip]
         desired: dict[str, float] = {}
@@ -386,25 +386,55 @@ def _place(c: Chart, hint: dict[str, float] | None, root_x: dict[str, float],
             order: list[str] = sorted(ids, key=lambda n: hint[n])
         else:
             order = sorted(ids, key=lambda n: (desired[n], rank[n]))
-        # vertical lines that pass through this row (AND convergences skipping rows)
-        lines = sorted(c.nodes[s].x for s, t in long_and
-                       if c.nodes[s].layer < layer < c.nodes[t].layer)
-        items: list[str | float] = []
-        for n in order:
-            while lines and lines[0] <= desired[n]:
-                items.append(lines.pop(0))
-            items.append(n)
-        items += lines
-        if not items:
-            continue
-        des = [desired[i] if isinstance(i, str) else i for i in items]
-        wts = [weight[i] if isinstance(i, str) else 1e6 for i in items]
-        seps = [_sep(c.nodes[a] if isinstance(a, str) else None,
-                     c.nodes[b] if isinstance(b, str) else None)
-                for a, b in itertools.pairwise(items)]
-        for item, x in zip(items, _spread(des, wts, seps), strict=True):
-            if isinstance(item, str):
-                c.nodes[item].x = x
+
+        def through(links: list[tuple[str, str]], row: int = layer) -> list[float]:
+            return [c.nodes[s].x for s, t in links
+                    if c.nodes[s].layer < row < c.nodes[t].layer]
+        # vertical lines that pass through this row (a link straight down past it, an AND
+        # convergence's source skipping rows): its elements keep clear of them. Where they
+        # cannot (the elements between two lines need more room than there is), the AND
+        # convergences' lines give way: route() takes those round what is in the way
+        # (a channel), while a straight link has no other way down (nor may the step at
+        # its foot leave it); between two straight links too close, the row's elements go
+        # right of them all.
+        lines = sorted(through(straight))
+        ends = {t for _, t in straight if t in desired}  # steps at the foot of a straight link
+        for n in ends:  # its line is drawn down to where the step is: the others move
+            weight[n] = 1e6
+        spread = (_row(c, order, desired, weight, sorted(lines + through(long_and)), ends)
+                  or _row(c, order, desired, weight, lines, ends)
+                  or _row(c, order, desired, weight, lines, ends, beside=True))
+        for n, x in spread.items():
+            c.nodes[n].x = x
+
+
+def _row(c: Chart, order: list[str], desired: dict[str, float], weight: dict[str, float],
+         lines: list[float], ends: set[str], beside: bool = False) -> dict[str, float]:
+    """x of the elements of a row in ``order``, as near to ``desired`` as they may be, kept
+    clear of the vertical ``lines`` that pass through it (each where it is nearest, or with
+    ``beside`` all right of the lines); {} if they cannot be (a line would have to move,
+    or one of ``ends``, steps that must stay under their straight link, would), unless
+    ``beside``."""
+    items: list[str | float] = list(lines) if beside else []
+    rest = [] if beside else list(lines)
+    for n in order:
+        while rest and rest[0] <= desired[n]:
+            items.append(rest.pop(0))
+        items.append(n)
+    items += rest
+    if not order:
+        return {}
+    des = [desired[i] if isinstance(i, str) else i for i in items]
+    wts = [weight[i] if isinstance(i, str) else 1e9 for i in items]
+    seps = [_sep(c.nodes[a] if isinstance(a, str) else None,
+                 c.nodes[b] if isinstance(b, str) else None)
+            for a, b in itertools.pairwise(items)]
+    xs = _spread(des, wts, seps)
+    if not beside and any(abs(x - (desired[i] if isinstance(i, str) else i)) > 0.5
+                          for i, x in zip(items, xs, strict=True)
+                          if not isinstance(i, str) or i in ends):
+        return {}  # a line, or a step under its straight link, would have had to move
+    return {i: x for i, x in zip(items, xs, strict=True) if isinstance(i, str)}
 
 
 def _straight(c: Chart, kids: list[str], pref: dict[str, float]) -> str:
@@ -486,6 +516,9 @@ class Routes:
 
 #: between the links that reach a short double bar of an AND convergence, px
 DROP_GAP = 8.0
+#: between the OR divergence lines of the steps of a row whose links reach short double
+#: bars (one below the other), px
+SPLIT_GAP = 6.0
 
 
 def shared_splits(c: Chart, r: Routes) -> dict[str, list[str]]:
@@ -504,6 +537,26 @@ def shared_splits(c: Chart, r: Routes) -> dict[str, list[str]]:
                 or any(o != t and d in splits[o] for o in splits for d in ds)):
             out[t] = sorted(ds, key=lambda d: (long(t, d), r.bus[d] if long(t, d)
                                                else c.nodes[d].x))
+    return out
+
+
+def shared_and_drops(c: Chart) -> dict[tuple[str, str], float]:
+    """(step, transition) -> x where the link reaches the transition's double bar, for the
+    AND convergences that share a step with another transition leaving it: each gets its
+    own short double bar over its transition (IEC 60848: one synchronisation per
+    transition), the links from its steps side by side on it. Other AND convergences span
+    their steps (empty here)."""
+    out: dict[tuple[str, str], float] = {}
+    for t, nd in c.nodes.items():
+        if not t.startswith("t:") or len(c.fin(t)) < 2:
+            continue
+        # a link from higher up comes straight down (or by its channel) as before
+        srcs = [s for s in c.fin(t) if nd.layer - c.nodes[s].layer == 1]
+        if not any(o != t and len(c.fin(o)) > 1 for s in srcs for o in c.fout(s)):
+            continue
+        srcs.sort(key=lambda s: c.nodes[s].x)
+        for i, s in enumerate(srcs):
+            out[(s, t)] = nd.x + (i - (len(srcs) - 1) / 2) * DROP_GAP
     return out
 
 
@@ -769,6 +822,9 @@ def _rows(c: Chart, r: Routes, groups: dict[str, list[str]]) -> None:
             leaving.setdefault(c.nodes[t].layer, []).append((t, v, 1))
     for src, t in r.and_channel:
         leaving.setdefault(c.nodes[src].layer, []).append((src, t, 1))
+    splits: dict[int, int] = {}  # row -> its steps with OR lines into short AND bars
+    for s in {s for s, _ in shared_and_drops(c)}:
+        splits[c.nodes[s].layer] = splits.get(c.nodes[s].layer, 0) + 1
     starts: dict[int, list[str]] = {}
     ends: dict[int, list[str]] = {}
     for m, box in r.frames.items():
@@ -799,5 +855,12 @@ def _rows(c: Chart, r: Routes, groups: dict[str, list[str]]) -> None:
         for i, (u, v, _) in enumerate(lefts + rights):  # apart enough to be told apart
             r.leave[(u, v)] = first + LINK_GAP * i
         gap = max(30.0, first - bottom + LINK_GAP * len(out) + 14)
+        if layer + 1 < len(c.layers) and splits.get(layer):
+            # the OR divergence lines of the row's steps into short AND bars, one below the
+            # other (SPLIT_GAP apart, the lowest SPLIT_GAP * (n - 1) below the first), stay
+            # above the bars of the row below (at most 14 - h/2 or 6 px above its top)
+            lowest = base + 8 + SPLIT_GAP * (splits[layer] - 1)
+            h_next = max((c.nodes[n].height for n in c.layers[layer + 1]), default=STEP_H)
+            gap = max(gap, lowest + 6 + max(14 - h_next / 2, 6.0) - bottom)
         y = bottom + gap
 

@@ -15,8 +15,8 @@ from runtime.engine.instance import coerce
 from runtime.engine.names import PlantNames, ScriptInput, UnknownName
 from runtime.errors import Loc, SourceError
 from runtime.language import ast as A
-from runtime.language.filekind import SCRIPT_KEYS
-from runtime.language.grafcetfile import check_keys, expect_type, time_value
+from runtime.language.filekind import SCRIPT
+from runtime.language.shape import Section, expect_type, time_value
 from runtime.language.yamlsrc import YList, YMap, load_yaml
 
 if TYPE_CHECKING:
@@ -61,16 +61,15 @@ def read_script(path: str, names: PlantNames, need_length: bool = True) -> Scrip
 
 
 def script_of(doc: YMap, names: PlantNames, need_length: bool = True,
-              keys: tuple[str, ...] = SCRIPT_KEYS, what: str = "a simulation script"
-              ) -> Script:
+              shape: Section = SCRIPT) -> Script:
     """The script of a loaded document: ``read_script``'s checks, the document's keys
-    among ``keys`` (a scenario's are more: runtime/scenario), ``what`` naming it."""
-    check_keys(doc, keys, what)
+    those ``shape`` declares (a scenario's are more: ``filekind.SCENARIO``)."""
+    shape.check(doc)
     duration = cycles = None
     if "duration" in doc:
         duration = time_value(doc["duration"], doc.val_locs["duration"], "duration")
     if "cycles" in doc:
-        cycles = expect_type(doc["cycles"], doc.val_locs["cycles"], int, "a number of cycles")
+        cycles = SCRIPT.value(doc, "cycles", "a number of cycles")
     if need_length and duration is None and cycles is None:
         raise SourceError(doc.loc, "the script needs 'duration:' or 'cycles:'")
     changes: list[Change] = []

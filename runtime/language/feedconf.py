@@ -14,11 +14,18 @@ from typing import Any
 
 from runtime.errors import Loc, SourceError, suggest
 from runtime.language import ast as A
-from runtime.language.grafcetfile import expect_type, time_value
 from runtime.language.model import PlantDef, VarKind
-from runtime.language.plantpaths import path_problem, path_value
+from runtime.language.plantpaths import SOCKET_PATH, path_problem, path_value
 from runtime.language.runtimedir import default_feed
+from runtime.language.shape import Key, ListOf, Text, expect_type, time_value
 from runtime.language.yamlsrc import YMap
+
+#: a side process section's ``feed:`` (the same in each: a plant has one feed)
+FEED_KEY = Key("feed", SOCKET_PATH, "The controller's feed socket, one per plant whichever "
+                                    "section names it; docs/opcua.md says where it is by "
+                                    "default.")
+#: a side process section's ``writable:`` names
+WRITABLE = ListOf(Text())
 
 
 def sample_key(p: PlantDef, m: YMap, section: str) -> int:

@@ -11,10 +11,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from drivers.durations import format_ns, parse_literal, strip_time_prefix
 from runtime.errors import Diagnostic, Loc, SourceError, suggest
 from runtime.language import ast as A
-from runtime.language.lexer import KEYWORDS, is_name, time_space_message
+from runtime.language.lexer import KEYWORDS, is_name
 from runtime.language.model import (
     Action,
     Block,
@@ -29,6 +28,30 @@ from runtime.language.model import (
     VarKind,
 )
 from runtime.language.parser import parse_action, parse_expression, parse_statements
+from runtime.language.shape import (
+    DESCRIPTION,
+    TIME,
+    Bool,
+    Choice,
+    Def,
+    Doc,
+    Int,
+    Key,
+    ListOf,
+    MapOf,
+    Number,
+    Ref,
+    Section,
+    Text,
+    Time,
+    any_of,
+    description_text,
+    expect_type,
+    free_text,
+    one_of,
+    time_value,
+    yaml11_bool_note,
+)
 from runtime.language.signatures import FB_MEMBERS
 from runtime.language.typecheck import (
     FLAGS_BOOL,
@@ -37,108 +60,134 @@ from runtime.language.typecheck import (
     Checker,
     looks_temporary,
 )
-from runtime.language.yamlsrc import (
-    TIME_MAX_NS,
-    YList,
-    YMap,
-    YStr,
-    load_yaml,
-    synthetic_str,
-)
+from runtime.language.yamlsrc import YList, YMap, YStr, load_yaml, synthetic_str
 
 T = A.Type
-GRAFCET_KEYS = ("grafcet", "description", "scan", "inputs", "outputs", "memory", "timers",
-                "blocks", "pre", "steps", "transitions", "post")
-STEP_KEYS = ("initial", "actions", "min", "max", "macro", "entry", "exit", "description",
-             "renamed_from")
-TRANSITION_KEYS = ("from", "to", "when", "name", "description")
 TYPE_NAMES = {"bool": T.BOOL, "int": T.INT, "real": T.REAL, "time": T.TIME}
-#: the longest description of a variable, step or binding, characters (one line)
-DESCRIPTION_MAX = 200
 
-
-def check_keys(m: YMap, allowed: tuple[str, ...], what: str,
-               misplaced: Callable[[str], str | None] | None = None) -> None:
-    """Raise on the first key of ``m`` not in ``allowed``, suggesting the closest one, or
-    saying where the key belongs if ``misplaced(key)`` knows (a key of another level)."""
-    for k in m:
-        if k not in allowed:
-            where = misplaced(k) if misplaced is not None else None
-            if where is not None and where.startswith(":"):
-                raise SourceError(m.key_locs[k], f"unknown key '{k}' in {what}{where}")
-            raise SourceError(m.key_locs[k], f"unknown key '{k}' in {what}: expected one of "
-                                             f"{', '.join(allowed)}{suggest(k, allowed)}"
-                                             f"{where or ''}")
+# -- the shape of a grafcet file (runtime/language/shape.py): the loader's key lists, and
+# -- configs/schema/grafcet.schema.json generated from them
+_TYPE = Choice(tuple(TYPE_NAMES))
+#: a typed signal's mapping: ``{tTemp: {type: int, description: ...}}``
+SIGNAL_SPEC = Section((
+    Key("type", _TYPE, "The signal's type (default bool)."),
+    Key("description", DESCRIPTION, "What the signal means (one line)."),
+))
+SIGNAL = Def("signal", one_of(
+    Doc(Text(), "A bool signal's name (iParo, oAbrir)."),
+    MapOf(any_of(Doc(_TYPE, "The signal's type."), SIGNAL_SPEC), min_properties=1,
+          max_properties=1)),
+    "A signal: a name (bool), or a one-key mapping {name: type} for a typed signal "
+    "({tTemperatura: int}), or {name: {type: int, description: ...}}.")
+INITIAL = Def("initial", any_of(Bool(), Number(),
+                                Choice(("TRUE", "FALSE", "true", "false", "True", "False")),
+                                TIME),
+              "Initial value; its form gives the type: false/true -> bool, 0 -> int, 0.0 -> "
+              "real, a time (\"0s\", T#5s) -> time.")
+#: a memory variable's mapping: ``{init: 0, retain: true}``
+MEMORY_SPEC = Section((
+    Key("init", INITIAL),
+    Key("retain", Bool(), "Survives restart and power loss (written to the plant's retain "
+                          "file)."),
+    Key("renamed_from", Text(), "The variable's former name, when an edit renames it: online "
+                                "change then carries its running value to the new name."),
+    Key("description", DESCRIPTION, "What the variable means (one line), shown by the "
+                                    "console, OPC UA and draw."),
+))
+STATEMENTS = Def("statements", one_of(Text(), ListOf(Text())),
+                 "Statements: one string, or a list of strings run in order. Assignments "
+                 "'x := expr', 'sX.Set(v, cond)', 'timeX.Ini(10s)', block calls 'tonX(IN := "
+                 "a, PT := 5s)', IF/CASE/FOR (ST). Quote texts that hold ': ' or start with a "
+                 "YAML indicator, or use a block scalar '|'.")
+ACTIONS = Def("actions", one_of(Text(), ListOf(Text())),
+              "The step's actions, one string each: '[QUALIFIER [TIME]] BODY [if CONDITION]' "
+              "or 'on EVENT do STATEMENTS'. Qualifiers N S R L D P P1 P0 DS SD SL (L D DS SD "
+              "SL take a time: 'L 2s oBocina'). Examples: oAbrir, 'N oParado if Clock_1Hz', "
+              "'P1 sCierres := sCierres + 1', 'on ↑iPieza do sN := sN + 1'.")
+STEP_REFS = Def("stepRefs", one_of(Text(), ListOf(Text(), unique=True)),
+                "A step name, or a list of step names (several: AND convergence in 'from', "
+                "AND divergence in 'to'; [] in 'from': source transition, [] in 'to': sink "
+                "transition).")
+TRANSITION = Section((
+    Key("from", STEP_REFS, "Upstream step(s).", required=True),
+    Key("to", STEP_REFS, "Downstream step(s).", required=True),
+    Key("when", one_of(Text(), Bool(), Int(0, 1)),
+        "The condition (receptivity): an expression such as \"↑iMarcha·iParo'\" or 'RE "
+        "iMarcha AND NOT iParo'; 1 or true for the always-true condition.", required=True),
+    Key("name", Text(), "The transition's name (T1)."),
+    Key("description", Text(), "Free text."),
+), "a transition", "A transition. Their order in the file is their priority in an OR "
+                   "divergence.")
+#: a macro-step's expansion (its steps are ``innerStep``s: ``STEP`` with entry and exit)
+MACRO = Section((
+    Key("steps", MapOf(Ref("innerStep"), min_properties=1), "Steps of the expansion, by name.",
+        required=True),
+    Key("transitions", ListOf(Def("transition", TRANSITION)),
+        "Transitions of the expansion."),
+), doc="The macro-step's expansion: its own steps (exactly one with entry: true, one with "
+       "exit: true) and transitions. Inner names share the chart's name space.")
+_NO_ACTIONS_ON_A_MACRO = {"dependentSchemas": {"macro": {"not": {"required": ["actions"]}}},
+                          "$comment": "dependentSchemas: a macro-step carries no actions of "
+                                      "its own"}
+#: a step, inside a macro-step's expansion or not (``entry`` and ``exit`` only inside)
+STEP = Section((
+    Key("initial", Bool(), "An initial step: active at start-up (and after "
+                           "SFCInit/SFCReset)."),
+    Key("actions", ACTIONS),
+    Key("min", Time(), "Minimum time in the step: its outgoing transitions wait for it (e.g. "
+                       "1s, T#500ms)."),
+    Key("max", Time(), "Maximum time in the step: beyond it SFCError is set (supervision; the "
+                       "step is not left)."),
+    Key("macro", Def("macro", MACRO)),
+    Key("entry", Bool(), "The entry step of the macro-step's expansion (exactly one)."),
+    Key("exit", Bool(), "The exit step of the macro-step's expansion (exactly one)."),
+    Key("description", DESCRIPTION, "Free text (shown by draw and the console)."),
+    Key("renamed_from", Text(), "The step's former name, when an edit renames it: online "
+                                "change then carries the running step (its activity and .T) "
+                                "to the new name."),
+), doc="A step of a macro-step's expansion. An empty step may be written {} or left empty.",
+   null=True, extra=_NO_ACTIONS_ON_A_MACRO)
+INNER_STEP = Def("innerStep", STEP)
+GRAFCET = Section((
+    Key("grafcet", Text(), "The chart's name (an identifier), like the name of a Siemens FB or "
+                           "a CODESYS POU.", required=True),
+    Key("description", Text(), "What the chart controls."),
+    Key("scan", Choice(tuple(m.value for m in ScanModel)),
+        "Evolution model: immediate (default: evolve, then act, in the same scan), codesys "
+        "(CODESYS order: the situation decided by a scan becomes current in the next one), "
+        "stable (IEC 60848 search for a stable situation).", default=ScanModel.IMMEDIATE.value),
+    Key("inputs", ListOf(SIGNAL), "Inputs, positive logic (inversion happens at the binding). "
+                                  "Bool unless typed: [iParo, {tTemperatura: int}]."),
+    Key("outputs", ListOf(SIGNAL), "Outputs. Bool unless typed: [oAbrir, {oEstado: int}]."),
+    Key("memory", MapOf(any_of(INITIAL, MEMORY_SPEC)),
+        "Memory ('s') variables, keeping their value from scan to scan: name -> initial "
+        "value, or {init, retain}."),
+    Key("timers", ListOf(Text(), unique=True),
+        "Seed-000 timer objects (timeX): timeX.Ini(t), timeX.End(), timeX.Reset(), "
+        "timeX.Val()."),
+    Key("blocks", MapOf(Doc(Choice(tuple(FB_MEMBERS)),
+                            "TON TOF TP (IN PT -> Q ET), CTU (CU R PV -> Q CV), CTD (CD LD PV "
+                            "-> Q CV), CTUD, R_TRIG F_TRIG (CLK -> Q), SR (S1 R -> Q1), RS (S "
+                            "R1 -> Q1).")),
+        "IEC 61131-3 function-block instances: name -> type."),
+    Key("pre", STATEMENTS, "Previous calculations: run every scan before the transitions. "
+                           "Undeclared assigned names are temporaries and must start with 't' "
+                           "(tParo)."),
+    Key("steps", MapOf(Def("step", STEP.without("entry", "exit", doc="A step. An empty step "
+                                                "may be written {} or left empty.")),
+                       min_properties=1),
+        "The steps, by name (gsParado). At least one is initial.", required=True),
+    Key("transitions", ListOf(Def("transition", TRANSITION)),
+        "The transitions; order = priority in an OR divergence."),
+    Key("post", STATEMENTS, "Posterior equations: run every scan after the actions (an output "
+                            "assigned here overrides its action value)."),
+), "a grafcet file", "One GRAFCET/SFC chart and its logic (softplc configuration language "
+                     "v1, docs/language.md). It never names hardware: a plant file binds its "
+                     "inputs and outputs.")
 
 
 def _transition_shape(source: str) -> str:
     return f"- {{from: {source}, to: B, when: CONDITION}}"
-
-
-def expect_type(value: Any, loc: Loc, types: type | tuple[type, ...], what: str) -> Any:
-    if isinstance(value, bool) and bool not in (types if isinstance(types, tuple) else (types,)):
-        raise SourceError(loc, f"expected {what}, found {str(value).lower()}")
-    if not isinstance(value, types):
-        found = "nothing" if value is None else f"{type(value).__name__} {value!r}"
-        if isinstance(value, str):
-            found = f"the text '{value}'"
-            if bool in (types if isinstance(types, tuple) else (types,)):
-                found += _yaml11_bool_note(value)
-        if isinstance(value, YMap):
-            found = "a mapping"
-            if types is str or (isinstance(types, tuple) and str in types):
-                found += (" (YAML reads 'text: more' as a key and a value: quote the text or "
-                          "use a block scalar '|')")
-        elif isinstance(value, YList):
-            found = "a list"
-        raise SourceError(loc, f"expected {what}, found {found}")
-    return value
-
-
-#: what YAML 1.1 read as bools; these files are YAML 1.2, where they are text
-_YAML11_BOOLS = ("yes", "no", "on", "off", "y", "n")
-
-
-def _yaml11_bool_note(text: str) -> str:
-    """Why a yes/no/on/off the user meant as a bool is text here, or nothing."""
-    if text.strip().lower() in _YAML11_BOOLS:
-        return " (yes, no, on and off are text in these files: write false or true)"
-    return ""
-
-
-def description_text(value: Any, loc: Loc) -> str:
-    """A ``description:`` (of a chart, step, variable, instance or binding): one line of
-    text, at most DESCRIPTION_MAX characters; a number is taken as its text."""
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        value = str(value)
-    text = str(expect_type(value, loc, str, "a text for description")).strip()
-    if "\n" in text or any(ord(c) < 32 for c in text):
-        raise SourceError(loc, "description: expected one line of text, found a line break "
-                               "or a control character")
-    if len(text) > DESCRIPTION_MAX:
-        raise SourceError(loc, f"description: expected at most {DESCRIPTION_MAX} characters, "
-                               f"found {len(text)}")
-    return text
-
-
-def time_value(value: Any, loc: Loc, what: str) -> int:
-    """A time given in YAML: ``10s``, ``T#10s``, or 0; at most TIME_MAX_NS."""
-    if value == 0 and not isinstance(value, bool):
-        return 0
-    if isinstance(value, str):
-        ns = parse_literal(strip_time_prefix(value.strip()))  # exact, however long
-        if ns is not None and ns > TIME_MAX_NS:
-            shown = value if len(value) <= 24 else f"{value[:10]}...{value[-6:]}"
-            raise SourceError(loc, f"time out of range for {what}: expected at most "
-                                   f"{format_ns(TIME_MAX_NS)} (64-bit nanoseconds), found "
-                                   f"'{shown}'")
-        if ns is not None:
-            return ns
-        spaced = time_space_message(value)
-        if spaced is not None:
-            raise SourceError(loc, f"{spaced} for {what}")
-    raise SourceError(loc, f"bad time literal '{value}' for {what}: expected e.g. 10s, 250ms, "
-                           "1m30s or T#10s")
 
 
 def _locator(text: Any, fallback: Loc) -> Callable[[int], Loc]:
@@ -185,11 +234,13 @@ class GrafcetLoader:
 
     def load(self) -> Grafcet:
         d, g = self.doc, self.g
-        check_keys(d, GRAFCET_KEYS, "a grafcet file", self._misplaced_at_top)
+        GRAFCET.check(d, misplaced=self._misplaced_at_top)
         if "grafcet" not in d:
             raise SourceError(d.loc, "missing key 'grafcet': expected the chart's name")
         g.name = _identifier(d["grafcet"], d.val_locs["grafcet"], "the grafcet")
-        g.description = str(d.get("description", "") or "")
+        if "description" in d:
+            g.description = free_text(d["description"], d.val_locs["description"],
+                                      "a text for description")
         if "scan" in d:
             try:
                 g.scan = ScanModel(d["scan"])
@@ -244,10 +295,10 @@ class GrafcetLoader:
         """Where a key of a step or of a transition written at the top level belongs."""
         steps = self.doc.get("steps")
         last = list(steps)[-1] if isinstance(steps, YMap) and steps else "NAME"
-        if key in STEP_KEYS:
+        if key in STEP:
             return (f": '{key}' is a key of a step: indent it under its step in 'steps:' "
                     f"(steps: {{{last}: {{{key}: [...]}}}})")
-        if key in TRANSITION_KEYS:
+        if key in TRANSITION:
             return (f": '{key}' is a key of a transition: write it under 'transitions:' "
                     f"({_transition_shape('A')})")
         return None
@@ -280,7 +331,7 @@ class GrafcetLoader:
                 (name, tname), = item.items()
                 tloc = item.val_locs[name]
                 if isinstance(tname, YMap):  # {name: {type: int, description: ...}}
-                    check_keys(tname, ("type", "description"), f"{key[:-1]} '{name}'")
+                    SIGNAL_SPEC.check(tname, f"{key[:-1]} '{name}'")
                     if "description" in tname:
                         text = description_text(tname["description"],
                                                 tname.val_locs["description"])
@@ -310,8 +361,7 @@ class GrafcetLoader:
             text = ""
             vloc = mem.val_locs[name]
             if isinstance(spec, YMap):
-                check_keys(spec, ("init", "retain", "renamed_from", "description"),
-                           f"memory '{name}'")
+                MEMORY_SPEC.check(spec, f"memory '{name}'")
                 if "description" in spec:
                     text = description_text(spec["description"], spec.val_locs["description"])
                 retain = expect_type(spec.get("retain", False), spec.val_locs.get("retain", loc),
@@ -358,7 +408,7 @@ class GrafcetLoader:
         names: list[str] = []
         for name, spec in steps.items():
             loc = steps.key_locs[name]
-            if name in STEP_KEYS and spec is not None and not isinstance(spec, YMap):
+            if name in STEP and spec is not None and not isinstance(spec, YMap):
                 # a step's key (actions: [...]) indented at the level of the steps
                 above = names[-1] if names else "NAME"
                 raise SourceError(loc, f"expected a step, found '{name}', a key of a step, at "
@@ -378,12 +428,12 @@ class GrafcetLoader:
                                f"'{name}' (a mapping such as {{initial: true, actions: [oX]}})")
 
             def in_step(key: str, name: str = name) -> str | None:
-                if key in TRANSITION_KEYS:
+                if key in TRANSITION:
                     return (" (a transition is written under 'transitions:' as "
                             f"{_transition_shape(name)})")
                 return None
 
-            check_keys(spec, STEP_KEYS, f"step '{name}'", in_step)
+            STEP.check(spec, f"step '{name}'", in_step)
             st = Step(name, loc, parent=parent)
             if "description" in spec:
                 st.description = description_text(spec["description"],
@@ -426,7 +476,7 @@ class GrafcetLoader:
 
     def _macro(self, st: Step, spec: Any, loc: Loc) -> None:
         spec = expect_type(spec, loc, YMap, f"the expansion of macro-step '{st.name}'")
-        check_keys(spec, ("steps", "transitions"), f"macro-step '{st.name}'")
+        MACRO.check(spec, f"macro-step '{st.name}'")
         if "steps" not in spec:
             raise SourceError(spec.loc, f"macro-step '{st.name}' needs 'steps'")
         inner = self._steps_mapping(spec["steps"], spec.val_locs["steps"])
@@ -459,7 +509,7 @@ class GrafcetLoader:
         out = []
         for spec, tloc in zip(items, items.locs, strict=True):
             spec = expect_type(spec, tloc, YMap, "a transition {from, to, when}")
-            check_keys(spec, TRANSITION_KEYS, "a transition")
+            TRANSITION.check(spec)
             for key in ("from", "to", "when"):
                 if key not in spec:
                     raise SourceError(spec.loc, f"transition without '{key}'")
@@ -475,8 +525,12 @@ class GrafcetLoader:
             when = expect_type(when, wloc, str, "a condition")
             locate = _locator(when, wloc)
             cond = parse_expression(when, locate)
-            t = Transition(srcs, dsts, cond, str(when), spec.loc,
-                           name=str(spec.get("name", "")), source_locs=src_locs,
+            name = free_text(spec["name"], spec.val_locs["name"], "a name for the "
+                             "transition") if "name" in spec else ""
+            if "description" in spec:  # for a person reading the file: not kept
+                free_text(spec["description"], spec.val_locs["description"],
+                          "a text for description")
+            t = Transition(srcs, dsts, cond, str(when), spec.loc, name=name, source_locs=src_locs,
                            target_locs=dst_locs, locate=locate if written else None)
             self.units.append(("bool", str(when), locate, cond))
             if t.name:
@@ -670,7 +724,7 @@ def _initial(spec: Any, loc: Loc, name: str) -> tuple[A.Type, object]:
             return T.BOOL, text.upper() == "TRUE"
         if text[:1].isdigit() or text.upper().startswith(("T#", "TIME#")):
             return T.TIME, time_value(text, loc, f"the initial value of '{name}'")
-        raise SourceError(loc, f"{expected}, found the text '{text}'{_yaml11_bool_note(text)}")
+        raise SourceError(loc, f"{expected}, found the text '{text}'{yaml11_bool_note(text)}")
     found = "nothing" if spec is None else "a mapping" if isinstance(spec, YMap) else (
         "a list" if isinstance(spec, YList) else repr(spec))
     raise SourceError(loc, f"{expected}, found {found}")

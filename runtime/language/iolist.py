@@ -40,15 +40,38 @@ from typing import Any
 from runtime.errors import Loc, SourceError
 from runtime.language import ast as A
 from runtime.language.flagtexts import FLAG_TEXT, HEALTH_TEXT
-from runtime.language.grafcetfile import description_text, expect_type
-from runtime.language.located import parse_located
+from runtime.language.located import BINDING_AT_PATTERN, parse_located
 from runtime.language.model import Binding, InstanceDef, PlantDef
+from runtime.language.shape import (
+    DESCRIPTION,
+    DESCRIPTION_MAX,
+    Int,
+    Key,
+    ListOf,
+    Number,
+    Text,
+    any_of,
+    description_text,
+    expect_type,
+)
 from runtime.language.units import MILLISECOND, Unit, find_unit, suggest_unit
 from runtime.language.yamlsrc import YList, YMap
 
 #: the I/O list's keys of a binding (beside ``from`` and ``invert``); ``at`` is the signal's
 #: IEC located address (runtime/language/located.py)
-IO_KEYS = ("description", "unit", "range", "at")
+IO_KEYS = (
+    Key("description", DESCRIPTION, "The I/O list: what the signal is on the machine (one "
+                                    f"line, at most {DESCRIPTION_MAX} characters)."),
+    Key("unit", any_of(Text(), Int()), "The I/O list: unit of measure of an int or real "
+                                       "signal, a UN/CEFACT code (CEL, BAR, MMT) or a symbol "
+                                       "(°C, bar, mm); docs/language.md lists them."),
+    Key("range", ListOf(Number(), min_items=2, max_items=2),
+        "The I/O list: engineering limits [low, high] of an int or real signal."),
+    Key("at", Text(BINDING_AT_PATTERN),
+        "The signal's IEC 61131-3 located address (%IX0.3 an input bit, %QX0.0 an output "
+        "bit, %IW2 / %QW2 a word); the Modbus server's default map follows it "
+        "(docs/modbus.md)."),
+)
 
 
 @dataclass(frozen=True, slots=True)

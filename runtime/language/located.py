@@ -12,6 +12,9 @@ import re
 from dataclasses import dataclass
 
 _LOCATED = re.compile(r"^%([IQM])([XWD])(\d{1,5})(?:\.(\d{1,2}))?$")
+#: a binding's ``at:`` as editors check it (an input's or output's: %I or %Q; the loader's
+#: check is ``parse_located``'s, then the binding's direction and type)
+BINDING_AT_PATTERN = r"^%[IQiq][XWDxwd][0-9]{1,5}(\.[0-7])?$"
 
 
 @dataclass(frozen=True, slots=True)

@@ -20,8 +20,7 @@ from typing import Any
 
 from runtime.errors import Loc, SourceError, suggest
 from runtime.language import ast as A
-from runtime.language.feedconf import feed_key, sample_key, writable_names
-from runtime.language.grafcetfile import check_keys, expect_type, time_value
+from runtime.language.feedconf import FEED_KEY, WRITABLE, feed_key, sample_key, writable_names
 from runtime.language.iolist import IOList
 from runtime.language.located import Located, parse_located
 from runtime.language.model import (
@@ -32,14 +31,23 @@ from runtime.language.model import (
     PlantDef,
     VarKind,
 )
-from runtime.language.plantpaths import path_value
+from runtime.language.plantpaths import PATH, path_value
+from runtime.language.shape import (
+    Choice,
+    Int,
+    Key,
+    ListOf,
+    MapOf,
+    Section,
+    Text,
+    Time,
+    expect_type,
+    one_of,
+    time_value,
+)
 from runtime.language.webconf import is_loopback
 from runtime.language.yamlsrc import YList, YMap
 
-MODBUS_KEYS = ("listen", "clients", "unit", "map", "writable", "words", "sample", "feed",
-               "tls", "limits")
-TLS_KEYS = ("listen", "certificate", "private_key", "clients_ca", "roles")
-LIMITS_KEYS = ("connections", "rate", "idle")
 #: the snapshot period when the plant does not say (never below the cycle), ns
 DEFAULT_SAMPLE_NS = 100_000_000
 #: the wire types, and the language types each may carry
@@ -60,13 +68,74 @@ OPENPLC: dict[tuple[str, str], tuple[str, int, int, int]] = {
     ("M", "W"): ("HR", 1024, 1024, 1), ("M", "D"): ("HR", 2048, 1024, 2)}
 _ADDRESS = re.compile(r"^(I|Q|IR|HR)(\d{1,5})$")
 _LISTEN = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
+#: the orders of a 32-bit value's two registers, the first the default
+WORDS = ("high_first", "low_first")
+#: what a role of ``tls: roles:`` may do
+ROLES = ("read", "write")
+
+# -- the shape of ``modbus:`` (runtime/language/shape.py)
+_HOST_PORT = r"(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):[0-9]{1,5}"
+TLS = Section((
+    Key("listen", Text(f"^{_HOST_PORT}$"), "HOST:PORT (default 127.0.0.1:802)."),
+    Key("certificate", PATH, "The server's certificate (PEM).", required=True),
+    Key("private_key", PATH, "Its private key (PEM).", required=True),
+    Key("clients_ca", PATH, "The certificate authority (PEM) of the clients' certificates.",
+        required=True),
+    Key("roles", MapOf(Choice(ROLES), min_properties=1),
+        "ROLE: read or write, for the role in each client's certificate (OID "
+        "1.3.6.1.4.1.50316.802.1).", required=True),
+), "modbus tls", "Modbus/TCP Security: TLS with client certificates, each client's role read "
+                 "from its certificate.")
+#: the PEM files of ``tls:``, each needed
+PEM_KEYS = tuple(k.name for k in TLS.keys if k.value is PATH)
+LIMITS = Section((
+    Key("connections", Int(1, 1000), "Connections at once (default 16)."),
+    Key("rate", Int(1, 100_000), "Requests a second of one connection; more are paced "
+                                 "(default 200)."),
+    Key("idle", Time(1_000_000_000, 86_400_000_000_000),
+        "A connection without a request this long is closed (default 60s, 1s to 24h)."),
+), "modbus limits", "What clients may hold of the server.")
+#: an entry of ``map:`` in its mapping form (``{at: HR10, type: DINT}``)
+MAP_ENTRY = Section((
+    Key("at", Text(), "The address: Q<n>, I<n>, IR<n>, HR<n>, or a located "
+                      "%IX/%QX/%IW/%QW/%MW/%MD.", required=True),
+    Key("type", Choice(tuple(WIRE_TYPES)), "The type on the wire (default: a bool BOOL, an int "
+                                           "INT, a real REAL, a time TIME in ms)."),
+), "modbus map")
+MODBUS = Section((
+    Key("listen", Text(f"^({_HOST_PORT}|off)$"),
+        "HOST:PORT of plain Modbus/TCP (default 127.0.0.1:502), or off (only tls); an address "
+        "other than a loopback one needs clients."),
+    Key("clients", ListOf(Text(), min_items=1),
+        "The client addresses or networks let in (192.168.10.20, 192.168.10.0/24); default: "
+        "anyone who reaches listen."),
+    Key("unit", Int(0, 255), "The unit identifier answered (default: any); another is "
+                             "answered with exception 11."),
+    Key("map", MapOf(one_of(Text(), MAP_ENTRY)),
+        "instance.name: ADDRESS (Q<n> coil, I<n> discrete input, IR<n> input register, HR<n> "
+        "holding register, or a located %IX/%QX/%IW/%QW/%MW/%MD address), or {at: ADDRESS, "
+        "type: BOOL|INT|UINT|DINT|UDINT|REAL|TIME}; every other name of the I/O list and "
+        "every writable name gets a default address."),
+    Key("writable", WRITABLE, "instance.name of the memory variables and chart flags a client "
+                              "may write (a coil or a holding register), applied between two "
+                              "scans."),
+    Key("words", Choice(WORDS), "The order of the two registers of a 32-bit value: high_first "
+                                "(Modbus' big-endian order, default) or low_first."),
+    Key("sample", Time(), "How often the values are refreshed (the feed's sample; default "
+                          "100ms, never below the cycle)."),
+    FEED_KEY,
+    Key("tls", TLS),
+    Key("limits", LIMITS),
+), "modbus", "The Modbus/TCP server of the plant, `softplc modbus PLANT` (docs/modbus.md): "
+             "where it listens, who may connect, Modbus/TCP Security, the address map and the "
+             "names panels may write.", null=True)
 
 
 def load_modbus(p: PlantDef, value: Any, loc: Loc) -> ModbusDef:
     """``modbus:`` -> ModbusDef with its whole map; SourceError at the faulty key or value.
     An empty ``modbus:`` (``modbus: {}``) serves the default map on 127.0.0.1:502."""
     m = expect_type(value, loc, YMap, "a mapping (listen, clients, map, writable, ...)")
-    check_keys(m, MODBUS_KEYS, "modbus")
+    MODBUS.check(m)
     d = ModbusDef(loc=loc, sample_ns=max(DEFAULT_SAMPLE_NS, p.cycle_ns), locs=dict(m.val_locs))
     if "listen" in m:
         vloc = m.val_locs["listen"]
@@ -79,15 +148,16 @@ def load_modbus(p: PlantDef, value: Any, loc: Loc) -> ModbusDef:
         d.clients = _clients(m["clients"], m.val_locs["clients"])
     if "unit" in m:
         vloc = m.val_locs["unit"]
-        unit = expect_type(m["unit"], vloc, int, "a unit identifier 0-255")
-        if not 0 <= unit <= 255:
-            raise SourceError(vloc, f"modbus unit: expected 0-255, found {unit}")
+        low, high = MODBUS["unit"].low, MODBUS["unit"].high
+        unit = MODBUS.value(m, "unit", f"a unit identifier {low}-{high}")
+        if not low <= unit <= high:
+            raise SourceError(vloc, f"modbus unit: expected {low}-{high}, found {unit}")
         d.unit = int(unit)
     if "writable" in m:
         d.writable = writable_names(p, m["writable"], m.val_locs["writable"], "modbus")
     if "words" in m:
         vloc = m.val_locs["words"]
-        if m["words"] not in ("high_first", "low_first"):
+        if m["words"] not in WORDS:
             raise SourceError(vloc, f"modbus words: expected high_first (Modbus' big-endian "
                                     f"order) or low_first, found '{m['words']}'")
         d.words = str(m["words"])
@@ -144,13 +214,13 @@ def _clients(value: Any, loc: Loc) -> list[str]:
 def _tls(value: Any, loc: Loc) -> ModbusTls:
     m = expect_type(value, loc, YMap, "a mapping (listen, certificate, private_key, "
                                       "clients_ca, roles)")
-    check_keys(m, TLS_KEYS, "modbus tls")
+    TLS.check(m)
     t = ModbusTls(loc=loc)
     if "listen" in m:
         vloc = m.val_locs["listen"]
         t.host, t.port = listen_value(str(expect_type(m["listen"], vloc, str, "HOST:PORT")),
                                       vloc, "modbus tls listen")
-    for key in ("certificate", "private_key", "clients_ca"):
+    for key in PEM_KEYS:
         if key not in m:
             raise SourceError(loc, f"modbus tls: expected {key} (a PEM file), found none: "
                                    "Modbus/TCP Security authenticates both ends")
@@ -162,7 +232,7 @@ def _tls(value: Any, loc: Loc) -> ModbusTls:
     roles = expect_type(m["roles"], vloc, YMap, "a mapping ROLE: read or write")
     for role, may in roles.items():
         rloc = roles.val_locs[role]
-        if may not in ("read", "write"):
+        if may not in ROLES:
             raise SourceError(rloc, f"modbus tls roles: {role}: expected read or write, "
                                     f"found '{may}'")
         t.roles[str(role)] = str(may)
@@ -173,12 +243,13 @@ def _tls(value: Any, loc: Loc) -> ModbusTls:
 
 def _limits(value: Any, loc: Loc) -> ModbusLimits:
     m = expect_type(value, loc, YMap, "a mapping (connections, rate, idle)")
-    check_keys(m, LIMITS_KEYS, "modbus limits")
+    LIMITS.check(m)
     lim = ModbusLimits(loc=loc)
-    for key, least, most in (("connections", 1, 1000), ("rate", 1, 100_000)):
+    for key in ("connections", "rate"):
         if key in m:
             vloc = m.val_locs[key]
-            n = expect_type(m[key], vloc, int, f"a number {least}-{most}")
+            least, most = LIMITS[key].low, LIMITS[key].high
+            n = LIMITS.value(m, key, f"a number {least}-{most}")
             if not least <= n <= most:
                 raise SourceError(vloc, f"modbus limits {key}: expected {least} to {most}, "
                                         f"found {n}")
@@ -186,7 +257,7 @@ def _limits(value: Any, loc: Loc) -> ModbusLimits:
     if "idle" in m:
         vloc = m.val_locs["idle"]
         lim.idle_ns = time_value(m["idle"], vloc, "modbus limits idle")
-        if not 1_000_000_000 <= lim.idle_ns <= 86_400_000_000_000:
+        if not LIMITS["idle"].low <= lim.idle_ns <= LIMITS["idle"].high:
             raise SourceError(vloc, "modbus limits idle: expected 1s to 24h")
     return lim
 
@@ -264,7 +335,7 @@ def _map(p: PlantDef, value: Any, loc: Loc) -> list[ModbusPoint]:
             raise SourceError(kloc, f"modbus map: {t}")
         wire = None
         if isinstance(spec, YMap):
-            check_keys(spec, ("at", "type"), f"modbus map: {name}")
+            MAP_ENTRY.check(spec, f"modbus map: {name}")
             if "at" not in spec:
                 raise SourceError(vloc, f"modbus map: {name}: expected at: ADDRESS")
             if "type" in spec:

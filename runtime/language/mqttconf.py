@@ -9,25 +9,77 @@ import socket
 from typing import Any
 
 from runtime.errors import Loc, SourceError, suggest
-from runtime.language.feedconf import feed_key, sample_key, writable_names
-from runtime.language.grafcetfile import check_keys, expect_type, time_value
-from runtime.language.model import MQTT_GROUPS, MqttBroker, MqttDef, MqttTls, PlantDef
-from runtime.language.plantpaths import plant_path
+from runtime.language.feedconf import FEED_KEY, WRITABLE, feed_key, sample_key, writable_names
+from runtime.language.model import (
+    MQTT_DEFAULT_PUBLISH,
+    MQTT_GROUPS,
+    MqttBroker,
+    MqttDef,
+    MqttTls,
+    PlantDef,
+)
+from runtime.language.plantpaths import PATH, plant_path
+from runtime.language.shape import (
+    Int,
+    Key,
+    ListOf,
+    Section,
+    Text,
+    Time,
+    any_of,
+    expect_type,
+    time_value,
+)
 from runtime.language.yamlsrc import YList, YMap
 
-MQTT_KEYS = ("brokers", "group_id", "edge_node_id", "client_id", "username", "password_file",
-             "tls", "primary_host", "publish", "writable", "sample", "statistics",
-             "keepalive", "buffer", "feed")
-TLS_KEYS = ("ca", "certificate", "private_key")
 #: the default report-by-exception period (never below the cycle), ns
 DEFAULT_SAMPLE_NS = 100_000_000
-#: the most metric values the store-and-forward buffer may be told to keep
-BUFFER_MAX = 10_000_000
-#: the shortest statistics period, ns
-STATISTICS_MIN_NS = 1_000_000_000
 _URL = re.compile(r"^(mqtts?)://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+)(?::(\d{1,5}))?/?$")
 #: Sparkplug B ids (group, edge node, host): UTF-8 without the MQTT wildcards and '/'
 _ID_FORBIDDEN = re.compile(r"[+#/\s]")
+
+# -- the shape of ``mqtt:`` (runtime/language/shape.py)
+#: a Sparkplug B id, as editors check it (``_ident`` is the loader's check)
+_ID = Text(r"^[^+#/\s]+$")
+_BROKER = Text(r"^mqtts?://")
+TLS = Section((
+    Key("ca", PATH, "The certificate authority (PEM) that signed the brokers' certificates "
+                    "(default: the system's)."),
+    Key("certificate", PATH, "This node's client certificate (PEM), if the broker asks for "
+                             "one."),
+    Key("private_key", PATH, "Its private key (PEM)."),
+), "mqtt tls", "TLS with the mqtts:// brokers (docs/mqtt.md).")
+MQTT = Section((
+    Key("brokers", any_of(_BROKER, ListOf(_BROKER, min_items=1)),
+        "mqtt://HOST:PORT (plain, default port 1883) or mqtts://HOST:PORT (TLS, 8883), in "
+        "order of preference: the next one on failure.", required=True),
+    Key("group_id", _ID, "The Sparkplug group of this edge node (a line, a hall).",
+        required=True),
+    Key("edge_node_id", _ID, "The Sparkplug edge node id (default: the host name)."),
+    Key("client_id", Text(min_length=1), "The MQTT client identifier (default "
+                                         "softplc-GROUP-EDGE)."),
+    Key("username", Text(min_length=1), "The user the broker knows this node by."),
+    Key("password_file", PATH, "A file whose first line is the password (the password itself "
+                               "is never in the plant file)."),
+    Key("tls", TLS),
+    Key("primary_host", _ID, "The primary host application's id: the node births only while "
+                             "its STATE says online."),
+    Key("publish", ListOf(Text()), f"Groups ({', '.join(MQTT_GROUPS)}) and names published "
+                                   f"(default {', '.join(MQTT_DEFAULT_PUBLISH)})."),
+    Key("writable", WRITABLE, "instance.name of the memory variables and chart flags a DCMD "
+                              "may write; everything else is refused."),
+    Key("sample", Time(), "Report by exception at most this often (default 100ms; never below "
+                          "the cycle)."),
+    Key("statistics", Time(1_000_000_000), "How often the controller's statistics are "
+                                           "published (default 10s, at least 1s)."),
+    Key("keepalive", Time(1_000_000_000, 65535_000_000_000),
+        "MQTT keep-alive in whole seconds (default 30s): the broker announces the node's "
+        "death 1.5 times this after it went silent."),
+    Key("buffer", Int(0, 10_000_000), "Metric values kept while no broker is reachable, the "
+                                      "oldest dropped first (default 100000; 0: none)."),
+    FEED_KEY,
+), "mqtt", "The MQTT Sparkplug B edge node, `softplc mqtt PLANT` (docs/mqtt.md): brokers, "
+           "Sparkplug ids, TLS and credentials, what is published and what may be written.")
 
 
 def load_mqtt(p: PlantDef, value: Any, loc: Loc) -> MqttDef:
@@ -37,7 +89,7 @@ def load_mqtt(p: PlantDef, value: Any, loc: Loc) -> MqttDef:
         raise SourceError(m.key_locs["password"], "mqtt: a password is never written in the "
                           "plant file: put it on the first line of a file only the service "
                           "may read, and name that file with password_file")
-    check_keys(m, MQTT_KEYS, "mqtt")
+    MQTT.check(m)
     q = MqttDef(loc=loc, sample_ns=max(DEFAULT_SAMPLE_NS, p.cycle_ns))
     if "brokers" not in m:
         raise SourceError(loc, "mqtt: expected brokers: [mqtt://HOST:PORT, ...] (the "
@@ -74,21 +126,22 @@ def load_mqtt(p: PlantDef, value: Any, loc: Loc) -> MqttDef:
     if "statistics" in m:
         vloc = m.val_locs["statistics"]
         q.statistics_ns = time_value(m["statistics"], vloc, "mqtt statistics")
-        if q.statistics_ns < STATISTICS_MIN_NS:
+        if q.statistics_ns < MQTT["statistics"].low:
             raise SourceError(vloc, "mqtt statistics: expected at least 1s (they are "
                                     "refreshed once a second)")
     if "keepalive" in m:
         vloc = m.val_locs["keepalive"]
         q.keepalive_ns = time_value(m["keepalive"], vloc, "mqtt keepalive")
-        if q.keepalive_ns % 1_000_000_000 or not 1 <= q.keepalive_ns // 1_000_000_000 <= 65535:
+        low, high = MQTT["keepalive"].low, MQTT["keepalive"].high
+        if q.keepalive_ns % 1_000_000_000 or not low <= q.keepalive_ns <= high:
             raise SourceError(vloc, "mqtt keepalive: expected whole seconds from 1s to "
                                     "65535s (MQTT counts it in seconds)")
     if "buffer" in m:
         vloc = m.val_locs["buffer"]
-        q.buffer = expect_type(m["buffer"], vloc, int, "a number of metric values")
-        if not 0 <= q.buffer <= BUFFER_MAX:
-            raise SourceError(vloc, f"mqtt buffer: expected 0 (no store and forward) to "
-                                    f"{BUFFER_MAX}, found {q.buffer}")
+        q.buffer = MQTT.value(m, "buffer", "a number of metric values")
+        if not MQTT["buffer"].low <= q.buffer <= MQTT["buffer"].high:
+            raise SourceError(vloc, f"mqtt buffer: expected {MQTT['buffer'].low} (no store and "
+                                    f"forward) to {MQTT['buffer'].high}, found {q.buffer}")
     if "feed" in m:  # the default: runtime/language/feedconf.py, once every section is read
         q.feed = feed_key(m, "mqtt")
     return q
@@ -151,9 +204,9 @@ def _brokers(value: Any, loc: Loc) -> list[MqttBroker]:
 
 def _tls(value: Any, loc: Loc) -> MqttTls:
     m = expect_type(value, loc, YMap, "a mapping (ca, certificate, private_key)")
-    check_keys(m, TLS_KEYS, "mqtt tls")
+    TLS.check(m)
     t = MqttTls(loc=loc)
-    for key in TLS_KEYS:
+    for key in TLS.names:
         if key in m:
             setattr(t, key, _path(m, key))
     if (t.certificate is None) != (t.private_key is None):

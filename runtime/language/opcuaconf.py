@@ -13,36 +13,87 @@ import re
 from typing import Any
 
 from runtime.errors import Loc, SourceError, suggest
-from runtime.language.feedconf import feed_key, sample_key, writable_names
-from runtime.language.grafcetfile import check_keys, expect_type, time_value
+from runtime.language.feedconf import FEED_KEY, WRITABLE, feed_key, sample_key, writable_names
 from runtime.language.model import OPCUA_POLICIES, OpcuaDef, OpcuaLimits, OpcuaSecurity, PlantDef
-from runtime.language.plantpaths import missing, plant_path
+from runtime.language.plantpaths import PATH, missing, plant_path
+from runtime.language.shape import (
+    Choice,
+    Int,
+    Key,
+    ListOf,
+    MapOf,
+    Number,
+    Section,
+    Text,
+    Time,
+    expect_type,
+    time_value,
+)
 from runtime.language.yamlsrc import YMap
 
-OPCUA_KEYS = ("endpoint", "sample", "feed", "writable", "security", "limits")
-#: ``limits:`` counts: key -> (attribute, least, greatest)
-LIMIT_COUNTS = {"sessions": ("sessions", 1, 1000),
-                "subscriptions": ("subscriptions", 1, 100),
-                "items": ("items", 1, 1_000_000),
-                "items_total": ("items_total", 1, 10_000_000)}
-#: ``limits:`` rates (publishes a second): key -> (attribute, least, greatest)
-LIMIT_RATES = {"publish_rate": ("publish_rate", 0.1, 10_000.0),
-               "publish_rate_total": ("publish_rate_total", 0.1, 100_000.0)}
-#: ``limits:`` times: key -> (attribute, least, greatest), ns
-LIMIT_TIMES = {"session_timeout": ("session_timeout_ns", 10_000_000_000, 3_600_000_000_000),
-               "abandoned": ("abandoned_ns", 1_000_000_000, 3_600_000_000_000)}
-SECURITY_KEYS = ("policies", "certificate", "private_key", "trusted_clients",
-                 "trusted_readers", "anonymous", "users")
+_S = 1_000_000_000
+#: ``limits:``: key -> the attribute of OpcuaLimits it sets (the bounds: ``LIMITS``)
+LIMIT_COUNTS = {"sessions": "sessions", "subscriptions": "subscriptions", "items": "items",
+                "items_total": "items_total"}
+#: ``limits:`` rates (publishes a second): key -> attribute
+LIMIT_RATES = {"publish_rate": "publish_rate", "publish_rate_total": "publish_rate_total"}
+#: ``limits:`` times: key -> attribute (ns)
+LIMIT_TIMES = {"session_timeout": "session_timeout_ns", "abandoned": "abandoned_ns"}
 #: the snapshot period when the plant does not say (never below the cycle), ns
 DEFAULT_SAMPLE_NS = 50_000_000
 _ENDPOINT = re.compile(r"^opc\.tcp://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})(/.*)?$")
+
+# -- the shape of ``opcua:`` (runtime/language/shape.py)
+#: what a client without a user may do
+ANONYMOUS = ("read", "none")
+SECURITY = Section((
+    Key("policies", ListOf(Choice(OPCUA_POLICIES), min_items=1),
+        "Offered policies (default Basic256Sha256_SignAndEncrypt; None only when listed)."),
+    Key("certificate", PATH, "Server certificate (DER)."),
+    Key("private_key", PATH, "Server private key (PEM)."),
+    Key("trusted_clients", PATH, "Directory of trusted client certificates (DER or PEM): they "
+                                 "may write."),
+    Key("trusted_readers", PATH, "Directory of client certificates let in to read only."),
+    Key("anonymous", Choice(ANONYMOUS), "What a client without a user may do (default read)."),
+    Key("users", MapOf(Text()), "user: password hash made by softplc hash-pin."),
+), "opcua security", "Security policies, certificates, users (docs/opcua.md).")
+LIMITS = Section((
+    Key("sessions", Int(1, 1000), "Sessions open at once (default 10)."),
+    Key("subscriptions", Int(1, 100), "Subscriptions per session (default 5)."),
+    Key("items", Int(1, 1_000_000), "Monitored items per session (default 5000)."),
+    Key("items_total", Int(1, 10_000_000), "Monitored items of all sessions together (default "
+                                           "20000)."),
+    Key("publish_rate", Number(0.1, 10_000),
+        "Publishes a second the subscriptions of one session may add up to (default 50): a "
+        "longer publishing interval is granted beyond it."),
+    Key("publish_rate_total", Number(0.1, 100_000),
+        "Publishes a second of all sessions together (default 200)."),
+    Key("session_timeout", Time(10 * _S, 3600 * _S),
+        "The longest session timeout granted, 10s to 1h (default 60s)."),
+    Key("abandoned", Time(1 * _S, 3600 * _S),
+        "A session whose connection is gone is closed after this long, 1s to 1h, at most "
+        "session_timeout (default 10s)."),
+), "opcua limits", "What clients may hold of the server (docs/opcua.md, Limits).")
+OPCUA = Section((
+    Key("endpoint", Text(r"^opc\.tcp://"), "Where the server listens: opc.tcp://HOST:PORT "
+                                           "(default opc.tcp://127.0.0.1:4840)."),
+    Key("sample", Time(), "How often the controller sends a snapshot of its image (default "
+                          "50ms; never below the cycle)."),
+    FEED_KEY,
+    Key("writable", WRITABLE, "instance.name of the memory variables and chart flags OPC UA "
+                              "clients may write; everything else is read-only."),
+    Key("security", SECURITY),
+    Key("limits", LIMITS),
+), "opcua", "The OPC UA server, `softplc opcua PLANT` (docs/opcua.md): endpoint, snapshot "
+            "period, the controller's feed socket, the names clients may write, security, "
+            "limits.")
 
 
 def load_opcua(p: PlantDef, value: Any, loc: Loc) -> OpcuaDef:
     """``opcua:`` -> OpcuaDef; SourceError at the faulty key or value."""
     m = expect_type(value, loc, YMap, "a mapping (endpoint, sample, feed, writable, "
                                       "security, limits)")
-    check_keys(m, OPCUA_KEYS, "opcua")
+    OPCUA.check(m)
     o = OpcuaDef(loc=loc, sample_ns=max(DEFAULT_SAMPLE_NS, p.cycle_ns),
                  locs=dict(m.val_locs))
     if "endpoint" in m:
@@ -67,30 +118,32 @@ def load_opcua(p: PlantDef, value: Any, loc: Loc) -> OpcuaDef:
 
 
 def _limits(value: Any, loc: Loc) -> OpcuaLimits:
-    keys = (*LIMIT_COUNTS, *LIMIT_RATES, *LIMIT_TIMES)
-    m = expect_type(value, loc, YMap, f"a mapping ({', '.join(keys)})")
-    check_keys(m, keys, "opcua limits")
+    m = expect_type(value, loc, YMap, f"a mapping ({', '.join(LIMITS.names)})")
+    LIMITS.check(m)
     lim = OpcuaLimits(loc=loc)
-    for key, (attr, least, most) in LIMIT_COUNTS.items():
+    for key, attr in LIMIT_COUNTS.items():
         if key in m:
             vloc = m.val_locs[key]
-            n = expect_type(m[key], vloc, int, "a whole number")
+            n = LIMITS.value(m, key, "a whole number")
+            least, most = LIMITS[key].low, LIMITS[key].high
             if not least <= n <= most:
                 raise SourceError(vloc, f"opcua limits {key}: expected {least} to {most}, "
                                         f"found {n}")
             setattr(lim, attr, n)
-    for key, (attr, low, high) in LIMIT_RATES.items():
+    for key, attr in LIMIT_RATES.items():
         if key in m:
             vloc = m.val_locs[key]
-            rate = expect_type(m[key], vloc, (int, float), "publishes a second (a number)")
+            rate = LIMITS.value(m, key, "publishes a second (a number)")
+            low, high = LIMITS[key].low, LIMITS[key].high
             if not low <= rate <= high:
                 raise SourceError(vloc, f"opcua limits {key}: expected {low:g} to {high:g} "
                                         f"publishes a second, found {rate:g}")
             setattr(lim, attr, float(rate))
-    for key, (attr, least, most) in LIMIT_TIMES.items():
+    for key, attr in LIMIT_TIMES.items():
         if key in m:
             vloc = m.val_locs[key]
             ns = time_value(m[key], vloc, f"opcua limits {key}")
+            least, most = LIMITS[key].low, LIMITS[key].high
             if not least <= ns <= most:
                 raise SourceError(vloc, f"opcua limits {key}: expected {least // 10**9} s to "
                                         f"{most // 10**9} s, found {ns / 1e9:g} s")
@@ -113,7 +166,7 @@ def _limits(value: Any, loc: Loc) -> OpcuaLimits:
 
 def _security(value: Any, loc: Loc, base: str) -> OpcuaSecurity:
     m = expect_type(value, loc, YMap, "a mapping (policies, certificate, ...)")
-    check_keys(m, SECURITY_KEYS, "opcua security")
+    SECURITY.check(m)
     sec = OpcuaSecurity(loc=loc)
     if "policies" in m:
         vloc = m.val_locs["policies"]
@@ -138,7 +191,7 @@ def _security(value: Any, loc: Loc, base: str) -> OpcuaSecurity:
             setattr(sec, key, plant_path(base, m[key], vloc, f"opcua security {key}"))
     if "anonymous" in m:
         vloc = m.val_locs["anonymous"]
-        if m["anonymous"] not in ("read", "none"):
+        if m["anonymous"] not in ANONYMOUS:
             raise SourceError(vloc, f"opcua security anonymous: expected read or none, found "
                                     f"'{m['anonymous']}'")
         sec.anonymous = str(m["anonymous"])

@@ -20,18 +20,13 @@ from drivers.durations import format_ns
 from drivers.registry import BAUDRATES, DRIVER_KEYS, check_config, check_point
 from runtime.errors import Diagnostic, Loc, SourceError, suggest
 from runtime.language import ast as A
-from runtime.language.alarmconf import load_alarms
+from runtime.language.alarmconf import ALARMS, load_alarms
+from runtime.language.drivershape import DRIVER, ON_FAULT_CHOICES, keys_of, on_fault_words
 from runtime.language.feedconf import settle_feed
-from runtime.language.grafcetfile import (
-    check_keys,
-    description_text,
-    expect_type,
-    load_grafcet,
-    time_value,
-)
+from runtime.language.grafcetfile import load_grafcet
 from runtime.language.iolist import IO_KEYS, check_io_entry, io_entry
 from runtime.language.lexer import is_name
-from runtime.language.modbusconf import load_modbus
+from runtime.language.modbusconf import MODBUS, load_modbus
 from runtime.language.model import (
     Binding,
     ConsoleEntry,
@@ -42,51 +37,173 @@ from runtime.language.model import (
     PlantDef,
     VarKind,
 )
-from runtime.language.mqttconf import load_mqtt
-from runtime.language.opcuaconf import load_opcua
-from runtime.language.plantpaths import path_value, plant_path, resolve
+from runtime.language.mqttconf import MQTT, load_mqtt
+from runtime.language.opcuaconf import OPCUA, load_opcua
+from runtime.language.plantpaths import PATH, SOCKET_PATH, path_value, plant_path, resolve
+from runtime.language.shape import (
+    DESCRIPTION,
+    Bool,
+    Choice,
+    Const,
+    Def,
+    Int,
+    Key,
+    MapOf,
+    Null,
+    Section,
+    Text,
+    Time,
+    any_of,
+    check_keys,
+    description_text,
+    expect_type,
+    one_of,
+    time_value,
+)
 from runtime.language.typecheck import FLAGS_BOOL
-from runtime.language.webconf import load_web
+from runtime.language.webconf import WEB, load_web
 from runtime.language.yamlsrc import SourceFileError, YMap, load_yaml
 
-PLANT_KEYS = ("plc", "drivers", "instances", "monitor", "opcua", "mqtt", "alarms", "web",
-              "modbus")
-PLC_KEYS = ("cycle", "watchdog", "retain", "retain_interval", "retain_required", "realtime",
-            "log")
-INSTANCE_KEYS = ("grafcet", "inputs", "outputs", "description", "log")
-BINDING_KEYS = ("from", "invert", *IO_KEYS)
-#: an output may name its point with ``to:`` (its value goes there), or ``from:`` as an
-#: input does (every plant written before ``to:``): one of the two
-OUTPUT_BINDING_KEYS = ("from", "to", "invert", *IO_KEYS)
+_MS, _S = 1_000_000, 1_000_000_000
 #: values of ``log:`` (plant-wide under ``plc:``, or per instance) -> whether step changes
 #: are logged
 LOG_VALUES = {"steps": True, "none": False}
-MONITOR_KEYS = ("serial", "socket", "tcp", "pin_hash", "release_forces_on_disconnect",
-                "limits")
-_MS, _S = 1_000_000, 1_000_000_000
-#: the bounds of the times under ``plc:`` (ns, inclusive; None: no bound) and why a value
-#: beyond one would harm the plant (docs/language.md, "The plant file")
-PLC_TIMES: dict[str, tuple[int, int | None, str, str]] = {
-    "cycle": (1 * _MS, 60 * _S,
-              "below 1 ms every scan overruns in Python (a wake-up and a scan take tens to "
+
+# -- the shape of a plant file (runtime/language/shape.py): the loader's key lists, types
+# -- and bounds, and configs/schema/plant.schema.json generated from them
+PORT = Def("port", Int(1, 65535), "TCP port.")
+TRUSTED = Def("trusted", Bool(), "Allow changing commands without a PIN on this console. Only "
+                                 "for a console nobody else can reach, on a bench.",
+              default=False)
+BAUDRATE = Def("baudrate", Choice(BAUDRATES), "A serial line rate Linux sets, bit/s.")
+REALTIME = Section((
+    Key("priority", Int(1, 99), "SCHED_FIFO priority 1-99 (default 50)."),
+    Key("lock_memory", Bool(), "mlockall: no page faults in the scan."),
+), "plc realtime")
+PLC = Section((
+    Key("cycle", Time(1 * _MS, 60 * _S), "Scan period, 1ms to 1m (10ms)."),
+    Key("watchdog", Time(10 * _MS, 6 * _S), "A scan longer than this is a fault: outputs to "
+                                            "the safe state. 10ms to 6s (1s)."),
+    Key("retain", any_of(PATH, Null()), "File of the retained memory (absolute, or relative "
+                                        "to this file): a regular file or none yet, never a "
+                                        "directory."),
+    Key("retain_interval", Time(1), "At most one retain write per interval (1s)."),
+    Key("retain_required", Bool(), "Refuse to start when the retained data is lost (false: "
+                                   "start with init values after an error line)."),
+    Key("realtime", one_of(Const(False), REALTIME),
+        "Real-time scheduling of the scan thread: by default SCHED_FIFO 50 where permitted "
+        "(the installed service); false: normal priority."),
+    Key("log", Choice(tuple(LOG_VALUES)), "steps: log every step activation and deactivation "
+                                          "of every instance (an instance's own 'log' says "
+                                          "otherwise); none: the default."),
+), "plc", "Controller settings.")
+#: why a time under ``plc:`` beyond its bounds (``PLC``) would harm the plant: key -> (below
+#: the least, above the greatest) (docs/language.md, "The plant file")
+PLC_TIMES: dict[str, tuple[str, str]] = {
+    "cycle": ("below 1 ms every scan overruns in Python (a wake-up and a scan take tens to "
               "hundreds of µs, a stall of the system several ms; 5-10 ms suits a Raspberry "
               "Pi)",
               "a longer cycle leaves the inputs unread that long (an emergency stop, a limit "
               "switch): pace a slow process with the chart's times (a step's time, TON) at a "
               "shorter cycle"),
-    "watchdog": (10 * _MS, 6 * _S,
-                 "the stalls of a system without real-time priority reach several ms: a "
+    "watchdog": ("the stalls of a system without real-time priority reach several ms: a "
                  "shorter watchdog puts a healthy plant in fault",
                  "a stuck scan would hold the outputs that long before they go off, and a "
                  "stop waits up to three watchdogs for it (S7's cycle monitoring stops at "
                  "6 s too)"),
-    "retain_interval": (1, None, "", ""),
+    "retain_interval": ("", ""),
 }
-#: a TCP port a console may listen on, and why not 0
-TCP_PORTS = (1, 65535, "such as 5020; 0 would be a port the system picks, which no client "
-                       "could know")
-#: SCHED_FIFO priorities (Linux)
-FIFO_PRIORITIES = (1, 99, "50 leaves room above and below for the system's own threads")
+#: why a TCP port a console may listen on is not 0
+TCP_PORT_HINT = ("such as 5020; 0 would be a port the system picks, which no client could "
+                 "know")
+#: why the SCHED_FIFO priorities have the default they have
+FIFO_PRIORITY_HINT = "50 leaves room above and below for the system's own threads"
+POINT = Def("point", Text(r"^[^.\s]+\.\S+$"),
+            "driver.point (gpio.17, exp1.A0, sim.I0), or another instance's signal "
+            "(tester1.oParado, tester1.gsParado.X).")
+#: a binding's mapping form: ``{from: gpio.17, invert: true, description: ...}``
+BINDING_SPEC = Section((
+    Key("from", POINT, required=True),
+    Key("invert", Bool(), "Invert the bool at the binding (bools only).", default=False),
+    *IO_KEYS,
+))
+BINDING = Def("binding", one_of(POINT, BINDING_SPEC),
+              "'driver.point', or {from: 'driver.point', invert: true} for a signal in "
+              "negative logic (an NC contact): inversion happens here and only here; the "
+              "mapping form may carry the signal's I/O list: description, unit, range, at.")
+#: an output's mapping form: its point as ``to:`` (its value goes there) or ``from:`` (as an
+#: input's: every plant written before ``to:``), one of the two
+OUTPUT_BINDING_SPEC = Section((
+    Key("from", POINT),
+    Key("to", POINT),
+    Key("invert", Bool(), "Invert the bool at the binding (bools only).", default=False),
+    *IO_KEYS,
+), extra={"oneOf": [{"required": ["to"], "not": {"required": ["from"]}},
+                    {"required": ["from"], "not": {"required": ["to"]}}]})
+OUTPUT_BINDING = Def("outputBinding", one_of(POINT, OUTPUT_BINDING_SPEC),
+                     "'driver.point', or {to: 'driver.point', invert: true} for an output in "
+                     "negative logic: inversion happens here and only here; the mapping form "
+                     "may carry the signal's I/O list: description, unit, range, at. An output "
+                     "names its point with to: (its value goes there) or from: (as an input "
+                     "does), one of the two.")
+INSTANCE = Section((
+    Key("grafcet", PATH, "The grafcet file, relative to this plant file.", required=True),
+    Key("inputs", MapOf(BINDING), "Chart input (or chart flag such as SFCPause) -> binding."),
+    Key("outputs", MapOf(OUTPUT_BINDING), "Chart output -> driver point (each physical "
+                                          "output bound once)."),
+    Key("description", DESCRIPTION, "Free text."),
+    Key("log", Choice(tuple(LOG_VALUES)), "steps: log every step activation and deactivation "
+                                          "of this instance; none: do not (overrides plc "
+                                          "log)."),
+), doc="An instance of a grafcet (like a Siemens DB): its own state, its own binding. Every "
+       "input and output of the chart must be bound.")
+SERIAL = Section((
+    Key("port", PATH, "/dev/ttyGS0", required=True),
+    Key("baudrate", BAUDRATE, "Baud rate.", default=115200),
+    Key("trusted", TRUSTED),
+), "monitor serial", "Console on a serial port (UART, USB gadget).")
+SOCKET = Section((
+    Key("path", SOCKET_PATH, "Socket path.", required=True),
+    Key("trusted", TRUSTED),
+), "monitor socket")
+TCP = Section((
+    Key("port", PORT, required=True),
+    Key("trusted", TRUSTED),
+), "monitor tcp")
+CONSOLE_LIMITS = Section((
+    Key("max_pause", Time(), "A pause ends into a halt (outputs off, ack needed) after this "
+                             "long (default 15m)."),
+    Key("max_force", Time(), "A force is released after this long (default 15m)."),
+    Key("warn_before", Time(), "The owning session is warned this long before (default 30s)."),
+    Key("relock_after_idle", Time(), "An unlocked session with no input for this long locks "
+                                     "itself again (default 5m)."),
+), "monitor limits", "How long console holds may last (docs/console.md).")
+MONITOR = Section((
+    Key("serial", SERIAL),
+    Key("socket", one_of(SOCKET_PATH, SOCKET), "Console on a Unix socket: its path, or {path, "
+                                               "trusted}."),
+    Key("tcp", one_of(PORT, TCP), "Console on a TCP port bound to 127.0.0.1: the port, or "
+                                  "{port, trusted}."),
+    Key("pin_hash", Text(), "Hash of the console PIN, as printed by 'softplc hash-pin'."),
+    Key("release_forces_on_disconnect", Bool(),
+        "When a console session that held only forces ends, release them and let the charts "
+        "run on (without it: release them and halt until ack)."),
+    Key("limits", CONSOLE_LIMITS),
+), "monitor", "Consoles (docs/console.md): serial port, Unix socket, TCP on 127.0.0.1. "
+              "Changing commands need the PIN, unless a console is marked trusted.")
+PLANT = Section((
+    Key("plc", PLC),
+    Key("drivers", MapOf(DRIVER), "I/O drivers, by name (the 'driver' of driver.point)."),
+    Key("instances", MapOf(Def("instance", INSTANCE), min_properties=1),
+        "Instances, scanned in this order.", required=True),
+    Key("monitor", MONITOR),
+    Key("opcua", OPCUA),
+    Key("mqtt", MQTT),
+    Key("alarms", ALARMS),
+    Key("web", WEB),
+    Key("modbus", MODBUS),
+), "a plant file", "One controller: cycle, I/O drivers, the instances of grafcet files with "
+                   "their bindings, consoles (docs/language.md, 'The plant file').")
 
 
 @dataclass
@@ -156,8 +273,8 @@ def _binding(signal: str, spec: Any, loc: Loc, output: bool = False) -> Binding:
                 return None
             return (": 'to:' binds an output (its value goes to the point): an input's value "
                     f"comes from its point: write 'from: {spec['to']}'")
-        check_keys(spec, OUTPUT_BINDING_KEYS if output else BINDING_KEYS,
-                   f"the binding of '{signal}'", misplaced)
+        (OUTPUT_BINDING_SPEC if output else BINDING_SPEC).check(
+            spec, f"the binding of '{signal}'", misplaced)
         key = "to" if output and "to" in spec else "from"
         if output and "to" in spec and "from" in spec:
             raise SourceError(spec.key_locs["to"], f"the binding of '{signal}' names its point "
@@ -193,12 +310,12 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
         doc = load_yaml(path)
     if not isinstance(doc, YMap):
         raise SourceError(Loc(path, 1, 1), "expected a YAML mapping with 'instances:'")
-    check_keys(doc, PLANT_KEYS, "a plant file")
+    PLANT.check(doc)
     p = PlantDef(path=path)
     log_steps = False  # plant-wide ``plc: log``, each instance may say otherwise
     if "plc" in doc:
         plc = expect_type(doc["plc"], doc.val_locs["plc"], YMap, "a mapping")
-        check_keys(plc, PLC_KEYS, "plc")
+        PLC.check(plc)
         for key in PLC_TIMES:
             if key in plc:
                 setattr(p, f"{key}_ns", _plc_time(key, plc[key], plc.val_locs[key]))
@@ -216,11 +333,12 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
         elif "realtime" in plc:
             rt = expect_type(plc["realtime"], plc.val_locs["realtime"], YMap,
                              "a mapping ({priority: 1-99, lock_memory: true}) or false")
-            check_keys(rt, ("priority", "lock_memory"), "plc realtime")
+            REALTIME.check(rt)
             if "priority" in rt:
                 p.realtime_priority = _int_in(rt["priority"], rt.val_locs["priority"],
-                                              FIFO_PRIORITIES, "a SCHED_FIFO priority")
-            p.lock_memory = bool(rt.get("lock_memory", False))
+                                              REALTIME["priority"], FIFO_PRIORITY_HINT,
+                                              "a SCHED_FIFO priority")
+            p.lock_memory = _flag(rt, "lock_memory")
         if "log" in plc:
             log_steps = _log_steps(plc["log"], plc.val_locs["log"])
     drivers = doc.get("drivers") or YMap()
@@ -239,10 +357,10 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
         if not isinstance(typ, str) or typ not in DRIVER_KEYS:
             raise SourceError(spec.val_locs["type"], f"unknown driver type '{typ}': expected one "
                               f"of {', '.join(DRIVER_KEYS)}{suggest(str(typ), DRIVER_KEYS)}")
-        check_keys(spec, ("type", "on_fault", *DRIVER_KEYS[typ]), f"driver '{name}' ({typ})")
-        if spec.get("on_fault", "stop") not in ("stop", "hold", "zero"):
+        check_keys(spec, keys_of(typ), f"driver '{name}' ({typ})")
+        if spec.get("on_fault", ON_FAULT_CHOICES[0]) not in ON_FAULT_CHOICES:
             raise SourceError(spec.val_locs["on_fault"], f"unknown on_fault {spec['on_fault']!r}"
-                                                         ": expected stop, hold or zero")
+                                                         f": expected {on_fault_words()}")
         config = {k: (str(v) if isinstance(v, str) else v) for k, v in spec.items()
                   if k != "type"}
         try:  # the values, as the driver will check them, with no bus library imported
@@ -265,7 +383,7 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
         try:  # an error here leaves the instance out (when collected)
             spec = expect_type(spec, instances.val_locs[name], YMap, f"instance '{name}'")
             try:  # an unknown key does not
-                check_keys(spec, INSTANCE_KEYS, f"instance '{name}'")
+                INSTANCE.check(spec, f"instance '{name}'")
             except SourceError as exc:
                 load.report(exc)
             if "grafcet" not in spec:
@@ -422,7 +540,8 @@ def _resolve_bindings(p: PlantDef, load: PlantLoad) -> None:
 def _plc_time(key: str, value: Any, loc: Loc) -> int:
     """``plc: KEY``, a time within PLC_TIMES[key], in ns."""
     ns = time_value(value, loc, f"plc {key}")
-    low, high, below, above = PLC_TIMES[key]
+    low, high = PLC[key].low, PLC[key].high
+    below, above = PLC_TIMES[key]
     if ns < low or (high is not None and ns > high):
         span = (f"from {format_ns(low)} to {format_ns(high)}" if high is not None
                 else "more than 0")
@@ -432,9 +551,9 @@ def _plc_time(key: str, value: Any, loc: Loc) -> int:
     return ns
 
 
-def _int_in(value: Any, loc: Loc, bounds: tuple[int, int, str], what: str) -> int:
-    """An integer from ``bounds[0]`` to ``bounds[1]`` (``bounds[2]``: a hint)."""
-    low, high, hint = bounds
+def _int_in(value: Any, loc: Loc, key: Key, hint: str, what: str) -> int:
+    """An integer within ``key``'s declared bounds (``hint``: why they are so)."""
+    low, high = key.low, key.high
     expected = f"{what} from {low} to {high} ({hint})"
     n = _int(value, loc, expected)
     if not low <= n <= high:
@@ -466,13 +585,13 @@ def _flag(m: YMap, key: str) -> bool:
 
 def _monitor(p: PlantDef, mon: Any, loc: Loc) -> None:
     mon = expect_type(mon, loc, YMap, "a mapping")
-    check_keys(mon, MONITOR_KEYS, "monitor")
+    MONITOR.check(mon)
     if "serial" in mon:
         s = expect_type(mon["serial"], mon.val_locs["serial"], YMap, "{port, baudrate}")
-        check_keys(s, ("port", "baudrate", "trusted"), "monitor serial")
+        SERIAL.check(s)
         port = path_value(_need(s, "port", "the serial port (e.g. /dev/ttyGS0)"),
                           s.val_locs.get("port", s.loc), "monitor serial port")
-        baud = s.get("baudrate", 115200)
+        baud = s.get("baudrate", SERIAL["baudrate"].default)
         if isinstance(baud, bool) or baud not in BAUDRATES:
             raise SourceError(s.val_locs.get("baudrate", s.loc), f"monitor serial baudrate: "
                               f"expected a standard baud rate such as 9600 or 115200 (50 to "
@@ -481,7 +600,7 @@ def _monitor(p: PlantDef, mon: Any, loc: Loc) -> None:
     if "socket" in mon:
         s = mon["socket"]
         if isinstance(s, YMap):
-            check_keys(s, ("path", "trusted"), "monitor socket")
+            SOCKET.check(s)
             path = path_value(_need(s, "path", "the socket's path"),
                               s.val_locs.get("path", s.loc), "monitor socket", socket=True)
             p.consoles.append(ConsoleEntry("socket", path, trusted=_flag(s, "trusted")))
@@ -491,16 +610,19 @@ def _monitor(p: PlantDef, mon: Any, loc: Loc) -> None:
     if "tcp" in mon:
         s = mon["tcp"]
         if isinstance(s, YMap):
-            check_keys(s, ("port", "trusted"), "monitor tcp")
+            TCP.check(s)
             number = _int_in(_need(s, "port", "a TCP port number"),
-                             s.val_locs.get("port", s.loc), TCP_PORTS, "a TCP port number")
+                             s.val_locs.get("port", s.loc), TCP["port"], TCP_PORT_HINT,
+                             "a TCP port number")
             p.consoles.append(ConsoleEntry("tcp", f"127.0.0.1:{number}",
                                            trusted=_flag(s, "trusted")))
         else:
-            number = _int_in(s, mon.val_locs["tcp"], TCP_PORTS, "a TCP port number")
+            number = _int_in(s, mon.val_locs["tcp"], TCP["port"], TCP_PORT_HINT,
+                             "a TCP port number")
             p.consoles.append(ConsoleEntry("tcp", f"127.0.0.1:{number}"))
     if "pin_hash" in mon:
-        p.pin_hash = str(mon["pin_hash"])
+        p.pin_hash = str(MONITOR.value(mon, "pin_hash", "the PIN's hash printed by 'softplc "
+                                                        "hash-pin'"))
     if "release_forces_on_disconnect" in mon:
         p.release_forces_on_disconnect = _flag(mon, "release_forces_on_disconnect")
     if "limits" in mon:
@@ -511,10 +633,9 @@ def _console_limits(value: Any, loc: Loc) -> ConsoleLimits:
     """``monitor: limits: {max_pause: 15m, max_force: 15m, warn_before: 30s,
     relock_after_idle: 5m}`` (each optional) -> ConsoleLimits."""
     lim = expect_type(value, loc, YMap, "a mapping of times")
-    keys = ("max_pause", "max_force", "warn_before", "relock_after_idle")
-    check_keys(lim, keys, "monitor limits")
+    CONSOLE_LIMITS.check(lim)
     given = {f"{k}_s": time_value(lim[k], lim.val_locs[k], f"monitor limits {k}") / 1e9
-             for k in keys if k in lim}
+             for k in CONSOLE_LIMITS.names if k in lim}
     out = ConsoleLimits(**given)
     for k in ("max_pause", "max_force", "relock_after_idle"):
         s = getattr(out, f"{k}_s")

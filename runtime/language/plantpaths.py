@@ -21,8 +21,8 @@ import stat
 from typing import Any
 
 from runtime.errors import Loc, SourceError
-from runtime.language.grafcetfile import expect_type
 from runtime.language.runtimedir import PLACEHOLDER, expand, runtime_dir
+from runtime.language.shape import Def, Text, expect_type
 
 #: the longest path the kernel takes (PATH_MAX, 4096 bytes with its NUL), bytes
 PATH_MAX_BYTES = 4095
@@ -30,6 +30,14 @@ PATH_MAX_BYTES = 4095
 NAME_MAX_BYTES = 255
 #: the longest Unix socket path: ``sun_path`` holds 108 bytes with its NUL, bytes
 SOCKET_PATH_MAX_BYTES = 107
+#: a path, as editors check it (``path_value`` is the loader's check)
+PATH = Def("path", Text(r"^[^\u0000]*$", min_length=1),
+           f"A path: absolute, or relative to this plant file; {PLACEHOLDER} is expanded. No "
+           f"NUL character, at most {PATH_MAX_BYTES} bytes.")
+#: a Unix socket's path (``path_value(..., socket=True)``)
+SOCKET_PATH = Def("socketPath", PATH,
+                  f"A Unix socket's path: at most {SOCKET_PATH_MAX_BYTES} bytes once "
+                  f"{PLACEHOLDER} is expanded (the kernel's sun_path).")
 
 
 def path_value(value: Any, loc: Loc, what: str, *, socket: bool = False) -> str:

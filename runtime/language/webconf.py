@@ -9,27 +9,67 @@ import re
 from typing import Any
 
 from runtime.errors import Loc, SourceError
-from runtime.language.feedconf import feed_key, sample_key
-from runtime.language.grafcetfile import check_keys, expect_type, time_value
+from runtime.language.feedconf import FEED_KEY, feed_key, sample_key
 from runtime.language.model import PlantDef, WebDef
-from runtime.language.plantpaths import plant_path
-from runtime.language.yamlsrc import YList, YMap
+from runtime.language.plantpaths import PATH, plant_path
+from runtime.language.shape import (
+    Choice,
+    Int,
+    Key,
+    ListOf,
+    MapOf,
+    Section,
+    Text,
+    Time,
+    expect_type,
+    time_value,
+)
+from runtime.language.yamlsrc import YMap
 
-WEB_KEYS = ("listen", "sample", "feed", "tls", "users", "read", "idle_logout", "max_pages",
-            "page_timeout", "hosts")
-TLS_KEYS = ("certificate", "private_key")
 #: the snapshot period when the plant does not say (never below the cycle), ns
 DEFAULT_SAMPLE_NS = 100_000_000
-#: pages (WebSocket connections) at most, whatever the plant says
-MAX_PAGES_LIMIT = 200
 _LISTEN = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
 #: what a user name may be (it goes into log lines and console commands)
 USER_RE = re.compile(r"^[A-Za-z0-9_.-]{1,32}$")
 #: a host name of ``hosts`` (a ``*.`` name stands for any one label before the rest)
 HOST_RE = re.compile(r"^(\*\.)?[A-Za-z0-9_-]{1,63}(\.[A-Za-z0-9_-]{1,63})*\.?$")
-#: the bounds of ``page_timeout``, ns (3 s: a ping every 2 s, 1 s for its answer)
-PAGE_TIMEOUT_MIN_NS = 3_000_000_000
-PAGE_TIMEOUT_MAX_NS = 600_000_000_000
+#: a host of ``hosts`` as editors check it: a name (``HOST_RE``) or an address (the
+#: loader's check of an address is ``ipaddress``'s)
+_HOST = Text(r"^((\*\.)?[A-Za-z0-9_-]{1,63}(\.[A-Za-z0-9_-]{1,63})*\.?|\[?[0-9A-Fa-f:.]+\]?)$")
+#: who may look at the page
+READ = ("anyone", "users")
+
+# -- the shape of ``web:`` (runtime/language/shape.py)
+TLS = Section((
+    Key("certificate", PATH, "The certificate (PEM, its chain after it).", required=True),
+    Key("private_key", PATH, "Its private key (PEM).", required=True),
+), "web tls", "HTTPS: the server's certificate and key (PEM).")
+WEB = Section((
+    Key("listen", Text(_LISTEN.pattern), "HOST:PORT (default 127.0.0.1:8080); any address but "
+                                         "a loopback one needs tls."),
+    Key("sample", Time(), "How often the page is updated (the feed's sample; default 100ms, "
+                          "never below the cycle)."),
+    FEED_KEY,
+    Key("tls", TLS),
+    Key("users", MapOf(Text(), names=USER_RE.pattern),
+        "user: password hash made by softplc hash-pin: who may act from the page (through "
+        "the plant's console socket)."),
+    Key("read", Choice(READ), "Who may look: anyone who reaches the address (default) or only "
+                              "users logged in."),
+    Key("idle_logout", Time(60_000_000_000, 86_400_000_000_000),
+        "A login ends after this long without an action (default 10m, 1m to 24h); what its "
+        "pages held is released as a console session's."),
+    Key("max_pages", Int(1, 200), "Pages open at once (default 20)."),
+    Key("page_timeout", Time(3_000_000_000, 600_000_000_000),
+        "A page that answers nothing, not even the server's ping, for this long is closed and "
+        "what it held released: a browser frozen or a laptop asleep while it holds a force "
+        "halts the controller after this long (default 30s, 3s to 10m)."),
+    Key("hosts", ListOf(_HOST), "Names the page is reached by besides its listen address, "
+                                "localhost, 127.0.0.1, ::1 and its certificate's names (a *. "
+                                "name matches one label): a request naming another host is "
+                                "refused (DNS rebinding)."),
+), "web", "The live view in the browser, `softplc web PLANT` (docs/web.md): where it listens, "
+          "HTTPS, who may act and who may look.", null=True)
 
 
 def is_loopback(host: str) -> bool:
@@ -61,7 +101,7 @@ def load_web(p: PlantDef, value: Any, loc: Loc) -> WebDef:
     """``web:`` -> WebDef; SourceError at the faulty key or value. An empty ``web:`` (``web:
     {}``) serves the page read-only on 127.0.0.1:8080."""
     m = expect_type(value, loc, YMap, "a mapping (listen, sample, tls, users, read, ...)")
-    check_keys(m, WEB_KEYS, "web")
+    WEB.check(m)
     w = WebDef(loc=loc, sample_ns=max(DEFAULT_SAMPLE_NS, p.cycle_ns), locs=dict(m.val_locs))
     if "listen" in m:
         vloc = m.val_locs["listen"]
@@ -74,8 +114,8 @@ def load_web(p: PlantDef, value: Any, loc: Loc) -> WebDef:
     if "tls" in m:
         vloc = m.val_locs["tls"]
         tls = expect_type(m["tls"], vloc, YMap, "a mapping (certificate, private_key)")
-        check_keys(tls, TLS_KEYS, "web tls")
-        for key in TLS_KEYS:
+        TLS.check(tls)
+        for key in TLS.names:
             if key not in tls:
                 raise SourceError(vloc, f"web tls: expected {key} (a PEM file), found none")
             setattr(w, key, plant_path(p.path, tls[key], tls.val_locs[key],
@@ -100,7 +140,7 @@ def load_web(p: PlantDef, value: Any, loc: Loc) -> WebDef:
                                     "add monitor: socket: {path: '${RUNTIME_DIR}/console.sock'}")
     if "read" in m:
         vloc = m.val_locs["read"]
-        if m["read"] not in ("anyone", "users"):
+        if m["read"] not in READ:
             raise SourceError(vloc, f"web read: expected anyone or users, found "
                                     f"'{m['read']}'")
         w.read = str(m["read"])
@@ -109,23 +149,23 @@ def load_web(p: PlantDef, value: Any, loc: Loc) -> WebDef:
     if "idle_logout" in m:
         vloc = m.val_locs["idle_logout"]
         w.idle_logout_ns = time_value(m["idle_logout"], vloc, "web idle_logout")
-        if not 60_000_000_000 <= w.idle_logout_ns <= 86_400_000_000_000:
+        if not WEB["idle_logout"].low <= w.idle_logout_ns <= WEB["idle_logout"].high:
             raise SourceError(vloc, "web idle_logout: expected 1m to 24h")
     if "max_pages" in m:
         vloc = m.val_locs["max_pages"]
-        n = expect_type(m["max_pages"], vloc, int, "a number of pages")
-        if not 1 <= n <= MAX_PAGES_LIMIT:
-            raise SourceError(vloc, f"web max_pages: expected 1 to {MAX_PAGES_LIMIT}, "
-                                    f"found {n}")
+        n = WEB.value(m, "max_pages", "a number of pages")
+        low, high = WEB["max_pages"].low, WEB["max_pages"].high
+        if not low <= n <= high:
+            raise SourceError(vloc, f"web max_pages: expected {low} to {high}, found {n}")
         w.max_pages = int(n)
     if "page_timeout" in m:
         vloc = m.val_locs["page_timeout"]
         w.page_timeout_ns = time_value(m["page_timeout"], vloc, "web page_timeout")
-        if not PAGE_TIMEOUT_MIN_NS <= w.page_timeout_ns <= PAGE_TIMEOUT_MAX_NS:
+        if not WEB["page_timeout"].low <= w.page_timeout_ns <= WEB["page_timeout"].high:
             raise SourceError(vloc, "web page_timeout: expected 3s to 10m")
     if "hosts" in m:
         vloc = m.val_locs["hosts"]
-        hosts = expect_type(m["hosts"], vloc, YList, "a list of host names")
+        hosts = WEB.value(m, "hosts", "a list of host names")
         for h, hloc in zip(hosts, hosts.locs, strict=True):
             if not isinstance(h, str) or not (HOST_RE.match(h) or _is_address(h)):
                 raise SourceError(hloc, f"web hosts: expected a host name or address "

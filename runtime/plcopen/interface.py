@@ -17,7 +17,7 @@ from typing import Protocol
 
 from drivers.durations import parse_literal, strip_time_prefix
 from runtime.errors import Loc, SourceError
-from runtime.language.grafcetfile import DESCRIPTION_MAX
+from runtime.language.shape import DESCRIPTION_MAX
 from runtime.language.signatures import FB_MEMBERS
 from runtime.plcopen.globalvars import Global
 from runtime.plcopen.schema import INT_TYPES, PLCOPEN_NS, REAL_TYPES, SOFTPLC_NS

@@ -54,7 +54,8 @@ transitions:
 
 def plant_yaml(port: str | None, sock: str | None, *, trusted: bool = True,
                pin_hash: str | None = None, release: bool = False, cycle: str = "10ms",
-               blink: str | None = None, priority: int | None = None) -> str:
+               blink: str | None = None, priority: int | None = None,
+               watchdog: str = "300ms") -> str:
     """Two drawer testers on one simulated remote I/O ``rio`` (I0-I7, Q0-Q7); the stop
     buttons are NC contacts, inverted at the binding. With ``blink`` (the path of the
     BLINK chart), a third instance ``b1`` toggles rio.Q8 every scan."""
@@ -75,7 +76,7 @@ def plant_yaml(port: str | None, sock: str | None, *, trusted: bool = True,
     realtime = ("" if priority is None else ", realtime: false" if priority == 0
                 else f", realtime: {{priority: {priority}}}")
     return f"""\
-plc: {{cycle: {cycle}, watchdog: 300ms{realtime}}}
+plc: {{cycle: {cycle}, watchdog: {watchdog}{realtime}}}
 drivers:
   rio: {{type: sim}}
 instances:
@@ -394,7 +395,7 @@ def make_rig(*, serial_port: bool = True, unix_socket: bool = True, trusted: boo
              clock: Callable[[], float] = time.monotonic, released_stop: bool = True,
              serial_path: str | None = None, blink: bool = False,
              manage_gc: bool = False, priority: int | None = None, tcp: bool = False,
-             probe: SchedProbe | None = None) -> Rig:
+             probe: SchedProbe | None = None, watchdog: str = "300ms") -> Rig:
     """Write the plant, start the daemon and its console; the stop button released
     (rio.I0 = rio.I4 = 1, NC contacts) so the testers can start.
 
@@ -403,7 +404,7 @@ def make_rig(*, serial_port: bool = True, unix_socket: bool = True, trusted: boo
     production (disabled, then run in the scan's idle time): bench/console.py uses it.
     ``tcp=True`` adds a TCP console on an ephemeral port (``Rig.tcp_address``), served
     by the same server as the socket, as a plant's ``monitor: tcp:`` is. ``probe``
-    records each wake-up of the scan thread (schedprobe.py)."""
+    records each wake-up of the scan thread (schedprobe.py); ``watchdog``: the plant's."""
     tmp = tempfile.mkdtemp(prefix="sc", dir="/tmp")  # short: Unix socket paths <= 107
     modem = NullModem() if serial_port and serial_path is None else None
     port = modem.daemon_port if modem else serial_path
@@ -415,7 +416,7 @@ def make_rig(*, serial_port: bool = True, unix_socket: bool = True, trusted: boo
         Path(blink_path).write_text(BLINK, encoding="utf-8")
     Path(path).write_text(plant_yaml(port, sock, trusted=trusted, pin_hash=pin_hash,
                                      release=release, cycle=cycle, blink=blink_path,
-                                     priority=priority),
+                                     priority=priority, watchdog=watchdog),
                           encoding="utf-8")
     pdef = load_plant(path)
     drv = FlakySim("rio", {"on_fault": "stop"})

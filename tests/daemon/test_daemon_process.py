@@ -323,9 +323,11 @@ def test_end_of_for_is_an_orderly_stop(tmp_path: Path,
     bridge, peer = line
     peer.set(1, 2, 0, [1])
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    # not about the timing of the watchdog or of the unit's replies: the tolerant ones (at a
+    # load of 10-18 on 2 cores the 100 ms watchdog or the 50 ms reply timeout faulted it)
     proc = subprocess.run([sys.executable, "-m", "runtime.cli", "run",
-                           str(plant(tmp_path, bridge.driver_port)), "--for", "1500ms"],
-                          env=env, text=True, capture_output=True, timeout=60)
+                           str(plant(tmp_path, bridge.driver_port, tolerant=True)), "--for",
+                           "1500ms"], env=env, text=True, capture_output=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert "stopping: end of --for" in proc.stderr
     assert coils(peer) == [0, 0]

@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 
 from drivers.config import ConfigKey, ConfigKeys, Kind
-from drivers.registry import DRIVER_KEYS, DRIVERS
+from drivers.registry import DRIVER_KEYS, DRIVER_WORDS, DRIVERS
 
 ROOT = Path(__file__).resolve().parents[2]
 SCHEMA = json.loads((ROOT / "configs" / "schema" / "plant.schema.json").read_text("utf-8"))
@@ -37,7 +37,7 @@ def resolve(node: dict[str, Any]) -> dict[str, Any]:
 
 
 def test_the_same_types_everywhere() -> None:
-    assert list(DRIVER_KEYS) == list(DRIVERS)
+    assert list(DRIVER_KEYS) == list(DRIVERS) == list(DRIVER_WORDS)
     assert SCHEMA["$defs"]["driver"]["properties"]["type"]["enum"] == list(DRIVER_KEYS)
 
 

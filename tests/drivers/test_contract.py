@@ -14,7 +14,7 @@ from drivers.base import Direction, Driver, Health, PointError, PointKind, Polle
 from drivers.config import ConfigError
 from drivers.registry import DRIVERS, driver_class
 from tests.drivers.drvkit import FakeClock, wait_until
-from tests.drivers.rigs import RIGS, Rig
+from tests.drivers.rigs import RIGS, SETTLE_S, Rig
 
 
 @pytest.fixture(params=sorted(RIGS))
@@ -206,7 +206,7 @@ def test_inhibited_driver_never_energises(rig: Rig, clock: FakeClock, driver: Dr
         d.outputs[q] = 1
     assert rig.until(d, lambda: all(rig.output(q) == 1 for q in rig.outputs))
     d.inhibit(True)
-    assert wait_until(lambda: all(rig.output(q) == 0 for q in rig.outputs))
+    assert wait_until(lambda: all(rig.output(q) == 0 for q in rig.outputs), SETTLE_S)
     for q in rig.outputs:  # what a stuck scan thread writes afterwards
         d.outputs[q] = 1
     rig.fault(d)

@@ -37,7 +37,9 @@ def run(plant: Path, *, user: int | None = None) -> subprocess.CompletedProcess[
         shared.mkdir(exist_ok=True)
         shared.chmod(0o1777)
         env = {**os.environ, "TMPDIR": str(shared)}
-    return subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=120, env=env)
+    # a bound only a controller that hangs reaches (its start took tens of seconds at a load
+    # of 10-18 on 2 cores)
+    return subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=600, env=env)
 
 
 def write_plant(tmp_path: Path, type_name: str, cfg: dict[str, str | None]) -> Path:

@@ -28,7 +28,7 @@ from runtime.engine.instance import coerce
 from runtime.engine.names import CommandError, Signal, parse_value
 from runtime.errors import Loc, SourceError
 from runtime.language import ast as A
-from runtime.language.grafcetfile import time_value
+from runtime.language.shape import time_value
 
 PARSE_TIME_OK = {'10s': 10000000000, '1m30s': 90000000000, '250ms': 250000000,
     '1d23h': 169200000000000, '1d23h30m20s700ms': 171020700000000, '1.5s': 1500000000,

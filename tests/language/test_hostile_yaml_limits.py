@@ -11,11 +11,11 @@ import pytest
 
 from runtime.errors import Loc, SourceError
 from runtime.language import safefile, yamlsrc
-from runtime.language.grafcetfile import time_value
 from runtime.language.lexer import MAX_TOKENS
 from runtime.language.parser import MAX_DEPTH as MAX_CHAIN
 from runtime.language.parser import Parser, parse_expression, parse_statements
 from runtime.language.plantfile import load_plant
+from runtime.language.shape import time_value
 from runtime.language.yamlsrc import (
     EXPANSION_ALLOWANCE,
     INT_MAX,

@@ -19,6 +19,7 @@ from typing import Any
 import pytest
 
 from runtime.controller import feed as feedmod
+from tests.console.schedprobe import beyond_the_machine, lone_thread
 from tests.opcua.feedkit import FeedReader, controller, read_trace, wait_until
 
 
@@ -107,10 +108,14 @@ def test_a_client_that_stops_reading_is_dropped_without_the_scan_noticing(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(feedmod, "OUT_MAX", 16384)
     # the scan thread real-time, as softplc.service runs it: the test is about what the
-    # feed's clients cost the scan, not about the machine's other load (a CI run beside
-    # other jobs once saw an overrun here)
-    with controller(tmp_path, trace=False, cycle="10ms", sample="10ms",
-                    plc=", realtime: {priority: 20}") as (d, feed, _):
+    # feed's clients cost the scan, not about the machine's other load. A CI run beside
+    # other jobs once saw an overrun here, and at a load of 12 on 2 cores (other FIFO
+    # threads among them) some did: the overruns are held to those of a control paced
+    # the same way, at the same priority, in a process of its own beside a busy thread
+    # (schedprobe.beyond_the_machine).
+    with lone_thread(10, 20, neighbour="busy") as lone, controller(
+            tmp_path, trace=False, cycle="10ms", sample="10ms",
+            plc=", realtime: {priority: 20}") as (d, feed, _):
         good = FeedReader(feed.path)
         stalled = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         stalled.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
@@ -130,11 +135,14 @@ def test_a_client_that_stops_reading_is_dropped_without_the_scan_noticing(
         n = len(good.frames)
         wait_until(lambda: len(good.frames) >= n + 20, what="frames after the drops")
         assert feed.clients == 1
-        assert d.scan_stats.overruns == 0
+        stats = d.scan_stats
+        missed = {"overruns": stats.overruns, "skipped": stats.skipped,
+                  "freezes": stats.freezes}
         late = d.scan_stats.lateness()
         good.close()
         stalled.close()
         flood.close()
+    assert not beyond_the_machine(missed, lone[0], 5000), (missed, lone[0])
     sys.stderr.write(f"lateness with a stalled and a flooding client: p99 {late.p99 / 1e3:.0f} "
                      f"us, max {late.max / 1e3:.0f} us\n")
 

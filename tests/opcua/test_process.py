@@ -1,7 +1,8 @@
 """``softplc run`` and ``softplc opcua`` as two real processes: an asyncua client reads
 through the server; the server is killed with SIGKILL under the running controller, which
-never misses a cycle (its overruns, skipped deadlines and freezes stay 0, its scans go on
-at the cycle's pace); a new server serves the same plant again."""
+never misses a cycle of its own doing (its overruns, skipped deadlines and freezes no more
+than the machine makes a control paced the same way miss meanwhile, its scans
+going on at the cycle's pace); a new server serves the same plant again."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from pathlib import Path
 
 from asyncua import Client
 
+from tests.console.schedprobe import beyond_the_machine, lone_thread
 from tests.opcua.feedkit import FeedReader, wait_until
 from tests.opcua.kit import free_port, write_plant
 
@@ -29,8 +31,10 @@ def softplc(*args: str, cwd: Path) -> subprocess.Popen[str]:
                             stderr=subprocess.PIPE)
 
 
-async def read_scans(url: str, timeout: float = 30.0) -> int:
-    """controller.scans through the OPC UA server, once it has good values."""
+async def read_scans(url: str, timeout: float = 300.0) -> int:
+    """controller.scans through the OPC UA server, once it has good values (the bound is
+    for a server that never comes: at niceness 10 on a loaded 2-core machine, it took 60 s
+    to start)."""
     end = time.monotonic() + timeout
     while True:
         try:
@@ -63,20 +67,26 @@ def test_killing_the_server_never_costs_the_controller_a_cycle(tmp_path: Path) -
         first = asyncio.run(read_scans(url))
         watch = FeedReader(feed_path)  # the controller's own figures, beside the server
         wait_until(lambda: len(watch.frames) > 0 and bool(watch.statuses), 30.0)
-        t0, scan0 = time.monotonic(), watch.frames[-1][0]
-        before = dict(watch.statuses[-1])
-        server.send_signal(signal.SIGKILL)
-        server.wait(timeout=30)
-        # the controller runs on: frames keep coming, at the cycle's pace
-        wait_until(lambda: watch.frames[-1][0] >= scan0 + 100, 30.0, "100 more scans")
-        t1, scan1 = time.monotonic(), watch.frames[-1][0]
-        status = watch.statuses[-1]
+        # what the machine does meanwhile to a control paced as the scan (at a load of 12
+        # on 2 cores the controller overran: the machine's doing, not the server's)
+        with lone_thread(20, 20, neighbour="busy") as lone:
+            scan0, wall0, _ = watch.frames[-1]
+            before = dict(watch.statuses[-1])
+            server.send_signal(signal.SIGKILL)
+            server.wait(timeout=30)
+            # the controller runs on: frames keep coming, at the cycle's pace
+            wait_until(lambda: watch.frames[-1][0] >= scan0 + 100, 60.0, "100 more scans")
+            scan1, wall1, _ = watch.frames[-1]
+            status = watch.statuses[-1]
         missed = {k: status[k] - before[k] for k in ("overruns", "skipped", "freezes")}
-        assert missed == {"overruns": 0, "skipped": 0, "freezes": 0}, (before, status)
+        assert not beyond_the_machine(missed, lone[0], 5000), (before, status, lone[0])
         assert status["state"] == "running"
-        # every deadline kept: the scans counted match the time that passed (a frame is
-        # up to one sample old when read: 2 samples of slack, plus the clock reads)
-        assert abs((scan1 - scan0) - (t1 - t0) / 0.020) <= 2 * 2.5 + 5, (scan0, scan1, t1 - t0)
+        # every deadline kept: the scans counted match the time that passed between the
+        # two frames, as the controller stamped them (a stamp is taken at a scan's end: a
+        # cycle of slack each, and the deadlines the machine made it skip)
+        slack = 2 + missed["skipped"]
+        assert abs((scan1 - scan0) - (wall1 - wall0) / 0.020) <= slack, (
+            scan0, scan1, wall1 - wall0, missed)
         # a new server serves the same controller
         server2 = softplc("opcua", str(plant), cwd=tmp_path)
         assert asyncio.run(read_scans(url)) > first
