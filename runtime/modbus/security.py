@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import ssl
 
+from runtime.errors import SoftplcError
 from runtime.language.model import ModbusTls
 
 #: the role extension's OID (MB-TCP-Security, "RoleOID")
@@ -54,8 +55,8 @@ def encode_oid(oid: str) -> bytes:
 _ROLE_OID_DER = encode_oid(ROLE_OID)
 
 
-class DerError(ValueError):
-    """Bytes that are not the DER this reader expects."""
+class DerError(SoftplcError, ValueError):
+    """Bytes that are not the DER this reader expects (a ValueError too, as before)."""
 
 
 def _tlv(data: bytes, pos: int, end: int) -> tuple[int, int, int]:
