@@ -194,7 +194,7 @@ def bench_modbus(cycles: int) -> dict[str, tuple[float, float, float]]:
                     if spaced:
                         time.sleep(GAP_S)  # the line is idle: no t3.5 left to wait
                     t0 = time.perf_counter_ns()
-                    master.transact(request, 0.1, 0)
+                    master.transact(1, request[1:-2], 0.1, 0)
                     samples.append(time.perf_counter_ns() - t0)
             finally:
                 if spaced:

@@ -329,7 +329,8 @@ class PolledDriver(Driver):
     ``mark_outputs_dirty()`` (send them again, e.g. after the device came back).
 
     On the scan side ``read()`` copies the latest image and reports ``Health.STALE`` when it
-    is older than ``stale_after_s``; ``write()`` copies the outputs and calls ``_wake()``.
+    is older than ``stale_after_s``; ``write()`` copies the outputs and calls ``_wake()``
+(and so does ``read()`` while the driver is inhibited: its inputs are still read).
     While faulted, the I/O side is asked to try again (``_retry()``) at back-off times of
     the injected clock, and recovery is seen as soon as the I/O side reports success.
 
@@ -480,6 +481,8 @@ class PolledDriver(Driver):
     def _read(self) -> None:
         self._check_io()
         self._check()
+        if self.inhibited:  # write() sends nothing: the I/O side still reads the inputs
+            self._wake()
         with self._lock:
             if self._in_seen != self._in_seq:
                 self._in_seen = self._in_seq

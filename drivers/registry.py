@@ -40,6 +40,7 @@ DRIVER_WORDS: dict[str, str] = {
     "pcf8574": "I2C expander",
     "canopen": "CiA 401 node",
     "modbus_rtu": "Modbus RTU master",
+    "modbus_tcp": "Modbus TCP master: a device or a gateway",
 }
 
 #: type -> (module, class name, pip package that provides its bus library)
@@ -50,6 +51,7 @@ DRIVERS: dict[str, tuple[str, str, str | None]] = {
     "pcf8574": ("drivers.pcf8574", "Pcf8574Driver", "smbus2"),
     "canopen": ("drivers.canopen_io", "CanopenDriver", "canopen"),
     "modbus_rtu": ("drivers.modbus_rtu", "ModbusRtuDriver", "pyserial"),
+    "modbus_tcp": ("drivers.modbus_tcp", "ModbusTcpDriver", None),
 }
 
 
@@ -228,6 +230,30 @@ MODBUS_RTU_KEYS = ConfigKeys(
               doc="Stop bits."),
 )
 
+#: a host name or an IP address (IPv6 without brackets)
+_HOST = re.compile(r"[A-Za-z0-9_.-]{1,253}|[0-9A-Fa-f:.]{2,45}")
+
+MODBUS_TCP_KEYS = ConfigKeys(
+    ConfigKey("host", Kind.TEXT, required=True, pattern=_HOST.pattern,
+              expected="the device's or gateway's address or host name, such as "
+                       "192.168.10.20",
+              doc="The device's or gateway's address or host name (192.168.10.20); drivers "
+                  "naming the same host and port are units behind one gateway and share its "
+                  "connection."),
+    ConfigKey("port", Kind.INT, default=502, minimum=1, maximum=65535,
+              expected="a TCP port 1-65535 (Modbus/TCP: 502)", doc="TCP port (502)."),
+    ConfigKey("unit", Kind.INT, default=1, minimum=0, maximum=255,
+              expected="a unit identifier 0-255 (the slave address behind a gateway; "
+                       "often 1 or 255 for a device of its own)",
+              doc="Unit identifier: the slave address behind a gateway (often 1 or 255 for a "
+                  "device of its own)."),
+    ConfigKey("timeout", Kind.DURATION, default=0.2, positive=True,
+              expected="a positive time such as 200ms",
+              doc="Response timeout per request (200ms)."),
+    ConfigKey("retries", Kind.INT, default=1, minimum=0, maximum=10, expected="0-10",
+              doc="Further attempts after a timeout or a damaged reply."),
+)
+
 #: driver type -> its config keys; the same types, in the same order, as DRIVERS
 DRIVER_KEYS: dict[str, ConfigKeys] = {
     "sim": SIM_KEYS,
@@ -236,6 +262,7 @@ DRIVER_KEYS: dict[str, ConfigKeys] = {
     "pcf8574": PCF8574_KEYS,
     "canopen": CANOPEN_KEYS,
     "modbus_rtu": MODBUS_RTU_KEYS,
+    "modbus_tcp": MODBUS_TCP_KEYS,
 }
 
 
@@ -284,6 +311,20 @@ class PointSpace:
         raise PointError(f"{driver}.{point}: " + self.words.format(driver=driver))
 
 
+def _modbus(type_name: str) -> PointSpace:
+    """The four tables of a Modbus unit (modbus_rtu, modbus_tcp)."""
+    return PointSpace(
+        f"a {type_name} point is I<n> (discrete input), Q<n> (coil), IR<n> (input register) "
+        "or HR<n> (holding register), n from 0 to 65535",
+        (PointTable("I", 0, 0xFFFF, only=Direction.IN,
+                    wrong_way="is a discrete input: read-only, it cannot be bound as an output"),
+         PointTable("Q", 0, 0xFFFF),
+         PointTable("IR", 0, 0xFFFF, PointKind.INT, only=Direction.IN,
+                    wrong_way="is an input register: read-only, it cannot be bound as an "
+                              "output"),
+         PointTable("HR", 0, 0xFFFF, PointKind.INT)))
+
+
 def _io(high: int, what_in: str, what_out: str) -> tuple[PointTable, PointTable]:
     """An input table ``I`` and an output table ``Q`` of one-way points."""
     return (PointTable("I", 0, high, only=Direction.IN,
@@ -302,16 +343,8 @@ POINTS: dict[str, PointSpace] = {
     "pcf8574": PointSpace("a pcf8574 point is P0-P7", (PointTable("P", 0, 7),)),
     "canopen": PointSpace("a canopen point is I0-I63 (0x6000) or Q0-Q63 (0x6200)",
                           _io(63, "an input (0x6000)", "an output (0x6200)")),
-    "modbus_rtu": PointSpace(
-        "a modbus_rtu point is I<n> (discrete input), Q<n> (coil), IR<n> (input register) "
-        "or HR<n> (holding register), n from 0 to 65535",
-        (PointTable("I", 0, 0xFFFF, only=Direction.IN,
-                    wrong_way="is a discrete input: read-only, it cannot be bound as an output"),
-         PointTable("Q", 0, 0xFFFF),
-         PointTable("IR", 0, 0xFFFF, PointKind.INT, only=Direction.IN,
-                    wrong_way="is an input register: read-only, it cannot be bound as an "
-                              "output"),
-         PointTable("HR", 0, 0xFFFF, PointKind.INT))),
+    "modbus_rtu": _modbus("modbus_rtu"),
+    "modbus_tcp": _modbus("modbus_tcp"),
 }
 
 

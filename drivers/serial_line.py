@@ -1,11 +1,11 @@
 """Modbus RTU line layer: one serial port, its timing, and its sharing between units.
 
 ``RtuMaster`` does request/reply transactions on one port (t3.5 silences, deadlines from
-the baud rate, retries, resynchronisation). ``SerialLine`` is one port shared by the
-drivers of its units (one ``ModbusRtuDriver`` per unit), with one poll thread that serves
-them in turn. ``SerialPorts`` owns the open lines of a process by port path: the first
-driver of a port opens its line, the last one to leave closes it; ``shared_ports()`` is
-the one used by default, empty whenever no Modbus driver is open.
+the baud rate, retries, resynchronisation). A port is one ``drivers.modbus_master.PollLink``
+shared by the drivers of its units (one ``ModbusRtuDriver`` per unit), with one poll thread
+that serves them in turn. ``SerialPorts`` owns the open lines of a process by port path:
+the first driver of a port opens its line, the last one to leave closes it;
+``shared_ports()`` is the one used by default, empty whenever no Modbus driver is open.
 
 pyserial only opens and configures the port (raw, exclusive); the I/O is ``os.write`` and
 ``select``/``os.read`` on its descriptor.
@@ -18,10 +18,8 @@ import logging
 import os
 import select
 import termios
-import threading
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar
 
 import serial
 
@@ -30,17 +28,16 @@ from drivers.modbus_frame import (
     READ_INPUT_REGISTERS,
     ModbusCrcError,
     ModbusError,
-    ModbusExceptionReply,
     ModbusFrameError,
     ModbusTimeout,
+    check_reply,
     crc16,
     describe,
-    response_length,
+    reply_length,
+    rtu_frame,
 )
+from drivers.modbus_master import Links, LinkStats, ModbusUnit, PollLink
 from drivers.registry import MODBUS_RTU_KEYS
-
-if TYPE_CHECKING:  # the driver imports this module
-    from drivers.modbus_rtu import ModbusRtuDriver
 
 log = logging.getLogger(__name__)
 
@@ -66,24 +63,12 @@ class SerialSettings:
         return 0.00175 if self.baudrate > 19200 else 3.5 * self.char_s
 
 
-@dataclass
-class LineStats:
-    """Counters of one serial line."""
-
-    requests: int = 0
-    retries: int = 0
-    timeouts: int = 0
-    crc_errors: int = 0
-    frame_errors: int = 0
-    exceptions: int = 0
-
-
 class RtuMaster:
     """Request/reply transactions on one serial port; used by one thread at a time."""
 
     def __init__(self, settings: SerialSettings) -> None:
         self.settings = settings
-        self.stats = LineStats()
+        self.stats = LinkStats()
         self._serial: serial.Serial | None = None
         self._fd = -1
         self._last_traffic = 0.0  # time.monotonic() of the last byte seen or sent
@@ -110,15 +95,16 @@ class RtuMaster:
             except OSError:  # pragma: no cover - the device is already gone
                 pass
 
-    def transact(self, request: bytes, timeout: float, retries: int) -> bytes:
-        """Send ``request``, return the checked normal reply. Retries timeouts and damaged
-        replies; an exception reply raises ModbusExceptionReply at once."""
+    def transact(self, unit: int, pdu: bytes, timeout: float, retries: int) -> bytes:
+        """Send ``pdu`` to ``unit``, return the checked normal reply PDU. Retries timeouts
+        and damaged replies; an exception reply raises ModbusExceptionReply at once."""
+        request = rtu_frame(unit, pdu)
         last: ModbusError | None = None
         for attempt in range(retries + 1):
             if attempt:
                 self.stats.retries += 1
             try:
-                return self._once(request, timeout)
+                reply = self._once(request, timeout)
             except ModbusTimeout as exc:
                 self.stats.timeouts += 1
                 last = exc
@@ -128,12 +114,20 @@ class RtuMaster:
             except ModbusFrameError as exc:
                 self.stats.frame_errors += 1
                 last = exc
+            else:
+                if reply[1] & 0x80:
+                    self.stats.exceptions += 1
+                check_reply(unit, pdu, reply[1:-2])  # an exception reply raises here
+                return reply[1:-2]
             self._resync(timeout)
         assert last is not None
         raise type(last)(f"{last} (after {retries + 1} attempts)")
 
     def _once(self, request: bytes, timeout: float) -> bytes:
+        """One exchange: the reply frame, its unit, function, length and CRC checked (an
+        exception reply is returned as it came)."""
         unit, function = request[0], request[1]
+        pdu = request[1:-2]
         gap = self.settings.t35_s - (time.monotonic() - self._last_traffic)
         if gap > 0:
             time.sleep(gap)
@@ -141,18 +135,17 @@ class RtuMaster:
         self.stats.requests += 1
         # ``timeout`` is the unit's time to answer: the wire time of our request and of its
         # full reply come on top (a 125-register reply is 255 bytes: 290 ms at 9600 baud)
-        expected = response_length(request)
+        expected = reply_length(pdu) + 3
         deadline = (time.monotonic() + (len(request) + expected) * self.settings.char_s
                     + timeout)
-        what = f"unit {unit}: FC {function} {describe(request)}"
+        what = f"unit {unit}: FC {function} {describe(pdu)}"
         reply = self._read_exact(5, deadline, what)
         if reply[0] != unit or reply[1] & 0x7F != function:
             raise ModbusFrameError(f"{what}: reply from unit {reply[0]} FC {reply[1] & 0x7F}")
         if reply[1] & 0x80:
             if crc16(reply[:3]) != reply[3] | reply[4] << 8:
                 raise ModbusCrcError(f"{what}: CRC error in exception reply")
-            self.stats.exceptions += 1
-            raise ModbusExceptionReply(unit, function, reply[2], describe(request))
+            return reply
         if function <= READ_INPUT_REGISTERS and reply[2] != expected - 5:
             raise ModbusFrameError(f"{what}: byte count {reply[2]}, expected {expected - 5}")
         reply += self._read_exact(expected - 5, deadline, what)
@@ -210,185 +203,33 @@ class RtuMaster:
         termios.tcflush(fd, termios.TCIFLUSH)
 
 
-class SerialLine:
-    """One serial port shared by the drivers of its units, served by one poll thread."""
-
-    #: seconds close() waits for a unit's last outputs (the safe state) to be written
-    FLUSH_TIMEOUT_S: ClassVar[float] = 1.0
-    #: seconds between rewrites of unchanged outputs (a unit may have restarted)
-    OUTPUT_REFRESH_S: ClassVar[float] = 1.0
-    #: seconds to wait for the poll thread to end on close
-    JOIN_TIMEOUT_S: ClassVar[float] = 5.0
-
-    def __init__(self, settings: SerialSettings) -> None:
-        self.settings = settings
-        self.master = RtuMaster(settings)
-        self.units: list[ModbusRtuDriver] = []
-        self._units_lock = threading.Lock()
-        self._wake = threading.Event()
-        self._stopping = False
-        self._thread: threading.Thread | None = None
-
-    def _add(self, driver: ModbusRtuDriver) -> None:
-        """Put ``driver`` on the line and start the poll thread if it is not running."""
-        with self._units_lock:
-            self.units.append(driver)
-        if self._thread is None:
-            self._thread = threading.Thread(target=self._run, daemon=True,
-                                            name=f"modbus-rtu {self.settings.port}")
-            self._thread.start()
-
-    def _remove(self, driver: ModbusRtuDriver) -> bool:
-        """Take ``driver`` off the line; True if no unit is left."""
-        with self._units_lock:
-            if driver in self.units:
-                self.units.remove(driver)
-            return not self.units
-
-    def _stop_polling(self) -> threading.Thread | None:
-        """Ask the poll thread to end; returns it, for ``_close`` to join."""
-        self._stopping = True
-        self._wake.set()
-        thread, self._thread = self._thread, None
-        return thread
-
-    def _close(self, thread: threading.Thread | None) -> None:
-        """Wait for the poll thread (unless it is the caller), then close the port."""
-        if thread is not None and thread is not threading.current_thread():
-            thread.join(self.JOIN_TIMEOUT_S)
-        self.master.close()
-
-    def wake(self) -> None:
-        self._wake.set()
-
-    def flush(self, driver: ModbusRtuDriver, timeout: float, probe: bool = False) -> bool:
-        """Wait until the outputs ``driver`` holds now went out; False on timeout or fault.
-        ``probe``: a faulted unit is tried once more at once (the stop: the line may be
-        back, and the outputs must go off)."""
-        target = driver._out_seq
-        deadline = time.monotonic() + timeout
-        while driver._written_seq < target:
-            remaining = deadline - time.monotonic()
-            thread = self._thread
-            if remaining <= 0 or thread is None or not thread.is_alive():
-                return False
-            if driver.io_faulted and not driver._retry_flag.is_set():
-                if not probe:
-                    return False  # faulted, and its one more try (if any) failed
-                probe = False
-                driver._retry_flag.set()  # taken by the next round, which writes
-            driver._exchanged.clear()
-            self.wake()
-            driver._exchanged.wait(remaining)
-        return True
-
-    def _run(self) -> None:
-        try:
-            while True:
-                self._wake.wait()
-                self._wake.clear()
-                if self._stopping:
-                    return
-                self._round()
-        except BaseException as exc:  # a bug: every unit's scan re-raises it
-            log.exception("modbus-rtu %s: poll thread failed", self.settings.port)
-            with self._units_lock:
-                units = list(self.units)
-            for d in units:
-                d.report_error(exc)
-                d._exchanged.set()
-
-    def _round(self) -> None:
-        with self._units_lock:
-            units = list(self.units)
-        for d in units:
-            if self._stopping:
-                return
-            probing = d.io_faulted
-            if probing and not d._take_retry():
-                d._exchanged.set()
-                continue
-            if not self.master.is_open:
-                try:
-                    self.master.open()
-                    log.info("modbus-rtu %s: port open again", self.settings.port)
-                except (OSError, serial.SerialException) as exc:
-                    self._line_fault(units, f"{self.settings.port}: cannot open: {exc}")
-                    return
-            try:
-                d._exchange(self.master, probing)
-            except ModbusError as exc:
-                d.mark_outputs_dirty()
-                d.report_fault(str(exc))
-            except (OSError, serial.SerialException) as exc:
-                self.master.close()
-                self._line_fault(units, f"{self.settings.port}: {exc}")
-                return
-            finally:
-                d._exchanged.set()
-
-    def _line_fault(self, units: list[ModbusRtuDriver], reason: str) -> None:
-        for d in units:
-            d.mark_outputs_dirty()
-            d.report_fault(reason)
-            d._exchanged.set()
-
-
-class SerialPorts:
-    """The open serial lines, by port path: one ``SerialLine`` per port, shared by the
+class SerialPorts(Links):
+    """The open serial lines, by port path: one ``PollLink`` per port, shared by the
     drivers of its units.
 
     A line lives from the first ``attach`` of its port to the last ``detach``: then its
     poll thread ends and the port is closed, so an instance is empty whenever none of its
     drivers is open. Drivers use ``shared_ports()`` unless given their own (a test may
-    pass a fresh one).
-    """
+    pass a fresh one). ``attach`` opens the port at once: DriverError if it cannot be
+    opened, is already open under another name (``/dev/serial/by-id/...``), or is open
+    with other settings."""
 
-    def __init__(self) -> None:
-        self._lines: dict[str, SerialLine] = {}
-        self._lock = threading.Lock()
+    def _new_link(self, driver: ModbusUnit) -> PollLink:
+        settings: SerialSettings = driver.settings  # type: ignore[attr-defined]
+        return PollLink(settings.port, settings, RtuMaster(settings),
+                        f"modbus-rtu {settings.port}")
 
-    def attach(self, driver: ModbusRtuDriver) -> SerialLine:
-        """The line of ``driver``'s port, opened and polling, with ``driver`` on it.
-
-        DriverError if the port cannot be opened, is already open under another name
-        (``/dev/serial/by-id/...``), or is open with other settings."""
-        settings = driver.settings
-        with self._lock:
-            line = self._lines.get(settings.port)
-            if line is None:  # another name of the same device (/dev/serial/by-id/...)?
-                real = os.path.realpath(settings.port)
-                for other in self._lines.values():
-                    if os.path.realpath(other.settings.port) == real:
-                        raise DriverError(f"{settings.port} is {real}, already opened as "
-                                          f"{other.settings.port}: name a shared port the "
-                                          "same way in every driver")
-                line = SerialLine(settings)
-                try:
-                    line.master.open()
-                except (OSError, serial.SerialException) as exc:
-                    raise DriverError(f"{settings.port}: cannot open: {exc}") from exc
-                self._lines[settings.port] = line
-            elif line.settings != settings:
-                raise DriverError(f"{settings.port} is used by another driver with "
-                                  f"{line.settings}; {driver.name} asks for {settings}")
-            line._add(driver)
-        line.wake()
-        return line
-
-    def detach(self, line: SerialLine, driver: ModbusRtuDriver) -> None:
-        """Take ``driver`` off ``line``; the last one out stops its thread, closes the port."""
-        with self._lock:
-            if not line._remove(driver):
-                return
-            self._lines.pop(line.settings.port, None)
-            thread = line._stop_polling()
-        line._close(thread)
+    def _check_new(self, driver: ModbusUnit, others: list[PollLink]) -> None:
+        port = driver.link_key
+        real = os.path.realpath(port)
+        for other in others:  # another name of the same device (/dev/serial/by-id/...)?
+            if os.path.realpath(other.key) == real:
+                raise DriverError(f"{port} is {real}, already opened as {other.key}: name "
+                                  "a shared port the same way in every driver")
 
     def ports(self) -> list[str]:
         """The paths of the open ports."""
-        with self._lock:
-            return list(self._lines)
+        return self.keys()
 
 
 _SHARED_PORTS = SerialPorts()

@@ -366,6 +366,59 @@ def cmd_web(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_modbus(args: argparse.Namespace) -> int:
+    """The plant's Modbus/TCP server, fed by its running controller; with ``--map``, its
+    address map (docs/modbus.md)."""
+    from runtime.language.runtimedir import locate
+
+    if args.map:
+        return _modbus_map(args.plant, args.csv)
+    pdef = _side_plant(args.plant, "modbus", "serve this plant over Modbus/TCP")
+    feed = args.feed or locate(pdef).feed  # where the controller serves it (one home)
+    assert feed is not None
+    problem = _feed_cannot_serve(pdef, "modbus", feed, bool(args.feed))
+    if problem is not None:
+        sys.stderr.write(f"{problem}\n")
+        return 2
+    from runtime.modbus.server import serve
+
+    conf = pdef.modbus
+    listen = None
+    if args.listen:
+        from runtime.language.modbusconf import listen_value
+
+        listen = listen_value(args.listen, Loc("--listen", 1, 1), "--listen")
+    host, port = listen or (conf.host, conf.port)
+    try:
+        _until_signal(lambda stop: serve(pdef, feed, listen, stop=stop))
+    except OSError as exc:  # the port is taken or privileged, a certificate unreadable
+        where = getattr(exc, "filename", None)
+        hint = (": ports below 1024 need root or CAP_NET_BIND_SERVICE (the unit has it); "
+                "give modbus: listen a port above 1023 to run it by hand"
+                if exc.errno == errno.EACCES and where is None else "")
+        sys.stderr.write(f"softplc modbus: error: {where + ': ' if where else ''}"
+                         f"{host}:{port}: {getattr(exc, 'strerror', None) or exc}{hint}\n")
+        return 2
+    return 0
+
+
+def _modbus_map(path: str, as_csv: bool) -> int:
+    """``softplc modbus --map``: the plant's map (its modbus: section's, or the default
+    one of a plant without it)."""
+    from runtime.language.modbusconf import build_map
+    from runtime.language.model import ModbusDef
+    from runtime.language.plantfile import load_plant
+    from runtime.modbus.mapview import csv_text, table
+
+    pdef = load_plant(path)
+    conf = pdef.modbus or ModbusDef(points=build_map(pdef, [], []))
+    if as_csv:
+        sys.stdout.write(csv_text(pdef, conf))
+    else:
+        sys.stdout.write("".join(f"{line}\n" for line in table(pdef, conf)))
+    return 0
+
+
 def _feed_cannot_serve(pdef: Any, side: str, feed: str, feed_given: bool) -> str | None:
     """Why the side process ``side`` (opcua, mqtt, web) cannot follow its controller's
     feed at ``feed``, as its one line (at the plant's ``feed:``, or naming the option): the
@@ -685,6 +738,16 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     wb.add_argument("--coverage", metavar="COVERAGE.json",
                     help="shade the charts by the coverage softplc test --coverage-file wrote")
     wb.set_defaults(func=cmd_web)
+
+    mb = sub.add_parser("modbus", help="serve a running plant over Modbus/TCP (its own "
+                                       "process), or print its address map")
+    mb.add_argument("plant")
+    mb.add_argument("--map", action="store_true",
+                    help="print the address map a panel's tag editor takes, and exit")
+    mb.add_argument("--csv", action="store_true", help="with --map: as CSV")
+    mb.add_argument("--listen", help="override modbus: listen (HOST:PORT)")
+    mb.add_argument("--feed", help="override modbus: feed (the controller's feed socket)")
+    mb.set_defaults(func=cmd_modbus)
 
     command = None if argv is None else next((a for a in argv if not a.startswith("-")), "")
     known = command in sub.choices or command in MODULE_COMMANDS

@@ -35,6 +35,8 @@ if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
   # the browser of the web view's tests (tests/web: Debian's chromium driven by playwright,
   # which never downloads a browser of its own)
   [ -x /usr/bin/chromium ] || missing="$missing chromium"
+  # a Modbus/TCP client that is not ours, against softplc modbus (tests/modbus)
+  command -v mbpoll >/dev/null || missing="$missing mbpoll"
   if [ -n "$missing" ]; then
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $missing >/dev/null || \
       echo "test.sh: could not install:$missing (the tests that need them will skip)" >&2

@@ -1,4 +1,4 @@
-"""Every side process (``softplc opcua``, ``mqtt``, ``web``) finds its controller's feed
+"""Every side process (``softplc opcua``, ``mqtt``, ``web``, ``modbus``) finds its controller's feed
 the same way and says so:
 
 - a feed path that is something other than a socket (a regular file: the controller
@@ -33,6 +33,7 @@ SECTIONS = {
     "web": "web:\n  feed: {feed}\n  listen: 127.0.0.1:0\n",
     "opcua": "opcua:\n  feed: {feed}\n  endpoint: opc.tcp://127.0.0.1:{port}\n"
              "  security: {{policies: [None]}}\n",
+    "modbus": "modbus:\n  feed: {feed}\n  listen: 127.0.0.1:{port}\n",
 }
 
 
@@ -91,7 +92,7 @@ def side(cmd: str, plant: Path, tmp: Path) -> subprocess.Popen[str]:
                             stderr=subprocess.STDOUT, text=True)
 
 
-@pytest.mark.parametrize("cmd", ["mqtt", "web", "opcua"])
+@pytest.mark.parametrize("cmd", ["mqtt", "web", "opcua", "modbus"])
 def test_a_feed_path_that_is_no_socket_is_one_line_at_once(tmp_path: Path, cmd: str) -> None:
     plant = write(tmp_path, cmd)
     (tmp_path / "feed.sock").write_text("not a socket\n", encoding="utf-8")
@@ -110,7 +111,7 @@ def test_a_feed_path_that_is_no_socket_is_one_line_at_once(tmp_path: Path, cmd: 
     assert (tmp_path / "feed.sock").read_text(encoding="utf-8") == "not a socket\n"
 
 
-@pytest.mark.parametrize("cmd", ["mqtt", "web", "opcua"])
+@pytest.mark.parametrize("cmd", ["mqtt", "web", "opcua", "modbus"])
 def test_no_controller_yet_is_said_once_and_waited_for(tmp_path: Path, cmd: str) -> None:
     """The lines are read by a thread of their own, as they come (a select() on the
     buffered pipe missed a line that came in the same read as the one before it), and
@@ -136,7 +137,7 @@ def test_no_controller_yet_is_said_once_and_waited_for(tmp_path: Path, cmd: str)
     assert not any("Traceback" in s for s in seen.lines), seen.lines
 
 
-@pytest.mark.parametrize("cmd", ["mqtt", "web", "opcua"])
+@pytest.mark.parametrize("cmd", ["mqtt", "web", "opcua", "modbus"])
 def test_the_feed_of_another_plant_is_refused_in_one_line(tmp_path: Path, cmd: str) -> None:
     """Issue: ``softplc web`` of a second plant attached to the first plant's feed and
     showed "live / running" over its own chart, every value "?". The feed says whose it is

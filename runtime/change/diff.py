@@ -179,13 +179,26 @@ def diff_plants(old: PlantDef, new: PlantDef) -> ChangeSet:
 #: section -> its process and unit, as the diff names them
 SIDES = {"opcua": ("OPC UA server", "softplc opcua; systemctl restart softplc-opcua@NAME"),
          "mqtt": ("MQTT edge node", "softplc mqtt; systemctl restart softplc-mqtt@NAME"),
-         "web": ("web view", "softplc web; systemctl restart softplc-web@NAME")}
+         "web": ("web view", "softplc web; systemctl restart softplc-web@NAME"),
+         "modbus": ("Modbus/TCP server",
+                    "softplc modbus; systemctl restart softplc-modbus@NAME")}
 #: what of ``web:`` is the web view's own (read at its start)
 WEB_OWN = ("host", "port", "certificate", "private_key", "users", "read", "idle_logout_ns",
            "max_pages", "page_timeout_ns", "hosts")
+#: what of ``modbus:`` is the Modbus/TCP server's own (read at its start)
+MODBUS_OWN = ("host", "port", "clients", "unit", "points", "words", "tls", "limits")
 #: what of ``mqtt:`` is the edge node's own (read at its start)
 MQTT_OWN = ("brokers", "group_id", "edge_node_id", "client_id", "username", "password_file",
             "tls", "primary_host", "publish", "statistics_ns", "keepalive_ns", "buffer")
+
+
+def _unplaced(value: Any) -> Any:
+    """A setting without the places in the file it carries (``loc``), to compare."""
+    if isinstance(value, list):
+        return [_unplaced(v) for v in value]
+    if hasattr(value, "loc"):
+        return replace(value, loc=None)
+    return value
 
 
 def _sides(cs: ChangeSet) -> None:
@@ -202,7 +215,7 @@ def _sides(cs: ChangeSet) -> None:
     add = cs._lines.append
     sections: tuple[tuple[str, Any, Any], ...] = (
         ("opcua", cs.old.opcua, cs.new.opcua), ("mqtt", cs.old.mqtt, cs.new.mqtt),
-        ("web", cs.old.web, cs.new.web))
+        ("web", cs.old.web, cs.new.web), ("modbus", cs.old.modbus, cs.new.modbus))
     for key, old, new in sections:
         process, restart = SIDES[key]
         if old is None and new is None:
@@ -234,7 +247,7 @@ def _sides(cs: ChangeSet) -> None:
                 add(f"plant: {key} {what} changed")
                 cs.refusals.append(Refusal(f"{key}: {what} changed: it takes effect only at "
                                            "a restart of the controller", False))
-            elif key in ("mqtt", "web"):  # each sends at most once per its own sample
+            elif key in ("mqtt", "web", "modbus"):  # each sends at most once per its sample
                 add(f"plant: {key} {what} changed: applied when the {process} restarts "
                     f"({restart})")
             else:
@@ -250,6 +263,9 @@ def _sides(cs: ChangeSet) -> None:
         elif key == "web":
             own = [(f.removesuffix("_ns"), getattr(old, f), getattr(new, f))
                    for f in WEB_OWN]
+        elif key == "modbus":  # (the places in the file are no setting)
+            own = [(f if f != "points" else "map", _unplaced(getattr(old, f)),
+                    _unplaced(getattr(new, f))) for f in MODBUS_OWN]
         else:  # (the TLS files' place in the file is no setting)
             own = [(f.removesuffix("_ns"), getattr(old, f), getattr(new, f))
                    for f in MQTT_OWN if f != "tls"]

@@ -1,8 +1,9 @@
 """``softplc install-service``: the plant NAME under /etc/softplc/NAME, a ``softplc`` system
 user, the template units softplc@.service (and softplc-opcua@.service for a plant with
 ``opcua:``, softplc-mqtt@.service for one with ``mqtt:``, softplc-web@.service for one with
-``web:``), the instances softplc@NAME (and softplc-opcua@NAME, softplc-mqtt@NAME,
-softplc-web@NAME) enabled, and with ``--now`` put in service.
+``web:``, softplc-modbus@.service for one with ``modbus:``), the instances softplc@NAME (and
+softplc-opcua@NAME, softplc-mqtt@NAME, softplc-web@NAME, softplc-modbus@NAME) enabled, and
+with ``--now`` put in service.
 
 The plant file and every grafcet file it names are copied into /etc/softplc/NAME, the
 plant's ``grafcet:`` paths rewritten to the copies (comments and layout kept). A file
@@ -83,10 +84,12 @@ CONTROLLER = "softplc@.service"
 OPCUA = "softplc-opcua@.service"
 MQTT = "softplc-mqtt@.service"
 WEB = "softplc-web@.service"
+MODBUS = "softplc-modbus@.service"
 #: the side processes: plant section -> (template unit, command, what it is)
 SIDES = {"opcua": (OPCUA, "opcua", "OPC UA server"),
          "mqtt": (MQTT, "mqtt", "MQTT edge node"),
-         "web": (WEB, "web", "web view")}
+         "web": (WEB, "web", "web view"),
+         "modbus": (MODBUS, "modbus", "Modbus/TCP server")}
 #: the units of the single-plant layout before the templates (refused: remove them first)
 LEGACY = ("softplc.service", "softplc-opcua.service")
 #: how to make a venv the service can run
@@ -157,6 +160,10 @@ class Plan:
     web: bool = False
     #: the installed plant had one and this one has not (softplc-web@NAME is disabled)
     web_removed: bool = False
+    #: the plant has a ``modbus:`` section (softplc-modbus@NAME is installed)
+    modbus: bool = False
+    #: the installed plant had one and this one has not (softplc-modbus@NAME is disabled)
+    modbus_removed: bool = False
     #: a file to install differs from what is installed (or nothing is installed)
     changed: bool = True
     #: why a running controller must restart to run this plant (empty: an online change)
@@ -184,7 +191,8 @@ class Plan:
         """(section, installed, removed, its unit) for each side process."""
         return [("opcua", self.opcua, self.opcua_removed, self.server),
                 ("mqtt", self.mqtt, self.mqtt_removed, self.edge_node),
-                ("web", self.web, self.web_removed, self.web_view)]
+                ("web", self.web, self.web_removed, self.web_view),
+                ("modbus", self.modbus, self.modbus_removed, instance(MODBUS, self.name))]
 
 
 def instance(template: str, name: str) -> str:
@@ -277,7 +285,7 @@ def plan(plant_path: str, softplc: str, etc: str = INSTALL_DIR,
         pdef = load_plant(plant_path)  # refuses a broken plant before anything is installed
     home = os.path.join(etc, name)
     p = Plan(name=name, start=start, opcua=pdef.opcua is not None, mqtt=pdef.mqtt is not None,
-             web=pdef.web is not None)
+             web=pdef.web is not None, modbus=pdef.modbus is not None)
     p.files[etc] = Entry(CONFIG_DIR_MODE, Owner.CONFIG)
     p.files[home] = Entry(CONFIG_DIR_MODE, Owner.CONFIG)
     p.files[STATE_DIR] = Entry(STATE_DIR_MODE, Owner.SERVICE)
@@ -371,6 +379,8 @@ def _sight(p: Plan, pdef: PlantDef, softplc: str, check_exec: bool) -> None:
         sockets.append(("mqtt: feed", pdef.mqtt.feed))
     elif pdef.web is not None:
         sockets.append(("web: feed", pdef.web.feed))
+    elif pdef.modbus is not None:
+        sockets.append(("modbus: feed", pdef.modbus.feed))
     for key, path in sockets:
         if below(os.path.abspath(path), rdir):
             continue
@@ -396,6 +406,10 @@ def _sight(p: Plan, pdef: PlantDef, softplc: str, check_exec: bool) -> None:
         _service_reads(p, [(f"web: tls: {key}", getattr(pdef.web, key))
                            for key in ("certificate", "private_key")],
                        "docs/web.md says how to make one", uid, gids)
+    if pdef.modbus is not None and pdef.modbus.tls is not None:
+        _service_reads(p, [(f"modbus: tls: {key}", getattr(pdef.modbus.tls, key))
+                           for key in ("certificate", "private_key", "clients_ca")],
+                       "docs/modbus.md says how to make them", uid, gids)
     if not pdef.consoles or all(c.kind == "serial" for c in pdef.consoles):
         p.warnings.append(f"monitor: no console socket or TCP port: `systemctl reload "
                           f"{p.controller}` (online change) needs one; add monitor: socket: "
@@ -437,6 +451,12 @@ def _ports(pdef: PlantDef) -> dict[str, str]:
         out[f"port {port}"] = f"the opcua: endpoint port {port}"
     if pdef.web is not None and pdef.web.port:
         out[f"port {pdef.web.port}"] = f"the web: listen port {pdef.web.port}"
+    if pdef.modbus is not None:
+        if pdef.modbus.host and pdef.modbus.port:
+            out[f"port {pdef.modbus.port}"] = f"the modbus: listen port {pdef.modbus.port}"
+        if pdef.modbus.tls is not None and pdef.modbus.tls.port:
+            out[f"port {pdef.modbus.tls.port}"] = (f"the modbus: tls: listen port "
+                                                    f"{pdef.modbus.tls.port}")
     for c in pdef.consoles:
         if c.kind == "tcp":
             port = c.address.rsplit(":", 1)[1]
@@ -507,6 +527,7 @@ def _changes(p: Plan, pdef: PlantDef, home: str, root: str | None) -> None:
     p.opcua_removed = old.opcua is not None and pdef.opcua is None
     p.mqtt_removed = old.mqtt is not None and pdef.mqtt is None
     p.web_removed = old.web is not None and pdef.web is None
+    p.modbus_removed = old.modbus is not None and pdef.modbus is None
     p.restart_reasons += diff_plants(old, pdef).static_refusals()
 
 
@@ -730,7 +751,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                        description="Copy the plant and its charts to /etc/softplc/NAME, "
                                    "create the softplc user, install the template units "
                                    "and enable softplc@NAME (and softplc-opcua@NAME, "
-                                   "softplc-mqtt@NAME, softplc-web@NAME).")
+                                   "softplc-mqtt@NAME, softplc-web@NAME, "
+                                   "softplc-modbus@NAME).")
     c.add_argument("plant", help="the plant file to run")
     c.add_argument("--name", help="the plant's name, its unit's instance (default: the "
                                   "name of the plant file's directory)")

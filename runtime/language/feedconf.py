@@ -75,7 +75,7 @@ def settle_feed(p: PlantDef, named: dict[str, Loc]) -> None:
 
 
 #: how a section's side process is named in messages
-SIDE_NAMES = {"opcua": "OPC UA", "mqtt": "MQTT", "web": "the web view"}
+SIDE_NAMES = {"opcua": "OPC UA", "mqtt": "MQTT", "web": "the web view", "modbus": "Modbus"}
 
 
 def writable_names(p: PlantDef, value: Any, loc: Loc, section: str) -> list[str]:

@@ -6,8 +6,9 @@ iolist`` (the list a commissioning engineer ticks off), the alarm messages, and 
 view and MQTT edge node to come.
 
 Where it is written: each binding of the plant file may carry ``description``, ``unit``
-(a UN/CEFACT code or symbol, ``language/units.py``) and, for an int or real signal,
-``range: [low, high]`` (its engineering limits); a chart's variables (``description:``
+(a UN/CEFACT code or symbol, ``language/units.py``), for an int or real signal,
+``range: [low, high]`` (its engineering limits), and ``at`` (its IEC located address,
+``%IX0.3``: the Modbus server's map follows it); a chart's variables (``description:``
 of a memory variable, ``{name: {type: ..., description: ...}}`` of an input or output)
 and steps (``description:``) carry a description; an instance its ``description:``.
 
@@ -39,6 +40,7 @@ from typing import Any
 from runtime.errors import Loc, SourceError
 from runtime.language import ast as A
 from runtime.language.flagtexts import FLAG_TEXT, HEALTH_TEXT
+from runtime.language.located import BINDING_AT_PATTERN, parse_located
 from runtime.language.model import Binding, InstanceDef, PlantDef
 from runtime.language.shape import (
     DESCRIPTION,
@@ -55,7 +57,8 @@ from runtime.language.shape import (
 from runtime.language.units import MILLISECOND, Unit, find_unit, suggest_unit
 from runtime.language.yamlsrc import YList, YMap
 
-#: the I/O list's keys of a binding (beside ``from`` and ``invert``)
+#: the I/O list's keys of a binding (beside ``from`` and ``invert``); ``at`` is the signal's
+#: IEC located address (runtime/language/located.py)
 IO_KEYS = (
     Key("description", DESCRIPTION, "The I/O list: what the signal is on the machine (one "
                                     f"line, at most {DESCRIPTION_MAX} characters)."),
@@ -64,6 +67,10 @@ IO_KEYS = (
                                        "(°C, bar, mm); docs/language.md lists them."),
     Key("range", ListOf(Number(), min_items=2, max_items=2),
         "The I/O list: engineering limits [low, high] of an int or real signal."),
+    Key("at", Text(BINDING_AT_PATTERN),
+        "The signal's IEC 61131-3 located address (%IX0.3 an input bit, %QX0.0 an output "
+        "bit, %IW2 / %QW2 a word); the Modbus server's default map follows it "
+        "(docs/modbus.md)."),
 )
 
 
@@ -114,6 +121,13 @@ def io_entry(b: Binding, spec: YMap) -> None:
         b.unit = unit
     if "range" in spec:
         b.range = _range(spec["range"], spec.val_locs["range"])
+    if "at" in spec:
+        loc = spec.val_locs["at"]
+        found = parse_located(str(expect_type(spec["at"], loc, str, "a located address such "
+                                                                   "as '%IX0.3'")))
+        if isinstance(found, str):
+            raise SourceError(loc, f"at: {found}")
+        b.at, b.at_loc = str(found), loc
 
 
 def _range(value: Any, loc: Loc) -> tuple[float, float]:
@@ -129,8 +143,19 @@ def _range(value: Any, loc: Loc) -> tuple[float, float]:
     return low, high
 
 
-def check_io_entry(b: Binding, spec: YMap, t: A.Type) -> None:
-    """A unit or a range belongs to an int or real signal only; SourceError at it."""
+def check_io_entry(b: Binding, spec: YMap, t: A.Type, direction: str = "") -> None:
+    """A unit or a range belongs to an int or real signal only, an ``at:`` of an input
+    (``direction`` "input") to %I, of an output to %Q, of a bool to a bit (X); SourceError
+    at it."""
+    if b.at and direction and b.at_loc is not None:
+        found = parse_located(b.at)
+        assert not isinstance(found, str)
+        area = "I" if direction == "input" else "Q"
+        sizes = ("X",) if t is A.Type.BOOL else ("W", "D")
+        if found.area != area or found.size not in sizes:
+            want = f"%{area}X<byte>.<bit>" if t is A.Type.BOOL else f"%{area}W<n> or %{area}D<n>"
+            raise SourceError(b.at_loc, f"at: {b.at} cannot locate the {t.value} {direction} "
+                                        f"'{b.signal}': expected {want}")
     if t in (A.Type.INT, A.Type.REAL):
         return
     for key in ("unit", "range"):

@@ -207,6 +207,10 @@ class Binding:
     description: str = ""
     unit: Unit | None = None
     range: tuple[float, float] | None = None
+    #: its IEC 61131-3 located address (``at: '%IX0.3'``), "" if none; the Modbus server's
+    #: default map follows it (docs/modbus.md)
+    at: str = ""
+    at_loc: Loc | None = None
 
 
 @dataclass(slots=True)
@@ -431,6 +435,98 @@ class WebDef:
     locs: dict[str, Loc] = field(default_factory=dict)
 
 
+#: the Modbus tables, as the driver's points name them: coils, discrete inputs, input
+#: registers, holding registers
+MODBUS_TABLES = ("Q", "I", "IR", "HR")
+
+
+@dataclass(frozen=True, slots=True)
+class ModbusPoint:
+    """One plant name in the Modbus server's map (``modbus: map:``, docs/modbus.md)."""
+
+    name: str
+    #: a table of MODBUS_TABLES
+    table: str
+    #: protocol address, from 0 (of its first register)
+    address: int
+    #: BOOL (a bit), INT, UINT (one register), DINT, UDINT, REAL, TIME (two registers)
+    type: str
+    #: a name of ``modbus: writable:``
+    writable: bool = False
+    #: where its address comes from: map (the plant's modbus: map:), at (the binding's IEC
+    #: located address), iolist (the next free address of its table), writable (the same,
+    #: for a writable name outside the I/O list)
+    origin: str = "iolist"
+    loc: Loc | None = None
+
+    @property
+    def words(self) -> int:
+        """Registers it takes (0 for a bit)."""
+        return 0 if self.type == "BOOL" else 2 if self.type in ("DINT", "UDINT", "REAL",
+                                                                  "TIME") else 1
+
+
+@dataclass(slots=True)
+class ModbusTls:
+    """``modbus: tls:``: Modbus/TCP Security (TLS with client certificates, the role taken
+    from each client's certificate)."""
+
+    host: str = "127.0.0.1"
+    port: int = 802
+    certificate: str = ""
+    private_key: str = ""
+    #: the certificate authority (PEM) whose client certificates are let in
+    clients_ca: str = ""
+    #: role (the certificate's role extension) -> "read" or "write"
+    roles: dict[str, str] = field(default_factory=dict)
+    loc: Loc | None = None
+
+
+@dataclass(slots=True)
+class ModbusLimits:
+    """``modbus: limits:``: what clients may hold of the server."""
+
+    #: connections open at once, in all
+    connections: int = 16
+    #: requests a second one connection may make (more wait: the connection is paced)
+    rate: int = 200
+    #: a connection without a request for this long is closed, ns
+    idle_ns: int = 60_000_000_000
+    loc: Loc | None = None
+
+
+@dataclass(slots=True)
+class ModbusDef:
+    """``modbus:`` of a plant file: the Modbus/TCP server of the plant (``softplc
+    modbus``, docs/modbus.md) and its address map."""
+
+    #: the plain Modbus/TCP listener (host "": none, only ``tls``)
+    host: str = "127.0.0.1"
+    port: int = 502
+    #: the client addresses or networks let in (empty: anyone who reaches ``host``)
+    clients: list[str] = field(default_factory=list)
+    #: the unit identifier answered (None: any)
+    unit: int | None = None
+    #: the map: every name served, with its table, address and type
+    points: list[ModbusPoint] = field(default_factory=list)
+    #: ``instance.name`` of the variables and chart flags a client may write
+    writable: list[str] = field(default_factory=list)
+    #: a 32-bit value's registers: "high_first" (Modbus' big-endian order) or "low_first"
+    words: str = "high_first"
+    #: how often the controller sends a snapshot of its image to the feed, ns
+    sample_ns: int = 100_000_000
+    #: the feed's local socket (the controller serves it, ``softplc modbus`` connects)
+    feed: str = ""
+    #: where the plant gives ``feed:`` (the section's own line when the path is the
+    #: default), for the side process's start check
+    feed_loc: Loc | None = None
+    tls: ModbusTls | None = None
+    limits: ModbusLimits = field(default_factory=ModbusLimits)
+    loc: Loc | None = None
+    #: where each key given has its value, for errors at run time
+    locs: dict[str, Loc] = field(default_factory=dict)
+
+
 @dataclass(slots=True)
 class FeedDef:
     """The controller's feed (runtime/controller/feed.py) as the plant's side processes
@@ -494,10 +590,13 @@ class PlantDef:
     mqtt: MqttDef | None = None
     #: the web view's section (``web:``), None without one
     web: WebDef | None = None
+    #: the Modbus/TCP server's section (``modbus:``), None without one
+    modbus: ModbusDef | None = None
 
-    def side_sections(self) -> list[tuple[str, OpcuaDef | MqttDef | WebDef | None]]:
+    def side_sections(self) -> list[tuple[str, OpcuaDef | MqttDef | WebDef | ModbusDef | None]]:
         """The sections of the side processes fed by the controller, present or not."""
-        return [("opcua", self.opcua), ("mqtt", self.mqtt), ("web", self.web)]
+        return [("opcua", self.opcua), ("mqtt", self.mqtt), ("web", self.web),
+                ("modbus", self.modbus)]
 
     def feed(self) -> FeedDef | None:
         """The feed the controller serves for its side processes, None if it has none."""

@@ -26,6 +26,7 @@ from runtime.language.feedconf import settle_feed
 from runtime.language.grafcetfile import load_grafcet
 from runtime.language.iolist import IO_KEYS, check_io_entry, io_entry
 from runtime.language.lexer import is_name
+from runtime.language.modbusconf import MODBUS, load_modbus
 from runtime.language.model import (
     Binding,
     ConsoleEntry,
@@ -129,7 +130,7 @@ BINDING_SPEC = Section((
 BINDING = Def("binding", one_of(POINT, BINDING_SPEC),
               "'driver.point', or {from: 'driver.point', invert: true} for a signal in "
               "negative logic (an NC contact): inversion happens here and only here; the "
-              "mapping form may carry the signal's I/O list: description, unit, range.")
+              "mapping form may carry the signal's I/O list: description, unit, range, at.")
 #: an output's mapping form: its point as ``to:`` (its value goes there) or ``from:`` (as an
 #: input's: every plant written before ``to:``), one of the two
 OUTPUT_BINDING_SPEC = Section((
@@ -142,7 +143,7 @@ OUTPUT_BINDING_SPEC = Section((
 OUTPUT_BINDING = Def("outputBinding", one_of(POINT, OUTPUT_BINDING_SPEC),
                      "'driver.point', or {to: 'driver.point', invert: true} for an output in "
                      "negative logic: inversion happens here and only here; the mapping form "
-                     "may carry the signal's I/O list: description, unit, range. An output "
+                     "may carry the signal's I/O list: description, unit, range, at. An output "
                      "names its point with to: (its value goes there) or from: (as an input "
                      "does), one of the two.")
 INSTANCE = Section((
@@ -200,6 +201,7 @@ PLANT = Section((
     Key("mqtt", MQTT),
     Key("alarms", ALARMS),
     Key("web", WEB),
+    Key("modbus", MODBUS),
 ), "a plant file", "One controller: cycle, I/O drivers, the instances of grafcet files with "
                    "their bindings, consoles (docs/language.md, 'The plant file').")
 
@@ -441,7 +443,7 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
                                                    f"{v.type}"))
                 if v is not None and isinstance(bspec, YMap):
                     try:
-                        check_io_entry(b, bspec, v.type)
+                        check_io_entry(b, bspec, v.type, key[:-1])
                     except SourceError as exc:
                         load.report(exc)
                 getattr(inst, key)[sig] = b
@@ -457,7 +459,8 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
     if "monitor" in doc and doc["monitor"] is not None:
         _monitor(p, doc["monitor"], doc.val_locs["monitor"])
     named: dict[str, Loc] = {}  # side process section -> its feed: value's place
-    for key, load_side in (("opcua", load_opcua), ("mqtt", load_mqtt), ("web", load_web)):
+    for key, load_side in (("opcua", load_opcua), ("mqtt", load_mqtt), ("web", load_web),
+                           ("modbus", load_modbus)):
         if key in doc and doc[key] is not None:
             setattr(p, key, load_side(p, doc[key], doc.val_locs[key]))
             section = doc[key]

@@ -20,6 +20,7 @@ import pytest
 from runtime.controller import install
 from runtime.controller.install import (
     CONTROLLER,
+    MODBUS,
     MQTT,
     OPCUA,
     WEB,
@@ -46,7 +47,8 @@ def staged_units(tmp_path: Path) -> list[Path]:
     out = []
     for name, text in ((CONTROLLER, unit_text(SOFTPLC)), (OPCUA, opcua_unit_text(SOFTPLC)),
                        (MQTT, side_unit_text("mqtt", SOFTPLC)),
-                       (WEB, side_unit_text("web", SOFTPLC))):
+                       (WEB, side_unit_text("web", SOFTPLC)),
+                       (MODBUS, side_unit_text("modbus", SOFTPLC))):
         unit = tmp_path / name.replace("@.", "@demo.")  # an instance, as systemd loads it
         unit.write_text(text, encoding="utf-8")
         out.append(unit)
@@ -495,3 +497,42 @@ def test_a_plant_with_web_gets_its_web_view_unit(tmp_path: Path, systemctl: Path
                                   encoding="utf-8")
     p = plan(str(d / "plant.yaml"), SOFTPLC, root=stage)
     assert p.web_removed and ["systemctl", "disable", "softplc-web@press.service"] in p.commands
+
+
+def test_a_plant_with_modbus_gets_its_server_unit(tmp_path: Path, systemctl: Path) -> None:
+    """install-service writes softplc-modbus@.service for a plant with ``modbus:``, enables
+    softplc-modbus@NAME (with the one capability of port 502), --now starts it; another
+    installed plant on the same port is refused; a reinstall without the section disables
+    it."""
+    d = tmp_path / "press"
+    d.mkdir()
+    (d / "drawer_tester.yaml").write_bytes((DRAWER.parent / "drawer_tester.yaml").read_bytes())
+    text = DRAWER.read_text(encoding="utf-8")
+    text = text[:text.index("\nmonitor:")] + (
+        "\nmonitor:\n  socket: {path: '${RUNTIME_DIR}/console.sock'}\n"
+        "modbus: {writable: [tester1.sParo]}\n")
+    (d / "plant.yaml").write_text(text, encoding="utf-8")
+    stage = str(tmp_path / "stage")
+    p = plan(str(d / "plant.yaml"), SOFTPLC, root=stage)
+    assert p.modbus
+    unit = p.files["/etc/systemd/system/" + MODBUS].data
+    assert unit is not None
+    keys = unit_keys(unit.decode())
+    assert keys["ExecStart"] == f"{SOFTPLC} modbus /etc/softplc/%i/plant.yaml"
+    assert keys["RuntimeDirectory"] == "softplc/%i" and keys["User"] == "softplc"
+    assert keys["AmbientCapabilities"] == "CAP_NET_BIND_SERVICE"
+    assert ["systemctl", "enable", "softplc@press.service",
+            "softplc-modbus@press.service"] in p.commands
+    assert bring_up(install.Plan(name="press", modbus=True, start=True)) == [
+        "started softplc@press.service", "started softplc-modbus@press.service"]
+    apply(p, root=stage)
+    other = tmp_path / "line2"
+    shutil.copytree(d, other)
+    p2 = plan(str(other / "plant.yaml"), SOFTPLC, root=stage)
+    assert any("the modbus: listen port 502 is the one of the installed plant press" in r
+               for r in p2.refusals), p2.refusals
+    (d / "plant.yaml").write_text(text.replace("modbus: {writable: [tester1.sParo]}\n", ""),
+                                  encoding="utf-8")
+    p = plan(str(d / "plant.yaml"), SOFTPLC, root=stage)
+    assert p.modbus_removed and ["systemctl", "disable",
+                                 "softplc-modbus@press.service"] in p.commands

@@ -18,6 +18,7 @@ from drivers.canopen_io import CanopenDriver
 from drivers.gpio import GpioDriver
 from drivers.mcp23017 import Mcp23017Driver
 from drivers.modbus_rtu import ModbusRtuDriver
+from drivers.modbus_tcp import ModbusTcpDriver
 from drivers.pcf8574 import Pcf8574Driver
 from drivers.sim import SimDriver
 from tests.drivers.canopen_slave import Cia401Slave
@@ -25,6 +26,7 @@ from tests.drivers.drvkit import FakeClock
 from tests.drivers.fake_gpiod import FakeChip, FakeGpio
 from tests.drivers.i2c_emulator import I2CWorld, Mcp23017Model, Pcf8574Model
 from tests.drivers.modbus_peer import ModbusPeer
+from tests.drivers.modbus_tcp_peer import ModbusTcpPeer, Relay
 from tests.drivers.pty_bridge import PtyBridge
 
 #: seconds any condition that depends on another thread may take: a bound only a driver
@@ -300,6 +302,39 @@ class ModbusRig(Rig):
         self.bridge.close()
 
 
+class ModbusTcpRig(ModbusRig):
+    """pymodbus' TCP server behind a relay that drops every reply while the bus is broken
+    (a unit that stops answering on a connection that stays up)."""
+
+    bad_points = (("IR0", Direction.OUT), ("R1", Direction.IN))
+
+    def __init__(self, mp: pytest.MonkeyPatch, clock: FakeClock) -> None:
+        Rig.__init__(self, mp, clock)
+        self.tcp = ModbusTcpPeer(units=(1,)).start()
+        self.relay = Relay(self.tcp.port)
+
+    def _make(self, cfg: dict[str, Any]) -> Driver:
+        return ModbusTcpDriver("rio", {"host": "127.0.0.1", "port": self.relay.port,
+                                       "unit": 1, "timeout": "30ms", "retries": 1, **cfg},
+                               clock=self.clock)
+
+    def set_input(self, point: str, value: int) -> None:
+        self.tcp.set(1, 2, int(point[1:]), [value])
+
+    def output(self, point: str) -> int:
+        return self.tcp.get(1, 1, int(point[1:]))[0]
+
+    def break_bus(self, d: Driver) -> None:
+        self.relay.cut = True
+
+    def heal_bus(self, d: Driver) -> None:
+        self.relay.cut = False
+
+    def close(self) -> None:
+        self.relay.close()
+        self.tcp.stop()
+
+
 RIGS: dict[str, type[Rig]] = {
     "sim": SimRig,
     "gpio": GpioRig,
@@ -307,4 +342,5 @@ RIGS: dict[str, type[Rig]] = {
     "pcf8574": PcfRig,
     "canopen": CanopenRig,
     "modbus_rtu": ModbusRig,
+    "modbus_tcp": ModbusTcpRig,
 }

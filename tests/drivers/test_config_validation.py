@@ -8,6 +8,7 @@ imported, nothing more).
 
 from __future__ import annotations
 
+import re
 from typing import Any
 
 import pytest
@@ -28,10 +29,17 @@ def valid_value(key: ConfigKey) -> Any:
     if key.kind in (Kind.INT, Kind.I2C_ADDRESS):
         return key.minimum if key.minimum is not None else 1
     if key.kind is Kind.TEXT:
-        return "/dev/x" if key.pattern else "x" * max(1, key.minimum or 0)
+        if key.pattern:
+            return "/dev/x" if _is_path(key) else "localhost"
+        return "x" * max(1, key.minimum or 0)
     if key.kind is Kind.CHOICE:
         return key.choices[0]
     raise AssertionError(f"no valid value for required {key}")  # pragma: no cover
+
+
+def _is_path(key: ConfigKey) -> bool:
+    """A TEXT key whose pattern takes a device path (else a host)."""
+    return key.pattern is not None and re.fullmatch(key.pattern, "/dev/x") is not None
 
 
 def minimal_config(type_name: str) -> dict[str, Any]:
@@ -57,9 +65,13 @@ def edges(key: ConfigKey) -> list[tuple[Any, bool, Any]]:
             if key.kind is Kind.I2C_ADDRESS:  # "0x20" as text reads as 0x20
                 out += [(f"0x{inside:02x}", True, inside), (f"0x{outside:02x}", False, None)]
     elif key.kind is Kind.TEXT:
-        if key.pattern is not None:  # a device path: /dev/x, not x nor "/dev/x y"
+        if key.pattern is not None and _is_path(key):  # a device: /dev/x, not x, "/dev/x y"
             out += [("/dev/x", True, "/dev/x"), ("x", False, None), ("/dev/x y", False, None),
                     ("", False, None)]
+        elif key.pattern is not None:  # a host: a name or an address, no space, no path
+            out += [("plc-7.local", True, "plc-7.local"), ("10.0.0.2", True, "10.0.0.2"),
+                    ("fe80::1", True, "fe80::1"), ("a b", False, None),
+                    ("/dev/x", False, None), ("", False, None)]
         if low is not None:
             out += [("x" * low, True, "x" * low), ("x" * (low - 1), False, None)]
         if high is not None:

@@ -382,3 +382,31 @@ def test_bad_points(point: str, direction: Direction) -> None:
 def test_bad_config(cfg: dict[str, object]) -> None:
     with pytest.raises(ConfigError):
         ModbusRtuDriver("mb", cfg)
+
+
+def test_an_inhibited_unit_is_still_polled(bridge: PtyBridge, peer: ModbusPeer,
+                                           clock: FakeClock) -> None:
+    """Inhibited (the watchdog's latched fault), a unit's outputs stay off, and its inputs
+    are still read every scan and a cut line still seen: the poll round was started by
+    ``write()`` only, which an inhibited driver skips, so the inputs went stale and the
+    fault unseen (the contract suite's inhibit test passed on RTU by a race only)."""
+    d = make(bridge, clock)
+    d.open()
+    d.inhibit(True)
+    peer.set(1, 2, 0, [1])
+    scan(d)  # the safe state's round
+    peer.set(1, 2, 0, [0, 1])
+    since = d.updates
+    d.read()
+    d.write()
+    assert d.wait_for_update(3.0, since=since), "no poll round while inhibited"
+    d.read()
+    assert d.inputs["I0"] == 0 and d.inputs["I1"] == 1
+    bridge.cut = True
+    since = d.updates
+    d.read()
+    assert d.wait_for_update(3.0, since=since)
+    d.read()
+    assert d.health is Health.FAULT
+    bridge.cut = False
+    d.close()

@@ -1,7 +1,8 @@
 """Generated plants for property tests: a chart and a plant file using every key of every
 section the loader knows (the chart's, the plant's ``plc:``, ``drivers:`` of every type,
 ``instances:`` with the I/O list, ``monitor:``, ``opcua:``, ``mqtt:``, ``web:``,
-``alarms:``), each optional key present or not, values drawn from what the loader accepts.
+``modbus:``, ``alarms:``), each optional key present or not, values drawn from what the
+loader accepts.
 
 ``plant_files(full=True)`` gives every key at once (``tests/language/test_modeldata.py``
 holds that set to the JSON Schemas of configs/schema/, so a key added to a section and its
@@ -131,9 +132,10 @@ def chart(d: Draw) -> dict[str, Any]:
 
 
 def binding(d: Draw, point: str, number: bool, invert: bool = False,
-            output: bool = False, key: str | None = None) -> Any:
+            output: bool = False, key: str | None = None, at: str = "") -> Any:
     """A binding to ``point``: its short form, or its mapping with the I/O list (an
-    ``output``'s point named by ``from:`` or ``to:``, drawn unless ``key`` says)."""
+    ``output``'s point named by ``from:`` or ``to:``, drawn unless ``key`` says; its IEC
+    located address ``at`` if given)."""
     if not d.full and not d(st.booleans()):
         return point
     if key is None:
@@ -148,6 +150,8 @@ def binding(d: Draw, point: str, number: bool, invert: bool = False,
     if number and d.has():
         low = d(st.integers(-1000, 1000))
         out["range"] = [low, low + d(st.integers(1, 10_000))]
+    if at and d.has():
+        out["at"] = at
     return out
 
 
@@ -191,7 +195,13 @@ def drivers(d: Draw) -> dict[str, Any]:
     maybe(mb, "timeout", times(1, 1000))
     maybe(mb, "retries", st.integers(0, 10))
     maybe(mb, "stopbits", st.sampled_from([1, 2]))
-    out.update({"gp": gpio, "exp": mcp, "pcf": pcf, "can": can, "mb": mb})
+    tcp: dict[str, Any] = {"type": "modbus_tcp",
+                           "host": d(st.sampled_from(["192.168.10.20", "io-1.plant", "::1"]))}
+    maybe(tcp, "port", st.integers(1, 65535))
+    maybe(tcp, "unit", st.integers(0, 255))
+    maybe(tcp, "timeout", times(1, 1000))
+    maybe(tcp, "retries", st.integers(0, 10))
+    out.update({"gp": gpio, "exp": mcp, "pcf": pcf, "can": can, "mb": mb, "tcp": tcp})
     return out
 
 
@@ -222,17 +232,17 @@ def plant_docs(draw: st.DrawFn, full: bool = False) -> tuple[dict[str, Any], dic
         inst["description"] = d.text()
     if d.has():
         inst["log"] = d(st.sampled_from(["steps", "none"]))
-    inst["inputs"] = {"iGo": binding(d, "sim.I0", False, invert=True),
-                      "iLevel": binding(d, "sim.IR0", True),
+    inst["inputs"] = {"iGo": binding(d, "sim.I0", False, invert=True, at="%IX0.0"),
+                      "iLevel": binding(d, "sim.IR0", True, at="%IW0"),
                       "iTemp": binding(d, "sim.IR1", True),
                       "iWait": "sim.IR2"}
     if d.has():
         inst["inputs"]["SFCPause"] = binding(d, "sim.I1", False, invert=True)
     # a full plant names one output's point with to:, one with from:, the others drawn
     inst["outputs"] = {"oRun": binding(d, "sim.Q0", False, invert=True, output=True,
-                                       key="to" if d.full else None),
+                                       key="to" if d.full else None, at="%QX0.0"),
                        "oSpeed": binding(d, "sim.HR0", True, output=True,
-                                         key="from" if d.full else None),
+                                         key="from" if d.full else None, at="%QW0"),
                        "oValve": binding(d, "sim.HR1", True, output=True),
                        "oLamp": binding(d, "sim.Q1", False, invert=True, output=True)}
     instances = {"m1": inst}
@@ -377,6 +387,45 @@ def plant_docs(draw: st.DrawFn, full: bool = False) -> tuple[dict[str, Any], dic
             web["hosts"] = d(st.sampled_from([["plc.example"], ["*.plant.example",
                                                                 "press1"]]))
         plant["web"] = web
+    if d.has():
+        modbus: dict[str, Any] = {}
+        if d.has():
+            modbus["listen"] = d(st.sampled_from(["127.0.0.1:1502", "[::1]:5020", "off"]))
+        if d.has():
+            modbus["clients"] = d(st.sampled_from([["127.0.0.1"], ["192.168.10.0/24",
+                                                                   "10.0.0.7"]]))
+            if d.has():
+                modbus["listen"] = "0.0.0.0:502"
+        if d.has():
+            modbus["unit"] = d(st.integers(0, 255))
+        if d.has():
+            modbus["map"] = {"m1.sFlag": d(st.sampled_from(["Q100", "%QX12.4"])),
+                             "m1.sReal": {"at": d(st.sampled_from(["HR200", "%MD3"])),
+                                          **({"type": "REAL"} if d.has() else {})},
+                             "m1.gsIdle.X": "I300"}
+        if d.has():
+            modbus["writable"] = ["m1.sCount", "m1.sFlag"]
+        if d.has():
+            modbus["words"] = d(st.sampled_from(["high_first", "low_first"]))
+        if d.has():
+            modbus["sample"] = sample
+        if d.has():
+            modbus["feed"] = feed
+        if d.has() or modbus.get("listen") == "off":
+            modbus["tls"] = {"certificate": "mb.pem", "private_key": "mb.key",
+                             "clients_ca": "ca.pem", "roles": {"operator": "write",
+                                                               "viewer": "read"}}
+            if d.has():
+                modbus["tls"]["listen"] = "127.0.0.1:8020"
+        if d.has():
+            lims: dict[str, Any] = {}
+            for key, strategy in (("connections", st.integers(1, 1000)),
+                                  ("rate", st.integers(1, 100_000)),
+                                  ("idle", st.sampled_from(["1s", "60s", "24h"]))):
+                if d.has():
+                    lims[key] = d(strategy)
+            modbus["limits"] = lims
+        plant["modbus"] = modbus
     if d.has():
         alarms: dict[str, Any] = {}
         if d.has():

@@ -1,9 +1,10 @@
-"""The installation of docs/daemon.md, docs/opcua.md and docs/mqtt.md, followed as a user
-follows it, under
-a real systemd (PID 1 of a container of this machine's own root, tests/systemd/container.py):
-booted once for the module, its venv made from the system's Python as on a Raspberry Pi.
+"""The installation of docs/daemon.md, docs/opcua.md, docs/mqtt.md and docs/modbus.md,
+followed as a user follows it, under a real systemd (PID 1 of a container of this
+machine's own root, tests/systemd/container.py): booted once for the module, its venv made
+from the system's Python as on a Raspberry Pi.
 
-Each test is one journey of issue 25 (and of issue 28's MQTT edge node); docs/daemon.md
+Each test is one journey of issue 25 (and of issue 28's MQTT edge node, issue 41's Modbus/TCP
+server); docs/daemon.md
 ("Tested under a real systemd") says what each does. They run in file order on the one
 container (a later journey uses the plants an earlier one installed), and are skipped, with
 the reason, only where a container cannot run (not root, no systemd-nspawn, overlay mounts
@@ -325,6 +326,105 @@ def test_the_mqtt_unit_finds_its_controller(plc: Container, tmp_path: Path) -> N
     finally:
         host.close()
         broker.kill()
+
+
+# -- 2c. the Modbus/TCP unit beside its controller, on a privileged port ----------------
+def privileged_port() -> int:
+    """A free port below 1024 (the unit binds it with CAP_NET_BIND_SERVICE, as it binds
+    Modbus/TCP's 502: this machine's own 502 may be another test's)."""
+    for port in range(900, 1000):
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
+    raise AssertionError("no free port in 900-999")
+
+
+def hmi_plant(port: int | None) -> str:
+    text = edge_plant()
+    if port is not None:
+        text += f"modbus:\n  listen: 127.0.0.1:{port}\n  writable: [m.sN]\n"
+    return text
+
+
+def test_the_modbus_unit_finds_its_controller(plc: Container) -> None:
+    """Issue 41: `softplc modbus` as softplc-modbus@NAME, installed by install-service
+    beside its controller, on a port below 1024 (the capability of its unit), read and
+    written by pymodbus' client from outside the container; the controller stopped under
+    it is exception 11, then values again; the section removed disables the unit."""
+    from pymodbus.client import ModbusTcpClient
+
+    port = privileged_port()
+    plant = write_plant(plc, "hmi", hmi_plant(port))
+    out = sh(plc, f"{SOFTPLC} install-service {plant} --now")
+    assert "started softplc@hmi.service" in out and "started softplc-modbus@hmi.service" in \
+        out, out
+    unit = "softplc-modbus@hmi.service"
+    assert prop(plc, unit, "User") == "softplc"
+    client = ModbusTcpClient("127.0.0.1", port=port, timeout=3, retries=0)
+
+    def counter_read() -> int | None:
+        try:
+            if not client.connected and not client.connect():
+                return None
+            rr = client.read_holding_registers(0, count=1, device_id=1)
+        except Exception:  # noqa: BLE001 - not up yet, or the connection closed
+            client.close()
+            return None
+        return None if rr.isError() else int(rr.registers[0])
+    try:
+        plc.wait(f"systemctl is-active --quiet {unit}", what=f"{unit} active")
+        end = time.monotonic() + 60
+        first = counter_read()
+        while first is None and time.monotonic() < end:
+            time.sleep(0.5)
+            first = counter_read()
+        assert first is not None, plc.journal(unit)
+        # the counter moves; a write of 0 is applied between two scans and seen
+        end = time.monotonic() + 30
+        while (counter_read() or 0) <= first + 20 and time.monotonic() < end:
+            time.sleep(0.2)
+        before = counter_read()
+        assert before is not None and before > first
+        assert not client.write_register(0, 0, device_id=1).isError()
+        after = counter_read()
+        assert after is not None and after < before
+        rr = client.write_coil(0, True, device_id=1)  # m.oRun: an output, not writable
+        assert rr.isError() and rr.exception_code == 2
+        log = plc.journal(unit)
+        assert f"Modbus/TCP server on 127.0.0.1:{port} (feed /run/softplc/hmi/feed.sock)" \
+            in log, log
+        assert "set m.sN = 0" in log and "Traceback" not in log, log
+        # the controller stopped under the server: exception 11, then values again
+        plc.sh("systemctl stop softplc@hmi.service")
+        end = time.monotonic() + 30
+        while time.monotonic() < end:
+            try:
+                rr = client.read_holding_registers(0, count=1, device_id=1)
+            except Exception:  # noqa: BLE001
+                client.close()
+                client.connect()
+                continue
+            if rr.isError() and rr.exception_code == 11:
+                break
+            time.sleep(0.2)
+        else:
+            raise AssertionError("no exception 11 with the controller stopped")
+        plc.sh("systemctl start softplc@hmi.service")
+        end = time.monotonic() + 60
+        while counter_read() is None and time.monotonic() < end:
+            time.sleep(0.5)
+        assert counter_read() is not None
+        assert prop(plc, unit, "NRestarts") == "0"
+    finally:
+        client.close()
+    # modbus: removed: the server is stopped and disabled
+    write_plant(plc, "hmi", hmi_plant(None))
+    out = sh(plc, f"{SOFTPLC} install-service {plant} --now --force")
+    assert f"stopped and disabled {unit}: the plant has no modbus: section now" in out, out
+    assert prop(plc, unit, "ActiveState") == "inactive"
 
 
 # -- 3. systemctl reload: an edit applied, an edit refused ----------------------------
