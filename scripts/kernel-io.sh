@@ -10,11 +10,11 @@
 # the matching headers), the uncompressed vmlinux and the initramfs; boots the guest with a
 # hard time limit, runs tests/kernel_io/guest/run.sh in it and exits with its status.
 #
-# Usage: scripts/kernel-io.sh [PYTEST ARGS...]   (default: the whole tier)
+# Usage: scripts/kernel-io.sh [PYTEST ARGS...]   (the tests named there, else the whole tier)
 # Environment:
 #   KIO_CACHE    the cache directory (default build/kernel-io; remove it to take a newer
 #                kernel)
-#   KIO_TIMEOUT  seconds the guest may run before it is killed and the tier fails (600)
+#   KIO_TIMEOUT  seconds the guest may run before it is killed and the tier fails (1200)
 #   KIO_SMP, KIO_MEM  the guest's processors (2) and memory in MiB (1536)
 # Exit status: the tier's (pytest's); 124 the guest did not finish in time (killed); 125
 # the guest left no status (it crashed or failed to boot); 3 the tier could not be
@@ -24,7 +24,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$(pwd)
 CACHE=${KIO_CACHE:-$ROOT/build/kernel-io}
-TIMEOUT=${KIO_TIMEOUT:-600}
+TIMEOUT=${KIO_TIMEOUT:-1200}
 export DEBIAN_FRONTEND=noninteractive
 say() { echo "kernel-io: $*" >&2; }
 cannot() {  # this machine cannot run the tier

@@ -7,7 +7,9 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
+from canopen.sdo.client import SdoClient
 
+import tests.drivers.rigs as contract_rigs
 from drivers.base import Driver
 from drivers.canopen_io import CanopenDriver
 from drivers.gpio import GpioDriver
@@ -84,10 +86,22 @@ class StubMcpRig(McpRig):
 
 class VcanCanopenRig(CanopenRig):
     """The suite's CiA 401 node and the driver on a vcan interface of their own: real
-    SocketCAN sockets, frames through the kernel's CAN layer."""
+    SocketCAN sockets, frames through the kernel's CAN layer.
+
+    The node and the driver's receive and configuration threads run in real time on an
+    emulated processor, on a machine shared with other work: the waits that are real time
+    (an SDO answer, the first exchange after open, the rig's settling) are given
+    ``SLOW_S``; the driver's own times (heartbeat age, back-off) stay on the injected
+    clock, as in tests/drivers."""
+
+    #: seconds a real-time wait may take in the guest
+    SLOW_S = 20.0
 
     def __init__(self, mp: pytest.MonkeyPatch, clock: FakeClock) -> None:
         Rig.__init__(self, mp, clock)
+        mp.setattr(SdoClient, "RESPONSE_TIMEOUT", self.SLOW_S / 4)
+        mp.setattr(CanopenDriver, "FIRST_DATA_TIMEOUT_S", self.SLOW_S)
+        mp.setattr(contract_rigs, "SETTLE_S", self.SLOW_S)
         self.vcan = Vcan()
         self.slave = Cia401Slave(5, interface="socketcan", channel=self.vcan.name).start()
 

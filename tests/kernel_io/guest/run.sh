@@ -3,7 +3,8 @@
 # directory): load the kernel's modules the tier uses, make the wired gpio-sim pair and
 # name the i2c-stub chip for the two opt-in real-device tests of tests/drivers, and run
 # the tier. A test that skips here fails the run (tests/kernel_io/noskip.py).
-# Usage: run.sh [PYTEST ARGS...]   (default: tests/kernel_io and the two real-device tests)
+# Usage: run.sh [PYTEST ARGS...]   (the tests named there, else tests/kernel_io and the two
+#   real-device tests)
 # Environment: KIO_MODULES, the unpacked kernel package (its lib/modules/RELEASE).
 set -eu
 up() { cut -d' ' -f1 /proc/uptime; }
@@ -39,7 +40,10 @@ done
 export SOFTPLC_KERNEL_IO=guest SOFTPLC_TEST_GPIO="/dev/$chip:0:1" \
   SOFTPLC_TEST_I2C="mcp23017:$bus:0x21"
 echo "kernel-io guest: devices ready at $(up) s (wired pair /dev/$chip 0->1, i2c-stub on /dev/i2c-$bus)"
-[ $# -gt 0 ] || set -- tests/kernel_io tests/drivers/test_gpio.py::test_real_chip_loopback \
+# the tests: those named among the arguments (a path, with ::NAME or not), else the tier
+named=0
+for a in "$@"; do [ -e "${a%%::*}" ] && named=1; done
+[ $named = 1 ] || set -- "$@" tests/kernel_io tests/drivers/test_gpio.py::test_real_chip_loopback \
   tests/drivers/test_i2c.py::test_real_expander_inputs
 status=0
 # faulthandler: a test stuck for 300 s prints every thread's stack (the host's time limit
