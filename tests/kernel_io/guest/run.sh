@@ -10,6 +10,11 @@ set -eu
 up() { cut -d' ' -f1 /proc/uptime; }
 echo "kernel-io guest: $(uname -r), $(nproc) processors, up $(up) s"
 M=${KIO_MODULES:?the kernel package unpacked}
+# temporary files and the controllers' runtime directories in the guest's own /run, not in
+# the host's /tmp seen through the overlay
+mkdir -p /run/kio-tmp /run/user/0
+chmod 700 /run/user/0
+export TMPDIR=/run/kio-tmp XDG_RUNTIME_DIR=/run/user/0
 # what the kernel loads by itself (a crypto algorithm for ext4, a block driver) comes from
 # there too
 printf '#!/bin/sh\nexec /sbin/modprobe -d %s "$@"\n' "$M" > /run/kio-modprobe
