@@ -59,19 +59,19 @@ CYCLE_MS, INTERVAL_MS = 100, 1000
 #: cut came in the middle of a save) and on the disk after the cut
 DAEMON_STARTS = 2
 
-#: counts every scan while iRun is on (the test forces it on, then off)
-COUNTER = """\
+#: the counter counts every scan up to LIMIT, then stops: SAVES generations at least
+LIMIT = SAVES * INTERVAL_MS // CYCLE_MS
+COUNTER = f"""\
 grafcet: Counter
-inputs: [iRun]
+inputs: [iUnused]
 outputs: [oLamp]
 memory:
-  sN: {init: 0, retain: true}
+  sN: {{init: 0, retain: true}}
 steps:
-  gsIdle: {initial: true}
-  gsCount: {actions: [oLamp, "N sN := sN + 1"]}
+  gsCount: {{initial: true, actions: [oLamp, "N sN := sN + 1"]}}
+  gsDone: {{}}
 transitions:
-  - {from: gsIdle, to: gsCount, when: iRun}
-  - {from: gsCount, to: gsIdle, when: "iRun'"}
+  - {{from: gsCount, to: gsDone, when: "sN >= {LIMIT}"}}
 """
 
 
@@ -135,7 +135,7 @@ drivers: {{sim: {{type: sim}}}}
 instances:
   m:
     grafcet: counter.yaml
-    inputs: {{iRun: sim.I0}}
+    inputs: {{iUnused: sim.I0}}
     outputs: {{oLamp: sim.Q0}}
 monitor:
   socket: {{path: {self.sock}, trusted: true}}
@@ -160,45 +160,6 @@ monitor:
             stderr=subprocess.STDOUT, text=True)
 
 
-def count_and_mark(plant: Plant, mark: str) -> list[int]:
-    """Run the controller, make it count until it has saved SAVES generations, marking the
-    log (device ``mark``) with each generation its status shows saved, then stop counting,
-    mark the last save and kill it (SIGKILL: no orderly save). The generations marked."""
-    proc = plant.run()
-    marked: list[int] = []
-    ok = False
-
-    def newest() -> int:
-        retain = console.ask("status")["retain"]
-        assert isinstance(retain, dict) and retain["state"] == "ok", retain
-        gen = int(retain["generation"])
-        if gen and (not marked or gen > marked[-1]):
-            sh("dmsetup", "message", mark, "0", "mark", f"softplc-generation-{gen}")
-            marked.append(gen)
-        return gen
-
-    try:
-        console = Console(plant.sock)
-        console.ask("force m.iRun 1")
-        end = time.monotonic() + 300
-        while newest() < SAVES:
-            assert time.monotonic() < end, f"only {marked} saved in 300 s"
-            time.sleep(0.02)
-        console.ask("force m.iRun 0")
-        still = time.monotonic()
-        while time.monotonic() - still < 4 * INTERVAL_MS / 1000:  # the last save, marked
-            if newest() != marked[-1]:
-                still = time.monotonic()
-            time.sleep(0.02)
-        console.close()
-        ok = True
-    finally:
-        proc.kill()
-        out, _ = proc.communicate()
-        log.log(logging.DEBUG if ok else logging.ERROR, "the controller said:\n%s", out)
-    return marked
-
-
 @dataclass
 class Seen:
     """What the points showed, and what checking them cost."""
@@ -210,8 +171,52 @@ class Seen:
     ahead: int = 0  # images holding a generation newer than the last acknowledged
     values: dict[int, int] = field(default_factory=dict)  # generation -> counter
     daemon_starts: list[str] = field(default_factory=list)
+    stalls: int = 0  # status requests unanswered for 60 s
     seconds: defaultdict[str, float] = field(  # phase -> time spent
         default_factory=lambda: defaultdict(float))
+
+
+def count_and_mark(plant: Plant, mark: str, seen: Seen) -> list[int]:
+    """Run the controller until it has counted to LIMIT and saved it, marking the log
+    (device ``mark``) with each generation its status shows saved; then kill it (SIGKILL:
+    no orderly save). The generations marked."""
+    proc = plant.run()
+    marked: list[int] = []
+    ok = False
+    try:
+        console = Console(plant.sock)
+        end = time.monotonic() + 600
+        last, since = -1, time.monotonic()
+        while True:
+            assert time.monotonic() < end, f"only {marked} saved in 600 s"
+            try:
+                status = console.ask("status")
+            except TimeoutError:  # seen once in the guest under a load of 13 on 2 cores
+                seen.stalls += 1
+                assert seen.stalls <= 3, "status unanswered for 60 s, 3 times"
+                log.warning("status unanswered for 60 s: asked again in a new session")
+                console.close()
+                console = Console(plant.sock)
+                continue
+            retain = status["retain"]
+            assert isinstance(retain, dict) and retain["state"] == "ok", retain
+            gen = int(retain["generation"])
+            if gen and (not marked or gen > marked[-1]):
+                sh("dmsetup", "message", mark, "0", "mark", f"softplc-generation-{gen}")
+                marked.append(gen)
+            if gen != last:
+                last, since = gen, time.monotonic()
+            elif (status["steps"] == {"m": ["gsDone"]}
+                  and time.monotonic() - since > 3 * INTERVAL_MS / 1000):
+                break  # counted to the end, and the last value saved
+            time.sleep(0.2)
+        console.close()
+        ok = True
+    finally:
+        proc.kill()
+        out, _ = proc.communicate()
+        log.log(logging.DEBUG if ok else logging.ERROR, "the controller said:\n%s", out)
+    return marked
 
 
 def test_retained_data_survives_a_power_cut_at_every_point(tmp_path: Path) -> None:
@@ -227,6 +232,7 @@ def test_retained_data_survives_a_power_cut_at_every_point(tmp_path: Path) -> No
        "lazy_itable_init=0,lazy_journal_init=0,nodiscard", str(data))
     sparse_copy(data, base)  # the disk when logging begins
     name = f"kio-powercut-{os.getpid()}"
+    seen = Seen()
     began = time.monotonic()
     with loop_device(data) as disk, loop_device(log_img) as logdev:
         sh("dmsetup", "create", name, "--table",
@@ -235,7 +241,7 @@ def test_retained_data_survives_a_power_cut_at_every_point(tmp_path: Path) -> No
         try:
             with mounted(f"/dev/mapper/{name}", mnt):
                 (mnt / "plc").mkdir()
-                marked = count_and_mark(plant, name)
+                marked = count_and_mark(plant, name, seen)
         finally:
             sh("dmsetup", "remove", name)
     with open(log_img, "rb") as lf:
@@ -245,7 +251,6 @@ def test_retained_data_survives_a_power_cut_at_every_point(tmp_path: Path) -> No
     marks = {e.index: int(e.mark.rsplit("-", 1)[1]) for e in entries
              if e.mark and e.mark.startswith("softplc-generation-")}
     assert sorted(marks.values()) == marked
-    seen = Seen()
     seen.seconds["log"] = time.monotonic() - began
     writes = sum(e.is_write for e in entries)
     log.warning("power cut: generations %s marked in %d log entries (%d writes) in %.0f s",
@@ -276,9 +281,10 @@ def test_retained_data_survives_a_power_cut_at_every_point(tmp_path: Path) -> No
     log.warning(
         "power cut: %d crash points checked (%d at a flush or FUA, %d between), %d "
         "distinct disk images loaded; restored from %s; %d images held a generation "
-        "newer than the last acknowledged; the controller started on %s; seconds: %s",
+        "newer than the last acknowledged; the controller started on %s; %d status "
+        "requests unanswered; seconds: %s",
         seen.points, seen.durable, seen.points - seen.durable, seen.images,
-        dict(seen.sources), seen.ahead, seen.daemon_starts,
+        dict(seen.sources), seen.ahead, seen.daemon_starts, seen.stalls,
         {k: round(v, 1) for k, v in seen.seconds.items()})
     gens = sorted(seen.values)
     assert [seen.values[g] for g in gens] == sorted(seen.values[g] for g in gens)
@@ -329,7 +335,7 @@ def check_point(plant: Plant, replay_img: Path, check_img: Path, mnt: Path, entr
 
 def start_controller(plant: Plant, gen: int, value: int, where: str, seen: Seen) -> str:
     """Start the controller on the mounted image for a moment: it must restore ``gen``
-    (holding ``value``), and save it again as the next generation when it stops."""
+    (holding ``value``), go on from it and save a newer generation when it stops."""
     t0 = time.monotonic()
     proc = plant.run("--for", "1s")
     out, _ = proc.communicate(timeout=300)
@@ -337,6 +343,6 @@ def start_controller(plant: Plant, gen: int, value: int, where: str, seen: Seen)
     assert f"(generation {gen})" in out, f"{where}:\n{out}"
     again = plant.store().load()
     assert again.source == str(plant.retain) and again.generation > gen, out
-    assert int(again.data["m"]["sN"]) == value, out
+    assert int(again.data["m"]["sN"]) >= value, out
     seen.seconds["controller"] += time.monotonic() - t0
     return f"generation {gen} restored {where}"
