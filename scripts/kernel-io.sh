@@ -172,5 +172,6 @@ if [ ! -f "$job/status" ]; then
   exit 125
 fi
 status=$(cat "$job/status")
+if [ -s "$job/report" ]; then sed 's/^/kernel-io: /' "$job/report" >&2; fi
 say "guest ran $(since "$boot") s (QEMU used $(echo "$(cpu) - $cpu0" | bc) s of processor time), status $status; $(since "$start") s in all"
 exit "$status"

@@ -75,6 +75,16 @@ transitions:
 """
 
 
+def report(line: str) -> None:
+    """A line of the result, in the log and in the report scripts/kernel-io.sh shows
+    after the guest (KIO_REPORT, set in the guest)."""
+    log.warning("%s", line)
+    path = os.environ.get("KIO_REPORT")
+    if path:
+        with open(path, "a", encoding="utf-8") as f:
+            f.write(line + "\n")
+
+
 def sh(*args: str) -> str:
     done = subprocess.run(args, capture_output=True, text=True)
     assert done.returncode == 0, f"{' '.join(args)}: status {done.returncode}: {done.stderr}"
@@ -253,8 +263,8 @@ def test_retained_data_survives_a_power_cut_at_every_point(tmp_path: Path) -> No
     assert sorted(marks.values()) == marked
     seen.seconds["log"] = time.monotonic() - began
     writes = sum(e.is_write for e in entries)
-    log.warning("power cut: generations %s marked in %d log entries (%d writes) in %.0f s",
-                marked, len(entries), writes, seen.seconds["log"])
+    report(f"power cut: generations {marked} marked in {len(entries)} log entries "
+           f"({writes} writes) in {seen.seconds['log']:.0f} s")
 
     replay_img, check_img = tmp_path / "replay.img", tmp_path / "check.img"
     copy_data(base, replay_img)
@@ -278,14 +288,12 @@ def test_retained_data_survives_a_power_cut_at_every_point(tmp_path: Path) -> No
         assert final.generation >= marked[-1]
         seen.daemon_starts.append(start_controller(
             plant, final.generation, int(final.data["m"]["sN"]), "after the cut", seen))
-    log.warning(
-        "power cut: %d crash points checked (%d at a flush or FUA, %d between), %d "
-        "distinct disk images loaded; restored from %s; %d images held a generation "
-        "newer than the last acknowledged; the controller started on %s; %d status "
-        "requests unanswered; seconds: %s",
-        seen.points, seen.durable, seen.points - seen.durable, seen.images,
-        dict(seen.sources), seen.ahead, seen.daemon_starts, seen.stalls,
-        {k: round(v, 1) for k, v in seen.seconds.items()})
+    report(f"power cut: {seen.points} crash points checked ({seen.durable} at a flush or "
+           f"FUA, {seen.points - seen.durable} between), {seen.images} distinct disk images "
+           f"loaded; restored from {dict(seen.sources)}; {seen.ahead} images held a "
+           f"generation newer than the last acknowledged; the controller started on "
+           f"{seen.daemon_starts}; {seen.stalls} status requests unanswered; seconds: "
+           f"{ {k: round(v, 1) for k, v in seen.seconds.items()} }")
     gens = sorted(seen.values)
     assert [seen.values[g] for g in gens] == sorted(seen.values[g] for g in gens)
     assert len(set(seen.values.values())) == len(gens), seen.values

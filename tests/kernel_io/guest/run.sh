@@ -42,8 +42,9 @@ for a in /sys/bus/i2c/devices/i2c-*; do
   [ "$(cat "$a/name")" = "SMBus stub driver" ] && bus=${a##*/i2c-}
 done
 [ -n "$bus" ] || { echo "kernel-io guest: no i2c-stub adapter" >&2; exit 3; }
+# KIO_REPORT: lines of results the tests leave for the host to show (the job's share)
 export SOFTPLC_KERNEL_IO=guest SOFTPLC_TEST_GPIO="/dev/$chip:0:1" \
-  SOFTPLC_TEST_I2C="mcp23017:$bus:0x21"
+  SOFTPLC_TEST_I2C="mcp23017:$bus:0x21" KIO_REPORT=/run/kio-job/report
 echo "kernel-io guest: devices ready at $(up) s (wired pair /dev/$chip 0->1, i2c-stub on /dev/i2c-$bus)"
 # the tests: those named among the arguments (a path, with ::NAME or not), else the tier
 named=0
