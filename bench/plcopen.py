@@ -13,6 +13,10 @@ other processes):
 
 The target: a 500-step chart exported and imported in under 1 s each.
 
+Then the test files of ``tests/plcopen/data`` (editors' projects: function blocks in
+networks, LD actions, globals, a program of instances), each imported whole as ``softplc
+import`` does it, plant skeleton included: target under 1 s of CPU for the largest.
+
     python -m bench.plcopen [--steps 100 200 500 1000] [--repeat 5]
 """
 
@@ -24,15 +28,19 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import TypeVar
 
 from bench.compile import chart_text, load
 from runtime.language import yamlsrc
+from runtime.plcopen.commands import chart_files, plant_text
 from runtime.plcopen.commands import chart_text as yaml_text
 from runtime.plcopen.export import export_chart
 from runtime.plcopen.importer import import_file
 
 R = TypeVar("R")
+#: the PLCopen test files
+DATA = Path(__file__).resolve().parents[1] / "tests" / "plcopen" / "data"
 
 
 def out(line: str) -> None:
@@ -80,6 +88,19 @@ def main() -> int:
             wi, ci, _ = best(imp, args.repeat)
             out(f"{len(g.steps):>6} {len(g.transitions):>6} {len(xml.encode()) / 1000:>7.0f} "
                 f"{we:>9.3f} {ce:>7.3f} {wi:>9.3f} {ci:>7.3f}")
+    out("")
+    out(f"{'test file':<24} {'kB':>5} {'charts':>6} {'import s':>9} {'(cpu)':>7}")
+    for data in sorted(DATA.glob("*.xml"), key=lambda p: p.stat().st_size):
+        def whole() -> int:
+            result = import_file(str(data))  # noqa: B023 - run at once
+            files = chart_files(result)
+            for chart in result.charts:
+                yaml_text(str(data), chart)  # noqa: B023
+            plant_text(str(data), result, files)  # noqa: B023
+            return len(result.charts)
+
+        w, c, n = best(whole, args.repeat)
+        out(f"{data.name:<24} {data.stat().st_size / 1000:>5.0f} {n:>6} {w:>9.3f} {c:>7.3f}")
     return 0
 
 

@@ -322,6 +322,39 @@ EXTRAS: dict[str, tuple[str, str]] = {
 }
 
 
+def install_hint(extra: str) -> str:
+    """The command that adds softplc's extra ``extra`` to the environment running this
+    code: this interpreter's pip, given the source tree softplc was installed from (its
+    ``direct_url.json``; ``-e`` for an editable install, what scripts/setup.sh makes), or
+    this tree when it runs uninstalled. softplc is not published on a package index, so
+    never a bare ``softplc[EXTRA]``: pip would fetch whatever owns that name."""
+    import json
+    import shlex
+    import sys
+    from importlib import metadata
+    from pathlib import Path
+    from urllib.parse import unquote, urlsplit
+
+    python = shlex.quote(sys.executable or "python3")
+    source, editable = "", False
+    try:
+        said = json.loads(metadata.distribution("softplc").read_text("direct_url.json") or "")
+    except (metadata.PackageNotFoundError, ValueError):
+        said = None
+    if isinstance(said, dict) and str(said.get("url", "")).startswith("file://"):
+        source = unquote(urlsplit(str(said["url"])).path)
+        editable = bool((said.get("dir_info") or {}).get("editable"))
+    else:
+        tree = Path(__file__).resolve().parents[1]
+        if (tree / "pyproject.toml").is_file() and (tree / "runtime").is_dir():
+            source, editable = str(tree), True
+    if not source:
+        return (f"{python} -m pip install '/path/to/softplc[{extra}]' (the source tree "
+                f"softplc was installed from)")
+    return (f"{python} -m pip install {'-e ' if editable else ''}"
+            f"{shlex.quote(f'{source}[{extra}]')}")
+
+
 class DriverImportError(ImportError):
     """The library a driver needs is not installed; the message names the package."""
 
@@ -337,7 +370,7 @@ def driver_class(type_name: str) -> type[Driver]:
             raise
         missing = "" if exc.name in (None, package) else f" (module '{exc.name}' not found)"
         extra = EXTRAS.get(package or "")
-        hint = (f"pip install 'softplc[{extra[0]}]' ({extra[1]})" if extra
+        hint = (f"{install_hint(extra[0])} ({extra[1]})" if extra
                 else f"pip install {package}")
         raise DriverImportError(
             f"driver type '{type_name}' needs the Python package '{package}'{missing}: {hint}"

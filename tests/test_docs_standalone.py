@@ -191,3 +191,19 @@ def test_the_reference_simulation_script_does_what_its_comments_say(tmp_path: Pa
     assert rows[1000]["tester1.SFCPause"] == 1
     assert rows[1490]["tester1.gsAbrir.T_ms"] == rows[1000]["tester1.gsAbrir.T_ms"]
     assert (rows[1500]["tester1.iParo"], rows[1500]["sim.I0"]) == (1, 0)
+
+
+def test_the_readme_lists_every_command() -> None:
+    """README's "The command line" names every subcommand the parser has (``softplc
+    iolist`` was missing)."""
+    import argparse
+
+    from runtime.cli import build_parser
+
+    parser = build_parser(None)
+    (sub,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    section = text[text.index("## The command line"):]
+    block = section[section.index("```"):section.index("```", section.index("```") + 3)]
+    listed = set(re.findall(r"^softplc ([a-z-]+)", block, re.M))
+    assert sorted(set(sub.choices) - listed) == []

@@ -23,7 +23,7 @@ from jsonschema import Draft202012Validator  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"
 SCHEMA_DIR = CONFIGS / "schema"
-KINDS = ("grafcet", "plant", "script")
+KINDS = ("grafcet", "plant", "script", "scenario")
 YAML_FILES = sorted(p for p in CONFIGS.rglob("*") if p.suffix in (".yaml", ".yml")
                     and "schema" not in p.relative_to(CONFIGS).parts)
 
@@ -37,12 +37,15 @@ VALIDATORS = {k: Draft202012Validator(load_schema(k)) for k in KINDS}
 
 
 def kind_of(doc: Any) -> str:
-    """The file kind from its top-level keys (language.md: grafcet, plant, script)."""
+    """The file kind from its top-level keys (language.md: grafcet, plant, script;
+    testing-charts.md: scenario)."""
     if isinstance(doc, dict):
         if "grafcet" in doc:
             return "grafcet"
         if "instances" in doc:
             return "plant"
+        if "expect" in doc:
+            return "scenario"
         if {"set", "duration", "cycles"} & set(doc):
             return "script"
     return "unknown"
@@ -250,6 +253,12 @@ set:
 """
 
 
+def test_an_output_bound_with_to_validates() -> None:
+    doc = {**MINIMAL_PLANT, **y("""\
+        instances: {t1: {grafcet: g.yaml, outputs: {oA: {to: sim.Q0, invert: true}}}}""")}
+    assert not errors("plant", doc), errors("plant", doc)
+
+
 @pytest.mark.parametrize("kind, text", [("grafcet", SPEC_GRAFCET), ("plant", SPEC_PLANT),
                                         ("script", SPEC_SCRIPT)])
 def test_contract_examples_validate(kind: str, text: str) -> None:
@@ -357,6 +366,9 @@ PLANT_BAD = {
     "binding without from": "instances: {t1: {grafcet: g.yaml, inputs: {iA: {invert: true}}}}",
     "binding unknown key": """\
         instances: {t1: {grafcet: g.yaml, outputs: {oA: {from: sim.Q0, negate: true}}}}""",
+    "input bound with to": "instances: {t1: {grafcet: g.yaml, inputs: {iA: {to: sim.I0}}}}",
+    "output bound with from and to": """\
+        instances: {t1: {grafcet: g.yaml, outputs: {oA: {from: sim.Q0, to: sim.Q1}}}}""",
     "monitor unknown key": "monitor: {telnet: 23}",
     "monitor serial without port": "monitor: {serial: {baudrate: 115200}}",
     "monitor trusted not a bool": "monitor: {socket: {path: /tmp/s.sock, trusted: 1}}",
@@ -455,10 +467,13 @@ def test_the_schemas_know_every_key_the_loader_reads() -> None:
                                                       "overruns")),
         "instance": (pf.INSTANCE_KEYS, ("plant", "$defs", "instance")),
         "binding": (pf.BINDING_KEYS, ("plant", "$defs", "binding", "oneOf", 1)),
+        "output binding": (pf.OUTPUT_BINDING_KEYS, ("plant", "$defs", "outputBinding", "oneOf",
+                                                    1)),
         "grafcet": (grafcetfile.GRAFCET_KEYS, ("grafcet",)),
         "step": (grafcetfile.STEP_KEYS, ("grafcet", "$defs", "innerStep")),
         "transition": (grafcetfile.TRANSITION_KEYS, ("grafcet", "$defs", "transition")),
         "script": (filekind.SCRIPT_KEYS, ("script",)),
+        "scenario": (filekind.SCENARIO_KEYS, ("scenario",)),
     }
     differ = {}
     for name, (keys, path) in sections.items():

@@ -105,3 +105,52 @@ def test_no_controller_yet_is_said_once_and_waited_for(tmp_path: Path, cmd: str)
     seen += rest.splitlines()
     assert sum(want in s for s in seen) == 1, seen  # said once, not at every retry
     assert not any("Traceback" in s for s in seen), seen
+
+
+@pytest.mark.parametrize("cmd", ["mqtt", "web", "opcua"])
+def test_the_feed_of_another_plant_is_refused_in_one_line(tmp_path: Path, cmd: str) -> None:
+    """Issue: ``softplc web`` of a second plant attached to the first plant's feed and
+    showed "live / running" over its own chart, every value "?". The feed says whose it is
+    (the plant's name and directory, as its lock and retained data do); a side process
+    given another plant's refuses it: one line, exit status 2, nothing served from it."""
+    feed = tmp_path / "shared-feed.sock"
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir()
+    b.mkdir()
+    (a / "plant.yaml").write_text(plant_head(a) + f"web:\n  feed: {feed}\n  listen: "
+                                  "127.0.0.1:0\n", encoding="utf-8")
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "XDG_RUNTIME_DIR": str(tmp_path)}
+    env.pop("JOURNAL_STREAM", None)
+    ctl = subprocess.Popen([sys.executable, "-m", "runtime.cli", "run", str(a / "plant.yaml"),
+                            "--sim"], cwd=str(tmp_path), env=env, stdout=subprocess.DEVNULL,
+                           stderr=subprocess.PIPE, text=True)
+    try:
+        end = time.monotonic() + 60
+        while not feed.is_socket():
+            assert ctl.poll() is None and time.monotonic() < end, "the controller's feed"
+            time.sleep(0.05)
+        with socket.socket() as probe:
+            probe.bind(("127.0.0.1", 0))
+            port = probe.getsockname()[1]
+        plant = b / "plant.yaml"
+        plant.write_text(plant_head(b) + SECTIONS[cmd].format(feed=feed, port=port),
+                         encoding="utf-8")
+        p = side(cmd, plant, b)
+        try:
+            out, _ = p.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            out, _ = p.communicate()
+            raise AssertionError(f"softplc {cmd} followed another plant's feed: {out}"
+                                 ) from None
+    finally:
+        ctl.send_signal(signal.SIGTERM)
+        ctl.communicate(timeout=30)
+    want = (f"{plant}:14:9: error: {cmd} feed: {feed} is the feed of plant a ({a}), not of "
+            f"this plant b ({b}): not followed; give {cmd}: feed a path of its own (or "
+            "leave it out: the default is the plant's own)")
+    assert p.returncode == 2, out
+    lines = out.splitlines()
+    assert lines[-1] == want, out
+    assert sum("error" in x.lower() for x in lines) == 1, out
+    assert not any("Traceback" in x for x in lines), out

@@ -118,3 +118,16 @@ def test_a_fault_without_trace_is_the_same_line(write: Write, plant: str) -> Non
         for row in sim.run():
             rows.append(row)
     assert len(rows) == 5 and rows[-1]["fault"] == e.value.message
+
+
+def test_a_script_given_as_a_second_file_points_at_script(write: Write, plant: str) -> None:
+    """``softplc simulate PLANT story.yaml``: the simulate command's usage and where the
+    script goes (it printed the top-level usage, naming every command but this one's
+    options)."""
+    script = write("story.yaml", "set:\n  - {at: 1s, u.go: 1}\n")
+    r = simulate(plant, script)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert r.stderr.startswith("usage: softplc simulate "), r.stderr
+    assert r.stderr.splitlines()[-1] == (
+        f"softplc simulate: error: unrecognized arguments: {script} (a script is given "
+        f"with --script: --script {script})"), r.stderr

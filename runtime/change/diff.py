@@ -182,7 +182,7 @@ SIDES = {"opcua": ("OPC UA server", "softplc opcua; systemctl restart softplc-op
          "web": ("web view", "softplc web; systemctl restart softplc-web@NAME")}
 #: what of ``web:`` is the web view's own (read at its start)
 WEB_OWN = ("host", "port", "certificate", "private_key", "users", "read", "idle_logout_ns",
-           "max_pages")
+           "max_pages", "page_timeout_ns", "hosts")
 #: what of ``mqtt:`` is the edge node's own (read at its start)
 MQTT_OWN = ("brokers", "group_id", "edge_node_id", "client_id", "username", "password_file",
             "tls", "primary_host", "publish", "statistics_ns", "keepalive_ns", "buffer")
@@ -248,7 +248,8 @@ def _sides(cs: ChangeSet) -> None:
                 ("endpoint", old.endpoint, new.endpoint),
                 ("security", replace(old.security, loc=None), replace(new.security, loc=None))]
         elif key == "web":
-            own = [(f, getattr(old, f), getattr(new, f)) for f in WEB_OWN]
+            own = [(f.removesuffix("_ns"), getattr(old, f), getattr(new, f))
+                   for f in WEB_OWN]
         else:  # (the TLS files' place in the file is no setting)
             own = [(f.removesuffix("_ns"), getattr(old, f), getattr(new, f))
                    for f in MQTT_OWN if f != "tls"]

@@ -16,8 +16,9 @@ plant not checked further because a chart of it breaks a rule above, G301 unboun
 signal, G302 physical output bound twice, G303 driver point that does not exist (or wrong
 direction or type), G304 bad driver configuration, G305 (note) point not checked because the
 driver's library is missing, G306 one input point feeding two inputs of an instance, G307 an
-output bound to an input point. Chart warnings also G210 (a stored action nothing resets)
-and G211 (a timer read stale under ``scan: stable``).
+output bound to an input point, G308 a file of ``opcua: security:`` that is not there.
+Chart warnings also G210 (a stored action nothing resets) and G211 (a timer read stale
+under ``scan: stable``).
 
 A simulation script (``duration:``/``cycles:``, ``set:``) is checked against its plant
 (``--plant``, or the one plant file of its directory), so that ``softplc check
@@ -141,6 +142,8 @@ class CheckRun:
             res = self._plant(path)
         elif kind == "script":
             res = [self._script(path)]
+        elif kind == "scenario":
+            res = [self._scenario(path)]
         else:
             res = [FileResult(path, [], f"{path}:1:1: error: expected a grafcet file "
                                         "('grafcet:' and 'steps:'), a plant file "
@@ -206,6 +209,17 @@ class CheckRun:
             return FileResult(path, [diag(Loc(path, 1, 1), "note", "G401", "the script has "
                                           "neither 'duration:' nor 'cycles:': run it with "
                                           "softplc simulate PLANT --script S --cycles N")])
+        return FileResult(path, [])
+
+    def _scenario(self, path: str) -> FileResult:
+        """A scenario (``softplc test``) is read as softplc test reads it, against the plant
+        it names: its inputs, names, values and times (docs/testing-charts.md)."""
+        from runtime.scenario.spec import read_scenario
+
+        try:
+            read_scenario(path)
+        except SourceError as exc:
+            return FileResult(path, [], str(exc))
         return FileResult(path, [])
 
     def _grafcet(self, path: str, g: Grafcet | None = None) -> FileResult:
@@ -278,11 +292,11 @@ def check_files(paths: Iterable[str], limit: int = LIMIT,
 
 
 def exit_status(results: Iterable[FileResult]) -> int:
+    """2 if any file has an error (a loading error or a rule's), as every command exits on
+    an error in a file; else 0: warnings and notes never change it."""
     results = list(results)
-    if any(r.failure for r in results):
+    if any(r.failure or any(d.severity == "error" for d in r.diags) for r in results):
         return 2
-    if any(d.severity == "error" for r in results for d in r.diags):
-        return 1
     return 0
 
 

@@ -17,6 +17,17 @@ from runtime.language.model import Binding, PlantDef, VarKind
 T = A.Type
 
 
+def opcua_files(p: PlantDef) -> list[Diag]:
+    """G308: a certificate, key or trusted directory of ``opcua: security:`` that is not
+    there (the controller loads without them; ``softplc opcua`` would refuse to start)."""
+    from runtime.language.opcuaconf import security_problems
+
+    if p.opcua is None:
+        return []
+    return [diag(e.loc, "error", "G308", e.message)
+            for e in security_problems(p.opcua.security)]
+
+
 def check_plant_model(p: PlantDef) -> list[Diag]:
     """Driver points of a loaded plant: do they exist on their driver (G303-G305)?"""
     from drivers.base import Direction, PointError, PointKind
@@ -40,7 +51,7 @@ def check_plant_model(p: PlantDef) -> list[Diag]:
         except (ConfigError, ValueError, TypeError) as exc:
             out.append(diag(d.loc, "error", "G304", f"driver '{name}' ({d.type}): {exc}"))
     one_way = {name for name, drv in drivers.items() if drv.ONE_DIRECTION_PER_POINT}
-    out += shared_inputs(p) + outputs_on_inputs(p, one_way)
+    out += shared_inputs(p) + outputs_on_inputs(p, one_way) + opcua_files(p)
     noted: set[str] = set()
     for inst in p.instances.values():
         for direction, section in ((Direction.IN, inst.inputs), (Direction.OUT, inst.outputs)):

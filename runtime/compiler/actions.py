@@ -4,7 +4,7 @@ scan, and the supervision of steps' max times."""
 
 from __future__ import annotations
 
-from runtime.compiler.emit import Emitter, ident
+from runtime.compiler.emit import Emitter, comment, ident
 from runtime.compiler.expressions import ExprEmitter
 from runtime.compiler.layout import StateLayout, bool_targets
 from runtime.compiler.statements import StmtEmitter
@@ -23,6 +23,8 @@ class ActionEmitter:
         self.stmts = stmts
         self.stable = g.scan is ScanModel.STABLE
         self.codesys = g.scan is ScanModel.CODESYS
+        #: each action's position in ``g.actions()`` (its coverage counter's number)
+        self.number = {id(a): n for n, a in enumerate(g.actions())}
 
     def reset_stored(self, out: Emitter) -> None:
         """Reset every stored action's memory (S targets, SD SL DS flags, CODESYS's Q)."""
@@ -37,8 +39,8 @@ class ActionEmitter:
 
     def bool_action(self, out: Emitter, target: str, assocs: list[Action]) -> None:
         """The value of ``target`` from every action that drives it (a reset wins)."""
-        out(f"# action control of {target}: " + "; ".join(
-            f"{a.qualifier.value} in {a.step}" for a in assocs))
+        out(comment(f"action control of {target}: " + "; ".join(
+            f"{a.qualifier.value} in {a.step}" for a in assocs)))
         terms: list[str] = []
         resets = [self.active(a.step) for a in assocs if a.qualifier is Qualifier.R]
         r = None
@@ -51,28 +53,32 @@ class ActionEmitter:
             out(self.state.let(s, value=f"({s} or {' or '.join(sets)})"
                                + (" and not _r" if r else "")))
             terms.append(s)
+        for a in assocs:  # with coverage: a set or a reset runs while its step is active
+            if a.qualifier in (Qualifier.S, Qualifier.R):
+                self.count(out, a, self.active(a.step))
         for k, a in enumerate(assocs):
             q, st = a.qualifier, a.step
             x, ta = ident("x", st), ident("ta", st)  # ta: since X rose (layout.py)
             if q is Qualifier.N:
-                terms.append(f"({x} and {self.exprs.ex(a.cond)})" if a.cond is not None else x)
+                terms.append(self.counted(out, a, f"({x} and {self.exprs.ex(a.cond)})"
+                                          if a.cond is not None else x))
             elif q is Qualifier.L:
-                terms.append(f"({x} and ct - {ta} < {a.time_ns})")
+                terms.append(self.counted(out, a, f"({x} and ct - {ta} < {a.time_ns})"))
             elif q is Qualifier.D:
-                terms.append(f"({x} and ct - {ta} >= {a.time_ns})")
+                terms.append(self.counted(out, a, f"({x} and ct - {ta} >= {a.time_ns})"))
             elif q is Qualifier.P:
-                terms.append(ident("a", st))
+                terms.append(self.counted(out, a, ident("a", st)))
             elif q in (Qualifier.SD, Qualifier.SL, Qualifier.DS):
                 tag = f"{q.value.lower()}{k}_{target}"
                 ff, tt = f"f{tag}", f"t{tag}"
                 if q is Qualifier.DS:
                     out(f"if {x} and ct - {ta} >= {a.time_ns}: {self.state.let(ff, value='True')}")
-                    terms.append(ff)
+                    terms.append(self.counted(out, a, ff))
                 else:
                     out(f"if {self.active(st)} and not {ff}: {self.state.let(ff, value='True')}; "
                         f"{self.state.let(tt, value='ct')}")
                     cmp = ">=" if q is Qualifier.SD else "<"
-                    terms.append(f"({ff} and ct - {tt} {cmp} {a.time_ns})")
+                    terms.append(self.counted(out, a, f"({ff} and ct - {tt} {cmp} {a.time_ns})"))
                 if r:
                     out(f"if _r: {self.state.let(ff, value='False')}")
         value = " or ".join(terms) or "False"
@@ -80,19 +86,35 @@ class ActionEmitter:
             value = f"not _r and ({value})"
         out(self.state.let(ident("v", target), value=value))
 
+    def count(self, out: Emitter, a: Action, term: str) -> None:
+        """With coverage: count a run of ``a`` in a scan where ``term`` holds."""
+        count = self.state.count("action", self.number[id(a)], term)
+        if count:
+            out(count)
+
+    def counted(self, out: Emitter, a: Action, term: str) -> str:
+        """``term``, the part of ``a`` in its target's value; with coverage, computed once
+        into a temporary (``cvN``) whose truth counts a run of ``a``."""
+        if not self.state.coverage:
+            return term
+        n = self.number[id(a)]
+        out(f"cv{n} = {term}")
+        self.count(out, a, f"cv{n}")
+        return f"cv{n}"
+
     def statement_action(self, out: Emitter, a: Action, final_scan: bool = False) -> None:
         """``if <the action's Q>: body``; with ``final_scan``, CODESYS's extra run of an IEC
         action whose step was left in the previous scan (Q = false)."""
         q, st = a.qualifier, a.step
         x, ta = ident("x", st), ident("ta", st)
         ent, left = ident("a", st), ident("l", st)
-        text = a.text.replace("\n", " ")
-        label = f"{q.value if q is not Qualifier.EVENT else 'on'} in {st}: {text[:60]}"
+        label = f"{q.value if q is not Qualifier.EVENT else 'on'} in {st}: {a.text[:60]}"
         held = f"cq{a.index}" if self.codesys and q in (Qualifier.L, Qualifier.D) else None
         if final_scan:
-            out(f"# final scan of {label}")
+            out(comment(f"final scan of {label}"))
             # an L/D action runs once more only if it was running in the previous scan
             out(f"if {left} and {held}:" if held else f"if {left}:")
+            self.run_counted(out, a)
             self.stmts.block(out, a.body or [])
             return
         if q is Qualifier.N:
@@ -107,12 +129,21 @@ class ActionEmitter:
             cond = left
         else:  # EVENT
             cond = f"{self.active(st)} and {self.exprs.ex(a.event)}"  # type: ignore[arg-type]
-        out(f"# {label}")
+        out(comment(label))
         if held:
             out(self.state.let(held, value=cond))
             cond = held
         out(f"if {cond}:")
+        self.run_counted(out, a)
         self.stmts.block(out, a.body or [])
+
+    def run_counted(self, out: Emitter, a: Action) -> None:
+        """With coverage, the first line of a statement action's body: a run counted."""
+        count = self.state.count("action", self.number[id(a)])
+        if count:
+            out.indent()
+            out(count)
+            out.dedent()
 
     def ordered_actions(self, out: Emitter) -> None:
         """Every action in the scan model's order, then the supervision of max times."""

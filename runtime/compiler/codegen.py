@@ -28,9 +28,10 @@ from typing import Any
 
 from runtime.compiler.actions import ActionEmitter
 from runtime.compiler.codebook import CodeBook, compile_code
-from runtime.compiler.emit import Emitter, ident, renamed
+from runtime.compiler.emit import Emitter, comment, ident, renamed
 from runtime.compiler.evolution import Evolution, unstable_chart
 from runtime.compiler.expressions import HELPERS, ExprEmitter
+from runtime.compiler.guard import checked_eval, restricted_builtins
 from runtime.compiler.layout import SLOW_FLAGS, SLOW_MEMORY, StateLayout, macro_initial
 from runtime.compiler.program import Probe, Program
 from runtime.compiler.statements import StmtEmitter
@@ -39,7 +40,8 @@ from runtime.language.model import Grafcet, ScanModel, Step, VarKind
 
 #: the names a generated scan reads from its module: the integer helpers and the builder of
 #: the unstable-chart error (the plant's inlined scans read them from its cycle's module)
-SCAN_GLOBALS: dict[str, Any] = {**HELPERS, "_Unstable": unstable_chart}
+SCAN_GLOBALS: dict[str, Any] = {**HELPERS, "_Unstable": unstable_chart,
+                                 "__builtins__": restricted_builtins()}
 #: a read of an entered (``a_``) or left (``l_``) mark in a line of generated code
 _MARK_READ = re.compile(r"\b([al]_\w+)\b(?!\s*=[^=])")
 #: the fast path's first line: the chart clock, its base's distance to now (the plant's
@@ -51,11 +53,11 @@ class Compiler:
     """Generates the scan function of one grafcet, from the parts that generate each piece
     (all of them share the one state layout)."""
 
-    def __init__(self, g: Grafcet) -> None:
+    def __init__(self, g: Grafcet, coverage: bool = False) -> None:
         self.g = g
         self.codesys = g.scan is ScanModel.CODESYS
         self.stable = g.scan is ScanModel.STABLE
-        self.state = StateLayout(g)
+        self.state = StateLayout(g, coverage)
         self.exprs = ExprEmitter(self.state)
         self.stmts = StmtEmitter(g, self.state, self.exprs)
         self.evolution = Evolution(g, self.state, self.exprs)
@@ -73,7 +75,7 @@ class Compiler:
         params = "".join(f", {ident('in', v)}" for v in self.inputs())
         outs = "".join(f"{ident('v', v)}, " for v in self.outputs())
         ret = f"return ({outs})" if outs else "return None"
-        head = [f"# softplc: generated scan of grafcet {g.name} ({g.path})",
+        head = [comment(f"softplc: generated scan of grafcet {g.name} ({g.path})"),
                 f"# scan model: {g.scan.value}; {len(self.evolution.leaf)} steps, "
                 f"{len(g.transitions)} transitions, {len(self.state.slots)} state slots",
                 "def make(m, init):",
@@ -222,8 +224,8 @@ class Compiler:
         self.evolution.to_initial(out, mark_entered=False)
         out("if not resetprev:")
         out.indent()
-        out("; ".join(L(ident("a", s.name), value="True") for s in steps
-                      if s.initial or macro_initial(g, s)))
+        out("; ".join(L(ident("a", s.name), value="True") + self.evolution.counted(s.name)
+                      for s in steps if s.initial or macro_initial(g, s)))
         out.dedent()
         out("frozen = True")
         out.dedent()
@@ -270,7 +272,7 @@ class Compiler:
     def probes(self) -> dict[int, list[Probe]]:
         """Sub-terms of every transition condition, compiled against the state list."""
         out: dict[int, list[Probe]] = {}
-        env = HELPERS
+        env: dict[str, Any] = dict(HELPERS)
 
         def visit(n: A.Node, depth: int, terms: list[tuple[A.Node, int]]) -> None:
             terms.append((n, depth))
@@ -286,20 +288,23 @@ class Compiler:
             lst = []
             for n, depth in terms:
                 code = self.exprs.ex(n, self.exprs.ref_state)
-                fn = eval(f"lambda m, now, up: {code}", dict(env))  # noqa: S307 - our own code
+                fn = checked_eval(f"lambda m, now, up: {code}", env)
                 lst.append(Probe(t.text[n.start:n.end], depth, fn))
             out[t.index] = lst
         return out
 
 
-def compile_grafcet(g: Grafcet, book: CodeBook | None = None) -> Program:
+def compile_grafcet(g: Grafcet, book: CodeBook | None = None, coverage: bool = False
+                    ) -> Program:
     """Compile ``g`` into a Program (source, scan factory, state layout); ``book``: code
-    compiled in another process, used when it holds this source (codebook.py)."""
-    c = Compiler(g)
+    compiled in another process, used when it holds this source (codebook.py).
+    ``coverage``: the scan also counts each step's activations, each transition's firings
+    and each action's runs (``Program.coverage``; ``softplc test --coverage``)."""
+    c = Compiler(g, coverage)
     source = c.generate()
     digest = hashlib.sha1(source.encode()).hexdigest()[:8]
     env = dict(SCAN_GLOBALS)
-    code = compile_code(source, f"<grafcet {g.name} {digest}>", book)
+    code = compile_code(source, f"<grafcet {g.name} {digest}>", env.keys(), book)
     exec(code, env)  # noqa: S102 - generated from the checked model
     return Program(g, source, env["make"], c.state.slots, c.probes(), c.inputs(), c.outputs(),
                    c.fast)

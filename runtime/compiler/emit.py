@@ -1,5 +1,6 @@
 """The lines of a generated scan function as they are written, the local that holds each
-chart name in it, and a block of generated lines with some of its names replaced."""
+chart name in it, the one way a text reaches a comment, and a block of generated lines with
+some of its names replaced."""
 
 from __future__ import annotations
 
@@ -13,6 +14,23 @@ def ident(prefix: str, name: str) -> str:
     """The local of a chart name: ``v_`` variable, ``x_`` ``t0_`` ``tk_`` a step's X and
     times, ``a_`` ``l_`` entered / left this scan, ``b_`` a block, ``s_`` a set target."""
     return f"{prefix}_{name}"
+
+
+def one_line(text: str) -> str:
+    """``text`` as one line of printable characters: every character that is not printable
+    (CR, LF, VT, FF, NUL, the file separators, NEL, U+2028, U+2029, a tab ...) written as
+    its Python escape (``\\r``), a backslash doubled. What a comment may carry of a user's
+    text: nothing in it can end the comment for the compiler, ``tokenize`` or a line
+    split."""
+    if text.isprintable() and "\\" not in text:
+        return text
+    return "".join(c if c.isprintable() and c != "\\" else ascii(c)[1:-1] for c in text)
+
+
+def comment(text: str) -> str:
+    """A comment line's text (``# ...``) carrying ``text`` made :func:`one_line`: the only
+    way an emitter writes a comment holding anything but its own words."""
+    return "# " + one_line(text)
 
 
 class Emitter:

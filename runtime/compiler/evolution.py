@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Callable
 
-from runtime.compiler.emit import Emitter, ident
+from runtime.compiler.emit import Emitter, comment, ident
 from runtime.compiler.expressions import ExprEmitter
 from runtime.compiler.layout import StateLayout, macro_initial
 from runtime.errors import SoftplcError
@@ -87,7 +87,7 @@ class Evolution:
                 terms.append(f"(ct - {ident('t0', st.name)}) >= {st.min_ns}")
             terms += [f"not {ident('h', s)}" for s in srcs if s in seen]
             terms.append(self.exprs.ex(t.cond))
-            out(f"# {transition_text(t)}")
+            out(comment(transition_text(t)))
             out(self.state.let(f, value=" and ".join(terms)))
             for s in srcs:
                 left[s] -= 1
@@ -103,11 +103,17 @@ class Evolution:
                 f"{self.state.let(lft, value='True')}")
 
     def _enter(self, step: str) -> str:
-        """Statements activating ``step``: its .T restarts, it is marked entered."""
+        """Statements activating ``step``: its .T restarts, it is marked entered (and
+        counted, with coverage)."""
         x, a = ident("x", step), ident("a", step)
         return (f"{self.state.let(x, value='True')}; "
                 f"{self.state.let(*self._starts(step), value='ct')}; "
-                f"{self.state.let(a, value='True')}")
+                f"{self.state.let(a, value='True')}{self.counted(step)}")
+
+    def counted(self, step: str) -> str:
+        """``; <count an activation of step>``, or "" without coverage."""
+        count = self.state.count("step", step)
+        return f"; {count}" if count else ""
 
     def _starts(self, step: str) -> list[str]:
         """The clocks an activation of ``step`` restarts: its ``.T``'s, and the one its L, D
@@ -117,6 +123,10 @@ class Evolution:
     def apply_fired(self, out: Emitter) -> None:
         """Deactivate sources, then activate targets, of the transitions that fired."""
         g = self.g
+        for t in g.transitions:  # with coverage: each transition's firings counted
+            count = self.state.count("transition", t.index, self.fired_name(t))
+            if count:
+                out(count)
         # the fired flags leaving / entering each step and macro-step, in file order (one
         # pass over the transitions, not one per step)
         leaves: dict[str, list[str]] = {}
@@ -140,8 +150,8 @@ class Evolution:
             if leaving and entering:
                 out(f"if {' or '.join(leaving)}:")
                 out.indent()
-                out(f"if {' or '.join(entering)}: {self.state.let(t0, value='ct')}  "
-                    "# rule 5: stays active, .T restarts")
+                out(f"if {' or '.join(entering)}: {self.state.let(t0, value='ct')}"
+                    f"{self.counted(st.name)}  # rule 5: stays active, .T restarts")
                 out(f"else: {self._leave(st.name)}")
                 out.dedent()
                 out(f"elif ({' or '.join(entering)}) and not {x}: {self._enter(st.name)}")
@@ -163,7 +173,7 @@ class Evolution:
                 out(f"if ({' or '.join(entering)}) and (not {x}{again}):")
                 out.indent()
                 out(self.state.let(t0, value="ct"))
-                entered = self.state.let(a, value="True")
+                entered = self.state.let(a, value="True") + self.counted(m.name)
                 if m.name in self.state.timed:  # entered while inactive: its delays start
                     entered = f"{self.state.let(ident('ta', m.name), value='ct')}; {entered}"
                 out(f"if not {x}: {entered}")
@@ -200,7 +210,8 @@ class Evolution:
                     f"{self.state.let(*self._starts(st.name), value='ct')}; "
                     f"{self.state.let(tk, value='0')}")
             if mark_entered and init:
-                line += f"; {self.state.let(ident('a', st.name), value='True')}"
+                line += (f"; {self.state.let(ident('a', st.name), value='True')}"
+                         f"{self.counted(st.name)}")
             out(line)
         if self.codesys:
             out("; ".join(self.state.let(f"pf{t.index}", value="False") for t in self.g.transitions)

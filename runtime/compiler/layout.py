@@ -8,7 +8,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from runtime.compiler.emit import ident
-from runtime.compiler.program import Slot, SlotKind
+from runtime.compiler.program import COVERAGE, Slot, SlotKind
 from runtime.language import ast as A
 from runtime.language.model import Action, Grafcet, Qualifier, ScanModel, Step, VarKind
 from runtime.language.unparse import unparse
@@ -70,11 +70,20 @@ def activation_timed(g: Grafcet) -> set[str]:
     return {a.step for a in g.actions() if a.qualifier in ACTIVATION_TIMED}
 
 
+def coverage_key(kind: str, ref: str | int) -> str:
+    """The slot key of the counter of a step's activations (``kind`` "step", ``ref`` its
+    name), a transition's firings ("transition", its index) or an action's runs ("action",
+    its position in ``Grafcet.actions()``)."""
+    return f"{COVERAGE}{kind}:{ref}"
+
+
 class StateLayout:
     """The slots of one chart's state list, and the locals stored into them."""
 
-    def __init__(self, g: Grafcet) -> None:
+    def __init__(self, g: Grafcet, coverage: bool = False) -> None:
         self.g = g
+        #: count what the chart does (``coverage_key``): a scenario's coverage
+        self.coverage = coverage
         self.slots: list[Slot] = []
         self.index: dict[str, int] = {}  # slot key -> index
         self.edges: dict[int, int] = {}  # id(node) -> edge number
@@ -103,6 +112,13 @@ class StateLayout:
                 line += f"; slow = slow or {t}"
                 self.flag_stores += 1
         return line
+
+    def count(self, kind: str, ref: str | int, delta: str = "1") -> str:
+        """The statement adding ``delta`` to a coverage counter, or "" when the chart is
+        compiled without coverage."""
+        if not self.coverage:
+            return ""
+        return f"{self.slots[self.index[coverage_key(kind, ref)]].local} += {delta}"
 
     def add(self, target: str, delta: str) -> str:
         """``target += delta``, stored like ``let``."""
@@ -165,6 +181,13 @@ class StateLayout:
                 self.slot(f"{key}.prev", f"ep{k}", n.op == "RE")
                 self.slot(key, f"e{k}", False)
                 self.index[f"#edge{k}"] = self.index[key]
+        if self.coverage:  # the counters last: the other slots keep their places
+            for st in g.steps.values():
+                self.slot(coverage_key("step", st.name), ident("k", st.name), 0)
+            for t in g.transitions:
+                self.slot(coverage_key("transition", t.index), f"kt{t.index}", 0)
+            for i in range(len(g.actions())):
+                self.slot(coverage_key("action", i), f"ka{i}", 0)
 
     def _stable(self, key: str) -> str:
         """``key``, numbered if it is taken: the keys of the scan's own memory are made of

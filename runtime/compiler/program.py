@@ -18,11 +18,15 @@ from types import CellType, CodeType, FunctionType
 from typing import Any
 
 from runtime.compiler import blocks as B
+from runtime.compiler.guard import checked_eval
 from runtime.language import ast as A
 from runtime.language.model import Grafcet
 
 #: a name in generated code
 _WORD = re.compile(r"[A-Za-z_]\w*")
+#: the first part of the key of a coverage counter's slot (``compile_grafcet(coverage=True)``,
+#: layout.coverage_key)
+COVERAGE = "#cover:"
 
 
 class SlotKind(enum.Enum):
@@ -114,7 +118,7 @@ class State:
         i.e. the instance's life)."""
         env = {f"c{k}": self.cells[i] for k, i in enumerate(slots)}
         code = "lambda: (" + "".join(f"c{k}.cell_contents, " for k in range(len(env))) + ")"
-        fn: Callable[[], tuple[Any, ...]] = eval(code, env)  # noqa: S307 - our own code
+        fn: Callable[[], tuple[Any, ...]] = checked_eval(code, env, ("cell_contents",))
         return fn
 
     def __iter__(self) -> Iterator[Any]:
@@ -262,7 +266,7 @@ class Program:
             ix = self._by_key
             code = step_time_code(f"m[{ix[step + '.X']}]", f"m[{ix['#ct']}]",
                                   f"m[{ix[step + '.T0']}]", f"m[{ix[step + '.TK']}]")
-            fn = eval(f"lambda m: int({code})", {})  # noqa: S307 - our own code
+            fn = checked_eval(f"lambda m: int({code})", {})
             self._step_times[step] = fn
         return fn
 
@@ -270,6 +274,13 @@ class Program:
         """Monotonic time (ns) of the last scan of ``m``: its clock base plus its chart
         clock (the base is set so at every scan)."""
         return int(m[self._by_key["#clockbase"]] + m[self._by_key["#ct"]])
+
+    def coverage(self, m: Memory) -> dict[str, int]:
+        """The counters of a program compiled with ``coverage=True``, by what they count:
+        ``step:NAME`` (activations), ``transition:INDEX`` (firings), ``action:N`` (runs of
+        the N-th action of ``Grafcet.actions()``); empty without coverage."""
+        return {s.key[len(COVERAGE):]: int(m[s.index]) for s in self.slots
+                if s.key.startswith(COVERAGE)}
 
     def chart_paused(self, m: Memory) -> bool:
         """Whether the last scan of ``m`` was paused (SFCPause/SFCQuitError)."""

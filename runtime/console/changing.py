@@ -48,6 +48,8 @@ def cmd_set(session: Session, args: list[str]) -> Reply:
     if name.binding.startswith("<-"):
         raise CommandError(f"{name.text} is copied from {name.binding[3:]} before every "
                            f"scan: set that point, or force {name.text}")
+    if name.text in session.cat.rewritten:  # held or not: a held chart's are not copied
+        raise CommandError(f"{name.text} is written by its chart every scan: force it")
     writer = session.cat.written_by.get(name.text)
 
     def write() -> None:

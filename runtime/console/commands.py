@@ -20,9 +20,10 @@ from runtime.console import changing
 from runtime.console.protocol import HELP, MIN_EVERY_MS, STATUS_FAULTS, Pending, Reply
 from runtime.console.streams import Stream, feeds_text
 from runtime.controller.alarms import alarm_lines
-from runtime.engine.names import CommandError, printable
+from runtime.engine.names import CommandError, not_applied_lines, printable, same
 from runtime.errors import suggest
 from runtime.language import ast as A
+from runtime.language.flagtexts import sfcerror_cause
 from runtime.language.iolist import Meaning
 
 if TYPE_CHECKING:
@@ -81,12 +82,16 @@ def cmd_status(session: Session, args: list[str]) -> Reply:
                 "steps": {n: i.active_steps() for n, i in plant.instances.items()},
                 "forced": forced,
                 "errors": {n: i.get("SFCErrorStep") for n, i in plant.instances.items()
-                           if i.get("SFCError")}}
+                           if i.get("SFCError")},
+                "not_applied": {s.text: {"chart": s.plain(chart), "applied": s.plain(applied),
+                                         "point": s.point,
+                                         "holds": cat.names[s.point].plain(holds)}
+                                for s, chart, applied, holds in cat.not_applied(cat.live())}}
     try:
         data = session.call(read)
     except TimeoutError:  # say what can be said without the scan thread
         data = {**session.ctl.status(), "steps": {}, "forced": {}, "errors": {},
-                "note": "the scan thread did not answer"}
+                "not_applied": {}, "note": "the scan thread did not answer"}
     data["faults"] = data.get("faults", [])[-STATUS_FAULTS:]
     # what the instances and their active steps are, for a view such as the monitor
     said = {n: cat.iolist.meaning(n).description
@@ -107,8 +112,9 @@ def cmd_status(session: Session, args: list[str]) -> Reply:
     lines += [f"{n}: {' '.join(s) or '(no active step)'}"
               + (f" (held by {', '.join(held[n])})" if n in held else "")
               for n, s in data["steps"].items()]
-    lines += [f"SFCError {n}: step {s}" for n, s in data["errors"].items()]
+    lines += [f"SFCError {n}: {sfcerror_cause(s)}" for n, s in data["errors"].items()]
     lines += [f"forced {k}={v}" for k, v in data["forced"].items()]
+    lines += not_applied_lines(data["not_applied"])
     lines += alarm_lines(data.get("alarms", []))
     lines += [f"fault at {_clock_text(f['time'])}: {f['reason']}" for f in data["faults"]]
     if data.get("reload"):
@@ -149,13 +155,15 @@ def cmd_get(session: Session, args: list[str]) -> Reply:
     names = session.cat.expand(args)
     plant, cat = session.plant, session.cat
 
-    def read() -> tuple[dict[str, Any], dict[str, Any]]:
+    def read() -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
         img = cat.live()
         values = {n.text: n.read(img) for n in names}
+        # a chart output reads as applied (its point); what the chart says beside it
+        charts = {n.text: n.chart(img) for n in names if n.chart is not None}
         forced = {k: v for k, v in plant.forced_values().items() if k in values}
-        return values, forced
-    values, forced = session.call(read)
-    lines, shown, meanings = [], {}, {}
+        return values, forced, charts
+    values, forced, charts = session.call(read)
+    lines, shown, meanings, not_applied = [], {}, {}, {}
     for n in names:
         v = values[n.text]
         m = cat.iolist.meaning(n.text)
@@ -166,6 +174,9 @@ def cmd_get(session: Session, args: list[str]) -> Reply:
             v = forced[n.text]
         else:
             note = " (forced)" if n.text in forced else ""
+        if n.text in charts and not same(charts[n.text], v):  # held off, a forced point
+            note += f" (not applied: the chart's value is {n.show(charts[n.text])}{unit})"
+            not_applied[n.text] = n.plain(charts[n.text])
         shown[n.text] = n.plain(v)
         text = f"{n.text}={n.show(v)}{unit}{note}"
         if n.feeds:
@@ -182,7 +193,8 @@ def cmd_get(session: Session, args: list[str]) -> Reply:
         if m != Meaning():
             meanings[n.text] = meaning_data(m)
     return lines, {"values": shown, "forced": sorted(forced),
-                   "roles": {n.text: n.role for n in names}, "meanings": meanings}
+                   "roles": {n.text: n.role for n in names}, "meanings": meanings,
+                   "not_applied": not_applied}
 
 
 def meaning_data(m: Meaning) -> dict[str, Any]:

@@ -16,12 +16,15 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Protocol
 
-from runtime.errors import SoftplcError
+from runtime.errors import Loc, SoftplcError, SourceError
+from runtime.language.runtimedir import PLACEHOLDER, SERVICE_RUNTIME, runtime_dir
 
 #: how long a command may take before the controller is considered silent, seconds
 REQUEST_TIMEOUT_S = 5.0
 
 _TCP = re.compile(r"^(?:\[?[\w.:-]*\]?):(\d+)$")
+#: at most this many sockets of the runtime directory named when the one asked is not there
+SOCKETS_NAMED = 5
 
 
 class MonitorError(SoftplcError):
@@ -29,6 +32,37 @@ class MonitorError(SoftplcError):
 
     Examples: the socket path does not exist; the serial port is held by another
     program; no reply within REQUEST_TIMEOUT_S."""
+
+
+def console_of(target: str) -> str:
+    """The console address ``target`` names (``softplc monitor``, ``softplc reload``): a
+    plant file's console, found the way every process of a plant finds its controller
+    (``runtimedir.locate``: SourceError if the plant does not load or has no console), or
+    ``target`` itself (a socket, HOST:PORT, a serial port). ``${RUNTIME_DIR}`` is each
+    plant's own directory: it is expanded only where systemd set it (``$RUNTIME_DIRECTORY``),
+    else refused naming the plant file as the way (SourceError at ``SOCKET|PORT``)."""
+    from runtime.language.plantfile import load_plant
+    from runtime.language.runtimedir import PLACEHOLDER, expand, locate
+
+    try:
+        st: os.stat_result | None = os.stat(target)
+    except OSError:
+        st = None
+    if st is not None and stat.S_ISREG(st.st_mode):
+        pdef = load_plant(target)
+        console = locate(pdef).console
+        if console is None:
+            raise SourceError(Loc(pdef.path, 1, 1), "the plant has no console to reach it "
+                                                    "by: add monitor: socket: (or tcp:)")
+        return console
+    loc = Loc("SOCKET|PORT", 1, 1)
+    if "${" in target.replace(PLACEHOLDER, "") or PLACEHOLDER not in target:
+        return expand(target, loc)  # as it is, or an unknown placeholder refused
+    if not os.path.isabs(os.environ.get("RUNTIME_DIRECTORY", "").split(":")[0]):
+        raise SourceError(loc, f"{PLACEHOLDER} is each plant's own directory: name the "
+                               "plant file instead (it finds the plant's console), or the "
+                               "socket's path as the controller printed it")
+    return expand(target, loc)
 
 
 class ConnectionLost(MonitorError):
@@ -153,7 +187,8 @@ class Target:
         if mode is None and _TCP.match(text):
             return cls(LinkKind.TCP, text, baudrate)
         if mode is None:
-            raise MonitorError(f"{text}: no such socket or serial port (or HOST:PORT for TCP)")
+            raise MonitorError(f"{text}: no such socket or serial port (or HOST:PORT for "
+                               f"TCP){_where_to_look(text)}")
         return cls(LinkKind.SERIAL, text, baudrate)
 
     def open(self, timeout: float = REQUEST_TIMEOUT_S) -> Link:
@@ -181,6 +216,50 @@ class Target:
 def open_link(target: str, baudrate: int = 115200) -> Link:
     """A link to ``target`` as ``Target.parse`` reads it."""
     return Target.parse(target, baudrate).open()
+
+
+def _is_socket(path: str) -> bool:
+    try:
+        return stat.S_ISSOCK(os.stat(path).st_mode)
+    except OSError:
+        return False
+
+
+def _where_to_look(text: str) -> str:
+    """Where a controller's console socket would be, for a path that is not there: the
+    ``${RUNTIME_DIR}`` of each plant run by hand (a directory of its own under
+    ``runtime_dir()``: the socket of that name in one of them, or the sockets there), or an
+    installed plant's runtime directory holding a socket of that name."""
+    if text.startswith("/dev/"):
+        return ""  # a serial port
+    rdir = runtime_dir()
+    name = os.path.basename(text)
+    mine = os.path.abspath(text)
+    plants: list[str] = []
+    for parent in (rdir, SERVICE_RUNTIME):
+        try:
+            plants += sorted(os.path.join(parent, d) for d in os.listdir(parent))
+        except OSError:
+            pass
+    found = [p for p in (os.path.join(d, name) for d in plants) if p != mine and _is_socket(p)]
+    where = (f"; a controller started by hand makes its console socket in {PLACEHOLDER}, "
+             f"its plant's own directory under {rdir} (its log says 'console listening on "
+             "PATH'; or name the plant file)")
+    if found:
+        return f"{where}: did you mean {found[0]}?"
+    there = [os.path.relpath(os.path.join(d, e), rdir) for d in plants if d.startswith(rdir)
+             for e in _entries(d) if _is_socket(os.path.join(d, e))]
+    if not there:
+        return f"{where}: no socket there now"
+    more = f" and {len(there) - SOCKETS_NAMED} more" if len(there) > SOCKETS_NAMED else ""
+    return f"{where}: sockets there: {', '.join(there[:SOCKETS_NAMED])}{more}"
+
+
+def _entries(directory: str) -> list[str]:
+    try:
+        return sorted(os.listdir(directory))
+    except OSError:
+        return []
 
 
 def _why(exc: Exception) -> str:

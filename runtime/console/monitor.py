@@ -28,10 +28,9 @@ from collections.abc import Callable
 from typing import Any
 
 from runtime.console.client import Connection, ConsoleClient
-from runtime.console.links import LinkKind, MonitorError, Target
+from runtime.console.links import LinkKind, MonitorError, Target, console_of
 from runtime.console.view import View, fold
-from runtime.errors import Loc, SourceError
-from runtime.language.runtimedir import expand
+from runtime.errors import SourceError
 
 log = logging.getLogger(__name__)
 
@@ -178,6 +177,9 @@ def run_screen(mon: Monitor) -> int:
         return int(curses.wrapper(main))
     except KeyboardInterrupt:
         return 0
+    except curses.error as exc:  # a terminal curses does not know (TERM), too small...
+        raise MonitorError(f"the terminal cannot show the screen ({exc}): use --once") \
+            from None
 
 
 def _draw(scr: Any, view: View, line: str, streaming: bool) -> None:
@@ -217,14 +219,19 @@ def _draw(scr: Any, view: View, line: str, streaming: bool) -> None:
 # -- command line ------------------------------------------------------------------------
 def cmd_monitor(args: argparse.Namespace) -> int:
     try:
-        address = expand(args.target, Loc("PORT|SOCKET", 1, 1))
-    except SourceError as exc:
-        sys.stderr.write(f"softplc monitor: error: {exc.message}\n")
+        address = console_of(args.target)
+    except SourceError as exc:  # the target's own text, or the plant file named
+        said = exc.message if exc.loc.file == "SOCKET|PORT" else str(exc)
+        sys.stderr.write(f"softplc monitor: error: {said}\n")
         return 2
     interval = args.interval
     if interval is not None and interval < MIN_REFRESH_S:
         sys.stderr.write(f"softplc monitor: error: --interval {interval:g} is under "
                          f"{MIN_REFRESH_S:g} s (the console runs at most 50 lines/s)\n")
+        return 2
+    if not args.once and not (sys.stdin.isatty() and sys.stdout.isatty()):
+        sys.stderr.write("softplc monitor: error: not a terminal (a screen needs one): use "
+                         "--once\n")
         return 2
     try:
         target = Target.parse(address, args.baudrate)
@@ -259,8 +266,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                                    "console commands at the prompt; 'q' leaves. If the "
                                    "controller goes away, the monitor waits for it and "
                                    "connects again.")
-    m.add_argument("target", metavar="PORT|SOCKET",
-                   help="/run/softplc/console.sock, '${RUNTIME_DIR}/drawer.sock' (quoted), "
+    m.add_argument("target", metavar="PLANT|SOCKET|PORT",
+                   help="the plant file (its console), /run/softplc/NAME/console.sock, "
                         "127.0.0.1:5020 or /dev/ttyUSB0")
     m.add_argument("--baudrate", type=int, default=115200, help="serial speed (115200)")
     m.add_argument("--interval", type=float, metavar="S",

@@ -12,6 +12,8 @@ from typing import Any
 
 from runtime.console.client import LOG_LINES, ConsoleClient, reply_timeout
 from runtime.controller.alarms import alarm_lines
+from runtime.engine.names import not_applied_lines
+from runtime.language.flagtexts import sfcerror_cause
 
 #: two starts of the controller estimated this far apart are two runs of it, seconds (each
 #: estimate is exact to the time a ``status`` takes, plus the 1 ms of its rounding)
@@ -159,11 +161,13 @@ class View:
                 if cells:
                     out += _wrap(f"  {label} ", cells, width)
         for inst, step in st.get("errors", {}).items():
-            out.append(f"SFCError {inst}: step {step}")
+            out.append(f"SFCError {inst}: {sfcerror_cause(step)}")
         forced = st.get("forced", {})
         out.append("")
         out.append("forced   " + (", ".join(f"{k}={v}" for k, v in forced.items())
                                   if forced else "-") + "      (* = forced)")
+        # outputs shown as applied (off while held off): what the charts say beside
+        out += not_applied_lines(st.get("not_applied", {}), "not applied  ")
         out += alarm_lines(st.get("alarms", []))
         for f in st.get("faults", [])[-3:]:
             when = time.strftime("%H:%M:%S", time.localtime(f["time"]))

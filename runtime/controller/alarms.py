@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING, Any
 from drivers.base import Health
 from drivers.durations import format_ns
 from runtime.errors import SoftplcError
+from runtime.language.flagtexts import sfcerror_cause
 from runtime.language.iolist import IOList
 
 if TYPE_CHECKING:
@@ -292,8 +293,8 @@ class AlarmBoard:
                 want[f"{name}.{step}.maxtime"] = (f"{who}: step {about} over its max time "
                                                   f"{format_ns(maxes[step])}")
             else:
-                want[f"{name}.SFCError"] = (f"{who}: SFCError" +
-                                            (f", step {about}" if step else ""))
+                want[f"{name}.SFCError"] = (f"{who}: SFCError "
+                                            f"{sfcerror_cause(step, steps.get(step, ''))}")
         with self._lock:
             for key, a in self._alarms.items():
                 msg = want.get(key)
@@ -320,12 +321,16 @@ class AlarmBoard:
         return _said(key, "acknowledged", who, comment, text)
 
     def confirm(self, key: str, who: str, comment: str = "") -> str:
-        """Confirm alarm ``key`` (acknowledged first) for ``who``; AlarmRefused if not."""
+        """Confirm alarm ``key`` for ``who``: acknowledged first, and its cause gone (a
+        confirmation says the cause was dealt with, OPC UA Part 9); AlarmRefused if not."""
         with self._lock:
             a = self._get(key)
             if not a.acked:
                 raise AlarmRefused(f"alarm {key} is not acknowledged yet: acknowledge it "
                                    "first", "BadInvalidState")
+            if a.active:
+                raise AlarmRefused(f"alarm {key} is still active: {_CLEARED_BY[a.kind]}, "
+                                   "then confirm it", "BadInvalidState")
             if a.confirmed:
                 raise AlarmRefused(f"alarm {key} is already confirmed",
                                    "BadConditionBranchAlreadyConfirmed")
@@ -354,6 +359,19 @@ class AlarmBoard:
     def as_list(self) -> list[dict[str, Any]]:
         return [a.as_dict() for a in self.alarms()]
 
+
+
+#: what ends each kind of alarm's cause (the text of a confirmation refused too soon)
+_CLEARED_BY = {
+    Kind.FAULT: "the controller is in fault: Ack it first (the Controller's Ack, the "
+                "console's 'ack')",
+    Kind.DRIVER: "the driver is in fault: it clears once the driver is back",
+    Kind.OVERRUNS: "it clears once the overruns in its window are back under the count",
+    Kind.SFCERROR: "acknowledge the chart's SFCError first (the instance's Acknowledge, "
+                   "the console's 'ack')",
+    Kind.MAXTIME: "acknowledge the chart's SFCError first (the instance's Acknowledge, "
+                  "the console's 'ack')",
+}
 
 
 def _said(key: str, what: str, who: str, comment: str, text: str) -> str:

@@ -48,6 +48,7 @@ from runtime.engine.commands import CommandRefused
 from runtime.engine.plant import Plant
 from runtime.engine.trace import trace_columns
 from runtime.errors import Loc, SourceError
+from runtime.language.flagtexts import sfcerror_cause
 from runtime.language.model import DEFAULT_REALTIME_PRIORITY, PlantDef
 from runtime.language.runtimedir import locate
 from runtime.language.safefile import UnfitFile, read_bounded
@@ -687,7 +688,7 @@ class Daemon:
             if inst.get("SFCError"):
                 plant.pulse(name, "SFCQuitError")
                 step = inst.get("SFCErrorStep")
-                done.append(f"SFCError of {name}{f' ({step})' if step else ''} acknowledged")
+                done.append(f"SFCError of {name} ({sfcerror_cause(step)}) acknowledged")
         if not done:
             raise CommandRefused("nothing to acknowledge")
         forced = plant.forced_names()

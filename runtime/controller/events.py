@@ -23,6 +23,7 @@ from typing import Any
 from drivers.durations import format_ns
 from runtime.controller.stats import ScanStats
 from runtime.engine.plant import Plant
+from runtime.language.flagtexts import sfcerror_cause
 
 log = logging.getLogger(__name__)
 
@@ -198,7 +199,8 @@ class EventWatcher:
         k = len(w.steps)
         was_error, was_step = prev[k], prev[k + 1]
         if was_error and not cur[k]:
-            log.info("%s: SFCError cleared (was step %s), at scan %d", w.name, was_step, n)
+            log.info("%s: SFCError cleared (was %s), at scan %d", w.name,
+                     sfcerror_cause(was_step), n)
         # deactivations first: a transition leaves its source steps, then enters
         for j in range(k):
             if prev[j] and not cur[j]:
@@ -213,7 +215,7 @@ class EventWatcher:
                 log.warning("%s: SFCError: step %s active longer than its max %s, at scan "
                             "%d", w.name, step, format_ns(limit), n)
             else:  # written (the console's set, the chart itself), no step's supervision
-                log.warning("%s: SFCError set (no step over its max), at scan %d", w.name, n)
+                log.warning("%s: SFCError %s, at scan %d", w.name, sfcerror_cause(step), n)
 
     def _say_overruns(self, b: _Burst) -> None:
         cycle = f"{self.cycle_ns / 1e6:g} ms"

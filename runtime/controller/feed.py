@@ -23,7 +23,10 @@ Client side (``FeedState``): the schema and the values of the last frame, decode
 Messages, one JSON object per line (``"\\n"``):
 
 - server -> client ``{"schema": {...}}`` first, and again after an online change replaced
-  the plant (the client rebuilds what it shows; the next frame is a whole one): ``names``
+  the plant (the client rebuilds what it shows; the next frame is a whole one): ``name``
+  and ``home``, whose feed it is (the plant's name and identity, as its lock and retained
+  data record them: runtime/language/runtimedir.py ``locate``; a side process of another
+  plant refuses it, runtime/controller/feedclient.py), ``plant`` (the file), ``names``
   ([name, type, role] in value order), ``instances``, ``drivers``, ``writable`` (side
   process -> names), ``cycle_ms``, ``sample_ms``;
 - ``{"f": [scan, wall_s, values]}``: a whole frame (first after the schema), values in
@@ -46,8 +49,9 @@ Messages, one JSON object per line (``"\\n"``):
 - client -> server ``{"set": [id, name, value, side]}`` (value in the name's type; times in
   ns; ``side`` is the asking section, ``opcua`` or ``mqtt``: ``opcua`` when left out);
   ``{"call": [id, target, method, who]}``: a method of an instance (``METHODS``:
-  Acknowledge, Reset, Pause, Resume) or of ``controller`` (Ack), applied between two
-  scans and logged with ``who`` (the OPC UA server lets only writers call them);
+  Acknowledge, Reset, Pause, Resume; refused while no chart runs: ``charts_stopped``) or
+  of ``controller`` (Ack), applied between two scans and logged with ``who`` (the OPC UA
+  server lets only writers call them);
   ``{"alarm": [id, key, "ack" | "confirm", who, comment]}``: acknowledge or confirm an
   alarm of the board (runtime/controller/alarms.py).
 """
@@ -77,7 +81,9 @@ from runtime.engine.instance import coerce, explain
 from runtime.engine.names import Catalogue, Image
 from runtime.language import ast as A
 from runtime.language.feedconf import SIDE_NAMES
+from runtime.language.flagtexts import sfcerror_cause
 from runtime.language.model import FeedDef
+from runtime.language.runtimedir import locate
 from runtime.language.yamlsrc import INT_MAX, INT_MIN, TIME_MAX_NS
 
 if TYPE_CHECKING:
@@ -149,6 +155,9 @@ class FeedServer:
         #: a snapshot every this many scans
         self.every = max(1, feed.sample_ns // cycle_ns)
         self.window = ScanWindow(cycle_ns / 1e9)
+        #: whose feed this is, for the side processes (the plant the controller started
+        #: with: its lock's, whatever file a reload loads)
+        self.owner = locate(daemon.pdef)
         self._cat = Catalogue(daemon.plant)
         self._next = 0
         #: the mailbox: (scan, wall seconds, image, the catalogue that took it, the
@@ -645,6 +654,7 @@ class FeedServer:
     def _schema(self) -> bytes:
         pdef = self.daemon.pdef
         return _line({"schema": {
+            "name": self.owner.name, "home": self.owner.home,
             "plant": pdef.path,
             "names": [[s.text, s.type.value, s.role] for s in self._cat.names.values()],
             "instances": {n: i.grafcet.name for n, i in pdef.instances.items()},
@@ -675,8 +685,12 @@ def _together(fns: list[Callable[[], Any]]) -> Callable[[], list[tuple[Any, Exce
 def _instance_method(daemon: Daemon, name: str, flag: str, value: bool | None
                      ) -> Callable[[], str]:
     """Scan thread: a method of instance ``name`` on its running plant: pulse ``flag``
-    for one scan (``value`` None; Acknowledge only while SFCError is set), or set it."""
+    for one scan (``value`` None; Acknowledge only while SFCError is set), or set it.
+    Refused while the charts are stopped (``charts_stopped``): it would be lost."""
     def run() -> str:
+        stopped = charts_stopped(daemon)
+        if stopped is not None:
+            raise CommandRefused(stopped)
         plant = daemon.plant
         inst = plant.instances.get(name)
         if inst is None:
@@ -686,11 +700,26 @@ def _instance_method(daemon: Daemon, name: str, flag: str, value: bool | None
                 raise CommandRefused(f"nothing to acknowledge: {name} has no SFCError")
             step = inst.get("SFCErrorStep") if flag == "SFCQuitError" else ""
             plant.pulse(name, flag)
-            return (f"{name}: SFCError{f' ({step})' if step else ''} acknowledged"
+            return (f"{name}: SFCError ({sfcerror_cause(step)}) acknowledged"
                     if flag == "SFCQuitError" else f"{name}: {flag} for one scan")
         plant.set(f"{name}.{flag}", value)
         return f"{name}: {flag} {'set' if value else 'cleared'}"
     return run
+
+
+def charts_stopped(daemon: Daemon) -> str | None:
+    """Scan thread: why no chart runs now, so that a method of an instance would do
+    nothing (the controller's Ack restarts every chart from its initial situation, which
+    drops what was set or pulsed meanwhile); None while the charts run."""
+    if daemon.fault is not None:
+        return (f"the controller is in fault ({daemon.fault}): Ack it first (the "
+                "Controller's Ack, the console's 'ack'; it restarts the charts)")
+    if daemon.halted is not None:
+        return (f"the controller is halted ({daemon.halted}): Ack it first (the "
+                "Controller's Ack, the console's 'ack'; it restarts the charts)")
+    if daemon.plant.iocheck:
+        return "iocheck on: the charts are stopped"
+    return None
 
 
 def value_problem(t: A.Type, value: Any) -> str | None:

@@ -10,6 +10,13 @@ state's ``status``: with the alarm board). It reconnects forever, with a delay d
 from RECONNECT_MIN_S to RECONNECT_MAX_S. ``set`` sends a write and waits for the
 controller's answer; ``ask`` any request (``set``, ``call``, ``alarm``) with the answer's
 OPC UA status name.
+
+A feed says whose it is (its schema's ``name`` and ``home``: the plant's name and
+identity, runtime/language/runtimedir.py ``locate``). A side process follows only its own
+plant's: the feed of another plant (two plants given one ``feed:`` path, a ``--feed`` to
+the wrong socket) ends ``run`` with ``ForeignFeed``, one line at the plant's ``feed:``
+(or naming ``--feed``), before any of its values is shown. ``run_beside`` runs the side
+process's own work beside the feed and ends both on it.
 """
 
 from __future__ import annotations
@@ -19,18 +26,26 @@ import itertools
 import json
 import logging
 from collections.abc import Awaitable, Callable
-from typing import Any
+from typing import Any, TypeVar
 
 from runtime.controller.feed import FeedState, request_line, why_request
-from runtime.errors import SoftplcError
+from runtime.errors import Loc, SoftplcError, SourceError
+from runtime.language.model import PlantDef
+from runtime.language.runtimedir import locate
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 #: reconnection delays to the feed, seconds (doubling)
 RECONNECT_MIN_S = 0.2
 RECONNECT_MAX_S = 2.0
 #: the longest feed line read (a whole frame of a large plant), bytes
 LINE_MAX = 64 << 20
+
+
+class ForeignFeed(SourceError):
+    """The feed is another plant's (or says not whose it is: a controller older than this
+    side process): not followed. At the plant's ``feed:``, or at ``--feed``."""
 
 
 class FeedLost(SoftplcError, ConnectionError):
@@ -55,9 +70,13 @@ class FeedClient:
                  schema: Callable[[dict[str, Any]], Awaitable[None]],
                  frame: Callable[[], Awaitable[None]],
                  lost: Callable[[], Awaitable[None]],
-                 status: Callable[[], Awaitable[None]] | None = None) -> None:
+                 status: Callable[[], Awaitable[None]] | None = None, *,
+                 plant: PlantDef) -> None:
         self.path = path
         self.side = side
+        #: the plant this side process serves: only its feed is followed
+        self.plant = plant
+        self.owner = locate(plant)
         self.state = FeedState()
         self._on_schema, self._on_frame, self._on_lost = schema, frame, lost
         self._on_status = status
@@ -149,6 +168,43 @@ class FeedClient:
         finally:
             self._pending.pop(ident, None)
 
+    async def run_beside(self, work: Awaitable[T]) -> T:
+        """``work`` (the side process's own: its sessions, its serving) while following
+        the feed, until ``work`` ends; a feed refused (ForeignFeed) ends both and is
+        raised. The feed is stopped on the way out."""
+        feed = asyncio.ensure_future(self.run())
+        main = asyncio.ensure_future(work)
+        try:
+            await asyncio.wait({feed, main}, return_when=asyncio.FIRST_COMPLETED)
+            if feed.done() and not feed.cancelled():
+                refused = feed.exception()
+                if refused is not None:
+                    raise refused
+            return await main
+        finally:
+            self.stop()
+            main.cancel()
+            await asyncio.gather(feed, main, return_exceptions=True)
+
+    def _check_owner(self, schema: dict[str, Any]) -> None:
+        """ForeignFeed unless the schema's plant is this side process's."""
+        name, home = schema.get("name"), schema.get("home")
+        me = self.owner
+        if (name, home) == (me.name, me.home):
+            return
+        if name is None or home is None:
+            why = ("the feed of a controller that does not say which plant it runs (a "
+                   "softplc older than this one): not followed; restart the controller")
+        else:
+            why = (f"the feed of plant {name} ({home}), not of this plant {me.name} "
+                   f"({me.home}): not followed; give {self.side}: feed a path of its own "
+                   "(or leave it out: the default is the plant's own)")
+        section = getattr(self.plant, self.side, None)
+        if section is not None and section.feed == self.path:
+            loc = section.feed_loc or section.loc or Loc(self.plant.path, 1, 1)
+            raise ForeignFeed(loc, f"{self.side} feed: {self.path} is {why}")
+        raise ForeignFeed(Loc("--feed", 1, 1), f"{self.path} is {why}")
+
     async def _wait(self, seconds: float) -> None:
         try:
             await asyncio.wait_for(self._stop.wait(), seconds)
@@ -165,6 +221,7 @@ class FeedClient:
                 return
             kind = st.apply(line)
             if kind == "schema":
+                self._check_owner(st.schema)
                 await self._on_schema(st.schema)
             elif kind == "frame":
                 await self._on_frame()

@@ -8,7 +8,8 @@ symbolic link in its place, before the controller starts (the classic attack on 
   then must be a real directory (not a symbolic link) owned by this user and open to nobody
   else: no access for others, and for group at most what systemd's RuntimeDirectoryMode=
   0750 gives when systemd made it ($RUNTIME_DIRECTORY, or an installed plant's
-  /run/softplc/NAME).
+  /run/softplc/NAME). A plant run by hand has its own below the user's
+  (``$XDG_RUNTIME_DIR/softplc/NAME-HASH``): that parent is made and checked the same way.
 - Any other directory holding such a file must be owned by this user or root and not
   writable by every user; a missing one may not be created inside a directory writable by
   every user (another user could create it first); no symbolic link on the way may belong to
@@ -65,16 +66,24 @@ def prepare(files: Iterable[str], rdir: str | None = None) -> None:
     for path in files:
         directory = os.path.dirname(os.path.abspath(path))
         if directory == rdir or directory.startswith(rdir + os.sep):
-            ensure_private_dir(rdir, SYSTEMD if managed_by_systemd(rdir) else PRIVATE)
+            if managed_by_systemd(rdir):
+                ensure_private_dir(rdir, SYSTEMD)
+            else:
+                if os.path.dirname(rdir) == runtime_dir():  # a plant's own, below the user's
+                    ensure_private_dir(os.path.dirname(rdir))
+                    ensure_private_dir(rdir, said=logging.DEBUG)  # each plant's first run
+                else:
+                    ensure_private_dir(rdir)
         check_dir(directory, path)
 
 
-def ensure_private_dir(path: str, forbidden: int = PRIVATE) -> None:
-    """Create ``path`` with mode 0700 if missing; then it must be a directory of ours, not
-    a symbolic link, with none of the ``forbidden`` permission bits."""
+def ensure_private_dir(path: str, forbidden: int = PRIVATE, said: int = logging.INFO) -> None:
+    """Create ``path`` with mode 0700 if missing (logged at level ``said``); then it must be
+    a directory of ours, not a symbolic link, with none of the ``forbidden`` permission
+    bits."""
     try:
         os.mkdir(path, 0o700)
-        log.info("created %s (mode 0700)", path)
+        log.log(said, "created %s (mode 0700)", path)
     except FileExistsError:
         pass
     except OSError as exc:

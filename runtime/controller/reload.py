@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 
 from runtime.change.plan import Applied, Prepared, apply, file_hashes, prepare
 from runtime.compiler.codebook import CodeBook
-from runtime.controller.reloadchild import compile_apart, load_apart
+from runtime.controller.reloadchild import INTERNAL, compile_apart, load_apart
 from runtime.engine.plant import Plant
 from runtime.errors import SoftplcError
 from runtime.language.model import PlantDef
@@ -119,6 +119,9 @@ class Reloader:
         self.hashes: dict[str, str] = file_hashes(daemon.pdef)
         self._lock = threading.Lock()
         self._hooks: list[ReloadHook] = []
+        #: the plant file the controller started with: its identity and runtime directory
+        #: stay, whatever file a reload loads
+        self.plant_path = daemon.pdef.path
 
     def add_hook(self, hook: ReloadHook) -> None:
         """Have ``hook`` follow the plant across reloads (see ReloadHook)."""
@@ -154,7 +157,9 @@ class Reloader:
             pdef = new_pdef
             loaded = self._in_worker(lambda: compile_apart(pdef))
         else:
-            loaded = self._in_worker(lambda: load_apart(files or old_pdef.path))
+            # the new version's ${RUNTIME_DIR} is the running plant's (its lock's)
+            loaded = self._in_worker(lambda: load_apart(files or old_pdef.path,
+                                                        self.plant_path))
         if isinstance(loaded, str):
             return self._refused([loaded], back)
         new_pdef, book = loaded
@@ -232,9 +237,9 @@ class Reloader:
                 box.append(fn())
             except SoftplcError as exc:
                 box.append(f"compile error: {exc}")
-            except Exception as exc:  # noqa: BLE001 - a bug: said in one line, logged
+            except Exception:  # noqa: BLE001 - a bug: said in one line, logged
                 log.exception("reload: preparing the new program failed")
-                box.append(f"cannot prepare the new program: {type(exc).__name__}: {exc}")
+                box.append(f"the new program could not be prepared: {INTERNAL}")
         t = threading.Thread(target=run, name="softplc-reload", daemon=True)
         t.start()
         t.join()

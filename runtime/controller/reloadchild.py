@@ -13,6 +13,11 @@ back, on its standard output, in frames (one byte of kind, four of length, the p
 - ``C``: one code object per frame, the sha256 key of its source (64 hex digits) then the
   code ``marshal``-led (runtime/compiler/codebook.py), for every source the plant compiles.
 
+An operator reads its refusal lines (``softplc reload``, the console's ``reload``): a child
+that fails inside (an exception that is no load or compile error: a defect of softplc)
+says so in those words, ``INTERNAL``, and the traceback goes to the child's standard error,
+which the controller writes to its log; the exception's own text is never the line.
+
 How it runs (``CHILD_COMMAND``): ``python -I`` (isolated: neither the working directory nor
 ``PYTHON*`` variables reach ``sys.path``; the directory of this installation's ``runtime``
 package is put first, as the controller itself imports it) in the working directory ``/``,
@@ -38,13 +43,15 @@ import resource
 import signal
 import subprocess
 import sys
+import traceback
 from collections.abc import Iterator
+from contextlib import nullcontext
 from typing import IO
 
 from runtime.compiler.codebook import CodeBook
 from runtime.engine.plant import Plant
 from runtime.errors import SoftplcError
-from runtime.language import modeldata
+from runtime.language import modeldata, runtimedir
 from runtime.language.model import PlantDef
 from runtime.language.plantfile import load_plant
 
@@ -71,15 +78,23 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 BOOT = ("import sys; sys.path.insert(0, sys.argv[1]); "
         "from runtime.controller.reloadchild import main; sys.exit(main(sys.argv[2:]))")
 
+#: the end of the line of a child that failed inside (its traceback in the controller's log)
+INTERNAL = "an internal error of softplc, its report in the controller's log"
+#: the most of a child's standard error written to the controller's log, characters
+STDERR_LOGGED = 20_000
+
 #: what ``load_apart``/``compile_apart`` hand back: the plant and the code compiled for it
 Loaded = tuple[PlantDef, CodeBook]
 
 
 # -- the controller's side -----------------------------------------------------------------
-def load_apart(path: str) -> Loaded | str:
+def load_apart(path: str, version_of: str | None = None) -> Loaded | str:
     """The plant file at ``path`` and its charts loaded, and their code compiled, by the
-    child; or the one line saying why not (a load error, a compile error, a limit)."""
-    got = _run(["load", os.path.abspath(path)], None)
+    child; or the one line saying why not (a load error, a compile error, a limit).
+    ``version_of``: the running plant's file, whose ``${RUNTIME_DIR}`` the new version's
+    paths are expanded in (``runtimedir.version_of``)."""
+    got = _run(["load", os.path.abspath(path),
+                *([os.path.abspath(version_of)] if version_of else [])], None)
     if isinstance(got, str):
         return got
     pdef, book = got
@@ -117,14 +132,18 @@ def _run(args: list[str], stdin: bytes | None) -> tuple[PlantDef | None, CodeBoo
         return f"the reload's child process did not start: {exc}"
     if child.returncode != 0:
         return _failed(child.returncode, child.stderr)
+    if child.stderr.strip():  # a traceback of a child that said why in its header
+        _log_report(child.stderr)
     try:
         return _answer(child.stdout)
     except (ValueError, modeldata.ModelDataError) as exc:
-        return f"the reload's child process answered with bad data: {exc}"
+        log.error("reload: the child process's answer cannot be read: %s", exc)
+        return f"the reload's child process answered with data that cannot be read: {INTERNAL}"
 
 
 def _failed(code: int, stderr: bytes) -> str:
-    """The line for a child that ended with exit status ``code`` (negative: a signal)."""
+    """The line for a child that ended with exit status ``code`` (negative: a signal); what
+    it wrote on its standard error goes to the log, never into the line."""
     if code == -signal.SIGXCPU:
         return (f"the new program took more than {CHILD_TIME_S} s of CPU to load (the limit "
                 "of the reload's child process)")
@@ -132,7 +151,17 @@ def _failed(code: int, stderr: bytes) -> str:
     if "MemoryError" in last[0]:
         return _memory_line(CHILD_MEMORY_BYTES)
     how = f"signal {-code}" if code < 0 else f"exit {code}"
-    return f"the reload's child process failed ({how}{': ' + last[0] if last[0] else ''})"
+    if not last[0]:
+        return f"the reload's child process failed ({how})"
+    _log_report(stderr)
+    return f"the reload's child process failed ({how}): {INTERNAL}"
+
+
+def _log_report(stderr: bytes) -> None:
+    text = stderr.decode(errors="replace").strip()
+    if len(text) > STDERR_LOGGED:
+        text = "...\n" + text[-STDERR_LOGGED:]
+    log.error("reload: the child process reported:\n%s", text)
 
 
 def _memory_line(limit: int) -> str:
@@ -186,21 +215,37 @@ def _frame(kind: bytes, payload: bytes) -> bytes:
 
 # -- the child's side --------------------------------------------------------------------
 def main(argv: list[str]) -> int:
-    """The child: ``MEMORY_BYTES CPU_S load PATH`` or ``MEMORY_BYTES CPU_S compile`` (the
-    plant as JSON frames on stdin). Writes its frames to stdout; 0 when it wrote a header."""
+    """The child: ``MEMORY_BYTES CPU_S load PATH [RUNNING_PLANT]`` or ``MEMORY_BYTES CPU_S
+    compile`` (the plant as JSON frames on stdin). Writes its frames to stdout; 0 when it
+    wrote a header."""
     memory, cpu, mode, *rest = argv
     resource.setrlimit(resource.RLIMIT_AS, (int(memory), int(memory)))
     resource.setrlimit(resource.RLIMIT_CPU, (int(cpu), int(cpu) + 1))
     os.nice(CHILD_NICE)
     out = sys.stdout.buffer
     try:
-        frames = _work(mode, rest, sys.stdin.buffer)
+        frames = _safe_work(mode, rest, sys.stdin.buffer)
     except MemoryError:
         frames = [_frame(b"H", json.dumps({"error": _memory_line(int(memory))}).encode())]
     for f in frames:
         out.write(f)
     out.flush()
     return 0
+
+
+def _safe_work(mode: str, rest: list[str], stdin: IO[bytes]) -> list[bytes]:
+    """``_work``, and for an exception that is no load or compile error (a defect of
+    softplc) a header saying so in the operator's words; its traceback to standard error,
+    for the controller's log."""
+    try:
+        return _work(mode, rest, stdin)
+    except MemoryError:
+        raise
+    except Exception:  # noqa: BLE001 - said in one line, reported on stderr
+        traceback.print_exc()
+        return [_frame(b"H", json.dumps({"error": f"the new program could not be prepared "
+                                                  f"in the reload's child process: {INTERNAL}"})
+                       .encode())]
 
 
 def _work(mode: str, rest: list[str], stdin: IO[bytes]) -> list[bytes]:
@@ -210,7 +255,8 @@ def _work(mode: str, rest: list[str], stdin: IO[bytes]) -> list[bytes]:
 
     if mode == "load":
         try:
-            pdef = load_plant(rest[0])
+            with runtimedir.version_of(rest[1]) if len(rest) > 1 else nullcontext():
+                pdef = load_plant(rest[0])
         except (SoftplcError, OSError) as exc:
             return error(f"load error: {exc}")
     else:
@@ -223,10 +269,6 @@ def _work(mode: str, rest: list[str], stdin: IO[bytes]) -> list[bytes]:
         Plant(pdef, sim=True, book=book)
     except SoftplcError as exc:
         return error(f"compile error: {exc}")
-    except MemoryError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - said in one line, the reload refused
-        return error(f"cannot prepare the new program: {type(exc).__name__}: {exc}")
     frames = [_frame(b"H", json.dumps({"error": None}).encode())]
     if mode == "load":
         frames += [_frame(b"J", chunk.encode()) for chunk in modeldata.dump(pdef)]

@@ -1,8 +1,9 @@
 """``softplc draw FILE -o OUT.svg``: a chart drawn in IEC 60848 style, as SVG.
 
 What is drawn (seed 000's symbols): steps as boxes, initial steps as double boxes;
-transitions as short thick bars with their condition in the seed notation on the right
-(``↑iMarcha·iParo'``, whatever notation the file uses) and their name, if any, on the left;
+transitions as short thick bars with their condition on the right, as the file wrote it
+(``--notation seed``: in the seed notation, ``↑iMarcha·iParo'``, whatever notation the file
+uses) and their name, if any, on the left;
 actions as boxes beside their step (qualifier | body; comments left out, long bodies on
 several lines); AND divergences and convergences as double horizontal lines, OR divergences
 and convergences as single lines; links that go back up run in lanes on the left with an
@@ -37,6 +38,7 @@ from runtime.drawing.layout import (
     CHAR_H,
     DROP_GAP,
     LINK_GAP,
+    LIVE_SIZE,
     STEP_H,
     TIMES_SIZE,
     TOP,
@@ -49,12 +51,15 @@ from runtime.drawing.layout import (
     row_h,
 )
 from runtime.drawing.svg import Svg, esc, esc_attr
-from runtime.drawing.text import equation_lines, step_times, text_w
+from runtime.drawing.text import NOTATIONS, equation_lines, step_times, text_w
 from runtime.errors import Loc, SourceError
+from runtime.language.coverage import Shading
 from runtime.language.iolist import IOList
 from runtime.language.model import Grafcet, PlantDef, VarKind
 
 ACTIVE_FILL = "#ffd54f"
+#: ``--coverage``: an element the scenarios reached, one they never reached
+COVERED_FILL, MISSED_FILL, MISSED_STROKE = "#c8e6c9", "#ffcdd2", "#c62828"
 
 
 def shared_and_drops(c: Chart, r: Routes) -> dict[tuple[str, str], float]:
@@ -81,8 +86,10 @@ def shared_and_drops(c: Chart, r: Routes) -> dict[tuple[str, str], float]:
 class Drawing:
     """Draws a placed and routed chart."""
 
-    def __init__(self, c: Chart, r: Routes, active: set[str]) -> None:
+    def __init__(self, c: Chart, r: Routes, active: set[str],
+                 shading: Shading | None = None) -> None:
         self.c, self.r, self.active = c, r, active
+        self.shading = shading
         self.svg = Svg()
         self.side_x = 0.0  # where the boxes right of the chart start (equations, legend)
         self.arrivals: dict[str, list[float]] = {}  # step -> x of links reaching its line
@@ -267,6 +274,10 @@ class Drawing:
             # one group per transition, named by its index (the page marks it live)
             self.svg.add(f'<g class="transition-group" data-transition="{n[2:]}">')
             self.svg.line([(x - BAR_W / 2, y), (x + BAR_W / 2, y)], width=4, cls="transition")
+            if self.shading and self.shading.transitions.get(int(n[2:])) is False:
+                self.svg.add(f'<polyline points="{x - BAR_W / 2:.1f},{y:.1f} '
+                             f'{x + BAR_W / 2:.1f},{y:.1f}" fill="none" '
+                             f'stroke="{MISSED_STROKE}" stroke-width="4" class="missed"/>')
             lines = c.labels[n]
             y0 = y + 4 - CHAR_H * (len(lines) - 1) / 2
             for i, ln in enumerate(lines):
@@ -284,7 +295,8 @@ class Drawing:
             x, y = self.x(n), self.mid(n)
             w = 2 * c.nodes[n].left
             x0, y0 = x - w / 2, y - STEP_H / 2
-            fill = ACTIVE_FILL if st.name in self.active else "white"
+            fill = ACTIVE_FILL if st.name in self.active else self.shade(
+                self.shading.steps.get(st.name) if self.shading else None)
             self.svg.add(f'<g class="step-group" data-step="{esc_attr(st.name)}">')
             if st.description:
                 self.svg.add(f"<title>{esc(st.description)}</title>")
@@ -298,6 +310,8 @@ class Drawing:
             if times:  # supervision times, as a vendor's SFC editor shows them
                 self.svg.text(x, y + 11, times, TIMES_SIZE, "middle",
                               extra=' class="step-times"')
+            if c.live_room:  # the live page writes the step's time here, above the link
+                self.svg.text(x + w / 2 + 3, y - 4, "", LIVE_SIZE, extra=' class="live-t"')
             if st.name in self.active:  # top left, clear of the name and the times
                 self.svg.add(f'<circle cx="{x0 + 8:.1f}" cy="{y0 + 8:.1f}" r="2.5" '
                              'fill="black" class="token"/>')
@@ -308,15 +322,16 @@ class Drawing:
     def draw_actions(self, step: str, x_right: float, y: float) -> None:
         rows = self.c.actions[step]
         qw, bw = self.c.action_cols[step]
-        ax = x_right + ACTION_GAP
+        ax = x_right + self.c.live_room + ACTION_GAP
         total = sum(row_h(lines) for _, lines in rows)
         yy = y - total / 2
         self.svg.line([(x_right, y), (ax, y)])
         self.svg.add(f'<g class="actions" data-step="{esc_attr(step)}">')
-        for q, lines in rows:
+        for k, (q, lines) in enumerate(rows):
             h = row_h(lines)
-            self.svg.rect(ax, yy, qw, h)
-            self.svg.rect(ax + qw, yy, bw, h)
+            fill = self.shade(self.shading.actions.get((step, k)) if self.shading else None)
+            self.svg.rect(ax, yy, qw, h, fill)
+            self.svg.rect(ax + qw, yy, bw, h, fill)
             y0 = yy + h / 2 + 4 - CHAR_H * (len(lines) - 1) / 2
             self.svg.text(ax + qw / 2, yy + h / 2 + 4, q, 11, "middle",
                           extra=' class="qualifier"')
@@ -329,6 +344,11 @@ class Drawing:
         self.svg.add("</g>")
 
 
+    @staticmethod
+    def shade(reached: bool | None) -> str:
+        """The fill of an element by coverage: reached, never reached, not measured."""
+        return "white" if reached is None else COVERED_FILL if reached else MISSED_FILL
+
     def draw_equations(self) -> float:
         """pre and post, right of the chart: what runs every scan outside the steps.
         Returns the y below them (where the legend goes)."""
@@ -339,7 +359,7 @@ class Drawing:
                              ("post (every scan, after the chart)", g.post)):
             if not stmts:
                 continue
-            lines = [ln for st in stmts for ln in equation_lines(st)]
+            lines = [ln for st in stmts for ln in equation_lines(st, self.c.notation)]
             y = self._box(x, y, title, lines, "equation")
         return y
 
@@ -368,8 +388,9 @@ class Drawing:
 
 
 def render(c: Chart, r: Routes, active: set[str], title: str,
-           legend: tuple[str, list[tuple[str, str, str]]] = ("", [])) -> str:
-    d = Drawing(c, r, active)
+           legend: tuple[str, list[tuple[str, str, str]]] = ("", []),
+           shading: Shading | None = None) -> str:
+    d = Drawing(c, r, active, shading)
     d.draw_frames()
     d.draw_links()
     d.draw_transitions()
@@ -405,7 +426,8 @@ def link_crossings(c: Chart, r: Routes) -> int:
                if a + 0.5 < x < b - 0.5 and lo + 0.5 < y < hi - 0.5)
 
 
-def laid_out(g: Grafcet, layout: str = "auto") -> tuple[Chart, Routes, str]:
+def laid_out(g: Grafcet, layout: str = "auto", notation: str = "written",
+             live: bool = False) -> tuple[Chart, Routes, str]:
     """The chart placed and routed, and the layout used ("dot" or "python"). Each step goes
     under its nearest predecessor; if links then cross, it goes under the one the
     depth-first walk reached it from instead (the normal sequence, a link from higher up
@@ -417,7 +439,7 @@ def laid_out(g: Grafcet, layout: str = "auto") -> tuple[Chart, Routes, str]:
                            "(apt-get install graphviz)")
     best: tuple[int, Chart, Routes] | None = None
     for follow in (False, True):
-        c = build_chart(g, follow_tree=follow)
+        c = build_chart(g, follow_tree=follow, notation=notation, live=live)
         r = arrange(c, dot_order(c, dot) if dot is not None else None)
         n = link_crossings(c, r)
         if best is None or n < best[0]:
@@ -430,11 +452,16 @@ def laid_out(g: Grafcet, layout: str = "auto") -> tuple[Chart, Routes, str]:
 
 def chart_svg(g: Grafcet, active: set[str] | None = None, title: str = "",
               layout: str = "auto",
-              legend: tuple[str, list[tuple[str, str, str]]] = ("", [])
-              ) -> tuple[str, str]:
-    """(SVG text, layout used: "dot" or "python"); ``legend``: its title and rows."""
-    c, r, used = laid_out(g, layout)
-    return render(c, r, active or set(), title, legend), used
+              legend: tuple[str, list[tuple[str, str, str]]] = ("", []),
+              notation: str = "written", live: bool = False,
+              shading: Shading | None = None) -> tuple[str, str]:
+    """(SVG text, layout used: "dot" or "python"); ``legend``: its title and rows;
+    ``notation``: conditions as written or in the seed notation (text.py); ``live``: the
+    live page's drawing, with an empty ``text.live-t`` right of each step box (room kept
+    for it) where the page writes the active step's time; ``shading``: the chart's coverage
+    (steps, transitions and actions reached in green, never reached in red)."""
+    c, r, used = laid_out(g, layout, notation, live)
+    return render(c, r, active or set(), title, legend, shading), used
 
 
 # -- trace -----------------------------------------------------------------------------------
@@ -520,7 +547,8 @@ def load_chart(path: str, instance: str | None
 
 
 def draw(path: str, out: str, trace: str | None = None, cycle: int | None = None,
-         instance: str | None = None, layout: str = "auto") -> str:
+         instance: str | None = None, layout: str = "auto", notation: str = "written",
+         coverage: str | None = None) -> str:
     """Write the SVG; returns the layout used ("dot" or "python")."""
     g, instance, pdef = load_chart(path, instance)
     active: set[str] = set()
@@ -530,10 +558,28 @@ def draw(path: str, out: str, trace: str | None = None, cycle: int | None = None
         k = 0 if cycle is None else cycle
         active, instance, row = active_from_trace(g, trace, k, instance)
         title = f"{g.name} ({instance}) — cycle {k}, t = {row.get('t_ms', '?')} ms"
-    svg, used = chart_svg(g, active, title, layout, key)
+    shading = None
+    if coverage is not None:
+        shading, said = coverage_of(g, coverage)
+        title = f"{title} — {said}"
+    svg, used = chart_svg(g, active, title, layout, key, notation, shading=shading)
     with open(out, "w", encoding="utf-8") as f:
         f.write(svg)
     return used
+
+
+def coverage_of(g: Grafcet, path: str) -> tuple[Shading, str]:
+    """The shading of ``g`` from the coverage file at ``path`` (``softplc test
+    --coverage-file``), and what the title says of it; SourceError if the file holds no
+    coverage of ``g``."""
+    from runtime.language import coverage as C
+
+    cov = C.of_chart(C.load(path), g)
+    if cov is None:
+        raise SourceError(Loc(path, 1, 1), f"no coverage of grafcet {g.name} ({g.path}) in "
+                                           "this file")
+    return C.shading(g, cov), (f"coverage {cov.percent():.1f}% over {cov.scenarios} "
+                               "scenario(s): green reached, red never")
 
 
 def cmd_draw(args: argparse.Namespace) -> int:
@@ -541,7 +587,8 @@ def cmd_draw(args: argparse.Namespace) -> int:
         sys.stderr.write("softplc draw: error: --cycle needs --trace\n")
         return 2
     try:
-        used = draw(args.file, args.output, args.trace, args.cycle, args.instance, args.layout)
+        used = draw(args.file, args.output, args.trace, args.cycle, args.instance, args.layout,
+                    args.notation, args.coverage)
     except SourceError as exc:
         sys.stderr.write(f"{exc}\n")
         return 2
@@ -565,4 +612,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                                                       "(needed when several run the chart)")
     d.add_argument("--layout", choices=("auto", "dot", "python"), default="auto",
                    help="auto: Graphviz's dot if installed, else the built-in layout")
+    d.add_argument("--notation", choices=NOTATIONS, default="written",
+                   help="conditions, action conditions and equations as the file wrote them "
+                        "(written), or in the seed's notation: ↑ · + ' (seed)")
+    d.add_argument("--coverage", metavar="COVERAGE.json",
+                   help="shade the chart by the coverage softplc test --coverage-file wrote: "
+                        "reached in green, never reached in red")
     d.set_defaults(func=cmd_draw)

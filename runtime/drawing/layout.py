@@ -17,7 +17,13 @@ import subprocess
 from collections import deque
 from dataclasses import dataclass, field
 
-from runtime.drawing.text import action_parts, condition_lines, seed_text, step_times, text_w
+from runtime.drawing.text import (
+    action_parts,
+    condition_lines,
+    expression_text,
+    step_times,
+    text_w,
+)
 from runtime.language.model import Grafcet
 
 
@@ -55,6 +61,10 @@ LANE = 16.0  # between lanes
 #: between the horizontals of links leaving one row (issue 27: 6 px looked like one line)
 LINK_GAP = 12.0
 FRAME_PAD = 10.0  # between a macro-step's frame and what it holds
+LIVE_SIZE = 10.0  # font size of an active step's time on the live page
+#: a live drawing's room right of each step box, for its time (``9999.9 s``, ``9999 min``:
+#: the page writes longer times in minutes, then hours), before its action block
+LIVE_TIME_W = text_w("9999 min", LIVE_SIZE) + 6
 
 
 @dataclass
@@ -87,6 +97,8 @@ class Chart:
     tree: dict[str, str] = field(default_factory=dict)  # element -> the one it was
     # discovered from in the depth-first walk (the sequence it continues)
     follow_tree: bool = False  # primary_pred: that one first
+    notation: str = "written"  # conditions as the file wrote them, or "seed" (text.py)
+    live_room: float = 0.0  # right of each step box, for the live page's step time (px)
 
     def fout(self, n: str) -> list[str]:
         return [c for c in self.out[n] if (n, c) not in self.back]
@@ -110,7 +122,11 @@ class Chart:
         return bool(self.out[t]) and all((t, d) in self.back for d in self.out[t])
 
 
-def build_chart(g: Grafcet, follow_tree: bool = False) -> Chart:
+def build_chart(g: Grafcet, follow_tree: bool = False, notation: str = "written",
+                live: bool = False) -> Chart:
+    """The chart's graph and the room each element takes; ``live``: room right of each
+    step box for the time the live page writes there (``LIVE_TIME_W``)."""
+    room = LIVE_TIME_W if live else 0.0
     nodes: dict[str, Node] = {}
     actions: dict[str, list[tuple[str, list[str]]]] = {}
     cols: dict[str, tuple[float, float]] = {}
@@ -118,9 +134,9 @@ def build_chart(g: Grafcet, follow_tree: bool = False) -> Chart:
     names: dict[str, str] = {}
     for s in g.leaf_steps():
         w = max(64.0, text_w(s.name) + 22, text_w(step_times(s), TIMES_SIZE) + 16)
-        right, height = w / 2, STEP_H
+        right, height = w / 2 + room, STEP_H
         if s.actions:
-            rows = [action_parts(a) for a in s.actions]
+            rows = [action_parts(a, notation) for a in s.actions]
             actions[s.name] = rows
             q = max(text_w(r[0], 11) for r in rows) + 12
             b = max(text_w(ln, 11) for r in rows for ln in r[1]) + 14
@@ -130,7 +146,7 @@ def build_chart(g: Grafcet, follow_tree: bool = False) -> Chart:
         nodes["s:" + s.name] = Node("s:" + s.name, w / 2, right, height)
     for k, t in enumerate(g.transitions):
         tid = f"t:{k}"
-        labels[tid] = condition_lines(seed_text(t.cond))
+        labels[tid] = condition_lines(expression_text(t.text, t.cond, notation))
         left = BAR_W / 2
         if t.name:
             names[tid] = t.name
@@ -153,7 +169,7 @@ def build_chart(g: Grafcet, follow_tree: bool = False) -> Chart:
     for k, m in macro_of_transition(g).items():
         nodes[f"t:{k}"].macro = m
     c = Chart(g, nodes, out, inc, back, dfs, actions, cols, labels, names, tree=tree,
-              follow_tree=follow_tree)
+              follow_tree=follow_tree, notation=notation, live_room=room)
     _layers(c)
     # a step's transitions, left to right: those that lead back up first (the lanes of the
     # ones leading higher further out), then the others in file order

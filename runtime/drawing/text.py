@@ -1,4 +1,11 @@
-"""The texts of a drawn chart: conditions in the seed notation, action and condition lines.
+"""The texts of a drawn chart: conditions as the file wrote them (or in the seed notation),
+action and condition lines.
+
+Conditions, action conditions and events, and the pre/post equations are drawn as the
+chart file wrote them (``notation="written"``, the default): the page's "why" list shows a
+transition's text as written, and the drawing above it says the same words. With
+``notation="seed"`` (``softplc draw --notation seed``) they are redrawn in the seed's
+notation (``↑iMarcha·iParo'`` for ``RE iMarcha AND NOT iParo``).
 
 Also how wide a text is drawn (DejaVu Sans advance widths), which the layout needs to keep
 texts apart, and the font family of every drawing (``softplc draw`` and ``softplc
@@ -31,6 +38,18 @@ _EM: dict[str, float] = {
 def text_w(text: str, size: float = 12) -> float:
     """Width of ``text`` in px at font size ``size`` px."""
     return size * sum(_EM.get(c, 0.74 if c.isupper() else 0.65) for c in text)
+
+
+#: how a drawing writes conditions: as the file wrote them, or in the seed's notation
+NOTATIONS = ("written", "seed")
+
+
+def expression_text(written: str, node: A.Node, notation: str = "written") -> str:
+    """An expression of the chart as drawn: ``written`` (the file's text) on one line, or
+    ``node`` in the seed's notation."""
+    if notation == "seed":
+        return seed_text(node)
+    return " ".join(_COMMENT.sub(" ", written).split()) or seed_text(node)
 
 
 # -- the seed notation -----------------------------------------------------------------------
@@ -105,17 +124,22 @@ BODY_LINES = 6
 EQUATION_CHARS = 72  # characters per line of a pre/post equation (beside the chart)
 
 
-def action_parts(a: Action) -> tuple[str, list[str]]:
+def action_parts(a: Action, notation: str = "written") -> tuple[str, list[str]]:
     """(qualifier cell, body lines) of an action box: ``("D 500ms", ["oX"])``,
     ``("↑iPieza", ["sN := sN + 1"])`` for ``on ↑iPieza do sN := sN + 1``; comments are
-    left out, a body keeps its line structure (IF ... END_IF) and long lines are wrapped."""
+    left out, a body keeps its line structure (IF ... END_IF) and long lines are wrapped.
+    A condition and an event as transitions' are (``notation``)."""
     text = _COMMENT.sub("", a.text).strip()
     if a.cond is not None and a.target is not None:  # `N x if C`: C as transitions are
-        return "N", body_lines(f"{a.target} if {seed_text(a.cond)}")
+        m = re.search(r"\bif\s+(.*)$", text, re.IGNORECASE | re.DOTALL)
+        cond = expression_text(m.group(1) if m else "", a.cond,
+                               notation if m else "seed")
+        return "N", body_lines(f"{a.target} if {cond}")
     if a.qualifier is Qualifier.EVENT:
         m = re.match(r"on\s+(.*?)\s+do\s+(.*)$", text, re.IGNORECASE | re.DOTALL)
         if m:
-            event = seed_text(a.event) if a.event is not None else " ".join(m.group(1).split())
+            event = (expression_text(m.group(1), a.event, notation) if a.event is not None
+                     else " ".join(m.group(1).split()))
             return event, body_lines(m.group(2))
         return "on", body_lines(text)
     q = a.qualifier.value
@@ -138,11 +162,13 @@ def step_times(st: Step) -> str:
     return " · ".join(parts)
 
 
-def equation_lines(st: Statement) -> list[str]:
-    """A pre/post statement as drawn: assignments, calls and block calls with their
-    expressions in the seed notation; other statements (IF, CASE, FOR) as written, comments
-    left out, line by line."""
+def equation_lines(st: Statement, notation: str = "written") -> list[str]:
+    """A pre/post statement as drawn: assignments, calls and block calls on one line (split
+    when long), as written or with their expressions in the seed notation (``notation``);
+    other statements (IF, CASE, FOR) as written, comments left out, line by line."""
     n = st.node
+    if notation != "seed" and isinstance(n, (A.Assign, A.CallStmt, A.FbCall)):
+        return condition_lines(" ".join(_COMMENT.sub(" ", st.text).split()), EQUATION_CHARS)
     if isinstance(n, A.Assign):
         return condition_lines(f"{n.target.name} := {seed_text(n.value)}", EQUATION_CHARS)
     if isinstance(n, A.CallStmt):
@@ -183,11 +209,11 @@ def wrap(words: list[str], width: int, lead: int = 0) -> list[str]:
 
 
 def condition_lines(text: str, width: int = LINE_CHARS) -> list[str]:
-    """A condition on one line, or split after its ``·``/``+`` when too long (3 lines at
-    most)."""
+    """A condition on one line, or split after its ``·``/``+`` (``AND``/``OR``) when too
+    long (3 lines at most)."""
     if len(text) <= width:
         return [text]
-    pieces = re.split(r"(?<=·)|(?<= \+ )", text)
+    pieces = re.split(r"(?<=·)|(?<= \+ )|(?<= AND )|(?<= OR )", text)
     lines = [""]
     for p in pieces:
         if lines[-1] and len(lines[-1]) + len(p) > width:

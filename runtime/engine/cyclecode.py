@@ -18,6 +18,7 @@ from typing import Any
 
 from drivers.base import Driver, FaultPolicy, PointKind
 from runtime.compiler.codebook import CodeBook
+from runtime.compiler.emit import comment
 from runtime.compiler.layout import SLOW_FLAGS
 from runtime.engine.inline import Inliner
 from runtime.engine.instance import Instance
@@ -160,7 +161,7 @@ class CycleWriter:
         for name, inst in self.instances.items():
             idef = self.pdef.instances[name]
             g = inst.grafcet
-            add(f"    # instance {name} ({g.name})")
+            add(f"    {comment(f'instance {name} ({g.name})')}")
             add(f"    m = M_{name}")
             # the declared inputs first: a chart flag bound to one of them (its own
             # instance's ``A.stop``) reads this cycle's value, whatever the file's order
@@ -169,8 +170,8 @@ class CycleWriter:
             for sig, b in ordered:
                 v = g.variables[sig]
                 slot = inst.program.var_index(sig)
-                add(f"    m[{slot}] = {self._input_expr(b, v.type, self._view)}  # {sig} <- "
-                    f"{b.source}{' inverted' if b.invert else ''}")
+                add(f"    m[{slot}] = {self._input_expr(b, v.type, self._view)}  "
+                    + comment(f"{sig} <- {b.source}{' inverted' if b.invert else ''}"))
             add(f"    if FI: force_instance({name!r}, m)")
             add(f"    if not SI or {name!r} not in SI: SS_{name}(now, up)  # not in fault")
             add(f"    if FI: force_instance({name!r}, m)")
@@ -194,6 +195,6 @@ class CycleWriter:
                 if b.invert:
                     val = f"not {val}"
                 pos = self.drivers[b.driver or ""].outputs.index[b.point or ""]
-                lines.append(f"    OL_{b.driver}[{pos}] = {val}  # {name}.{sig} -> "
-                             f"{b.driver}.{b.point}")
+                lines.append(f"    OL_{b.driver}[{pos}] = {val}  "
+                             + comment(f"{name}.{sig} -> {b.driver}.{b.point}"))
         return lines

@@ -39,7 +39,7 @@ from typing import Any, TypeAlias
 
 from runtime.compiler.codebook import CodeBook, compile_code
 from runtime.compiler.codegen import FAST_CLOCK, SCAN_GLOBALS
-from runtime.compiler.emit import renamed
+from runtime.compiler.emit import comment, renamed
 from runtime.compiler.program import Program
 from runtime.engine.instance import Instance
 
@@ -239,7 +239,7 @@ class Inliner:
             self.cell(inst, i)
         self._used[-1] |= tpl.helpers | set(_WORD.findall("\n".join(inputs + outputs)))
         self._texts[-1].append("\n".join([
-            f"# instance {j} of the group ({inst.grafcet.name})", *inputs,
+            comment(f"instance {j} of the group ({inst.grafcet.name})"), *inputs,
             f"if {self.slow(inst)}: {self.const(inst.scan_state)}(now, up)", "else:",
             tpl.text.replace(MARK, f"p{j}_"), *outputs]))
 
@@ -280,8 +280,8 @@ class Inliner:
             source = "\n".join([*head, *body, *tail]) + "\n"
             code = codes.get(source)
             if code is None:
-                outer = next(c for c in compile_code(source, FILENAME, book).co_consts
-                             if isinstance(c, types.CodeType))
+                module = compile_code(source, FILENAME, self.env.keys(), book)
+                outer = next(c for c in module.co_consts if isinstance(c, types.CodeType))
                 code = codes[source] = next(c for c in outer.co_consts
                                             if isinstance(c, types.CodeType))
                 self._lines[code] = [*lines, *[-1] * len(tail)]

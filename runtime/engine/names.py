@@ -5,6 +5,15 @@ A name is what a person types at the console or a script sets (``tester1.iMarcha
 resolves a name from the plant definition alone (no driver opened, no Plant built); the
 Catalogue resolves every name of a running plant once, each with a reader that takes it
 from an Image, a copy of the process image captured between two cycles.
+
+A chart output is read as **applied**: what its driver point holds, through the
+binding's inversion, in the output's type. While the plant runs that is the chart's value
+(or a forced point's); while the outputs are held off (fault, halted, iocheck, a watchdog
+inhibit: every point written off) it is off, whatever the stopped chart last said. Every
+display reads the Catalogue (the console's ``get``, ``status`` and streams, the monitor,
+the feed of the OPC UA server, the MQTT edge node and the web page), so none shows an
+output the machine does not have. The chart's own value stays readable
+(``Signal.chart``), and the console says where it differs ("not applied").
 """
 
 from __future__ import annotations
@@ -152,6 +161,11 @@ class Signal:
     feeds: tuple[tuple[str, bool], ...] = ()
     #: for a chart input/output: its binding, e.g. "sim.I0 inverted"
     binding: str = ""
+    #: for a chart output (whose ``read`` is the applied value, its point's): the chart's
+    #: own value; None for every other name
+    chart: Callable[[Image], Any] | None = None
+    #: for a chart output: the point it is bound to ("sim.Q2")
+    point: str = ""
 
     def show(self, value: Any) -> str:
         """The value as a person reads it: bools 0/1, times rounded to ms."""
@@ -183,6 +197,9 @@ class Catalogue:
         self.points: dict[str, list[str]] = {}
         #: bound driver output point -> the chart output writing it
         self.written_by: dict[str, str] = {}
+        #: the chart names their scan writes at every scan, whatever the situation (bool
+        #: action targets, top-level pre/post assignments): a ``set`` is overwritten
+        self.rewritten: set[str] = set()
         #: what each name means to a person (the plant file's I/O list)
         self.iolist = IOList(plant.pdef)
         feeds: dict[str, list[tuple[str, bool]]] = {}
@@ -197,6 +214,10 @@ class Catalogue:
                 bindings[f"{name}.{sig}"] = "-> " + b.source + (" inverted" if b.invert
                                                                 else "")
                 self.written_by[b.source] = f"{name}.{sig}"
+        #: driver output point -> (driver's position in an Image, the point's position)
+        self._outputs = {f"{dname}.{p}": (j, pos)
+                         for j, (dname, d) in enumerate(plant.drivers.items())
+                         for p, pos in d.outputs.index.items()}
         for i, (name, inst) in enumerate(plant.instances.items()):
             self._instance(i, name, inst, bindings)
         for j, (dname, d) in enumerate(plant.drivers.items()):
@@ -217,9 +238,14 @@ class Catalogue:
         #: what ``trace`` and ``cycle`` compare: everything but step times (they change
         #: every scan)
         self.traced = [n for n in self.names.values() if n.role != "step time"]
+        #: the chart outputs bound to a point (read as applied, their ``chart`` beside)
+        self.outputs = [n for n in self.names.values() if n.chart is not None]
 
     def _instance(self, i: int, name: str, inst: Any, bindings: dict[str, str]) -> None:
+        from runtime.compiler.layout import written  # lazy: the controller's side only
+
         g, prog = inst.grafcet, inst.program
+        self.rewritten.update(f"{name}.{v}" for v in written(g)[0])
         groups: dict[str, list[str]] = {"inputs": [], "outputs": [], "memory": []}
         for key in inst.names():
             text = f"{name}.{key}"
@@ -234,8 +260,16 @@ class Catalogue:
                 n = Signal(text, A.Type.STRING, _current_step_reader(i, leaf), "chart flag")
             else:
                 v = g.variables[key]
-                n = Signal(text, v.type, _slot_reader(i, prog.var_index(key)), v.kind.value,
-                         binding=bindings.get(text, ""))
+                own = _slot_reader(i, prog.var_index(key))
+                b = self.plant.pdef.instances[name].outputs.get(key)
+                if v.kind is VarKind.OUTPUT and b is not None and b.source in self._outputs:
+                    j, pos = self._outputs[b.source]
+                    n = Signal(text, v.type, _applied_reader(j, pos, b.invert, v.type),
+                               v.kind.value, binding=bindings.get(text, ""), chart=own,
+                               point=b.source)
+                else:
+                    n = Signal(text, v.type, own, v.kind.value,
+                               binding=bindings.get(text, ""))
                 if v.kind is VarKind.INPUT:
                     groups["inputs"].append(text)
                 elif v.kind is VarKind.OUTPUT:
@@ -244,6 +278,18 @@ class Catalogue:
                     groups["memory"].append(text)
             self.names[text] = n
         self.groups[name] = groups
+
+    def not_applied(self, img: Image) -> list[tuple[Signal, Any, Any, Any]]:
+        """The chart outputs whose point does not hold what the chart says (the outputs
+        held off, a forced point), each as (signal, the chart's value, the applied value,
+        what the point holds)."""
+        out = []
+        for s in self.outputs:
+            assert s.chart is not None
+            applied, chart = s.read(img), s.chart(img)
+            if not same(applied, chart):
+                out.append((s, chart, applied, self.names[s.point].read(img)))
+        return out
 
     def resolve(self, text: str) -> Signal:
         """The Signal for ``text``; CommandError naming the closest one if unknown."""
@@ -314,8 +360,37 @@ def _point_reader(direction: str, j: int, pos: int) -> Callable[[Image], Any]:
     return lambda img: img.outputs[j][pos]
 
 
+def _applied_reader(j: int, pos: int, invert: bool, t: A.Type) -> Callable[[Image], Any]:
+    """Reader of a chart output as applied: the point at position ``pos`` of driver
+    ``j``'s output image, through the binding's inversion, in the output's type ``t`` (a
+    point written off holds the int 0)."""
+    if t is A.Type.BOOL:
+        if invert:
+            return lambda img: not img.outputs[j][pos]
+        return lambda img: bool(img.outputs[j][pos])
+    if t is A.Type.REAL:
+        return lambda img: float(img.outputs[j][pos])
+    if t in (A.Type.INT, A.Type.TIME):
+        return lambda img: int(img.outputs[j][pos])
+    return lambda img: img.outputs[j][pos]
+
+
 def _ok_reader(j: int) -> Callable[[Image], Any]:
     return lambda img: img.ok[j]
+
+
+def not_applied_lines(not_applied: dict[str, dict[str, Any]],
+                      head: str = "not applied: ") -> list[str]:
+    """One line per chart output whose point does not hold what the chart says (the
+    outputs held off, a forced point), from ``status``'s ``not_applied``: the console's
+    ``status`` and the monitor."""
+    return [f"{head}{name}: the chart's {d['chart']}, {d['point']} holds {d['holds']}"
+            for name, d in not_applied.items()]
+
+
+def same(a: Any, b: Any) -> bool:
+    """Whether two values of a name are the same (a NaN is the same as a NaN)."""
+    return bool(a == b or (a != a and b != b))
 
 
 def parse_value(name: Signal, text: str) -> Any:

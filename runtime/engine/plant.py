@@ -76,15 +76,16 @@ class Plant:
     # slots: ``cycle`` reads and writes its attributes every cycle; past 30 attributes an
     # instance dict stops sharing its keys and each read is a dict lookup (CPython 3.11)
     __slots__ = ("virtual", "pdef", "_book", "cycle_ns", "watchdog_ns", "retain_interval_ns",
-                 "_start", "last_up", "offset_ns", "_last_scan", "_stood_still", "programs",
-                 "instances", "drivers", "_handed", "forced", "forced_points",
+                 "_coverage", "_start", "last_up", "offset_ns", "_last_scan", "_stood_still",
+                 "programs", "instances", "drivers", "_handed", "forced", "forced_points",
                  "_forced_by_inst", "_stash", "_pulses", "_hold", "steps_left", "_iocheck",
                  "scans", "names", "_env", "source", "_cycle_fast", "_cycle", "_usual",
                  "_copy_outputs", "_inliner", "bits", "instance_faults", "__weakref__")
 
     def __init__(self, pdef: PlantDef, *, sim: bool = False,
                  drivers: dict[str, Driver] | None = None, virtual: bool = False,
-                 book: CodeBook | None = None, handover: bool = False) -> None:
+                 book: CodeBook | None = None, handover: bool = False,
+                 coverage: bool = False) -> None:
         """``sim``: every driver replaced by simulated I/O. ``drivers``: driver objects to
         use in place of new ones (by name). ``virtual`` (simulate, on a virtual clock): the
         simulated drivers' images are the whole process image, so the cycle makes no driver
@@ -92,13 +93,15 @@ class Plant:
         objects compiled in another process (an online change), used for the sources it
         holds (runtime/compiler/codebook.py). ``handover``: ``drivers`` are a running
         plant's (an online change): this plant declares its input bits on their images in
-        :meth:`take_over`, not before.
+        :meth:`take_over`, not before. ``coverage``: the charts compiled to count what
+        they do (``Program.coverage``: ``softplc test``).
         """
         if virtual and not sim:
             raise ValueError("a virtual plant runs on simulated I/O only")
         self.virtual = virtual
         self.pdef = pdef
         self._book = book
+        self._coverage = coverage
         self.cycle_ns = pdef.cycle_ns
         self.watchdog_ns = pdef.watchdog_ns
         self.retain_interval_ns = pdef.retain_interval_ns
@@ -158,7 +161,7 @@ class Plant:
                              book)
         self.source = writer.source()
         self._inliner = writer.inliner
-        exec(compile_code(self.source, "<plant cycle>", book), env)  # noqa: S102 - generated
+        exec(compile_code(self.source, "<plant cycle>", env.keys(), book), env)  # noqa: S102 - generated
         #: the cycle with no force and no pulse (semantics unchanged, less to do)
         self._cycle_fast: FastCycle = self._fast_cycle()
         #: the cycle with forces and pulses applied around each scan
@@ -172,7 +175,7 @@ class Plant:
         for p in self.programs:
             if p.grafcet is g:
                 return p
-        p = compile_grafcet(g, self._book)
+        p = compile_grafcet(g, self._book, self._coverage)
         self.programs.append(p)
         return p
 

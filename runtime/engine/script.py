@@ -57,7 +57,15 @@ def read_script(path: str, names: PlantNames, need_length: bool = True) -> Scrip
     doc = load_yaml(path)
     if not isinstance(doc, YMap):
         raise SourceError(Loc(path, 1, 1), "expected a mapping with 'duration:' or 'cycles:'")
-    check_keys(doc, SCRIPT_KEYS, "a simulation script")
+    return script_of(doc, names, need_length)
+
+
+def script_of(doc: YMap, names: PlantNames, need_length: bool = True,
+              keys: tuple[str, ...] = SCRIPT_KEYS, what: str = "a simulation script"
+              ) -> Script:
+    """The script of a loaded document: ``read_script``'s checks, the document's keys
+    among ``keys`` (a scenario's are more: runtime/scenario), ``what`` naming it."""
+    check_keys(doc, keys, what)
     duration = cycles = None
     if "duration" in doc:
         duration = time_value(doc["duration"], doc.val_locs["duration"], "duration")
@@ -111,8 +119,12 @@ def load_script(path: str, plant: Plant) -> tuple[int | None, int | None, list[E
     each event writing its change into ``plant``. The length may be absent (None, None):
     the caller decides whether it needs one (``simulate --cycles`` does not)."""
     script = read_script(path, plant.names, need_length=False)
-    return (script.duration_ns, script.cycles,
-            [Event(c.at_ns, c.key, c.value, _apply(plant, c)) for c in script.changes])
+    return script.duration_ns, script.cycles, bind(plant, script.changes)
+
+
+def bind(plant: Plant, changes: list[Change]) -> list[Event]:
+    """The events writing ``changes`` (in their order) into ``plant``'s process image."""
+    return [Event(c.at_ns, c.key, c.value, _apply(plant, c)) for c in changes]
 
 
 def _apply(plant: Plant, c: Change) -> Callable[[], None]:

@@ -13,7 +13,7 @@ from typing import Any
 from drivers.sim import SimDriver
 from runtime.compiler.evolution import UnstableChart
 from runtime.engine.plant import Plant
-from runtime.engine.script import Event, load_script
+from runtime.engine.script import Change, Event, bind, load_script
 from runtime.engine.trace import (
     driver_columns,
     fault_row,
@@ -22,6 +22,7 @@ from runtime.engine.trace import (
     write_vcd,
 )
 from runtime.errors import Loc, SourceError
+from runtime.language.model import PlantDef
 from runtime.language.plantfile import load_plant
 
 #: the script and trace functions, also imported from here by older callers
@@ -33,14 +34,18 @@ class Simulation:
     """A plant on a virtual clock; iterate ``run()`` to get one trace row per scan."""
 
     def __init__(self, plant_path: str, script_path: str | None = None,
-                 cycles: int | None = None) -> None:
-        self.pdef = load_plant(plant_path)
-        self.plant = Plant(self.pdef, sim=True, virtual=True)
+                 cycles: int | None = None, *, pdef: PlantDef | None = None,
+                 changes: list[Change] | None = None, coverage: bool = False) -> None:
+        """``pdef``: the plant at ``plant_path``, already loaded; ``changes``: input
+        changes already read (a scenario's), in place of a script; ``coverage``: the
+        charts count what they do (``Program.coverage``)."""
+        self.pdef = load_plant(plant_path) if pdef is None else pdef
+        self.plant = Plant(self.pdef, sim=True, virtual=True, coverage=coverage)
         for d in self.plant.drivers.values():
             assert isinstance(d, SimDriver)
         duration: int | None = None
         script_cycles: int | None = None
-        self.events: list[Event] = []
+        self.events: list[Event] = bind(self.plant, changes or [])
         if script_path is not None:
             duration, script_cycles, self.events = load_script(script_path, self.plant)
         if cycles is None and script_path is not None and (duration, script_cycles) == (

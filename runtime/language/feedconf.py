@@ -2,8 +2,8 @@
 may write through it.
 
 The socket is one per plant, whichever sections name it. A section's ``feed:`` key is
-optional; when none names it, the feed is beside the plant's console socket (``feed.sock``
-in its directory), or ``${RUNTIME_DIR}/feed.sock`` when the plant has no console socket.
+optional; when none names it, the feed is ``${RUNTIME_DIR}/feed.sock``, in the plant's own
+runtime directory (runtime/language/runtimedir.py): never another plant's.
 
 A section's ``writable:`` names are memory variables and Boolean chart flags that nothing
 else writes every scan: what a client may set between two scans (``writable_problem``)."""
@@ -57,7 +57,7 @@ def settle_feed(p: PlantDef, named: dict[str, Loc]) -> None:
         path, first = section.feed, key
     if not path:
         loc = sections[0][1].loc or Loc(p.path, 1, 1)
-        path = default_feed([c.address for c in p.consoles if c.kind == "socket"], loc)
+        path = default_feed(Loc(p.path, 1, 1))
         problem = path_problem(path, socket=True)
         if problem is not None:
             raise SourceError(loc, f"{sections[0][0]} feed (by default {path}): {problem}: "

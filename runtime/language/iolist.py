@@ -36,29 +36,17 @@ import re
 from dataclasses import dataclass
 from typing import Any
 
-from runtime.errors import Loc, SourceError, suggest
+from runtime.errors import Loc, SourceError
 from runtime.language import ast as A
+from runtime.language.flagtexts import FLAG_TEXT, HEALTH_TEXT
 from runtime.language.grafcetfile import description_text, expect_type
 from runtime.language.model import Binding, InstanceDef, PlantDef
-from runtime.language.units import MILLISECOND, Unit, find_unit, spellings
+from runtime.language.units import MILLISECOND, Unit, find_unit, suggest_unit
 from runtime.language.yamlsrc import YList, YMap
 
 #: the I/O list's keys of a binding (beside ``from`` and ``invert``)
 IO_KEYS = ("description", "unit", "range")
-#: what the chart flags and the driver health mean (the language's own, not the plant's)
-FLAG_TEXT = {
-    "SFCInit": "while true: the chart is held in its initial situation",
-    "SFCReset": "while true: the chart is reset to its initial situation",
-    "SFCPause": "while true: the chart is paused (no transition fires)",
-    "SFCError": "set by a step over its max time, until acknowledged",
-    "SFCErrorStep": "the step that set SFCError",
-    "SFCEnableLimit": "max time supervision on (default true)",
-    "SFCQuitError": "while true: SFCError cleared and the chart paused",
-    "SFCTipMode": "while true: the chart steps only on SFCTip",
-    "SFCTip": "in tip mode: one step per rising edge",
-    "SFCCurrentStep": "the active step (the first, in file order)",
-}
-HEALTH_TEXT = "true while the driver is healthy"
+
 
 
 @dataclass(frozen=True, slots=True)
@@ -104,7 +92,7 @@ def io_entry(b: Binding, spec: YMap) -> None:
         if unit is None:
             raise SourceError(loc, f"unknown unit '{text}': expected a UN/CEFACT code (CEL, "
                                    f"BAR, MMT, ...) or a symbol (°C, bar, mm, ...)"
-                                   f"{suggest(text, spellings())}")
+                                   f"{suggest_unit(text.strip())}")
         b.unit = unit
     if "range" in spec:
         b.range = _range(spec["range"], spec.val_locs["range"])

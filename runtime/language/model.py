@@ -248,6 +248,8 @@ class OpcuaSecurity:
     """``opcua: security:`` (docs/opcua.md): what the server offers and whom it lets in."""
 
     policies: list[str] = field(default_factory=lambda: ["Basic256Sha256_SignAndEncrypt"])
+    #: the server's certificate and its key (absolute: a relative path in the plant file
+    #: is read from the plant file's directory)
     certificate: str | None = None
     private_key: str | None = None
     #: a directory of trusted client certificates (DER or PEM): their sessions may write
@@ -259,6 +261,9 @@ class OpcuaSecurity:
     #: user -> password hash (``softplc hash-pin`` format)
     users: dict[str, str] = field(default_factory=dict)
     loc: Loc | None = None
+    #: where each key given (certificate, private_key ...) has its value, for the errors
+    #: of the server's start
+    locs: dict[str, Loc] = field(default_factory=dict)
 
 
 #: the kinds of alarm (docs/daemon.md, "Alarms") and their default severities (1-1000)
@@ -413,6 +418,12 @@ class WebDef:
     idle_logout_ns: int = 600_000_000_000
     #: pages open at once (WebSocket connections), in all
     max_pages: int = 20
+    #: a page that answers nothing (not even the server's ping) for this long is closed,
+    #: and what it held released (a browser frozen, a laptop asleep), ns
+    page_timeout_ns: int = 30_000_000_000
+    #: names besides its own (listen address, loopback, certificate) the page is reached
+    #: by: any other Host is refused (DNS rebinding)
+    hosts: list[str] = field(default_factory=list)
     #: the writable names (the feed's; the page acts through the console, docs/web.md)
     writable: list[str] = field(default_factory=list)
     loc: Loc | None = None
@@ -456,7 +467,9 @@ DEFAULT_REALTIME_PRIORITY = 50
 class PlantDef:
     path: str
     cycle_ns: int = 10_000_000
-    watchdog_ns: int = 100_000_000
+    #: the default from bench/sidestart.py's figures (docs/daemon.md, "The watchdog's
+    #: default"): longer than the worst lateness of a loaded controller starting a side process
+    watchdog_ns: int = 1_000_000_000
     retain_path: str | None = None
     #: where ``plc: retain`` is written (errors about the retained data point there)
     retain_loc: Loc | None = None

@@ -4,8 +4,9 @@ another process crosses to this one, as JSON, never as pickle.
 The reload's child process (runtime/controller/reloadchild.py) loads the plant file and its
 charts; the controller takes the ``PlantDef`` it made. Pickle would run whatever the bytes
 name when they are read; this encoding names only the model's own classes (the dataclasses
-and enums of ``language.model``, ``language.ast`` and ``errors.Loc``, looked up in a table
-built from those modules) and plain values (None, bool, int, float, str, list, tuple, dict),
+and enums of ``language.model``, ``language.ast`` and ``errors.Loc``, and every one their
+fields' types name, such as the I/O list's ``units.Unit``: a table built from those modules
+and their type hints) and plain values (None, bool, int, float, str, list, tuple, dict),
 and builds each object from its fields' values, calling nothing the data chooses.
 
 The objects are written as *records* in post-order, each one a JSON list whose first item
@@ -28,6 +29,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import json
+import typing
 from collections.abc import Iterable, Iterator
 from typing import Any
 
@@ -47,15 +49,33 @@ class ModelDataError(SoftplcError, ValueError):
 
 
 def _classes() -> dict[str, type]:
-    """The classes data may name, by name: the model's dataclasses and enums."""
-    out: dict[str, type] = {"Loc": Loc}
+    """The classes data may name, by name: the dataclasses and enums of the model's modules,
+    and every dataclass or enum their fields' types name, wherever it is defined (the I/O
+    list's ``units.Unit``), found by following the type hints: a class the model takes in
+    crosses with it, never "not part of the model"."""
+    out: dict[str, type] = {}
+    todo: list[type] = [Loc]
     for module in (A, M):
-        for name, cls in vars(module).items():
-            if isinstance(cls, type) and cls.__module__ == module.__name__ and (
-                    dataclasses.is_dataclass(cls) or issubclass(cls, enum.Enum)):
-                if out.setdefault(name, cls) is not cls:
-                    raise AssertionError(f"two model classes named {name}")
+        todo += [cls for cls in vars(module).values()
+                 if isinstance(cls, type) and cls.__module__ == module.__name__ and (
+                     dataclasses.is_dataclass(cls) or issubclass(cls, enum.Enum))]
+    while todo:
+        cls = todo.pop()
+        if out.setdefault(cls.__name__, cls) is not cls:
+            raise AssertionError(f"two model classes named {cls.__name__}")
+        if dataclasses.is_dataclass(cls):
+            for hint in typing.get_type_hints(cls).values():
+                todo += [c for c in _named(hint) if c.__name__ not in out]
     return out
+
+
+def _named(hint: Any) -> Iterator[type]:
+    """The dataclasses and enums a type hint names (inside unions, lists, dicts...)."""
+    if isinstance(hint, type) and (dataclasses.is_dataclass(hint)
+                                   or issubclass(hint, enum.Enum)):
+        yield hint
+    for arg in typing.get_args(hint):
+        yield from _named(arg)
 
 
 CLASSES = _classes()

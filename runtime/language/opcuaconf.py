@@ -1,6 +1,11 @@
 """The ``opcua:`` section of a plant file (docs/opcua.md): endpoint, feed, writable names, limits,
 security. Checked against the plant: a writable name must be a variable or chart flag an
-OPC UA client may set between two scans."""
+OPC UA client may set between two scans. The certificate, key and trusted directories are
+read from the plant file's directory when relative (as every path of a plant file:
+``plantpaths.resolve``) and must be there when the OPC UA server starts
+(``security_problems``: ``softplc check`` and ``softplc opcua`` refuse a missing one at its
+value, and making a new pair is advised only when neither file of it is there; the
+controller itself loads the plant without them)."""
 
 from __future__ import annotations
 
@@ -11,7 +16,7 @@ from runtime.errors import Loc, SourceError, suggest
 from runtime.language.feedconf import feed_key, sample_key, writable_names
 from runtime.language.grafcetfile import check_keys, expect_type, time_value
 from runtime.language.model import OPCUA_POLICIES, OpcuaDef, OpcuaLimits, OpcuaSecurity, PlantDef
-from runtime.language.plantpaths import path_value
+from runtime.language.plantpaths import missing, plant_path
 from runtime.language.yamlsrc import YMap
 
 OPCUA_KEYS = ("endpoint", "sample", "feed", "writable", "security", "limits")
@@ -55,7 +60,7 @@ def load_opcua(p: PlantDef, value: Any, loc: Loc) -> OpcuaDef:
     if "writable" in m:
         o.writable = writable_names(p, m["writable"], m.val_locs["writable"], "opcua")
     if "security" in m:
-        o.security = _security(m["security"], m.val_locs["security"])
+        o.security = _security(m["security"], m.val_locs["security"], p.path)
     if "limits" in m:
         o.limits = _limits(m["limits"], m.val_locs["limits"])
     return o
@@ -106,7 +111,7 @@ def _limits(value: Any, loc: Loc) -> OpcuaLimits:
     return lim
 
 
-def _security(value: Any, loc: Loc) -> OpcuaSecurity:
+def _security(value: Any, loc: Loc, base: str) -> OpcuaSecurity:
     m = expect_type(value, loc, YMap, "a mapping (policies, certificate, ...)")
     check_keys(m, SECURITY_KEYS, "opcua security")
     sec = OpcuaSecurity(loc=loc)
@@ -129,8 +134,8 @@ def _security(value: Any, loc: Loc) -> OpcuaSecurity:
                 sec.policies.append(text)
     for key in ("certificate", "private_key", "trusted_clients", "trusted_readers"):
         if key in m:
-            vloc = m.val_locs[key]
-            setattr(sec, key, path_value(m[key], vloc, f"opcua security {key}"))
+            vloc = sec.locs[key] = m.val_locs[key]
+            setattr(sec, key, plant_path(base, m[key], vloc, f"opcua security {key}"))
     if "anonymous" in m:
         vloc = m.val_locs["anonymous"]
         if m["anonymous"] not in ("read", "none"):
@@ -146,3 +151,56 @@ def _security(value: Any, loc: Loc) -> OpcuaSecurity:
                                   "expected a password hash made by 'softplc hash-pin'")
             sec.users[str(user)] = h
     return sec
+
+
+def security_problems(sec: OpcuaSecurity) -> list[SourceError]:
+    """What of the files ``sec`` names is not there (or not of its kind), each a
+    SourceError at its value: the certificate or key (``credential_problem``), a trusted
+    directory. Not checked at load (``softplc run`` serves no OPC UA and must not be kept
+    from running a machine by a missing certificate): ``softplc check`` reports them as
+    G308 errors and ``softplc opcua`` refuses to start on the first
+    (``check_security``)."""
+    out: list[SourceError] = []
+    problem = credential_problem(sec)
+    if problem is not None:
+        out.append(SourceError(sec.locs[problem[0]], f"opcua security {problem[0]}: "
+                                                     f"{problem[1]}"))
+    for key in ("trusted_clients", "trusted_readers"):
+        path = getattr(sec, key)
+        why = missing(path, directory=True) if path else None
+        if why is not None:
+            if why.startswith("no "):
+                why += (" (the directory of the client certificates to trust: make it, "
+                        "docs/opcua.md, 'Step by step')")
+            out.append(SourceError(sec.locs[key], f"opcua security {key}: {why}"))
+    return out
+
+
+def check_security(sec: OpcuaSecurity) -> None:
+    """Raise the first of ``security_problems`` (the OPC UA server's start)."""
+    problems = security_problems(sec)
+    if problems:
+        raise problems[0]
+
+
+def credential_problem(sec: OpcuaSecurity) -> tuple[str, str] | None:
+    """The first of ``certificate`` and ``private_key`` named but not there (or not a
+    file), and why: (key, text). A new pair (``softplc opcua-cert``) is advised only when
+    neither file is there: it never overwrites one, and a certificate without its key (or
+    the reverse) is a pair to restore. None when both are there (or not named)."""
+    pair = {"certificate": sec.certificate, "private_key": sec.private_key}
+    for key, path in pair.items():
+        why = missing(path) if path else None
+        if why is None:
+            continue
+        if why.startswith("no file"):
+            other_key = "private_key" if key == "certificate" else "certificate"
+            other = pair[other_key]
+            if other and missing(other) is None:
+                why += (f" (its {other_key.replace('_', ' ')} {other} is there: put this "
+                        "file of the pair back beside it, or move that one away and make a "
+                        "new pair with 'softplc opcua-cert', docs/opcua.md)")
+            else:
+                why += " (make one with 'softplc opcua-cert', docs/opcua.md)"
+        return key, why
+    return None

@@ -43,7 +43,7 @@ from runtime.language.model import (
 )
 from runtime.language.mqttconf import load_mqtt
 from runtime.language.opcuaconf import load_opcua
-from runtime.language.plantpaths import path_value
+from runtime.language.plantpaths import path_value, plant_path, resolve
 from runtime.language.typecheck import FLAGS_BOOL
 from runtime.language.webconf import load_web
 from runtime.language.yamlsrc import SourceFileError, YMap, load_yaml
@@ -53,6 +53,9 @@ PLC_KEYS = ("cycle", "watchdog", "retain", "retain_interval", "retain_required",
             "log")
 INSTANCE_KEYS = ("grafcet", "inputs", "outputs", "description", "log")
 BINDING_KEYS = ("from", "invert", *IO_KEYS)
+#: an output may name its point with ``to:`` (its value goes there), or ``from:`` as an
+#: input does (every plant written before ``to:``): one of the two
+OUTPUT_BINDING_KEYS = ("from", "to", "invert", *IO_KEYS)
 #: values of ``log:`` (plant-wide under ``plc:``, or per instance) -> whether step changes
 #: are logged
 LOG_VALUES = {"steps": True, "none": False}
@@ -115,17 +118,12 @@ class PlantLoad:
         self.diagnostics.append(error.diagnostic)
 
 
-def _resolve(base: str, path: str) -> str:
-    return path if os.path.isabs(path) else os.path.normpath(
-        os.path.join(os.path.dirname(os.path.abspath(base)), path))
-
-
 def _retain_path(base: str, value: Any, loc: Loc) -> str:
     """``plc: retain``: a regular file, or one not yet there, never a directory."""
     text = path_value(value, loc, "plc retain")
     if text.endswith(("/", os.sep)):
         raise SourceError(loc, f"plc retain: '{text}' names a directory, expected a file")
-    path = _resolve(base, text)
+    path = resolve(base, text)
     try:
         mode = os.lstat(path).st_mode
     except FileNotFoundError:
@@ -145,20 +143,34 @@ def _retain_path(base: str, value: Any, loc: Loc) -> str:
     return path
 
 
-def _binding(signal: str, spec: Any, loc: Loc) -> Binding:
+def _binding(signal: str, spec: Any, loc: Loc, output: bool = False) -> Binding:
+    """The binding of ``signal`` (an output's when ``output``): ``driver.point`` or a
+    mapping naming it (``from:``; an output's also ``to:``)."""
     invert = False
     listed: YMap | None = None
     if isinstance(spec, YMap):
-        check_keys(spec, BINDING_KEYS, f"the binding of '{signal}'")
-        if "from" not in spec:
-            raise SourceError(spec.loc, f"binding of '{signal}' needs 'from: driver.point'")
+        def misplaced(key: str) -> str | None:
+            if key != "to":
+                return None
+            return (": 'to:' binds an output (its value goes to the point): an input's value "
+                    f"comes from its point: write 'from: {spec['to']}'")
+        check_keys(spec, OUTPUT_BINDING_KEYS if output else BINDING_KEYS,
+                   f"the binding of '{signal}'", misplaced)
+        key = "to" if output and "to" in spec else "from"
+        if output and "to" in spec and "from" in spec:
+            raise SourceError(spec.key_locs["to"], f"the binding of '{signal}' names its point "
+                                                   "twice ('from:' and 'to:'): keep one")
+        if key not in spec:
+            raise SourceError(spec.loc, f"binding of '{signal}' needs "
+                                        + ("'to: driver.point' (or 'from:')" if output
+                                           else "'from: driver.point'"))
         invert = expect_type(spec.get("invert", False), spec.val_locs.get("invert", loc), bool,
                              "true or false for invert")
         listed = spec
-        loc = spec.val_locs["from"]
-        spec = spec["from"]
-    source = expect_type(spec, loc, str, f"'driver.point' or {{from: ..., invert: true}} for "
-                                         f"'{signal}'")
+        loc = spec.val_locs[key]
+        spec = spec[key]
+    source = expect_type(spec, loc, str, f"'driver.point' or {{{'to' if output else 'from'}: "
+                                         f"..., invert: true}} for '{signal}'")
     if "." not in source:
         raise SourceError(loc, f"expected 'driver.point' or 'instance.signal' for '{signal}', "
                                f"found '{source}'")
@@ -257,7 +269,7 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
             if "grafcet" not in spec:
                 raise SourceError(spec.loc, f"instance '{name}' needs 'grafcet: FILE'")
             gloc = spec.val_locs["grafcet"]
-            gpath = _resolve(path, path_value(spec["grafcet"], gloc, "grafcet"))
+            gpath = plant_path(path, spec["grafcet"], gloc, "grafcet")
             if not os.path.exists(gpath):
                 raise SourceError(gloc, f"grafcet file not found: {gpath}")
             if gpath not in load.chart_files:
@@ -290,7 +302,7 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
             written[key] = section
             for sig, bspec in section.items():
                 try:
-                    b = _binding(sig, bspec, section.val_locs[sig])
+                    b = _binding(sig, bspec, section.val_locs[sig], key == "outputs")
                 except SourceError as exc:
                     load.report(exc)
                     continue  # the binding is left out

@@ -16,15 +16,24 @@ side process: ``softplc mqtt``, a web view) reads the same plant file and calls
    /etc/softplc/NAME/plant.yaml (what ``softplc install-service`` writes). So a process
    started by hand on an installed plant (``sudo softplc opcua /etc/softplc/NAME/plant.yaml``,
    a second ``softplc run`` by mistake) looks where the service is;
-3. ``$XDG_RUNTIME_DIR/softplc`` when ``$XDG_RUNTIME_DIR`` is an absolute path to a directory
-   of this user (a login session: /run/user/UID);
-4. ``${TMPDIR:-/tmp}/softplc-UID`` otherwise.
+3. ``$XDG_RUNTIME_DIR/softplc/KEY`` when ``$XDG_RUNTIME_DIR`` is an absolute path to a
+   directory of this user (a login session: /run/user/UID);
+4. ``${TMPDIR:-/tmp}/softplc-UID/KEY`` otherwise.
 
 A plant is its directory: the plant files of one directory are versions of one plant (an
 installed plant has a directory of its own, /etc/softplc/NAME). Its **name** is the NAME of
 an installed plant, else the name of that directory (``configs/drawer_tester/plant_sim.yaml``:
 drawer_tester); its **home** is the real path of that directory: the key of its lock and the
 owner recorded with its retained data.
+
+A plant run by hand has a runtime directory of its own, as an installed plant has: KEY is
+``NAME-HASH`` (``plant_key``: the name, at most KEY_NAME_MAX characters of it, and the
+first KEY_HASH hexadecimal digits of the sha256 of its home). So what two plants name in
+``${RUNTIME_DIR}`` (``${RUNTIME_DIR}/drawer.sock``, a retain file) and their default feed
+socket are never the same file, even for two clones of one project (the same name, two
+homes). ``runtime_dir`` without a plant is the directory of those directories. A plant file
+loaded as a version of a running plant (``softplc diff OLD NEW``, ``reload NEW`` of a copy
+kept elsewhere) has the running plant's: ``version_of``.
 
 This module only names things; ``runtime.controller.paths`` creates and checks the
 directories, ``runtime.controller.plantlock`` takes the lock. Nothing else is expanded in a
@@ -60,10 +69,18 @@ STATE_DIR = "/var/lib/softplc"
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
 #: the feed socket's name when the plant does not give one
 FEED_FILE = "feed.sock"
+#: a plant's runtime directory by hand, NAME-HASH: at most this much of the name, and this
+#: many hexadecimal digits of its home's sha256 (a socket's whole path is at most 107
+#: bytes: /run/user/1000/softplc/drawer_tester-4be1c2d0/drawer.sock is 58)
+KEY_NAME_MAX = 16
+KEY_HASH = 8
 
 #: install-service loads the plant as the service will see it (``service_view``)
 _SERVICE_VIEW: contextvars.ContextVar[str | None] = contextvars.ContextVar(
     "softplc_service_view", default=None)
+#: the plant file whose runtime directory a load uses (``version_of``)
+_VERSION_OF: contextvars.ContextVar[str | None] = contextvars.ContextVar(
+    "softplc_version_of", default=None)
 
 
 def installed_name(plant: str) -> str | None:
@@ -85,13 +102,31 @@ def plant_name(plant: str) -> str:
     return os.path.basename(os.path.dirname(os.path.realpath(plant))) or "plant"
 
 
+def plant_home(plant: str) -> str:
+    """The plant's identity: the real path of its file's directory."""
+    return os.path.dirname(os.path.realpath(plant))
+
+
+def _digest(home: str) -> str:
+    return hashlib.sha256(home.encode()).hexdigest()
+
+
+def plant_key(plant: str) -> str:
+    """``NAME-HASH``: the name of the runtime directory of the plant file ``plant`` run by
+    hand (see the module's docstring)."""
+    return f"{plant_name(plant)[:KEY_NAME_MAX]}-{_digest(plant_home(plant))[:KEY_HASH]}"
+
+
 def runtime_dir(env: Mapping[str, str] | None = None, uid: int | None = None,
                 plant: str | None = None) -> str:
-    """The directory ``${RUNTIME_DIR}`` stands for, for the plant file ``plant`` (nothing
+    """The directory ``${RUNTIME_DIR}`` stands for, for the plant file ``plant``; without
+    a plant, the directory of the runtime directories of the plants run by hand (nothing
     is created or checked here but whether ``$XDG_RUNTIME_DIR`` is this user's)."""
     viewed = _SERVICE_VIEW.get()
     if viewed is not None:
         return os.path.join(SERVICE_RUNTIME, viewed)
+    if plant is not None:
+        plant = _VERSION_OF.get() or plant
     env = os.environ if env is None else env
     uid = os.geteuid() if uid is None else uid
     systemd = env.get("RUNTIME_DIRECTORY", "").split(":")[0]
@@ -108,10 +143,12 @@ def runtime_dir(env: Mapping[str, str] | None = None, uid: int | None = None,
             st = None
         # su keeps the caller's XDG_RUNTIME_DIR: only a directory of this user counts
         if st is not None and stat.S_ISDIR(st.st_mode) and st.st_uid == uid:
-            return os.path.join(os.path.normpath(xdg), "softplc")
+            base = os.path.join(os.path.normpath(xdg), "softplc")
+            return os.path.join(base, plant_key(plant)) if plant else base
     tmp = env.get("TMPDIR", "")
-    return os.path.join(os.path.normpath(tmp) if os.path.isabs(tmp) else "/tmp",
+    base = os.path.join(os.path.normpath(tmp) if os.path.isabs(tmp) else "/tmp",
                         f"softplc-{uid}")
+    return os.path.join(base, plant_key(plant)) if plant else base
 
 
 def managed_by_systemd(directory: str, env: Mapping[str, str] | None = None) -> bool:
@@ -135,6 +172,19 @@ def service_view(name: str) -> Iterator[None]:
         _SERVICE_VIEW.reset(token)
 
 
+@contextlib.contextmanager
+def version_of(plant: str) -> Iterator[None]:
+    """Within it, ``${RUNTIME_DIR}`` is the plant file ``plant``'s, whatever file is
+    loaded: how a new version of a running plant is read (``softplc diff OLD NEW``, a
+    reload), so that the files it names there are the running plant's, wherever the new
+    version is kept."""
+    token = _VERSION_OF.set(plant)
+    try:
+        yield
+    finally:
+        _VERSION_OF.reset(token)
+
+
 def expand(path: str, loc: Loc, env: Mapping[str, str] | None = None) -> str:
     """``path`` with ``${RUNTIME_DIR}`` replaced (for the plant file ``loc.file``);
     SourceError at ``loc`` for any other ``${...}``."""
@@ -147,11 +197,9 @@ def expand(path: str, loc: Loc, env: Mapping[str, str] | None = None) -> str:
     return path.replace(PLACEHOLDER, runtime_dir(env, plant=loc.file))
 
 
-def default_feed(console_sockets: list[str], loc: Loc) -> str:
-    """The feed socket when no section (``opcua:``, ``mqtt:``) names one: beside the
-    plant's first console socket, else ``${RUNTIME_DIR}/feed.sock``."""
-    if console_sockets:
-        return os.path.join(os.path.dirname(console_sockets[0]), FEED_FILE)
+def default_feed(loc: Loc) -> str:
+    """The feed socket when no section (``opcua:``, ``mqtt:``, ``web:``) names one:
+    ``${RUNTIME_DIR}/feed.sock`` of the plant file ``loc.file``, the plant's own."""
     return expand(f"{PLACEHOLDER}/{FEED_FILE}", loc)
 
 
@@ -183,10 +231,10 @@ def locate(pdef: PlantDef) -> Whereabouts:
     """Where the controller of ``pdef`` is (``pdef`` loaded by ``load_plant``: its paths are
     already expanded the way the controller's are)."""
     real = os.path.realpath(pdef.path)
-    home = os.path.dirname(real)
+    home = plant_home(pdef.path)
     rdir = runtime_dir(plant=pdef.path)
     name = plant_name(pdef.path)
-    digest = hashlib.sha256(home.encode()).hexdigest()[:12]
+    digest = _digest(home)[:12]
     console = next((c.address for c in pdef.consoles if c.kind == "socket"), None)
     if console is None:
         console = next((c.address for c in pdef.consoles if c.kind == "tcp"), None)

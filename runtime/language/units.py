@@ -10,6 +10,7 @@ UNECE-to-OPC UA table gives them.
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass
 
 #: EngineeringUnits' namespace for UN/CEFACT codes (OPC UA Part 8, 5.6.3)
@@ -83,6 +84,27 @@ _SPELLINGS.update({"L": "LTR", "degC": "CEL", "degF": "FAH", "deg": "DD", "um": 
                    "VA": "D46", "kVA": "KVA", "ohm": "OHM", "psi": "PS", "pct": "P1"})
 #: the unit of every TIME value shown in a number (OPC UA's Duration, the console's ms)
 MILLISECOND = UNITS["C26"]
+#: what each unit measures, by code: how a suggestion tells a length from a time
+QUANTITY: dict[str, str] = {
+    **dict.fromkeys(("CEL", "FAH", "KEL"), "temperature"),
+    **dict.fromkeys(("BAR", "MBR", "PAL", "A97", "KPA", "MPA", "PS"), "pressure"),
+    **dict.fromkeys(("4H", "MMT", "CMT", "MTR", "KMT"), "length"),
+    "MTK": "area", **dict.fromkeys(("MLT", "LTR", "MTQ"), "volume"),
+    **dict.fromkeys(("C16", "MTS", "KMH"), "speed"), "MSK": "acceleration",
+    **dict.fromkeys(("RPM", "2A"), "rotational speed"), **dict.fromkeys(("DD", "C81"), "angle"),
+    **dict.fromkeys(("L2", "MQH", "MQS", "E93"), "flow"),
+    **dict.fromkeys(("GRM", "KGM", "TNE"), "mass"), **dict.fromkeys(("NEW", "B47"), "force"),
+    "NU": "torque", **dict.fromkeys(("WTT", "KWT", "MAW"), "power"),
+    **dict.fromkeys(("WHR", "KWH", "MWH", "JOU", "KJO"), "energy"),
+    **dict.fromkeys(("D46", "KVA"), "apparent power"), "KVR": "reactive power",
+    **dict.fromkeys(("2Z", "VLT", "KVT"), "voltage"),
+    **dict.fromkeys(("4K", "AMP", "B22"), "current"), "OHM": "resistance",
+    **dict.fromkeys(("HTZ", "KHZ"), "frequency"),
+    **dict.fromkeys(("C26", "SEC", "MIN", "HUR", "DAY"), "time"),
+    **dict.fromkeys(("P1", "59", "C62"), "ratio"), "LUX": "illuminance", "2N": "sound level",
+}
+#: at most this many units suggested for an unknown one
+SUGGESTED = 3
 
 
 def find_unit(text: str) -> Unit | None:
@@ -94,3 +116,30 @@ def find_unit(text: str) -> Unit | None:
 def spellings() -> list[str]:
     """Every way a unit may be written (for suggestions)."""
     return [*UNITS, *_SPELLINGS]
+
+
+def suggest_unit(text: str) -> str:
+    """`` (did you mean 'cm' (centimetre, a length) or 'ms' (millisecond, a time)?)`` for an
+    unknown unit ``text``, or "". Each candidate names what it measures, so that the writer
+    picks by the kind of the signal (a level is a length, not a time): the loader does not
+    know what a signal measures, only that it is a number. First the spelling that differs
+    only by letter case or a plural ``s`` (``cms``, ``degc``), then the closest spellings,
+    one per unit."""
+    ways = spellings()
+    first = sorted((w for w in ways
+                    if w.lower() in (text.lower(), text.lower().removesuffix("s"))),
+                   key=lambda w: (w not in (text, text.removesuffix("s")), w in UNITS))
+    close = difflib.get_close_matches(text, ways, n=8, cutoff=0.6)
+    chosen: dict[str, str] = {}  # code -> the spelling shown
+    for w in [*first, *close]:
+        unit = find_unit(w)
+        if unit is not None and unit.code not in chosen and len(chosen) < SUGGESTED:
+            chosen[unit.code] = w
+    if not chosen:
+        return ""
+    said = [f"'{w}' ({UNITS[code].name}, {_a(QUANTITY[code])})" for code, w in chosen.items()]
+    return f" (did you mean {' or '.join(said)}?)"
+
+
+def _a(noun: str) -> str:
+    return f"{'an' if noun[0] in 'aeiou' else 'a'} {noun}"

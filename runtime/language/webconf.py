@@ -13,9 +13,10 @@ from runtime.language.feedconf import feed_key, sample_key
 from runtime.language.grafcetfile import check_keys, expect_type, time_value
 from runtime.language.model import PlantDef, WebDef
 from runtime.language.plantpaths import path_value
-from runtime.language.yamlsrc import YMap
+from runtime.language.yamlsrc import YList, YMap
 
-WEB_KEYS = ("listen", "sample", "feed", "tls", "users", "read", "idle_logout", "max_pages")
+WEB_KEYS = ("listen", "sample", "feed", "tls", "users", "read", "idle_logout", "max_pages",
+            "page_timeout", "hosts")
 TLS_KEYS = ("certificate", "private_key")
 #: the snapshot period when the plant does not say (never below the cycle), ns
 DEFAULT_SAMPLE_NS = 100_000_000
@@ -24,6 +25,11 @@ MAX_PAGES_LIMIT = 200
 _LISTEN = re.compile(r"^(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
 #: what a user name may be (it goes into log lines and console commands)
 USER_RE = re.compile(r"^[A-Za-z0-9_.-]{1,32}$")
+#: a host name of ``hosts`` (a ``*.`` name stands for any one label before the rest)
+HOST_RE = re.compile(r"^(\*\.)?[A-Za-z0-9_-]{1,63}(\.[A-Za-z0-9_-]{1,63})*\.?$")
+#: the bounds of ``page_timeout``, ns (3 s: a ping every 2 s, 1 s for its answer)
+PAGE_TIMEOUT_MIN_NS = 3_000_000_000
+PAGE_TIMEOUT_MAX_NS = 600_000_000_000
 
 
 def is_loopback(host: str) -> bool:
@@ -111,4 +117,26 @@ def load_web(p: PlantDef, value: Any, loc: Loc) -> WebDef:
             raise SourceError(vloc, f"web max_pages: expected 1 to {MAX_PAGES_LIMIT}, "
                                     f"found {n}")
         w.max_pages = int(n)
+    if "page_timeout" in m:
+        vloc = m.val_locs["page_timeout"]
+        w.page_timeout_ns = time_value(m["page_timeout"], vloc, "web page_timeout")
+        if not PAGE_TIMEOUT_MIN_NS <= w.page_timeout_ns <= PAGE_TIMEOUT_MAX_NS:
+            raise SourceError(vloc, "web page_timeout: expected 3s to 10m")
+    if "hosts" in m:
+        vloc = m.val_locs["hosts"]
+        hosts = expect_type(m["hosts"], vloc, YList, "a list of host names")
+        for h, hloc in zip(hosts, hosts.locs, strict=True):
+            if not isinstance(h, str) or not (HOST_RE.match(h) or _is_address(h)):
+                raise SourceError(hloc, f"web hosts: expected a host name or address "
+                                        f"(e.g. plc.bench.lan, *.bench.lan, 192.168.1.20), "
+                                        f"found '{h}'")
+            w.hosts.append(h)
     return w
+
+
+def _is_address(text: str) -> bool:
+    try:
+        ipaddress.ip_address(text.strip("[]"))
+    except ValueError:
+        return False
+    return True

@@ -5,7 +5,8 @@ PyYAML words an error as its parser sees it (``found character '\\t' that cannot
 any token``, ``expected <block end>, but found '-'``). For the slips met when writing
 charts from the course notes (a tab, a value that begins with one of YAML's indicators
 such as ``!iVaso``, ``*iVaso`` or ``&iVaso`` alone, a value quoted or bracketed in part,
-a list item among a mapping's keys, a key among a list's items, a key out of line),
+a plain text holding ': ' (``description: Pump P1: stopped``), a list item among a
+mapping's keys, a key among a list's items, a key out of line),
 ``explain`` says what was expected and what the file has, and how to write it; any other
 error keeps PyYAML's words. The place is the slip's: the tab, the indicator, the line out
 of place.
@@ -40,8 +41,10 @@ def _explain(problem: str, at: Any, ctx: str, context_mark: Any,
     if problem == "found character '\\t' that cannot start any token":
         return at, _tab(text, at.index)
     if problem == "mapping values are not allowed here":
-        return _deeper_key(text, at) or (
+        return _deeper_key(text, at) or _colon_in_value(text, at, flow=False) or (
             at, "found ':' where no mapping value is allowed (quote a text holding ': ')")
+    if problem in ("expected ',' or '}', but got ':'", "expected ',' or ']', but got ':'"):
+        return _colon_in_value(text, at, flow=True)
     if ctx == "while scanning a tag" and context_mark is not None:
         return context_mark, _tag(_word(text, context_mark.index))
     if problem.startswith("could not determine a constructor for the tag '!") and (
@@ -147,6 +150,25 @@ def _continued(text: str, at: Any, flow: bool) -> tuple[Any, str] | None:
     return at, (f"expected the end of the value after '{_short(closed)}', found "
                 f"'{_short(after)}': a value that begins with '{kind}' is {what} and ends "
                 f"where it closes: quote the whole value: {_quoted(fixed)}")
+
+
+def _colon_in_value(text: str, at: Any, flow: bool) -> tuple[Any, str] | None:
+    """A plain value holding ': ' (``description: Pump P1: stopped``), which YAML reads as
+    a key and its value where the value goes on."""
+    start = _line_start(text, at.index)
+    keys = list(re.finditer(r"([^\s:#{},\[\]'\"-][^:#{},\[\]]*?):[ \t]+", text[start:at.index]))
+    if not keys:
+        return None
+    key, value = keys[-1].group(1), text[start + keys[-1].end():at.index].rstrip()
+    after = _rest(text, at.index)
+    if flow:  # inside a flow collection the value ends at its separator
+        after = re.split(r",\s|[{}\[\]]", after)[0]
+    after = after.strip()
+    if not value or not after.startswith(":"):
+        return None
+    return at, (f"expected the end of the value of '{key}' after '{_short(value)}', found "
+                f"'{_short(after)}': a text holding ': ' reads as a key and its value: quote "
+                f"the whole value: {key}: {_quoted(f'{value}{after}')}")
 
 
 def anchor_alone(anchor: str) -> str:

@@ -7,7 +7,9 @@ call it; every method returns the messages to publish, in order. Nothing here wa
 - **Births.** ``birth()`` when a session may publish (connected, and the primary host
   online when one is configured): NBIRTH (``seq`` 0, ``bdSeq`` of the session's Will, every
   node metric), then a DBIRTH per instance while the controller's feed is up, then the
-  buffered changes. An NCMD ``Node Control/Rebirth`` asks for the same again.
+  buffered changes. An NCMD ``Node Control/Rebirth`` asks for the same again, at most once
+  in REBIRTH_HOLD_S after births: the requests that come sooner are folded into one
+  rebirth at the hold's end (``owed_rebirth``, when ``rebirth_due`` says).
 - **Report by exception.** ``frame()`` at most every ``sample``: the metrics whose value
   changed since they were last sent, one NDATA and one DDATA per device that has some,
   each value stamped with the time of the scan that produced it; the controller's
@@ -21,14 +23,15 @@ call it; every method returns the messages to publish, in order. Nothing here wa
   report's changes are kept (``Buffer``), at most ``buffer`` metric values, the oldest
   reports dropped first (counted in ``Edge/buffer_dropped``); after the next births they
   are published as DDATA/NDATA with ``is_historical``, each value with its own timestamp,
-  a device's values in order, HISTORY_CHUNK to a message.
+  a device's values in order, HISTORY_CHUNK to a message (runtime/mqtt/forward.py). Each
+  data message carries its report: what the broker was not seen to take before the
+  session ended comes back (``requeue``) and goes out as history too.
 - ``seq`` counts every message of a session but the NDEATH, 0 to 255 and round again;
   ``bdSeq`` counts the sessions (each CONNECT's Will), 0 to 255, from 0 at start.
 """
 
 from __future__ import annotations
 
-import collections
 import logging
 import time
 from collections.abc import Callable
@@ -40,6 +43,7 @@ from runtime.errors import SoftplcError
 from runtime.language import ast as A
 from runtime.language.iolist import Meaning
 from runtime.language.model import MqttDef
+from runtime.mqtt.forward import Buffer, Report
 from runtime.mqtt.metrics import (
     BDSEQ,
     BUFFER_DROPPED,
@@ -54,16 +58,21 @@ log = logging.getLogger(__name__)
 
 #: buffered values forwarded in one message (a device's history, in order)
 HISTORY_CHUNK = 500
+#: an NCMD rebirth is done at most once in this long after a birth; the requests that
+#: come meanwhile are folded into one rebirth at its end, seconds
+REBIRTH_HOLD_S = 1.0
 
 
 @dataclass(frozen=True, slots=True)
 class Message:
-    """One MQTT publication."""
+    """One MQTT publication; a data message (NDATA, DDATA) carries the changes it reports
+    (``report``), to be sent again as history if the broker may not have taken it."""
 
     topic: str
     payload: bytes
     qos: int = 0
     retain: bool = False
+    report: Report | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,44 +91,6 @@ class Topics:
     @staticmethod
     def state(host: str) -> str:
         return f"{NAMESPACE}/STATE/{host}"
-
-
-@dataclass(slots=True)
-class Report:
-    """The changes of one report, kept while nothing can be published: (device, metric
-    name, type, value, time in ms) each; the report's time (ms)."""
-
-    timestamp: int
-    changes: list[tuple[str, str, DataType, Any, int]]
-
-
-class Buffer:
-    """Store and forward: reports kept in order, at most ``bound`` metric values in all;
-    beyond it the oldest reports are dropped whole."""
-
-    def __init__(self, bound: int) -> None:
-        self.bound = bound
-        self.reports: collections.deque[Report] = collections.deque()
-        self.values = 0
-        #: metric values dropped since the process started
-        self.dropped = 0
-
-    def add(self, report: Report) -> None:
-        if self.bound <= 0:
-            self.dropped += len(report.changes)
-            return
-        self.reports.append(report)
-        self.values += len(report.changes)
-        while self.values > self.bound and self.reports:
-            old = self.reports.popleft()
-            self.values -= len(old.changes)
-            self.dropped += len(old.changes)
-
-    def take(self) -> list[Report]:
-        out = list(self.reports)
-        self.reports.clear()
-        self.values = 0
-        return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -171,6 +142,9 @@ class EdgeNode:
         self._stats_due = 0.0
         self._every = max(1, q.sample_ns)  # ns between reports, compared on scan time
         self._commands = 0
+        #: the clock's time of the last births; NCMD rebirths asked since and not done yet
+        self._born_at = float("-inf")
+        self._rebirths_owed = 0
 
     # -- the session ------------------------------------------------------------------
     @property
@@ -201,6 +175,7 @@ class EdgeNode:
         self.publishing = False
         self.online = False
         self.born.clear()
+        self._rebirths_owed = 0  # the next session births anyway
 
     @property
     def owes_births(self) -> bool:
@@ -219,6 +194,8 @@ class EdgeNode:
         self.online = True
         self._seq = 0
         self.born.clear()
+        self._born_at = self.clock()
+        self._rebirths_owed = 0  # these births answer them
         now = self._ms()
         self._stats_due = now + self.q.statistics_ns / 1e6  # the births carry them
         out = [self._birth("", "NBIRTH", now)]
@@ -329,9 +306,10 @@ class EdgeNode:
         if not changes:
             return []
         times = self._command_times(changes)
+        ms = lay.metrics
         if not self.online:
-            self.buffer.add(Report(now, [(lay.metrics[k].device, lay.metrics[k].name,
-                                          lay.metrics[k].datatype, sent[k], times.get(k, now))
+            self.buffer.add(Report(now, [(ms[k].device, ms[k].name, ms[k].datatype, sent[k],
+                                          times.get(k, now))
                                          for ks in changes.values() for k in ks]))
             self.own[BUFFER_DROPPED] = self.buffer.dropped
             return []
@@ -339,12 +317,21 @@ class EdgeNode:
         for device, ks in changes.items():
             if device and device not in self.born:
                 continue
-            values = [Value(lay.metrics[k].alias, lay.metrics[k].datatype, sent[k],
-                            times.get(k, now)) for k in ks]
+            values = [Value(ms[k].alias, ms[k].datatype, sent[k], times.get(k, now))
+                      for k in ks]
             topic = (self.topics.device("DDATA", device) if device
                      else self.topics.node("NDATA"))
-            out.append(Message(topic, encode(now, values, self._next_seq())))
+            kept = Report(now, [(device, ms[k].name, v.datatype, v.value, v.timestamp)
+                                for k, v in zip(ks, values, strict=True)])
+            out.append(Message(topic, encode(now, values, self._next_seq()), report=kept))
         return out
+
+    def requeue(self, reports: list[Report]) -> None:
+        """The session ended before the broker was seen to take ``reports``: they go back
+        to the front of the buffer, to be sent as history after the next births."""
+        if reports:
+            self.buffer.add_front(reports)
+            self.own[BUFFER_DROPPED] = self.buffer.dropped
 
     def _node_changes(self, now: int) -> list[Message]:
         return self.report(now, node_only=True)
@@ -365,23 +352,27 @@ class EdgeNode:
         in order, each value with its own scan's time, HISTORY_CHUNK values a message."""
         lay = self.layout
         assert lay is not None
-        per: dict[str, list[Value]] = {}
+        per: dict[str, list[tuple[Value, tuple[str, str, DataType, Any, int]]]] = {}
         for rep in self.buffer.take():
-            for device, name, datatype, value, at in rep.changes:
+            for change in rep.changes:
+                device, name, datatype, value, at = change
                 k = lay.by_name.get((device, name))
                 if k is None or lay.metrics[k].datatype != datatype or (
                         device and device not in self.born):
                     continue  # a metric gone or changed meanwhile (an online change)
                 per.setdefault(device, []).append(
-                    Value(lay.metrics[k].alias, datatype, value, at, historical=True))
+                    (Value(lay.metrics[k].alias, datatype, value, at, historical=True),
+                     change))
         out = []
         for device, values in per.items():
             topic = (self.topics.device("DDATA", device) if device
                      else self.topics.node("NDATA"))
             for start in range(0, len(values), HISTORY_CHUNK):
                 chunk = values[start:start + HISTORY_CHUNK]
-                out.append(Message(topic, encode(chunk[-1].timestamp, chunk,
-                                                 self._next_seq())))
+                at = chunk[-1][0].timestamp
+                out.append(Message(topic, encode(at, [v for v, _c in chunk],
+                                                 self._next_seq()),
+                                   report=Report(at, [c for _v, c in chunk])))
         kept = sum(len(v) for v in per.values())
         if kept:
             log.info("mqtt: %d buffered value(s) forwarded as history", kept)
@@ -439,7 +430,27 @@ class EdgeNode:
                                      f"{c.value!r}")
         if not self.online:
             return []
+        if self.clock() < self._born_at + REBIRTH_HOLD_S:
+            self._rebirths_owed += 1  # folded into the rebirth at the hold's end
+            return []
         log.info("mqtt: rebirth asked by an NCMD")
+        return self.birth()
+
+    @property
+    def rebirth_due(self) -> float | None:
+        """When the folded NCMD rebirths are owed (the clock's time), or None."""
+        return self._born_at + REBIRTH_HOLD_S if self._rebirths_owed else None
+
+    def owed_rebirth(self) -> list[Message]:
+        """The rebirth the requests folded during the hold asked for, once it is over."""
+        due = self.rebirth_due
+        if not self.online:
+            self._rebirths_owed = 0  # the next births answer them
+            return []
+        if due is None or self.clock() < due:
+            return []
+        log.info("mqtt: rebirth asked by %d NCMD(s) within %g s of the last births: one "
+                 "rebirth for them all", self._rebirths_owed, REBIRTH_HOLD_S)
         return self.birth()
 
     def device_command(self, device: str, commands: list[Command]) -> list[Write]:

@@ -12,15 +12,27 @@ controller's feed, in a process of its own (never in the scan's way).
   (QoS 1); subscriptions to the node's NCMD, its devices' DCMD and, with ``primary_host``,
   the host's STATE (``spBv1.0/STATE/HOST``, JSON ``{"online": ..., "timestamp": ...}``,
   retained); then the births (runtime/mqtt/node.py), at once or once STATE says online. A
-  STATE saying offline (newer than the last one seen) ends the session: NDEATH published,
-  DISCONNECT, the next broker. Stopping publishes the NDEATH, then disconnects.
+  STATE saying offline (newer than the last one seen in this session: each broker holds
+  its own) ends the session: NDEATH published, DISCONNECT, the next broker. A STATE
+  stamped more than STATE_AHEAD_MAX_MS ahead of this machine's clock is refused (taken,
+  it would make every real one look older), and looked at again as the clock goes on.
+  Stopping publishes the NDEATH, then disconnects.
 - **Publishing** goes through one queue, in order. While more than REPORT_BACKLOG messages
   wait in it (the broker, or this process, does not keep up with the changes), a frame's
   report is skipped: the next report carries every change since the last one sent (values
   that came and went in between are not seen), so the rate of reports falls to what the
   link carries. A session whose queue passes OUTBOX_MAX messages is ended (NDEATH,
   DISCONNECT) and born again on the next one.
-- **Commands.** NCMD: ``Node Control/Rebirth``. DCMD: writes of ``mqtt: writable:`` names,
+- **A broker that stalls.** Data messages go out at QoS 0: nothing acknowledges them. Each
+  one's report is kept in the journal (runtime/mqtt/forward.py) until the broker answers
+  a request sent after it (``_watch``, every PROBE_S while data goes out); a broker that
+  does not answer in ``stall_s`` (the keepalive, from STALL_MIN_S to STALL_MAX_S) has
+  stalled: the session ends, and whatever the broker was not seen to take goes back to
+  the buffer, to be sent as history after the next births, as what the session ended
+  before sending at all.
+- **Commands.** A command with the retain flag is refused (a broker would hand it to every
+  new session). NCMD: ``Node Control/Rebirth``, folded to one rebirth at most every
+  REBIRTH_HOLD_S (runtime/mqtt/node.py). DCMD: writes of ``mqtt: writable:`` names,
   all checked before any is sent (runtime/mqtt/node.py), then applied by the controller
   between two scans (the feed's ``set``), at most MAX_PENDING_WRITES at a time (more are
   refused, busy). Every refusal, and every payload that is no command (undecodable, too
@@ -32,6 +44,7 @@ controller's feed, in a process of its own (never in the scan's way).
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import random
@@ -45,10 +58,15 @@ from runtime.controller.feedclient import FeedClient, FeedLost
 from runtime.errors import SoftplcError
 from runtime.language.iolist import IOList
 from runtime.language.model import MqttBroker, MqttDef, PlantDef
+from runtime.mqtt.forward import Journal
 from runtime.mqtt.node import CommandRefused, EdgeNode, Message, Write
 from runtime.mqtt.payload import CommandError, decode_command
 
 log = logging.getLogger(__name__)
+
+#: why a command with the retain flag is refused
+RETAINED = ("a retained command (a broker hands it to every new session: a command is "
+            "never retained)")
 
 #: waits between two rounds of the brokers, seconds (doubling, drawn in [half, all])
 RECONNECT_MIN_S = 1.0
@@ -68,11 +86,22 @@ STOP_TIMEOUT_S = 6.0
 MAX_PENDING_WRITES = 32
 #: a write the controller has not answered in this long is refused, seconds
 WRITE_TIMEOUT_S = 3.0
+#: a STATE whose timestamp is further ahead of this machine's clock is refused, ms
+STATE_AHEAD_MAX_MS = 60_000
+#: while data messages go out, the broker is asked to answer this often, seconds
+PROBE_S = 0.5
+#: a broker that has not answered in the keepalive, bounded by these, has stalled, seconds
+STALL_MIN_S = 2.0
+STALL_MAX_S = 5.0
 
 
 class SessionEnded(SoftplcError):
     """A session ends on purpose: the primary host went offline, the publishing queue
-    overflowed (the broker does not keep up), the process stops."""
+    overflowed (the broker does not keep up), the broker stalled, the process stops."""
+
+
+class BrokerStalled(SessionEnded):
+    """The broker did not answer in time: its connection is given up."""
 
 
 def tls_context(q: MqttDef) -> ssl.SSLContext:
@@ -98,16 +127,27 @@ class EdgeSession:
         assert pdef.mqtt is not None
         self.q = q = pdef.mqtt
         self.feed = FeedClient(feed_path or q.feed, "mqtt", self._on_schema, self._on_frame,
-                               self._on_lost)
+                               self._on_lost, plant=pdef)
         self.node = EdgeNode(q, self.feed.state, meaning=IOList(pdef).meaning)
         self.tls = tls_context(q) if any(b.tls for b in q.brokers) else None
         if q.password_file is not None:
             read_password(q.password_file)  # at start: a missing file is an error now
-        self.outbox: asyncio.Queue[tuple[int, Message]] = asyncio.Queue()
+        #: (session, message, its place in the journal or 0) to publish, in order
+        self.outbox: asyncio.Queue[tuple[int, Message, int]] = asyncio.Queue()
         #: the session the queued messages belong to (stale ones are never sent)
         self.session_no = 0
+        #: the reports of this session's data messages the broker was not seen to take
+        self.journal = Journal()
+        #: the journal's place of the last message handed to the connection, and of the
+        #: last one the broker was seen to take
+        self._handed = 0
+        self._confirmed = 0
         self.host_online = q.primary_host is None
+        #: the newest STATE timestamp of this session; a STATE refused as too far ahead
+        #: of this machine's clock, looked at again as the clock goes on
         self._state_ts = -1
+        self._state_ahead: bytes | None = None
+        self._rebirth_timer: asyncio.TimerHandle | None = None
         self._broker = 0
         self._pending_writes = 0
         self._stop = asyncio.Event()
@@ -139,17 +179,13 @@ class EdgeSession:
 
     def send(self, messages: list[Message]) -> None:
         for m in messages:
-            self.outbox.put_nowait((self.session_no, m))
+            place = self.journal.add(m.report) if m.report is not None else 0
+            self.outbox.put_nowait((self.session_no, m, place))
 
     # -- sessions ----------------------------------------------------------------
     async def run(self) -> None:
         """Follow the feed and keep a session on a broker until ``stop()``."""
-        feed = asyncio.create_task(self.feed.run())
-        try:
-            await self._sessions()
-        finally:
-            self.feed.stop()
-            await feed
+        await self.feed.run_beside(self._sessions())  # a feed refused ends it
 
     def stop(self) -> None:
         self._stop.set()
@@ -176,8 +212,7 @@ class EdgeSession:
                 up = up or self.connected.is_set()  # a session that was up, then dropped
                 self._client = None
                 self.connected.clear()
-                self.node.session_lost()
-                self.session_no += 1
+                self._end_session()
             if self._stop.is_set():
                 return
             self._broker = (self._broker + 1) % len(self.q.brokers)
@@ -189,6 +224,21 @@ class EdgeSession:
             if failed % len(self.q.brokers) == 0:  # a whole round: wait
                 await self._wait(random.uniform(delay / 2, delay))
                 delay = min(RECONNECT_MAX_S, delay * 2)
+
+    def _end_session(self) -> None:
+        """What the session published and the broker was not seen to take goes back to
+        the buffer (history after the next births); nothing more is sent for it."""
+        lost = self.journal.take()
+        if lost:
+            log.info("mqtt: %d report(s) the broker was not seen to take: kept, to be sent "
+                     "again as history", len(lost))
+        self.node.session_lost()
+        self.node.requeue(lost)
+        self.session_no += 1
+        self._handed = self._confirmed = self.journal.last
+        if self._rebirth_timer is not None:
+            self._rebirth_timer.cancel()
+            self._rebirth_timer = None
 
     async def _session(self, broker: MqttBroker) -> bool:
         """One session on ``broker`` until it ends or ``stop()``; True if it was up."""
@@ -211,6 +261,8 @@ class EdgeSession:
             if q.primary_host is not None:
                 subs.append((t.state(q.primary_host), 1))
                 self.host_online = False
+                # each broker holds its own STATE: this session reads it afresh
+                self._state_ts, self._state_ahead = -1, None
             await client.subscribe(subs)
             self.connected.set()
             if self.host_online:
@@ -222,12 +274,14 @@ class EdgeSession:
                 async with asyncio.TaskGroup() as tg:
                     tg.create_task(self._publisher(client, self.session_no))
                     tg.create_task(self._receiver(client))
+                    tg.create_task(self._watch(client))
                     tg.create_task(self._until_stop())
             except BaseExceptionGroup as group:
                 first = _first(group)
                 if isinstance(first, SessionEnded):
                     # a clean DISCONNECT sends no Will: the NDEATH is published first
-                    await self._goodbye(client)
+                    # (to a stalled broker without waiting: it reads it when it wakes)
+                    await self._goodbye(client, wait=not isinstance(first, BrokerStalled))
                     if self._stop.is_set():
                         return True
                 raise first from None
@@ -237,18 +291,27 @@ class EdgeSession:
         await self._stop.wait()
         raise SessionEnded("stopping")
 
-    async def _goodbye(self, client: aiomqtt.Client) -> None:
-        """NDEATH published (a clean DISCONNECT sends no Will), then DISCONNECT."""
+    async def _goodbye(self, client: aiomqtt.Client, wait: bool = True) -> None:
+        """NDEATH published (a clean DISCONNECT sends no Will), then DISCONNECT. Its
+        PUBACK confirms every message handed before it."""
         death = self.node.death()
+        handed = self._handed
+        if not wait:
+            with contextlib.suppress(aiomqtt.MqttError):
+                await client.publish(death.topic, death.payload, qos=1, timeout=0.01)
+            log.info("mqtt: NDEATH sent to a broker that does not answer (bdSeq %d)",
+                     self.node.bdseq)
+            return
         try:
             await client.publish(death.topic, death.payload, qos=1, timeout=DEATH_TIMEOUT_S)
             log.info("mqtt: NDEATH published (bdSeq %d)", self.node.bdseq)
+            self._confirm(handed)
         except aiomqtt.MqttError as exc:
             log.warning("mqtt: NDEATH not published: %s", exc)
 
     async def _publisher(self, client: aiomqtt.Client, no: int) -> None:
         while True:
-            session, m = await self.outbox.get()
+            session, m, place = await self.outbox.get()
             if session != no:
                 continue
             if self.outbox.qsize() > OUTBOX_MAX:
@@ -256,6 +319,43 @@ class EdgeSession:
                                    "not keep up")
             await client.publish(m.topic, m.payload, qos=m.qos, retain=m.retain)
             self.published += 1
+            if place:
+                self._handed = place
+
+    def _confirm(self, upto: int) -> None:
+        """The broker took every message handed up to journal place ``upto``."""
+        if upto > self._confirmed:
+            self._confirmed = upto
+            self.journal.confirm(upto)
+
+    @property
+    def stall_s(self) -> float:
+        """How long the broker may take to answer before it is seen as stalled, s."""
+        return min(STALL_MAX_S, max(STALL_MIN_S, self.q.keepalive_ns / 1e9))
+
+    async def _watch(self, client: aiomqtt.Client) -> None:
+        """While data messages go out, every PROBE_S: the broker is asked for an answer
+        (an UNSUBSCRIBE of a filter this node never subscribes to: no side effect, an
+        UNSUBACK whatever the broker's rules). A broker reads a connection in order: its
+        answer confirms every message handed before the request. No answer within
+        ``stall_s``: the broker has stalled, the session ends (BrokerStalled). Also looks
+        again at a STATE refused as too far ahead of this machine's clock."""
+        probe = self.node.topics.node("NCMD") + "/softplc-probe"
+        while True:
+            await asyncio.sleep(PROBE_S)
+            if self._state_ahead is not None:
+                self._state(self._state_ahead, again=True)
+            if self._handed <= self._confirmed:
+                continue
+            handed = self._handed
+            try:
+                await client.unsubscribe(probe, timeout=self.stall_s)
+            except aiomqtt.MqttCodeError:
+                raise  # the connection is gone: the session ends as on any such error
+            except aiomqtt.MqttError:  # no answer in time
+                raise BrokerStalled(f"the broker did not answer for {self.stall_s:g} s"
+                                    ) from None
+            self._confirm(handed)
 
     async def _wait(self, seconds: float) -> None:
         try:
@@ -275,20 +375,42 @@ class EdgeSession:
             if topic == state:
                 self._state(bytes(data))
             elif topic == ncmd:
-                self._node_command(bytes(data))
+                if message.retain:
+                    self.refused += 1
+                    _warn(f"mqtt: NCMD refused: {RETAINED}")
+                else:
+                    self._node_command(bytes(data))
             elif topic.startswith(dcmd):
-                self._device_command(topic[len(dcmd):], bytes(data))
+                if message.retain:
+                    self._refuse(topic[len(dcmd):], RETAINED)
+                else:
+                    self._device_command(topic[len(dcmd):], bytes(data))
 
-    def _state(self, data: bytes) -> None:
+    def _state(self, data: bytes, again: bool = False) -> None:
+        """A STATE of the primary host (``again``: one refused as too far ahead, looked
+        at again)."""
         try:
             msg = json.loads(data)
             online, ts = msg["online"], msg["timestamp"]
-            if not isinstance(online, bool) or not isinstance(ts, int):
+            if (not isinstance(online, bool) or not isinstance(ts, int)
+                    or isinstance(ts, bool)):
                 raise TypeError("online must be a Boolean, timestamp an integer")
         except (ValueError, KeyError, TypeError, RecursionError) as exc:
             _warn(f"mqtt: STATE of {self.q.primary_host} ignored: not a Sparkplug 3.0 "
                   f"STATE ({exc})")
             return
+        ahead = ts - int(self.node.clock() * 1000)
+        if ahead > STATE_AHEAD_MAX_MS:
+            # one such STATE, taken, would make every real one look older; the line's
+            # template is fixed, so that the log's rate limit holds back a flood of them
+            if not again:
+                log.warning("mqtt: STATE of %s ignored: its timestamp %d is %s ahead of this "
+                            "machine's clock (at most %d s; are both clocks set?)",
+                            self.q.primary_host, ts, _ahead(ahead),
+                            STATE_AHEAD_MAX_MS // 1000)
+            self._state_ahead = data
+            return
+        self._state_ahead = None
         if ts < self._state_ts:
             return  # an older STATE than the last one seen
         self._state_ts = ts
@@ -306,6 +428,20 @@ class EdgeSession:
         except (CommandError, CommandRefused) as exc:
             self.refused += 1
             _warn(f"mqtt: NCMD refused: {exc}")
+            return
+        self._schedule_rebirth()
+
+    def _schedule_rebirth(self) -> None:
+        """The rebirths asked during the hold after births: one, at its end."""
+        due = self.node.rebirth_due
+        if due is not None and self._rebirth_timer is None:
+            self._rebirth_timer = asyncio.get_running_loop().call_later(
+                max(0.01, due - self.node.clock()), self._owed_rebirth)
+
+    def _owed_rebirth(self) -> None:
+        self._rebirth_timer = None
+        self.send(self.node.owed_rebirth())
+        self._schedule_rebirth()  # not due yet by the node's clock: a little later
 
     def _device_command(self, device: str, data: bytes) -> None:
         try:
@@ -351,6 +487,16 @@ class EdgeSession:
         else:
             self.applied += 1
             self.node.command_result(device, "ok: " + "; ".join(texts))
+
+
+def _ahead(ms: int) -> str:
+    """``ms`` as a person reads it: seconds, days or years."""
+    s = ms / 1000
+    if s < 86400 * 2:
+        return f"{s:.0f} s"
+    if s < 86400 * 730:
+        return f"{s / 86400:.0f} days"
+    return f"{s / (86400 * 365.25):.3g} years"
 
 
 def _warn(text: str) -> None:

@@ -3,7 +3,9 @@
 - Each instance object has ``Acknowledge`` (SFCQuitError for one scan: the chart's
   SFCError acknowledged; refused when there is none), ``Reset`` (SFCReset for one scan),
   ``Pause`` and ``Resume`` (SFCPause set and cleared); the Controller object has ``Ack``
-  (the console's ``ack``). No arguments, no results.
+  (the console's ``ack``). No arguments, no results. A call is first held to Part 4
+  (runtime/opcua/calls.py: the method of that object, no argument): a refused call runs
+  nothing and is one log line.
 - Only a writer (runtime/opcua/security.py) may call them; anyone else gets
   BadUserAccessDenied, and reads UserExecutable false on them. The controller applies
   them between two scans (the feed's ``call``: runtime/controller/feed.py) and its refusal
@@ -25,6 +27,8 @@ from asyncua import ua
 from asyncua.crypto.permission_rules import User
 
 from runtime.controller.feed import METHODS
+from runtime.engine.names import printable
+from runtime.opcua.calls import refusal
 from runtime.opcua.space import nid, qname
 
 if TYPE_CHECKING:
@@ -55,8 +59,10 @@ def peer_text(name: Any) -> str:
 
 
 def track_callers(server: Any) -> None:
-    """Have every client session's Call service set ``CALLER`` while it runs."""
+    """Have every client session's Call service refuse what Part 4 refuses (calls.py),
+    without running it, and set ``CALLER`` while the rest runs (in the order asked)."""
     iserver = server.iserver
+    aspace = iserver.aspace
     plain = iserver.create_session
 
     def create_session(name: Any, *args: Any, **kwargs: Any) -> Any:
@@ -64,14 +70,31 @@ def track_callers(server: Any) -> None:
         call = session.call
 
         async def traced(params: list[ua.CallMethodRequest]) -> Any:
-            token = CALLER.set((session.user, peer_text(session.name)))
-            try:
-                return await call(params)
-            finally:
-                CALLER.reset(token)
+            results: list[ua.CallMethodResult | None] = [
+                refusal(aspace, session, req) for req in params]
+            run = [req for req, res in zip(params, results, strict=True) if res is None]
+            if len(run) < len(params):
+                log.info("opcua: %s: %s", identity((session.user, peer_text(session.name))),
+                         "; ".join(_refused(req, res) for req, res in
+                                   zip(params, results, strict=True) if res is not None))
+            if run:
+                token = CALLER.set((session.user, peer_text(session.name)))
+                try:
+                    done = iter(await call(run))
+                finally:
+                    CALLER.reset(token)
+                results = [res if res is not None else next(done) for res in results]
+            return results
         session.call = traced
         return session
     iserver.create_session = create_session
+
+
+def _refused(req: ua.CallMethodRequest, res: ua.CallMethodResult) -> str:
+    """``call of ns=2;s=t1.Pause on ns=2;s=t2 refused: BadMethodInvalid``"""
+    return (f"call of {printable(req.MethodId.to_string(), 80)} on "
+            f"{printable(req.ObjectId.to_string(), 80)} with {len(req.InputArguments or [])} "
+            f"argument(s) refused: {res.StatusCode.name}")
 
 
 class Methods:
@@ -98,17 +121,26 @@ class Methods:
 
     def _handler(self, target: str, method: str
                  ) -> Callable[..., Awaitable[ua.StatusCode | list[Any]]]:
+        mine = nid(target)
+
         async def call(parent: ua.NodeId, *args: Any) -> ua.StatusCode | list[Any]:
+            # calls.py refused these already; said again here, where the method runs
+            if parent != mine:
+                return ua.StatusCode(ua.StatusCodes.BadMethodInvalid)
+            if args:
+                return ua.StatusCode(ua.StatusCodes.BadTooManyArguments)
             caller = CALLER.get()
             who = identity(caller)
             if caller is None or not self.ps.may_write(caller[0]):
                 log.warning("opcua: %s.%s refused to %s: writers only", target, method, who)
                 return ua.StatusCode(ua.StatusCodes.BadUserAccessDenied)
             ok, text, code = await self.ps.ask("call", target, method, who)
-            log.info("opcua: %s called %s.%s: %s", who, target, method, text)
-            if not ok:
+            if not ok:  # the one line of a refusal (the controller logs only what it did)
+                log.info("opcua: %s called %s.%s: refused (%s): %s", who, target, method,
+                         code, text)
                 return ua.StatusCode(getattr(ua.StatusCodes, code,
                                              ua.StatusCodes.BadInvalidState))
+            log.info("opcua: %s called %s.%s: %s", who, target, method, text)
             return []
         return call
 

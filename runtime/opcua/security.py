@@ -58,6 +58,7 @@ import os
 import socket
 import time
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from typing import Any
 
 from asyncua import ua
@@ -69,12 +70,14 @@ from asyncua.server.user_managers import UserManager
 from asyncua.ua.object_ids import ObjectIds
 from asyncua.ua.status_codes import StatusCodes
 from cryptography import x509
+from cryptography.exceptions import UnsupportedAlgorithm
 from cryptography.hazmat.primitives import serialization
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
 from runtime.controller.pin import FAIL_HOLD_S, Passwords  # noqa: F401 - FAIL_HOLD_S: its rule
 from runtime.errors import Loc, SourceError
 from runtime.language.model import OpcuaSecurity
+from runtime.language.opcuaconf import credential_problem
 from runtime.language.safefile import UnfitFile, read_bounded
 from runtime.opcua.methods import peer_text
 
@@ -233,34 +236,98 @@ def _subject(der: Any) -> str:
         return "an unreadable certificate"
 
 
-async def apply(server: Server, sec: OpcuaSecurity, where: Loc | None = None) -> None:
-    """Set up ``server``'s endpoints, certificate, trusted clients and users from ``sec``;
-    call after ``await server.init()`` and before ``await server.start()``. SourceError
-    (at the plant's ``security:``, else at ``where``: its ``opcua:``) if a secured policy
-    has no certificate or key file."""
-    loc = sec.loc or where or _NOWHERE
-    await server.set_application_uri(APPLICATION_URI)
-    if secured(sec):
-        for key in ("certificate", "private_key"):
-            path = getattr(sec, key)
-            if not path:
-                default = "" if sec.loc else " (the default: no 'security:' section)"
-                raise SourceError(loc, f"opcua security: policies {', '.join(sec.policies)}"
+@dataclass(frozen=True, slots=True)
+class Credentials:
+    """The server's certificate (DER) and private key (PEM), read and parsed."""
+
+    certificate: bytes
+    private_key: bytes
+
+
+def read_credentials(sec: OpcuaSecurity, where: Loc | None = None) -> Credentials | None:
+    """The certificate and key of ``sec`` read (bounded, never blocking: asyncua would read
+    any file) and parsed, before the server takes seconds to set up; None when no policy
+    signs. SourceError at the key's value in the plant file (else at its ``security:``,
+    else at ``where``: its ``opcua:``) saying what is wrong: no such key, no such file
+    (``opcuaconf.credential_problem``: a new pair is advised only when neither file is
+    there), a file that cannot be read (why), or one that holds no certificate or key;
+    never advising to make a file that is there."""
+    section = sec.loc or where or _NOWHERE
+    if not secured(sec):
+        return None
+    for key in ("certificate", "private_key"):
+        if not getattr(sec, key):
+            default = "" if sec.loc else " (the default: no 'security:' section)"
+            raise SourceError(section, f"opcua security: policies {', '.join(sec.policies)}"
                                        f"{default} need a server certificate: no '{key}' "
                                        "key (make one with 'softplc opcua-cert', or list "
                                        "policies: [None]: docs/opcua.md)")
-            if not os.path.isfile(path):
-                raise SourceError(loc, f"opcua security {key}: no file {path} (make one "
-                                       "with 'softplc opcua-cert', docs/opcua.md)")
-        try:  # read here, bounded and never blocking; asyncua would read any file
-            cert_bytes, key_bytes = (
-                read_bounded(str(p), CERTIFICATE_MAX_BYTES, follow_links=True)
-                for p in (sec.certificate, sec.private_key))
-            await server.load_certificate(cert_bytes, _format(str(sec.certificate)))
-            await server.load_private_key(key_bytes, format=_format(str(sec.private_key)))
-        except (OSError, ValueError, UnfitFile) as exc:
-            raise SourceError(loc, f"opcua security: cannot load the certificate or key "
-                                   f"({exc})") from exc
+    problem = credential_problem(sec)
+    if problem is not None:
+        raise SourceError(sec.locs.get(problem[0], section),
+                          f"opcua security {problem[0]}: {problem[1]}")
+    data = {key: _read(str(getattr(sec, key)), sec.locs.get(key, section), key)
+            for key in ("certificate", "private_key")}
+    cert_path, key_path = str(sec.certificate), str(sec.private_key)
+    try:
+        cert = _der(data["certificate"])
+    except ValueError as exc:
+        raise SourceError(sec.locs.get("certificate", section),
+                          f"opcua security certificate: {cert_path} holds no certificate "
+                          f"(DER or PEM): {exc}") from None
+    try:
+        key = _private_key(data["private_key"])
+    except (ValueError, TypeError, UnsupportedAlgorithm) as exc:
+        raise SourceError(sec.locs.get("private_key", section),
+                          f"opcua security private_key: {key_path} holds no private key "
+                          f"without a password (PEM or DER): {exc}") from None
+    public = x509.load_der_x509_certificate(cert).public_key()
+    if public.public_bytes(*_SPKI) != key.public_key().public_bytes(*_SPKI):
+        raise SourceError(sec.locs.get("private_key", section),
+                          f"opcua security private_key: {key_path} is not the key of the "
+                          f"certificate {cert_path}")
+    pem = key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                            serialization.NoEncryption())
+    return Credentials(cert, pem)
+
+
+#: how two public keys are compared
+_SPKI = (serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo)
+
+
+def _read(path: str, loc: Loc, key: str) -> bytes:
+    """A certificate or key file's bytes; SourceError at ``loc`` saying why it cannot be
+    read (a file that is there: nothing is advised to be made)."""
+    try:
+        return read_bounded(path, CERTIFICATE_MAX_BYTES, follow_links=True)
+    except UnfitFile as exc:
+        why = f"{exc.found}, expected a file of at most {CERTIFICATE_MAX_BYTES} bytes"
+    except FileNotFoundError:  # gone since the plant was loaded
+        why = "no such file (make one with 'softplc opcua-cert', docs/opcua.md)"
+    except OSError as exc:
+        why = f"cannot be read: {exc.strerror or exc}"
+    raise SourceError(loc, f"opcua security {key}: {path}: {why}")
+
+
+def _private_key(data: bytes) -> Any:
+    """A private key file's content (PEM or DER, no password) as a key object."""
+    if data.lstrip().startswith(b"-----BEGIN"):
+        return serialization.load_pem_private_key(data, password=None)
+    return serialization.load_der_private_key(data, password=None)
+
+
+async def apply(server: Server, sec: OpcuaSecurity, where: Loc | None = None,
+                credentials: Credentials | None = None) -> None:
+    """Set up ``server``'s endpoints, certificate, trusted clients and users from ``sec``;
+    call after ``await server.init()`` and before ``await server.start()``. The
+    certificate and key are ``credentials`` (else read here: ``read_credentials``, whose
+    SourceError says what is wrong)."""
+    await server.set_application_uri(APPLICATION_URI)
+    if secured(sec):
+        creds = credentials or read_credentials(sec, where)
+        assert creds is not None
+        await server.load_certificate(creds.certificate, "der")
+        await server.load_private_key(creds.private_key, format="pem")
     rules = Rules()
     server.set_security_policy([POLICIES[p] for p in sec.policies], permission_ruleset=rules)
     # the client certificate is the application's identity; no X509 *user* tokens
@@ -275,12 +342,6 @@ async def apply(server: Server, sec: OpcuaSecurity, where: Loc | None = None) ->
     if sec.users and not any(p == "Basic256Sha256_SignAndEncrypt" for p in sec.policies):
         log.warning("opcua: users are set but no SignAndEncrypt policy is listed: their "
                     "passwords may cross the network readable")
-
-
-def _format(path: str) -> str:
-    """How asyncua reads a certificate or key file given as bytes: PEM for a ``.pem``,
-    else DER (what it decides from the name when it reads the file itself)."""
-    return "pem" if path.lower().endswith(".pem") else "der"
 
 
 def log_refusals(server: Server, users: Users) -> None:

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import asyncio
 import datetime
-import importlib
 import logging
 import os
 from collections.abc import Callable
@@ -41,10 +40,14 @@ from asyncua.common.callback import CallbackType, ServerItemCallback
 from asyncua.crypto.permission_rules import User, UserRole
 
 from runtime.controller.feedclient import FeedClient, FeedLost
+from runtime.language.flagtexts import sfcerror_cause
 from runtime.language.model import PlantDef
+from runtime.language.opcuaconf import check_security
 from runtime.opcua.conditions import Conditions
 from runtime.opcua.limits import Limits
 from runtime.opcua.methods import Methods, track_callers
+from runtime.opcua.security import apply as apply_security
+from runtime.opcua.security import read_credentials
 from runtime.opcua.space import (
     NAMESPACE,
     NS,
@@ -96,12 +99,16 @@ class PlantServer:
         self.opc = pdef.opcua
         self.endpoint = endpoint or self.opc.endpoint
         self.feed_path = feed or self.opc.feed
+        #: the certificate and key, read first: a file that is wrong is said at once (a
+        #: SourceError at its line), not after asyncua's seconds of set-up
+        check_security(self.opc.security)
+        self.credentials = read_credentials(self.opc.security, self.opc.loc)
         self.server = Server()
         self.space = Space()
         #: the controller's feed (runtime/controller/feedclient.py): its state is the last
         #: frame
         self.feed = FeedClient(self.feed_path, "opcua", self._schema, self._frame, self._lost,
-                               self._status)
+                               self._status, plant=pdef)
         self.state = self.feed.state
         #: may this session's user write? Only a writer (UserRole.User: a user with its
         #: password, or a trusted client certificate, runtime/opcua/security.py), checked
@@ -131,7 +138,7 @@ class PlantServer:
         await srv.init()
         srv.set_endpoint(self.endpoint)
         srv.set_server_name(f"softplc {self.pdef.path}")
-        await self._security()
+        await apply_security(srv, self.opc.security, self.opc.loc, self.credentials)
         idx = await srv.register_namespace(NAMESPACE)
         if idx != NS:
             raise RuntimeError(f"namespace {NAMESPACE} got index {idx}, expected {NS}")
@@ -153,21 +160,6 @@ class PlantServer:
         self.limits.install()
         await srv.start()
         log.info("OPC UA server on %s (feed %s)", self.endpoint, self.feed_path)
-
-    async def _security(self) -> None:
-        """Only policy None until the security module is there (runtime/opcua/security.py);
-        with it, ``apply`` sets the policies, certificates and users."""
-        try:
-            security = importlib.import_module("runtime.opcua.security")
-        except ModuleNotFoundError:
-            security = None
-        if security is not None:
-            await security.apply(self.server, self.opc.security, self.opc.loc)
-            return
-        if "None" not in self.opc.security.policies:
-            raise RuntimeError("opcua security: only policy None is available in this build: "
-                               "list it in opcua: security: policies")
-        self.server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
 
     def _hook_writes(self) -> None:
         service = self.server.iserver.attribute_service
@@ -396,7 +388,7 @@ def _event_text(key: str, old: Any, new: Any) -> tuple[str, int]:
     if key.startswith("i:"):
         name = key[2:]
         if new[0] and not old[0]:
-            return (f"{name}: SFCError set{f' (step {new[1]})' if new[1] else ''}",
+            return (f"{name}: SFCError {sfcerror_cause(new[1])}",
                     SEVERITY["sfcerror"])
         if old[0] and not new[0]:
             return f"{name}: SFCError cleared", SEVERITY["cleared"]
@@ -437,8 +429,8 @@ async def serve(pdef: PlantDef, endpoint: str | None = None, feed: str | None = 
                 ready: Callable[[PlantServer], None] | None = None,
                 stop: asyncio.Event | None = None) -> None:
     """Run the server until ``stop`` is set (or forever)."""
+    ps = PlantServer(pdef, endpoint, feed)  # its certificate and key read: at once
     yield_cpu()
-    ps = PlantServer(pdef, endpoint, feed)
     await ps.start()
     task = asyncio.create_task(ps.run())
     if ready is not None:
@@ -446,8 +438,10 @@ async def serve(pdef: PlantDef, endpoint: str | None = None, feed: str | None = 
     try:
         if stop is None:
             await task
-        else:
-            await stop.wait()
+        else:  # until stop, or the feed's end (a feed refused: feedclient.ForeignFeed)
+            waiter = asyncio.ensure_future(stop.wait())
+            await asyncio.wait({task, waiter}, return_when=asyncio.FIRST_COMPLETED)
+            waiter.cancel()
             ps.stop()
             await task
     finally:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import sys
 
@@ -26,19 +27,62 @@ def chart_text(path: str, chart: ImportedChart) -> str:
                                   "docs/plcopen.md"])
 
 
-def plant_text(path: str, result: ImportResult, files: list[str]) -> str:
+def plant_text(path: str, result: ImportResult, files: dict[str, str]) -> str:
+    """The plant skeleton: every instance of the import's plan (``files``: the chart file of
+    each POU), its last line the fingerprint that tells an edited plant (``edited``)."""
+    charts = {c.pou: c for c in result.charts}
     entries = []
-    for chart, file in zip(result.charts, files, strict=True):
-        iface = chart.interface
-        entries.append((chart.instance or chart.pou, file,
+    for inst in result.plan.instances:
+        iface = charts[inst.pou].interface
+        entries.append((inst, files[inst.pou],
                         [(v.name, v.type, v.address) for v in iface.inputs],
                         [(v.name, v.type, v.address) for v in iface.outputs]))
-    cycles = [c.cycle_ns for c in result.charts if c.cycle_ns]
-    return plant_yaml(entries, cycles[0] if cycles else None, [
+    text = plant_yaml(entries, result.plan.cycle_ns, [
         f"Plant skeleton written by softplc import from {os.path.basename(path)}: every input",
         "and output of the imported charts bound to simulated I/O (driver sim), so that",
         "softplc simulate and softplc run --sim work at once. Bind them to real points",
-        "(docs/language.md, \"The plant file\"; docs/drivers.md)."])
+        "(docs/language.md, \"The plant file\"; docs/drivers.md). Once edited, softplc",
+        "import never overwrites this file (--chart-only updates the charts alone).",
+        *(f"Comment of program {c}" for c in result.plan.comments)])
+    return text + f"{FINGERPRINT}{_digest(text)}\n"
+
+
+#: the last line of a plant skeleton: the digest of the lines above it, as written
+FINGERPRINT = "# written by softplc import, sha256 "
+
+
+def _digest(text: str) -> str:
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def edited(path: str) -> bool:
+    """Whether the plant file at ``path`` is no longer what softplc import wrote (its last
+    line is the digest of the lines above it); a file that cannot be read counts as
+    edited."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            text = f.read(1 << 20)
+    except (OSError, UnicodeDecodeError):
+        return True
+    body, _, last = text.rstrip("\n").rpartition("\n")
+    return not (last.startswith(FINGERPRINT)
+                and last[len(FINGERPRINT):] == _digest(body + "\n"))
+
+
+def chart_files(result: ImportResult) -> dict[str, str]:
+    """POU -> the name of its chart file: the POU's name, unless that is the plant file's
+    (whatever the case: some file systems ignore it), then with ``_chart``."""
+    out: dict[str, str] = {}
+    taken = {PLANT_FILE.lower()}
+    for c in result.charts:
+        name = f"{c.pou}.yaml"
+        k = 1
+        while name.lower() in taken:
+            name = f"{c.pou}_chart{'' if k == 1 else k}.yaml"
+            k += 1
+        taken.add(name.lower())
+        out[c.pou] = name
+    return out
 
 
 def _write(path: str, text: str, force: bool) -> None:
@@ -91,26 +135,57 @@ def cmd_import(args: argparse.Namespace) -> int:
         sys.stderr.write(f"softplc import: error: {len(lost)} element(s) would be left out "
                          "or changed (--strict): nothing written\n")
         return 2
-    files = [f"{c.pou}.yaml" for c in result.charts]
+    files = chart_files(result)
     texts = [chart_text(args.file, c) for c in result.charts]
-    plant = plant_text(args.file, result, files)
-    targets = [os.path.join(args.output, f) for f in [*files, PLANT_FILE]]
-    existing = [t for t in targets if os.path.exists(t)]
-    if existing and not args.force:
+    charts = [os.path.join(args.output, files[c.pou]) for c in result.charts]
+    plant = os.path.join(args.output, PLANT_FILE)
+    todo = list(zip(charts, texts, strict=True))
+    if not args.chart_only:
+        if os.path.lexists(plant) and edited(plant):
+            sys.stderr.write(f"softplc import: error: {plant} was edited since softplc import "
+                             "wrote it: not overwritten, even with --force (--chart-only "
+                             "updates the charts alone; remove it for a new skeleton)\n")
+            return 2
+        todo.append((plant, plant_text(args.file, result, files)))
+    force = args.force or args.chart_only
+    existing = [t for t, _ in todo if os.path.lexists(t)]
+    if existing and not force:
         sys.stderr.write(f"softplc import: error: {', '.join(existing)} exist(s): not "
                          "overwritten (remove, choose another -o, or --force)\n")
         return 2
     try:
         os.makedirs(args.output, exist_ok=True)
-        _write_all(list(zip(targets, [*texts, plant], strict=True)), args.force)
+        _write_all(todo, force)
     except OSError as exc:
         return _fail("import", exc)
-    for c, target in zip(result.charts, targets, strict=False):
+    for c, target in zip(result.charts, charts, strict=True):
         g = c.grafcet
         sys.stderr.write(f"{args.file}: POU {c.pou} -> {target} ({len(g.steps)} steps, "
                          f"{len(g.transitions)} transitions, "
                          f"{sum(len(s.actions) for s in g.steps.values())} actions)\n")
-    sys.stderr.write(f"{targets[-1]}: plant skeleton on simulated I/O\n")
+    if args.chart_only:
+        sys.stderr.write(f"{plant}: not written (--chart-only)\n")
+    else:
+        sys.stderr.write(f"{plant}: plant skeleton on simulated I/O "
+                         f"({len(result.plan.instances)} instance(s))\n")
+    if args.scenario:
+        return _scenario(plant, args.file)
+    return 0
+
+
+def _scenario(plant: str, source: str) -> int:
+    """``--scenario``: the scenario skeleton beside the plant, never over an existing one."""
+    from runtime.scenario.skeleton import write_skeleton
+
+    try:
+        path = write_skeleton(plant, os.path.basename(source))
+    except FileExistsError as exc:
+        sys.stderr.write(f"{exc.filename}: exists: kept (a scenario is never overwritten; "
+                         "remove it for a new skeleton)\n")
+        return 0
+    except OSError as exc:
+        return _fail("import", exc)
+    sys.stderr.write(f"{path}: scenario skeleton (softplc test {os.path.dirname(path)})\n")
     return 0
 
 
@@ -148,7 +223,13 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     i.add_argument("-o", "--output", required=True, metavar="DIR")
     i.add_argument("--strict", action="store_true",
                    help="refuse (exit 2, nothing written) if anything would be left out")
-    i.add_argument("--force", action="store_true", help="overwrite existing files")
+    i.add_argument("--force", action="store_true",
+                   help="overwrite existing files (never a plant file edited since)")
+    i.add_argument("--chart-only", action="store_true",
+                   help="write (and replace) the charts only, never the plant file")
+    i.add_argument("--scenario", action="store_true",
+                   help="also write a scenario skeleton, plant.test.yaml: the inputs to set, "
+                        "the outputs to expect (softplc test; never overwritten)")
     i.set_defaults(func=cmd_import)
     e = sub.add_parser("export", help="export a chart as a PLCopen XML project",
                        description="Write a PLCopen TC6 XML v2.01 project holding the chart as "

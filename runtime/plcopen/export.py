@@ -121,23 +121,26 @@ def _interface(g: Grafcet, iface: Node) -> None:
     lists: list[tuple[str, dict[str, str], list[Node]]] = []
 
     def var(name: str, type_node: Node, init: str | None = None,
-            renamed: str | None = None) -> Node:
+            renamed: str | None = None, description: str = "") -> Node:
         v = Node("variable", {"name": name}, [Node("type", {}, [type_node])])
         if init is not None:
             v.add("initialValue").add("simpleValue", {"value": init})
         if renamed is not None:
             _data(v).add(SP + "variable", {"renamed_from": renamed})
+        if description:
+            _text(v.add("documentation"), description)
         return v
 
     for kind, tag in ((VarKind.INPUT, "inputVars"), (VarKind.OUTPUT, "outputVars")):
-        vs = [var(v.name, Node(EXPORT_TYPES[v.type.value]))
+        vs = [var(v.name, Node(EXPORT_TYPES[v.type.value]), description=v.description)
               for v in g.variables.values() if v.kind is kind]
         lists.append((tag, {}, vs))
     # memory in its order: one localVars list per run of retained or not retained variables
     for retain, run in itertools.groupby(g.memory, key=lambda v: v.retain):
         lists.append(("localVars", {"retain": "true"} if retain else {},
                       [var(v.name, Node(EXPORT_TYPES[v.type.value]),
-                           value_text(v.type, v.init), v.renamed_from) for v in run]))
+                           value_text(v.type, v.init), v.renamed_from, v.description)
+                       for v in run]))
     lists.append(("localVars", {}, [var(b.name, Node("derived", {"name": b.kind}))
                                     for b in g.blocks.values()]))
     for tag, attrs, vs in lists:

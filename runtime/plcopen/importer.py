@@ -18,15 +18,18 @@ from typing import Any
 
 from drivers.durations import format_ns, parse_literal, strip_time_prefix
 from runtime.errors import Loc, SourceError
+from runtime.language import ast as A
 from runtime.language.grafcetfile import GrafcetLoader
 from runtime.language.lexer import KEYWORDS, Lexer, is_name
-from runtime.language.model import Grafcet
+from runtime.language.model import Grafcet, Qualifier
 from runtime.language.signatures import FB_MEMBERS, TIMER_METHODS
 from runtime.language.typecheck import FLAGS_BOOL, FLAGS_STRING, SYSTEM_BOOL
 from runtime.language.yamlsrc import YList, YMap, YStr
-from runtime.plcopen.interface import Interface, read_interface, softplc_data
-from runtime.plcopen.network import Network
+from runtime.plcopen.globalvars import Global, Globals
+from runtime.plcopen.interface import Interface, Var, read_interface, softplc_data
+from runtime.plcopen.network import Network, NotCarried
 from runtime.plcopen.order import order
+from runtime.plcopen.program import Plan, plan
 from runtime.plcopen.schema import PLCOPEN_NS, QUALIFIERS, SOFTPLC_NS, TIMED
 from runtime.plcopen.sfcgraph import GStep, GTransition, Level, position, read_level
 from runtime.plcopen.texts import (
@@ -45,7 +48,7 @@ from runtime.plcopen.xmltree import Element, parse_xml
 @dataclass(frozen=True)
 class Note:
     """Something of the file the chart does not carry, or carries changed (``lost``), or a
-    choice the importer made that the user should know of."""
+    choice the importer made that the user should know of (``lost=False``)."""
 
     loc: Loc
     message: str
@@ -71,6 +74,7 @@ class ImportedChart:
 class ImportResult:
     charts: list[ImportedChart] = field(default_factory=list)
     notes: list[Note] = field(default_factory=list)
+    plan: Plan = field(default_factory=Plan)  # the plant's instances and wiring
 
 
 def import_file(path: str, pou: str | None = None) -> ImportResult:
@@ -99,13 +103,99 @@ def import_file(path: str, pou: str | None = None) -> ImportResult:
                                     "charts)")
     codesys = is_codesys(root)
     tasks = _tasks(root)
+    scopes = Globals(root, _users(all_pous))
     for p in sfc_pous:
         name = p.get("name") or ""
-        chart = _PouImporter(path, p, codesys, result.notes).run()
+        seen = scopes.visible(name)
+        notes: list[Note] = []
+        doc, iface = _PouImporter(path, p, codesys, notes, seen).run()
+        g = GrafcetLoader(path, doc).load()
+        mixed = _mixed(g)
+        if mixed:  # again, with S/R/N on those variables as statements (matiec's meaning)
+            notes = []
+            doc, iface = _PouImporter(path, p, codesys, notes, seen, mixed).run()
+            g = GrafcetLoader(path, doc).load()
+        _constants_unwritten(g, iface)
+        result.notes += notes
         instance, cycle = tasks.get(name, (name, None))
-        g = GrafcetLoader(path, chart[0]).load()
-        result.charts.append(ImportedChart(name, chart[0], g, chart[1], instance, cycle))
+        result.charts.append(ImportedChart(name, doc, g, iface, instance, cycle))
+
+    def told(loc: Loc, message: str, lost: bool) -> None:
+        result.notes.append(Note(loc, message, lost))
+
+    result.plan = plan(root, all_pous, {(p.get("name") or "").lower(): p for p in sfc_pous},
+                       scopes.visible, told)
+    _shared_globals(result)
     return result
+
+
+def _shared_globals(result: ImportResult) -> None:
+    """A global that several instances of the plant reach as memory: one note each (every
+    instance keeps its own copy: a chart's memory is its own)."""
+    count: dict[str, list[str]] = {}
+    by_pou = {c.pou: c for c in result.charts}
+    for inst in result.plan.instances:
+        chart = by_pou.get(inst.pou)
+        for v, _ in chart.interface.memory if chart is not None else []:
+            if v.shared:
+                count.setdefault(v.shared, []).append(inst.name)
+    for c in result.charts:
+        for v, _ in c.interface.memory:
+            users = count.get(v.shared, [])
+            if v.shared and len(users) > 1:
+                result.notes.append(Note(v.loc, f"the global {v.shared} is reached by "
+                                                f"{len(users)} instances ({', '.join(users)}): "
+                                                "each keeps its own copy (a chart's memory is "
+                                                "its own)"))
+
+
+def _users(pous: list[Element]) -> dict[str, set[str]]:
+    """POU (lower case) -> the POUs that declare an instance of it."""
+    out: dict[str, set[str]] = {}
+    for p in pous:
+        iface = p.find("interface", PLCOPEN_NS)
+        for v in iface.iter() if iface is not None else []:
+            if v.tag == "derived":
+                out.setdefault((v.get("name") or "").lower(), set()).add(
+                    (p.get("name") or "").lower())
+    return out
+
+
+def _assigned(g: Grafcet) -> set[str]:
+    """The variables the statements of the chart's actions assign."""
+    out: set[str] = set()
+    for a in g.actions():
+        for root in a.body or []:
+            for n in A.walk(root):
+                if isinstance(n, A.Assign):
+                    out.add(n.target.name)
+    return out
+
+
+def _mixed(g: Grafcet) -> frozenset[str]:
+    """The bool variables that statements of the chart's actions assign and that an S, R
+    or N association also names."""
+    targets = {a.target for a in g.actions() if a.target is not None and a.cond is None
+               and a.qualifier in (Qualifier.S, Qualifier.R, Qualifier.N)}
+    return frozenset(targets & _assigned(g))
+
+
+def _constants_unwritten(g: Grafcet, iface: Interface) -> None:
+    """A CONSTANT of the file is memory of the chart: an error if the chart writes it."""
+    constants = {v.name: v for v, _ in iface.memory if v.constant}
+    if not constants:
+        return
+    written = _assigned(g) | {a.target for a in g.actions() if a.target is not None}
+    for s in (*g.pre, *g.post):
+        for n in A.walk(s.node):
+            if isinstance(n, A.Assign):
+                written.add(n.target.name)
+            elif isinstance(n, A.CallStmt) and n.call.method == "Set":
+                written.add(n.call.obj)
+    for name in sorted(set(constants) & written):
+        v: Var = constants[name]
+        raise SourceError(v.loc, f"'{name}' is CONSTANT in the file and the chart writes it "
+                                 "(IEC 61131-3 refuses that)")
 
 
 def _sfc_body(pou: Element) -> Element | None:
@@ -158,8 +248,12 @@ def _zero(typ: str) -> object:
 
 # -- one POU ---------------------------------------------------------------------------------
 class _PouImporter:
-    def __init__(self, path: str, pou: Element, codesys: bool, notes: list[Note]) -> None:
+    def __init__(self, path: str, pou: Element, codesys: bool, notes: list[Note],
+                 globals_: dict[str, Global] | None = None,
+                 mixed: frozenset[str] = frozenset()) -> None:
         self.path, self.pou, self.codesys, self.notes = path, pou, codesys, notes
+        self.globals = globals_
+        self.mixed = mixed  # bool variables statements assign: their S/R/N as statements
         self.name = pou.get("name") or ""
         self.actions = self._named(pou, "actions", "action")
         self.transitions = self._named(pou, "transitions", "transition")
@@ -168,9 +262,12 @@ class _PouImporter:
         self.used_actions: set[str] = set()  # POU action names (lower case) steps use
         self.networks: dict[int, Network] = {}  # per level (id): its FBD/LD elements
         self.names_given: set[str] = set()  # transition names, unique in a chart
+        self.fbs: dict[str, tuple[str, str]] = {}  # function blocks: lower case -> (name, type)
+        self.calls: list[YStr] = []  # the calls of the conditions' function blocks
+        self.bodies: dict[str, YStr] = {}  # POU transition (lower case) -> its condition
 
-    def note(self, loc: Loc, message: str) -> None:
-        self.notes.append(Note(loc, message))
+    def note(self, loc: Loc, message: str, lost: bool = True) -> None:
+        self.notes.append(Note(loc, message, lost))
 
     @staticmethod
     def _named(pou: Element, group: str, tag: str) -> dict[str, Element]:
@@ -184,7 +281,8 @@ class _PouImporter:
 
     def run(self) -> tuple[YMap, Interface]:
         pou = self.pou
-        iface = read_interface(pou, self.note)
+        iface = read_interface(pou, self.note, self.globals)
+        self.fbs = {name.lower(): (name, kind) for name, kind, _ in iface.blocks}
         sfc = _sfc_body(pou)
         assert sfc is not None
         level = read_level(sfc, self.note)
@@ -192,31 +290,60 @@ class _PouImporter:
         self._count_references(level)
         doc = _map(pou.loc)
         _put(doc, "grafcet", plain(self.name, pou.loc), pou.loc)
-        docu = pou.find("documentation", PLCOPEN_NS)
-        if docu is not None:
-            _put(doc, "description", str(formatted(docu)), docu.loc)
+        self._description(doc, level)
         chart = softplc_data(pou, "chart")
         if chart is not None and chart.get("scan"):
             _put(doc, "scan", plain(chart.get("scan") or "", chart.loc), chart.loc)
         elif self.codesys:
             _put(doc, "scan", plain("codesys", pou.loc), pou.loc)
-            self.notes.append(Note(pou.loc, f"POU '{self.name}' comes from CODESYS: "
-                                   "imported with 'scan: codesys' (CODESYS's processing order, "
-                                   "docs/semantics.md)", lost=False))
+            self.note(pou.loc, f"POU '{self.name}' comes from CODESYS: imported with 'scan: "
+                               "codesys' (CODESYS's processing order, docs/semantics.md)",
+                      lost=False)
         self._variables(doc, iface)
         self._equations(doc, chart, "pre")
         steps, transitions = self._level(level, None)
         _put(doc, "steps", steps, sfc.loc)
         if transitions:
             _put(doc, "transitions", transitions, sfc.loc)
-        self._equations(doc, chart, "post")
+        self._equations(doc, chart, "post", self.calls)
+        if self.calls:
+            self.note(sfc.loc, f"POU '{self.name}': the function blocks of its transitions' "
+                               f"networks ({len(self.calls)}) are called in 'post', in every "
+                               "scan after the actions, as Beremiz and matiec call them",
+                      lost=False)
         self._used_transitions()
         return doc, iface
 
+    def _description(self, doc: YMap, level: Level) -> None:
+        """The POU's documentation, then the comments of its SFC body (top to bottom, left
+        to right; a chart has no free texts), as the chart's description."""
+        texts: list[tuple[str, Loc]] = []
+        docu = self.pou.find("documentation", PLCOPEN_NS)
+        if docu is not None and str(formatted(docu)).strip():
+            texts.append((str(formatted(docu)), docu.loc))
+        comments: list[Element] = []
+        stack = [level]
+        while stack:
+            lv = stack.pop()
+            comments += lv.comments
+            stack += [s.macro for s in lv.steps.values() if s.macro is not None]
+        for c in sorted(comments, key=lambda c: (position(c)[1], position(c)[0], c.loc.line)):
+            content = c.find("content", PLCOPEN_NS)
+            text = str(formatted(content)).strip() if content is not None else ""
+            if text:
+                texts.append((text, c.loc))
+                self.note(c.loc, f"localId {c.get('localId')}: comment kept in the chart's "
+                                 "description", lost=False)
+        if texts:
+            _put(doc, "description", "\n\n".join(t for t, _ in texts), texts[0][1])
+
     @staticmethod
-    def _equations(doc: YMap, chart: Element | None, part: str) -> None:
-        """pre or post, from softplc's data (PLCopen has no element for them)."""
+    def _equations(doc: YMap, chart: Element | None, part: str,
+                   more: list[YStr] | None = None) -> None:
+        """pre or post, from softplc's data (PLCopen has no element for them), then
+        ``more``."""
         texts = [(e.ystr(), e.loc) for e in chart.findall(part, SOFTPLC_NS)] if chart else []
+        texts += [(t, t.loc) for t in more or []]
         if texts:
             _put(doc, part, _list(texts[0][1], texts), texts[0][1])
 
@@ -244,12 +371,17 @@ class _PouImporter:
         for key, vs in (("inputs", iface.inputs), ("outputs", iface.outputs)):
             items: list[tuple[Any, Loc]] = []
             for v in vs:
-                if v.type == "bool":
+                if v.type == "bool" and not v.description:
                     items.append((plain(v.name, v.loc), v.loc))
-                else:
-                    m = _map(v.loc)
-                    _put(m, v.name, plain(v.type, v.loc), v.loc)
-                    items.append((m, v.loc))
+                    continue
+                m = _map(v.loc)
+                typ: Any = plain(v.type, v.loc)
+                if v.description:
+                    typ = _map(v.loc)
+                    _put(typ, "type", plain(v.type, v.loc), v.loc)
+                    _put(typ, "description", v.description, v.loc)
+                _put(m, v.name, typ, v.loc)
+                items.append((m, v.loc))
             if items:
                 _put(doc, key, _list(items[0][1], items), items[0][1])
         if iface.memory:
@@ -257,13 +389,15 @@ class _PouImporter:
             for v, retained in iface.memory:
                 init = v.init if v.init is not None else _zero(v.type)
                 value: Any = plain(format_ns(int(init)), v.loc) if v.type == "time" else init  # type: ignore[call-overload]
-                if retained or v.renamed_from:
+                if retained or v.renamed_from or v.description:
                     spec = _map(v.loc)
                     _put(spec, "init", value, v.loc)
                     if retained:
                         _put(spec, "retain", True, v.loc)
                     if v.renamed_from:
                         _put(spec, "renamed_from", plain(v.renamed_from, v.loc), v.loc)
+                    if v.description:
+                        _put(spec, "description", v.description, v.loc)
                     value = spec
                 _put(mem, v.name, value, v.loc)
             _put(doc, "memory", mem, mem.loc)
@@ -283,7 +417,7 @@ class _PouImporter:
         conditions use)."""
         net = self.networks.get(id(level))
         if net is None:
-            net = self.networks[id(level)] = Network(level.sfc)
+            net = self.networks[id(level)] = Network(level.sfc, self.fbs)
         return net
 
     def _unused_network(self, level: Level) -> None:
@@ -473,11 +607,18 @@ class _PouImporter:
             body = body_owner.find("body", PLCOPEN_NS)
             if body is None:
                 raise SourceError(body_owner.loc, f"transition '{name}' has no body")
-            return self._body_expression(body, f"transition '{name}'",
-                                         body_owner.get("name") or name)
+            known = self.bodies.get(name.lower())
+            if known is None:  # read once: its blocks are called once
+                known = self.bodies[name.lower()] = self._body_expression(
+                    body, f"transition '{name}'", body_owner.get("name") or name)
+            return known
         point = cond.find("connectionPointIn", PLCOPEN_NS)
         if point is not None:
-            return self._network(level).point(point)
+            net = self._network(level)
+            text = self._carried(lambda: net.point(point))
+            self.calls += net.program
+            net.program.clear()
+            return text
         raise SourceError(cond.loc, f"localId {t.id}: expected an inline condition, a "
                                     "reference or a connection in <condition>")
 
@@ -499,12 +640,31 @@ class _PouImporter:
                     point = e.find("connectionPointIn", PLCOPEN_NS)
                     if point is None:
                         raise SourceError(e.loc, f"{what}: its {e.tag} is not connected")
-                    return Network(net).point(point)
+                    network = Network(net, self.fbs)
+                    text = self._carried(lambda: network.point(point))  # noqa: B023 - now
+                    self.calls += network.program
+                    for c in net.children:
+                        if c.tag == "comment":
+                            self.note(c.loc, f"{what}: comment localId {c.get('localId')} "
+                                             "left out (a condition has no free texts)")
+                    return text
             raise SourceError(net.loc, f"{what}: expected an output variable or a coil named "
                                        f"'{name}' in its {lang} body")
         lang = body.children[0].tag if body.children else "nothing"
         raise SourceError(body.loc, f"{what} is written in {lang}: softplc reads conditions "
-                                    "in ST, or FBD/LD made of variables, contacts and gates")
+                                    "in ST, or FBD/LD (variables, contacts, gates, "
+                                    "comparisons, function blocks)")
+
+    @staticmethod
+    def _carried(read: Any) -> YStr:
+        """A condition's network read: what it holds that has no form in the language is an
+        error there (its evolution would change)."""
+        try:
+            text: YStr = read()
+        except NotCarried as exc:
+            raise SourceError(exc.loc, f"{exc.message} (in a transition's condition)"
+                              ) from None
+        return text
 
     # -- actions ------------------------------------------------------------------------------
     def _actions(self, level: Level, st: GStep) -> list[tuple[YStr, Loc]]:
@@ -517,9 +677,8 @@ class _PouImporter:
                 self.note(st.e.loc, f"{where} '{name}' left out: the file holds no action of "
                                     "that name")
             elif name:
-                text = self._reference(st.e, where, q, None, name, plain(name, st.e.loc))
-                if text is not None:
-                    out.append((text, st.e.loc))
+                out += [(text, st.e.loc) for text in
+                        self._reference(st.e, where, q, None, name, plain(name, st.e.loc))]
         blocks = sorted(level.blocks.get(st.name, []),
                         key=lambda b: (position(b)[1], position(b)[0], b.loc.line))
         for b in blocks:
@@ -528,14 +687,13 @@ class _PouImporter:
                                  f"'{st.name}'): 'negated' left out (IEC 61131-3 gives an "
                                  "action block no negation)")
             for k, a in enumerate(b.findall("action", PLCOPEN_NS), 1):
-                text = self._action(a, f"localId {b.get('localId')} (action block of step "
-                                       f"'{st.name}'), action {k}")
-                if text is not None:
-                    out.append((text, a.loc))
+                out += [(text, a.loc) for text in
+                        self._action(a, f"localId {b.get('localId')} (action block of step "
+                                        f"'{st.name}'), action {k}")]
         return out
 
-    def _action(self, a: Element, where: str) -> YStr | None:
-        """The action text of an ``action`` association, or None (left out, noted)."""
+    def _action(self, a: Element, where: str) -> list[YStr]:
+        """The action texts of an ``action`` association (none: left out, noted)."""
         q = (a.get("qualifier") or "N").strip()
         if q not in QUALIFIERS:
             raise SourceError(a.loc, f"{where}: unknown qualifier '{q}': expected one of "
@@ -550,19 +708,22 @@ class _PouImporter:
             written, was = sp.find("text", SOFTPLC_NS), sp.find("as", SOFTPLC_NS)
             if written is not None and was is not None and fingerprint(was.text) == fingerprint(
                     native_text(q, duration, raw_body)):
-                return written.ystr()
+                return [written.ystr()]
         if q == "DL":
             self.note(a.loc, f"{where}: qualifier DL left out with its action: IEC 61131-3 "
                              "gives DL no meaning (softplc has N S R L D P P1 P0 SD DS SL)")
-            return None
+            return []
         dtext: str | None = None
         if q in TIMED:
-            if duration is None or parse_literal(
-                    strip_time_prefix(duration.strip()).replace("_", "")) is None:
+            if duration is None or not duration.strip():
+                raise SourceError(a.loc, f"{where}: qualifier {q} without a duration: IEC "
+                                         f"61131-3 times {q} (expected duration=\"T#2s\" "
+                                         "or another time)")
+            if parse_literal(strip_time_prefix(duration.strip()).replace("_", "")) is None:
                 self.note(a.loc, f"{where}: {q} action left out: its duration "
-                                 f"'{duration or ''}' is no time literal (softplc needs a "
+                                 f"'{duration}' is no time literal (softplc needs a "
                                  "constant time such as T#2s)")
-                return None
+                return []
             dtext = duration.strip().replace("_", "")
         elif duration:
             self.note(a.loc, f"{where}: duration '{duration}' left out: qualifier {q} takes "
@@ -573,24 +734,56 @@ class _PouImporter:
         if ref is not None:
             name = ref.get("name") or ""
             return self._reference(a, where, q, dtext, name, plain(name, ref.loc))
-        if st is None:
-            lang = inline.children[0].tag if inline is not None and inline.children else None
-            self.note(a.loc, f"{where} left out: " + (
-                f"its body is written in {lang} (softplc reads ST)" if lang else
-                "it has no reference and no inline body"))
-            return None
-        body = formatted(st)
+        body = self._statements(inline, where, a.loc) if inline is not None else None
+        if inline is None:
+            self.note(a.loc, f"{where} left out: it has no reference and no inline body")
+        if body is None:
+            return []
         if not body.strip():
             self.note(a.loc, f"{where} left out: its inline body is empty")
-            return None
+            return []
         prefix = native_text(q, dtext, "")
-        if native_text(q, dtext, str(body)) == str(body):  # softplc's 'on EVENT do'
-            return self._text(body)
-        return self._text(compose([prefix + " ", body], a.loc))
+        if st is not None and native_text(q, dtext, str(body)) == str(body):
+            return [self._text(body)]  # softplc's 'on EVENT do'
+        return [self._text(compose([prefix + " ", body], a.loc))]
+
+    def _statements(self, body: Element, where: str, at: Loc) -> YStr | None:
+        """The statements of an action's body: its ST, or its FBD/LD network as ST (the
+        comments of the network as ``//`` lines first); None if it cannot be read (noted)."""
+        st = body.find("ST", PLCOPEN_NS)
+        if st is not None:
+            return formatted(st)
+        for lang in ("LD", "FBD"):
+            net = body.find(lang, PLCOPEN_NS)
+            if net is None:
+                continue
+            network = Network(net, self.fbs)
+            try:
+                lines = network.statements()
+            except NotCarried as exc:
+                self.note(exc.loc, f"{where} left out: {exc.message}")
+                return None
+            comments = sorted((c for c in net.children if c.tag == "comment"),
+                              key=lambda c: (position(c)[1], position(c)[0]))
+            texts: list[str | YStr] = []
+            for c in comments:
+                content = c.find("content", PLCOPEN_NS)
+                for line in str(formatted(content)).splitlines() if content else []:
+                    line = "".join(ch if ch.isprintable() else " " for ch in line).strip()
+                    texts += [f"// {line}" if line else "//", "\n"]
+            for k, line in enumerate(lines):
+                texts += ["\n"] if k else []
+                texts.append(line)
+            return compose(texts, net.loc) if lines else plain("", net.loc)
+        found = body.children[0].tag if body.children else None
+        self.note(at, f"{where} left out: " + (
+            f"it is written in {found} (softplc reads ST, FBD and LD)" if found else
+            "its body is empty"))
+        return None
 
     def _reference(self, a: Element, where: str, q: str, dtext: str | None, name: str,
-                   at: YStr) -> YStr | None:
-        """An action that names a POU action (its ST body) or a bool variable."""
+                   at: YStr) -> list[YStr]:
+        """An action that names a POU action (its body) or a bool variable."""
         action = self.actions.get(name.lower())
         prefix = native_text(q, dtext, "") + " "
         if action is None:
@@ -599,25 +792,43 @@ class _PouImporter:
             elif q == "P0":
                 self.note(a.loc, f"{where}: P0 {name} left out: softplc has no pulse of a "
                                  "variable on deactivation (write 'P0 x := ...' in ST)")
-                return None
-            return self._text(compose([prefix, at], a.loc))
+                return []
+            declared = self.spelling.get(name.lower(), name)
+            if declared in self.mixed and q in ("S", "R", "N"):
+                return self._as_statements(a, where, q, declared, at)
+            return [self._text(compose([prefix, at], a.loc))]
         self.used_actions.add(name.lower())
         body_e = action.find("body", PLCOPEN_NS)
-        st = body_e.find("ST", PLCOPEN_NS) if body_e is not None else None
-        if st is None:
-            lang = body_e.children[0].tag if body_e is not None and body_e.children else "nothing"
-            self.note(a.loc, f"{where}: action '{name}' left out: it is written in {lang} "
-                             "(softplc reads ST)")
-            return None
+        if body_e is None:
+            self.note(a.loc, f"{where}: action '{name}' left out: it has no body")
+            return []
+        body = self._statements(body_e, f"{where}: action '{name}'", a.loc)
+        if body is None:
+            return []
         if q in ("S", "R", "SD", "DS", "SL"):
             self.note(a.loc, f"{where}: {q} {name} left out: softplc stores bool variables "
                              "only (an action with statements has no S/R/SD/DS/SL)")
-            return None
-        body = formatted(st)
+            return []
         if not body.strip():
             self.note(a.loc, f"{where}: action '{name}' left out: its body is empty")
-            return None
-        return self._text(compose([prefix, body], a.loc))
+            return []
+        return [self._text(compose([prefix, body], a.loc))]
+
+    def _as_statements(self, a: Element, where: str, q: str, name: str, at: YStr
+                       ) -> list[YStr]:
+        """S, R or N on a bool variable that statements of the chart also assign, with
+        matiec's meaning: the variable is written only while the association's step is
+        active (and, for N, once when it is left), so what the statements write lasts
+        (softplc's action control writes an action's variable in every scan)."""
+        value = "FALSE" if q == "R" else "TRUE"
+        out = [compose(["N ", at, f" := {value}"], a.loc)]
+        if q == "N":
+            out.append(compose(["P0 ", at, " := FALSE"], a.loc))
+        self.note(a.loc, f"{where}: {q} {name} written as the statements "
+                         f"{' and '.join(repr(str(t)) for t in out)}: statements of the chart "
+                         f"also assign {name}, and matiec writes a variable only while an "
+                         "association sets or resets it (docs/plcopen.md)", lost=False)
+        return [self._text(t) for t in out]
 
 
 def _st_expression(text: YStr, name: str | None) -> YStr:

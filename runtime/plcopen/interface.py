@@ -11,17 +11,25 @@ each (docs/plcopen.md lists them).
 from __future__ import annotations
 
 import re
-from collections.abc import Callable
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Protocol
 
 from drivers.durations import parse_literal, strip_time_prefix
 from runtime.errors import Loc, SourceError
+from runtime.language.grafcetfile import DESCRIPTION_MAX
 from runtime.language.signatures import FB_MEMBERS
+from runtime.plcopen.globalvars import Global
 from runtime.plcopen.schema import INT_TYPES, PLCOPEN_NS, REAL_TYPES, SOFTPLC_NS
+from runtime.plcopen.texts import formatted
 from runtime.plcopen.xmltree import Element
 
-#: a note: (place, message) of something left out or changed
-Note = Callable[[Loc, str], None]
+
+class Note(Protocol):
+    """Told of something left out or changed (``lost``), or of a choice made that loses
+    nothing (``lost=False``)."""
+
+    def __call__(self, loc: Loc, message: str, lost: bool = True) -> None: ...
 
 
 @dataclass
@@ -32,6 +40,10 @@ class Var:
     init: object = None
     address: str = ""
     renamed_from: str | None = None
+    description: str = ""  # its documentation, one line
+    iec: str = ""  # the IEC 61131-3 type the file declares (INT, LREAL ...)
+    constant: bool = False  # CONSTANT: the chart must not write it
+    shared: str = ""  # a VAR_EXTERNAL: the global it is ("resource 'r' X")
 
 
 @dataclass
@@ -104,8 +116,11 @@ def value(text: str, typ: str, loc: Loc) -> object:
     raise SourceError(loc, f"expected an initial value of type {typ}, found '{text}'")
 
 
-def read_interface(pou: Element, note: Note) -> Interface:
-    """The chart's variables from ``pou``'s interface; ``note`` is told what is left out."""
+def read_interface(pou: Element, note: Note,
+                   globals_: Mapping[str, Global] | None = None) -> Interface:
+    """The chart's variables from ``pou``'s interface; ``note`` is told what is left out;
+    ``globals_``: the global variables the POU's VAR_EXTERNAL may reach, by their name in
+    lower case (globalvars.py)."""
     out = Interface()
     iface = pou.find("interface", PLCOPEN_NS)
     if iface is None:
@@ -117,11 +132,12 @@ def read_interface(pou: Element, note: Note) -> Interface:
             note(lst.loc, "the POU's return type is left out (a chart returns nothing)")
             continue
         retained = lst.get("retain") == "true" or lst.get("persistent") == "true"
-        if lst.get("constant") == "true":
-            note(lst.loc, "CONSTANT left out: the variables of this list are memory that "
-                          "the chart may write")
+        constant = lst.get("constant") == "true"
         for v in lst.findall("variable", PLCOPEN_NS):
-            _variable(out, lst.tag, v, retained, note)
+            if lst.tag == "externalVars":
+                _external(out, v, (globals_ or {}).get((v.get("name") or "").lower()), note)
+            else:
+                _variable(out, lst.tag, v, retained, constant, note)
     timers = softplc_data(iface, "timers")
     if timers is not None:
         for t in timers.findall("timer", SOFTPLC_NS):
@@ -129,8 +145,59 @@ def read_interface(pou: Element, note: Note) -> Interface:
     return out
 
 
-def _variable(out: Interface, kind: str, v: Element, retained: bool, note: Note) -> None:
+def _kind_type(v: Element) -> tuple[str, str]:
+    """(the language's type or "", the IEC type's name) of a variable of elementary type."""
+    typ = _type(v)
+    if typ is None:
+        raise SourceError(v.loc, f"variable '{v.get('name') or ''}' has no type")
+    t = ("bool" if typ[1] == "BOOL" else "int" if typ[1] in INT_TYPES
+         else "real" if typ[1] in REAL_TYPES else "time" if typ[1] == "TIME" else "")
+    return (t if typ[0] == "elementary" else ""), typ[1]
+
+
+def documentation(v: Element, note: Note, what: str) -> str:
+    """A variable's ``documentation`` as one line of at most DESCRIPTION_MAX characters (the
+    I/O list's description); lines are joined, the rest of a longer text left out (noted)."""
+    docu = v.find("documentation", PLCOPEN_NS)
+    if docu is None:
+        return ""
+    text = " ".join("".join(c if c.isprintable() else " " for c in str(formatted(docu)))
+                    .split())
+    if len(text) > DESCRIPTION_MAX:
+        note(docu.loc, f"documentation of {what}: kept its first {DESCRIPTION_MAX} "
+                       f"characters of {len(text)} (a description is one line)")
+        text = text[:DESCRIPTION_MAX].rstrip()
+    return text
+
+
+def _external(out: Interface, v: Element, glob: Global | None, note: Note) -> None:
+    """A VAR_EXTERNAL: the global it names, as the chart's own variable (docs/plcopen.md)."""
     name = v.get("name") or ""
+    if glob is None:
+        raise SourceError(v.loc, f"VAR_EXTERNAL '{name}': no global variable of that name in "
+                                 "the configuration or resource that runs the POU")
+    mine, theirs = _kind_type(v), _kind_type(glob.e)
+    if mine[1].upper() != theirs[1].upper():
+        raise SourceError(v.loc, f"VAR_EXTERNAL '{name}' of type {mine[1]}: the global of "
+                                 f"{glob.owner} is of type {theirs[1]} (line {glob.e.loc.line})")
+    before = len(out.memory), len(out.inputs), len(out.outputs)
+    _variable(out, "localVars", glob.e, glob.retained, glob.constant, note, name=name,
+              what=f"global '{name}' of {glob.owner}")
+    if (len(out.memory), len(out.inputs), len(out.outputs)) == before:
+        return  # left out (its type), noted
+    where = "an input" if len(out.inputs) > before[1] else (
+        "an output" if len(out.outputs) > before[2] else "memory")
+    if where == "memory":
+        out.memory[-1][0].shared = f"{glob.owner} '{glob.e.get('name')}'"
+    note(v.loc, f"VAR_EXTERNAL{' CONSTANT' if glob.constant else ''} '{name}': the global "
+                f"of {glob.owner} (line {glob.e.loc.line}) is {where} of the chart"
+                + (" with its initial value" if where == "memory" else ""), lost=False)
+
+
+def _variable(out: Interface, kind: str, v: Element, retained: bool, constant: bool,
+              note: Note, name: str | None = None, what: str = "") -> None:
+    name = name if name is not None else (v.get("name") or "")
+    what = what or f"'{name}'"
     typ = _type(v)
     if typ is None:
         raise SourceError(v.loc, f"variable '{name}' has no type")
@@ -146,13 +213,12 @@ def _variable(out: Interface, kind: str, v: Element, retained: bool, note: Note)
         if typ[1] in FB_MEMBERS and kind in ("localVars", "tempVars"):
             out.blocks.append((name, typ[1], v.loc))
             return
-        note(v.loc, f"variable '{name}' of type {typ[1]} left out: softplc's types are BOOL, "
+        note(v.loc, f"variable {what} of type {typ[1]} left out: softplc's types are BOOL, "
                     f"integers, REAL/LREAL and TIME, and the blocks {' '.join(FB_MEMBERS)}")
         return
-    t = ("bool" if typ[1] == "BOOL" else "int" if typ[1] in INT_TYPES
-         else "real" if typ[1] in REAL_TYPES else "time" if typ[1] == "TIME" else None)
-    if t is None:
-        note(v.loc, f"variable '{name}' of type {typ[1]} left out: softplc's types are BOOL, "
+    t, iec = _kind_type(v)
+    if not t:
+        note(v.loc, f"variable {what} of type {typ[1]} left out: softplc's types are BOOL, "
                     "integers, REAL/LREAL and TIME")
         return
     init_e = v.find("initialValue", PLCOPEN_NS)
@@ -160,19 +226,25 @@ def _variable(out: Interface, kind: str, v: Element, retained: bool, note: Note)
     if init_e is not None and simple is None:
         raise SourceError(init_e.loc, f"expected a simple initial value for '{name}'")
     init = value(simple.get("value") or "", t, simple.loc) if simple is not None else None
-    var = Var(name, t, v.loc, init, address)
+    var = Var(name, t, v.loc, init, address, description=documentation(v, note, what),
+              iec=iec.upper(), constant=constant)
     sp = softplc_data(v, "variable")
     if sp is not None:
         var.renamed_from = sp.get("renamed_from")
     if kind in ("inputVars", "outputVars"):
         if init:
             note(simple.loc if simple is not None else v.loc,
-                 f"initial value of '{name}' left out: an {kind[:-5]}'s value comes from its "
+                 f"initial value of {what} left out: an {kind[:-5]}'s value comes from its "
                  "binding in the plant")
+        if constant:
+            note(v.loc, f"CONSTANT of {what} left out: an {kind[:-5]} is bound in the plant")
         (out.inputs if kind == "inputVars" else out.outputs).append(var)
         return
     if kind == "tempVars":
-        note(v.loc, f"VAR_TEMP '{name}' kept as memory: it keeps its value from scan to scan")
+        note(v.loc, f"VAR_TEMP {what} kept as memory: it keeps its value from scan to scan")
     if address:
-        note(v.loc, f"address {address} of '{name}' left out: memory is the chart's own")
+        note(v.loc, f"address {address} of {what} left out: memory is the chart's own")
+    if constant and not what.startswith("global "):
+        note(v.loc, f"CONSTANT {what} is memory of the chart with its initial value",
+             lost=False)
     out.memory.append((var, retained))

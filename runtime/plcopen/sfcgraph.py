@@ -70,6 +70,7 @@ class Level:
     steps: dict[str, GStep] = field(default_factory=dict)  # by name, in localId order
     transitions: list[GTransition] = field(default_factory=list)  # in localId order
     blocks: dict[str, list[Element]] = field(default_factory=dict)  # step -> action blocks
+    comments: list[Element] = field(default_factory=list)  # the body's comments
     names: dict[int, str] = field(default_factory=dict)  # step localId -> name
     #: element -> (its input's producer, the connection element), every input of the flow
     inputs: dict[int, list[tuple[int, Element]]] = field(default_factory=dict)
@@ -122,8 +123,11 @@ def read_level(sfc: Element, note: Note) -> Level:
         level.kind[i] = KINDS.get(e.tag, "network" if e.tag in NETWORK else "annotation")
     for i in sorted(level.elements):
         e, kind = level.elements[i], level.kind[i]
+        if kind == "annotation" and e.tag == "comment":
+            level.comments.append(e)
+            continue
         if kind == "annotation":
-            note(e.loc, f"localId {i}: {e.tag} left out (a chart has no free texts)")
+            note(e.loc, f"localId {i}: {e.tag} left out (an editor's error marker)")
             continue
         if kind == "network":
             continue

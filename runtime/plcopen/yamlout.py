@@ -3,6 +3,7 @@ skeleton that binds every chart's inputs and outputs to simulated I/O."""
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterable
 from typing import Any
 
@@ -10,6 +11,7 @@ import yaml
 
 from drivers.durations import format_ns
 from runtime.language.yamlsrc import YList, YMap
+from runtime.plcopen.program import PlantInstance
 
 
 class _Flow(dict[str, Any]):
@@ -53,12 +55,18 @@ def _plain(value: Any, key: str = "") -> Any:
     if isinstance(value, YList) or isinstance(value, list):
         items = [_plain(v, "transition" if key == "transitions" else "") for v in value]
         if key in ("inputs", "outputs", "timers", "from", "to") and all(
-                _short(v) for v in items):
+                _short(v) and not _nested(v) for v in items):
             return _FlowList(items)
         return items
     if isinstance(value, str):
         return str(value)
     return value
+
+
+def _nested(v: Any) -> bool:
+    """A mapping holding a mapping (a signal with its description): written in block
+    style."""
+    return isinstance(v, dict) and any(isinstance(x, dict) for x in v.values())
 
 
 def _short(v: Any) -> bool:
@@ -77,33 +85,76 @@ def chart_yaml(doc: YMap, header: Iterable[str] = ()) -> str:
     return "\n".join(lines) + ("\n" if lines else "") + body
 
 
-def plant_yaml(instances: list[tuple[str, str, list[tuple[str, str, str]],
-                                     list[tuple[str, str, str]]]],
+#: a signal of a chart as the plant skeleton binds it: (name, type, address in the file)
+Signal = tuple[str, str, str]
+
+
+def plant_yaml(instances: list[tuple[PlantInstance, str, list[Signal], list[Signal]]],
                cycle_ns: int | None, header: Iterable[str] = ()) -> str:
-    """A plant on simulated I/O: ``instances`` as (name, chart file, inputs, outputs), each
-    signal (name, type, address in the PLCopen file or ""). The sim driver's points are
-    bits by any name and numbers on IR.../HR... (drivers/registry.py)."""
-    out = [f"# {h}" for h in header]
+    """A plant on simulated I/O: ``instances`` as (instance, chart file, the chart's inputs,
+    its outputs). An input the instance's wiring links to another instance's output is
+    bound to it; one wired to a variable of the program reads that variable's point (shared
+    by its readers); the others have a point of their own. The sim driver's points are bits
+    by any name and numbers on IR.../HR... (drivers/registry.py)."""
+    out = [f"# {_line(h)}" for h in header]
     out += ["plc:", f"  cycle: {format_ns(cycle_ns or 10_000_000)}", "drivers:",
             "  sim: {type: sim}", "instances:"]
-    bits = {"in": 0, "out": 0}
-    words = {"in": 0, "out": 0}
-    for name, chart, inputs, outputs in instances:
-        out += [f"  {name}:", f"    grafcet: {_q(chart)}"]
-        for key, way, signals in (("inputs", "in", inputs), ("outputs", "out", outputs)):
-            if not signals:
-                continue
-            out.append(f"    {key}:")
-            for sig, typ, address in signals:
-                if typ == "bool":
-                    point = f"{'I' if way == 'in' else 'Q'}{bits[way]}"
-                    bits[way] += 1
-                else:
-                    point = f"{'IR' if way == 'in' else 'HR'}{words[way]}"
-                    words[way] += 1
-                note = f"  # {address} in the PLCopen file" if address else ""
-                out.append(f"      {_q(sig)}: sim.{point}{note}")
+    count = {"I": 0, "Q": 0, "IR": 0, "HR": 0}
+    shared: dict[tuple[str, str], str] = {}
+
+    def point(way: str, typ: str) -> str:
+        table = {"in": "I", "out": "Q"}[way] + ("" if typ == "bool" else "R")
+        table = {"IR": "IR", "QR": "HR"}.get(table, table)
+        p = f"sim.{table}{count[table]}"
+        count[table] += 1
+        return p
+
+    for inst, chart, inputs, outputs in instances:
+        out += [f"  {_q(inst.name)}:", f"    grafcet: {_q(chart)}"]
+        if inputs:
+            out.append("    inputs:")
+        for sig, typ, address in inputs:
+            wire = inst.inputs.get(sig)
+            note = f"{address} in the PLCopen file" if address else ""
+            if wire is not None and wire.link:
+                source = wire.link
+            elif wire is not None and wire.shared:
+                key = (wire.shared, typ)
+                if key not in shared:
+                    shared[key] = point("in", typ)
+                source = shared[key]
+                note = wire.note
+            else:
+                source = point("in", typ)
+            invert = wire is not None and wire.invert
+            description = wire.description if wire is not None else ""
+            out.append(f"      {_q(sig)}: {_binding(source, invert, description)}"
+                       + (f"  # {_line(note)}" if note else ""))
+        if outputs:
+            out.append("    outputs:")
+        for sig, typ, address in outputs:
+            note = inst.outputs.get(sig) or (f"{address} in the PLCopen file" if address
+                                             else "")
+            out.append(f"      {_q(sig)}: "
+                       f"{_binding(point('out', typ), False, inst.descriptions.get(sig, ''))}"
+                       + (f"  # {_line(note)}" if note else ""))
     return "\n".join(out) + "\n"
+
+
+def _binding(source: str, invert: bool, description: str) -> str:
+    if not invert and not description:
+        return source
+    parts = [f"from: {source}"]
+    if invert:
+        parts.append("invert: true")
+    if description:
+        parts.append(f"description: {json.dumps(description, ensure_ascii=False)}")
+    return "{" + ", ".join(parts) + "}"
+
+
+def _line(text: str) -> str:
+    """A text as one line of a YAML comment."""
+    return " ".join("".join(c if c.isprintable() else " " for c in text).split())
 
 
 def _q(text: str) -> str:

@@ -13,6 +13,7 @@ from typing import Any
 
 from runtime.drawing.chart import chart_svg
 from runtime.language import ast as A
+from runtime.language.coverage import ChartCoverage, of_chart, shading
 from runtime.language.iolist import IOList
 from runtime.language.model import PlantDef, VarKind
 
@@ -46,10 +47,18 @@ def describe(pdef: PlantDef) -> dict[str, Any]:
     return {"plant": pdef.path, "instances": instances, "drivers": list(pdef.drivers)}
 
 
-def chart_of(pdef: PlantDef, instance: str) -> str | None:
-    """The SVG of ``instance``'s chart (None for an unknown instance)."""
+def chart_of(pdef: PlantDef, instance: str, coverage: list[ChartCoverage] | None = None
+             ) -> str | None:
+    """The SVG of ``instance``'s chart (None for an unknown instance); ``coverage`` (of
+    ``softplc web --coverage``): shaded by it when it holds this chart's."""
     idef = pdef.instances.get(instance)
     if idef is None:
         return None
-    svg, _layout = chart_svg(idef.grafcet, title=f"{instance}: {idef.grafcet.name}")
+    g = idef.grafcet
+    title = f"{instance}: {g.name}"
+    cov = of_chart(coverage, g) if coverage else None
+    if cov is not None:
+        title += f" (coverage {cov.percent():.1f}%: green reached, red never)"
+    svg, _layout = chart_svg(g, title=title, live=True,
+                             shading=shading(g, cov) if cov is not None else None)
     return svg

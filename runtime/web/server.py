@@ -9,19 +9,25 @@ process of its own fed by the controller's feed (the scan never waits for it).
 - **Fan-out.** One feed connection for every page. Each frame becomes one delta message
   (the values that changed since the previous frame), the same bytes for every page. Each
   page has a queue of PAGE_QUEUE messages: a page whose queue is full (a slow reader) loses
-  what waits in it and gets a whole frame next; a send that takes SEND_TIMEOUT_S closes it.
+  the frames that wait in it (not its replies and notices) and gets a whole frame next; a
+  send that takes SEND_TIMEOUT_S closes it.
 - **Acting** (logged in only): over the page's WebSocket, each action becomes one console
   command on the page's own console session (runtime/web/consolelink.py): the console's
   ownership rules, limits and log lines hold. Closing the page, losing its WebSocket or its
   login timing out (``web: idle_logout``) ends that session.
 - **Security** (docs/web.md): 127.0.0.1 unless ``web: listen`` says otherwise, and then
-  HTTPS only (the plant loader refuses it without ``tls``); session cookies ``HttpOnly``,
-  ``SameSite=Strict``, ``Secure`` over HTTPS; a request that changes anything (login,
-  logout) is a POST of JSON from this origin (``Origin`` checked); the WebSocket's
-  ``Origin`` checked; no state change by GET; logins held per user after a failed one
-  (runtime/controller/pin.py ``Passwords``); a Content-Security-Policy without inline
-  script; request bodies and WebSocket messages at most MAX_BODY bytes; at most
-  ``web: max_pages`` pages at once.
+  HTTPS only (the plant loader refuses it without ``tls``); a request whose ``Host`` is
+  not a name of this server is refused with 421 (DNS rebinding: runtime/web/hosts.py);
+  session cookies ``HttpOnly``, ``SameSite=Strict``, ``Secure`` over HTTPS; a request
+  that changes anything (login, logout) is a POST of JSON from this origin (``Origin``
+  checked); the WebSocket's ``Origin`` checked; no state change by GET; a failed login
+  holds that user's logins from that address, an unknown user costs a hash as a known
+  one (runtime/controller/pin.py ``Passwords``); a Content-Security-Policy without inline
+  script; request bodies and WebSocket messages at most MAX_BODY bytes, JSON nested
+  deeper than the parser goes is a malformed message; at most ``web: max_pages`` pages at
+  once; connections bounded per address and in all, a request's headers and body within
+  HEADER_TIMEOUT_S (runtime/web/connections.py); a page that answers nothing for ``web:
+  page_timeout`` is closed.
 """
 
 from __future__ import annotations
@@ -40,10 +46,13 @@ from typing import Any
 from aiohttp import WSMsgType, web
 
 from runtime.controller.feedclient import FeedClient
-from runtime.controller.pin import Passwords
+from runtime.controller.pin import BUSY, HELD, OK, Passwords
+from runtime.language.coverage import ChartCoverage
 from runtime.language.model import PlantDef, WebDef
 from runtime.language.runtimedir import locate
+from runtime.web.connections import HEADER_TIMEOUT_S, Listener
 from runtime.web.consolelink import ACTIONS, VALUE_RE, ConsoleLink, ConsoleUnavailable
+from runtime.web.hosts import host_name, this_server
 from runtime.web.plantview import chart_of, describe
 
 log = logging.getLogger(__name__)
@@ -66,6 +75,40 @@ CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' 
        "connect-src 'self'; base-uri 'none'; form-action 'self'; frame-ancestors 'none'")
 STATIC = ("index.html", "app.js", "app.css")
 TYPES = {"html": "text/html", "js": "text/javascript", "css": "text/css"}
+#: a request for a host that is not this server is logged at most this often, s
+HOST_LOG_EVERY_S = 10.0
+#: of ``web: page_timeout``, the part after which a silent page is sent a ping (aiohttp's
+#: heartbeat; it then waits half as long for the answer: the whole timeout in all)
+PING_AFTER = 2.0 / 3.0
+
+
+def loads(text: str | bytes) -> Any:
+    """JSON; ValueError for what is not, JSON nested deeper than the parser goes included
+    (its RecursionError is no ValueError)."""
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise ValueError("JSON nested too deep") from None
+
+
+def action_of(msg: Any) -> tuple[Any, str, list[str]]:
+    """A page's message ``{"act": [ID, ACTION, ARG...]}`` -> (id, action, args); ValueError
+    for any other shape (an id that is not a number or a short text, an argument that is
+    not a text)."""
+    if not isinstance(msg, dict) or not isinstance(msg.get("act"), list):
+        raise ValueError("no act")
+    act = msg["act"]
+    if len(act) < 2 or not isinstance(act[1], str):
+        raise ValueError("no action")
+    ident, action, *args = act
+    if isinstance(ident, str):
+        if len(ident) > 64:
+            raise ValueError("an id too long")
+    elif ident is not None and not isinstance(ident, (int, float)):
+        raise ValueError("an id that is not a number or a text")
+    if not all(isinstance(a, str) for a in args):
+        raise ValueError("arguments are texts")
+    return ident, action, args
 
 
 @dataclass(eq=False)
@@ -77,6 +120,9 @@ class Login:
     #: monotonic seconds of the last login or action
     last: float
     pages: set[Page] = field(default_factory=set)
+    #: the login's number since this web view started, in its log lines (a user may hold
+    #: several logins: one per browser)
+    number: int = 0
 
 
 @dataclass(eq=False)
@@ -88,7 +134,9 @@ class Page:
     login: Login | None
     #: its connection (aborted when it does not read)
     transport: asyncio.Transport | None = None
-    queue: asyncio.Queue[str] = field(default_factory=lambda: asyncio.Queue(PAGE_QUEUE))
+    #: (kept when the page falls behind, the message)
+    queue: asyncio.Queue[tuple[bool, str]] = field(
+        default_factory=lambda: asyncio.Queue(PAGE_QUEUE))
     #: its next frame is a whole one
     fresh: bool = True
     console: ConsoleLink | None = None
@@ -100,18 +148,28 @@ class WebView:
     """The web view of one plant: the feed's client, the pages, the logins."""
 
     def __init__(self, pdef: PlantDef, feed: str | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic,
+                 coverage: list[ChartCoverage] | None = None) -> None:
+        """``coverage``: the charts' coverage (``softplc web --coverage``), their drawings
+        shaded by it."""
         assert pdef.web is not None
         self.pdef = pdef
+        self.coverage = coverage
         self.conf: WebDef = pdef.web
         self.clock = clock
         self.tls = self.conf.certificate is not None
         self.passwords = Passwords(self.conf.users, clock)
+        #: the names a request's Host may give (DNS rebinding)
+        self.hosts = this_server(self.conf.host, self.conf.certificate, self.conf.hosts)
+        #: the listening socket and its connections (run)
+        self.listener: Listener | None = None
+        self._host_logged = -HOST_LOG_EVERY_S
         self.logins: dict[str, Login] = {}
+        self._logins_made = 0
         self.pages: set[Page] = set()
         where = locate(pdef)  # the controller's sockets, as every side process finds them
         self.feed = FeedClient(feed or where.feed or self.conf.feed, "web", self._on_schema,
-                               self._on_frame, self._on_lost)
+                               self._on_frame, self._on_lost, plant=pdef)
         #: the console socket the acting pages connect to (a Unix socket: the console
         #: knows this process's user there, docs/web.md)
         self.console_path = next((c.address for c in pdef.consoles if c.kind == "socket"),
@@ -140,7 +198,15 @@ class WebView:
 
     @web.middleware
     async def _headers(self, request: web.Request, handler: Any) -> web.StreamResponse:
-        resp: web.StreamResponse = await handler(request)
+        if request.host not in self.hosts:
+            resp: web.StreamResponse = self._other_host(request)
+        else:
+            conn = self.listener.begin(request.transport) if self.listener else None
+            try:
+                resp = await handler(request)
+            finally:
+                if self.listener is not None:
+                    self.listener.end(conn)
         h = resp.headers
         h["Content-Security-Policy"] = CSP
         h["X-Content-Type-Options"] = "nosniff"
@@ -150,6 +216,18 @@ class WebView:
         if self.tls:
             h["Strict-Transport-Security"] = "max-age=31536000"
         return resp
+
+    def _other_host(self, request: web.Request) -> web.Response:
+        """421 for a request whose Host is not this server (a name of another site
+        pointed at this address: DNS rebinding); one log line per HOST_LOG_EVERY_S."""
+        now = time.monotonic()
+        if now - self._host_logged >= HOST_LOG_EVERY_S:
+            self._host_logged = now
+            log.warning("web: a request from %s for host %r refused: not a name of this "
+                        "server (web: hosts adds names; docs/web.md)", request.remote,
+                        host_name(request.host)[:80])
+        return web.Response(status=421, text="this server is not "
+                                             f"{host_name(request.host)[:80]!r}")
 
     def _origin_ok(self, request: web.Request) -> bool:
         """Whether the request comes from a page of this server (its Origin is this
@@ -198,7 +276,7 @@ class WebView:
         name = request.match_info["instance"]
         svg = self._charts.get(name)
         if svg is None:
-            svg = await asyncio.to_thread(chart_of, self.pdef, name)
+            svg = await asyncio.to_thread(chart_of, self.pdef, name, self.coverage)
             if svg is None:
                 raise web.HTTPNotFound(text=f"no instance {name}")
             self._charts[name] = svg
@@ -212,7 +290,9 @@ class WebView:
         if request.content_type != "application/json":
             raise web.HTTPUnsupportedMediaType(text="expected application/json")
         try:
-            body = await request.json()
+            body = loads(await asyncio.wait_for(request.read(), HEADER_TIMEOUT_S))
+        except TimeoutError:
+            raise web.HTTPRequestTimeout(text="the request's body did not come") from None
         except ValueError:
             raise web.HTTPBadRequest(text="expected a JSON object") from None
         if not isinstance(body, dict):
@@ -225,16 +305,24 @@ class WebView:
         address = request.remote or "?"
         if not isinstance(user, str) or not isinstance(password, str) or len(password) > 256:
             raise web.HTTPBadRequest(text="expected user and password")
-        held = self.passwords.held(user)
-        ok = await asyncio.to_thread(self.passwords.check, user, password)
-        if not ok:
+        verdict = await asyncio.to_thread(self.passwords.verify, user, password, address)
+        if verdict != OK:
+            why = {HELD: "held after a failed one from there",
+                   BUSY: "another login from there is being checked"}
             log.warning("web: login of '%s' from %s refused (%s)", user[:32], address,
-                        "held after a failed one" if held else "wrong user or password")
+                        why.get(verdict, "wrong user or password"))
             return web.json_response({"ok": False, "error": "wrong user or password (a "
-                                      "failed login holds that user for 1 s)"}, status=403)
+                                      "failed login holds that user for 1 s from where "
+                                      "it came)"}, status=403)
+        old = request.cookies.get(COOKIE)
+        if old is not None and old in self.logins and not self.logins[old].pages:
+            # the browser's cookie now names the new login: nobody can use the old one
+            await self._end_login(old, self.logins[old], "replaced by a new login from the "
+                                                         "same browser")
         token = secrets.token_urlsafe(32)
-        self.logins[token] = Login(user, address, self.clock())
-        log.info("web: %s logged in from %s", user, address)
+        self._logins_made += 1
+        self.logins[token] = Login(user, address, self.clock(), number=self._logins_made)
+        log.info("web: %s logged in from %s (login %d)", user, address, self._logins_made)
         resp = web.json_response({"ok": True, "user": user})
         resp.set_cookie(COOKIE, token, httponly=True, secure=self.tls, samesite="Strict",
                         path="/")
@@ -253,12 +341,14 @@ class WebView:
     async def _end_login(self, token: str, login: Login, why: str) -> None:
         """A login ends: its pages' console sessions end (what they held is released by
         the console, docs/console.md) and its pages are told."""
-        self.logins.pop(token, None)
-        log.info("web: %s's login from %s ended (%s)", login.user, login.address, why)
+        if self.logins.pop(token, None) is None:
+            return  # ended already (logged out meanwhile): said once
+        log.info("web: %s's login %d from %s ended (%s)", login.user, login.number,
+                 login.address, why)
         for page in list(login.pages):
             page.login = None
             await self._close_console(page)
-            self._send(page, json.dumps({"t": "logout", "why": why}))
+            self._send(page, json.dumps({"t": "logout", "why": why}), keep=True)
         login.pages.clear()
 
     # -- pages -------------------------------------------------------------------------
@@ -274,7 +364,9 @@ class WebView:
             self.refused += 1
             raise web.HTTPServiceUnavailable(text=f"{self.conf.max_pages} pages are open "
                                                   "(web: max_pages): try again later")
-        ws = web.WebSocketResponse(max_msg_size=MAX_BODY, heartbeat=20.0)
+        page_timeout_s = self.conf.page_timeout_ns / 1e9
+        ws = web.WebSocketResponse(max_msg_size=MAX_BODY,
+                                   heartbeat=page_timeout_s * PING_AFTER)
         await ws.prepare(request)
         page = Page(ws, request.remote or "?", self._login_of(request), request.transport)
         if page.login is not None:
@@ -289,6 +381,9 @@ class WebView:
                     break
                 await self._on_message(page, msg.data)
         finally:
+            if isinstance(ws.exception(), TimeoutError):  # no answer to the ping
+                log.warning("web: the page of %s did not answer for %g s (web: "
+                            "page_timeout): closed", page.address, page_timeout_s)
             sender.cancel()
             self.pages.discard(page)
             if page.login is not None:
@@ -300,7 +395,8 @@ class WebView:
     def _hello(self, page: Page) -> None:
         st = self.feed.state
         self._send(page, json.dumps({"t": "hello", "connected": self.feed.connected,
-                                     "user": page.login.user if page.login else None}))
+                                     "user": page.login.user if page.login else None}),
+                   keep=True)
         if self.feed.connected and st.values:
             self._send(page, json.dumps({"t": "s", "status": st.status}))
             self._send(page, json.dumps({"t": "w", "whys": st.whys}))
@@ -308,19 +404,31 @@ class WebView:
                                          "names": st.names, "values": st.values}))
             page.fresh = False
 
-    def _send(self, page: Page, text: str) -> None:
+    def _send(self, page: Page, text: str, keep: bool = False) -> None:
+        """Queue ``text`` for ``page``. A page whose queue is full (it reads too slowly)
+        loses the frames waiting for it and gets a whole one next; what is ``keep``
+        (an action's reply, the console's notices, a new schema, the feed lost, the
+        login ended: nothing a later frame says again) is kept, PAGE_QUEUE // 2 at
+        most."""
         try:
-            page.queue.put_nowait(text)
-        except asyncio.QueueFull:  # a slow reader: it loses what waits, gets a whole frame
+            page.queue.put_nowait((keep, text))
+        except asyncio.QueueFull:
+            kept = []
             while not page.queue.empty():
-                page.queue.get_nowait()
+                item = page.queue.get_nowait()
+                if item[0]:
+                    kept.append(item)
+            for item in kept[-(PAGE_QUEUE // 2):]:
+                page.queue.put_nowait(item)
             page.fresh = True
             page.resyncs += 1
+            if keep:
+                page.queue.put_nowait((keep, text))
 
     async def _sender(self, page: Page) -> None:
         try:
             while True:
-                text = await page.queue.get()
+                _keep, text = await page.queue.get()
                 await asyncio.wait_for(page.ws.send_str(text), SEND_TIMEOUT_S)
         except TimeoutError:
             # a close frame would wait behind what it does not read: the connection ends
@@ -335,14 +443,14 @@ class WebView:
 
     async def _on_message(self, page: Page, data: str) -> None:
         try:
-            msg = json.loads(data)
-            ident, action, *args = msg["act"]
-        except (ValueError, KeyError, TypeError):
+            ident, action, args = action_of(loads(data))
+        except ValueError:
             self._send(page, json.dumps({"t": "r", "id": None, "ok": False,
-                                         "text": "malformed message"}))
+                                         "text": "malformed message"}), keep=True)
             return
-        ok, text = await self._act(page, str(action), [str(a) for a in args])
-        self._send(page, json.dumps({"t": "r", "id": ident, "ok": ok, "text": text}))
+        ok, text = await self._act(page, action, args)
+        self._send(page, json.dumps({"t": "r", "id": ident, "ok": ok, "text": text}),
+                   keep=True)
 
     async def _act(self, page: Page, action: str, args: list[str]) -> tuple[bool, str]:
         login = page.login
@@ -361,7 +469,8 @@ class WebView:
             if page.console is None:
                 page.console = await ConsoleLink.open(
                     self.console_path, login.user, page.address,
-                    lambda text: self._send(page, json.dumps({"t": "n", "text": text})),
+                    lambda text: self._send(page, json.dumps({"t": "n", "text": text}),
+                                            keep=True),
                     lambda why: self._console_ended(page, why))
             reply = await page.console.call(" ".join([action, *args]))
         except ConsoleUnavailable as exc:
@@ -373,7 +482,7 @@ class WebView:
 
     def _console_ended(self, page: Page, why: str) -> None:
         page.console = None
-        self._send(page, json.dumps({"t": "n", "text": why}))
+        self._send(page, json.dumps({"t": "n", "text": why}), keep=True)
 
     async def _close_console(self, page: Page) -> None:
         if page.console is not None:
@@ -390,13 +499,13 @@ class WebView:
         self._last_status, self._last_whys = None, {}
         for page in self.pages:
             page.fresh = True
-            self._send(page, json.dumps({"t": "schema"}))
+            self._send(page, json.dumps({"t": "schema"}), keep=True)
 
     async def _on_lost(self) -> None:
         self._last_values = []
         for page in self.pages:
             page.fresh = True
-            self._send(page, json.dumps({"t": "lost"}))
+            self._send(page, json.dumps({"t": "lost"}), keep=True)
 
     async def _on_frame(self) -> None:
         st = self.feed.state
@@ -453,32 +562,36 @@ class WebView:
             ctx = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
             assert self.conf.certificate is not None and self.conf.private_key is not None
             ctx.load_cert_chain(self.conf.certificate, self.conf.private_key)
-        runner = web.AppRunner(self.app(), access_log=None, shutdown_timeout=2.0)
+        # keepalive_timeout: aiohttp's timer runs from a connection's start and from each
+        # response's end until the next request's headers are in: the header timeout;
+        # lingering_time: how long the rest of a body not read is waited for
+        runner = web.AppRunner(self.app(), access_log=None, shutdown_timeout=2.0,
+                               keepalive_timeout=HEADER_TIMEOUT_S,
+                               lingering_time=HEADER_TIMEOUT_S)
         await runner.setup()
-        site = web.TCPSite(runner, self.conf.host, self.conf.port, ssl_context=ctx,
-                           backlog=128)
-        await site.start()
-        port = int(runner.addresses[0][1])  # the bound one when the plant says 0 (tests)
+        assert runner.server is not None
+        self.listener = Listener(runner.server, ctx)
+        # the bound one when the plant says 0 (tests)
+        port = await self.listener.start(self.conf.host, self.conf.port)
         log.info("web: the page of %s is at %s://%s:%d/", self.pdef.path,
                  "https" if self.tls else "http", self.conf.host, port)
-        feed = asyncio.create_task(self.feed.run())
         idle = asyncio.create_task(self._watch_logins())
         if ready is not None:
             ready(self, port)
         try:
-            await stop.wait()
+            await self.feed.run_beside(stop.wait())  # a feed refused ends it
         finally:
             idle.cancel()
-            self.feed.stop()
             for token, login in list(self.logins.items()):
                 await self._end_login(token, login, "the web view stops")
             for page in list(self.pages):
                 await self._close_console(page)
+            self.listener.close()
             await runner.cleanup()
-            feed.cancel()
 
 
 async def serve(pdef: PlantDef, feed: str | None = None, stop: asyncio.Event | None = None,
-                ready: Callable[[WebView, int], None] | None = None) -> None:
+                ready: Callable[[WebView, int], None] | None = None,
+                coverage: list[ChartCoverage] | None = None) -> None:
     """Run the web view of ``pdef`` until ``stop`` is set (or forever)."""
-    await WebView(pdef, feed).run(stop or asyncio.Event(), ready)
+    await WebView(pdef, feed, coverage=coverage).run(stop or asyncio.Event(), ready)

@@ -12,7 +12,9 @@ from typing import Any
 from runtime.engine.plant import Plant
 from runtime.engine.script import Event, load_script
 from runtime.engine.trace import trace_columns
+from runtime.language.model import PlantDef
 from runtime.language.plantfile import load_plant
+from runtime.language.runtimedir import version_of
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = Path(__file__).resolve().parent / "data"
@@ -29,6 +31,14 @@ STORY = str(ROOT / "configs/drawer_tester/story.yaml")
 def data_plant(edit: str) -> str:
     """The drawer plant on one of the edited charts of tests/change/data."""
     return str(DATA / f"plant_{edit}.yaml")
+
+
+def version(path: str, old: Plant) -> PlantDef:
+    """The plant file ``path`` loaded as a new version of ``old``'s plant, as ``softplc
+    diff`` and ``reload`` load one: its ``${RUNTIME_DIR}`` is the running plant's, wherever
+    the file is kept (tests/change/data holds edited copies of the drawer plant)."""
+    with version_of(old.pdef.path):
+        return load_plant(path)
 
 
 def sim_plant(path: str) -> Plant:

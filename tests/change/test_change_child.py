@@ -5,17 +5,25 @@ controller's own process."""
 
 from __future__ import annotations
 
+import io
+import logging
 import os
+import re
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
+from hypothesis import HealthCheck, given, settings
 
 from bench.divergence import chain_text
 from runtime.controller import reloadchild
 from runtime.controller.reload import compile_apart, load_apart
+from runtime.language import modeldata
 from runtime.language.plantfile import load_plant
 from tests.change.changekit import DRAWER_PLANT
+from tests.language.plantgen import plant_docs, write
+from tests.language.test_modeldata import same
 
 #: what a planted module does when it is imported: leave a mark next to itself
 PLANTED = "import os\nopen(os.path.join(os.path.dirname(os.path.abspath(__file__)), " \
@@ -122,3 +130,86 @@ def test_code_too_large_to_read_without_holding_up_the_scan_is_refused(
     assert isinstance(got, str) and got.startswith(
         "the new program's code is too large to be loaded online ("), got
     assert got.endswith("more than 0.000976562 MiB): restart the controller to load it"), got
+
+
+# -- what crosses, and what an operator reads when it does not ------------------------------
+#: what an operator never reads in a refusal: a Python exception, a module path, a traceback
+INTERNAL = re.compile(r"Traceback|\b[A-Z]\w*(Error|Exception)\b|\bruntime\.\w+\.|File \"")
+
+
+def test_a_plant_with_an_io_list_crosses_to_the_child_and_back(tmp_path: Path) -> None:
+    """Issue: ``softplc reload`` of a plant whose I/O list has a ``unit:`` was refused,
+    ``the reload's child process failed (exit 1: runtime.language.modeldata.ModelDataError:
+    Unit is not part of the model: it cannot cross as data)``. Both ways: the child's load
+    (reload) and the child's compile of a plant handed to it (reload --back)."""
+    (tmp_path / "c.yaml").write_text(
+        "grafcet: C\ninputs: [iGo, {iLevel: int}]\noutputs: [oRun, {oSpeed: real}]\n"
+        "steps:\n  s0: {initial: true}\n  s1: {actions: [oRun]}\ntransitions:\n"
+        "  - {from: s0, to: s1, when: iGo}\n  - {from: s1, to: s0, when: iLevel > 5}\n"
+        "post:\n  - oSpeed := iLevel * 0.5\n", encoding="utf-8")
+    plant = tmp_path / "plant.yaml"
+    plant.write_text(
+        "drivers:\n  io: {type: sim}\ninstances:\n  m:\n    grafcet: c.yaml\n"
+        "    inputs:\n      iGo: io.I0\n      iLevel: {from: io.IR0, unit: mm, range: [0, 100],"
+        " description: level LT1}\n"
+        "    outputs:\n      oRun: io.Q0\n      oSpeed: {from: io.HR0, unit: rpm}\n",
+        encoding="utf-8")
+    pdef = load_plant(str(plant))
+    loaded = load_apart(str(plant))
+    assert not isinstance(loaded, str), loaded
+    same(pdef, loaded[0])
+    back = compile_apart(pdef)
+    assert not isinstance(back, str), back
+    assert back[1].blobs
+
+
+@pytest.fixture(scope="module")
+def gen_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("gen")
+
+
+@settings(max_examples=8, deadline=None, suppress_health_check=list(HealthCheck))
+@given(docs=plant_docs())
+def test_every_generated_plant_crosses_to_the_child_and_back(
+        gen_dir: Path, monkeypatch: pytest.MonkeyPatch,
+        docs: tuple[dict[str, Any], dict[str, Any]]) -> None:
+    """Property, through the real child process (a few examples: a child is a Python
+    start): what the child loads is what the controller would load, field for field."""
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(gen_dir))
+    path = str(write(gen_dir, docs))
+    loaded = load_apart(path)
+    assert not isinstance(loaded, str), loaded
+    same(load_plant(path), loaded[0])
+    assert not isinstance(compile_apart(loaded[0]), str)
+
+
+def test_a_child_that_fails_inside_is_said_in_the_operators_terms(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """A child that ends with a traceback: the line says the reload was refused by an
+    internal error whose report is in the controller's log, and the log has the report;
+    the exception's own text is never the operator's line."""
+    stderr = (b"Traceback (most recent call last):\n  File \"/x/runtime/language/modeldata.py\""
+              b", line 107, in record\nruntime.language.modeldata.ModelDataError: Unit is not "
+              b"part of the model: it cannot cross as data\n")
+    with caplog.at_level(logging.ERROR, "runtime.controller.reloadchild"):
+        line = reloadchild._failed(1, stderr)
+    assert not INTERNAL.search(line), line
+    assert line == ("the reload's child process failed (exit 1): an internal error of "
+                    "softplc, its report in the controller's log"), line
+    assert "ModelDataError: Unit is not part of the model" in caplog.text
+
+
+def test_an_internal_error_in_the_child_is_a_line_in_the_operators_terms(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """The child's own work (load, compile, hand over) failing with an exception that is
+    no load or compile error: its header says so in one line, the traceback goes to its
+    standard error (which the controller logs)."""
+    def broken(obj: Any) -> Any:
+        raise modeldata.ModelDataError("Unit is not part of the model")
+    monkeypatch.setattr(reloadchild.modeldata, "dump", broken)
+    frames = reloadchild._safe_work("load", [DRAWER_PLANT], io.BytesIO())
+    answer = reloadchild._answer(b"".join(frames))
+    assert isinstance(answer, str) and not INTERNAL.search(answer), answer
+    assert answer == ("the new program could not be prepared in the reload's child process: "
+                      "an internal error of softplc, its report in the controller's log")
+    assert "ModelDataError: Unit is not part of the model" in capsys.readouterr().err

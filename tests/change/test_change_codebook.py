@@ -25,7 +25,7 @@ def running(path: str) -> Plant:
 
 def test_the_child_compiles_every_source_the_controller_needs() -> None:
     old = running(DRAWER_PLANT)
-    loaded = load_apart(data_plant("timeout"))
+    loaded = load_apart(data_plant("timeout"), DRAWER_PLANT)  # a version of the running plant
     assert not isinstance(loaded, str)
     pdef, book = loaded
     assert book is not None and book.blobs
@@ -55,18 +55,18 @@ def test_a_load_error_comes_back_as_its_line() -> None:
 def test_a_book_never_changes_what_is_compiled() -> None:
     """A source the book does not hold, or a blob that is not code, is compiled here."""
     book = CodeBook(record=True)
-    code = book.compile("x = 1\n", "<a>")
+    code = book.compile("def x():\n    pass\n", "<a>", ())
     assert (book.hits, book.misses) == (0, 1)
     other = CodeBook(book.blobs)
-    assert other.compile("x = 1\n", "<a>").co_consts == code.co_consts
+    assert other.compile("def x():\n    pass\n", "<a>", ()).co_consts == code.co_consts
     assert (other.hits, other.misses) == (1, 0)
-    other.compile("x = 2\n", "<a>")  # another text: compiled
-    other.compile("x = 1\n", "<b>")  # another file name: compiled
+    other.compile("def x():\n    return 2\n", "<a>", ())  # another text: compiled
+    other.compile("def x():\n    pass\n", "<b>", ())  # another file name: compiled
     assert (other.hits, other.misses) == (1, 2)
     junk = CodeBook({k: marshal.dumps(42) for k in book.blobs})
-    env: dict[str, int] = {}
-    exec(junk.compile("x = 1\n", "<a>"), env)  # noqa: S102
-    assert env["x"] == 1 and (junk.hits, junk.misses) == (0, 1)
+    env: dict[str, object] = {}
+    exec(junk.compile("def x():\n    pass\n", "<a>", ()), env)  # noqa: S102
+    assert callable(env["x"]) and (junk.hits, junk.misses) == (0, 1)
 
 
 def test_a_plant_built_from_a_book_runs_as_one_compiled_here() -> None:

@@ -328,7 +328,12 @@ web:
     (WEB, WEB.replace("8090", "8091"),
      ["plant: web port changed: applied when the web view restarts (softplc web; "
       "systemctl restart softplc-web@NAME)"], []),
-], ids=["added", "added-beside-opcua", "removed", "listen"])
+    (WEB, WEB + "  page_timeout: 10s\n  hosts: [plc.bench.lan]\n",
+     ["plant: web page_timeout changed: applied when the web view restarts (softplc web; "
+      "systemctl restart softplc-web@NAME)",
+      "plant: web hosts changed: applied when the web view restarts (softplc web; "
+      "systemctl restart softplc-web@NAME)"], []),
+], ids=["added", "added-beside-opcua", "removed", "listen", "page-timeout-and-hosts"])
 def test_the_web_section_is_named_by_the_diff(tmp_path, old_extra: str, new_extra: str,
                                               out: list[str], refused: list[str],
                                               capsys: pytest.CaptureFixture[str]) -> None:

@@ -7,8 +7,15 @@ from __future__ import annotations
 import pytest
 
 from runtime.change.plan import apply, prepare
-from runtime.language.plantfile import load_plant
-from tests.change.changekit import DRAWER_PLANT, Story, data_plant, sim_plant, state, write_state
+from tests.change.changekit import (
+    DRAWER_PLANT,
+    Story,
+    data_plant,
+    sim_plant,
+    state,
+    version,
+    write_state,
+)
 
 #: scans of the drawer story (17.5 s at 10 ms)
 END = 1750
@@ -28,7 +35,7 @@ def swapped(edit: str, k: int) -> tuple[list[dict], list[dict], list[dict]]:
     same = Story(sim_plant(DRAWER_PLANT))
     write_state(old, same.plant)
     same.k = k
-    prep = prepare(old, load_plant(data_plant(edit)))
+    prep = prepare(old, version(data_plant(edit), old))
     before = state(old)
     res = apply(old, prep)
     assert res.refusals == []

@@ -8,7 +8,7 @@ import textwrap
 from runtime.change.plan import apply, prepare
 from runtime.engine.plant import Plant
 from runtime.language.plantfile import load_plant
-from tests.change.changekit import DRAWER_PLANT, ROOT, Story, data_plant, sim_plant, state
+from tests.change.changekit import DRAWER_PLANT, ROOT, Story, data_plant, sim_plant, state, version
 
 CHART = str(ROOT / "configs/drawer_tester/drawer_tester.yaml")
 
@@ -33,7 +33,7 @@ def test_prepare_leaves_the_running_drivers_alone():
     old = story.plant
     d = old.drivers["sim"]
     images = (dict(d.inputs), dict(d.outputs))
-    prep = prepare(old, load_plant(data_plant("timeout")))
+    prep = prepare(old, version(data_plant("timeout"), old))
     assert prep.plant.drivers["sim"] is d
     assert (dict(d.inputs), dict(d.outputs)) == images
 
@@ -49,7 +49,7 @@ def test_forces_pause_and_program_time_carry_and_a_force_on_a_gone_name_is_relea
     src = open(CHART).read().replace("sParo", "sStop")
     (tmp_path / "c.yaml").write_text(src)
     (tmp_path / "p.yaml").write_text(drawer_text().replace(CHART, str(tmp_path / "c.yaml")))
-    prep = prepare(old, load_plant(str(tmp_path / "p.yaml")))
+    prep = prepare(old, version(str(tmp_path / "p.yaml"), old))
     res = apply(old, prep)
     assert res.refusals == []
     new = prep.plant
@@ -77,7 +77,7 @@ def test_an_output_nothing_drives_any_more_goes_off(tmp_path):
     text = "".join(line for line in text.splitlines(keepends=True)
                    if not line.startswith("      oAbrir:"))
     (tmp_path / "p.yaml").write_text(text)
-    prep = prepare(old, load_plant(str(tmp_path / "p.yaml")))
+    prep = prepare(old, version(str(tmp_path / "p.yaml"), old))
     res = apply(old, prep)
     assert res.refusals == []
     assert res.lines[-2:] == ["sim.Q0: no longer driven: off", "sim.Q4: no longer driven: off"]
@@ -96,7 +96,7 @@ def test_an_instance_removed_leaves_its_outputs_off(tmp_path):
     text = drawer_text()
     text = text[:text.index("  tester2:")] + text[text.index("monitor:"):]
     (tmp_path / "p.yaml").write_text(text)
-    prep = prepare(old, load_plant(str(tmp_path / "p.yaml")))
+    prep = prepare(old, version(str(tmp_path / "p.yaml"), old))
     res = apply(old, prep)
     assert res.refusals == []
     assert "tester2: instance removed (its outputs go off)" in res.lines
@@ -124,7 +124,7 @@ def test_a_changed_driver_is_refused_then_reopened_when_forced(tmp_path):
     old.open()
     old.cycle(0)
     before = state(old)
-    prep = prepare(old, load_plant(str(tmp_path / "b.yaml")))
+    prep = prepare(old, version(str(tmp_path / "b.yaml"), old))
     res = apply(old, prep)
     assert res.refusals == ["driver io: on_fault changed: the bus must be reopened"]
     assert state(old) == before
@@ -146,7 +146,7 @@ def test_a_scan_model_change_waits_for_a_pending_evolution(tmp_path):
     old.cycle(0)
     old.set("sim.I1", 1)
     old.cycle(10_000_000)  # decides gsParado -> gsAbrir for the next scan
-    prep = prepare(old, load_plant(DRAWER_PLANT))
+    prep = prepare(old, version(DRAWER_PLANT, old))
     assert prep.changes.state_checks() == [
         "tester1: refused while an evolution is pending (scan model codesys -> immediate)",
         "tester2: refused while an evolution is pending (scan model codesys -> immediate)"]
@@ -163,7 +163,7 @@ def test_a_flag_pulse_asked_for_before_the_swap_runs_in_the_swap_scan():
     story = opening()
     old = story.plant
     old.pulse("tester1", "SFCInit")
-    prep = prepare(old, load_plant(data_plant("timeout")))
+    prep = prepare(old, version(data_plant("timeout"), old))
     assert apply(old, prep).refusals == []
     story.bind(prep.plant)
     row = story.run(1)[0]
@@ -201,7 +201,7 @@ def test_the_input_bits_change_with_the_swap_not_before(tmp_path, level):
     d.inputs["I0"] = 5
     assert d.inputs["I0"] is True
     old.cycle(0)
-    prep = prepare(old, load_plant(str(tmp_path / "q.yaml")))
+    prep = prepare(old, version(str(tmp_path / "q.yaml"), old))
     assert prep.plant.drivers["sim"] is d
     assert prep.plant.bits["sim"] == {i1} and d.inputs.bits == {i0, i1}
     assert apply(old, prep).refusals == []

@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 from runtime.change.plan import apply, prepare
-from runtime.language.plantfile import load_plant
-from tests.change.changekit import DRAWER_PLANT, Story, data_plant, sim_plant, state
+from tests.change.changekit import DRAWER_PLANT, Story, data_plant, sim_plant, state, version
 
 
 def story_at(k: int) -> Story:
@@ -17,7 +16,7 @@ def test_a_retained_type_change_is_refused_even_forced():
     story = story_at(100)
     old = story.plant
     before = state(old)
-    prep = prepare(old, load_plant(data_plant("retained_type")))
+    prep = prepare(old, version(data_plant("retained_type"), old))
     for force in (False, True):
         res = apply(old, prep, force=force)
         assert res.refusals == ["tester1: retained variable sCierres changes type int -> real",
@@ -47,7 +46,7 @@ def test_an_active_step_removed_is_refused_and_restart_restarts_that_instance_on
     assert old.instances["tester1"].active_steps() == ["gsAbrir"]
     assert old.instances["tester2"].active_steps() == ["gsParado"]
     before = state(old)
-    prep = prepare(old, load_plant(path))
+    prep = prepare(old, version(path, old))
     res = apply(old, prep)
     assert res.refusals == ["tester1: step gsAbrir removed while it is active "
                             "(--restart tester1 restarts that instance)"]
@@ -74,7 +73,7 @@ def test_a_rename_with_renamed_from_carries_the_active_step(tmp_path):
     story = story_at(60)
     old = story.plant
     t_before = old.instances["tester1"].step_time("gsAbrir")
-    prep = prepare(old, load_plant(str(tmp_path / "plant.yaml")))
+    prep = prepare(old, version(str(tmp_path / "plant.yaml"), old))
     assert "tester1: step gsOpen renamed from gsAbrir" in prep.changes.lines()
     res = apply(old, prep)
     assert res.refusals == []
@@ -85,7 +84,7 @@ def test_a_rename_with_renamed_from_carries_the_active_step(tmp_path):
 
 def test_apply_twice_is_refused():
     story = story_at(10)
-    prep = prepare(story.plant, load_plant(data_plant("timeout")))
+    prep = prepare(story.plant, version(data_plant("timeout"), story.plant))
     assert apply(story.plant, prep).refusals == []
     assert apply(story.plant, prep).refusals == ["this change was applied already: prepare "
                                                  "it again"]
@@ -94,7 +93,7 @@ def test_apply_twice_is_refused():
 def test_forced_an_active_step_removed_is_dropped_and_said(tmp_path):
     path = removed_active_step(tmp_path)
     story = story_at(60)
-    prep = prepare(story.plant, load_plant(path))
+    prep = prepare(story.plant, version(path, story.plant))
     res = apply(story.plant, prep, force=True)
     assert res.refusals == []
     assert "tester1: active step gsAbrir dropped (forced)" in res.lines
@@ -131,14 +130,14 @@ def test_a_chart_that_empties_its_situation_itself_is_no_fault(tmp_path):
     old.cycle(10_000_000)
     assert old.instances["m"].active_steps() == []
     (tmp_path / "sink.yaml").write_text(chart.replace("when: iGo", "when: iGo AND TRUE"))
-    prep = prepare(old, load_plant(str(tmp_path / "plant.yaml")))
+    prep = prepare(old, version(str(tmp_path / "plant.yaml"), old))
     res = apply(old, prep, force=True)
     assert res.refusals == [] and res.instance_faults == {} and not prep.plant.instance_faults
 
 
 def test_restart_of_an_unknown_instance_is_refused():
     story = story_at(10)
-    prep = prepare(story.plant, load_plant(data_plant("timeout")))
+    prep = prepare(story.plant, version(data_plant("timeout"), story.plant))
     assert apply(story.plant, prep, restart=["tester9"]).refusals == [
         "--restart tester9: no such instance in the new plant"]
 
@@ -155,7 +154,7 @@ def test_a_new_initial_step_starts_inactive(tmp_path):
     plant = (ROOT / "configs/drawer_tester/plant_sim.yaml").read_text()
     (tmp_path / "plant.yaml").write_text(plant.replace("drawer_tester.yaml", "chart.yaml"))
     story = story_at(60)
-    prep = prepare(story.plant, load_plant(str(tmp_path / "plant.yaml")))
+    prep = prepare(story.plant, version(str(tmp_path / "plant.yaml"), story.plant))
     res = apply(story.plant, prep)
     assert res.refusals == [] and "tester1: step gsExtra added" in res.lines
     assert prep.plant.instances["tester1"].active_steps() == ["gsAbrir"]

@@ -570,7 +570,7 @@ def test_exit_status(write: Callable[[str, str], str]) -> None:
         """))
     assert exit_status(check_files([ok])) == 0
     assert exit_status(check_files([ok, warn])) == 0
-    assert exit_status(check_files([ok, bad])) == 1
+    assert exit_status(check_files([ok, bad])) == 2  # an error found: 2, as every command's
     res = check_files([bad, broken])
     assert exit_status(res) == 2
     assert "unknown step 'gsZ'" in (res[1].failure or "")
@@ -617,7 +617,7 @@ def test_g209_bounded_exploration(write: Callable[[str, str], str],
     p = argparse.ArgumentParser(prog="softplc")
     register(p.add_subparsers(dest="command", required=True))
     args = p.parse_args(["check", "--limit", "50", "-q", path])
-    assert args.func(args) == 1  # G102 is an error
+    assert args.func(args) == 2  # G102 is an error
     assert "G209" in capsys.readouterr().out
 
 
@@ -634,3 +634,20 @@ def test_every_code_is_in_the_table_of_docs_check_md() -> None:
     doc = (root / "docs" / "check.md").read_text(encoding="utf-8")
     rows = set(re.findall(r"^\| (G\d{3}) \| (?:error|warning|note) \|", doc, re.M))
     assert found <= rows, sorted(found - rows)
+
+
+def test_compile_and_check_exit_alike_on_one_chart(write: Callable[[str, str], str]) -> None:
+    """A chart without an initial step: ``softplc compile`` refused it with exit status 2,
+    ``softplc check`` said the same error with 1 (README: an error in a file is exit 2)."""
+    import subprocess
+    import sys
+
+    path = write("noinit.yaml", "grafcet: G\ninputs: [go]\nsteps:\n  a: {}\n  b: {}\n"
+                                "transitions:\n  - {from: a, to: b, when: go}\n")
+    got = {cmd: subprocess.run([sys.executable, "-m", "runtime.cli", cmd, "-q", path]
+                               if cmd == "check" else
+                               [sys.executable, "-m", "runtime.cli", cmd, path],
+                               capture_output=True, text=True, timeout=120,
+                               check=False).returncode
+           for cmd in ("compile", "check")}
+    assert got == {"compile": 2, "check": 2}

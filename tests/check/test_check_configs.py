@@ -30,7 +30,7 @@ def cli() -> argparse.ArgumentParser:
 @pytest.mark.parametrize("path", CONFIGS, ids=[str(p.relative_to(ROOT)) for p in CONFIGS])
 def test_config_is_recognised_and_has_no_errors(path: Path,
                                                 capsys: pytest.CaptureFixture[str]) -> None:
-    assert file_kind(str(path)) in ("grafcet", "plant", "script")
+    assert file_kind(str(path)) in ("grafcet", "plant", "script", "scenario")
     t0 = time.perf_counter()
     res = check_files([str(path)])
     ms = (time.perf_counter() - t0) * 1000

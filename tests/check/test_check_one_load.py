@@ -73,7 +73,7 @@ def test_a_plant_with_binding_errors_is_read_once(
         "gsA: {", "gsA: {initial: true, "))
     res = check_files([write("plant.yaml", PLANT)])
     assert [(d.code, d.line) for d in res[0].diags] == [("G301", 5), ("G302", 10)]
-    assert exit_status(res) == 1
+    assert exit_status(res) == 2
     # the plant: once (its kind is told from the document its load uses); its chart: once
     # for the plant, once to check it (the plant's load did not give it)
     assert reads == {"plant.yaml": 1, "small.yaml": 2}

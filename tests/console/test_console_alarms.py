@@ -19,7 +19,9 @@ from tests.console.consolekit import socket_client
 from tests.console.test_console_iolist import DRAWER, console
 
 KEY = "tester1.SFCError"
-TEXT = "tester1 (Banco de ensayo de guías de cajón 1): SFCError"
+TEXT = "tester1 (Banco de ensayo de guías de cajón 1): SFCError set by the chart"
+#: what status and the monitor say of an SFCError no step's max time set
+CAUSE = "SFCError tester1: set by the chart"
 #: how long the alarm board may take to see a change on a loaded machine, s
 DEADLINE_S = 15.0
 
@@ -42,13 +44,15 @@ def test_status_the_monitor_and_the_log_show_the_same_alarm(
             time.sleep(0.05)
         assert alarm_of(shown) == [f"alarm {KEY} (700) active, unacknowledged, "
                                    f"unconfirmed: {TEXT}"]
+        assert CAUSE in shown, shown  # it said 'SFCError tester1: step ' (no step)
         client = ConsoleClient(Target.parse(sock).open())
         client.start()
         view = View(sock)
         view.refresh(client)
         client.close()
         assert alarm_of([x.strip() for x in view.lines(200)]) == alarm_of(shown)
-        s.ok("ack")  # SFCError acknowledged: the cause is gone
+        assert CAUSE in [x.strip() for x in view.lines(200)]
+        assert s.ok("ack") == ["SFCError of tester1 (set by the chart) acknowledged"]
         end = time.monotonic() + DEADLINE_S
         while "active," in " ".join(alarm_of(shown := s.ok("status"))).replace(
                 "inactive,", ""):

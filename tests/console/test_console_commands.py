@@ -199,6 +199,24 @@ def test_set_writes_once_and_refuses_what_would_be_overwritten(rig: Rig) -> None
     wait_for(lambda: rig.steps("t1") == ["gsAbrir"], "t1 started")
 
 
+def test_set_refuses_what_the_chart_writes_every_scan(rig: Rig) -> None:
+    """A chart output is computed by its chart every scan (its action control): a ``set``
+    of it was answered "set to 1" and never reached the output (the page's ``set
+    tester1.oAbrir 1``). Refused, paused or not (a held chart's outputs are not copied to
+    their points either: only a force is), as is a variable assigned at the top of
+    ``pre``; a memory variable the chart writes only in some steps is set as before."""
+    s = rig.serial()
+    assert s.error("set t1.oAbrir 1") == ("t1.oAbrir is written by its chart every scan: "
+                                         "force it")
+    assert s.error("set t1.tParo 1") == "t1.tParo is written by its chart every scan: force it"
+    assert s.ok("set t1.sCierres 3") == ["t1.sCierres set to 3"]
+    s.ok("pause")
+    assert s.error("set t1.oAbrir 1") == ("t1.oAbrir is written by its chart every scan: "
+                                         "force it")
+    s.ok("resume")
+    assert rig.read("t1.oAbrir") is False and rig.read("rio.Q0") is False
+
+
 def test_force_wins_over_drivers_and_program_and_is_listed(rig: Rig) -> None:
     start_t1(rig)
     s = rig.serial()
@@ -218,7 +236,9 @@ def test_force_wins_over_drivers_and_program_and_is_listed(rig: Rig) -> None:
         "rio.I7=1 (forced; the driver reads 0)  t2.iCerrado=1",
         "t1.iAbierto=1 (forced)  <- rio.I2"]
     status = s.ok("status")
-    assert status[-3:] == ["forced t1.iAbierto=1", "forced rio.Q1=0", "forced rio.I7=1"]
+    assert status[-4:] == ["forced t1.iAbierto=1", "forced rio.Q1=0", "forced rio.I7=1",
+                           # the forced point holds what the chart does not say
+                           "not applied: t1.oCerrar: the chart's 1, rio.Q1 holds 0"]
     assert s.ok("unforce rio.Q1") == ["rio.Q1 released"]
     wait_for(lambda: rig.driver.outputs["Q1"] == 1, "rio.Q1 back to the program")
     assert s.error("unforce rio.Q1") == "'rio.Q1' is not forced"

@@ -152,8 +152,12 @@ def test_monitor_once_from_the_command_line(rig: Rig, capsys: pytest.CaptureFixt
     out = capsys.readouterr().out
     assert "state RUNNING" in out and "t1  gsParado" in out
     assert cli.main(["monitor", "/nonexistent/console.sock", "--once"]) == 1
-    assert capsys.readouterr().err == ("softplc monitor: error: /nonexistent/console.sock: no "
-                                       "such socket or serial port (or HOST:PORT for TCP)\n")
+    err = capsys.readouterr().err
+    assert err.startswith("softplc monitor: error: /nonexistent/console.sock: no such socket "
+                          "or serial port (or HOST:PORT for TCP); a controller started by "
+                          "hand makes its console socket in ${RUNTIME_DIR}, its plant's own "
+                          "directory under "), err
+    assert err.count("\n") == 1, err
 
 
 def _take_terminal() -> None:
@@ -223,3 +227,58 @@ def test_the_screen_in_a_terminal(rig: Rig) -> None:
         assert term.proc.wait(timeout=DEADLINE_S) == 0
     finally:
         term.close()
+
+
+def test_the_screen_without_a_terminal_is_one_line(rig: Rig) -> None:
+    """No terminal (a pipe, a service, a script): one line pointing at --once, where curses
+    ended in a traceback."""
+    assert rig.socket_path is not None
+    r = subprocess.run([sys.executable, "-m", "runtime.cli", "monitor", rig.socket_path],
+                       stdin=subprocess.DEVNULL, capture_output=True, text=True,
+                       timeout=DEADLINE_S, cwd=ROOT, check=False)
+    assert (r.returncode, r.stderr) == (2, "softplc monitor: error: not a terminal (a screen "
+                                           "needs one): use --once\n"), r.stderr
+    # a terminal curses does not know: one line too
+    master, slave = os.openpty()
+    try:
+        p = subprocess.Popen([sys.executable, "-m", "runtime.cli", "monitor", rig.socket_path],
+                             stdin=slave, stdout=slave, stderr=subprocess.PIPE, text=True,
+                             cwd=ROOT, env={**os.environ, "TERM": "nosuchterm"})
+        os.close(slave)
+        _, err = p.communicate(timeout=DEADLINE_S)
+    finally:
+        os.close(master)
+    assert p.returncode == 1 and "Traceback" not in err, err
+    assert err.startswith("softplc monitor: error: the terminal cannot show the screen ("), err
+    assert err.endswith("): use --once\n") and err.count("\n") == 1, err
+
+
+def test_a_socket_not_found_is_looked_for_in_the_runtime_directory(tmp_path: Path) -> None:
+    """``softplc monitor tank.sock`` in another directory: the controller made it in its
+    plant's ${RUNTIME_DIR} (a directory of its own under $XDG_RUNTIME_DIR/softplc); the
+    error says where that is, and names the socket found there."""
+    import socket
+
+    rdir = tmp_path / "xdg" / "softplc"
+    (rdir / "tank-0123abcd").mkdir(parents=True)
+    env = {**os.environ, "XDG_RUNTIME_DIR": str(tmp_path / "xdg"), "PYTHONPATH": str(ROOT)}
+    env.pop("RUNTIME_DIRECTORY", None)
+
+    def monitor(target: str) -> str:
+        r = subprocess.run([sys.executable, "-m", "runtime.cli", "monitor", target, "--once"],
+                           capture_output=True, text=True, timeout=DEADLINE_S, env=env,
+                           cwd=tmp_path, check=False)
+        assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+        return r.stderr
+    said = monitor("tank.sock")
+    where = (f"a controller started by hand makes its console socket in ${{RUNTIME_DIR}}, "
+             f"its plant's own directory under {rdir} (its log says 'console listening on "
+             f"PATH'; or name the plant file)")
+    assert said == (f"softplc monitor: error: tank.sock: no such socket or serial port (or "
+                    f"HOST:PORT for TCP); {where}: no socket there now\n"), said
+    with socket.socket(socket.AF_UNIX) as s:
+        s.bind(str(rdir / "tank-0123abcd" / "tank.sock"))
+        said = monitor("tank.sock")
+        assert said.endswith(f"{where}: did you mean {rdir}/tank-0123abcd/tank.sock?\n"), said
+        said = monitor("press.sock")
+    assert said.endswith(f"{where}: sockets there: tank-0123abcd/tank.sock\n"), said

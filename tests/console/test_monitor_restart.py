@@ -285,6 +285,23 @@ def test_monitor_expands_runtime_dir(rig: Rig, monkeypatch: pytest.MonkeyPatch,
         "is ${RUNTIME_DIR}\n")
 
 
+def test_monitor_finds_the_console_of_a_plant_file(
+        rig: Rig, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """``${RUNTIME_DIR}`` is each plant's own directory (docs/daemon.md): without systemd's
+    ``$RUNTIME_DIRECTORY`` the monitor cannot know which plant's, and says to name the plant
+    file, which finds the console as every process of the plant does."""
+    assert rig.socket_path is not None
+    monkeypatch.delenv("RUNTIME_DIRECTORY", raising=False)
+    assert cli.main(["monitor", f"{rig.tmp}/plant.yaml", "--once"]) == 0
+    assert capsys.readouterr().out.startswith(
+        f"softplc monitor {rig.socket_path}   state RUNNING")
+    assert cli.main(["monitor", "${RUNTIME_DIR}/c.sock", "--once"]) == 2
+    assert capsys.readouterr().err == (
+        "softplc monitor: error: ${RUNTIME_DIR} is each plant's own directory: name the "
+        "plant file instead (it finds the plant's console), or the socket's path as the "
+        "controller printed it\n")
+
+
 def test_monitor_refuses_to_refresh_faster_than_the_console_allows(
         rig: Rig, capsys: pytest.CaptureFixture[str]) -> None:
     """Three lines a refresh: at 0.05 s that is 60 lines/s, over the console's 50."""

@@ -63,6 +63,13 @@ def test_a_max_time_alarm_acknowledged_stays_active_until_its_cause_clears(
         with pytest.raises(AlarmRefused) as err:
             d.alarms.acknowledge(key, "operator")
         assert err.value.code == "BadConditionBranchAlreadyAcked"
+        # a confirmation says the cause was dealt with: not while it is still there
+        with pytest.raises(AlarmRefused) as err:
+            d.alarms.confirm(key, "operator")
+        assert (err.value.code, str(err.value)) == (
+            "BadInvalidState", f"alarm {key} is still active: acknowledge the chart's "
+            "SFCError first (the instance's Acknowledge, the console's 'ack'), then confirm "
+            "it")
         time.sleep(0.3)
         assert state(d, key) == (True, True, False)  # acknowledged: still active
         lines = alarm_lines(d.status()["alarms"])

@@ -142,7 +142,7 @@ def test_sfc_error_is_acknowledged(make_daemon: MakeDaemon) -> None:
     drv.inputs["I0"] = 0  # back to gsIdle; SFCError stays until acknowledged
     wait_until(lambda: daemon.plant.get("m.gsIdle.X") == 1)
     assert daemon.plant.get("m.SFCError") is True
-    assert daemon.ack() == "SFCError of m (gsRun) acknowledged"
+    assert daemon.ack() == "SFCError of m (set by step gsRun) acknowledged"
     wait_until(lambda: daemon.plant.get("m.SFCError") is False)
     assert daemon.state is State.RUNNING
     with pytest.raises(CommandRefused, match="nothing to acknowledge"):

@@ -94,10 +94,10 @@ def test_sfc_error_set_and_cleared_are_logged(make_daemon: MakeDaemon,
     got = lines(caplog, "SFCError")
     assert len(got) == 1 and got[0].startswith(
         "m: SFCError: step gsRun active longer than its max 200ms, at scan "), got
-    assert d.ack() == "SFCError of m (gsRun) acknowledged"
+    assert d.ack() == "SFCError of m (set by step gsRun) acknowledged"
     wait_until(lambda: len(lines(caplog, "SFCError")) == 2, what="the cleared line")
     assert lines(caplog, "SFCError")[1].startswith(
-        "m: SFCError cleared (was step gsRun), at scan "), lines(caplog)
+        "m: SFCError cleared (was set by step gsRun), at scan "), lines(caplog)
 
 
 def test_an_overrun_burst_is_one_line_with_its_count(make_daemon: MakeDaemon,
@@ -196,10 +196,15 @@ def test_softplc_run_writes_the_step_lines_to_its_log(tmp_path: Path) -> None:
 def test_an_sfc_error_set_by_hand_names_no_step(make_daemon: MakeDaemon,
                                                 caplog: pytest.LogCaptureFixture) -> None:
     """SFCError written (console ``set``, the chart itself): no step was over its max, and
-    the line says so (it said 'step  active longer than its max ?')."""
+    the lines say it was set by the chart (they said 'step  active longer than its max ?',
+    then '(was step )' when cleared)."""
     d, drv = make_daemon()
     d.call(lambda: d.plant.set("m.SFCError", True))
     wait_until(lambda: said(caplog, "SFCError"), what="the SFCError line")
     got = lines(caplog, "SFCError")
-    assert len(got) == 1 and got[0].startswith(
-        "m: SFCError set (no step over its max), at scan "), got
+    assert len(got) == 1 and got[0].startswith("m: SFCError set by the chart, at scan "), got
+    assert d.ack() == "SFCError of m (set by the chart) acknowledged"
+    wait_until(lambda: len(lines(caplog, "SFCError")) == 2, what="the cleared line")
+    # it said 'SFCError cleared (was step ), ...'
+    assert lines(caplog, "SFCError")[1].startswith(
+        "m: SFCError cleared (was set by the chart), at scan "), lines(caplog)

@@ -22,9 +22,9 @@ Point = tuple[float, float]
 Segment = tuple[Point, Point]
 
 
-def _draw(chart: Path, tmp: Path, layout: str) -> ET.Element:
-    out = tmp / f"{chart.stem}_{layout}.svg"
-    draw.draw(str(chart), str(out), layout=layout)
+def _draw(chart: Path, tmp: Path, layout: str, notation: str = "written") -> ET.Element:
+    out = tmp / f"{chart.stem}_{layout}_{notation}.svg"
+    draw.draw(str(chart), str(out), layout=layout, notation=notation)
     return ET.parse(out).getroot()
 
 
@@ -219,8 +219,20 @@ def test_each_and_divergence_has_its_own_double_bar(which: str, layout: str,
             assert not min(p[1], q[1]) < y - 2.5 < y + 2.5 < max(p[1], q[1]), (p, q, y)
 
 
-def test_pre_post_min_max_and_action_conditions_in_the_seed_notation(tmp_path: Path) -> None:
+def test_conditions_actions_and_equations_are_drawn_as_written(tmp_path: Path) -> None:
+    """taladro.yaml is written in ST: the drawing shows its texts as the file wrote them,
+    as the page's "why" list does (they were drawn in the seed notation)."""
     root = _draw(HERE / "taladro.yaml", tmp_path, "python")
+    assert _texts(root, "equation") == ["tParo := iParo OR iPuerta",
+                                        "oPiloto := gsReposo.X AND NOT tParo"]
+    assert "oRefrigerar if iPieza AND NOT iPuerta" in _texts(root, "action")
+    assert "RE iAbajo" in _texts(root, "qualifier")
+    assert _texts(root, "condition")[:3] == ["RE iMarcha AND iPieza AND NOT tParo", "iAbajo",
+                                             "gsTaladrar.T >= 5s"]
+
+
+def test_pre_post_min_max_and_action_conditions_in_the_seed_notation(tmp_path: Path) -> None:
+    root = _draw(HERE / "taladro.yaml", tmp_path, "python", notation="seed")
     assert _texts(root, "equation") == ["tParo := iParo + iPuerta",
                                         "oPiloto := gsReposo.X·tParo'"]
     assert _texts(root, "equations-title") == ["pre (every scan, before the chart)",
@@ -230,7 +242,7 @@ def test_pre_post_min_max_and_action_conditions_in_the_seed_notation(tmp_path: P
     assert "oRefrigerar if iPieza·iPuerta'" in actions
     assert "↑iAbajo" in _texts(root, "qualifier")
     assert "sPiezas := sPiezas + 1" in actions
-    # the condition of the first transition, for comparison: the same notation
+    # --notation seed: the conditions too (as written they are ST here: the test above)
     assert "↑iMarcha·iPieza·tParo'" in _texts(root, "condition")
 
 

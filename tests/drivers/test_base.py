@@ -151,8 +151,9 @@ def test_a_missing_library_names_the_package(monkeypatch: pytest.MonkeyPatch, ty
         if name == module or name.startswith(module + ".") or name == driver_module:
             monkeypatch.delitem(sys.modules, name)
     monkeypatch.setitem(sys.modules, module, None)  # import raises ModuleNotFoundError
-    hint = (re.escape("pip install 'softplc[gpio]' (on 32-bit ARM pip compiles it: "
-                      "apt-get install gcc python3-dev first)")
+    # softplc is no package of an index: this environment's pip and this checkout
+    hint = (re.escape(f"{sys.executable} -m pip install -e '{ROOT}[gpio]' (on 32-bit ARM "
+                      "pip compiles it: apt-get install gcc python3-dev first)")
             if package == "gpiod" else f"pip install {package}")  # gpiod: an extra
     with pytest.raises(DriverImportError, match=f"{hint}$") as exc:
         driver_class(type_name)

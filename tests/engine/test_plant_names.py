@@ -60,3 +60,62 @@ def test_a_script_is_read_without_a_plant(write, drawer):  # type: ignore[no-unt
     assert [(c.at_ns, c.key, c.value) for c in s.changes] == [
         (0, "first.iParo", False), (100_000_000, "first.iMarcha", True),
         (100_000_000, "sim.I2", 1)]
+
+
+# -- the applied value: what a chart output's point holds -------------------------------
+APPLIED = """\
+plc: {cycle: 10ms}
+drivers:
+  sim: {type: sim}
+instances:
+  m:
+    grafcet: level.yaml
+    inputs: {iGo: sim.I0, iLevel: sim.IR0}
+    outputs: {oRun: sim.Q0, oStop: {from: sim.Q1, invert: true}, oSpeed: sim.HR0,
+              oFlow: sim.HR1}
+"""
+LEVEL_CHART = """\
+grafcet: Level
+inputs: [iGo, {iLevel: int}]
+outputs: [oRun, oStop, {oSpeed: int}, {oFlow: real}]
+steps:
+  s0: {initial: true}
+  s1: {actions: [oRun, oStop]}
+transitions:
+  - {from: s0, to: s1, when: iGo}
+post:
+  - oSpeed := iLevel + 7
+  - oFlow := 2.5
+"""
+
+
+def test_a_chart_output_reads_what_its_point_holds(write) -> None:  # type: ignore[no-untyped-def]
+    """Issue: after the safe reaction (halted, fault: every output written off) the
+    displays still showed a chart output at 1 while its point held 0. Every reader of
+    the Catalogue (the console's get and status, the monitor, the feed of OPC UA, MQTT
+    and the page) reads a chart output as applied: its point, through the binding's
+    inversion, in the output's type; the chart's own value stays readable (``chart``)."""
+    from runtime.engine.names import Catalogue
+    from runtime.engine.plant import Plant
+
+    write("level.yaml", LEVEL_CHART)
+    plant = Plant(load_plant(write("plant.yaml", APPLIED)), sim=True, virtual=True)
+    plant.open()
+    plant.set("sim.I0", 1)
+    plant.set("sim.IR0", 5)
+    plant.cycle(0)
+    plant.cycle(10_000_000)
+    cat = Catalogue(plant)
+    on = {n: cat.names[f"m.{n}"].read(cat.capture(2)) for n in
+          ("oRun", "oStop", "oSpeed", "oFlow")}
+    assert on == {"oRun": True, "oStop": True, "oSpeed": 12, "oFlow": 2.5}
+    plant.safe_state()  # the safe reaction: every point off, the charts' values kept
+    img = cat.capture(3)
+    shown = {n: cat.names[f"m.{n}"].read(img) for n in ("oRun", "oStop", "oSpeed", "oFlow")}
+    assert shown == {"oRun": False, "oStop": True, "oSpeed": 0, "oFlow": 0.0}
+    assert type(shown["oRun"]) is bool and type(shown["oFlow"]) is float
+    readers = {n: cat.names[f"m.{n}"].chart for n in ("oRun", "oStop", "oSpeed", "oFlow")}
+    chart = {n: r(img) for n, r in readers.items() if r is not None}
+    assert chart == on  # what the chart says, not applied
+    assert cat.names["sim.Q0"].read(img) == 0 and cat.names["sim.Q1"].read(img) == 0
+    assert cat.names["m.iLevel"].chart is None  # inputs, memory: the chart's own value

@@ -95,7 +95,12 @@ def test_a_chart_without_bindings_descriptions_falls_back_on_the_chart(
 
 @pytest.mark.parametrize(("binding", "col", "words"), [
     ("{from: io.level, unit: CELSIUS}", 38, "unknown unit 'CELSIUS'"),
-    ("{from: io.level, unit: degc}", 38, "(did you mean 'deg'?)"),
+    # letter case and a plural first, each candidate with what it measures (a level is a
+    # length: 'cms' suggested 'ms' alone, 'degc' the angle 'deg')
+    ("{from: io.level, unit: degc}", 38, "(did you mean 'degC' (degree Celsius, a "
+                                         "temperature) or 'deg' (degree (angle), an angle)"),
+    ("{from: io.level, unit: cms}", 38, "(did you mean 'cm' (centimetre, a length) or 'ms' "
+                                        "(millisecond, a time)"),
     ("{from: io.level, range: [10, 0]}", 39, "range: expected low < high, found [10, 0]"),
     ("{from: io.level, range: [0, .inf]}", 39, "two finite numbers"),
     ("{from: io.level, range: 5}", 39, "expected [low, high]"),
@@ -208,3 +213,30 @@ def test_softplc_iolist_with_units_and_ranges(tmp_path: Path,
     bad.write_text("instances: {}\nnonsense: 1\n", encoding="utf-8")
     assert main(["iolist", str(bad)]) == 2
     assert "unknown key 'nonsense'" in capsys.readouterr().err
+
+
+def test_an_output_may_be_bound_with_to(tmp_path: Path) -> None:
+    """``oBomba: {to: io.Q0}``: an output's value goes to its point (``from:`` stays
+    accepted, as every plant before wrote it)."""
+    iol = IOList(load_plant(str(plant(tmp_path, GOOD.replace(
+        "oBomba:  {from: io.Q0,", "oBomba:  {to: io.Q0,")))))
+    assert [(r.signal, r.direction, r.source) for r in iol.rows][-1] == (
+        "t1.oBomba", "out", "io.Q0")
+    assert iol.meaning("io.Q0").description == "<- t1.oBomba: bomba P1"
+
+
+@pytest.mark.parametrize(("bindings", "col", "words"), [
+    (GOOD.replace("iNivel:  {from: io.level,", "iNivel:  {to: io.level,"), 17,
+     "'to:' binds an output (its value goes to the point): an input's value comes from its "
+     "point: write 'from: io.level'"),
+    (GOOD.replace("oBomba:  {from: io.Q0,", "oBomba:  {from: io.Q0, to: io.Q1,"), 30,
+     "the binding of 'oBomba' names its point twice ('from:' and 'to:'): keep one"),
+    (GOOD.replace("oBomba:  {from: io.Q0,", "oBomba:  {"), 16,
+     "binding of 'oBomba' needs 'to: driver.point' (or 'from:')"),
+])
+def test_to_binds_outputs_only_and_once(tmp_path: Path, bindings: str, col: int,
+                                        words: str) -> None:
+    with pytest.raises(SourceError) as err:
+        load_plant(str(plant(tmp_path, bindings)))
+    assert err.value.loc.col == col, err.value
+    assert words in err.value.message, err.value

@@ -53,7 +53,8 @@ def test_yaml_syntax_error(tmp_path: Path) -> None:
 
 def test_yaml_mapping_value_not_allowed(tmp_path: Path) -> None:
     text = HEAD.replace("grafcet: DrawerTester", "grafcet: DrawerTester\ndescription: a: b")
-    check(tmp_path, text, ": b", "YAML syntax", "found ':'", "quote")
+    check(tmp_path, text, ": b", "YAML syntax", "found ': b'",
+          "quote the whole value: description: \"a: b\"")
 
 
 def test_statement_read_as_a_mapping_by_yaml(tmp_path: Path) -> None:

@@ -367,3 +367,22 @@ def test_a_yaml_slip_says_what_to_write(tmp_path: Path, capsys: pytest.CaptureFi
     text = HEAD + body
     assert compile_error(tmp_path, capsys, text) == line(tmp_path, text, needle,
                                                          "YAML syntax: " + message)
+
+
+@pytest.mark.parametrize("steps, needle, message", [
+    ("  Ini: {initial: true, description: Pump P1: stopped}\n", ": stopped",
+     "expected the end of the value of 'description' after 'Pump P1', found ': stopped': a "
+     "text holding ': ' reads as a key and its value: quote the whole value: description: "
+     "\"Pump P1: stopped\""),
+    ("  Ini:\n    initial: true\n    description: Pump P1: stopped, waiting\n", ": stopped",
+     "expected the end of the value of 'description' after 'Pump P1', found ': stopped, "
+     "waiting': a text holding ': ' reads as a key and its value: quote the whole value: "
+     "description: \"Pump P1: stopped, waiting\""),
+], ids=["in a flow mapping", "in a block mapping"])
+def test_a_text_holding_colon_space_says_to_quote_it(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], steps: str, needle: str,
+        message: str) -> None:
+    """An unquoted description holding ': ' (PyYAML: "expected ',' or '}', but got ':'")."""
+    text = MOTOR.replace("WHEN", "iParo").replace("  Ini: {initial: true}\n", steps)
+    assert compile_error(tmp_path, capsys, text) == line(tmp_path, text, needle,
+                                                         "YAML syntax: " + message)

@@ -187,9 +187,10 @@ class Host:
 
     def __init__(self, broker: Broker, *, user: str | None = None,
                  password: str | None = None, host_id: str = "softplc-test-host",
-                 primary: bool = False, netns: str | None = None) -> None:
+                 primary: bool = False, netns: str | None = None, keepalive: int = 5) -> None:
         cmd = [host_python(), str(HOST_DIR / "host.py"), broker.bind, str(broker.port),
-               "--id", host_id, *(["--primary"] if primary else [])]
+               "--id", host_id, "--keepalive", str(keepalive),
+               *(["--primary"] if primary else [])]
         if netns is not None:
             cmd = ["ip", "netns", "exec", netns, *cmd]
         if broker.certs is not None:
@@ -234,8 +235,8 @@ class Host:
         """An NCMD or DCMD encoded by pysparkplug: (name, datatype name, value)."""
         self.send({"cmd": topic, "metrics": [list(m) for m in metrics]})
 
-    def raw(self, topic: str, data: bytes) -> None:
-        self.send({"raw": topic, "hex": data.hex()})
+    def raw(self, topic: str, data: bytes, *, retain: bool = False, qos: int = 0) -> None:
+        self.send({"raw": topic, "hex": data.hex(), "retain": retain, "qos": qos})
 
     def state(self, online: bool) -> None:
         self.send({"state": online})

@@ -11,6 +11,7 @@ import pytest
 
 from runtime.errors import SourceError
 from runtime.language.plantfile import load_plant
+from runtime.language.runtimedir import plant_key
 from tests.mqtt.kit import write_plant
 
 BASE = "mqtt:\n  brokers: [mqtt://127.0.0.1:1883]\n  group_id: Bench\n"
@@ -43,7 +44,8 @@ def test_defaults(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     assert q.writable == [] and q.username is None and q.tls is None
     assert (q.sample_ns, q.statistics_ns, q.keepalive_ns, q.buffer) == (
         100_000_000, 10_000_000_000, 30_000_000_000, 100_000)
-    assert q.feed == str(tmp_path / "softplc" / "feed.sock")
+    # the plant's own runtime directory (docs/daemon.md): never another plant's feed
+    assert q.feed == str(tmp_path / "softplc" / plant_key(pdef.path) / "feed.sock")
     feed = pdef.feed()
     assert feed is not None and feed.path == q.feed and feed.writable == {"mqtt": []}
 

@@ -14,8 +14,9 @@ import pytest
 
 from runtime.controller.feed import FeedState
 from runtime.language.model import MqttBroker, MqttDef
+from runtime.mqtt.forward import Buffer, Journal, Report
 from runtime.mqtt.metrics import OFFLINE
-from runtime.mqtt.node import CommandRefused, EdgeNode, Message
+from runtime.mqtt.node import REBIRTH_HOLD_S, CommandRefused, EdgeNode, Message
 from runtime.mqtt.payload import (
     COMMAND_MAX_BYTES,
     Command,
@@ -139,13 +140,14 @@ def test_births_name_every_metric_with_its_type_and_an_alias() -> None:
 
 
 def test_seq_counts_every_message_and_wraps_nbirth_restarts_it() -> None:
-    node, feed, _ = setup(statistics_ns=3600_000_000_000)
+    node, feed, clock = setup(statistics_ns=3600_000_000_000)
     node.will()
     seqs = [decode(m).seq for m in node.start_publishing()]
     for n in range(300):
         seqs += [decode(m).seq for m in feed.frame(node, **{"t1.sN": n + 1})]
     assert seqs == [k % 256 for k in range(len(seqs))]
     assert len(seqs) == 302
+    clock.t += 5.0  # the births' hold is over
     rebirth = node.node_command([Command("Node Control/Rebirth", None, DataType.BOOLEAN,
                                          True)])
     assert [decode(m).seq for m in rebirth] == [0, 1]
@@ -320,3 +322,91 @@ def test_hostile_command_payloads_are_refused_whole() -> None:
     p.metrics.add(name="a", datatype=11)
     with pytest.raises(CommandError, match="no value"):
         decode_command(p.SerializeToString())
+
+
+REBIRTH = [Command("Node Control/Rebirth", None, DataType.BOOLEAN, True)]
+
+
+def test_rebirth_requests_are_folded_into_one_a_second() -> None:
+    """300 NCMD Rebirth at once: one rebirth now, one for all the others when the hold
+    (REBIRTH_HOLD_S after the last births) is over; a request that comes later is served
+    at once. (Before: 300 rebirths, each NBIRTH and every DBIRTH.)"""
+    node, feed, clock = setup()
+    node.will()
+    node.start_publishing()
+    clock.t += REBIRTH_HOLD_S  # births a second ago: a request is served at once
+    first = node.node_command(REBIRTH)
+    assert kinds(first) == ["NBIRTH", "DBIRTH/t1"]
+    later = [node.node_command(REBIRTH) for _ in range(299)]
+    assert all(m == [] for m in later)
+    assert node.rebirth_due == clock.t + REBIRTH_HOLD_S
+    assert node.owed_rebirth() == []  # not yet
+    clock.t += REBIRTH_HOLD_S / 2
+    assert kinds(feed.frame(node, **{"t1.sN": 7})) == ["DDATA/t1"]  # reports go on
+    assert node.owed_rebirth() == []
+    clock.t += REBIRTH_HOLD_S / 2
+    owed = node.owed_rebirth()
+    assert kinds(owed) == ["NBIRTH", "DBIRTH/t1"] and decode(owed[0]).seq == 0
+    assert node.rebirth_due is None and node.owed_rebirth() == []
+    # births for another reason answer the requests folded before them
+    clock.t += 0.1
+    node.node_command(REBIRTH)
+    assert node.rebirth_due is not None
+    node.session_lost()
+    assert node.rebirth_due is None
+    node.will()
+    assert kinds(node.start_publishing()) == ["NBIRTH", "DBIRTH/t1"]
+    assert node.owed_rebirth() == []
+
+
+def history(msgs: list[Message]) -> list[tuple[str, Any, bool]]:
+    """(topic kind, each metric's value, historical) of data messages."""
+    return [(kinds([m])[0], v, x.is_historical) for m in msgs
+            for x in decode(m).metrics
+            for v in [getattr(x, x.WhichOneof("value")) if x.WhichOneof("value") else None]]
+
+
+def test_reports_the_broker_did_not_take_come_back_as_history() -> None:
+    """Every data message carries its report (device, name, type, value, time); what a
+    session's broker was not seen to take goes back before what was buffered since, and
+    comes after the next births as history, each value with its own time, in order."""
+    node, feed, clock = setup(statistics_ns=3600_000_000_000)
+    node.will()
+    node.start_publishing()
+    sent = [m for n in range(1, 4) for m in feed.frame(node, **{"t1.sN": n})]
+    assert [m.report is not None for m in sent] == [True, True, True]
+    assert [c[1:4] for m in sent for c in m.report.changes] == [  # type: ignore[union-attr]
+        ("Memory/sN", DataType.INT64, n) for n in (1, 2, 3)]
+    stamps = [m.report.changes[0][4] for m in sent]  # type: ignore[union-attr]
+    assert stamps == sorted(stamps) and stamps[0] == decode(sent[0]).timestamp
+    # the session ends; the broker was seen to take the first report only
+    node.session_lost()
+    node.requeue([m.report for m in sent[1:] if m.report is not None])
+    assert feed.frame(node, **{"t1.sN": 4}) == []  # kept, after the two that came back
+    node.will()
+    out = node.start_publishing()
+    assert kinds(out)[:2] == ["NBIRTH", "DBIRTH/t1"]
+    hist = history(out[2:])
+    assert hist == [("DDATA/t1", 2, True), ("DDATA/t1", 3, True), ("DDATA/t1", 4, True)]
+    assert [x.timestamp for x in decode(out[2]).metrics][:2] == stamps[1:]
+    # the history messages carry their reports too (a second outage sends them again)
+    assert [c[3] for m in out[2:] for c in m.report.changes] == [2, 3, 4]  # type: ignore
+    # births carry none: they are sent again by the next session anyway
+    assert out[0].report is None and out[1].report is None
+    assert clock.t  # the virtual clock never moved: nothing here is timed
+
+
+def test_the_buffer_takes_reports_back_before_its_own_within_its_bound() -> None:
+    b = Buffer(5)
+    b.add(Report(3, [("t1", "a", DataType.INT64, 3, 3)] * 2))
+    b.add_front([Report(1, [("t1", "a", DataType.INT64, 1, 1)] * 2),
+                 Report(2, [("t1", "a", DataType.INT64, 2, 2)] * 2)])
+    assert [r.timestamp for r in b.reports] == [2, 3] and b.dropped == 2  # oldest first
+    j = Journal()
+    k1, k2, k3 = (j.add(Report(t, [])) for t in (1, 2, 3))
+    j.confirm(k2)
+    assert [r.timestamp for r in j.take()] == [3] and j.take() == []
+    assert k3 == 3 and Buffer(0).dropped == 0
+    zero = Buffer(0)
+    zero.add_front([Report(1, [("t1", "a", DataType.INT64, 1, 1)])])
+    assert zero.dropped == 1 and not zero.reports

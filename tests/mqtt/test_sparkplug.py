@@ -56,15 +56,19 @@ class Edge:
 @contextmanager
 def edge(tmp: Path, *, broker: Broker | None = None, host_user: tuple[str, str] | None = None,
          host_id: str = "softplc-test-host", brokers: list[str] | None = None,
-         primary: bool = False, **plant: Any) -> Iterator[Edge]:
-    """A broker, the host application, the controller on sim I/O and its edge node."""
+         primary: bool = False, host_keepalive: int = 5, trace: bool = False,
+         **plant: Any) -> Iterator[Edge]:
+    """A broker, the host application, the controller on sim I/O (its trace in
+    ``trace.jsonl`` with ``trace``) and its edge node."""
     b = broker or Broker(tmp)
     b.start()
     host = Host(b, user=host_user[0] if host_user else None,
                 password=host_user[1] if host_user else None, host_id=host_id,
-                primary=primary)
+                primary=primary, keepalive=host_keepalive)
     path = write_plant(tmp, brokers or [b.url], **plant)
-    ctl = softplc("run", str(path), "--sim", cwd=tmp, log=tmp / "ctl.log")
+    ctl = softplc("run", str(path), "--sim", *(["--trace", str(tmp / "trace.jsonl")]
+                                                if trace else []),
+                  cwd=tmp, log=tmp / "ctl.log")
     mqtt = softplc("mqtt", str(path), cwd=tmp, log=tmp / "mqtt.log")
     try:
         with processes(ctl, mqtt):

@@ -105,7 +105,7 @@ def test_a_max_time_alarm_refreshed_acknowledged_and_confirmed(
     assert any(m.startswith(f"alarm {KEY} acknowledged by {WRITER} (127.0.0.1:")
                and m.endswith(": visto (active, acknowledged, unconfirmed)") for m in said)
     assert any(m.startswith(f"opcua: {WRITER} (127.0.0.1:") and
-               m.endswith("called t1.Acknowledge: t1: SFCError (gsJam) acknowledged")
+               m.endswith("called t1.Acknowledge: t1: SFCError (set by step gsJam) acknowledged")
                for m in said), said
     assert any(m.startswith("opcua: t1.Acknowledge refused to anonymous (127.0.0.1:")
                for m in said)
@@ -155,3 +155,61 @@ def test_methods_are_for_writers_and_applied_between_two_scans(tmp_path: Path) -
         finally:
             writer.close()
             reader.close()
+
+
+def test_in_fault_the_charts_methods_and_confirm_are_refused_saying_why(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """While the controller is in fault no chart runs, and its Ack restarts every chart
+    from its initial situation: an instance's Acknowledge (and Reset, Pause, Resume) would
+    be lost, and confirming the fault's alarm would say its cause was dealt with. Each is
+    refused (BadInvalidState) in one log line that says why; the alarm may still be
+    acknowledged (seen); the Controller's Ack clears the fault and the chart's SFCError,
+    and the fault's alarm may then be confirmed."""
+    caplog.set_level(logging.INFO)
+    fault = "ns=2;s=alarm.controller.fault"
+    with running(tmp_path) as (d, srv):
+        op = AlarmClient(srv.url, WRITER, WRITER_PASSWORD)
+        t1 = d.plant.instances["t1"]
+        try:
+            d.call(lambda: d.plant.set("t1.sJam", True))
+            wait_until(lambda: d.call(lambda: t1.get("SFCError")) is True, what="SFCError")
+            d.call(lambda: d.plant.set("t1.sDiv", 0))
+            wait_until(lambda: d.fault is not None, what="the fault")
+            d.call(lambda: d.plant.set("t1.sDiv", 1))
+            d.call(lambda: d.plant.set("t1.sJam", False))
+            raised = op.wait_event(lambda e: e["ConditionId"] == fault and e["Active"],
+                                   "the fault's alarm")
+            caplog.clear()
+            for method in ("Acknowledge", "Reset", "Pause", "Resume"):
+                assert op.ask(call="ns=2;s=t1", method=f"ns=2;s=t1.{method}") == {
+                    "call": "BadInvalidState"}, method
+            assert d.fault is not None
+            assert d.call(lambda: (t1.get("SFCError"), t1.get("SFCPause"))) == (True, False)
+            # the alarm: seen, yes; confirmed (its cause dealt with), not yet
+            assert op.ask(ack=fault, eventId=raised["EventId"], comment="seen") == {
+                "ack": "Good"}
+            acked = op.wait_event(lambda e: e["ConditionId"] == fault and e["Acked"],
+                                  "the fault's alarm acknowledged")
+            assert op.ask(confirm=fault, eventId=acked["EventId"], comment="") == {
+                "confirm": "BadInvalidState"}
+            said = [r.getMessage() for r in caplog.records]
+            assert op.ask(call="ns=2;s=controller", method="ns=2;s=controller.Ack") == {
+                "call": "Good"}
+            assert d.fault is None
+            wait_until(lambda: d.call(lambda: t1.get("SFCError")) is False,
+                       what="SFCError cleared by the Ack")
+            cleared = op.wait_event(lambda e: e["ConditionId"] == fault and not e["Active"],
+                                    "the fault's alarm inactive")
+            assert op.ask(confirm=fault, eventId=cleared["EventId"], comment="") == {
+                "confirm": "Good"}
+        finally:
+            op.close()
+    refusals = [m for m in said if "Ack it first" in m]
+    # one line per refusal, none of them saying it was done
+    assert len(refusals) == 5, said
+    for method in ("Acknowledge", "Reset", "Pause", "Resume"):
+        line = [m for m in refusals if f"t1.{method}:" in m]
+        assert len(line) == 1 and "the controller is in fault" in line[0], (method, said)
+    assert any(m.startswith(f"opcua: {WRITER} (127.0.0.1:") and "confirm" in m
+               and "alarm controller.fault" in m for m in refusals), refusals
+    assert not any("acknowledged" in m and "t1" in m for m in said), said

@@ -280,3 +280,29 @@ def test_a_client_pipelining_writes_never_stalls_the_frames_of_another(
                      f"{max(walls):.0f} ms\n")
     assert answered == writes and not refused, refused[:3]
     assert max(gaps) <= 3 * feed.every, gaps
+
+
+def test_an_instances_method_is_refused_while_the_charts_are_stopped(tmp_path: Path) -> None:
+    """Halted (outputs held off until ack) or in iocheck, no chart runs and the Ack
+    restarts them from their initial situation: a method of an instance would be lost.
+    Refused (BadInvalidState) saying why; once acknowledged, it is done."""
+    with controller(tmp_path, trace=False) as (d, feed, _):
+        r = FeedReader(feed.path)
+        t1 = d.plant.instances["t1"]
+        wait_until(lambda: len(r.frames) >= 1)
+        d.require_ack("end of iocheck")
+        for method in ("Pause", "Reset"):
+            assert r.request("call", "t1", method, "tester") == (
+                False, "the controller is halted (end of iocheck): Ack it first (the "
+                "Controller's Ack, the console's 'ack'; it restarts the charts)",
+                "BadInvalidState")
+        assert d.call(lambda: t1.get("SFCPause")) is False
+        d.ack()
+        d.call(lambda: d.plant.set_iocheck(True))
+        assert r.request("call", "t1", "Pause", "tester") == (
+            False, "iocheck on: the charts are stopped", "BadInvalidState")
+        d.call(lambda: d.plant.set_iocheck(False))
+        assert r.request("call", "t1", "Pause", "tester") == (
+            True, "t1: SFCPause set", "Good")
+        assert d.call(lambda: t1.get("SFCPause")) is True
+        r.close()

@@ -60,12 +60,17 @@ def test_sample_never_below_the_cycle(tmp_path: Path) -> None:
 
 
 def test_the_full_section(tmp_path: Path) -> None:
+    etc = tmp_path / "etc"  # what the section names is there (a missing file is refused)
+    (etc / "t").mkdir(parents=True)
+    (etc / "r").mkdir()
+    (etc / "c.der").write_bytes(b"x")
+    (etc / "k.pem").write_bytes(b"x")
     pdef = load_plant(str(plant_with(tmp_path, (
         "opcua:\n  endpoint: opc.tcp://0.0.0.0:4841\n  sample: 100ms\n"
         "  feed: /tmp/x/feed.sock\n  writable: [t1.sStop, t2.SFCQuitError, t1.sStop]\n"
         "  security:\n    policies: [None, Basic256Sha256_SignAndEncrypt]\n"
-        "    certificate: /etc/c.der\n    private_key: /etc/k.pem\n"
-        "    trusted_clients: /etc/t\n    trusted_readers: /etc/r\n    anonymous: none\n"
+        f"    certificate: {etc}/c.der\n    private_key: {etc}/k.pem\n"
+        f"    trusted_clients: {etc}/t\n    trusted_readers: etc/r\n    anonymous: none\n"
         "    users: {operator: 'scrypt$16384$8$1$c2FsdA$aGFzaA'}\n"))))
     o = pdef.opcua
     assert o is not None
@@ -75,7 +80,8 @@ def test_the_full_section(tmp_path: Path) -> None:
     s = o.security
     assert s.policies == ["None", "Basic256Sha256_SignAndEncrypt"]
     assert (s.certificate, s.private_key, s.trusted_clients, s.trusted_readers,
-            s.anonymous) == ("/etc/c.der", "/etc/k.pem", "/etc/t", "/etc/r", "none")
+            s.anonymous) == (f"{etc}/c.der", f"{etc}/k.pem", f"{etc}/t",
+                             f"{etc}/r", "none")  # relative: from the plant file's directory
     assert list(s.users) == ["operator"]
     assert o.limits.sessions == 10  # the defaults
 

@@ -15,6 +15,7 @@ from asyncua.common.subscription import Subscription
 from drivers.base import DriverError
 from runtime.engine.plant import Plant
 from runtime.language.plantfile import load_plant
+from runtime.opcua.server import _event_text
 from tests.daemon.daemonkit import RecordingDriver
 from tests.opcua.feedkit import ServerThread, controller, read_trace, serving, wait_until
 from tests.opcua.feedkit import until as _until
@@ -283,7 +284,7 @@ def test_sfcerror_set_and_cleared_are_events_of_the_instance(tmp_path: Path) -> 
                 sub = await c.create_subscription(100, handler)
                 await sub.subscribe_events(c.get_node("ns=2;s=t1"))
                 await c.get_node("ns=2;s=t1.sJam").write_value(True)
-                await _until(lambda: _has(handler, "t1: SFCError set (step gsJam)"),
+                await _until(lambda: _has(handler, "t1: SFCError set by step gsJam"),
                              what="the SFCError event")
                 await c.get_node("ns=2;s=t1.sJam").write_value(False)
                 await c.get_node("ns=2;s=t1.SFCQuitError").write_value(True)
@@ -292,8 +293,16 @@ def test_sfcerror_set_and_cleared_are_events_of_the_instance(tmp_path: Path) -> 
                 await sub.delete()
         asyncio.run(main())
     texts = [(e.Message.Text, e.Severity, e.SourceName) for e in handler.events]
-    assert texts == [("t1: SFCError set (step gsJam)", 700, "t1"),
+    assert texts == [("t1: SFCError set by step gsJam", 700, "t1"),
                      ("t1: SFCError cleared", 300, "t1")]
+
+
+def test_an_sfcerror_the_chart_set_is_said_so_in_its_event() -> None:
+    """No step's max time set it (SFCErrorStep empty): the event says who did, as the log,
+    the alarms and the console do (it said 't1: SFCError set')."""
+    assert _event_text("i:t1", (False, ""), (True, "")) == ("t1: SFCError set by the chart",
+                                                            700)
+    assert _event_text("i:t1", (False, ""), (True, "gsJam"))[0] == "t1: SFCError set by step gsJam"
 
 
 async def _has(h: Collect, text: str) -> bool:

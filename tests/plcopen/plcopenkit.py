@@ -25,7 +25,8 @@ def shape(g: Grafcet) -> dict[str, Any]:
     with their conditions as written, pre, post)."""
     return {
         "name": g.name, "description": g.description, "scan": g.scan,
-        "variables": [(v.name, v.kind, v.type, v.init, v.retain, v.renamed_from)
+        "variables": [(v.name, v.kind, v.type, v.init, v.retain, v.renamed_from,
+                       v.description)
                       for v in g.variables.values()],
         "steps": [(s.name, s.initial, s.min_ns, s.max_ns, s.entry, s.exit, s.parent,
                    s.description, s.renamed_from,

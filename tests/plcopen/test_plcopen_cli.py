@@ -67,10 +67,11 @@ def test_import_writes_the_charts_and_a_plant_and_overwrites_nothing(
     out = tmp_path / "out"
     assert main(["import", str(DATA / "beremiz_mixer.xml"), "-o", str(out)]) == 0
     err = capsys.readouterr().err.splitlines()
-    assert len([ln for ln in err if ": warning: " in ln]) == 6
+    assert len([ln for ln in err if ": warning: " in ln]) == 5
     assert err[-2:] == [f"{DATA / 'beremiz_mixer.xml'}: POU Mixer -> {out / 'Mixer.yaml'} "
                         "(8 steps, 8 transitions, 16 actions)",
-                        f"{out / 'plant.yaml'}: plant skeleton on simulated I/O"]
+                        f"{out / 'plant.yaml'}: plant skeleton on simulated I/O "
+                        "(1 instance(s))"]
     assert sorted(p.name for p in out.iterdir()) == ["Mixer.yaml", "plant.yaml"]
     chart = (out / "Mixer.yaml").read_text(encoding="utf-8")
     (out / "Mixer.yaml").write_text(chart + "# my edit\n", encoding="utf-8")
@@ -86,7 +87,7 @@ def test_strict_refuses_what_would_be_left_out(tmp_path: Path,
     out = tmp_path / "out"
     assert main(["import", str(DATA / "beremiz_mixer.xml"), "-o", str(out), "--strict"]) == 2
     assert capsys.readouterr().err.splitlines()[-1] == (
-        "softplc import: error: 6 element(s) would be left out or changed (--strict): "
+        "softplc import: error: 5 element(s) would be left out or changed (--strict): "
         "nothing written")
     assert not out.exists()
     # a note that loses nothing (the scan model chosen for a CODESYS file) is no refusal

@@ -167,3 +167,76 @@ def test_a_file_of_the_limit_size_is_read(tmp_path: Path) -> None:
     p.write_text(body + " " * (MAX_XML_BYTES - 1 - len(body.encode())), encoding="utf-8")
     assert p.stat().st_size == MAX_XML_BYTES - 1
     assert [s for s in import_file(str(p)).charts[0].grafcet.steps] == ["A", "B"]
+
+
+# -- texts of networks: only the language's own texts, read by its own parser -----------------
+def _ld_action(coil: str = "o", expr: str = "a", comment: str = "") -> str:
+    """tests/plcopen/test_plcopen_blocks.py's chart with S1's LD action holding a coil of
+    variable ``coil`` fed by an inVariable ``expr``, and a comment ``comment``."""
+    from tests.plcopen.test_plcopen_blocks import HEAD as BHEAD
+    from tests.plcopen.test_plcopen_blocks import TAIL
+    from tests.plcopen.test_plcopen_blocks import sfc as bsfc
+    pou = ('<actions><action name="Act"><body><LD>'
+           f'<inVariable localId="20"><position x="0" y="0"/><connectionPointOut/>'
+           f'<expression><![CDATA[{expr}]]></expression></inVariable>'
+           '<coil localId="21"><position x="100" y="0"/><connectionPointIn><connection '
+           f'refLocalId="20"/></connectionPointIn><connectionPointOut/><variable><![CDATA['
+           f'{coil}]]></variable></coil>'
+           + (f'<comment localId="22"><position x="0" y="-40"/><content><xhtml:p>'
+              f'{comment}</xhtml:p></content></comment>' if comment else "")
+           + '</LD></body></action></actions>')
+    body = bsfc('<inline name=""><ST><xhtml:p>b</xhtml:p></ST></inline>',
+                '<action localId="7"><reference name="Act"/></action>')
+    return BHEAD.replace("KIND", "TON") + pou + body.replace("BLOCKS", "") + TAIL
+
+
+PAYLOAD = "__import__('os').system('touch MARKER')"
+
+
+@pytest.mark.parametrize(("coil", "expr", "message"), [
+    ("o := TRUE; c", "a", "the coil: expected the name of a variable to assign, found 'o := "
+                          "TRUE; c'"),
+    ("o", "a; o := b", "the inVariable: expected an expression, found ';'"),
+    ("o", "b := a", "the inVariable: expected an expression, found ':='"),
+    ("o", "a (* hidden *)", "the inVariable: expected an expression, found a comment "
+                            "'(* hidden *)'"),
+    ("o", "a // " + PAYLOAD, "the inVariable: expected an expression, found a comment"),
+])
+def test_texts_of_a_network_are_the_language_s_and_nothing_else(
+        coil: str, expr: str, message: str, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A coil's variable is one name, an inVariable one expression: a text that would be
+    read as more statements, or hide what follows it in a comment, is refused at its
+    place (the statements are made for the language's parser, never for Python)."""
+    xml = tmp_path / "h.xml"
+    xml.write_text(_ld_action(coil, expr), encoding="utf-8")
+    assert main(["import", str(xml), "-o", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and re.match(rf"{re.escape(str(xml))}:\d+:\d+: error: localId 2\d: ",
+                                      err[0]), err
+    assert message in err[0]
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_comment_of_an_ld_action_with_line_breaks_and_python_stays_a_comment(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Every line break an XML text can hold (CR written &#13;, LF, NEL, U+2028, U+2029;
+    XML 1.0 has no other control characters) ends a ``//`` line of the action, and each
+    line is a comment of the language: the chart runs, and nothing of the comment runs."""
+    marker = tmp_path / "MARKER"
+    breaks = ["&#13;", "\n", "\x85", "\u2028", "\u2029", "&#13;\n"]
+    comment = "".join(f"x{c}{PAYLOAD.replace('MARKER', str(marker))}" for c in breaks)
+    xml = tmp_path / "h.xml"
+    xml.write_text(_ld_action(comment=comment), encoding="utf-8")
+    assert main(["import", str(xml), "-o", str(tmp_path / "o"), "--strict"]) == 0
+    chart = (tmp_path / "o" / "B.yaml").read_text(encoding="utf-8")
+    assert all(c not in chart for c in "\r\x85\u2028\u2029")
+    assert chart.count("// __import__") == len(breaks)
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        assert main(["simulate", str(tmp_path / "o" / "plant.yaml"), "--cycles", "3"]) == 0
+    finally:
+        os.chdir(cwd)
+    assert not marker.exists()
+    capsys.readouterr()

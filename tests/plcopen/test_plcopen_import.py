@@ -24,6 +24,7 @@ PRESS = DATA / "codesys_press.xml"
 #: P1 on a variable as P, the contacts and the inVariable as expressions
 MIXER_CHART = """\
 grafcet: Mixer
+description: "Mixing tank: fill, heat and stir, drain"
 inputs: [Start, Stop, LevelHigh, LevelLow, {Temp: int}, Emergency]
 outputs: [Pump, Heater, Stirrer, Drain, Alarm, Lamp, Horn, {Batches: int}]
 memory:
@@ -59,10 +60,11 @@ transitions:
   - {from: Fault, to: Idle, when: FE Stop}
 """
 
-#: the notes of beremiz_mixer.xml: (line, text) - each element left out, by its localId
+#: the notes of beremiz_mixer.xml: (line, text) - each element left out, by its localId,
+#: and the comment kept (a note that loses nothing)
 MIXER_NOTES = [
     (113, "variable 'Note' of type string left out"),
-    (204, "localId 31: comment left out"),
+    (204, "localId 31: comment kept in the chart's description"),
     (480, "localId 5 (action block of step 'Filling'), action 1: indicator 'PumpOn' left "
           "out"),
     (496, "localId 5 (action block of step 'Filling'), action 4: qualifier DL left out"),
@@ -120,9 +122,10 @@ def test_beremiz_file_notes_each_element_left_out(tmp_path: Path) -> None:
     notes = import_file(str(MIXER)).notes
     assert [(n.loc.line, n.message[:len(want)]) for n, (_, want) in
             zip(notes, MIXER_NOTES, strict=True)] == MIXER_NOTES
-    assert all(n.lost and n.loc.file == str(MIXER) for n in notes)
-    assert all(str(n).startswith(f"{MIXER}:{n.loc.line}:") and ": warning: " in str(n)
-               for n in notes)
+    assert [n.lost for n in notes] == [True, False, True, True, True, True]
+    assert all(n.loc.file == str(MIXER) for n in notes)
+    assert all(str(n).startswith(f"{MIXER}:{n.loc.line}:") and (
+        ": warning: " if n.lost else ": note: ") in str(n) for n in notes)
 
 
 def test_codesys_file_imports_with_its_vendor_data(tmp_path: Path) -> None:
@@ -275,15 +278,25 @@ def test_a_condition_from_a_pou_transition_in_st_negated(tmp_path: Path) -> None
     assert text == "NOT (a AND b)"  # the comment before GO := is left with it
 
 
-def test_a_condition_network_with_a_timer_is_refused_at_the_block(tmp_path: Path) -> None:
-    net = FBD_OR.replace('typeName="AND"', 'typeName="TON"')
+@pytest.mark.parametrize(("kind", "message"), [
+    ("SEL", "localId 14: a block SEL: softplc carries variables, contacts, coils, the gates "
+            "AND OR XOR NOT, comparisons and arithmetic, and the blocks TON TOF TP CTU CTD "
+            "CTUD R_TRIG F_TRIG SR RS; write it in ST (in a transition's condition)"),
+    ("TON", "localId 14: block TON instance '': expected a TON declared by that name in the "
+            "POU's variables"),
+])
+def test_a_condition_network_with_a_block_it_cannot_carry_is_refused_at_the_block(
+        tmp_path: Path, kind: str, message: str) -> None:
+    """A block of a type the language lacks, or a function block the POU does not
+    declare (function blocks it declares are carried: test_plcopen_blocks.py)."""
+    net = FBD_OR.replace('typeName="AND"', f'typeName="{kind}"')
     cond = '<connectionPointIn><connection refLocalId="13"/></connectionPointIn>'
     with pytest.raises(SourceError) as e:
         condition_of(tmp_path, cond, net)
     lines = (tmp_path / "p.xml").read_text().splitlines()
     assert e.value.loc.line == 1 + next(i for i, ln in enumerate(lines)
                                         if 'localId="14"' in ln)
-    assert "localId 14: a block TON in a transition's condition" in e.value.message
+    assert e.value.message == message
 
 
 def test_an_st_fault_is_reported_in_the_xml_file(tmp_path: Path) -> None:
@@ -402,3 +415,26 @@ def test_encodings_of_the_editors(tmp_path: Path, declaration: str, encoding: st
     g = import_file(str(p)).charts[0].grafcet
     assert g.transitions[0].text == "Señal"
     assert [v.name for v in g.inputs] == ["Señal", "b", "c"]
+
+
+@pytest.mark.parametrize(("qualifier", "duration"), [("L", None), ("D", None), ("D", ""),
+                                                     ("SD", None)])
+def test_a_timed_qualifier_without_a_duration_is_an_error(
+        tmp_path: Path, qualifier: str, duration: str | None) -> None:
+    """IEC 61131-3 times L, D, SD, DS and SL: without a duration the association has no
+    meaning (was: left out with a warning, exit status 0)."""
+    text = MIXER.read_text(encoding="utf-8")
+    was = '<action localId="0" qualifier="D" duration="T#1s">'
+    now = f'<action localId="0" qualifier="{qualifier}"' + (
+        f' duration="{duration}">' if duration is not None else ">")
+    assert was in text
+    xml = tmp_path / "m.xml"
+    xml.write_text(text.replace(was, now), encoding="utf-8")
+    with pytest.raises(SourceError) as e:
+        import_file(str(xml))
+    assert e.value.loc.line == 1 + text.splitlines().index(
+        next(ln for ln in text.splitlines() if was in ln))
+    assert e.value.message == (
+        f"localId 12 (action block of step 'Heating'), action 2: qualifier {qualifier} "
+        f"without a duration: IEC 61131-3 times {qualifier} (expected duration=\"T#2s\" or "
+        "another time)")

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import re
+import resource
 import shutil
 import signal
 import socket
@@ -21,6 +22,7 @@ from typing import Any
 import pytest
 
 from runtime.controller.pin import hash_pin
+from runtime.language.runtimedir import runtime_dir
 from tests.opcua.feedkit import FeedReader, wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -38,7 +40,11 @@ SAMPLE_MS = 50
 
 def write_plant(tmp: Path, web: str = "", users: bool = True) -> Path:
     """The drawer tester of configs/ (two instances on sim I/O), a console socket, and a
-    ``web:`` section listening on a free port of 127.0.0.1 (port 0)."""
+    ``web:`` section listening on a free port of 127.0.0.1 (port 0). In the directory
+    ``tmp/p``: the plant's name is its runtime directory's (``${RUNTIME_DIR}`` is
+    ``tmp/softplc/p-HASH``), short enough for its sockets below a test's tmp path."""
+    tmp = tmp / "p"
+    tmp.mkdir(exist_ok=True)
     shutil.copy(ROOT / "configs/drawer_tester/drawer_tester.yaml", tmp / "drawer_tester.yaml")
     text = (ROOT / "configs/drawer_tester/plant_sim.yaml").read_text(encoding="utf-8")
     text = text[:text.index("\nmonitor:")] + "\n"
@@ -52,6 +58,11 @@ def write_plant(tmp: Path, web: str = "", users: bool = True) -> Path:
     plant = tmp / "plant.yaml"
     plant.write_text(text, encoding="utf-8")
     return plant
+
+
+def rundir_of(tmp: Path, plant: Path) -> Path:
+    """``${RUNTIME_DIR}`` of ``plant`` run with the environment of ``start`` (``_env``)."""
+    return Path(runtime_dir({"XDG_RUNTIME_DIR": str(tmp)}, plant=str(plant)))
 
 
 def _env(tmp: Path) -> dict[str, str]:
@@ -76,10 +87,17 @@ class Proc:
         return "\n".join(self.lines)
 
 
-def start(tmp: Path, *args: str) -> Proc:
+def start(tmp: Path, *args: str, nofile: int | None = None, nice: int = 0) -> Proc:
+    """``softplc ARGS`` in ``tmp``; ``nofile``: its open-file limit (RLIMIT_NOFILE), as a
+    unit's ``LimitNOFILE=`` sets it; ``nice``: its nice level (``Nice=``)."""
+    def limit() -> None:
+        if nofile is not None:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (nofile, nofile))
+        if nice:
+            os.nice(nice)
     p = subprocess.Popen([sys.executable, "-m", "runtime.cli", *args], cwd=str(tmp),
                          env=_env(tmp), text=True, stdout=subprocess.DEVNULL,
-                         stderr=subprocess.PIPE)
+                         stderr=subprocess.PIPE, preexec_fn=limit)
     proc = Proc(p)
     threading.Thread(target=proc.follow, daemon=True).start()
     return proc
@@ -111,7 +129,8 @@ class Rig:
 
     @property
     def rundir(self) -> Path:
-        return self.tmp / "softplc"
+        """The plant's ``${RUNTIME_DIR}`` (its own, below the test's XDG_RUNTIME_DIR)."""
+        return rundir_of(self.tmp, self.plant)
 
     def console(self, *lines: str, act: bool = True) -> list[str]:
         """The lines on a fresh console session of the plant's socket, first acting for
@@ -140,18 +159,29 @@ class Rig:
         return self.feed.statuses[-1] if self.feed.statuses else {}
 
 
+def unit_nofile() -> int:
+    """The open-file limit of the web view's unit (``LimitNOFILE=`` of
+    systemd/softplc-web@.service), else systemd's default soft limit for a service,
+    1024."""
+    text = (ROOT / "systemd/softplc-web@.service").read_text(encoding="utf-8")
+    found = re.search(r"^LimitNOFILE=(\d+)", text, re.M)
+    return int(found.group(1)) if found else 1024
+
+
 @contextmanager
-def rig(tmp: Path, web: str = "", users: bool = True) -> Iterator[Rig]:
+def rig(tmp: Path, web: str = "", users: bool = True,
+        nofile: int | None = None) -> Iterator[Rig]:
+    """The controller and its web view (its open-file limit ``nofile`` if given)."""
     plant = write_plant(tmp, web, users)
     ctl = start(tmp, "run", str(plant), "--sim")
     webp = None
     feed = None
     try:
-        feed_path = tmp / "softplc" / "feed.sock"
+        feed_path = rundir_of(tmp, plant) / "feed.sock"
         wait_until(lambda: feed_path.exists() or ctl.popen.poll() is not None, 30.0,
                    "the feed socket")
         assert ctl.popen.poll() is None, ctl.log()
-        webp = start(tmp, "web", str(plant))
+        webp = start(tmp, "web", str(plant), nofile=nofile)
         found: list[str] = []
 
         def listening() -> bool:
@@ -160,6 +190,11 @@ def rig(tmp: Path, web: str = "", users: bool = True) -> Iterator[Rig]:
             return bool(found) or webp.popen.poll() is not None
         wait_until(listening, 30.0, "the web view's address")
         assert found, webp.log()
+        # the web view on its feed before the test begins (a test counting the
+        # controller's log lines from here must not see the connection's)
+        wait_until(lambda: any("connected to the controller's feed" in ln
+                               for ln in webp.lines) or webp.popen.poll() is not None,
+                   30.0, "the web view's feed")
         feed = FeedReader(str(feed_path))
         wait_until(lambda: bool(feed.frames) and bool(feed.statuses), 30.0, "feed frames")
         yield Rig(tmp, plant, ctl, webp, found[0], feed)

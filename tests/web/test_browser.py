@@ -106,3 +106,45 @@ def test_a_force_from_the_page_reaches_the_output_and_closing_the_page_is_safe(
         log = r.ctl.log()
         assert "web:op@127.0.0.1" in log and "while it held: force tester1.oTest" in log, log
         time.sleep(0)  # nothing else: the halt waits for a person's ack
+
+
+#: the boxes (x, y, width, height) of the elements a selector finds, in page pixels
+BOXES = """(sel) => [...document.querySelectorAll(sel)].filter((e) => {
+  const r = e.getBoundingClientRect(); return r.width > 0 && r.height > 0;
+}).map((e) => { const r = e.getBoundingClientRect(); return [r.x, r.y, r.width, r.height,
+  e.textContent]; })"""
+
+
+def _meet(a: list[Any], b: list[Any]) -> bool:
+    return (a[0] < b[0] + b[2] and b[0] < a[0] + a[2] and a[1] < b[1] + b[3]
+            and b[1] < a[1] + a[3])
+
+
+def test_the_step_time_and_the_io_list_headers_are_legible(tmp_path: Path) -> None:
+    """An active step's time stands clear of its action box and of every other text of
+    the drawing (it was drawn over the action box); every header cell of the I/O list
+    says what its column is (two were empty), one per column shown."""
+    with rig(tmp_path) as r, browser() as b:
+        page = open_page(b, r)
+        r.console("set sim.I0 1", "set sim.I1 1")  # tester1 opens its drawer: gsAbrir
+        step = "#inst-tester1 g.step-group[data-step=gsAbrir]"
+        page.wait_for_selector(step + ".active", timeout=30_000)
+        page.wait_for_function(f"() => document.querySelector('{step} .live-t')"
+                               ".textContent.endsWith(' s')", timeout=30_000)
+        (label,) = page.evaluate(BOXES, f"{step} .live-t")
+        others = page.evaluate(BOXES, "#inst-tester1 svg text, #inst-tester1 svg rect")
+        hit = [o for o in others if o[4] != label[4] and _meet(label, o)
+               and not (o[0] <= label[0] and o[1] <= label[1]  # the frame holding it
+                        and label[0] + label[2] <= o[0] + o[2]
+                        and label[1] + label[3] <= o[1] + o[3])]
+        assert hit == [], (label, hit)
+        for acting in (False, True):
+            heads = page.evaluate(BOXES, "#inst-tester1 table.io th")
+            cells = page.evaluate(BOXES, '#inst-tester1 table.io tr[data-name="tester1.oTest"] td')
+            assert all(h[4].strip() for h in heads), [h[4] for h in heads]
+            assert len(heads) == len(cells), ([h[4] for h in heads], len(cells))
+            if not acting:
+                log_in(page)
+                page.wait_for_selector("#who:not([hidden])", timeout=30_000)
+                page.wait_for_selector("body[data-link=live]", timeout=30_000)
+        assert page.errors == []

@@ -95,3 +95,59 @@ def test_a_login_that_times_out_ends_in_the_safe_reaction(
         wait_until(lambda: r.status().get("state") == "halted", 30.0, "the safe reaction")
         wait_until(lambda: not any(r.value(f"sim.Q{i}") for i in range(8)), 10.0, "off")
         assert "web:op@127.0.0.1" in r.ctl.log()
+
+
+
+def test_each_login_ends_once_and_is_told_apart_when_the_web_view_stops(
+        tmp_path: Path) -> None:
+    """SIGTERM said ``web: op's login from 127.0.0.1 ended`` twice: once per login, the
+    lines alike. Each login has its number in its lines; a browser logging in again
+    retires its previous login (no page open on it) at once; a page still open keeps its
+    own."""
+    import asyncio
+    import json
+    import signal
+
+    import aiohttp
+
+    from tests.web.kit import PASSWORD, USER
+
+    with rig(tmp_path) as r:
+        url = r.url.rstrip("/")
+
+        async def log_in(s: aiohttp.ClientSession) -> None:
+            async with s.post(url + "/api/login", json={"user": USER, "password": PASSWORD},
+                              headers={"Origin": url}) as resp:
+                assert resp.status == 200
+
+        async def run() -> None:
+            # cookie jars keeping 127.0.0.1's cookie: two browsers
+            async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as a, \
+                    aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as b:
+                await log_in(a)
+                await log_in(a)  # the same browser again: login 1 is retired
+                await log_in(b)
+                ws = await b.ws_connect(url + "/ws", headers={"Origin": url})
+                await ws.send_str(json.dumps({"act": [1, "pause"]}))
+                while True:  # the page acts: its console session is open
+                    msg = json.loads((await ws.receive()).data)
+                    if msg["t"] == "r":
+                        assert msg["ok"], msg
+                        break
+                r.web.popen.send_signal(signal.SIGTERM)
+                while (await ws.receive()).type not in (
+                        aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED,
+                        aiohttp.WSMsgType.ERROR):
+                    pass
+        asyncio.run(run())
+        r.web.popen.wait(timeout=30)
+    log = r.web.log()
+    said = [ln.split(": ", 1)[1] for ln in r.web.lines if "runtime.web.server: web: op" in ln]
+    assert said == [
+        "web: op logged in from 127.0.0.1 (login 1)",
+        "web: op's login 1 from 127.0.0.1 ended (replaced by a new login from the same "
+        "browser)",
+        "web: op logged in from 127.0.0.1 (login 2)",
+        "web: op logged in from 127.0.0.1 (login 3)",
+        "web: op's login 2 from 127.0.0.1 ended (the web view stops)",
+        "web: op's login 3 from 127.0.0.1 ended (the web view stops)"], log

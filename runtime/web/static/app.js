@@ -74,15 +74,11 @@ async function instanceBox(inst) {
   for (const g of svg.querySelectorAll("g.step-group")) {
     const rect = g.querySelector("rect.step");
     const x = +rect.getAttribute("x"), y = +rect.getAttribute("y");
-    const w = +rect.getAttribute("width");
     const ns = "http://www.w3.org/2000/svg";
     const tok = document.createElementNS(ns, "circle");
     tok.setAttribute("cx", x + 8); tok.setAttribute("cy", y + 8);
     tok.setAttribute("r", "2.5"); tok.setAttribute("class", "live-token");
-    const t = document.createElementNS(ns, "text");
-    t.setAttribute("x", x + w + 3); t.setAttribute("y", y + 9);
-    t.setAttribute("class", "live-t");
-    g.append(tok, t);
+    g.append(tok);  // the step's time goes in the drawing's own text.live-t (room kept)
   }
   chart.append(svg);
   const side = el("div", {});
@@ -96,8 +92,10 @@ async function instanceBox(inst) {
 function ioTable(inst) {
   const t = el("table", {class: "io"});
   const head = el("tr");
-  for (const c of ["signal", "", "point", "value", "", "description", "plot", ""])
+  // a label over every column; the last (force, set) only while acting, as its cells
+  for (const c of ["signal", "dir", "point", "value", "forced", "description", "plot"])
     head.append(el("th", {}, c));
+  head.append(el("th", {class: "act"}, "act"));
   t.append(head);
   for (const [name, dir, source, descr, type] of inst.io) {
     const tr = el("tr", {"data-name": name, "data-type": type});
@@ -222,6 +220,13 @@ function frame(m) {
   render();
 }
 
+function stepTime(s) {
+  // at most "9999.9 s" or "9999 min": the room the drawing keeps for it (LIVE_TIME_W)
+  if (s < 1e4) return s.toFixed(1) + " s";
+  if (s < 6e5) return (s / 60).toFixed(0) + " min";
+  return (s / 3600).toFixed(0) + " h";
+}
+
 function value(name) { const i = S.index.get(name); return i === undefined ? null : S.values[i]; }
 
 function render() {
@@ -238,7 +243,7 @@ function render() {
       if (on && !g.classList.contains("active")) g.dataset.shownScan = S.scan;
       g.classList.toggle("active", on);
       const t = value(inst.name + "." + step + ".T");
-      g.querySelector(".live-t").textContent = on && t !== null ? (t / 1e9).toFixed(1) + " s" : "";
+      g.querySelector(".live-t").textContent = on && t !== null ? stepTime(t / 1e9) : "";
     }
     renderWhy(inst, box);
     for (const tr of box.querySelectorAll("table.io tr[data-name]")) {

@@ -2,6 +2,7 @@
 in its own virtual environment (requirements.txt) and decodes everything with pysparkplug.
 
     host.py HOST PORT [--ca FILE] [--user U --password P] [--id HOST_ID] [--primary]
+            [--keepalive SECONDS]
 
 It subscribes to what edge nodes publish (``spBv1.0/+/NBIRTH/#`` ..., QoS 1) and writes
 one JSON line per message to stdout:
@@ -11,9 +12,10 @@ one JSON line per message to stdout:
 (``"error"`` instead of the payload's fields when pysparkplug cannot decode it). It reads
 JSON lines on stdin: ``{"cmd": TOPIC, "metrics": [[name, datatype name, value], ...]}``
 publishes a command encoded by pysparkplug; ``{"raw": TOPIC, "hex": HEX}`` publishes those
-bytes; ``{"state": true|false}`` publishes this host's STATE (retained, QoS 1, with
-``--id``); ``{"flood": TOPIC, "metrics": [...], "rate": N, "seconds": S}`` publishes one
-DCMD N times a second for S seconds. ``{"ready": true}`` is written once subscribed, a row
+bytes (``"retain": true`` retained, ``"qos": 1``); ``{"state": true|false}`` publishes
+this host's STATE (retained, QoS 1, with ``--id``); ``{"flood": TOPIC, "metrics": [...],
+"rate": N, "seconds": S}`` publishes one DCMD (or NCMD) N times a second for S seconds
+(``"count": C``: C of them at most). ``{"ready": true}`` is written once subscribed, a row
 of kind ``HOST_CONNECTED`` at each (re)connection, ``{"sent": N}`` after each request.
 """
 
@@ -71,6 +73,8 @@ def main() -> None:
     ap.add_argument("--primary", action="store_true",
                     help="act as the primary host: STATE online at each connection, "
                          "offline as the Will")
+    ap.add_argument("--keepalive", type=int, default=5,
+                    help="the MQTT keepalive of this host's connection, seconds")
     a = ap.parse_args()
     tls = spb.TLSConfig(ca_certs=a.ca) if a.ca else None
     client = spb.Client(client_id=f"{a.id}-{time.monotonic_ns()}", username=a.user,
@@ -122,7 +126,7 @@ def main() -> None:
                 timestamp=spb.get_current_timestamp(), online=True).encode(), qos=1,
                 retain=True)
         done.set()
-    client.connect(a.host, port=a.port, keepalive=5, blocking=False, callback=connected)
+    client.connect(a.host, port=a.port, keepalive=a.keepalive, blocking=False, callback=connected)
     if not done.wait(20):
         emit({"fatal": "no connection"})
         return
@@ -162,15 +166,17 @@ def main() -> None:
             client.publish(spb.Message(topic=topic, payload=payload, qos=spb.QoS.AT_MOST_ONCE,
                                        retain=False), include_dtypes=True)
         elif "raw" in req:
-            inner.publish(req["raw"], bytes.fromhex(req["hex"]), qos=0)
+            inner.publish(req["raw"], bytes.fromhex(req["hex"]), qos=req.get("qos", 0),
+                          retain=bool(req.get("retain", False)))
         elif "flood" in req:  # {"flood": TOPIC, "metrics": [...], "rate": N, "seconds": S}
             topic = spb.Topic.from_str(req["flood"])
             metrics = tuple(spb.Metric(timestamp=now, name=n, datatype=spb.DataType[d],
                                        value=v) for n, d, v in req["metrics"])
-            data = spb.DCmd(timestamp=now, metrics=metrics).encode(include_dtypes=True)
+            kind = spb.NCmd if topic.message_type == spb.MessageType.NCMD else spb.DCmd
+            data = kind(timestamp=now, metrics=metrics).encode(include_dtypes=True)
             period, end = 1.0 / req["rate"], time.monotonic() + req["seconds"]
-            due, sent = time.monotonic(), 0
-            while time.monotonic() < end:
+            due, sent, count = time.monotonic(), 0, req.get("count")
+            while time.monotonic() < end and (count is None or sent < count):
                 inner.publish(str(topic), data, qos=0)
                 sent += 1
                 due += period

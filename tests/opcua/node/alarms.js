@@ -5,7 +5,8 @@
 //   {"refresh": true}                                  -> {"refresh": status}
 //   {"ack": conditionId, "eventId": hex, "comment": s}  -> {"ack": status}
 //   {"confirm": conditionId, "eventId": hex, "comment": s} -> {"confirm": status}
-//   {"call": objectId, "method": methodId}             -> {"call": status}
+//   {"call": objectId, "method": methodId, "args": [[dataType, value], ...]}
+//                          -> {"call": status}, with "inputs": [status...] when there are some
 //   {"executable": nodeId}                              -> {"executable": UserExecutable}
 //   {"quit": true}
 // Events: {"event": {EventId (hex), ConditionId, ConditionName, SourceName, Message,
@@ -16,7 +17,7 @@ const readline = require("readline");
 const {
   OPCUAClient, MessageSecurityMode, SecurityPolicy, AttributeIds, UserTokenType,
   ClientSubscription, ClientMonitoredItem, TimestampsToReturn, constructEventFilter,
-  callConditionRefresh, acknowledgeCondition, confirmCondition,
+  callConditionRefresh, acknowledgeCondition, confirmCondition, DataType, Variant,
 } = require("node-opcua-client");
 
 const cfg = JSON.parse(process.argv[2]);
@@ -80,9 +81,12 @@ async function main() {
                               cmd.comment || "");
       out({ [verb]: status.name });
     } else if (cmd.call) {
+      const inputArguments = (cmd.args || []).map(
+        ([type, value]) => new Variant({ dataType: DataType[type], value }));
       const res = await session.call({ objectId: cmd.call, methodId: cmd.method,
-                                       inputArguments: [] });
-      out({ call: res.statusCode.name });
+                                       inputArguments });
+      const inputs = (res.inputArgumentResults || []).map((s) => s.name);
+      out(inputs.length ? { call: res.statusCode.name, inputs } : { call: res.statusCode.name });
     } else if (cmd.executable) {
       const dv = await session.read({ nodeId: cmd.executable,
                                       attributeId: AttributeIds.UserExecutable });
