@@ -18,8 +18,9 @@
 #   KIO_SMP, KIO_MEM  the guest's processors (2) and memory in MiB (1536)
 # Exit status: the tier's (pytest's); 124 the guest did not finish in time (killed); 125
 # the guest left no status (it crashed or failed to boot); 3 the tier could not be
-# prepared. Where this machine cannot run it (not root and something missing, or no apt)
-# it says why and exits 0, unless CI is set: then 3.
+# prepared. Where this machine cannot run it (something missing and neither root nor
+# password-less sudo to install it, or no apt) it says why and exits 0, unless CI is set:
+# then 3, so CI fails loudly rather than skipping the tier.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$(pwd)
@@ -46,11 +47,16 @@ cpu() {  # processor time of this script's finished children (user + system), s
 # comes from here too
 PKGS="qemu-system-x86 busybox-static cpio dmsetup e2fsprogs kmod make gcc binutils xz-utils
       iproute2 bc"
-apt_ready=0
+apt_ready=0 SUDO=""
+can_apt() {  # root, or password-less sudo (SUDO is then "sudo"), and apt
+  command -v apt-get >/dev/null || return 1
+  if [ "$(id -u)" = 0 ]; then SUDO=""; return 0; fi
+  command -v sudo >/dev/null && sudo -n true 2>/dev/null && SUDO="sudo -n"
+}
 apt_install() {
-  [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null || cannot "needs root and apt to install $*"
-  if [ $apt_ready = 0 ]; then apt-get update -qq; apt_ready=1; fi
-  apt-get install -y -qq --no-install-recommends "$@" >/dev/null
+  can_apt || cannot "needs apt and root (or password-less sudo) to install $*"
+  if [ $apt_ready = 0 ]; then $SUDO apt-get update -qq; apt_ready=1; fi
+  $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "$@" >/dev/null
 }
 missing=()
 for p in $PKGS; do dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p"); done
@@ -63,10 +69,10 @@ fi
 mkdir -p "$CACHE"
 KVER=$(cat "$CACHE/kver" 2>/dev/null || true)
 if [ -z "$KVER" ] || [ ! -f "$CACHE/$KVER/ready" ]; then
-  [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null || cannot "needs root and apt to fetch the kernel"
+  can_apt || cannot "needs apt and root (or password-less sudo) to fetch the kernel"
   pick() { apt-cache depends linux-image-amd64 2>/dev/null | sed -n 's/.*Depends: linux-image-\(.*\)/\1/p' | head -1; }
   KVER=$(pick)
-  if [ -z "$KVER" ]; then apt-get update -qq; apt_ready=1; KVER=$(pick); fi
+  if [ -z "$KVER" ]; then $SUDO apt-get update -qq; apt_ready=1; KVER=$(pick); fi
   [ -n "$KVER" ] || cannot "apt knows no linux-image-amd64"
 fi
 K=$CACHE/$KVER
