@@ -96,6 +96,11 @@ class VcanCanopenRig(CanopenRig):
 
     #: seconds a real-time wait may take in the guest
     SLOW_S = 20.0
+    #: the driver waits two heartbeats in real time for OPERATIONAL after its NMT start:
+    #: at tests/drivers' 0.2 s that wait (400 ms) ran out once in the guest under load
+    #: (test_one_log_line_per_state_change[canopen-vcan]); the tests' own heartbeat times
+    #: are on the injected clock and scale with it
+    HEARTBEAT_S = 1.0
 
     def __init__(self, mp: pytest.MonkeyPatch, clock: FakeClock) -> None:
         Rig.__init__(self, mp, clock)
