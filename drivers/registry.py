@@ -69,10 +69,18 @@ _DEBOUNCE = ConfigKey("debounce", Kind.DURATION, default=0, maximum=GPIO_MAX_DEB
                           "none): a change is taken once every read for this long saw it "
                           "(10ms).")
 
+#: a GPIO chip's label as the kernel gives it through the character device (at most 31
+#: characters: GPIO_MAX_NAME_SIZE is 32 with the NUL), printable, without white space at
+#: either end; not a device's name (``gpiochip0`` is a mistake for ``/dev/gpiochip0``)
+GPIO_LABEL = r"(?!gpiochip[0-9]+$)[^/\x00-\x20\x7f](?:[^\x00-\x1f\x7f]{0,29}[^\x00-\x20\x7f])?"
+
 GPIO_KEYS = ConfigKeys(
-    ConfigKey("chip", Kind.TEXT, default="/dev/gpiochip0", pattern=r"/\S+",
-              expected="a GPIO character device such as /dev/gpiochip0 (its full path)",
-              doc="The GPIO character device."),
+    ConfigKey("chip", Kind.TEXT, default="/dev/gpiochip0", pattern=r"/\S+|" + GPIO_LABEL,
+              expected="a GPIO chip: its character device such as /dev/gpiochip0 (the "
+                       "full path) or its label such as pinctrl-rp1 (gpiodetect lists "
+                       "both)",
+              doc="The GPIO chip: its character device (/dev/gpiochip0) or its label "
+                  "(pinctrl-rp1), looked up at every open."),
     ConfigKey("bias", Kind.CHOICE, default="none", choices=("pull_up", "pull_down", "none"),
               message="{key} '{value}': expected {expected}", doc="Bias of the input lines."),
     replace(_DEBOUNCE, doc="Debounce period of the input lines (5ms)."),

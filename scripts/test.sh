@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Set up a virtual environment with every test dependency, check the style (ruff, mypy) and
-# run the whole test suite, slow tests included (what CI runs: .ci/run).
+# run the whole test suite, slow tests included, then the kernel_io tier in a QEMU guest
+# (scripts/kernel-io.sh; what CI runs: .ci/run).
 # Usage: scripts/test.sh [--fast] [PYTEST ARGS...]
 #   --fast      skip the tests marked slow (kill -9 loops, floods): a quick local run
 #   PYTEST ARGS passed on to pytest (e.g. tests/console -x)
@@ -83,6 +84,17 @@ status=0
 if [ "$status" = 5 ]; then
   echo "test.sh: pytest collected no tests" >&2
   exit 1
+fi
+# the kernel_io tier (tests/kernel_io, docs/testing.md): the drivers on a real Linux
+# kernel's GPIO, I2C and CAN devices and a power cut, in a QEMU guest; with the whole
+# suite only (not --fast, no pytest arguments)
+if [ "$fast" = 0 ] && [ ${#args[@]} -eq 0 ]; then
+  kio=0
+  scripts/kernel-io.sh || kio=$?
+  if [ "$kio" != 0 ]; then
+    echo "test.sh: the kernel_io tier failed (status $kio)" >&2
+    [ "$status" = 0 ] && status=1
+  fi
 fi
 changed="$(comm -13 <(printf '%s\n' "$before") <(tree) | sed '/^$/d')"
 if [ -n "$changed" ]; then

@@ -1,7 +1,9 @@
 """A GPIO chip as the kernel's character device (uAPI v2) shows it through libgpiod v2.
 
 ``FakeGpio.request_lines`` has the signature of ``gpiod.request_lines`` and is installed
-over it by the tests (monkeypatch): production code never sees this module.
+over it by the tests (monkeypatch): production code never sees this module. Tests of a chip
+named by its label also install ``FakeGpio.Chip`` over ``gpiod.Chip`` (its ``get_info``)
+and ``FakeGpio.paths`` over ``drivers.gpio.chip_paths`` (the chips of the machine).
 
 What is modelled, as the kernel does it:
 
@@ -14,6 +16,8 @@ What is modelled, as the kernel does it:
 * a line can be requested once (EBUSY), offsets beyond the chip fail (EINVAL), a missing
   chip fails (ENOENT), a removed chip fails every call (ENODEV), a released request raises
   ``gpiod.RequestReleasedError`` (releasing it again too);
+* a chip has a label (``ChipInfo.label``); ``move`` gives it another path, as the kernel
+  numbers a chip anew that comes back while its old number is still held;
 * ``output_values`` of ``request_lines``, when given, override every output line's
   ``LineSettings.output_value`` (a line it omits starts INACTIVE), as libgpiod does.
 
@@ -53,8 +57,10 @@ class LineState:
 class FakeChip:
     """One /dev/gpiochipN."""
 
-    def __init__(self, path: str, num_lines: int, clock: Callable[[], int]) -> None:
+    def __init__(self, path: str, num_lines: int, clock: Callable[[], int],
+                 label: str = "") -> None:
         self.path = path
+        self.label = label
         self.num_lines = num_lines
         self.clock = clock
         self.lines = [LineState() for _ in range(num_lines)]
@@ -185,6 +191,27 @@ class FakeLineRequest:
         return not self.released
 
 
+class FakeChipHandle:
+    """What ``gpiod.Chip(path)`` returns, for what the driver asks of it: its info."""
+
+    def __init__(self, chip: FakeChip) -> None:
+        self.chip = chip
+
+    def get_info(self) -> gpiod.ChipInfo:
+        self.chip._check()
+        return gpiod.ChipInfo(self.chip.path.rsplit("/", 1)[-1], self.chip.label,
+                              self.chip.num_lines)
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self) -> FakeChipHandle:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 class FakeGpio:
     """The kernel's GPIO chips by path; ``request_lines`` replaces ``gpiod.request_lines``."""
 
@@ -194,10 +221,32 @@ class FakeGpio:
         #: every request made: (path, {offset: LineSettings}, consumer)
         self.requests: list[tuple[str, dict[int, gpiod.LineSettings], str | None]] = []
 
-    def add_chip(self, path: str = "/dev/gpiochip0", num_lines: int = 54) -> FakeChip:
-        chip = FakeChip(path, num_lines, self.clock)
+    def add_chip(self, path: str = "/dev/gpiochip0", num_lines: int = 54,
+                 label: str = "") -> FakeChip:
+        chip = FakeChip(path, num_lines, self.clock, label)
         self.chips[path] = chip
         return chip
+
+    def move(self, chip: FakeChip, path: str) -> None:
+        """The chip comes back at ``path`` (its old path is gone), lines free, levels kept."""
+        del self.chips[chip.path]
+        chip.path = path
+        chip.removed = False
+        for line in chip.lines:
+            line.settings = None
+            line.consumer = None
+        self.chips[path] = chip
+
+    def paths(self) -> list[str]:
+        """What ``drivers.gpio.chip_paths`` returns: the chips there are."""
+        return sorted(self.chips)
+
+    def Chip(self, path: str) -> FakeChipHandle:  # gpiod.Chip(path)
+        chip = self.chips.get(path)
+        if chip is None:
+            raise FileNotFoundError(errno.ENOENT, "No such file or directory", path)
+        chip._check()
+        return FakeChipHandle(chip)
 
     def request_lines(
         self,

@@ -25,8 +25,6 @@ from tests.drivers.canopen_slave import Cia401Slave
 from tests.drivers.drvkit import FakeClock
 from tests.drivers.fake_gpiod import FakeChip, FakeGpio
 from tests.drivers.i2c_emulator import I2CWorld, Mcp23017Model, Pcf8574Model
-from tests.drivers.modbus_peer import ModbusPeer
-from tests.drivers.modbus_tcp_peer import ModbusTcpPeer, Relay
 from tests.drivers.pty_bridge import PtyBridge
 
 #: seconds any condition that depends on another thread may take: a bound only a driver
@@ -271,6 +269,10 @@ class ModbusRig(Rig):
 
     def __init__(self, mp: pytest.MonkeyPatch, clock: FakeClock) -> None:
         super().__init__(mp, clock)
+        # imported here: pymodbus is the heaviest import of the rigs, and the kernel_io
+        # tier's rigs (tests/kernel_io/rigs.py), which build on these, need none of it
+        from tests.drivers.modbus_peer import ModbusPeer
+
         self.bridge = PtyBridge()
         self.peer = ModbusPeer(self.bridge.peer_port, units=(1,)).start()
 
@@ -310,6 +312,9 @@ class ModbusTcpRig(ModbusRig):
 
     def __init__(self, mp: pytest.MonkeyPatch, clock: FakeClock) -> None:
         Rig.__init__(self, mp, clock)
+        # pymodbus imported by the Modbus rigs only (a third of the kernel tier's
+        # collection time in the guest otherwise)
+        from tests.drivers.modbus_tcp_peer import ModbusTcpPeer, Relay
         self.tcp = ModbusTcpPeer(units=(1,)).start()
         self.relay = Relay(self.tcp.port)
 

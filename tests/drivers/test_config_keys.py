@@ -4,6 +4,7 @@ plant loader and configs/schema/plant.schema.json all agree with the declaration
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -111,3 +112,19 @@ def test_declarations_load_without_bus_libraries() -> None:
             "import drivers.registry, runtime.language.plantfile\n"
             "assert 'drivers.modbus_rtu' not in sys.modules\n")
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
+
+
+#: texts the path and label patterns of the config keys are tried on
+PATTERN_SAMPLES = ["/dev/gpiochip0", "/dev/ttyUSB0", "/dev/x y", "/", "", "x", "gpiochip0",
+                   "gpiochip", "pinctrl-rp1", "INT3450:00", "a b", " x", "x ", "x" * 31,
+                   "x" * 32, "x\ty", "x\x7fy", "vcan0"]
+
+
+@pytest.mark.parametrize("type_name, key_name", [
+    (t, k.name) for t, keys in DRIVER_KEYS.items() for k in keys.values() if k.pattern])
+def test_schema_patterns_accept_what_the_keys_accept(type_name: str, key_name: str) -> None:
+    key = DRIVER_KEYS[type_name][key_name]
+    node = resolve(schema_of(type_name)["properties"][key_name])
+    for text in PATTERN_SAMPLES:
+        assert (re.search(node["pattern"], text) is not None) == \
+            (re.fullmatch(key.pattern or "", text) is not None), (key_name, text)

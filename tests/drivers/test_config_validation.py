@@ -17,7 +17,7 @@ from drivers.base import Driver
 from drivers.canopen_io import CanopenDriver
 from drivers.config import ConfigError, ConfigKey, Kind
 from drivers.modbus_rtu import ModbusRtuDriver
-from drivers.registry import DRIVER_KEYS, MODBUS_RTU_KEYS, driver_class
+from drivers.registry import DRIVER_KEYS, GPIO_LABEL, MODBUS_RTU_KEYS, driver_class
 from drivers.serial_line import SerialSettings
 from tests.drivers.test_config_keys import resolve, schema_of
 
@@ -65,9 +65,14 @@ def edges(key: ConfigKey) -> list[tuple[Any, bool, Any]]:
             if key.kind is Kind.I2C_ADDRESS:  # "0x20" as text reads as 0x20
                 out += [(f"0x{inside:02x}", True, inside), (f"0x{outside:02x}", False, None)]
     elif key.kind is Kind.TEXT:
-        if key.pattern is not None and _is_path(key):  # a device: /dev/x, not x, "/dev/x y"
-            out += [("/dev/x", True, "/dev/x"), ("x", False, None), ("/dev/x y", False, None),
-                    ("", False, None)]
+        if key.pattern is not None and _is_path(key):  # a device: /dev/x, not "/dev/x y"
+            out += [("/dev/x", True, "/dev/x"), ("/dev/x y", False, None), ("", False, None)]
+            if key.pattern.endswith(GPIO_LABEL):  # or a GPIO chip's label, 1-31 characters
+                out += [("x", True, "x"), ("a b", True, "a b"), ("x" * 31, True, "x" * 31),
+                        ("x" * 32, False, None), (" x", False, None), ("x ", False, None),
+                        ("gpiochip0", False, None), ("gpiochip", True, "gpiochip")]
+            else:
+                out += [("x", False, None)]
         elif key.pattern is not None:  # a host: a name or an address, no space, no path
             out += [("plc-7.local", True, "plc-7.local"), ("10.0.0.2", True, "10.0.0.2"),
                     ("fe80::1", True, "fe80::1"), ("a b", False, None),
@@ -265,8 +270,9 @@ MESSAGES = [
      "driver d (modbus_rtu): retries: expected 0-10, found 11"),
     ("sim", {"colour": 1}, "driver d (sim): unknown keys ['colour']"),
     # keys that declare no words of their own: the kind and range say them
-    ("gpio", {"chip": 5}, "driver d (gpio): chip: expected a GPIO character device such as "
-     "/dev/gpiochip0 (its full path), found 5"),
+    ("gpio", {"chip": 5}, "driver d (gpio): chip: expected a GPIO chip: its character device "
+     "such as /dev/gpiochip0 (the full path) or its label such as pinctrl-rp1 (gpiodetect "
+     "lists both), found 5"),
     ("canopen", {"node": 5, "channel": 1.5},
      "driver d (canopen): channel: expected text or an integer, found 1.5"),
 ]

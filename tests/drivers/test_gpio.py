@@ -13,18 +13,21 @@ import pytest
 from gpiod.line import Bias, Value
 from gpiod.line import Direction as LineDirection
 
+import drivers.gpio
 from drivers.base import Direction, Health, PointError
 from drivers.config import ConfigError
 from drivers.gpio import GpioDriver
-from tests.drivers.drvkit import FakeClock
-from tests.drivers.fake_gpiod import FakeGpio, debounce_of
+from tests.drivers.drvkit import FakeClock, wait_until
+from tests.drivers.fake_gpiod import FakeChipHandle, FakeGpio, debounce_of
 
 
 @pytest.fixture
 def kernel(monkeypatch: pytest.MonkeyPatch, clock: FakeClock) -> FakeGpio:
     k = FakeGpio(clock)
-    k.add_chip("/dev/gpiochip0", 54)
+    k.add_chip("/dev/gpiochip0", 54, label="pinctrl-bcm2711")
     monkeypatch.setattr(gpiod, "request_lines", k.request_lines)
+    monkeypatch.setattr(gpiod, "Chip", k.Chip)
+    monkeypatch.setattr(drivers.gpio, "chip_paths", k.paths)
     return k
 
 
@@ -137,6 +140,93 @@ def test_chip_removed_then_back(kernel: FakeGpio, clock: FakeClock) -> None:
     d.close()
 
 
+# -- a chip named by its label -------------------------------------------------------------
+def test_a_label_names_the_chip_found_at_each_open(kernel: FakeGpio, clock: FakeClock) -> None:
+    """A chip that comes back under another number (the kernel keeps the old one while it
+    is held) is found again by its label; the fault and where() say which device."""
+    kernel.add_chip("/dev/gpiochip1", 8, label="raspberrypi-exp-gpio")
+    d = make(clock, chip="pinctrl-bcm2711", on_fault="zero")
+    d.open()
+    assert d.health is Health.OK, d.fault_reason
+    assert kernel.requests[-1][0] == "/dev/gpiochip0"
+    assert d.where() == "pinctrl-bcm2711 (/dev/gpiochip0)"
+    chip = kernel.chips["/dev/gpiochip0"]
+    chip.drive(17, 1)
+    d.read()
+    assert d.inputs["17"] == 1
+    chip.removed = True
+    d.read()
+    assert d.health is Health.FAULT
+    assert d.fault_reason == ("pinctrl-bcm2711 (/dev/gpiochip0): [Errno 19] No such device: "
+                              "'/dev/gpiochip0'")
+    kernel.move(chip, "/dev/gpiochip2")
+    clock.advance(d.RECONNECT_MIN_S)
+    d.read()
+    assert d.health is Health.OK, d.fault_reason
+    assert kernel.requests[-1][0] == "/dev/gpiochip2" and d.inputs["17"] == 1
+    assert d.where() == "pinctrl-bcm2711 (/dev/gpiochip2)"
+    d.close()
+
+
+def test_a_label_no_chip_has_is_a_fault_naming_the_chips(kernel: FakeGpio,
+                                                         clock: FakeClock) -> None:
+    kernel.add_chip("/dev/gpiochip10", 8, label="raspberrypi-exp-gpio")
+    d = make(clock, chip="pinctrl-rp1")
+    d.open()
+    assert d.health is Health.FAULT
+    assert d.fault_reason == ("no GPIO chip labelled 'pinctrl-rp1' (chips: /dev/gpiochip0 "
+                              "'pinctrl-bcm2711', /dev/gpiochip10 'raspberrypi-exp-gpio')")
+    assert kernel.requests == []
+    kernel.add_chip("/dev/gpiochip4", 54, label="pinctrl-rp1")  # a later kernel's driver
+    clock.advance(d.RECONNECT_MIN_S)
+    d.read()
+    assert d.health is Health.OK, d.fault_reason
+    assert kernel.requests[-1][0] == "/dev/gpiochip4"
+    d.close()
+
+
+def test_a_label_two_chips_have_is_refused(kernel: FakeGpio, clock: FakeClock) -> None:
+    kernel.add_chip("/dev/gpiochip1", 54, label="pinctrl-bcm2711")
+    d = make(clock, chip="pinctrl-bcm2711")
+    d.open()
+    assert d.health is Health.FAULT
+    assert d.fault_reason == ("2 GPIO chips are labelled 'pinctrl-bcm2711' (/dev/gpiochip0, "
+                              "/dev/gpiochip1): name one by its path")
+    assert kernel.requests == []
+    d.close()
+
+
+def test_a_path_is_not_followed_but_the_fault_says_where_the_chip_went(
+        kernel: FakeGpio, clock: FakeClock) -> None:
+    d = make(clock)
+    d.open()
+    chip = kernel.chips["/dev/gpiochip0"]
+    chip.removed = True
+    d.read()
+    kernel.move(chip, "/dev/gpiochip1")
+    clock.advance(d.RECONNECT_MIN_S)
+    d.read()
+    assert d.health is Health.FAULT
+    assert d.fault_reason == (
+        "/dev/gpiochip0: cannot request lines [17, 27, 22, 23]: [Errno 2] No such file or "
+        "directory: '/dev/gpiochip0'; the chip labelled 'pinctrl-bcm2711' that was there is "
+        "now /dev/gpiochip1: name it by its label (chip: pinctrl-bcm2711) to follow it")
+    d.close()
+
+
+@pytest.mark.parametrize("chip", ["pinctrl-rp1", "INT3450:00", "gpio-sim.0-node0",
+                                  "/dev/gpiochip4", "a" * 31])
+def test_chip_is_a_path_or_a_label(chip: str) -> None:
+    assert GpioDriver("gpio", {"chip": chip}).chip == chip
+
+
+@pytest.mark.parametrize("chip", ["gpiochip0", "", " pinctrl-rp1", "pinctrl-rp1 ", "a" * 32,
+                                  "pin\nctrl", "/"])
+def test_chip_that_is_neither_a_path_nor_a_label_is_refused(chip: str) -> None:
+    with pytest.raises(ConfigError, match="its character device such as /dev/gpiochip0"):
+        GpioDriver("gpio", {"chip": chip})
+
+
 @pytest.mark.parametrize("point", ["gpio17", "-1", "1024", "017", "A0", ""])
 def test_bad_points(point: str, clock: FakeClock) -> None:
     d = GpioDriver("gpio", {}, clock=clock)
@@ -166,6 +256,8 @@ def test_fake_has_the_signatures_of_the_real_bindings() -> None:
                 if p.name != "self"]
 
     assert params(FakeGpio.request_lines) == params(gpiod.request_lines)
+    assert params(FakeGpio.Chip) == params(gpiod.Chip.__init__)
+    assert params(FakeChipHandle.get_info) == params(gpiod.Chip.get_info)
     for name in ("get_values", "get_value", "set_values", "set_value", "release"):
         assert params(getattr(FakeLineRequest, name)) == params(
             getattr(gpiod.LineRequest, name)), name
@@ -235,12 +327,17 @@ def test_real_chip_loopback() -> None:
     d.add_point(out, Direction.OUT)
     d.add_point(inp, Direction.IN)
     d.open()
+
+    def read() -> int:
+        d.read()
+        return int(d.inputs[inp])
+
     try:
         assert d.health is Health.OK, d.fault_reason
         for level in (1, 0, 1, 0):
             d.outputs[out] = level
             d.write()
-            d.read()
-            assert d.inputs[inp] == level
+            # a wire is instant; the kernel_io guest's simulated one polls (1 ms)
+            assert wait_until(lambda: read() == level, timeout=5), level  # noqa: B023
     finally:
         d.close()
