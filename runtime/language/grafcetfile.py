@@ -15,6 +15,7 @@ from runtime.errors import Diagnostic, Loc, SourceError, suggest
 from runtime.language import ast as A
 from runtime.language.lexer import KEYWORDS, is_name
 from runtime.language.model import (
+    IEC_TYPES,
     Action,
     Block,
     Grafcet,
@@ -68,10 +69,16 @@ TYPE_NAMES = {"bool": T.BOOL, "int": T.INT, "real": T.REAL, "time": T.TIME}
 # -- the shape of a grafcet file (runtime/language/shape.py): the loader's key lists, and
 # -- configs/schema/grafcet.schema.json generated from them
 _TYPE = Choice(tuple(TYPE_NAMES))
+_IEC_TYPE = Choice(tuple(n for names in IEC_TYPES.values() for n in names))
+_IEC_DOC = ("The IEC 61131-3 type a PLCopen export declares (INT, DINT, REAL ...: one that "
+            "fits the variable's type; without it LINT for int, LREAL for real). softplc "
+            "import writes it; the runtime computes as the language's type whatever it says "
+            "(no bounds, no wrap-around).")
 #: a typed signal's mapping: ``{tTemp: {type: int, description: ...}}``
 SIGNAL_SPEC = Section((
     Key("type", _TYPE, "The signal's type (default bool)."),
     Key("description", DESCRIPTION, "What the signal means (one line)."),
+    Key("iec_type", _IEC_TYPE, _IEC_DOC),
 ))
 SIGNAL = Def("signal", one_of(
     Doc(Text(), "A bool signal's name (iParo, oAbrir)."),
@@ -93,6 +100,7 @@ MEMORY_SPEC = Section((
                                 "change then carries its running value to the new name."),
     Key("description", DESCRIPTION, "What the variable means (one line), shown by the "
                                     "console, OPC UA and draw."),
+    Key("iec_type", _IEC_TYPE, _IEC_DOC),
 ))
 STATEMENTS = Def("statements", one_of(Text(), ListOf(Text())),
                  "Statements: one string, or a list of strings run in order. Assignments "
@@ -324,6 +332,7 @@ class GrafcetLoader:
         for item, loc in zip(items, items.locs, strict=True):
             typ = T.BOOL
             text = ""
+            iec: tuple[Any, Loc] | None = None
             if isinstance(item, YMap):
                 if len(item) != 1:
                     raise SourceError(loc, f"expected one '{{name: type}}' per typed signal, "
@@ -335,6 +344,8 @@ class GrafcetLoader:
                     if "description" in tname:
                         text = description_text(tname["description"],
                                                 tname.val_locs["description"])
+                    if "iec_type" in tname:
+                        iec = tname["iec_type"], tname.val_locs["iec_type"]
                     tloc = tname.val_locs.get("type", tloc)
                     tname = tname.get("type", "bool")
                 if not isinstance(tname, str) or tname not in TYPE_NAMES:
@@ -346,7 +357,7 @@ class GrafcetLoader:
                 name = item
             name = self._declare(name, loc, f"an {key[:-1]}")
             self.g.variables[name] = Variable(name, kind, typ, _zero(typ), loc,
-                                              description=text)
+                                              description=text, iec_type=_iec_type(iec, typ))
 
     def _memory(self) -> None:
         d = self.doc
@@ -359,6 +370,7 @@ class GrafcetLoader:
             retain = False
             was: str | None = None
             text = ""
+            iec: tuple[Any, Loc] | None = None
             vloc = mem.val_locs[name]
             if isinstance(spec, YMap):
                 MEMORY_SPEC.check(spec, f"memory '{name}'")
@@ -369,11 +381,14 @@ class GrafcetLoader:
                 if "renamed_from" in spec:
                     was = _identifier(spec["renamed_from"], spec.val_locs["renamed_from"],
                                       "the former name (renamed_from)")
+                if "iec_type" in spec:
+                    iec = spec["iec_type"], spec.val_locs["iec_type"]
                 vloc = spec.val_locs.get("init", vloc)
                 spec = spec.get("init", False)
             typ, init = _initial(spec, vloc, name)
             self.g.variables[name] = Variable(name, VarKind.MEMORY, typ, init, loc, retain,
-                                              renamed_from=was, description=text)
+                                              renamed_from=was, description=text,
+                                              iec_type=_iec_type(iec, typ))
 
     def _timers_blocks(self) -> None:
         d = self.doc
@@ -703,6 +718,20 @@ class GrafcetLoader:
         # temporaries are typed by their first assignment in file order
         self.units.sort(key=lambda u: (u[2](0).line, u[2](0).col))
         checker.run(self.units)
+
+
+def _iec_type(iec: tuple[Any, Loc] | None, typ: A.Type) -> str:
+    """A variable's ``iec_type`` ("" without one), checked against its type ``typ``: a
+    refusal at its place names the types it may be."""
+    if iec is None:
+        return ""
+    value, loc = iec
+    allowed = IEC_TYPES.get(typ.value, ())
+    value = expect_type(value, loc, str, "an IEC 61131-3 type for iec_type")
+    if value not in allowed:
+        raise SourceError(loc, f"iec_type {value} does not fit a variable of type {typ.value}: "
+                               f"expected one of {', '.join(allowed)}")
+    return "" if value == allowed[0] else str(value)
 
 
 def _zero(t: A.Type) -> object:

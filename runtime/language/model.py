@@ -50,6 +50,18 @@ class Qualifier(enum.Enum):
     EVENT = "EVENT"  # on EVENT do ...
 
 
+#: the IEC 61131-3 elementary types a variable of each of the language's types may declare
+#: (``iec_type:``, kept for a PLCopen export; docs/plcopen.md), the first the one declared
+#: when the chart names none. The type changes nothing the runtime computes.
+IEC_TYPES: dict[str, tuple[str, ...]] = {
+    "bool": ("BOOL",),
+    "int": ("LINT", "SINT", "INT", "DINT", "USINT", "UINT", "UDINT", "ULINT", "BYTE", "WORD",
+            "DWORD", "LWORD"),
+    "real": ("LREAL", "REAL"),
+    "time": ("TIME",),
+}
+
+
 @dataclass(slots=True)
 class Variable:
     name: str
@@ -62,6 +74,9 @@ class Variable:
     renamed_from: str | None = None
     #: what it means, for a person (``description:``; docs/language.md, "The I/O list")
     description: str = ""
+    #: the IEC 61131-3 type a PLCopen export declares (``iec_type:``, one of
+    #: IEC_TYPES[type]); "" for the first of them
+    iec_type: str = ""
 
 
 @dataclass(slots=True)

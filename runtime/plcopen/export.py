@@ -132,13 +132,14 @@ def _interface(g: Grafcet, iface: Node) -> None:
         return v
 
     for kind, tag in ((VarKind.INPUT, "inputVars"), (VarKind.OUTPUT, "outputVars")):
-        vs = [var(v.name, Node(EXPORT_TYPES[v.type.value]), description=v.description)
+        vs = [var(v.name, Node(v.iec_type or EXPORT_TYPES[v.type.value]),
+                  description=v.description)
               for v in g.variables.values() if v.kind is kind]
         lists.append((tag, {}, vs))
     # memory in its order: one localVars list per run of retained or not retained variables
     for retain, run in itertools.groupby(g.memory, key=lambda v: v.retain):
         lists.append(("localVars", {"retain": "true"} if retain else {},
-                      [var(v.name, Node(EXPORT_TYPES[v.type.value]),
+                      [var(v.name, Node(v.iec_type or EXPORT_TYPES[v.type.value]),
                            value_text(v.type, v.init), v.renamed_from, v.description)
                        for v in run]))
     lists.append(("localVars", {}, [var(b.name, Node("derived", {"name": b.kind}))

@@ -26,7 +26,7 @@ from runtime.language.signatures import FB_MEMBERS, TIMER_METHODS
 from runtime.language.typecheck import FLAGS_BOOL, FLAGS_STRING, SYSTEM_BOOL
 from runtime.language.yamlsrc import YList, YMap, YStr
 from runtime.plcopen.globalvars import Global, Globals
-from runtime.plcopen.interface import Interface, Var, read_interface, softplc_data
+from runtime.plcopen.interface import Interface, Var, iec_type, read_interface, softplc_data
 from runtime.plcopen.network import Network, NotCarried
 from runtime.plcopen.order import order
 from runtime.plcopen.program import Plan, plan
@@ -376,10 +376,14 @@ class _PouImporter:
                     continue
                 m = _map(v.loc)
                 typ: Any = plain(v.type, v.loc)
-                if v.description:
+                iec = iec_type(v)
+                if v.description or iec:
                     typ = _map(v.loc)
                     _put(typ, "type", plain(v.type, v.loc), v.loc)
-                    _put(typ, "description", v.description, v.loc)
+                    if v.description:
+                        _put(typ, "description", v.description, v.loc)
+                    if iec:
+                        _put(typ, "iec_type", plain(iec, v.loc), v.loc)
                 _put(m, v.name, typ, v.loc)
                 items.append((m, v.loc))
             if items:
@@ -389,7 +393,8 @@ class _PouImporter:
             for v, retained in iface.memory:
                 init = v.init if v.init is not None else _zero(v.type)
                 value: Any = plain(format_ns(int(init)), v.loc) if v.type == "time" else init  # type: ignore[call-overload]
-                if retained or v.renamed_from or v.description:
+                iec = iec_type(v)
+                if retained or v.renamed_from or v.description or iec:
                     spec = _map(v.loc)
                     _put(spec, "init", value, v.loc)
                     if retained:
@@ -398,6 +403,8 @@ class _PouImporter:
                         _put(spec, "renamed_from", plain(v.renamed_from, v.loc), v.loc)
                     if v.description:
                         _put(spec, "description", v.description, v.loc)
+                    if iec:
+                        _put(spec, "iec_type", plain(iec, v.loc), v.loc)
                     value = spec
                 _put(mem, v.name, value, v.loc)
             _put(doc, "memory", mem, mem.loc)

@@ -20,7 +20,7 @@ from runtime.errors import Loc, SourceError
 from runtime.language.shape import DESCRIPTION_MAX
 from runtime.language.signatures import FB_MEMBERS
 from runtime.plcopen.globalvars import Global
-from runtime.plcopen.schema import INT_TYPES, PLCOPEN_NS, REAL_TYPES, SOFTPLC_NS
+from runtime.plcopen.schema import EXPORT_TYPES, INT_TYPES, PLCOPEN_NS, REAL_TYPES, SOFTPLC_NS
 from runtime.plcopen.texts import formatted
 from runtime.plcopen.xmltree import Element
 
@@ -44,6 +44,12 @@ class Var:
     iec: str = ""  # the IEC 61131-3 type the file declares (INT, LREAL ...)
     constant: bool = False  # CONSTANT: the chart must not write it
     shared: str = ""  # a VAR_EXTERNAL: the global it is ("resource 'r' X")
+
+
+def iec_type(v: Var) -> str:
+    """The chart's ``iec_type`` for ``v``: the IEC type the file declares, "" when it is the
+    one an export declares without it (LINT, LREAL, BOOL, TIME)."""
+    return "" if v.iec in ("", EXPORT_TYPES.get(v.type)) else v.iec
 
 
 @dataclass

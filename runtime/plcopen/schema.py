@@ -3,6 +3,8 @@ qualifiers, softplc's own additional data, CODESYS's vendor data."""
 
 from __future__ import annotations
 
+from runtime.language.model import IEC_TYPES
+
 #: PLCopen TC6 XML v2.01 (IEC 61131-10)
 PLCOPEN_NS = "http://www.plcopen.org/xml/tc6_0201"
 #: the text of ST bodies and documentation (``formattedText``)
@@ -33,9 +35,8 @@ QUALIFIERS = ("N", "R", "S", "L", "D", "P", "P1", "P0", "DS", "DL", "SD", "SL")
 #: qualifiers that take a ``duration``
 TIMED = frozenset({"L", "D", "SD", "DS", "SL", "DL"})
 
-#: IEC 61131-3 elementary types -> the language's types
-INT_TYPES = frozenset({"SINT", "INT", "DINT", "LINT", "USINT", "UINT", "UDINT", "ULINT",
-                       "BYTE", "WORD", "DWORD", "LWORD"})
-REAL_TYPES = frozenset({"REAL", "LREAL"})
-#: the language's types -> what an export declares
-EXPORT_TYPES = {"bool": "BOOL", "int": "LINT", "real": "LREAL", "time": "TIME"}
+#: IEC 61131-3 elementary types -> the language's types (runtime/language/model.py)
+INT_TYPES = frozenset(IEC_TYPES["int"])
+REAL_TYPES = frozenset(IEC_TYPES["real"])
+#: the language's types -> what an export declares for a variable without ``iec_type``
+EXPORT_TYPES = {t: names[0] for t, names in IEC_TYPES.items()}

@@ -79,11 +79,15 @@ def chart(d: Draw) -> dict[str, Any]:
         doc["scan"] = d(st.sampled_from(["immediate", "codesys", "stable"]))
     doc["inputs"] = ["iGo", {"iLevel": "int"},
                      {"iTemp": {"type": "real", **({"description": d.text()} if d.has()
-                                                   else {})}},
+                                                   else {}),
+                                **({"iec_type": d(st.sampled_from(["REAL", "LREAL"]))}
+                                   if d.has() else {})}},
                      {"iWait": "time"}]
     doc["outputs"] = ["oRun", {"oSpeed": "int"},
                       {"oValve": {"type": "real", **({"description": d.text()} if d.has()
-                                                     else {})}},
+                                                     else {}),
+                                  **({"iec_type": d(st.sampled_from(["REAL", "LREAL"]))}
+                                     if d.has() else {})}},
                       {"oLamp": {"type": "bool"}}]
     memory: dict[str, Any] = {"sFlag": d(st.booleans()), "sReal": d(st.floats(-1e6, 1e6)),
                               "sCount": {"init": d(st.integers(-1000, 1000))}}
@@ -93,6 +97,8 @@ def chart(d: Draw) -> dict[str, Any]:
         memory["sCount"]["description"] = d.text()
     if d.has():
         memory["sCount"]["renamed_from"] = "sCounter"
+    if d.has():
+        memory["sCount"]["iec_type"] = d(st.sampled_from(["INT", "DINT", "UINT", "LINT"]))
     doc["memory"] = memory
     doc["timers"] = ["timeStir"]
     doc["blocks"] = {"tonGo": "TON", "ctuRuns": d(st.sampled_from(["CTU", "CTD"]))}

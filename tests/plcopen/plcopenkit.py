@@ -26,7 +26,7 @@ def shape(g: Grafcet) -> dict[str, Any]:
     return {
         "name": g.name, "description": g.description, "scan": g.scan,
         "variables": [(v.name, v.kind, v.type, v.init, v.retain, v.renamed_from,
-                       v.description)
+                       v.description, v.iec_type)
                       for v in g.variables.values()],
         "steps": [(s.name, s.initial, s.min_ns, s.max_ns, s.entry, s.exit, s.parent,
                    s.description, s.renamed_from,

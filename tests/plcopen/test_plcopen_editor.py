@@ -50,7 +50,7 @@ outputs:
   - Lamp
   - Horn
   - Full
-  - Parts: {type: int, description: Parts pressed in this batch}
+  - Parts: {type: int, description: Parts pressed in this batch, iec_type: INT}
   - Beacon: {type: bool, description: Beacon on the frame}
 memory:
   Seen: false
@@ -90,10 +90,10 @@ inputs: [Go]
 outputs:
   - Alarm: {type: bool, description: Batch full horn}
 memory:
-  Limit: 3
-  Increment: 2
+  Limit: {init: 3, iec_type: INT}
+  Increment: {init: 2, iec_type: INT}
   Enable: true
-  Total: {init: 0, description: Parts counted since power-up}
+  Total: {init: 0, description: Parts counted since power-up, iec_type: INT}
 steps:
   Idle: {initial: true}
   Add:
@@ -112,7 +112,7 @@ grafcet: Stage
 inputs:
   - Arrive: {type: bool, description: A part is at the stage}
   - Enable
-outputs: [Busy, {Passed: int}]
+outputs: [Busy, {Passed: {type: int, iec_type: INT}}]
 steps:
   Wait: {initial: true}
   Work:

@@ -25,10 +25,11 @@ PRESS = DATA / "codesys_press.xml"
 MIXER_CHART = """\
 grafcet: Mixer
 description: "Mixing tank: fill, heat and stir, drain"
-inputs: [Start, Stop, LevelHigh, LevelLow, {Temp: int}, Emergency]
-outputs: [Pump, Heater, Stirrer, Drain, Alarm, Lamp, Horn, {Batches: int}]
+inputs: [Start, Stop, LevelHigh, LevelLow, {Temp: {type: int, iec_type: INT}}, Emergency]
+outputs: [Pump, Heater, Stirrer, Drain, Alarm, Lamp, Horn,
+          {Batches: {type: int, iec_type: DINT}}]
 memory:
-  Cycles: 0
+  Cycles: {init: 0, iec_type: INT}
   Done: false
 steps:
   Idle:
@@ -79,9 +80,9 @@ PRESS_CHART = """\
 grafcet: Press
 scan: codesys
 inputs: [bStart, bStop, bAtBottom, bAtTop]
-outputs: [bMotorDown, bMotorUp, bLamp, {nCount: int}]
+outputs: [bMotorDown, bMotorUp, bLamp, {nCount: {type: int, iec_type: UDINT}}]
 memory:
-  nTicks: 0
+  nTicks: {init: 0, iec_type: DINT}
 steps:
   Init:
     initial: true
