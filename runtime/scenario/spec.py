@@ -292,6 +292,10 @@ class _Reader:
         first, last = self.window(m)
         span = self.span(first, last)
         if kind in ("on_rise", "on_fall"):
+            if "expect" not in m:
+                edge = "rise" if kind == "on_rise" else "fall"
+                raise SourceError(m.loc, f"an expectation on a {edge} needs 'expect: {{name: "
+                                         f"value}}' (what the scan where it {edge}s holds)")
             trigger = self.check(m, kind, m[kind], m.val_locs[kind], None, bool_only=True)
             edge = "rises" if kind == "on_rise" else "falls"
             return Expectation(kind, m.loc, self.checks(m, "expect"), first, last, trigger,

@@ -64,6 +64,13 @@ LAST = STORY.count("\n") + 1  # the line of the one expectation
     ("{from: 1s, to: 1s, always: {tester1.oAbrir: 1}}", "{from",
      "empty window: no scan has from <= t < to"),
     ("{at: 0s, expect: {}}", "{}", "expected at least one name: value"),
+    # a KeyError traceback before (found by the configs fuzzer: an edge without expect:)
+    ("{on_rise: tester1.iAbierto, to: 1s}", "{on_rise",
+     "an expectation on a rise needs 'expect: {name: value}' (what the scan where it "
+     "rises holds)"),
+    ("{on_fall: tester1.iAbierto}", "{on_fall",
+     "an expectation on a fall needs 'expect: {name: value}' (what the scan where it "
+     "falls holds)"),
     ("{at: 1s, expect: {tester1.oAbrir: 1}, within: soon}", "soon",
      "bad time literal 'soon' for within: expected e.g. 10s, 250ms, 1m30s or T#10s"),
 ])
