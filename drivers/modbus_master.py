@@ -210,8 +210,8 @@ class ModbusUnit(PolledDriver):
             return
         # even a faulted unit gets one more try: its relays may still be on
         if not line.flush(self, PollLink.FLUSH_TIMEOUT_S, probe=True):
-            log.error("driver %s: unit %d did not confirm the safe state before the link "
-                      "closed: its outputs may still be on", self.name, self.unit)
+            log.error("driver %s: unit %d did not confirm the safe state before the %s "
+                      "closed: its outputs may still be on", self.name, self.unit, line.noun)
         self.links.detach(line, self)
 
     def _wake(self) -> None:
@@ -256,6 +256,8 @@ class PollLink:
         self.thread_name = thread_name
         #: what opening it is called in messages: open (a port), connect (TCP)
         self.verb = verb
+        #: what the link is called in messages: the port (RTU), the connection (TCP)
+        self.noun = "connection" if verb == "connect" else "port"
         self.units: list[ModbusUnit] = []
         self._units_lock = threading.Lock()
         self._wake = threading.Event()

@@ -44,9 +44,17 @@ class Rig:
     def __init__(self, mp: pytest.MonkeyPatch, clock: FakeClock) -> None:
         self.mp = mp
         self.clock = clock
+        #: every driver made, closed by ``close_drivers`` (close is idempotent): a test
+        #: that fails before its own close must not leave a shared link to the next test
+        self.made: list[Driver] = []
+
+    def close_drivers(self) -> None:
+        for d in self.made:
+            d.close()
 
     def make(self, **cfg: Any) -> Driver:
         d = self._make(cfg)
+        self.made.append(d)
         for p in self.inputs:
             d.add_point(p, Direction.IN)
         for p in self.outputs:
@@ -319,8 +327,10 @@ class ModbusTcpRig(ModbusRig):
         self.relay = Relay(self.tcp.port)
 
     def _make(self, cfg: dict[str, Any]) -> Driver:
+        # a reply timeout a loaded machine holds (the peer and the relay are threads of
+        # this process: 30 ms timed out at open under two suites and QEMU on 2 cores)
         return ModbusTcpDriver("rio", {"host": "127.0.0.1", "port": self.relay.port,
-                                       "unit": 1, "timeout": "30ms", "retries": 1, **cfg},
+                                       "unit": 1, "timeout": "300ms", "retries": 1, **cfg},
                                clock=self.clock)
 
     def set_input(self, point: str, value: int) -> None:
@@ -336,6 +346,7 @@ class ModbusTcpRig(ModbusRig):
         self.relay.cut = False
 
     def close(self) -> None:
+        self.close_drivers()  # the gateways are shared by the process (shared_gateways)
         self.relay.close()
         self.tcp.stop()
 

@@ -5,6 +5,7 @@ stops answering, a late reply, a peer that speaks no Modbus."""
 
 from __future__ import annotations
 
+import logging
 import socket
 import threading
 import time
@@ -27,7 +28,9 @@ from drivers.modbus_tcp import Gateways, ModbusTcpDriver, shared_gateways
 from tests.drivers.drvkit import FakeClock, wait_until
 from tests.drivers.modbus_tcp_peer import ModbusTcpPeer, Relay, free_port
 
-FAST: dict[str, Any] = {"timeout": "50ms", "retries": 1}
+#: a reply timeout a loaded machine holds (the peer and the relay are threads of this
+#: process); tests of the timeout itself set their own
+FAST: dict[str, Any] = {"timeout": "300ms", "retries": 1}
 
 
 def test_mbap_frames_match_the_specification() -> None:
@@ -328,3 +331,22 @@ def test_a_closed_port_is_refused_quickly(clock: FakeClock) -> None:
     d.open()
     assert d.health is Health.FAULT and time.monotonic() - t0 < 2.0
     d.close()
+
+
+def test_a_close_with_the_gateway_silent_says_the_outputs_may_be_on(
+        peer: ModbusTcpPeer, relay: Relay, clock: FakeClock,
+        caplog: pytest.LogCaptureFixture) -> None:
+    """The safe state that no reply confirms is one error line naming the connection (the
+    RTU driver's names the port: tests/daemon/test_signals.py)."""
+    d = make(relay, clock)
+    d.open()
+    assert d.health is Health.OK, d.fault_reason
+    d.outputs.update({"Q1": True})
+    scan(d)
+    relay.cut = True
+    with caplog.at_level(logging.ERROR, logger="drivers.modbus_master"):
+        d.close()
+    said = [r.getMessage() for r in caplog.records if r.name == "drivers.modbus_master"]
+    assert said == ["driver rio: unit 1 did not confirm the safe state before the "
+                    "connection closed: its outputs may still be on"], said
+    assert not shared_gateways().keys()
