@@ -64,7 +64,7 @@ steps:
   Run:
     actions:
       - |
-        N // Counts the parts while the press runs
+        N (* action Counting *) // Counts the parts while the press runs
         Cnt(CU := Part, PV := 3)
         Full := Cnt.Q
         Parts := Cnt.CV
