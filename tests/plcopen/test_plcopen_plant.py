@@ -12,9 +12,12 @@ from typing import Any
 import pytest
 
 from runtime.cli import main
+from runtime.errors import SourceError
+from runtime.language.filekind import file_kind
 from runtime.language.model import Binding, PlantDef
 from runtime.language.plantfile import load_plant
-from tests.plcopen.plcopenkit import shape
+from runtime.plcopen.plantexport import export_plant
+from tests.plcopen.plcopenkit import ROOT, shape
 
 FEEDER = """\
 grafcet: Feeder
@@ -165,3 +168,29 @@ def test_a_chart_flag_bound_in_the_plant_is_refused_at_its_binding(
     err = capsys.readouterr().err
     assert "plant.yaml:19:17:" in err and "SFCPause" in err and "chart flag" in err
     assert not (tmp_path / "x.xml").exists()
+
+
+def _plants() -> list[Path]:
+    out = []
+    for p in sorted([*(ROOT / "configs").rglob("*.yaml"), *(ROOT / "tests").rglob("*.yaml")]):
+        try:
+            if file_kind(str(p)) == "plant":
+                load_plant(str(p))
+                out.append(p)
+        except SourceError:  # a plant written to be refused
+            continue
+    return out
+
+
+@pytest.mark.parametrize("plant", _plants(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_plant_of_the_project_round_trips(plant: Path, tmp_path: Path, tc6: Any,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """Every plant of configs/ and of the tests: the export is valid, and its import has
+    the same instances, charts and bindings."""
+    xml = tmp_path / "p.xml"
+    xml.write_text(export_plant(load_plant(str(plant))), encoding="utf-8")
+    tc6.validate(str(xml))
+    assert main(["import", str(xml), "-o", str(tmp_path / "o"), "--strict"]) == 0
+    capsys.readouterr()
+    assert _said(load_plant(str(tmp_path / "o" / "plant.yaml"))) == _said(
+        load_plant(str(plant)))
