@@ -167,6 +167,8 @@ def _program(pous: Node, p: PlantDef, name: str) -> None:
                                    "formalParameter": v.name})
             e.add("expression", text=pv.name)
             elements.append(e)
+        if inst.description:
+            _text(block.add("documentation"), inst.description)
         elements.append(block)
         y += (rows + 1) * _PIN_H + _GAP
     fbd.children.extend(elements)

@@ -57,6 +57,7 @@ class Wire:
 class PlantInstance:
     name: str
     pou: str  # the chart's POU
+    description: str = ""  # the block's documentation: what this machine is
     inputs: dict[str, Wire] = field(default_factory=dict)  # chart input -> its wire
     outputs: dict[str, str] = field(default_factory=dict)  # chart output -> note beside it
     descriptions: dict[str, str] = field(default_factory=dict)  # output -> description
@@ -175,7 +176,8 @@ class _Program:
                 raise SourceError(e.loc, f"localId {ref}: instance '{name}' of program "
                                          f"'{self.name}': expected a name (letters, digits "
                                          "and '_') for the plant's instance")
-            inst = PlantInstance(self.prefix + name, decl[1])
+            inst = PlantInstance(self.prefix + name, decl[1],
+                                 documentation(e, lambda *a, **k: None, ""))
             self.instances.append(inst)
             feeds = []
             for v, text in net.inputs(e, ref, trail):

@@ -112,6 +112,8 @@ def plant_yaml(instances: list[tuple[PlantInstance, str, list[Signal], list[Sign
 
     for inst, chart, inputs, outputs in instances:
         out += [f"  {_q(inst.name)}:", f"    grafcet: {_q(chart)}"]
+        if inst.description:
+            out.append(f"    description: {json.dumps(inst.description, ensure_ascii=False)}")
         if inputs:
             out.append("    inputs:")
         for sig, typ, address in inputs:

@@ -50,6 +50,7 @@ drivers:
   sim: {type: sim}
 instances:
   feeder:
+    description: the feeder of line 2
     grafcet: feeder.yaml
     inputs:
       Start: {from: sim.I0, at: '%IX0.3', description: green start button}
@@ -82,7 +83,7 @@ def _binding(b: Binding) -> tuple[Any, ...]:
 def _said(p: PlantDef) -> list[Any]:
     """What a plant says of its instances: name, chart, every binding; and its cycle."""
     return [p.cycle_ns] + [
-        (i.name, shape(i.grafcet), [_binding(b) for b in i.inputs.values()],
+        (i.name, i.description, shape(i.grafcet), [_binding(b) for b in i.inputs.values()],
          [_binding(b) for b in i.outputs.values()]) for i in p.instances.values()]
 
 
@@ -166,7 +167,7 @@ def test_a_chart_flag_bound_in_the_plant_is_refused_at_its_binding(
                                    "      SFCPause: sim.I5\n"), encoding="utf-8")
     assert main(["export", str(plant), "-o", str(tmp_path / "x.xml")]) == 2
     err = capsys.readouterr().err
-    assert "plant.yaml:19:17:" in err and "SFCPause" in err and "chart flag" in err
+    assert "plant.yaml:20:17:" in err and "SFCPause" in err and "chart flag" in err
     assert not (tmp_path / "x.xml").exists()
 
 
