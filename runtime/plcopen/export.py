@@ -212,6 +212,12 @@ def pou_actions(g: Grafcet) -> dict[str, tuple[str, str]]:
             assert a.body is not None
             body = st_statements(a.body)
             key = name.lower()
+            clash = next((v for v in g.variables if v.lower() == key), None)
+            if clash is not None:
+                raise SourceError(a.loc, f"cannot export action {a.text.strip()!r} of step "
+                                  f"'{s.name}': it is marked as POU action '{name}', the name "
+                                  f"of the chart's variable '{clash}' (a POU names each "
+                                  "variable and action once): rename the mark")
             if key not in out:
                 out[key], first[key] = (name, body), (s.name, a)
             elif fingerprint(out[key][1]) != fingerprint(body):

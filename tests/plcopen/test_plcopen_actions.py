@@ -136,6 +136,18 @@ def test_an_ld_action_is_exported_as_st_once(tmp_path: Path, tc6: Any) -> None:
     assert shape(again) == shape(g)
 
 
+def test_a_mark_naming_a_variable_is_refused(tmp_path: Path) -> None:
+    """A POU names each variable and action once: a mark that names a variable (case
+    ignored) would make the reference name the variable."""
+    p = tmp_path / "c.yaml"
+    p.write_text("grafcet: C\ninputs: [Go]\noutputs: [Lamp]\nsteps:\n"
+                 "  S0: {initial: true, actions: [\"N (* action lamp *) Lamp := NOT Lamp\"]}\n"
+                 "transitions:\n  - {from: S0, to: S0, when: Go}\n", encoding="utf-8")
+    with pytest.raises(SourceError) as e:
+        export_chart(load_grafcet(str(p)))
+    assert "c.yaml:5:" in str(e.value) and "variable 'Lamp'" in str(e.value)
+
+
 @pytest.mark.parametrize("s1", [
     "N (* action Blink *) Lamp := Lamp",            # another body under the same name
     "N (* action blink *) Lamp := NOT Lamp",        # the same name (IEC ignores case)
