@@ -140,12 +140,13 @@ def test_a_mark_naming_a_variable_is_refused(tmp_path: Path) -> None:
     """A POU names each variable and action once: a mark that names a variable (case
     ignored) would make the reference name the variable."""
     p = tmp_path / "c.yaml"
-    p.write_text("grafcet: C\ninputs: [Go]\noutputs: [Lamp]\nsteps:\n"
+    p.write_text("# refused by the export\n"
+                 "grafcet: C\ninputs: [Go]\noutputs: [Lamp]\nsteps:\n"
                  "  S0: {initial: true, actions: [\"N (* action lamp *) Lamp := NOT Lamp\"]}\n"
                  "transitions:\n  - {from: S0, to: S0, when: Go}\n", encoding="utf-8")
     with pytest.raises(SourceError) as e:
         export_chart(load_grafcet(str(p)))
-    assert "c.yaml:5:" in str(e.value) and "variable 'Lamp'" in str(e.value)
+    assert "c.yaml:6:" in str(e.value) and "variable 'Lamp'" in str(e.value)
 
 
 @pytest.mark.parametrize("s1", [
@@ -154,7 +155,8 @@ def test_a_mark_naming_a_variable_is_refused(tmp_path: Path) -> None:
 ])
 def test_two_bodies_under_one_action_name_are_refused(tmp_path: Path, s1: str) -> None:
     p = tmp_path / "c.yaml"
-    p.write_text("grafcet: C\ninputs: [Go]\noutputs: [Lamp]\nsteps:\n"
+    p.write_text("# refused by the export\n"
+                 "grafcet: C\ninputs: [Go]\noutputs: [Lamp]\nsteps:\n"
                  "  S0: {initial: true, actions: [\"N (* action Blink *) Lamp := NOT Lamp\"]}\n"
                  f"  S1: {{actions: [\"{s1}\"]}}\n"
                  "transitions:\n  - {from: S0, to: S1, when: Go}\n"
@@ -166,7 +168,7 @@ def test_two_bodies_under_one_action_name_are_refused(tmp_path: Path, s1: str) -
         return
     with pytest.raises(SourceError) as e:
         export_chart(g)
-    assert "c.yaml:6:" in str(e.value)
+    assert "c.yaml:7:" in str(e.value)
     assert "action 'Blink'" in str(e.value) and "S0" in str(e.value)
 
 
