@@ -51,6 +51,8 @@ class Wire:
     #: (its additional data), "" in a file of another editor
     source: str = ""
     at: str = ""
+    #: the address the file gives the program's variable (``%IX0.3``), "" if none
+    address: str = ""
 
 
 @dataclass
@@ -63,6 +65,7 @@ class PlantInstance:
     descriptions: dict[str, str] = field(default_factory=dict)  # output -> description
     #: output -> (driver point, located address) softplc's export recorded
     sources: dict[str, tuple[str, str]] = field(default_factory=dict)
+    addresses: dict[str, str] = field(default_factory=dict)  # output -> the file's address
 
 
 @dataclass
@@ -217,6 +220,7 @@ class _Program:
                 var = self.variables.get(key)
                 inst.outputs.setdefault(m.group(3), self._said(str(target), var))
                 if var is not None:
+                    inst.addresses.setdefault(m.group(3), var[1].get("address") or "")
                     inst.descriptions.setdefault(m.group(3), documentation(
                         var[1], lambda *a, **k: None, ""))
                     point = softplc_data(var[1], "point")
@@ -248,7 +252,8 @@ class _Program:
                             shared=self.prefix + var[0], invert=invert,
                             note=self._said(var[0], var),
                             description=documentation(var[1], lambda *a, **k: None, ""),
-                            source=source, at=(var[1].get("address") or "") if source else "")
+                            source=source, at=(var[1].get("address") or "") if source else "",
+                            address=var[1].get("address") or "")
                     continue
                 self.note(text.loc, f"input {param} of instance '{inst.name}' is wired to "
                                     f"'{text}' in program '{self.name}': bound to a point of "

@@ -10,6 +10,7 @@ from typing import Any
 import yaml
 
 from drivers.durations import format_ns
+from runtime.language.located import parse_located
 from runtime.language.yamlsrc import YList, YMap
 from runtime.plcopen.program import PlantInstance
 
@@ -129,9 +130,10 @@ def plant_yaml(instances: list[tuple[PlantInstance, str, list[Signal], list[Sign
                 if key not in shared:
                     shared[key] = point("in", typ)
                 source = shared[key]
-                note = wire.note
+                note, at = binding_at(wire.note, wire.address, typ, "I")
             else:
                 source = point("in", typ)
+                note, at = binding_at(note, address, typ, "I")
             invert = wire is not None and wire.invert
             description = wire.description if wire is not None else ""
             out.append(f"      {_q(sig)}: {_binding(source, invert, description, at)}"
@@ -141,9 +143,12 @@ def plant_yaml(instances: list[tuple[PlantInstance, str, list[Signal], list[Sign
         for sig, typ, address in outputs:
             note = inst.outputs.get(sig) or (f"{address} in the PLCopen file" if address
                                              else "")
-            source, at = inst.sources.get(sig) or (point("out", typ), "")
             if sig in inst.sources:
-                note = ""
+                (source, at), note = inst.sources[sig], ""
+            else:
+                source = point("out", typ)
+                note, at = binding_at(note, inst.addresses.get(sig, address) if sig in
+                                    inst.outputs else address, typ, "Q")
             out.append(f"      {_q(sig)}: "
                        f"{_binding(source, False, inst.descriptions.get(sig, ''), at)}"
                        + (f"  # {_line(note)}" if note else ""))
@@ -157,6 +162,19 @@ def plant_yaml(instances: list[tuple[PlantInstance, str, list[Signal], list[Sign
     if any(count.values()) and "sim" not in named or not named:
         head.append("  sim: {type: sim}")
     return "\n".join([*head, "instances:", *out]) + "\n"
+
+
+def binding_at(note: str, address: str, typ: str, area: str) -> tuple[str, str]:
+    """(the comment beside a binding, its ``at:``): a file's address the binding can carry
+    (``%IX0.3`` for a bool input, ``%QW2`` for an int output ...) is its ``at:`` and leaves
+    the comment; another (``%MW4``, ``%IX0.3`` on an output) stays in the comment only."""
+    found = parse_located(address) if address else "none"
+    if isinstance(found, str) or found.area != area or found.size not in (
+            ("X",) if typ == "bool" else ("W", "D") if typ in ("int", "real") else ()):
+        return note, ""
+    if note == f"{address} in the PLCopen file":
+        note = ""
+    return note.replace(f", {address}", ""), str(found)
 
 
 def _binding(source: str, invert: bool, description: str, at: str = "") -> str:
