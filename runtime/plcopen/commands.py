@@ -1,4 +1,4 @@
-"""``softplc import FILE.xml -o DIR`` and ``softplc export CHART [-o FILE.xml]``."""
+"""``softplc import FILE.xml -o DIR`` and ``softplc export CHART|PLANT [-o FILE.xml]``."""
 
 from __future__ import annotations
 
@@ -6,13 +6,17 @@ import argparse
 import hashlib
 import os
 import sys
+from collections.abc import Callable
 
 from runtime import package_version
 from runtime.errors import Loc, SourceError
+from runtime.language.filekind import file_kind
 from runtime.language.grafcetfile import load_grafcet
 from runtime.language.model import Grafcet
+from runtime.language.plantfile import load_plant
 from runtime.plcopen.export import export_chart
 from runtime.plcopen.importer import ImportedChart, ImportResult, import_file
+from runtime.plcopen.plantexport import export_plant
 from runtime.plcopen.yamlout import chart_yaml, plant_yaml
 
 #: the plant skeleton's file name in the output directory
@@ -43,7 +47,7 @@ def plant_text(path: str, result: ImportResult, files: dict[str, str]) -> str:
         "softplc simulate and softplc run --sim work at once. Bind them to real points",
         "(docs/language.md, \"The plant file\"; docs/drivers.md). Once edited, softplc",
         "import never overwrites this file (--chart-only updates the charts alone).",
-        *(f"Comment of program {c}" for c in result.plan.comments)])
+        *(f"Comment of program {c}" for c in result.plan.comments)], result.plan.drivers)
     return text + f"{FINGERPRINT}{_digest(text)}\n"
 
 
@@ -190,9 +194,20 @@ def _scenario(plant: str, source: str) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    g: Grafcet = load_grafcet(args.chart)
+    if file_kind(args.chart) == "plant":
+        plant = load_plant(args.chart)
+        what = (f"plant exported ({len(plant.instances)} instances of "
+                f"{len({i.grafcet.path for i in plant.instances.values()})} charts)")
+        export: Callable[[], str] = lambda: export_plant(  # noqa: E731
+            plant, version=package_version(), layout=args.layout)
+    else:
+        g: Grafcet = load_grafcet(args.chart)
+        what = (f"{g.name} exported ({len(g.steps)} steps, {len(g.transitions)} "
+                "transitions)")
+        export = lambda: export_chart(  # noqa: E731
+            g, version=package_version(), layout=args.layout)
     try:
-        text = export_chart(g, version=package_version(), layout=args.layout)
+        text = export()
     except RuntimeError as exc:
         sys.stderr.write(f"softplc export: error: {exc}\n")
         return 2
@@ -206,8 +221,7 @@ def cmd_export(args: argparse.Namespace) -> int:
                                                   "--force)") from None
     except OSError as exc:
         return _fail("export", exc)
-    sys.stderr.write(f"{args.output}: {g.name} exported ({len(g.steps)} steps, "
-                     f"{len(g.transitions)} transitions)\n")
+    sys.stderr.write(f"{args.output}: {what}\n")
     return 0
 
 
@@ -231,11 +245,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    help="also write a scenario skeleton, plant.test.yaml: the inputs to set, "
                         "the outputs to expect (softplc test; never overwritten)")
     i.set_defaults(func=cmd_import)
-    e = sub.add_parser("export", help="export a chart as a PLCopen XML project",
+    e = sub.add_parser("export", help="export a chart or a plant as a PLCopen XML project",
                        description="Write a PLCopen TC6 XML v2.01 project holding the chart as "
-                                   "an SFC program, laid out as softplc draw lays it out "
-                                   "(docs/plcopen.md).")
-    e.add_argument("chart", metavar="CHART")
+                                   "an SFC program, or the plant's charts as SFC function "
+                                   "blocks called by an FBD program, laid out as softplc draw "
+                                   "lays them out (docs/plcopen.md).")
+    e.add_argument("chart", metavar="CHART|PLANT")
     e.add_argument("-o", "--output", metavar="FILE.xml", help="default: standard output")
     e.add_argument("--layout", choices=("auto", "dot", "python"), default="auto",
                    help="as softplc draw: auto uses Graphviz's dot if installed")

@@ -38,7 +38,7 @@ from runtime.plcopen.schema import (
     SOFTPLC_PREFIX,
     XHTML_NS,
 )
-from runtime.plcopen.texts import native_text
+from runtime.plcopen.texts import fingerprint, native_text, pou_action_as, pou_action_of
 from runtime.plcopen.xmlwrite import Node, serialize
 
 SP = SOFTPLC_PREFIX + ":"
@@ -57,12 +57,20 @@ def export_chart(g: Grafcet, *, version: str = "", created: datetime | None = No
 
 def project(g: Grafcet, *, version: str = "", created: datetime | None = None,
             layout: str = "python") -> Node:
+    root, pous = project_head(g.name, version, created)
+    chart_pou(pous, g, "program", layout)
+    task(root, TASK_INTERVAL).add("pouInstance", {"name": INSTANCE, "typeName": g.name})
+    return root
+
+
+def project_head(name: str, version: str, created: datetime | None) -> tuple[Node, Node]:
+    """A project named ``name``: its root and its ``pous`` (empty)."""
     when = (created or datetime.now()).replace(microsecond=0).isoformat()
     root = Node("project", {"xmlns": PLCOPEN_NS, "xmlns:xhtml": XHTML_NS,
                             f"xmlns:{SOFTPLC_PREFIX}": SOFTPLC_NS})
     root.add("fileHeader", {"companyName": "softplc", "productName": "softplc",
                             "productVersion": version or "0", "creationDateTime": when})
-    head = root.add("contentHeader", {"name": g.name})
+    head = root.add("contentHeader", {"name": name})
     coord = head.add("coordinateInfo")
     for part in ("fbd", "ld", "sfc"):
         coord.add(part).add("scaling", {"x": "0", "y": "0"})
@@ -73,9 +81,20 @@ def project(g: Grafcet, *, version: str = "", created: datetime | None = None,
           "model, source and sink transitions, the order of steps and transitions")
     types = root.add("types")
     types.add("dataTypes")
-    pou = types.add("pous").add("pou", {"name": g.name, "pouType": "program"})
+    return root, types.add("pous")
+
+
+def chart_pou(pous: Node, g: Grafcet, pou_type: str, layout: str) -> Node:
+    """Chart ``g`` as an SFC POU of ``pous`` (``pou_type`` program or functionBlock)."""
+    pou = pous.add("pou", {"name": g.name, "pouType": pou_type})
     _interface(g, pou.add("interface"))
-    ex = _Exporter(g, Geometry(g, layout))
+    shared = pou_actions(g)
+    if shared:
+        actions = pou.add("actions")
+        for name, body in shared.values():
+            _text(actions.add("action", {"name": name}).add("body").add("ST"), body,
+                  cdata=True)
+    ex = _Exporter(g, Geometry(g, layout), shared)
     sfc = pou.add("body").add("SFC")
     ex.level(None, sfc)
     _shift(sfc)
@@ -86,12 +105,15 @@ def project(g: Grafcet, *, version: str = "", created: datetime | None = None,
             chart.add(SP + part, text=st.text)
     if g.description:
         _text(pou.add("documentation"), g.description)
-    task = (root.add("instances").add("configurations")
+    return pou
+
+
+def task(root: Node, interval: str) -> Node:
+    """The project's configuration, resource and task (of ``interval``, ``T#10ms``)."""
+    return (root.add("instances").add("configurations")
             .add("configuration", {"name": CONFIGURATION})
             .add("resource", {"name": RESOURCE})
-            .add("task", {"name": TASK, "priority": "0", "interval": TASK_INTERVAL}))
-    task.add("pouInstance", {"name": INSTANCE, "typeName": g.name})
-    return root
+            .add("task", {"name": TASK, "priority": "0", "interval": interval}))
 
 
 def _text(parent: Node, text: str, cdata: bool = False) -> None:
@@ -169,6 +191,45 @@ def action_native(a: Action) -> tuple[str, str | None, str, str]:
     return a.qualifier.value, duration, "inline", st_statements(a.body)
 
 
+def _marked(a: Action) -> str | None:
+    """The POU action a statement action is marked with (``N (* action Blink *) ...``)."""
+    if a.target is not None or a.body is None or a.qualifier is Qualifier.EVENT:
+        return None
+    return pou_action_of(a.text)
+
+
+def pou_actions(g: Grafcet) -> dict[str, tuple[str, str]]:
+    """The POU actions of the chart's marked step actions: lower-case name -> (name, ST
+    body), in the order the steps first name them. Two different bodies under one name (IEC
+    names ignore case) are refused at the second: a POU action has one body."""
+    out: dict[str, tuple[str, str]] = {}
+    first: dict[str, tuple[str, Action]] = {}
+    for s in g.steps.values():
+        for a in s.actions:
+            name = _marked(a)
+            if name is None:
+                continue
+            assert a.body is not None
+            body = st_statements(a.body)
+            key = name.lower()
+            clash = next((v for v in g.variables if v.lower() == key), None)
+            if clash is not None:
+                raise SourceError(a.loc, f"cannot export action {a.text.strip()!r} of step "
+                                  f"'{s.name}': it is marked as POU action '{name}', the name "
+                                  f"of the chart's variable '{clash}' (a POU names each "
+                                  "variable and action once): rename the mark")
+            if key not in out:
+                out[key], first[key] = (name, body), (s.name, a)
+            elif fingerprint(out[key][1]) != fingerprint(body):
+                step, other = first[key]
+                raise SourceError(a.loc, f"cannot export action {a.text.strip()!r} of step "
+                                  f"'{s.name}': it is marked as POU action '{name}', which "
+                                  f"step '{step}' marks with other statements "
+                                  f"({other.text.strip()!r}): a POU action has one body "
+                                  "(make the statements the same, or rename one mark)")
+    return out
+
+
 @dataclass
 class _Level:
     """The elements of one body: the chart's, or a macro-step's expansion."""
@@ -182,8 +243,9 @@ class _Level:
 
 
 class _Exporter:
-    def __init__(self, g: Grafcet, geo: Geometry) -> None:
-        self.g, self.geo = g, geo
+    def __init__(self, g: Grafcet, geo: Geometry,
+                 shared: dict[str, tuple[str, str]]) -> None:
+        self.g, self.geo, self.shared = g, geo, shared
         self.ids = itertools.count(1)
         self.owner = macro_of_transition(g)
         self.order = {name: i for i, name in enumerate(g.steps)}
@@ -319,6 +381,11 @@ class _Exporter:
         yy = 0.0
         for a, h in zip(s.actions, heights, strict=True):
             q, duration, kind, body = action_native(a)
+            as_written = body
+            marked = _marked(a)
+            if marked is not None:  # a reference to the POU action written once
+                name, st = self.shared[marked.lower()]
+                kind, body, as_written = "reference", name, pou_action_as(name, st)
             attrs = {"localId": str(self.new_id()), "qualifier": q, "width": _n(w),
                      "height": _n(h)}
             if duration is not None:
@@ -332,7 +399,7 @@ class _Exporter:
                 _text(e.add("inline").add("ST"), body, cdata=True)
             sp = _data(e).add(SP + "action")
             sp.add(SP + "text", text=a.text)
-            sp.add(SP + "as", text=native_text(q, duration, body))
+            sp.add(SP + "as", text=native_text(q, duration, as_written))
 
     # -- transitions ------------------------------------------------------------------------
     def transitions(self, sfc: Node, lv: _Level, exit_point: dict[str, tuple[int, Point | None]]

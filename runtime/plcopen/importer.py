@@ -20,7 +20,7 @@ from drivers.durations import format_ns, parse_literal, strip_time_prefix
 from runtime.errors import Loc, SourceError
 from runtime.language import ast as A
 from runtime.language.grafcetfile import GrafcetLoader
-from runtime.language.lexer import KEYWORDS, Lexer, is_name
+from runtime.language.lexer import Lexer
 from runtime.language.model import Grafcet, Qualifier
 from runtime.language.signatures import FB_MEMBERS, TIMER_METHODS
 from runtime.language.typecheck import FLAGS_BOOL, FLAGS_STRING, SYSTEM_BOOL
@@ -29,7 +29,7 @@ from runtime.plcopen.globalvars import Global, Globals
 from runtime.plcopen.interface import Interface, Var, iec_type, read_interface, softplc_data
 from runtime.plcopen.network import Network, NotCarried
 from runtime.plcopen.order import order
-from runtime.plcopen.program import Plan, plan
+from runtime.plcopen.program import Plan, plan, task_of
 from runtime.plcopen.schema import PLCOPEN_NS, QUALIFIERS, SOFTPLC_NS, TIMED
 from runtime.plcopen.sfcgraph import GStep, GTransition, Level, position, read_level
 from runtime.plcopen.texts import (
@@ -38,6 +38,8 @@ from runtime.plcopen.texts import (
     formatted,
     native_text,
     plain,
+    pou_action_as,
+    pou_action_mark,
     spell_as_declared,
     sub,
 )
@@ -102,7 +104,7 @@ def import_file(path: str, pou: str | None = None) -> ImportResult:
         raise SourceError(root.loc, "no POU written in SFC in the file (softplc imports SFC "
                                     "charts)")
     codesys = is_codesys(root)
-    tasks = _tasks(root)
+    tasks = task_of(root)
     scopes = Globals(root, _users(all_pous))
     for p in sfc_pous:
         name = p.get("name") or ""
@@ -117,7 +119,7 @@ def import_file(path: str, pou: str | None = None) -> ImportResult:
             g = GrafcetLoader(path, doc).load()
         _constants_unwritten(g, iface)
         result.notes += notes
-        instance, cycle = tasks.get(name, (name, None))
+        instance, cycle, _ = tasks.get(name, (name, None, root))
         result.charts.append(ImportedChart(name, doc, g, iface, instance, cycle))
 
     def told(loc: Loc, message: str, lost: bool) -> None:
@@ -204,22 +206,6 @@ def _sfc_body(pou: Element) -> Element | None:
         if sfc is not None:
             return sfc
     return None
-
-
-def _tasks(root: Element) -> dict[str, tuple[str, int | None]]:
-    """POU name -> (its instance's name, the interval of the task running it, ns)."""
-    out: dict[str, tuple[str, int | None]] = {}
-    instances = root.find("instances", PLCOPEN_NS)
-    for holder in instances.iter() if instances is not None else []:
-        if holder.tag not in ("task", "resource"):
-            continue
-        interval = (holder.get("interval") or "").strip() if holder.tag == "task" else ""
-        cycle = parse_literal(strip_time_prefix(interval).replace("_", "")) or None
-        for e in holder.findall("pouInstance", PLCOPEN_NS):
-            name = e.get("name") or ""
-            if is_name(name) and name.upper() not in KEYWORDS:
-                out.setdefault(e.get("typeName") or "", (name, cycle))
-    return out
 
 
 # -- documents with places -------------------------------------------------------------------
@@ -708,13 +694,15 @@ class _PouImporter:
         ref, inline = a.find("reference", PLCOPEN_NS), a.find("inline", PLCOPEN_NS)
         st = inline.find("ST", PLCOPEN_NS) if inline is not None else None
         duration = a.get("duration")
-        raw_body = (ref.get("name") or "") if ref is not None else (
+        raw_body = self._referenced(ref.get("name") or "") if ref is not None else (
             str(formatted(st)) if st is not None else "")
         sp = softplc_data(a, "action")
         if sp is not None:
             written, was = sp.find("text", SOFTPLC_NS), sp.find("as", SOFTPLC_NS)
             if written is not None and was is not None and fingerprint(was.text) == fingerprint(
                     native_text(q, duration, raw_body)):
+                if ref is not None and (ref.get("name") or "").lower() in self.actions:
+                    self.used_actions.add((ref.get("name") or "").lower())
                 return [written.ystr()]
         if q == "DL":
             self.note(a.loc, f"{where}: qualifier DL left out with its action: IEC 61131-3 "
@@ -752,7 +740,17 @@ class _PouImporter:
         prefix = native_text(q, dtext, "")
         if st is not None and native_text(q, dtext, str(body)) == str(body):
             return [self._text(body)]  # softplc's 'on EVENT do'
-        return [self._text(compose([prefix + " ", body], a.loc))]
+        # the names of the body spelled as declared, never the qualifier (a variable 'n'
+        # would make the qualifier N 'n')
+        return [compose([prefix + " ", self._text(body)], a.loc)]
+
+    def _referenced(self, name: str) -> str:
+        """What an export wrote of a reference (softplc's ``sp:as``): the name, and the ST
+        body of the POU action it names (an edit of either is read from the file)."""
+        action = self.actions.get(name.lower())
+        body = action.find("body", PLCOPEN_NS) if action is not None else None
+        st = body.find("ST", PLCOPEN_NS) if body is not None else None
+        return name if st is None else pou_action_as(name, str(formatted(st)))
 
     def _statements(self, body: Element, where: str, at: Loc) -> YStr | None:
         """The statements of an action's body: its ST, or its FBD/LD network as ST (the
@@ -803,7 +801,7 @@ class _PouImporter:
             declared = self.spelling.get(name.lower(), name)
             if declared in self.mixed and q in ("S", "R", "N"):
                 return self._as_statements(a, where, q, declared, at)
-            return [self._text(compose([prefix, at], a.loc))]
+            return [compose([prefix, self._text(at)], a.loc)]
         self.used_actions.add(name.lower())
         body_e = action.find("body", PLCOPEN_NS)
         if body_e is None:
@@ -819,7 +817,9 @@ class _PouImporter:
         if not body.strip():
             self.note(a.loc, f"{where}: action '{name}' left out: its body is empty")
             return []
-        return [self._text(compose([prefix, body], a.loc))]
+        declared_name = action.get("name") or name
+        return [compose([prefix, pou_action_mark(declared_name) + " ", self._text(body)],
+                        a.loc)]
 
     def _as_statements(self, a: Element, where: str, q: str, name: str, at: YStr
                        ) -> list[YStr]:

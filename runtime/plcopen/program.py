@@ -14,16 +14,18 @@ type in the program, an input wired to an expression) is one note each.
 
 from __future__ import annotations
 
+import json
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 from drivers.durations import parse_literal, strip_time_prefix
 from runtime.errors import Loc, SourceError
 from runtime.language.lexer import KEYWORDS, is_name
 from runtime.language.yamlsrc import YStr
 from runtime.plcopen.globalvars import Global
-from runtime.plcopen.interface import documentation
+from runtime.plcopen.interface import documentation, softplc_data
 from runtime.plcopen.network import Network, NotCarried
 from runtime.plcopen.schema import PLCOPEN_NS
 from runtime.plcopen.sfcgraph import position
@@ -45,15 +47,25 @@ class Wire:
     invert: bool = False
     note: str = ""
     description: str = ""
+    #: the driver point and located address softplc's export recorded for the variable
+    #: (its additional data), "" in a file of another editor
+    source: str = ""
+    at: str = ""
+    #: the address the file gives the program's variable (``%IX0.3``), "" if none
+    address: str = ""
 
 
 @dataclass
 class PlantInstance:
     name: str
     pou: str  # the chart's POU
+    description: str = ""  # the block's documentation: what this machine is
     inputs: dict[str, Wire] = field(default_factory=dict)  # chart input -> its wire
     outputs: dict[str, str] = field(default_factory=dict)  # chart output -> note beside it
     descriptions: dict[str, str] = field(default_factory=dict)  # output -> description
+    #: output -> (driver point, located address) softplc's export recorded
+    sources: dict[str, tuple[str, str]] = field(default_factory=dict)
+    addresses: dict[str, str] = field(default_factory=dict)  # output -> the file's address
 
 
 @dataclass
@@ -61,6 +73,8 @@ class Plan:
     instances: list[PlantInstance] = field(default_factory=list)
     cycle_ns: int | None = None
     comments: list[str] = field(default_factory=list)  # the programs' comments, one line each
+    #: the plant's drivers softplc's export recorded: (name, type, config)
+    drivers: list[tuple[str, str, dict[str, Any]]] = field(default_factory=list)
 
 
 def task_of(root: Element) -> dict[str, tuple[str, int | None, Element]]:
@@ -165,7 +179,8 @@ class _Program:
                 raise SourceError(e.loc, f"localId {ref}: instance '{name}' of program "
                                          f"'{self.name}': expected a name (letters, digits "
                                          "and '_') for the plant's instance")
-            inst = PlantInstance(self.prefix + name, decl[1])
+            inst = PlantInstance(self.prefix + name, decl[1],
+                                 documentation(e, lambda *a, **k: None, ""))
             self.instances.append(inst)
             feeds = []
             for v, text in net.inputs(e, ref, trail):
@@ -205,8 +220,13 @@ class _Program:
                 var = self.variables.get(key)
                 inst.outputs.setdefault(m.group(3), self._said(str(target), var))
                 if var is not None:
+                    inst.addresses.setdefault(m.group(3), var[1].get("address") or "")
                     inst.descriptions.setdefault(m.group(3), documentation(
                         var[1], lambda *a, **k: None, ""))
+                    point = softplc_data(var[1], "point")
+                    if point is not None and point.get("source"):
+                        inst.sources.setdefault(m.group(3), (
+                            point.get("source") or "", var[1].get("address") or ""))
             elif "?" not in str(value):  # (a block left out is noted once, at the block)
                 self.note(target.loc, f"program '{self.name}': '{target} := {value}' left "
                                       "out (a plant binds chart instances; it has no "
@@ -226,10 +246,14 @@ class _Program:
                     if key in fed:
                         inst.inputs[param] = Wire(link=fed[key], invert=invert)
                     else:
+                        point = softplc_data(var[1], "point")
+                        source = (point.get("source") or "") if point is not None else ""
                         inst.inputs[param] = Wire(
                             shared=self.prefix + var[0], invert=invert,
                             note=self._said(var[0], var),
-                            description=documentation(var[1], lambda *a, **k: None, ""))
+                            description=documentation(var[1], lambda *a, **k: None, ""),
+                            source=source, at=(var[1].get("address") or "") if source else "",
+                            address=var[1].get("address") or "")
                     continue
                 self.note(text.loc, f"input {param} of instance '{inst.name}' is wired to "
                                     f"'{text}' in program '{self.name}': bound to a point of "
@@ -251,6 +275,24 @@ class _Program:
         """The note beside a binding: the program's variable and its address."""
         address = var[1].get("address") if var is not None else None
         return f"{name} of {self.name}" + (f", {address}" if address else "")
+
+
+def _drivers(pou: Element, note: Notes) -> list[tuple[str, str, dict[str, Any]]]:
+    """The plant's drivers softplc's export recorded in the program's additional data
+    (``sp:driver``: name, type, the configuration as JSON data)."""
+    data = softplc_data(pou, "plant")
+    out: list[tuple[str, str, dict[str, Any]]] = []
+    for d in data.children if data is not None else []:
+        try:
+            config = json.loads(d.text or "{}")
+        except ValueError:
+            config = None
+        if not isinstance(config, dict) or not d.get("name") or not d.get("type"):
+            note(d.loc, f"driver '{d.get('name')}' of softplc's data left out: its "
+                        "configuration is no JSON object", True)
+            continue
+        out.append((d.get("name") or "", d.get("type") or "", config))
+    return out
 
 
 def plan(root: Element, pous: list[Element], charts: dict[str, Element],
@@ -276,6 +318,7 @@ def plan(root: Element, pous: list[Element], charts: dict[str, Element],
             prog.prefix = f"{task[0] if task else name}_"
         out.instances += prog.read()
         out.comments += prog.comments
+        out.drivers += _drivers(prog.pou, note)
         if task is not None and task[1]:
             cycles.append((task[1], task[2].loc))
     taken = {i.pou.lower() for i in out.instances}

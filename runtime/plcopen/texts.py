@@ -100,6 +100,30 @@ def native_text(qualifier: str, duration: str | None, body: str) -> str:
     return " ".join(p for p in (qualifier, duration, body) if p)
 
 
+#: the mark of a step action that came from a POU action: ``N (* action Blink *) ...``
+_MARK = re.compile(r"\s*(?:(?:N|S|R|L|D|P|P1|P0|DS|SD|SL)\s+(?:(?:T#|TIME#)?\d[\w.#]*\s+)?)?"
+                   r"\(\*\s*action\s+([A-Za-z_][A-Za-z0-9_]*)\s*\*\)", re.I)
+
+
+def pou_action_mark(name: str) -> str:
+    """The comment that marks a step action as the POU action ``name`` (docs/plcopen.md,
+    "POU actions"): written after the qualifier and time, before the statements."""
+    return f"(* action {name} *)"
+
+
+def pou_action_of(text: str) -> str | None:
+    """The POU action a step action's text is marked with (``[Q [TIME]] (* action NAME *)
+    statements``), else None."""
+    m = _MARK.match(text)
+    return m.group(1) if m else None
+
+
+def pou_action_as(name: str, body: str) -> str:
+    """What softplc's data records an export wrote for a reference to POU action ``name``
+    of ST ``body``: an edit of the body in an editor changes it."""
+    return f"{name}: {body}"
+
+
 def fingerprint(text: str) -> str:
     """A text with its white space made single spaces: what an edit of layout changes."""
     return " ".join(text.split())

@@ -10,6 +10,7 @@ from typing import Any
 import yaml
 
 from drivers.durations import format_ns
+from runtime.language.located import parse_located
 from runtime.language.yamlsrc import YList, YMap
 from runtime.plcopen.program import PlantInstance
 
@@ -90,15 +91,16 @@ Signal = tuple[str, str, str]
 
 
 def plant_yaml(instances: list[tuple[PlantInstance, str, list[Signal], list[Signal]]],
-               cycle_ns: int | None, header: Iterable[str] = ()) -> str:
+               cycle_ns: int | None, header: Iterable[str] = (),
+               drivers: Iterable[tuple[str, str, dict[str, Any]]] = ()) -> str:
     """A plant on simulated I/O: ``instances`` as (instance, chart file, the chart's inputs,
     its outputs). An input the instance's wiring links to another instance's output is
     bound to it; one wired to a variable of the program reads that variable's point (shared
     by its readers); the others have a point of their own. The sim driver's points are bits
-    by any name and numbers on IR.../HR... (drivers/registry.py)."""
-    out = [f"# {_line(h)}" for h in header]
-    out += ["plc:", f"  cycle: {format_ns(cycle_ns or 10_000_000)}", "drivers:",
-            "  sim: {type: sim}", "instances:"]
+    by any name and numbers on IR.../HR... (drivers/registry.py). A signal whose point and
+    address softplc's export recorded is bound to them, and ``drivers`` (softplc's export's
+    too) are the plant's drivers, with ``sim`` besides if a point of its own is needed."""
+    out: list[str] = []
     count = {"I": 0, "Q": 0, "IR": 0, "HR": 0}
     shared: dict[tuple[str, str], str] = {}
 
@@ -111,42 +113,80 @@ def plant_yaml(instances: list[tuple[PlantInstance, str, list[Signal], list[Sign
 
     for inst, chart, inputs, outputs in instances:
         out += [f"  {_q(inst.name)}:", f"    grafcet: {_q(chart)}"]
+        if inst.description:
+            out.append(f"    description: {json.dumps(inst.description, ensure_ascii=False)}")
         if inputs:
             out.append("    inputs:")
         for sig, typ, address in inputs:
             wire = inst.inputs.get(sig)
             note = f"{address} in the PLCopen file" if address else ""
+            at = ""
             if wire is not None and wire.link:
                 source = wire.link
+            elif wire is not None and wire.source:
+                source, at, note = wire.source, wire.at, ""
             elif wire is not None and wire.shared:
                 key = (wire.shared, typ)
                 if key not in shared:
                     shared[key] = point("in", typ)
                 source = shared[key]
-                note = wire.note
+                note, at = binding_at(wire.note, wire.address, typ, "I")
             else:
                 source = point("in", typ)
+                note, at = binding_at(note, address, typ, "I")
             invert = wire is not None and wire.invert
             description = wire.description if wire is not None else ""
-            out.append(f"      {_q(sig)}: {_binding(source, invert, description)}"
+            out.append(f"      {_q(sig)}: {_binding(source, invert, description, at)}"
                        + (f"  # {_line(note)}" if note else ""))
         if outputs:
             out.append("    outputs:")
         for sig, typ, address in outputs:
             note = inst.outputs.get(sig) or (f"{address} in the PLCopen file" if address
                                              else "")
+            if sig in inst.sources:
+                (source, at), note = inst.sources[sig], ""
+            else:
+                source = point("out", typ)
+                note, at = binding_at(note, inst.addresses.get(sig, address) if sig in
+                                    inst.outputs else address, typ, "Q")
             out.append(f"      {_q(sig)}: "
-                       f"{_binding(point('out', typ), False, inst.descriptions.get(sig, ''))}"
+                       f"{_binding(source, False, inst.descriptions.get(sig, ''), at)}"
                        + (f"  # {_line(note)}" if note else ""))
-    return "\n".join(out) + "\n"
+    head = [f"# {_line(h)}" for h in header]
+    head += ["plc:", f"  cycle: {format_ns(cycle_ns or 10_000_000)}", "drivers:"]
+    named = {name for name, _, _ in drivers}
+    for name, typ, config in drivers:
+        flow = json.dumps({"type": typ, **{k: v for k, v in config.items() if k != "type"}},
+                          ensure_ascii=False)
+        head.append(f"  {_q(name)}: {flow}")
+    if any(count.values()) and "sim" not in named or not named:
+        head.append("  sim: {type: sim}")
+    return "\n".join([*head, "instances:", *out]) + "\n"
 
 
-def _binding(source: str, invert: bool, description: str) -> str:
-    if not invert and not description:
-        return source
-    parts = [f"from: {source}"]
+def binding_at(note: str, address: str, typ: str, area: str) -> tuple[str, str]:
+    """(the comment beside a binding, its ``at:``): a file's address the binding can carry
+    (``%IX0.3`` for a bool input, ``%QW2`` for an int output ...) is its ``at:`` and leaves
+    the comment; another (``%MW4``, ``%IX0.3`` on an output) stays in the comment only."""
+    found = parse_located(address) if address else "none"
+    if isinstance(found, str) or found.area != area or found.size not in (
+            ("X",) if typ == "bool" else ("W", "D") if typ in ("int", "real") else ()):
+        return note, ""
+    if note == f"{address} in the PLCopen file":
+        note = ""
+    return note.replace(f", {address}", ""), str(found)
+
+
+def _binding(source: str, invert: bool, description: str, at: str = "") -> str:
+    """A binding as YAML flow text (``source`` and ``at`` quoted when YAML needs it: they
+    may come from a file's softplc data)."""
+    if not invert and not description and not at:
+        return _q(source)
+    parts = [f"from: {_q(source)}"]
     if invert:
         parts.append("invert: true")
+    if at:
+        parts.append(f"at: {json.dumps(at)}")
     if description:
         parts.append(f"description: {json.dumps(description, ensure_ascii=False)}")
     return "{" + ", ".join(parts) + "}"

@@ -143,7 +143,8 @@ def test_every_block_in_every_place(kind: str, place: str, tmp_path: Path,
     assert {b.name: b.kind for b in g.blocks.values()} == {"X": kind}
     if place == "action":
         assert [t.text for t in g.transitions] == ["b", "c"]
-        assert [a.text for a in g.steps["S1"].actions] == [f"N {call(kind)}\no := X.{out}"]
+        assert [a.text for a in g.steps["S1"].actions] == [
+            f"N (* action Act *) {call(kind)}\no := X.{out}"]
         assert g.post == []
     else:
         assert [t.text for t in g.transitions] == [f"X.{out}", "c"]

@@ -64,7 +64,7 @@ steps:
   Run:
     actions:
       - |
-        N // Counts the parts while the press runs
+        N (* action Counting *) // Counts the parts while the press runs
         Cnt(CU := Part, PV := 3)
         Full := Cnt.Q
         Parts := Cnt.CV
@@ -129,15 +129,15 @@ LINE_PLANT = """\
   Stage1:
     grafcet: Stage.yaml
     inputs:
-      Arrive: {from: sim.I0, description: "Sensor at stage 1"}  # Sensor1 of Line, %IX0.0
+      Arrive: {from: sim.I0, at: "%IX0.0", description: "Sensor at stage 1"}  # Sensor1 of Line
       Enable: {from: sim.I1, description: "Line running"}  # Run of Line
     outputs:
-      Busy: {from: sim.Q0, description: "Stage 1 lamp"}  # Busy1 of Line, %QX0.0
+      Busy: {from: sim.Q0, at: "%QX0.0", description: "Stage 1 lamp"}  # Busy1 of Line
       Passed: sim.HR0
   Stage2:
     grafcet: Stage.yaml
     inputs:
-      Arrive: sim.I2  # Sensor2 of Line, %IX0.1
+      Arrive: {from: sim.I2, at: "%IX0.1"}  # Sensor2 of Line
       Enable: {from: Stage1.Busy, invert: true}
     outputs:
       Busy: sim.Q1
@@ -276,7 +276,7 @@ def test_globals_notes_say_where_each_external_comes_from(
             ) in err
     assert (f"{GLOBALS}:52:13: note: VAR_EXTERNAL 'Alarm': the global of resource "
             "'resource1' (line 289) is an output of the chart") in err
-    assert "Alarm: sim.Q0  # %QX0.1 in the PLCopen file" in (
+    assert 'Alarm: {from: sim.Q0, at: "%QX0.1"}' in (
         tmp_path / "plant.yaml").read_text(encoding="utf-8")
 
 

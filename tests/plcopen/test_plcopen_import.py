@@ -40,8 +40,8 @@ steps:
   Heating:
     actions: [N Heater, D T#1s Lamp, SD t#3s Alarm]
   Draining:
-    actions: [N Drain, "P Batches := Batches + 1;", "P0 Done := TRUE;", DS T#500ms Alarm,
-              SL T#1s Horn]
+    actions: [N Drain, "P (* action CountUp *) Batches := Batches + 1;", "P0 Done := TRUE;",
+              DS T#500ms Alarm, SL T#1s Horn]
   Fault:
     actions: [S Alarm, P Drain]
   Stir:
@@ -91,10 +91,11 @@ steps:
     min: 300ms
     max: 2s
     description: Motor down to the bottom
-    actions: ["P1 nCount := nCount + 1;", "N nTicks := nTicks + 1;", N bMotorDown]
+    actions: ["P1 (* action Down_entry *) nCount := nCount + 1;",
+              "N (* action Down_main *) nTicks := nTicks + 1;", N bMotorDown]
   Up:
     description: Motor up to the top
-    actions: ["P0 nTicks := 0;", N bMotorUp]
+    actions: ["P0 (* action Up_exit *) nTicks := 0;", N bMotorUp]
   Halt: {}
 transitions:
   - {from: Init, to: Down, when: bStart AND NOT bStop}

@@ -1,7 +1,7 @@
 """The IEC 61131-3 type a PLCopen file gives a variable (INT, DINT, REAL ...) survives
 import and export (the chart's ``iec_type:``), and changes nothing the runtime computes;
-located variables keep their address in the plant skeleton only (an export is one chart,
-which has no place for it)."""
+located variables are located in the plant skeleton (``at:``), and the export of the plant
+writes them back (the export of a chart has no place for them)."""
 
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ from runtime.language.grafcetfile import load_grafcet
 from runtime.plcopen.commands import chart_text
 from runtime.plcopen.export import export_chart
 from runtime.plcopen.importer import import_file
+from runtime.plcopen.yamlout import binding_at
 from tests.plcopen.plcopenkit import DATA, shape
 
 SOURCE = DATA / "typed_located.xml"
@@ -118,14 +119,36 @@ def test_an_int_is_not_bounded_by_its_iec_type(tmp_path: Path,
     assert fill[-1]["fill.Big"] > 32767
 
 
-def test_a_located_variable_keeps_its_address_in_the_plant_only(
+def test_a_located_variable_is_located_in_the_plant(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """%IX0.3 and %QX0.1 are kept beside their bindings in the plant skeleton; an export
-    (one chart, no plant) has no place for them (docs/plcopen.md)."""
+    """%IX0.3 and %QX0.1 are the bindings' ``at:`` in the plant skeleton (before: a comment
+    beside the binding, which an export of the plant could not write back); the export of
+    the chart alone has no place for them (an address belongs to a binding)."""
     out = tmp_path / "out"
     assert main(["import", str(SOURCE), "-o", str(out)]) == 0
     capsys.readouterr()
     plant = (out / "plant.yaml").read_text(encoding="utf-8")
-    assert "Go: sim.I0  # %IX0.3 in the PLCopen file" in plant
-    assert "Valve: sim.Q0  # %QX0.1 in the PLCopen file" in plant
+    assert 'Go: {from: sim.I0, at: "%IX0.3"}\n' in plant
+    assert 'Valve: {from: sim.Q0, at: "%QX0.1"}\n' in plant
     assert "address=" not in export_chart(load_grafcet(str(out / "Filler.yaml")))
+    p = tmp_path / "p.xml"
+    assert main(["export", str(out / "plant.yaml"), "-o", str(p)]) == 0
+    capsys.readouterr()
+    text = p.read_text(encoding="utf-8")
+    assert 'address="%IX0.3"' in text and 'address="%QX0.1"' in text
+
+
+@pytest.mark.parametrize(("address", "typ", "area", "said"), [
+    ("%IX0.3", "bool", "I", ("", "%IX0.3")),
+    ("%iw2", "int", "I", ("", "%IW2")),
+    ("%QD4", "real", "Q", ("", "%QD4")),
+    ("%MW4", "int", "I", ("%MW4 in the PLCopen file", "")),     # not an input's area
+    ("%IW2", "bool", "I", ("%IW2 in the PLCopen file", "")),    # a word for a bit
+    ("%QX0.1", "bool", "I", ("%QX0.1 in the PLCopen file", "")),  # an output's, on an input
+    ("%IX1.2.3", "bool", "I", ("%IX1.2.3 in the PLCopen file", "")),  # no form of at:
+])
+def test_an_address_a_binding_can_carry_is_its_at(address: str, typ: str, area: str,
+                                                  said: tuple[str, str]) -> None:
+    """The rule of the plant skeleton: the address is the binding's ``at:`` when the
+    binding's checks accept it, else a comment beside it (as before)."""
+    assert binding_at(f"{address} in the PLCopen file", address, typ, area) == said
