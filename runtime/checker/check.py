@@ -16,7 +16,9 @@ plant not checked further because a chart of it breaks a rule above, G301 unboun
 signal, G302 physical output bound twice, G303 driver point that does not exist (or wrong
 direction or type), G304 bad driver configuration, G305 (note) point not checked because the
 driver's library is missing, G306 one input point feeding two inputs of an instance, G307 an
-output bound to an input point, G308 a file of ``opcua: security:`` that is not there.
+output bound to an input point, G308 a file a side process reads at its start
+(``opcua: security:``, ``web: tls:``, ``modbus: tls:``, ``mqtt: tls:``, ``mqtt:
+password_file``) that is not there or cannot be read.
 Chart warnings also G210 (a stored action nothing resets) and G211 (a timer read stale
 under ``scan: stable``).
 

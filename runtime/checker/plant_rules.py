@@ -17,15 +17,19 @@ from runtime.language.model import Binding, PlantDef, VarKind
 T = A.Type
 
 
-def opcua_files(p: PlantDef) -> list[Diag]:
-    """G308: a certificate, key or trusted directory of ``opcua: security:`` that is not
-    there (the controller loads without them; ``softplc opcua`` would refuse to start)."""
+def side_files(p: PlantDef) -> list[Diag]:
+    """G308: a file a side process reads at its start that is not there (or not of its
+    kind, or not readable): a certificate, key or trusted directory of ``opcua:
+    security:``, a certificate or key of ``web: tls:``, ``modbus: tls:``, ``mqtt: tls:``,
+    ``mqtt: password_file``. The controller loads without them; the side process would
+    refuse to start."""
     from runtime.language.opcuaconf import security_problems
+    from runtime.language.tlsconf import side_file_problems
 
-    if p.opcua is None:
-        return []
-    return [diag(e.loc, "error", "G308", e.message)
-            for e in security_problems(p.opcua.security)]
+    found = side_file_problems(p)
+    if p.opcua is not None:
+        found = security_problems(p.opcua.security) + found
+    return [diag(e.loc, "error", "G308", e.message) for e in found]
 
 
 def check_plant_model(p: PlantDef) -> list[Diag]:
@@ -51,7 +55,7 @@ def check_plant_model(p: PlantDef) -> list[Diag]:
         except (ConfigError, ValueError, TypeError) as exc:
             out.append(diag(d.loc, "error", "G304", f"driver '{name}' ({d.type}): {exc}"))
     one_way = {name for name, drv in drivers.items() if drv.ONE_DIRECTION_PER_POINT}
-    out += shared_inputs(p) + outputs_on_inputs(p, one_way) + opcua_files(p)
+    out += shared_inputs(p) + outputs_on_inputs(p, one_way) + side_files(p)
     noted: set[str] = set()
     for inst in p.instances.values():
         for direction, section in ((Direction.IN, inst.inputs), (Direction.OUT, inst.outputs)):

@@ -31,7 +31,7 @@ from runtime.language.model import (
     PlantDef,
     VarKind,
 )
-from runtime.language.plantpaths import PATH, path_value
+from runtime.language.plantpaths import PATH
 from runtime.language.shape import (
     Choice,
     Int,
@@ -45,6 +45,7 @@ from runtime.language.shape import (
     one_of,
     time_value,
 )
+from runtime.language.tlsconf import SERVER_TLS, pem_files
 from runtime.language.webconf import is_loopback
 from runtime.language.yamlsrc import YList, YMap
 
@@ -77,8 +78,7 @@ ROLES = ("read", "write")
 _HOST_PORT = r"(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):[0-9]{1,5}"
 TLS = Section((
     Key("listen", Text(f"^{_HOST_PORT}$"), "HOST:PORT (default 127.0.0.1:802)."),
-    Key("certificate", PATH, "The server's certificate (PEM).", required=True),
-    Key("private_key", PATH, "Its private key (PEM).", required=True),
+    *SERVER_TLS,
     Key("clients_ca", PATH, "The certificate authority (PEM) of the clients' certificates.",
         required=True),
     Key("roles", MapOf(Choice(ROLES), min_properties=1),
@@ -166,7 +166,7 @@ def load_modbus(p: PlantDef, value: Any, loc: Loc) -> ModbusDef:
     if "feed" in m:  # the default: runtime/language/feedconf.py, once every section is read
         d.feed = feed_key(m, "modbus")
     if "tls" in m:
-        d.tls = _tls(m["tls"], m.val_locs["tls"])
+        d.tls = _tls(p.path, m["tls"], m.val_locs["tls"])
     if "limits" in m:
         d.limits = _limits(m["limits"], m.val_locs["limits"])
     if not d.host and d.tls is None:
@@ -211,7 +211,8 @@ def _clients(value: Any, loc: Loc) -> list[str]:
     return out
 
 
-def _tls(value: Any, loc: Loc) -> ModbusTls:
+def _tls(base: str, value: Any, loc: Loc) -> ModbusTls:
+    """``modbus: tls:`` of the plant file ``base``."""
     m = expect_type(value, loc, YMap, "a mapping (listen, certificate, private_key, "
                                       "clients_ca, roles)")
     TLS.check(m)
@@ -220,11 +221,9 @@ def _tls(value: Any, loc: Loc) -> ModbusTls:
         vloc = m.val_locs["listen"]
         t.host, t.port = listen_value(str(expect_type(m["listen"], vloc, str, "HOST:PORT")),
                                       vloc, "modbus tls listen")
-    for key in PEM_KEYS:
-        if key not in m:
-            raise SourceError(loc, f"modbus tls: expected {key} (a PEM file), found none: "
-                                   "Modbus/TCP Security authenticates both ends")
-        setattr(t, key, path_value(m[key], m.val_locs[key], f"modbus tls {key}"))
+    for key, path in pem_files(base, m, PEM_KEYS, "modbus tls", loc, t.locs,
+                               ": Modbus/TCP Security authenticates both ends").items():
+        setattr(t, key, path)
     if "roles" not in m:
         raise SourceError(loc, "modbus tls: expected roles: {ROLE: read or write, ...}: what "
                                "each role of the clients' certificates may do")

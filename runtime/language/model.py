@@ -372,6 +372,8 @@ class MqttTls:
     certificate: str | None = None
     private_key: str | None = None
     loc: Loc | None = None
+    #: where each file given has its value, for ``softplc check`` (no setting: not compared)
+    locs: dict[str, Loc] = field(default_factory=dict, compare=False)
 
 
 @dataclass(slots=True)
@@ -410,6 +412,8 @@ class MqttDef:
     #: default), for the side process's start check
     feed_loc: Loc | None = None
     loc: Loc | None = None
+    #: where each key given has its value (``password_file``'s for ``softplc check``)
+    locs: dict[str, Loc] = field(default_factory=dict)
 
 
 @dataclass(slots=True)
@@ -429,6 +433,8 @@ class WebDef:
     #: HTTPS: the certificate (PEM, its chain after it) and its private key (PEM)
     certificate: str | None = None
     private_key: str | None = None
+    #: where ``tls:`` gives each of the two, for ``softplc check``
+    tls_locs: dict[str, Loc] = field(default_factory=dict)
     #: who may act from the page: user -> password hash (``softplc hash-pin``)
     users: dict[str, str] = field(default_factory=dict)
     #: who may look: "anyone" who reaches the address, or only logged-in "users"
@@ -495,6 +501,8 @@ class ModbusTls:
     #: role (the certificate's role extension) -> "read" or "write"
     roles: dict[str, str] = field(default_factory=dict)
     loc: Loc | None = None
+    #: where each file given has its value, for ``softplc check`` (no setting: not compared)
+    locs: dict[str, Loc] = field(default_factory=dict, compare=False)
 
 
 @dataclass(slots=True)

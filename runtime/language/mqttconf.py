@@ -90,7 +90,7 @@ def load_mqtt(p: PlantDef, value: Any, loc: Loc) -> MqttDef:
                           "plant file: put it on the first line of a file only the service "
                           "may read, and name that file with password_file")
     MQTT.check(m)
-    q = MqttDef(loc=loc, sample_ns=max(DEFAULT_SAMPLE_NS, p.cycle_ns))
+    q = MqttDef(loc=loc, sample_ns=max(DEFAULT_SAMPLE_NS, p.cycle_ns), locs=dict(m.val_locs))
     if "brokers" not in m:
         raise SourceError(loc, "mqtt: expected brokers: [mqtt://HOST:PORT, ...] (the "
                                "plant's broker, then its fail-over brokers), found none")
@@ -209,6 +209,7 @@ def _tls(value: Any, loc: Loc) -> MqttTls:
     for key in TLS.names:
         if key in m:
             setattr(t, key, _path(m, key))
+            t.locs[key] = m.val_locs[key]
     if (t.certificate is None) != (t.private_key is None):
         raise SourceError(loc, "mqtt tls: certificate and private_key go together (the "
                                "client certificate the broker asks for, and its key)")

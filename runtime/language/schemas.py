@@ -2,7 +2,8 @@
 typing), generated from the declaration of each section (``runtime/language/shape.py``):
 the grafcet file from ``grafcetfile.GRAFCET``, the plant file from ``plantfile.PLANT``
 (its drivers from ``drivers/registry.py`` through ``drivershape.DRIVER``), the simulation
-script from ``filekind.SCRIPT``.
+script from ``filekind.SCRIPT``, the scenario from ``filekind.SCENARIO`` (its expectations
+``filekind.EXPECTATION``).
 
 ``scripts/make-schemas.sh`` writes them (``python -m runtime.language.schemas DIR``);
 ``tests/test_schemas.py`` fails when a committed file differs from what this generates.
@@ -15,7 +16,7 @@ import sys
 from collections.abc import Iterable
 from pathlib import Path
 
-from runtime.language.filekind import SCRIPT
+from runtime.language.filekind import SCENARIO, SCRIPT
 from runtime.language.grafcetfile import GRAFCET, INNER_STEP
 from runtime.language.plantfile import PLANT
 from runtime.language.shape import Def, Schema, Section
@@ -26,6 +27,7 @@ KINDS: dict[str, tuple[Section, str, tuple[Def, ...]]] = {
     "grafcet": (GRAFCET, "softplc grafcet file", (INNER_STEP,)),
     "plant": (PLANT, "softplc plant file", ()),
     "script": (SCRIPT, "softplc simulation script", ()),
+    "scenario": (SCENARIO, "softplc scenario", ()),
 }
 
 
@@ -43,7 +45,8 @@ def _definitions(top: Section, extra: Iterable[Def]) -> dict[str, Schema]:
 
 
 def document(kind: str) -> Schema:
-    """The JSON Schema (draft 2020-12) of the files of ``kind`` (grafcet, plant, script)."""
+    """The JSON Schema (draft 2020-12) of the files of ``kind`` (grafcet, plant, script,
+    scenario)."""
     top, title, extra = KINDS[kind]
     return {"$schema": "https://json-schema.org/draft/2020-12/schema",
             "$id": f"urn:softplc:schema:{kind}:v1", "title": title, **top.schema(),

@@ -11,7 +11,6 @@ from typing import Any
 from runtime.errors import Loc, SourceError
 from runtime.language.feedconf import FEED_KEY, feed_key, sample_key
 from runtime.language.model import PlantDef, WebDef
-from runtime.language.plantpaths import PATH, plant_path
 from runtime.language.shape import (
     Choice,
     Int,
@@ -24,6 +23,7 @@ from runtime.language.shape import (
     expect_type,
     time_value,
 )
+from runtime.language.tlsconf import SERVER_TLS, pem_files
 from runtime.language.yamlsrc import YMap
 
 #: the snapshot period when the plant does not say (never below the cycle), ns
@@ -40,10 +40,7 @@ _HOST = Text(r"^((\*\.)?[A-Za-z0-9_-]{1,63}(\.[A-Za-z0-9_-]{1,63})*\.?|\[?[0-9A-
 READ = ("anyone", "users")
 
 # -- the shape of ``web:`` (runtime/language/shape.py)
-TLS = Section((
-    Key("certificate", PATH, "The certificate (PEM, its chain after it).", required=True),
-    Key("private_key", PATH, "Its private key (PEM).", required=True),
-), "web tls", "HTTPS: the server's certificate and key (PEM).")
+TLS = Section(SERVER_TLS, "web tls", "HTTPS: the server's certificate and key (PEM).")
 WEB = Section((
     Key("listen", Text(_LISTEN.pattern), "HOST:PORT (default 127.0.0.1:8080); any address but "
                                          "a loopback one needs tls."),
@@ -115,11 +112,8 @@ def load_web(p: PlantDef, value: Any, loc: Loc) -> WebDef:
         vloc = m.val_locs["tls"]
         tls = expect_type(m["tls"], vloc, YMap, "a mapping (certificate, private_key)")
         TLS.check(tls)
-        for key in TLS.names:
-            if key not in tls:
-                raise SourceError(vloc, f"web tls: expected {key} (a PEM file), found none")
-            setattr(w, key, plant_path(p.path, tls[key], tls.val_locs[key],
-                                       f"web tls {key}"))
+        files = pem_files(p.path, tls, TLS.names, "web tls", vloc, w.tls_locs)
+        w.certificate, w.private_key = files["certificate"], files["private_key"]
     if "listen" in m:
         listen_value(str(m["listen"]), w.certificate is not None, m.val_locs["listen"])
     if "users" in m:

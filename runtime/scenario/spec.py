@@ -21,17 +21,10 @@ from runtime.engine.names import PlantNames
 from runtime.engine.script import Change, read_script, script_of
 from runtime.errors import Loc, SourceError, suggest
 from runtime.language import ast as A
-from runtime.language.filekind import SCENARIO
+from runtime.language.filekind import SCENARIO, SHAPES
 from runtime.language.model import PlantDef, VarKind
 from runtime.language.plantfile import load_plant
 from runtime.language.shape import (
-    Anything,
-    Int,
-    Key,
-    MapOf,
-    Section,
-    Text,
-    Time,
     expect_type,
     time_value,
 )
@@ -40,46 +33,6 @@ from runtime.language.yamlsrc import YList, YMap, load_yaml
 
 T = A.Type
 
-#: the keys of an expectation, each declared once (runtime/language/shape.py); their
-#: editors' schema is configs/schema/scenario.schema.json's, which
-#: tests/scenario/test_scenario_schema.py holds to ``EXPECT_KEYS``
-_NAMES = MapOf(Anything(), min_properties=1, names=r"^[^.\s]+\.[^\s]+$")
-_KEY = {k.name: k for k in (
-    Key("at", Time(), "Check expect: in the first scan at or after this time (with within:, "
-                      "in some scan up to within later)."),
-    Key("cycle", Int(0), "Check expect: in this scan (cycle 0 is the first)."),
-    Key("within", Time(), "With at: the expectation holds in some scan from at to at + "
-                          "within."),
-    Key("from", Time(), "The window's start (default 0): scans with from <= t < to."),
-    Key("to", Time(), "The window's end, not included (default: the end of the run)."),
-    Key("expect", _NAMES, "The names and the values the trace must hold."),
-    Key("never", _NAMES, "What no scan of the window may hold."),
-    Key("always", _NAMES, "What every scan of the window holds."),
-    Key("on_rise", Text(r"^[^.\s]+\.[^\s]+$"), "A bool name: expect: holds in every scan "
-                                                 "of the window where it rises."),
-    Key("on_fall", Text(r"^[^.\s]+\.[^\s]+$"), "A bool name: expect: holds in every scan "
-                                                 "of the window where it falls."),
-    Key("rises", _NAMES, "Bool names and how many times each rises in the window."),
-    Key("name", Text(), "The expectation's name in the report and the JUnit XML."),
-)}
-
-
-def _kind(keys: tuple[str, ...], what: str) -> Section:
-    return Section(tuple(_KEY[k] for k in keys), what)
-
-
-#: the kinds of expectation: the key that names what is expected, and the section of the
-#: keys each allows
-SHAPES: dict[str, Section] = {
-    "at": _kind(("at", "cycle", "within", "expect", "name"),
-                "an expectation at a time or a cycle"),
-    **{kind: _kind((kind, "from", "to", "expect", "name"), f"an expectation with '{kind}:'")
-       for kind in ("on_rise", "on_fall")},
-    **{kind: _kind((kind, "from", "to", "name"), f"an expectation with '{kind}:'")
-       for kind in ("never", "always", "rises")},
-}
-#: every key an expectation may have
-EXPECT_KEYS = tuple(dict.fromkeys(k for shape in SHAPES.values() for k in shape.names))
 #: a comparison written before a value: ``">= 4"``, ``"!= gsAbrir"``
 _OP = re.compile(r"\s*(==|!=|<=|>=|<|>)\s*(.*?)\s*\Z", re.S)
 OPS: dict[str, Callable[[Any, Any], bool]] = {

@@ -521,6 +521,9 @@ def test_a_plant_with_modbus_gets_its_server_unit(tmp_path: Path, systemctl: Pat
     assert keys["ExecStart"] == f"{SOFTPLC} modbus /etc/softplc/%i/plant.yaml"
     assert keys["RuntimeDirectory"] == "softplc/%i" and keys["User"] == "softplc"
     assert keys["AmbientCapabilities"] == "CAP_NET_BIND_SERVICE"
+    # the open-file bound of the web view's unit (a server of many client sockets; the
+    # largest modbus: limits: connections held at it: tests/modbus/test_server.py)
+    assert keys["LimitNOFILE"] == "1024"
     assert ["systemctl", "enable", "softplc@press.service",
             "softplc-modbus@press.service"] in p.commands
     assert bring_up(install.Plan(name="press", modbus=True, start=True)) == [

@@ -8,8 +8,6 @@ import re
 import shutil
 import socket
 import subprocess
-import sys
-import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -17,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from tests.opcua.feedkit import FeedReader, wait_until
-from tests.web.kit import Proc, _env, rundir_of, start, stop
+from tests.web.kit import Proc, rundir_of, start, stop
 
 ROOT = Path(__file__).resolve().parents[2]
 #: the feed's sample in the tests, ms (5 scans of 10 ms)
@@ -25,15 +23,11 @@ SAMPLE_MS = 50
 MBPOLL = shutil.which("mbpoll")
 
 
-def start_server(tmp: Path, *args: str, nice: int = 0) -> Proc:
+def start_server(tmp: Path, *args: str, nice: int = 0, nofile: int | None = None) -> Proc:
     """``softplc modbus ARGS`` (at niceness ``nice``: its unit runs it at 10; the tests at
-    the machine's own, so that the other jobs of a shared test machine do not starve it)."""
-    p = subprocess.Popen(["nice", "-n", str(nice), sys.executable, "-m", "runtime.cli",
-                          "modbus", *args], cwd=str(tmp), env=_env(tmp), text=True,
-                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    proc = Proc(p)
-    threading.Thread(target=proc.follow, daemon=True).start()
-    return proc
+    the machine's own, so that the other jobs of a shared test machine do not starve it);
+    ``nofile``: its open-file limit (RLIMIT_NOFILE), as its unit's ``LimitNOFILE=``."""
+    return start(tmp, "modbus", *args, nofile=nofile, nice=nice)
 
 
 def free_port() -> int:
@@ -128,11 +122,11 @@ def served(port: int) -> bool:
 
 @contextmanager
 def rig(tmp: Path, modbus: str = "", plc: str = "", server_args: tuple[str, ...] = (),
-        wait_served: bool = True, nice: int = 0, sample_ms: int = SAMPLE_MS
-        ) -> Iterator[Rig]:
+        wait_served: bool = True, nice: int = 0, sample_ms: int = SAMPLE_MS,
+        nofile: int | None = None) -> Iterator[Rig]:
     """The controller (``softplc run --sim``) and ``softplc modbus`` (at niceness
-    ``nice``), until the block ends; once the server serves values (``wait_served``), else
-    once it listens."""
+    ``nice``, its open-file limit ``nofile`` if given), until the block ends; once the
+    server serves values (``wait_served``), else once it listens."""
     plant, port = write_plant(tmp, modbus, plc=plc, sample_ms=sample_ms)
     ctl = start(tmp, "run", str(plant), "--sim")
     server = None
@@ -142,7 +136,7 @@ def rig(tmp: Path, modbus: str = "", plc: str = "", server_args: tuple[str, ...]
         wait_until(lambda: feed_path.exists() or ctl.popen.poll() is not None, 30.0,
                    "the feed socket")
         assert ctl.popen.poll() is None, ctl.log()
-        server = start_server(tmp, str(plant), *server_args, nice=nice)
+        server = start_server(tmp, str(plant), *server_args, nice=nice, nofile=nofile)
         feed = FeedReader(str(feed_path))
         r = Rig(tmp, plant, port, ctl, server, feed)
         if wait_served:

@@ -160,3 +160,55 @@ def test_another_unit_and_a_stopped_controller_get_exception_11(tmp_path: Path) 
         finally:
             c.close()
         assert r.server.popen.poll() is None  # it waits for the controller to come back
+
+
+def test_the_largest_connection_limit_holds_at_the_units_open_file_limit(
+        tmp_path: Path) -> None:
+    """``softplc modbus`` at its unit's open-file limit (``LimitNOFILE=``) with ``limits:
+    connections`` at its largest: that many clients held at once (one of them served),
+    the ten beyond closed by the server, no descriptor short (EMFILE: it would stop
+    accepting), and once they are gone a new client is served."""
+    import os
+
+    from runtime.language.modbusconf import LIMITS
+    from tests.web.kit import unit_nofile
+
+    top = LIMITS["connections"].high
+    nofile = unit_nofile("softplc-modbus@.service")
+
+    def closed(s: socket.socket) -> bool:
+        try:
+            return s.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b""
+        except BlockingIOError:
+            return False
+
+    with rig(tmp_path, f"  limits: {{connections: {top}}}\n", nofile=nofile) as r:
+        held: list[socket.socket] = []
+        try:
+            for _ in range(top + 10):
+                held.append(socket.create_connection(("127.0.0.1", r.port), timeout=10))
+                held[-1].setblocking(False)
+            wait_until(lambda: sum(map(closed, held)) >= 10, 60.0,
+                       "the ten connections beyond the limit closed by the server")
+            fds = len(os.listdir(f"/proc/{r.server.popen.pid}/fd"))
+            still = [s for s in held if not closed(s)]
+            assert (len(still), fds <= nofile) == (top, True), (len(still), fds)
+            # one of them is served: read HR0 (MBAP: transaction 7, length 6, unit 1)
+            still[-1].settimeout(10)
+            still[-1].sendall(struct.pack(">HHHBBHH", 7, 0, 6, 1, 3, 0, 1))
+            reply = still[-1].recv(64)
+            assert reply[:2] == b"\x00\x07" and reply[7] == 3, reply
+        finally:
+            for s in held:
+                s.close()
+
+        def served() -> bool:
+            c = ModbusTcpClient("127.0.0.1", port=r.port, timeout=3, retries=0)
+            try:
+                return bool(c.connect()) and not c.read_holding_registers(0, count=1).isError()
+            finally:
+                c.close()
+        wait_until(served, 60.0, "a new client served")
+        log = r.server.log()
+        assert "Too many open files" not in log and r.server.popen.poll() is None, log[-2000:]
+        print(f"descriptors at {top} connections: {fds} of {nofile}")  # noqa: T201

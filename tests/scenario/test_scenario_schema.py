@@ -12,8 +12,8 @@ from typing import Any
 import pytest
 from jsonschema import Draft202012Validator
 
+from runtime.language.filekind import EXPECT_KEYS
 from runtime.language.yamlsrc import load_yaml
-from runtime.scenario.spec import EXPECT_KEYS
 from tests.scenario.kit import ROOT
 
 SCHEMA = json.loads((ROOT / "configs" / "schema" / "scenario.schema.json").read_text(

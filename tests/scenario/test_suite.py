@@ -10,10 +10,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import xmlschema
 
 from runtime.scenario.suite import discover, run_all, summarize
-from tests.scenario.junitschema import schema_path
+from tests.scenario.junitschema import JUNIT
 from tests.scenario.kit import DRAWER, cli, write
 
 PASSING = "{at: 500ms, expect: {tester1.gsAbrir.X: 1}}"
@@ -23,11 +22,7 @@ BAD = "{at: 500ms, expect: {tester1.nothing: 0}}"
 
 @pytest.fixture(scope="module")
 def junit_schema() -> Any:
-    try:
-        path = schema_path()
-    except RuntimeError as exc:  # the network or the index is down: say so, never skip
-        pytest.fail(f"cannot fetch junit-10.xsd: {exc}")
-    return xmlschema.XMLSchema(str(path))
+    return JUNIT.validator()
 
 
 def test_scenarios_are_found_by_their_name_hidden_directories_left_out(tmp_path: Path

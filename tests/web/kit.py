@@ -159,11 +159,10 @@ class Rig:
         return self.feed.statuses[-1] if self.feed.statuses else {}
 
 
-def unit_nofile() -> int:
-    """The open-file limit of the web view's unit (``LimitNOFILE=`` of
-    systemd/softplc-web@.service), else systemd's default soft limit for a service,
-    1024."""
-    text = (ROOT / "systemd/softplc-web@.service").read_text(encoding="utf-8")
+def unit_nofile(unit: str = "softplc-web@.service") -> int:
+    """The open-file limit of a side process's unit (``LimitNOFILE=`` of systemd/UNIT, the
+    web view's by default), else systemd's default soft limit for a service, 1024."""
+    text = (ROOT / "systemd" / unit).read_text(encoding="utf-8")
     found = re.search(r"^LimitNOFILE=(\d+)", text, re.M)
     return int(found.group(1)) if found else 1024
 
