@@ -58,7 +58,7 @@ from runtime.controller.unitsight import (
     unreadable,
 )
 from runtime.errors import SoftplcError
-from runtime.language.model import MqttTls, PlantDef
+from runtime.language.model import PlantDef
 from runtime.language.plantfile import load_plant
 from runtime.language.runtimedir import (
     INSTALL_DIR,
@@ -70,6 +70,7 @@ from runtime.language.runtimedir import (
     plant_name,
     service_view,
 )
+from runtime.language.tlsconf import side_files
 from runtime.language.yamlsrc import YMap, load_yaml
 
 log = logging.getLogger(__name__)
@@ -395,21 +396,15 @@ def _sight(p: Plan, pdef: PlantDef, softplc: str, check_exec: bool) -> None:
                            ("certificate", "private_key", "trusted_clients",
                             "trusted_readers")],
                        "softplc opcua-cert makes a certificate, docs/opcua.md", uid, gids)
-    if pdef.mqtt is not None:
-        tls = pdef.mqtt.tls or MqttTls()
-        _service_reads(p, [("mqtt: tls: ca", tls.ca), ("mqtt: tls: certificate",
-                                                       tls.certificate),
-                           ("mqtt: tls: private_key", tls.private_key),
-                           ("mqtt: password_file", pdef.mqtt.password_file)],
-                       "the edge node cannot connect without it, docs/mqtt.md", uid, gids)
-    if pdef.web is not None:
-        _service_reads(p, [(f"web: tls: {key}", getattr(pdef.web, key))
-                           for key in ("certificate", "private_key")],
-                       "docs/web.md says how to make one", uid, gids)
-    if pdef.modbus is not None and pdef.modbus.tls is not None:
-        _service_reads(p, [(f"modbus: tls: {key}", getattr(pdef.modbus.tls, key))
-                           for key in ("certificate", "private_key", "clients_ca")],
-                       "docs/modbus.md says how to make them", uid, gids)
+    # the files of the web view, the Modbus server and the edge node: one list, the
+    # checker's (runtime/language/tlsconf.py), each named as its key ("mqtt: tls: ca")
+    hints = {"mqtt": "the edge node cannot connect without it, docs/mqtt.md",
+             "web": "docs/web.md says how to make one",
+             "modbus": "docs/modbus.md says how to make them"}
+    files = side_files(pdef)
+    for side, hint in hints.items():
+        _service_reads(p, [(what.replace(" ", ": "), path)
+                           for s, what, path, _loc in files if s == side], hint, uid, gids)
     if not pdef.consoles or all(c.kind == "serial" for c in pdef.consoles):
         p.warnings.append(f"monitor: no console socket or TCP port: `systemctl reload "
                           f"{p.controller}` (online change) needs one; add monitor: socket: "
