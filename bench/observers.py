@@ -200,6 +200,21 @@ def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
     return w
 
 
+def ack_faults(daemon: Daemon, since: int, when: str) -> int:
+    """The controller's faults after the first ``since`` said in one line and acknowledged
+    (a fault stops the charts until ack: the next window would measure another plant);
+    returns the count of faults so far."""
+    faults = list(daemon.faults)
+    if len(faults) > since:
+        try:
+            acked = daemon.ack()
+        except CommandRefused as exc:
+            acked = f"not acknowledged: {exc}"
+        out(f"({len(faults) - since} fault(s) {when}: "
+            + "; ".join(r for _, r in faults[since:]) + f"; then {acked})")
+    return len(faults)
+
+
 def node_files(tmp: str, ids: list[str], items: int, clients: int) -> list[tuple[str, int]]:
     """``items`` node ids split evenly over ``clients`` files, taken in turn from ``ids``
     (round again when the plant has fewer variables): [(file, items in it)]."""
@@ -308,10 +323,11 @@ def main() -> None:
         out(f"{args.testers} drawer testers, cycle {cycle_ms} ms, {args.seconds:g} s per "
             f"phase, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}, scan "
             f"{'SCHED_FIFO 50' if args.fifo else 'SCHED_OTHER'}")
+        faults0 = len(daemon.faults)
         rows = [("unobserved", measure(daemon, probe, meter, args.seconds, {}))]
 
+        faults0 = ack_faults(daemon, faults0, "in the unobserved window")
         # the observers: the OPC UA server and its clients first (the slowest to start)
-        faults0 = len(daemon.faults)
         t0 = time.monotonic()
         server = side([sys.executable, "-m", "runtime.cli", "opcua", path], tmp, "opcua")
         sides["softplc opcua"] = [server]
@@ -361,14 +377,7 @@ def main() -> None:
                                              str(reader_s)], stdout=subprocess.PIPE,
                                             text=True))
         time.sleep(2.0)  # the pages have their whole frame, the traces stream
-        started = list(daemon.faults)[faults0:]
-        if started:  # charts stopped until ack: the window would measure another plant
-            try:
-                acked = daemon.ack()
-            except CommandRefused as exc:
-                acked = f"not acknowledged: {exc}"
-            out(f"({len(started)} fault(s) while the observers started: "
-                + "; ".join(r for _, r in started) + f"; before the window: {acked})")
+        faults0 = ack_faults(daemon, faults0, "while the observers started")
         if args.alarms > 0:
             traffic = AlarmTraffic(daemon, args.testers, args.alarms)
             traffic.thread.start()
@@ -394,6 +403,7 @@ def main() -> None:
             for p in group:
                 if p.poll() is None and p is not (broker.proc if broker else None):
                     end_process(p, 30)
+        ack_faults(daemon, faults0, "in the observed window or while the observers ended")
         rows.append(("unobserved again", measure(daemon, probe, meter, args.seconds, {})))
 
         table(rows)

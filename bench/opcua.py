@@ -175,10 +175,13 @@ async def run_client(cfg: dict[str, Any]) -> None:
             sys.stderr.write(f"client: subscription status {status}\n")
 
     sub = await client.create_subscription(100, Handler())
+    # the alarms first: their filter takes a few hundred browse requests, answered sooner
+    # by a server not yet sending this client's data changes (they timed out after them
+    # on a loaded machine)
+    await sub.subscribe_alarms_and_conditions(client.nodes.server)
     nodes = [client.get_node(i) for i in ids]
     for k in range(0, len(nodes), 500):
         await sub.subscribe_data_change(nodes[k:k + 500], queuesize=1)
-    await sub.subscribe_alarms_and_conditions(client.nodes.server)  # the alarms
     sys.stdout.write("ready\n")
     sys.stdout.flush()
     loop = asyncio.get_running_loop()
