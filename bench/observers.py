@@ -31,8 +31,9 @@ core), resident memory, and what its clients received. Clients run at nice 10 as
 other benches. A missing mosquitto is said in one line and the MQTT observer skipped.
 
     python -m bench.observers [--seconds 60] [--testers 100] [--cycle 10ms] [--fifo]
-                              [--opcua-clients 4] [--items 1183] [--alarms 10]
-                              [--pages 20] [--consoles 4]
+                              [--mqtt-sample 10ms] [--opcua-clients 4] [--items 1183]
+                              [--alarms 10] [--pages 20] [--consoles 4]
+                              [--client-nice 10] [--start-s 360] [--keep]
 """
 
 from __future__ import annotations
@@ -86,14 +87,15 @@ THREADS = {"softplc-scan": "scan", "softplc-feed": "feed", "console-": "console"
 
 
 def observers_plant(directory: str, testers: int, cycle_ms: int, fifo: bool,
-                    broker: str | None, opcua_port: int, web_port: int, clients: int) -> str:
+                    broker: str | None, opcua_port: int, web_port: int, clients: int,
+                    mqtt_sample: str = "10ms") -> str:
     """bench/jitter.py's plant with a console socket and the ``mqtt:`` (when ``broker``),
     ``opcua:`` and ``web:`` sections of the benches of each side process."""
     path = plant_file(directory, testers, cycle_ms, fifo)
     with open(path, "a", encoding="utf-8") as f:
         f.write(f"monitor:\n  socket: {{path: {directory}/c.sock, trusted: true}}\n")
         if broker is not None:
-            f.write(mqtt_section(directory, broker, "10ms"))
+            f.write(mqtt_section(directory, broker, mqtt_sample))
         f.write(opcua_section(directory, opcua_port, False, None, clients))
         f.write(web_section(directory, web_port, "100ms"))
     return path
@@ -265,6 +267,9 @@ def main() -> None:
     ap.add_argument("--cycle", default="10ms", help="the plant's cycle, whole ms (10ms)")
     ap.add_argument("--fifo", action="store_true",
                     help="the scan at SCHED_FIFO 50 (plc: realtime: needs root)")
+    ap.add_argument("--mqtt-sample", default="10ms",
+                    help="mqtt: sample (10ms). The feed's frames come at the smallest "
+                         "sample of the plant's sections, to every side process")
     ap.add_argument("--opcua-clients", type=int, default=4)
     ap.add_argument("--items", type=int, default=1183,
                     help="monitored items of all OPC UA clients together (1183)")
@@ -312,7 +317,7 @@ def main() -> None:
         opcua_port, web_port = free_port(), free_port()
         path = observers_plant(tmp, args.testers, cycle_ms, args.fifo,
                                broker.url if broker else None, opcua_port, web_port,
-                               args.opcua_clients)
+                               args.opcua_clients, args.mqtt_sample)
         meter, probe = FeedMeter(), SchedProbe()
 
         def setup(d: Daemon, f: FeedServer | None) -> None:
@@ -437,7 +442,7 @@ def main() -> None:
                 f"notifications/s; alarms raised {raised} (each cleared 0.5 s later), "
                 "alarm events received per client "
                 + ", ".join(str(g.get("events", "-")) for g in got),
-            "softplc mqtt": "sample 10 ms",
+            "softplc mqtt": f"sample {args.mqtt_sample}",
             "MQTT subscriber": (f"{mqtt_got['messages'] / count_s:.0f} messages/s, "
                                 f"{mqtt_got['bytes'] / count_s / 1024:.0f} KiB/s"
                                 if mqtt_got else ""),
