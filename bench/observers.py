@@ -26,7 +26,7 @@ and the scan, feed and console threads alone, from /proc/self/task); the feed's 
 its cost per sample: the feed thread's CPU in ``FeedServer._publish`` per frame and the
 scan thread's in ``FeedServer.on_scan`` per snapshot taken, timed with
 ``time.thread_time_ns`` by wrappers this benchmark installs (the runtime has no such
-counter). Per side process over the observed window: CPU (utime + stime, percent of one
+counter), and the feed's clients dropped for not reading (``FeedServer.dropped``). Per side process over the observed window: CPU (utime + stime, percent of one
 core), resident memory, and what its clients received. Clients run at nice 10 as in the
 other benches. A missing mosquitto is said in one line and the MQTT observer skipped.
 
@@ -141,9 +141,11 @@ class FeedMeter:
         setattr(fs, "_publish", timed_publish)  # noqa: B010 - a method replaced on the instance
         setattr(fs, "on_scan", timed_scan)  # noqa: B010
 
-    def reading(self) -> tuple[int, int, int, int, int]:
+    def reading(self) -> tuple[int, int, int, int, int, int]:
         frames = getattr(self.fs, "frames", -1)
-        return (frames, self.publish_ns, self.publishes, self.scan_ns, self.captures)
+        dropped = getattr(self.fs, "dropped", -1)
+        return (frames, self.publish_ns, self.publishes, self.scan_ns, self.captures,
+                dropped)
 
 
 def threads_cpu_ns() -> dict[str, int]:
@@ -193,8 +195,10 @@ def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
     wall = time.monotonic() - t0
     w["cpu"] = 100 * (p1 - p0) / wall
     w["threads"] = {k: 100 * (th1[k] - th0[k]) / 1e9 / wall for k in th0}
-    frames, pub_ns, pubs, scan_ns, caps = (b - a for a, b in zip(feed0, feed1, strict=True))
+    frames, pub_ns, pubs, scan_ns, caps, dropped = (
+        b - a for a, b in zip(feed0, feed1, strict=True))
     w["frames"] = frames if feed1[0] >= 0 else None
+    w["dropped"] = dropped if feed1[5] >= 0 else None
     w["publish_us"] = pub_ns / pubs / 1e3 if meter.ok and pubs else None
     w["capture_us"] = scan_ns / caps / 1e3 if meter.ok and caps else None
     w["sides"] = {k: (100 * (cpu_s(v) - side0[k]) / wall, rss_mib(v))
@@ -248,15 +252,17 @@ def table(rows: list[tuple[str, dict[str, Any]]]) -> None:
     base = rows[0][1]["p99"]
     out("| phase | cycles | overruns | faults | lateness p50 us | p99 us | max us | p99 / "
         "unobserved p99 | runq p99 us | blocked p99 us | controller CPU | scan thread | "
-        "feed thread | console thread | feed frames | _publish us/frame | on_scan us/snapshot |")
-    out("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        "feed thread | console thread | feed frames | feed clients dropped | "
+        "_publish us/frame | on_scan us/snapshot |")
+    out("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for label, r in rows:
         th = r["threads"]
         out(f"| {label} | {r['cycles']} | {r['overruns']} | {r['faults']} | {r['p50']:.0f} | "
             f"{r['p99']:.0f} | {r['max']:.0f} | {r['p99'] / base:.2f} | {r['runq_p99']:.0f} | "
             f"{r['blocked_p99']:.0f} | {r['cpu']:.1f} % | "
             f"{th['scan']:.1f} % | {th['feed']:.1f} % | {th['console']:.1f} % | "
-            f"{fmt(r['frames'], 'd')} | {fmt(r['publish_us'], '.1f')} | "
+            f"{fmt(r['frames'], 'd')} | {fmt(r['dropped'], 'd')} | "
+            f"{fmt(r['publish_us'], '.1f')} | "
             f"{fmt(r['capture_us'], '.1f')} |")
 
 
@@ -288,6 +294,9 @@ def main() -> None:
                     help="keep the temporary directory (plant, client logs) and say where")
     args = ap.parse_args()
     logging.basicConfig(level=logging.ERROR)
+    # the feed's warnings: a side process dropped for not reading is why its clients
+    # get nothing
+    logging.getLogger("runtime.controller.feed").setLevel(logging.WARNING)
     try:
         cycle_ms = int(args.cycle.removesuffix("ms"))
     except ValueError:
