@@ -26,9 +26,12 @@ and the scan, feed and console threads alone, from /proc/self/task); the feed's 
 its cost per sample: the feed thread's CPU in ``FeedServer._publish`` per frame and the
 scan thread's in ``FeedServer.on_scan`` per snapshot taken, timed with
 ``time.thread_time_ns`` by wrappers this benchmark installs (the runtime has no such
-counter), and the feed's clients dropped for not reading (``FeedServer.dropped``). Per side process over the observed window: CPU (utime + stime, percent of one
-core), resident memory, and what its clients received. Clients run at nice 10 as in the
-other benches. A missing mosquitto is said in one line and the MQTT observer skipped.
+counter), and the feed's clients dropped for not reading (``FeedServer.dropped``). Per
+side process over the observed window: CPU (utime + stime, percent of one core), resident
+memory, and what its clients received. Clients run at nice 10 as in the other benches. A
+missing mosquitto, or a ``softplc opcua`` not serving within ``--start-s``, is said in one
+line and that observer left out. A fault between two windows (charts stopped until ack) is
+said in one line and acknowledged before the next.
 
     python -m bench.observers [--seconds 60] [--testers 100] [--cycle 10ms] [--fifo]
                               [--mqtt-sample 10ms] [--opcua-clients 4] [--items 1183]
