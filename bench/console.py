@@ -35,6 +35,7 @@ import sys
 import time
 from typing import Any
 
+from runtime.controller.daemon import Daemon
 from tests.console.consolekit import Rig, make_rig
 from tests.console.schedprobe import SchedProbe
 
@@ -48,17 +49,23 @@ PROBE = SchedProbe()
 
 
 def window(rig: Rig, seconds: float) -> dict[str, Any]:
+    """``probed_window`` of the rig's daemon with PROBE."""
+    return probed_window(rig.daemon, PROBE, seconds)
+
+
+def probed_window(daemon: Daemon, probe: SchedProbe, seconds: float) -> dict[str, Any]:
     """Cycle figures over ``seconds``: counters of the scan's own statistics (never
     reset: their window keeps the last 8192 cycles, as a daemon's that has run for a
-    while, see --warmup), lateness of each wake-up from the probe."""
-    stats = rig.daemon.scan_stats
-    faults = len(rig.daemon.faults)  # watchdog faults (and any other) in the window
-    count, overruns = rig.daemon.call(lambda: (stats.count, stats.overruns))
-    PROBE.start()
+    while, see --warmup), lateness of each wake-up from ``probe`` (installed on the
+    daemon's scheduler), µs."""
+    stats = daemon.scan_stats
+    faults = len(daemon.faults)  # watchdog faults (and any other) in the window
+    count, overruns = daemon.call(lambda: (stats.count, stats.overruns))
+    probe.start()
     time.sleep(seconds)
-    wakes = PROBE.stop()
-    count2, overruns2 = rig.daemon.call(lambda: (stats.count, stats.overruns))
-    return {"cycles": count2 - count, "faults": len(rig.daemon.faults) - faults,
+    wakes = probe.stop()
+    count2, overruns2 = daemon.call(lambda: (stats.count, stats.overruns))
+    return {"cycles": count2 - count, "faults": len(daemon.faults) - faults,
             "overruns": overruns2 - overruns, "p50": wakes.late_p50,
             "p99": wakes.late_p99, "max": wakes.late_max, "runq_p99": wakes.runq_p99,
             "blocked_p99": wakes.blocked_p99, "blocked_max": wakes.blocked_max,

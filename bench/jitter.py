@@ -105,7 +105,8 @@ def run_one(path: str, n: int, seconds: float, manage_gc: bool) -> dict[str, Any
             "gc_runs": gc_runs, "steps": steps}
 
 
-def _thread_cpu_ns(tid: int) -> int:
+def thread_cpu_ns(tid: int) -> int:
+    """CPU time of thread ``tid`` of this process, ns (kernel side included)."""
     with open(f"/proc/self/task/{tid}/schedstat", encoding="ascii") as f:
         return int(f.read().split()[0])
 
@@ -117,10 +118,10 @@ def cpu_real(path: str, seconds: float) -> dict[str, float]:
     time.sleep(0.5)  # warm-up, not counted
     tids = {t.name: t.native_id for t in threading.enumerate()
             if t.name in ("softplc-scan", "softplc-watchdog") and t.native_id is not None}
-    before = {k: _thread_cpu_ns(v) for k, v in tids.items()}
+    before = {k: thread_cpu_ns(v) for k, v in tids.items()}
     n0, p0 = daemon.scan_stats.count, time.process_time_ns()
     time.sleep(seconds)
-    after = {k: _thread_cpu_ns(v) for k, v in tids.items()}
+    after = {k: thread_cpu_ns(v) for k, v in tids.items()}
     n1, p1 = daemon.scan_stats.count, time.process_time_ns()
     daemon.stop("bench")
     n = max(1, n1 - n0)

@@ -52,9 +52,15 @@ def mqtt_plant(directory: str, testers: int, broker: str, fifo: bool,
     reporting every ``sample`` (10 ms, the cycle: every change)."""
     path = plant_file(directory, testers, 10, fifo)
     with open(path, "a", encoding="utf-8") as f:
-        f.write(f"mqtt:\n  brokers: [{broker}]\n  group_id: Bench\n  edge_node_id: pi\n"
-                f"  sample: {sample}\n  feed: {directory}/feed.sock\n")
+        f.write(mqtt_section(directory, broker, sample))
     return path
+
+
+def mqtt_section(directory: str, broker: str, sample: str) -> str:
+    """The plant's ``mqtt:`` section: ``broker``, a snapshot every ``sample``, the feed in
+    ``directory``."""
+    return (f"mqtt:\n  brokers: [{broker}]\n  group_id: Bench\n  edge_node_id: pi\n"
+            f"  sample: {sample}\n  feed: {directory}/feed.sock\n")
 
 
 async def count(host: str, port: int, seconds: float) -> dict[str, Any]:

@@ -43,6 +43,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 from bench.jitter import DrawerModel, plant_file
@@ -70,6 +71,16 @@ def opcua_plant(directory: str, testers: int, port: int, secure: bool,
     ``fifo``), plus an ``opcua:`` section (policy None, or SignAndEncrypt with ``pki``)
     whose limits let ``clients`` clients subscribe to every variable."""
     path = plant_file(directory, testers, 10, fifo)
+    with open(path, "a", encoding="utf-8") as f:
+        f.write(opcua_section(directory, port, secure, pki, clients))
+    return path
+
+
+def opcua_section(directory: str, port: int, secure: bool, pki: dict[str, str] | None,
+                  clients: int) -> str:
+    """The plant's ``opcua:`` section on 127.0.0.1:``port`` (a snapshot every 50 ms, the
+    feed in ``directory``), whose limits let ``clients`` clients subscribe to every
+    variable."""
     sec = "  security: {policies: [None]}\n"
     if secure:
         assert pki is not None
@@ -77,13 +88,11 @@ def opcua_plant(directory: str, testers: int, port: int, secure: bool,
                f"    certificate: {pki['server_cert']}\n"
                f"    private_key: {pki['server_key']}\n"
                f"    trusted_clients: {pki['trusted_dir']}\n")
-    with open(path, "a", encoding="utf-8") as f:
-        # the default limits let five clients hold every variable (items_total: 20000):
-        # raised so that ten may, as the benchmark's row says
-        f.write(f"opcua:\n  endpoint: opc.tcp://127.0.0.1:{port}\n  sample: 50ms\n"
-                f"  feed: {directory}/feed.sock\n{sec}"
-                f"  limits: {{sessions: {clients + 4}, items_total: 100000}}\n")
-    return path
+    # the default limits let five clients hold every variable (items_total: 20000):
+    # raised so that ten may, as the benchmark's row says
+    return (f"opcua:\n  endpoint: opc.tcp://127.0.0.1:{port}\n  sample: 50ms\n"
+            f"  feed: {directory}/feed.sock\n{sec}"
+            f"  limits: {{sessions: {clients + 4}, items_total: 100000}}\n")
 
 
 def window(daemon: Daemon, seconds: float) -> dict[str, Any]:
@@ -118,10 +127,10 @@ def proc_mem_mib(pid: int) -> tuple[float, float]:
 # -- the client processes --------------------------------------------------------------
 
 
-def client_args(url: str, nodes_file: str, seconds: float, pki: dict[str, str] | None
-                ) -> list[str]:
+def client_args(url: str, nodes_file: str, seconds: float, pki: dict[str, str] | None,
+                nice: int = 10) -> list[str]:
     cfg = {"url": url, "nodes": nodes_file, "seconds": seconds, "pki": pki}
-    return ["nice", "-n", "10", sys.executable, "-m", "bench.opcua", "--client",
+    return ["nice", "-n", str(nice), sys.executable, "-m", "bench.opcua", "--client",
             json.dumps(cfg)]
 
 
@@ -166,10 +175,13 @@ async def run_client(cfg: dict[str, Any]) -> None:
             sys.stderr.write(f"client: subscription status {status}\n")
 
     sub = await client.create_subscription(100, Handler())
+    # the alarms first: their filter takes a few hundred browse requests, answered sooner
+    # by a server not yet sending this client's data changes (they timed out after them
+    # on a loaded machine)
+    await sub.subscribe_alarms_and_conditions(client.nodes.server)
     nodes = [client.get_node(i) for i in ids]
     for k in range(0, len(nodes), 500):
         await sub.subscribe_data_change(nodes[k:k + 500], queuesize=1)
-    await sub.subscribe_alarms_and_conditions(client.nodes.server)  # the alarms
     sys.stdout.write("ready\n")
     sys.stdout.flush()
     loop = asyncio.get_running_loop()
@@ -231,7 +243,12 @@ def make_pki(directory: str) -> dict[str, str]:
             "trusted_dir": trusted}
 
 
-def start_daemon(path: str, testers: int, feed: bool) -> tuple[Daemon, FeedServer | None]:
+def start_daemon(path: str, testers: int, feed: bool,
+                 setup: Callable[[Daemon, FeedServer | None], None] | None = None
+                 ) -> tuple[Daemon, FeedServer | None]:
+    """The daemon of ``path`` with the drawer model, its feed served (``feed``: else the
+    plant without its side processes' sections); ``setup`` sees the daemon and the feed
+    server before they start (bench/observers.py probes and times them)."""
     pdef = load_plant(path)
     if not feed:  # the plant without its side processes' sections: no feed
         pdef.opcua = pdef.mqtt = pdef.web = None
@@ -241,6 +258,9 @@ def start_daemon(path: str, testers: int, feed: bool) -> tuple[Daemon, FeedServe
     feed_def = pdef.feed()
     if feed_def is not None:
         fs = FeedServer(daemon, feed_def)
+    if setup is not None:
+        setup(daemon, fs)
+    if fs is not None:
         fs.start()
     daemon.start()
     time.sleep(1.0)  # warm-up, not counted
@@ -301,48 +321,22 @@ def phase_server(path: str, testers: int, clients: int, seconds: float, url: str
         nodes_file = os.path.join(tmp, "nodes.json")
         with open(nodes_file, "w", encoding="utf-8") as f:
             json.dump(ids, f)
-        # one client subscribes at a time: ten clients creating 3500 monitored items each
-        # at once overload asyncua's event loop until they time out (seen here); a client
-        # that cannot subscribe (its requests time out) is left out and counted
-        for k in range(clients):
-            # what a client says on stderr is kept beside the plant (why one failed)
-            with open(os.path.join(tmp, f"client{k + 1}.err"), "w", encoding="utf-8") as err:
-                p = subprocess.Popen(client_args(url, nodes_file, seconds, pki), cwd=ROOT,
-                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     text=True, stderr=err)
-            assert p.stdout is not None
-            line = p.stdout.readline()
-            if line.strip() != "ready":
-                out(f"(client {k + 1} could not subscribe after {time.monotonic() - t0:.0f}"
-                    f" s: the server does not keep up, {tmp}/client{k + 1}.err says why; "
-                    "going on with the others)")
-                p.kill()
-                p.wait()
-                break
-            procs.append(p)
-            out(f"(client {k + 1} subscribed at {time.monotonic() - t0:.0f} s)")
+        start_clients(url, [nodes_file] * clients, seconds, pki, tmp, t0, procs)
         ready_s = time.monotonic() - t0
         traffic = AlarmTraffic(daemon, testers, alarms) if alarms > 0 else None
         if traffic is not None:
             traffic.thread.start()
         cpu0 = proc_cpu_s(server.pid)
-        for p in procs:
-            assert p.stdin is not None
-            p.stdin.write("go\n")
-            p.stdin.flush()
+        go(procs)
         w = window(daemon, seconds)
         cpu = proc_cpu_s(server.pid) - cpu0
         rss, hwm = proc_mem_mib(server.pid)
         if traffic is not None:
             traffic.stop.set()
             traffic.thread.join(10)
-        total = events = 0
-        for p in procs:
-            assert p.stdout is not None
-            line = p.stdout.readline()
-            got = json.loads(line) if line else {}
-            total += got.get("notifications", 0)
-            events += got.get("events", 0)
+        got = collect_clients(procs)
+        total = sum(g.get("notifications", 0) for g in got)
+        events = sum(g.get("events", 0) for g in got)
         w.update(nodes=len(ids), notif_s=total / seconds, events_s=events / seconds,
                  cpu_pct=100 * cpu / seconds, rss=rss, hwm=hwm, ready_s=ready_s,
                  subscribed=len(procs), faults=len(daemon.faults),
@@ -353,6 +347,53 @@ def phase_server(path: str, testers: int, clients: int, seconds: float, url: str
             p.wait(60)
         end_process(server)
         stop_daemon(daemon, fs)
+
+
+def start_clients(url: str, node_files: list[str], seconds: float,
+                  pki: dict[str, str] | None, tmp: str, t0: float,
+                  procs: list[subprocess.Popen[str]], nice: int = 10) -> None:
+    """One client process per file of ``node_files`` (its nodes), subscribed one after the
+    other, each appended to ``procs`` once it says "ready" (waiting for "go", then
+    counting for ``seconds``). ``t0``: when the server started (monotonic s); ``nice``:
+    the clients' nice level."""
+    # one client subscribes at a time: ten clients creating 3500 monitored items each
+    # at once overload asyncua's event loop until they time out (seen here); a client
+    # that cannot subscribe (its requests time out) is left out and counted
+    for k, nodes_file in enumerate(node_files):
+        # what a client says on stderr is kept beside the plant (why one failed)
+        with open(os.path.join(tmp, f"client{k + 1}.err"), "w", encoding="utf-8") as err:
+            p = subprocess.Popen(client_args(url, nodes_file, seconds, pki, nice), cwd=ROOT,
+                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                 text=True, stderr=err)
+        assert p.stdout is not None
+        line = p.stdout.readline()
+        if line.strip() != "ready":
+            out(f"(client {k + 1} could not subscribe after {time.monotonic() - t0:.0f}"
+                f" s: the server does not keep up, {tmp}/client{k + 1}.err says why; "
+                "going on with the others)")
+            p.kill()
+            p.wait()
+            break
+        procs.append(p)
+        out(f"(client {k + 1} subscribed at {time.monotonic() - t0:.0f} s)")
+
+
+def go(procs: list[subprocess.Popen[str]]) -> None:
+    """"go" to each waiting client: it starts counting."""
+    for p in procs:
+        assert p.stdin is not None
+        p.stdin.write("go\n")
+        p.stdin.flush()
+
+
+def collect_clients(procs: list[subprocess.Popen[str]]) -> list[dict[str, Any]]:
+    """What each client counted (``run_client``'s last line; {} from one that died)."""
+    got = []
+    for p in procs:
+        assert p.stdout is not None
+        line = p.stdout.readline()
+        got.append(json.loads(line) if line else {})
+    return got
 
 
 def end_process(p: subprocess.Popen[Any], seconds: float = 60.0) -> None:

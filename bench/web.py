@@ -53,9 +53,15 @@ def web_plant(directory: str, testers: int, port: int, sample: str, fifo: bool) 
     ``fifo``), plus a ``web:`` section."""
     path = plant_file(directory, testers, 10, fifo)
     with open(path, "a", encoding="utf-8") as f:
-        f.write(f"web:\n  listen: 127.0.0.1:{port}\n  sample: {sample}\n"
-                f"  feed: {directory}/feed.sock\n  max_pages: 200\n")
+        f.write(web_section(directory, port, sample))
     return path
+
+
+def web_section(directory: str, port: int, sample: str) -> str:
+    """The plant's ``web:`` section: on 127.0.0.1:``port``, a snapshot every ``sample``,
+    the feed in ``directory``."""
+    return (f"web:\n  listen: 127.0.0.1:{port}\n  sample: {sample}\n"
+            f"  feed: {directory}/feed.sock\n  max_pages: 200\n")
 
 
 async def run_pages(url: str, pages: int, seconds: float, result: str) -> None:

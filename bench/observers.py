@@ -1,0 +1,500 @@
+"""Benchmark: does the scan pay for who watches it? Not a test: prints a table.
+
+One controller, in this process as in bench/opcua.py (the same Daemon, Scheduler and
+generated plant cycle as ``softplc run --sim``, the garbage collector in the scan's idle
+time), ``--testers`` drawer testers (default 100) whose drawers move, at ``--cycle``
+(default 10 ms), SCHED_FIFO 50 with ``--fifo`` (as the installed unit runs it). The plant
+has ``mqtt:``, ``opcua:``, ``web:`` and a console socket, so its feed and its console are
+served throughout, as ``softplc run`` serves them. Phases of the same run, the same
+daemon and plant, each ``--seconds`` long:
+
+- ``unobserved``: nobody connected;
+- ``observed``: all at once: ``softplc mqtt`` (sample 10 ms, every change at a 10 ms
+  cycle) publishing to Debian's mosquitto on a loopback port, with a subscriber process
+  counting (bench/mqtt.py's); ``softplc opcua`` with ``--opcua-clients`` client processes
+  (bench/opcua.py's) holding ``--items`` monitored items in all (split evenly, at 100 ms)
+  and the alarm events of the Server object, while alarms come and go (``--alarms`` per
+  second, as ``bench.opcua --alarms``); ``softplc web`` with ``--pages`` pages
+  (bench/web.py's WebSocket reader: what a browser's page receives, without rendering);
+  ``--consoles`` console clients streaming ``trace on`` (bench/console.py's);
+- ``unobserved again``: after every observer ended, a control for the machine's load
+  having changed meanwhile.
+
+Per phase: the scan's wake-up lateness (p50, p99, max), overruns, faults, the ratio of
+the phase's p99 to the unobserved one's; the controller process's CPU (all its threads,
+and the scan, feed and console threads alone, from /proc/self/task); the feed's frames and
+its cost per sample: the feed thread's CPU in ``FeedServer._publish`` per frame and the
+scan thread's in ``FeedServer.on_scan`` per snapshot taken, timed with
+``time.thread_time_ns`` by wrappers this benchmark installs (the runtime has no such
+counter), and the feed's clients dropped for not reading (``FeedServer.dropped``). Per
+side process over the observed window: CPU (utime + stime, percent of one core), resident
+memory, and what its clients received. Clients run at nice 10 as in the other benches. A
+missing mosquitto, or a ``softplc opcua`` not serving within ``--start-s``, is said in one
+line and that observer left out. A fault between two windows (charts stopped until ack) is
+said in one line and acknowledged before the next.
+
+    python -m bench.observers [--seconds 60] [--testers 100] [--cycle 10ms] [--fifo]
+                              [--mqtt-sample 10ms] [--opcua-clients 4] [--items 1183]
+                              [--alarms 10] [--pages 20] [--consoles 4]
+                              [--client-nice 10] [--start-s 360] [--keep]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import logging
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from bench.console import FLOODER, probed_window
+from bench.jitter import plant_file, thread_cpu_ns
+from bench.mqtt import mqtt_section
+from bench.opcua import (
+    ROOT,
+    START_S,
+    AlarmTraffic,
+    collect_clients,
+    end_process,
+    go,
+    opcua_section,
+    out,
+    proc_cpu_s,
+    proc_mem_mib,
+    start_clients,
+    start_daemon,
+    stop_daemon,
+    variable_ids,
+    wait_serving,
+)
+from bench.web import wait_serving as wait_web
+from bench.web import web_section
+from runtime.console.server import ConsoleServer
+from runtime.console.service import ConsoleService
+from runtime.controller.daemon import Daemon
+from runtime.controller.feed import FeedServer
+from runtime.engine.commands import CommandRefused
+from tests.console.schedprobe import SchedProbe
+
+#: the controller's threads whose CPU a row shows apart (name prefix -> column)
+THREADS = {"softplc-scan": "scan", "softplc-feed": "feed", "console-": "console"}
+
+
+def observers_plant(directory: str, testers: int, cycle_ms: int, fifo: bool,
+                    broker: str | None, opcua_port: int, web_port: int, clients: int,
+                    mqtt_sample: str = "10ms") -> str:
+    """bench/jitter.py's plant with a console socket and the ``mqtt:`` (when ``broker``),
+    ``opcua:`` and ``web:`` sections of the benches of each side process."""
+    path = plant_file(directory, testers, cycle_ms, fifo)
+    with open(path, "a", encoding="utf-8") as f:
+        f.write(f"monitor:\n  socket: {{path: {directory}/c.sock, trusted: true}}\n")
+        if broker is not None:
+            f.write(mqtt_section(directory, broker, mqtt_sample))
+        f.write(opcua_section(directory, opcua_port, False, None, clients))
+        f.write(web_section(directory, web_port, "100ms"))
+    return path
+
+
+class FeedMeter:
+    """CPU the feed costs: ``FeedServer._publish`` (feed thread, per frame) and
+    ``FeedServer.on_scan`` (scan thread, per snapshot taken), timed by wrappers installed
+    on the instance before it starts (``install``). Without those methods (another
+    feed), ``ok`` is False and nothing is timed."""
+
+    def __init__(self) -> None:
+        self.fs: FeedServer | None = None
+        self.ok = False
+        self.publish_ns = self.publishes = self.scan_ns = self.captures = 0
+
+    def install(self, fs: FeedServer | None) -> None:
+        self.fs = fs
+        if fs is None:
+            return
+        publish = getattr(fs, "_publish", None)
+        on_scan = getattr(fs, "on_scan", None)
+        if publish is None or on_scan is None or not hasattr(fs, "_slot"):
+            return
+        self.ok = True
+
+        def timed_publish(*args: Any) -> Any:
+            t0 = time.thread_time_ns()
+            try:
+                return publish(*args)
+            finally:
+                self.publish_ns += time.thread_time_ns() - t0
+                self.publishes += 1
+
+        def timed_scan(n: int) -> None:
+            slot = fs._slot
+            t0 = time.thread_time_ns()
+            on_scan(n)
+            self.scan_ns += time.thread_time_ns() - t0
+            if fs._slot is not slot:
+                self.captures += 1
+
+        setattr(fs, "_publish", timed_publish)  # noqa: B010 - a method replaced on the instance
+        setattr(fs, "on_scan", timed_scan)  # noqa: B010
+
+    def reading(self) -> tuple[int, int, int, int, int, int]:
+        frames = getattr(self.fs, "frames", -1)
+        dropped = getattr(self.fs, "dropped", -1)
+        return (frames, self.publish_ns, self.publishes, self.scan_ns, self.captures,
+                dropped)
+
+
+def threads_cpu_ns() -> dict[str, int]:
+    """CPU of this process's threads by column of THREADS (summed per column), ns."""
+    got = dict.fromkeys(THREADS.values(), 0)
+    for t in threading.enumerate():
+        for prefix, col in THREADS.items():
+            if t.name.startswith(prefix) and t.native_id is not None:
+                try:
+                    got[col] += thread_cpu_ns(t.native_id)
+                except OSError:
+                    pass  # ended meanwhile
+    return got
+
+
+def cpu_s(procs: list[subprocess.Popen[Any]]) -> float:
+    """utime + stime of ``procs`` together, s (those ended not counted)."""
+    total = 0.0
+    for p in procs:
+        try:
+            total += proc_cpu_s(p.pid)
+        except OSError:
+            pass
+    return total
+
+
+def rss_mib(procs: list[subprocess.Popen[Any]]) -> float:
+    total = 0.0
+    for p in procs:
+        try:
+            total += proc_mem_mib(p.pid)[0]
+        except OSError:
+            pass
+    return total
+
+
+def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
+            sides: dict[str, list[subprocess.Popen[Any]]]) -> dict[str, Any]:
+    """One phase: ``probed_window``'s scan figures (no statistics reset: the feed counts
+    scans), the controller's CPU and the feed's, and the CPU of each group of side
+    processes (``sides``: label -> processes)."""
+    side0 = {k: cpu_s(v) for k, v in sides.items()}
+    th0, feed0, p0, t0 = threads_cpu_ns(), meter.reading(), time.process_time(), \
+        time.monotonic()
+    w = probed_window(daemon, probe, seconds)
+    th1, feed1, p1 = threads_cpu_ns(), meter.reading(), time.process_time()
+    wall = time.monotonic() - t0
+    w["cpu"] = 100 * (p1 - p0) / wall
+    w["threads"] = {k: 100 * (th1[k] - th0[k]) / 1e9 / wall for k in th0}
+    frames, pub_ns, pubs, scan_ns, caps, dropped = (
+        b - a for a, b in zip(feed0, feed1, strict=True))
+    w["frames"] = frames if feed1[0] >= 0 else None
+    w["dropped"] = dropped if feed1[5] >= 0 else None
+    w["publish_us"] = pub_ns / pubs / 1e3 if meter.ok and pubs else None
+    w["capture_us"] = scan_ns / caps / 1e3 if meter.ok and caps else None
+    w["sides"] = {k: (100 * (cpu_s(v) - side0[k]) / wall, rss_mib(v))
+                  for k, v in sides.items()}
+    return w
+
+
+def ack_faults(daemon: Daemon, since: int, when: str) -> int:
+    """The controller's faults after the first ``since`` said in one line and acknowledged
+    (a fault stops the charts until ack: the next window would measure another plant);
+    returns the count of faults so far."""
+    faults = list(daemon.faults)
+    if len(faults) > since:
+        try:
+            acked = daemon.ack()
+        except CommandRefused as exc:
+            acked = f"not acknowledged: {exc}"
+        out(f"({len(faults) - since} fault(s) {when}: "
+            + "; ".join(r for _, r in faults[since:]) + f"; then {acked})")
+    return len(faults)
+
+
+def node_files(tmp: str, ids: list[str], items: int, clients: int) -> list[tuple[str, int]]:
+    """``items`` node ids split evenly over ``clients`` files, taken in turn from ``ids``
+    (round again when the plant has fewer variables): [(file, items in it)]."""
+    files = []
+    k = 0
+    for c in range(clients):
+        n = items // clients + (1 if c < items % clients else 0)
+        mine = [ids[(k + j) % len(ids)] for j in range(n)]
+        k += n
+        path = os.path.join(tmp, f"nodes{c + 1}.json")
+        with open(path, "w", encoding="utf-8") as f:
+            json.dump(mine, f)
+        files.append((path, n))
+    return files
+
+
+def side(cmd: list[str], tmp: str, name: str) -> subprocess.Popen[bytes]:
+    """A side process (``softplc opcua``...) in ROOT, its stderr in ``tmp/NAME.log``
+    (kept with --keep)."""
+    with open(os.path.join(tmp, f"{name}.log"), "wb") as err:
+        return subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=err)
+
+
+def fmt(x: float | None, spec: str = ".0f") -> str:
+    return "-" if x is None else format(x, spec)
+
+
+def table(rows: list[tuple[str, dict[str, Any]]]) -> None:
+    base = rows[0][1]["p99"]
+    out("| phase | cycles | overruns | faults | lateness p50 us | p99 us | max us | p99 / "
+        "unobserved p99 | runq p99 us | blocked p99 us | controller CPU | scan thread | "
+        "feed thread | console thread | feed frames | feed clients dropped | "
+        "_publish us/frame | on_scan us/snapshot |")
+    out("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for label, r in rows:
+        th = r["threads"]
+        out(f"| {label} | {r['cycles']} | {r['overruns']} | {r['faults']} | {r['p50']:.0f} | "
+            f"{r['p99']:.0f} | {r['max']:.0f} | {r['p99'] / base:.2f} | {r['runq_p99']:.0f} | "
+            f"{r['blocked_p99']:.0f} | {r['cpu']:.1f} % | "
+            f"{th['scan']:.1f} % | {th['feed']:.1f} % | {th['console']:.1f} % | "
+            f"{fmt(r['frames'], 'd')} | {fmt(r['dropped'], 'd')} | "
+            f"{fmt(r['publish_us'], '.1f')} | "
+            f"{fmt(r['capture_us'], '.1f')} |")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seconds", type=float, default=60.0, help="length of each phase (60)")
+    ap.add_argument("--testers", type=int, default=100)
+    ap.add_argument("--cycle", default="10ms", help="the plant's cycle, whole ms (10ms)")
+    ap.add_argument("--fifo", action="store_true",
+                    help="the scan at SCHED_FIFO 50 (plc: realtime: needs root)")
+    ap.add_argument("--mqtt-sample", default="10ms",
+                    help="mqtt: sample (10ms). The feed's frames come at the smallest "
+                         "sample of the plant's sections, to every side process")
+    ap.add_argument("--opcua-clients", type=int, default=4)
+    ap.add_argument("--items", type=int, default=1183,
+                    help="monitored items of all OPC UA clients together (1183)")
+    ap.add_argument("--alarms", type=float, default=10.0,
+                    help="alarms raised (cleared 0.5 s later) per second while observed")
+    ap.add_argument("--pages", type=int, default=20)
+    ap.add_argument("--consoles", type=int, default=4, help="console clients streaming "
+                    "'trace on' (4)")
+    ap.add_argument("--client-nice", type=int, default=10, metavar="N",
+                    help="nice level of the OPC UA client processes (10, as bench.opcua; 0 "
+                         "when a loaded machine starves them until they time out)")
+    ap.add_argument("--start-s", type=float, default=2 * START_S, metavar="S",
+                    help="how long softplc opcua may take to serve (360 s: its 3900 nodes "
+                         "of 100 testers at nice 10 on a loaded machine)")
+    ap.add_argument("--keep", action="store_true",
+                    help="keep the temporary directory (plant, client logs) and say where")
+    args = ap.parse_args()
+    logging.basicConfig(level=logging.ERROR)
+    # the feed's warnings: a side process dropped for not reading is why its clients
+    # get nothing
+    logging.getLogger("runtime.controller.feed").setLevel(logging.WARNING)
+    try:
+        cycle_ms = int(args.cycle.removesuffix("ms"))
+    except ValueError:
+        ap.error(f"--cycle {args.cycle}: whole milliseconds, e.g. 10ms")
+
+    def ended(signum: int, frame: Any) -> None:
+        raise SystemExit(128 + signum)  # the finally below ends every child
+
+    signal.signal(signal.SIGTERM, ended)
+    signal.signal(signal.SIGHUP, ended)
+    from tests.mqtt.kit import MOSQUITTO, Broker
+    from tests.opcua.kit import free_port
+
+    tmp = tempfile.mkdtemp(prefix="bv", dir="/tmp")
+    broker: Broker | None = None
+    daemon: Daemon | None = None
+    fs: FeedServer | None = None
+    console: ConsoleServer | None = None
+    traffic: AlarmTraffic | None = None
+    sides: dict[str, list[subprocess.Popen[Any]]] = {}
+    clients: list[subprocess.Popen[str]] = []
+    try:
+        if os.access(MOSQUITTO, os.X_OK):
+            broker = Broker(Path(tmp)).start()
+        else:
+            out(f"({MOSQUITTO} missing (apt-get install mosquitto): no MQTT observer)")
+        opcua_port, web_port = free_port(), free_port()
+        path = observers_plant(tmp, args.testers, cycle_ms, args.fifo,
+                               broker.url if broker else None, opcua_port, web_port,
+                               args.opcua_clients, args.mqtt_sample)
+        meter, probe = FeedMeter(), SchedProbe()
+
+        def setup(d: Daemon, f: FeedServer | None) -> None:
+            d.scheduler.sleep_until = probe.wrap(d.scheduler.sleep_until)
+            meter.install(f)
+
+        daemon, fs = start_daemon(path, args.testers, True, setup=setup)
+        pdef = daemon.pdef
+        console = ConsoleServer(ConsoleService(daemon, pdef.pin_hash,
+                                               pdef.release_forces_on_disconnect),
+                                pdef.consoles)
+        console.start()
+        sock = os.path.join(tmp, "c.sock")
+        out(f"{args.testers} drawer testers, cycle {cycle_ms} ms, {args.seconds:g} s per "
+            f"phase, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}, scan "
+            f"{'SCHED_FIFO 50' if args.fifo else 'SCHED_OTHER'}")
+        faults0 = len(daemon.faults)
+        rows = [("unobserved", measure(daemon, probe, meter, args.seconds, {}))]
+
+        faults0 = ack_faults(daemon, faults0, "in the unobserved window")
+        # the observers: the OPC UA server and its clients first (the slowest to start)
+        t0 = time.monotonic()
+        server = side([sys.executable, "-m", "runtime.cli", "opcua", path], tmp, "opcua")
+        sides["softplc opcua"] = [server]
+        url = f"opc.tcp://127.0.0.1:{opcua_port}"
+        count_s = args.seconds + 2  # the clients count a little past the window: the
+        # events of the last alarms' clearing too
+        ids: list[str] = []
+        files: list[tuple[str, int]] = []
+        try:
+            asyncio.run(wait_serving(url, None, t0 + args.start_s))
+        except TimeoutError:
+            out(f"(softplc opcua not serving after {args.start_s:g} s on this machine: no "
+                "OPC UA observer in this run; its log: opcua.log with --keep)")
+            end_process(server, 30)
+            del sides["softplc opcua"]
+        else:
+            ids = asyncio.run(variable_ids(url, None))
+            files = node_files(tmp, ids, args.items, args.opcua_clients)
+            sides["OPC UA clients"] = clients  # filled as they subscribe
+            start_clients(url, [f for f, _ in files], count_s, None, tmp, t0, clients,
+                          args.client_nice)
+        sub: subprocess.Popen[str] | None = None
+        if broker is not None:
+            edge = side(["nice", "-n", "10", sys.executable, "-m", "runtime.cli", "mqtt",
+                         path], tmp, "mqtt")
+            sides["softplc mqtt"] = [edge]
+            sub = subprocess.Popen(["nice", "-n", "10", sys.executable, "-m", "bench.mqtt",
+                                    "--count", json.dumps([broker.bind, broker.port,
+                                                           count_s])],
+                                   cwd=ROOT, text=True, stdin=subprocess.PIPE,
+                                   stdout=subprocess.PIPE)
+            sides["MQTT subscriber"] = [sub]
+            assert sub.stdout is not None
+            if sub.stdout.readline().strip() != "ready":
+                raise RuntimeError("the MQTT subscriber did not connect")
+            assert broker.proc is not None
+            sides["mosquitto"] = [broker.proc]
+        web = side([sys.executable, "-m", "runtime.cli", "web", path], tmp, "web")
+        sides["softplc web"] = [web]
+        web_url = f"http://127.0.0.1:{web_port}/"
+        wait_web(web_url, time.monotonic() + START_S)
+        time.sleep(3.0)  # the MQTT births, the edge node settled
+        # the pages and the console streams run 2 s before the window and 2 s after it
+        reader_s = args.seconds + 4
+        result = os.path.join(tmp, "pages.json")
+        reader = subprocess.Popen(["nice", "-n", "10", sys.executable, "-m", "bench.web",
+                                   "--reader", json.dumps({"url": web_url,
+                                                           "pages": args.pages,
+                                                           "seconds": reader_s,
+                                                           "result": result})], cwd=ROOT)
+        sides[f"{args.pages} web pages"] = [reader]
+        tracers: list[subprocess.Popen[str]] = []
+        sides[f"{args.consoles} console traces"] = tracers
+        for _ in range(args.consoles):
+            tracers.append(subprocess.Popen([sys.executable, FLOODER, "trace", sock,
+                                             str(reader_s)], stdout=subprocess.PIPE,
+                                            text=True))
+        time.sleep(2.0)  # the pages have their whole frame, the traces stream
+        faults0 = ack_faults(daemon, faults0, "while the observers started")
+        if args.alarms > 0:
+            traffic = AlarmTraffic(daemon, args.testers, args.alarms)
+            traffic.thread.start()
+        go(clients)
+        if sub is not None:
+            assert sub.stdin is not None
+            sub.stdin.write("go\n")
+            sub.stdin.flush()
+        rows.append(("observed", measure(daemon, probe, meter, args.seconds, sides)))
+        observed_sides = rows[-1][1]["sides"]
+        raised = 0
+        if traffic is not None:
+            traffic.stop.set()
+            traffic.thread.join(10)
+            raised, traffic = traffic.raised, None
+        got = collect_clients(clients)
+        mqtt_got = json.loads(sub.communicate(timeout=60)[0]) if sub is not None else None
+        reader.wait(reader_s + 60)
+        with open(result, encoding="utf-8") as f:
+            pages = json.load(f)
+        traced = [json.loads(t.communicate(timeout=60)[0]) for t in tracers]
+        for group in sides.values():
+            for p in group:
+                if p.poll() is None and p is not (broker.proc if broker else None):
+                    end_process(p, 30)
+        ack_faults(daemon, faults0, "in the observed window or while the observers ended")
+        rows.append(("unobserved again", measure(daemon, probe, meter, args.seconds, {})))
+
+        table(rows)
+        obs = rows[1][1]
+        ratio = obs["p99"] / rows[0][1]["p99"]
+        out(f"\nobserved p99 / unobserved p99 = {ratio:.2f} (goal <= 1.2: "
+            f"{'met' if ratio <= 1.2 else 'NOT met'}), overruns observed {obs['overruns']}"
+            f" (goal 0: {'met' if obs['overruns'] == 0 else 'NOT met'})\n")
+        per = ", ".join(str(n) for _, n in files[:len(clients)]) or "-"
+        notes = {
+            "softplc opcua": f"{len(ids)} variables" if ids else "skipped: not serving",
+            "OPC UA clients":
+                f"{len(clients)} of {args.opcua_clients} subscribed, "
+                f"{sum(n for _, n in files[:len(clients)])} monitored items ({per} per "
+                f"client), {sum(g.get('notifications', 0) for g in got) / count_s:.0f} "
+                f"notifications/s; alarms raised {raised} (each cleared 0.5 s later), "
+                "alarm events received per client "
+                + ", ".join(str(g.get("events", "-")) for g in got),
+            "softplc mqtt": f"sample {args.mqtt_sample}",
+            "MQTT subscriber": (f"{mqtt_got['messages'] / count_s:.0f} messages/s, "
+                                f"{mqtt_got['bytes'] / count_s / 1024:.0f} KiB/s"
+                                if mqtt_got else ""),
+            "softplc web": "sample 100 ms",
+            f"{args.pages} web pages": (f"{pages['messages'] / reader_s:.0f} messages/s, "
+                                        f"{pages['bytes'] / reader_s / 1024:.0f} KiB/s "
+                                        "(all pages)"),
+            f"{args.consoles} console traces":
+                f"{sum(t['trace_lines'] for t in traced) / reader_s:.0f} trace lines/s "
+                "(all)",
+        }
+        if broker is None:
+            notes["softplc mqtt"] = "skipped: mosquitto missing"
+        out("| side process (observed window) | CPU, % of one core | RSS MiB | received |")
+        out("|---|---|---|---|")
+        for label in notes:
+            if label in observed_sides:
+                cpu, rss = observed_sides[label]
+                out(f"| {label} | {cpu:.1f} % | {rss:.0f} | {notes[label]} |")
+            else:
+                out(f"| {label} | - | - | {notes[label]} |")
+    finally:
+        if traffic is not None:
+            traffic.stop.set()
+            traffic.thread.join(10)
+        for group in sides.values():
+            for p in group:
+                if broker is None or p is not broker.proc:
+                    end_process(p, 30)
+        if console is not None:
+            console.stop()
+        if daemon is not None:
+            stop_daemon(daemon, fs)
+        if broker is not None:
+            broker.kill()
+        if args.keep:
+            out(f"(kept {tmp})")
+        else:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
