@@ -17,6 +17,16 @@ plant's: the feed of another plant (two plants given one ``feed:`` path, a ``--f
 the wrong socket) ends ``run`` with ``ForeignFeed``, one line at the plant's ``feed:``
 (or naming ``--feed``), before any of its values is shown. ``run_beside`` runs the side
 process's own work beside the feed and ends both on it.
+
+The values come from the controller's shared image (runtime/controller/image.py), not
+from the socket: after each schema the client maps the image the schema describes, says
+so (``{"image": true}``: the controller then sends it no frames and computes no values
+for it), and polls the image every sample on its event loop, decoding every name in this
+process; the frame hook is called when the scan advanced. A client that cannot map the
+image (permissions, an image left by another controller) says why in one line and takes
+the frames the socket carries. ``controller_age_s`` is how long ago the controller last
+wrote the image (its own CLOCK_MONOTONIC stamp): the controller's liveness, whatever this
+process's event loop was doing.
 """
 
 from __future__ import annotations
@@ -29,6 +39,7 @@ from collections.abc import Awaitable, Callable
 from typing import Any, TypeVar
 
 from runtime.controller.feed import FeedState, request_line, why_request
+from runtime.controller.image import ImageError, ImageReader
 from runtime.errors import Loc, SoftplcError, SourceError
 from runtime.language.model import PlantDef
 from runtime.language.runtimedir import locate
@@ -86,6 +97,9 @@ class FeedClient:
         self._stop = asyncio.Event()
         #: the instances whose transitions it follows (asked again on each connection)
         self._why: list[str] = []
+        #: the controller's shared image, while mapped, and its polling task
+        self.image: ImageReader | None = None
+        self._poll: asyncio.Task[None] | None = None
 
     @property
     def connected(self) -> bool:
@@ -120,6 +134,7 @@ class FeedClient:
                 log.warning("feed: %s", exc)
             finally:
                 self._writer = None
+                self._unmap()
                 writer.close()
                 for fut in self._pending.values():
                     if not fut.done():
@@ -129,6 +144,49 @@ class FeedClient:
                 log.warning("lost the controller's feed: waiting for it to come back")
                 said = _why_waiting(FileNotFoundError())  # that line says it already
                 await self._wait(RECONNECT_MIN_S)
+
+    def controller_age_s(self) -> float | None:
+        """Seconds since the controller last wrote its shared image (its own monotonic
+        stamp, not this process's event loop); None while no image is mapped."""
+        image = self.image
+        return image.age_s() if image is not None else None
+
+    def _map(self, schema: dict[str, Any]) -> None:
+        """Map the image the schema describes and poll it (or say why not: frames then)."""
+        self._unmap()
+        if schema.get("image") is None:
+            log.info("feed %s: the controller offers no shared image: values come as "
+                     "frames over the socket", self.path)
+            return
+        try:
+            self.image = ImageReader(schema)
+        except ImageError as exc:
+            log.warning("feed %s: %s: values come as frames over the socket instead",
+                        self.path, exc)
+            return
+        if self._writer is not None:
+            self._writer.write(b'{"image":true}\n')
+        period = max(0.001, float(schema.get("sample_ms") or 100) / 1e3)
+        self._poll = asyncio.ensure_future(self._follow_image(self.image, period))
+
+    def _unmap(self) -> None:
+        if self._poll is not None:
+            self._poll.cancel()
+            self._poll = None
+        if self.image is not None:
+            self.image.close()
+            self.image = None
+
+    async def _follow_image(self, image: ImageReader, period: float) -> None:
+        """Every ``period`` s: the image decoded into the state's values, and the frame
+        hook called, when the controller wrote a later scan."""
+        st = self.state
+        while True:
+            got = image.read()
+            if got is not None and got[0] != st.scan:
+                st.scan, st.wall, st.values = got
+                await self._on_frame()
+            await asyncio.sleep(period)
 
     def stop(self) -> None:
         """End ``run()``: the connection is closed (a read waiting on it ends)."""
@@ -223,6 +281,7 @@ class FeedClient:
             if kind == "schema":
                 self._check_owner(st.schema)
                 await self._on_schema(st.schema)
+                self._map(st.schema)
             elif kind == "frame":
                 await self._on_frame()
             elif kind == "status":
