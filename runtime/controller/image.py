@@ -19,7 +19,12 @@ File layout (little-endian, no padding):
   STRING slots, each ``STR_BYTES`` bytes (``p``: a length byte and UTF-8, cut to
   STR_BYTES - 1 bytes); strings are packed only when one changed (a tuple compare);
 - per driver: its input values then its output values (BOOL point ``?``, register ``q``);
-- every driver's ok flag (``?``).
+- every driver's ok flag (``?``);
+- one byte per numeric region (instances, then each driver's inputs and outputs): 1 while
+  a value of that region did not fit (an INT beyond 64 bits): it is stored saturated, and
+  a reader shows a saturated value of that region one beyond the 64-bit range (2**63, or
+  -2**63 - 1), so that it stays out of range to whoever checks (OPC UA: BadOutOfRange);
+  its exact value is not carried.
 
 Seqlock: the single writer makes the counter odd, packs, stamps, makes it even; a reader
 copies the bytes and keeps the copy only if the counter was even and unchanged around the
@@ -156,9 +161,13 @@ class ImageWriter:
         insts, drivers = _layout(cat)
         plant = cat.plant
         at = DATA_AT
-        #: (offset, pack_into, values getter, codes) per numeric region, in file order
+        #: (offset, pack_into, values getter, codes, flag) per numeric region, in file
+        #: order (flag: the region's byte in the flags area)
         self._packs: list[tuple[int, Callable[..., None], Callable[[], Sequence[Any]],
-                                str]] = []
+                                str, int]] = []
+        #: the regions whose flag is set now
+        self._flagged: set[int] = set()
+        flag = 0
         #: (offset, pack_into, getter, last strings) per instance with strings
         self._strings: list[tuple[int, Callable[..., None], Callable[[], tuple[Any, ...]],
                                   list[tuple[Any, ...] | None]]] = []
@@ -167,7 +176,8 @@ class ImageWriter:
             st = struct.Struct("<" + codes)
             desc: list[Any] = [at, st.format, nums]
             if nums:
-                self._packs.append((at, st.pack_into, _getter(inst.m, nums), codes))
+                self._packs.append((at, st.pack_into, _getter(inst.m, nums), codes, flag))
+            flag += 1
             at += st.size
             ss = struct.Struct("<" + f"{STR_BYTES}p" * len(strs))
             desc += [at, ss.format, strs]
@@ -182,7 +192,8 @@ class ImageWriter:
                 st = struct.Struct("<" + codes)
                 row += [at, st.format]
                 if codes:
-                    self._packs.append((at, st.pack_into, _list(vals), codes))
+                    self._packs.append((at, st.pack_into, _list(vals), codes, flag))
+                flag += 1
                 at += st.size
             self._desc_drv.append(row)
         drvs = list(plant.drivers.values())
@@ -190,6 +201,9 @@ class ImageWriter:
         self._ok = (at, ok.pack_into, drvs)
         self._desc_ok = [at, ok.format]
         at += ok.size
+        self._flags_at = at
+        self._desc_flags = [at, flag]
+        at += flag
         self.size = at
         self._mm = _create(path, self.size, HEAD.pack(MAGIC, VERSION, generation,
                                                       self.token))
@@ -199,19 +213,25 @@ class ImageWriter:
         return {"path": self.path, "version": VERSION, "generation": self.generation,
                 "token": self.token.hex(), "size": self.size,
                 "instances": self._desc_inst, "drivers": self._desc_drv,
-                "ok": self._desc_ok}
+                "ok": self._desc_ok, "flags": self._desc_flags}
 
     def write(self, scan: int, wall_ns: int) -> None:
         """Scan thread, between cycles: the image of ``scan`` into the file (seqlock)."""
         mm, seq = self._mm, self._seq + 1
         SEQ.pack_into(mm, SEQ_AT, seq)  # odd: a write under way
         lossy = False
-        for at, pack, get, codes in self._packs:
+        for at, pack, get, codes, flag in self._packs:
             vals = get()
             try:
                 pack(mm, at, *vals)
             except struct.error:
-                lossy |= self._slow(at, pack, vals, codes)
+                changed = self._slow(at, pack, vals, codes)
+                lossy |= changed
+                if changed != (flag in self._flagged):
+                    self._flag(flag, changed)
+            else:
+                if flag in self._flagged:
+                    self._flag(flag, False)
         for at, pack, get, last in self._strings:
             vals = get()
             if vals != last[0]:
@@ -224,6 +244,10 @@ class ImageWriter:
         STAMP.pack_into(mm, STAMP_AT, scan, wall_ns, time.monotonic_ns(), self.lossy)
         self._seq = seq + 1
         SEQ.pack_into(mm, SEQ_AT, seq + 1)  # even: done
+
+    def _flag(self, flag: int, on: bool) -> None:
+        (self._flagged.add if on else self._flagged.discard)(flag)
+        self._mm[self._flags_at + flag] = int(on)
 
     def _slow(self, at: int, pack: Callable[..., None], vals: Sequence[Any],
               codes: str) -> bool:
@@ -327,6 +351,10 @@ class ImageReader:
             self._drvs = [(self._numeric(r[0], r[1], size), self._numeric(r[2], r[3], size))
                           for r in desc["drivers"]]
             self._ok = self._numeric(desc["ok"][0], desc["ok"][1], size)
+            self._flags_at, nflags = _int(desc["flags"][0]), _int(desc["flags"][1])
+            if (nflags != len(self._insts) + 2 * len(self._drvs)
+                    or self._flags_at + nflags > size):
+                raise ValueError("bad flags area")
             self._readers = [self._reader(spec) for spec in schema["specs"]]
         except (KeyError, IndexError, TypeError, ValueError, struct.error) as exc:
             raise ImageError(f"the feed's image description is malformed ({exc})") from exc
@@ -470,16 +498,23 @@ class ImageReader:
     def decode(self, data: bytes) -> tuple[int, float, list[Any]]:
         """(scan, wall s, the values in schema order) of a snapshot."""
         scan, wall_ns, _mono, _lossy = STAMP.unpack_from(data, STAMP_AT)
+        flags = data[self._flags_at:self._flags_at + len(self._insts) + 2 * len(self._drvs)]
         m: list[dict[int, Any]] = []
-        for (at, st), nums, (sat, sst), strslots in self._insts:
-            slots = dict(zip(nums, st.unpack_from(data, at), strict=True))
+        for k, ((at, st), nums, (sat, sst), strslots) in enumerate(self._insts):
+            vals = st.unpack_from(data, at)
+            if flags[k]:
+                vals = _beyond(vals, st.format)
+            slots = dict(zip(nums, vals, strict=True))
             if strslots:
                 slots.update(zip(strslots, (b.decode(errors="replace")
                                             for b in sst.unpack_from(data, sat)),
                                  strict=True))
             m.append(slots)
-        ins = [st.unpack_from(data, at) for (at, st), _ in self._drvs]
-        outs = [st.unpack_from(data, at) for _, (at, st) in self._drvs]
+        n = len(self._insts)
+        ins = [_beyond(st.unpack_from(data, at), st.format) if flags[n + 2 * j] else
+               st.unpack_from(data, at) for j, ((at, st), _) in enumerate(self._drvs)]
+        outs = [_beyond(st.unpack_from(data, at), st.format) if flags[n + 2 * j + 1] else
+                st.unpack_from(data, at) for j, (_, (at, st)) in enumerate(self._drvs)]
         ok = self._ok[1].unpack_from(data, self._ok[0])
         return scan, wall_ns / 1e9, [r(m, ins, outs, ok) for r in self._readers]
 
@@ -501,6 +536,18 @@ class ImageReader:
     def close(self) -> None:
         if not self._mm.closed:
             self._mm.close()
+
+
+def _beyond(vals: tuple[Any, ...], fmt: str) -> tuple[Any, ...]:
+    """The values of a region flagged as saturated: a 64-bit extreme of a ``q`` slot shown
+    one beyond the range (what did not fit was beyond it)."""
+    out = list(vals)
+    for k, code in enumerate(fmt[1:]):
+        if code == "q" and out[k] == INT64_MAX:
+            out[k] = INT64_MAX + 1
+        elif code == "q" and out[k] == INT64_MIN:
+            out[k] = INT64_MIN - 1
+    return tuple(out)
 
 
 def _int(v: Any) -> int:
