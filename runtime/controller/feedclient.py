@@ -279,6 +279,7 @@ class FeedClient:
                 return
             kind = st.apply(line)
             if kind == "schema":
+                self._unmap()  # the old layout's values must not follow the new names
                 self._check_owner(st.schema)
                 await self._on_schema(st.schema)
                 self._map(st.schema)

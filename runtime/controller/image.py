@@ -4,25 +4,28 @@ the processes beside it (``softplc opcua``, ``mqtt``, ``web``, ``modbus``) in th
 The controller (``ImageWriter``) creates one file per plant object, ``<feed path>.image``
 (mode 0640: its owner writes, the plant's group reads), maps it, and every sample packs
 the image into it: per instance the state slots its names need, per driver its input and
-output values, every driver's ok flag; each a precompiled ``struct.Struct`` filled by one
-``pack_into`` call (a C call: no Python work per name). The layout is fixed for the plant
-object; an online change makes a new file (a new generation, renamed over the old one),
-and the feed's schema says which (``ImageWriter.describe``).
+output values, every driver's ok flag. One generated function reads them all (a state's
+slots from the very cells its scan closure uses) and one precompiled ``struct.Struct``
+packs them (``pack_into``, a C call): no Python work per name, one call per sample. The
+layout is fixed for the plant object; an online change makes a new file (a new
+generation, renamed over the old one), and the feed's schema says which
+(``ImageWriter.describe``).
 
 File layout (little-endian, no padding):
 
 - header, 72 bytes: magic ``b"SPLCIMG1"``, version (u32), generation (u32), token (16
   random bytes, made per file: what the schema names), seqlock counter (u64 at 32),
   scan (i64), wall time ns (i64), CLOCK_MONOTONIC ns of the write (i64), lossy (u64: how
-  many writes had a value that did not fit its slot: saturated, see ``_fit``);
-- per instance: its numeric slots (BOOL ``?``, INT/TIME ``q``, REAL ``d``), then its
-  STRING slots, each ``STR_BYTES`` bytes (``p``: a length byte and UTF-8, cut to
-  STR_BYTES - 1 bytes); strings are packed only when one changed (a tuple compare);
-- per driver: its input values then its output values (BOOL point ``?``, register ``q``);
+  many writes had a value that did not fit its slot);
+- per instance, its numeric slots (BOOL ``?``, INT/TIME ``q``, REAL ``d``);
+- per driver, its input values then its output values (BOOL point ``?``, register ``q``);
 - every driver's ok flag (``?``);
+- per instance, its STRING slots, each ``STR_BYTES`` bytes (``p``: a length byte and
+  UTF-8, cut to STR_BYTES - 1 bytes), packed only when one changed (a tuple compare);
 - one byte per numeric region (instances, then each driver's inputs and outputs): 1 while
-  a value of that region did not fit (an INT beyond 64 bits): it is stored saturated, and
-  a reader shows a saturated value of that region one beyond the 64-bit range (2**63, or
+  a value of that region did not fit (an INT beyond 64 bits: the whole area is then
+  packed region by region, value by value, ``_fit``): it is stored saturated, and a
+  reader shows a saturated value of that region one beyond the 64-bit range (2**63, or
   -2**63 - 1), so that it stays out of range to whoever checks (OPC UA: BadOutOfRange);
   its exact value is not carried.
 
@@ -49,6 +52,7 @@ import re
 import struct
 import time
 from collections.abc import Callable, Sequence
+from types import CellType, CodeType, FunctionType
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -146,7 +150,7 @@ def _layout(cat: Catalogue) -> tuple[list[tuple[list[int], str, list[int]]],
 
 class ImageWriter:
     """The controller's side: the file of one plant object, written by the scan thread
-    (``write``); ``close`` removes it."""
+    (``write``); ``retire`` removes it."""
 
     def __init__(self, cat: Catalogue, path: str, generation: int) -> None:
         """Create the file at ``path`` (a new one renamed over whatever was there: an
@@ -162,29 +166,26 @@ class ImageWriter:
         plant = cat.plant
         at = DATA_AT
         #: (offset, pack_into, values getter, codes, flag) per numeric region, in file
-        #: order (flag: the region's byte in the flags area)
+        #: order (flag: the region's byte in the flags area): the slow path, region by
+        #: region, when the whole numeric area does not pack at once
         self._packs: list[tuple[int, Callable[..., None], Callable[[], Sequence[Any]],
                                 str, int]] = []
         #: the regions whose flag is set now
         self._flagged: set[int] = set()
+        #: what the fast path reads, in file order: (kind, object, slots)
+        fast: list[tuple[str, Any, list[int]]] = []
+        codes_all = ""
         flag = 0
-        #: (offset, pack_into, getter, last strings) per instance with strings
-        self._strings: list[tuple[int, Callable[..., None], Callable[[], tuple[Any, ...]],
-                                  list[tuple[Any, ...] | None]]] = []
         self._desc_inst: list[list[Any]] = []
-        for (nums, codes, strs), inst in zip(insts, plant.instances.values(), strict=True):
+        for (nums, codes, _strs), inst in zip(insts, plant.instances.values(), strict=True):
             st = struct.Struct("<" + codes)
-            desc: list[Any] = [at, st.format, nums]
+            self._desc_inst.append([at, st.format, nums])
             if nums:
                 self._packs.append((at, st.pack_into, _getter(inst.m, nums), codes, flag))
+                fast.append(("slots", inst.m, nums))
+                codes_all += codes
             flag += 1
             at += st.size
-            ss = struct.Struct("<" + f"{STR_BYTES}p" * len(strs))
-            desc += [at, ss.format, strs]
-            if strs:
-                self._strings.append((at, ss.pack_into, _getter(inst.m, strs), [None]))
-            at += ss.size
-            self._desc_inst.append(desc)
         self._desc_drv: list[list[Any]] = []
         for (cin, cout), d in zip(drivers, plant.drivers.values(), strict=True):
             row: list[Any] = []
@@ -193,6 +194,8 @@ class ImageWriter:
                 row += [at, st.format]
                 if codes:
                     self._packs.append((at, st.pack_into, _list(vals), codes, flag))
+                    fast.append(("list", vals, []))
+                    codes_all += codes
                 flag += 1
                 at += st.size
             self._desc_drv.append(row)
@@ -200,7 +203,23 @@ class ImageWriter:
         ok = struct.Struct("<" + "?" * len(drvs))
         self._ok = (at, ok.pack_into, drvs)
         self._desc_ok = [at, ok.format]
+        fast += [("ok", d, []) for d in drvs]
+        codes_all += "?" * len(drvs)
         at += ok.size
+        #: the whole numeric area (instances, drivers, ok flags) in one pack_into of the
+        #: values one generated function reads (the state's cells themselves)
+        self._whole = struct.Struct("<" + codes_all).pack_into
+        self._read_all = _reader_of(fast)
+        #: (offset, pack_into, getter, last strings) per instance with strings
+        self._strings: list[tuple[int, Callable[..., None], Callable[[], tuple[Any, ...]],
+                                  list[tuple[Any, ...] | None]]] = []
+        for desc, (_nums, _codes, strs), inst in zip(self._desc_inst, insts,
+                                                      plant.instances.values(), strict=True):
+            ss = struct.Struct("<" + f"{STR_BYTES}p" * len(strs))
+            desc += [at, ss.format, strs]
+            if strs:
+                self._strings.append((at, ss.pack_into, _getter(inst.m, strs), [None]))
+            at += ss.size
         self._flags_at = at
         self._desc_flags = [at, flag]
         at += flag
@@ -219,31 +238,41 @@ class ImageWriter:
         """Scan thread, between cycles: the image of ``scan`` into the file (seqlock)."""
         mm, seq = self._mm, self._seq + 1
         SEQ.pack_into(mm, SEQ_AT, seq)  # odd: a write under way
-        lossy = False
-        for at, pack, get, codes, flag in self._packs:
-            vals = get()
-            try:
-                pack(mm, at, *vals)
-            except struct.error:
-                changed = self._slow(at, pack, vals, codes)
-                lossy |= changed
-                if changed != (flag in self._flagged):
-                    self._flag(flag, changed)
-            else:
-                if flag in self._flagged:
+        try:
+            self._whole(mm, DATA_AT, *self._read_all())
+        except struct.error:
+            self._region_by_region()
+        else:
+            if self._flagged:
+                for flag in list(self._flagged):
                     self._flag(flag, False)
         for at, pack, get, last in self._strings:
             vals = get()
             if vals != last[0]:
                 last[0] = vals
                 pack(mm, at, *[str(v).encode()[:STR_BYTES - 1] for v in vals])
-        at, pack, drvs = self._ok
-        pack(mm, at, *[d.ok for d in drvs])
-        if lossy:
-            self.lossy += 1
         STAMP.pack_into(mm, STAMP_AT, scan, wall_ns, time.monotonic_ns(), self.lossy)
         self._seq = seq + 1
         SEQ.pack_into(mm, SEQ_AT, seq + 1)  # even: done
+
+    def _region_by_region(self) -> None:
+        """The slow path: each region packed on its own, a region with a value that does
+        not fit (an INT beyond 64 bits, a list grown) value by value, flagged."""
+        mm, lossy = self._mm, False
+        for at, pack, get, codes, flag in self._packs:
+            vals = get()
+            try:
+                pack(mm, at, *vals)
+                changed = False
+            except struct.error:
+                changed = self._slow(at, pack, vals, codes)
+                lossy |= changed
+            if changed != (flag in self._flagged):
+                self._flag(flag, changed)
+        at, pack, drvs = self._ok
+        pack(mm, at, *[bool(d.ok) for d in drvs])
+        if lossy:
+            self.lossy += 1
 
     def _flag(self, flag: int, on: bool) -> None:
         (self._flagged.add if on else self._flagged.discard)(flag)
@@ -251,14 +280,14 @@ class ImageWriter:
 
     def _slow(self, at: int, pack: Callable[..., None], vals: Sequence[Any],
               codes: str) -> bool:
-        """A region with a value that does not fit (an INT beyond 64 bits, a list grown):
-        each value made to fit; True if one was changed."""
+        """A region with a value that does not fit: each value made to fit (``_fit``);
+        True if one was changed."""
         fitted = [_fit(c, v) for c, v in zip(codes, vals, strict=False)]
         fitted += [(False if c == "?" else 0, True) for c in codes[len(fitted):]]
         pack(self._mm, at, *[v for v, _ in fitted])
         changed = any(ch for _, ch in fitted)
         if changed and self.lossy == 0:
-            log.warning("image %s: a value beyond 64 bits is shown saturated to the "
+            log.warning("image %s: a value beyond 64 bits is shown out of range to the "
                         "processes beside the controller", self.path)
         return changed
 
@@ -289,6 +318,53 @@ def _getter(m: Any, slots: list[int]) -> Callable[[], tuple[Any, ...]]:
 
 def _list(vals: list[Any]) -> Callable[[], list[Any]]:
     return lambda: vals
+
+
+def _reader_of(parts: list[tuple[str, Any, list[int]]]) -> Callable[[], tuple[Any, ...]]:
+    """One function of no argument giving, as one tuple, the values of every part:
+    ("slots", a state, its slots), ("list", a value list), ("ok", a driver). Generated
+    from names made here (no text of any file): it reads a state's slots from the very
+    cells its scan closure uses (a LOAD_DEREF each), so the scan thread pays one call
+    for the whole image."""
+    cells: list[Any] = []
+    terms: list[str] = []
+    for kind, obj, slots in parts:
+        if kind == "slots":
+            state_cells = getattr(obj, "cells", None)
+            for k in slots:
+                cells.append(state_cells[k] if state_cells is not None
+                             else CellType(_Item(obj, k)))
+                terms.append(f"c{len(cells) - 1}" if state_cells is not None
+                             else f"c{len(cells) - 1}.get()")
+        elif kind == "list":
+            cells.append(CellType(obj))
+            terms.append(f"*c{len(cells) - 1}")
+        else:
+            cells.append(CellType(obj))
+            terms.append(f"bool(c{len(cells) - 1}.ok)")
+    free = [f"c{k}" for k in range(len(cells))]
+    src = ("def make():\n"
+           + "".join(f" {n} = None\n" for n in free)
+           + " def read():\n  return (" + "".join(f"{t}, " for t in terms) + ")\n"
+           + " return read\n")
+    outer = compile(src, "<image reader>", "exec").co_consts[0]
+    inner = next(c for c in outer.co_consts if isinstance(c, CodeType))
+    by_name = dict(zip(free, cells, strict=True))
+    fn: Callable[[], tuple[Any, ...]] = FunctionType(
+        inner, {"bool": bool}, "read", None, tuple(by_name[n] for n in inner.co_freevars))
+    return fn
+
+
+class _Item:
+    """Slot ``k`` of a plain state list (a state without cells)."""
+
+    __slots__ = ("m", "k")
+
+    def __init__(self, m: Any, k: int) -> None:
+        self.m, self.k = m, k
+
+    def get(self) -> Any:
+        return self.m[self.k]
 
 
 def _create(path: str, size: int, head: bytes) -> mmap.mmap:
