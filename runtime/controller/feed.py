@@ -3,10 +3,16 @@ UA server, ``softplc opcua``; the MQTT edge node, ``softplc mqtt``), over a loca
 without costing the scan its cycle.
 
 Controller side (``FeedServer``): every ``sample`` ns the scan thread, at the end of a
-cycle, stores a copy of the image (``Catalogue.capture``: a few list copies) with its scan
-number and wall-clock time in a one-slot mailbox; nothing more. The feed thread takes it,
-reads every name from it, and sends inside the console's scan window (``ScanWindow``): to
-each client the schema once, then one JSON line per snapshot with the values that changed.
+cycle, packs the image into the shared image file (runtime/controller/image.py,
+``ImageWriter``: one C call per sample, nothing per name), and stores the controller's
+state of that scan in a one-slot mailbox, with a copy of the image (``Catalogue.capture``)
+only while a client takes frames or follows transitions. The side processes map the file
+and compute every name in their own process (``FeedClient``). The feed thread takes the
+mailbox and sends inside the console's scan window (``ScanWindow``): to each client the
+schema once, the status when it changed, and, to a client that does not read the image
+(it did not say ``{"image": true}``: a debugging tool, a side process that could not map
+the file), one JSON line per snapshot with the values that changed (the names read from
+the copy only then).
 A client whose unsent output passes OUT_MAX (it stopped reading) is dropped: the scan and
 the other clients never wait for it. Writes come back on the same socket (``set``): only
 names of the ``writable:`` list of the side process that asks (``opcua:``, ``mqtt:``),
@@ -28,7 +34,10 @@ Messages, one JSON object per line (``"\\n"``):
   data record them: runtime/language/runtimedir.py ``locate``; a side process of another
   plant refuses it, runtime/controller/feedclient.py), ``plant`` (the file), ``names``
   ([name, type, role] in value order), ``instances``, ``drivers``, ``writable`` (side
-  process -> names), ``cycle_ms``, ``sample_ms``;
+  process -> names), ``cycle_ms``, ``sample_ms``, ``image`` (the shared image: path,
+  version, generation, token, size, the offsets and struct formats of its regions:
+  ``ImageWriter.describe``; null when the controller could make none) and ``specs`` (per
+  name, in value order, how to compute it from the image: ``Signal.spec``, plain data);
 - ``{"f": [scan, wall_s, values]}``: a whole frame (first after the schema), values in
   schema order; ``{"d": [scan, wall_s, [i, v, i, v, ...]]}``: only the values that changed
   since the previous frame. ``scan`` is the trace's ``cycle`` number; times are in ns;
@@ -44,6 +53,8 @@ Messages, one JSON object per line (``"\\n"``):
 - ``{"r": [id, ok, text, code]}``: the answer to a request, ``code`` an OPC UA status name
   (Good, BadInvalidArgument, BadInvalidState, BadTimeout, BadConditionBranchAlreadyAcked,
   ...);
+- client -> server ``{"image": true}``: this client reads the values from the shared
+  image: no more ``f``/``d`` frames for it (status, transitions and answers still come);
 - client -> server ``{"why": [INSTANCE, ...]}``: follow those instances' transitions
   (at most MAX_WHY; ``[]`` stops);
 - client -> server ``{"set": [id, name, value, side]}`` (value in the name's type; times in
