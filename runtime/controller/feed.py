@@ -252,8 +252,6 @@ class FeedServer:
         self._next = n + self.every
         cat, d, image = self._cat, self.daemon, self._image
         wall = self.wall()
-        if image is not None and image.plant is d.plant:
-            image.write(n - 1, int(wall * 1e9))
         st = d.scan_stats
         # the state of that scan too (a few attributes), so that a frame never shows the
         # image of one scan beside the controller's or a driver's state of a later one
@@ -263,6 +261,10 @@ class FeedServer:
                 d.plant.forced_names() if d.plant.forced or d.plant.forced_points else (),
                 d.plant.last_up)
         self._slot = (n - 1, wall, cat.capture(n - 1) if self._copy else None, cat, live)
+        # the shared image last: never older than the copy and the state beside it (a
+        # safe state written by another thread meanwhile, a halt, shows in both)
+        if image is not None and image.plant is d.plant:
+            image.write(n - 1, int(wall * 1e9))
 
     # -- the feed thread ------------------------------------------------------------
     def _run(self) -> None:

@@ -22,11 +22,12 @@ The values come from the controller's shared image (runtime/controller/image.py)
 from the socket: after each schema the client maps the image the schema describes, says
 so (``{"image": true}``: the controller then sends it no frames and computes no values
 for it), and polls the image every sample on its event loop, decoding every name in this
-process; the frame hook is called when the scan advanced. A client that cannot map the
-image (permissions, an image left by another controller) says why in one line and takes
-the frames the socket carries. ``controller_age_s`` is how long ago the controller last
-wrote the image (its own CLOCK_MONOTONIC stamp): the controller's liveness, whatever this
-process's event loop was doing.
+process; the frame hook is called when the scan advanced. The image is also read at once
+when a controller status comes, so that the values of that scan go with it. A client
+that cannot map the image (permissions, an image left by another controller) says why in
+one line and takes the frames the socket carries. ``controller_age_s`` is how long ago
+the controller last wrote the image (its own CLOCK_MONOTONIC stamp): the controller's
+liveness, whatever this process's event loop was doing.
 """
 
 from __future__ import annotations
@@ -180,13 +181,25 @@ class FeedClient:
     async def _follow_image(self, image: ImageReader, period: float) -> None:
         """Every ``period`` s: the image decoded into the state's values, and the frame
         hook called, when the controller wrote a later scan."""
+        try:
+            while True:
+                await self._read_image(image)
+                await asyncio.sleep(period)
+        except asyncio.CancelledError:
+            raise
+        except Exception:  # noqa: BLE001 - said; the connection is closed and made again
+            log.exception("feed %s: reading the shared image failed", self.path)
+            if self._writer is not None:
+                self._writer.close()
+
+    async def _read_image(self, image: ImageReader) -> None:
+        """The image decoded into the state's values and the frame hook called, if the
+        controller wrote a later scan than the state has."""
         st = self.state
-        while True:
-            got = image.read()
-            if got is not None and got[0] != st.scan:
-                st.scan, st.wall, st.values = got
-                await self._on_frame()
-            await asyncio.sleep(period)
+        got = image.read()
+        if got is not None and got[0] != st.scan:
+            st.scan, st.wall, st.values = got
+            await self._on_frame()
 
     def stop(self) -> None:
         """End ``run()``: the connection is closed (a read waiting on it ends)."""
@@ -288,6 +301,10 @@ class FeedClient:
             elif kind == "status":
                 if self._on_status is not None:
                     await self._on_status()
+                if self.image is not None:
+                    # the image of the scan this status goes with (written before it was
+                    # sent): values and status shown together, not a poll period apart
+                    await self._read_image(self.image)
             elif kind == "reply":
                 ident, ok, text, code = json.loads(line)["r"]
                 fut = self._pending.get(int(ident))

@@ -9,6 +9,7 @@ import multiprocessing
 import os
 import stat
 import struct
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -244,3 +245,18 @@ def test_a_reader_never_writes_the_file(tmp_path: Path) -> None:
     with pytest.raises(TypeError):
         reader._mm[0:1] = b"x"
     writer.retire()
+
+
+def test_a_halt_with_a_forced_point_is_read_alike(tmp_path: Path) -> None:
+    pdef = load_plant(str(_plant(tmp_path)))
+    with serving(pdef) as (d, feed):
+        plant = d.plant
+        d.submit(lambda: plant.force("io.Q0", 1)).done.wait(5.0)
+        wait_until(lambda: plant.drivers["io"].outputs["Q0"] == 1, 10.0, "forced")
+        threading.Thread(target=d.require_ack, args=("test",), daemon=True).start()
+        wait_until(lambda: d.halted is not None, 10.0, "halted")
+        _compare(d, feed)
+        reader = ImageReader(_schema(feed))
+        names = [n[0] for n in _schema(feed)["names"]]
+        got = reader.read()
+        assert got is not None and got[2][names.index("io.Q0")] == 0
