@@ -22,7 +22,9 @@ The values come from the controller's shared image (runtime/controller/image.py)
 from the socket: after each schema the client maps the image the schema describes, says
 so (``{"image": true}``: the controller then sends it no frames and computes no values
 for it), and polls the image every sample on its event loop, decoding every name in this
-process; the frame hook is called when the scan advanced. The image is also read at once
+process; the frame hook is called when the scan advanced (the header is checked
+POLLS_PER_SAMPLE times a sample; a sample this loop was too busy to see for longer than
+a sample is not seen: the image holds the last one only). The image is also read at once
 when a controller status comes, so that the values of that scan go with it. A client
 that cannot map the image (permissions, an image left by another controller) says why in
 one line and takes the frames the socket carries. ``controller_age_s`` is how long ago
@@ -53,6 +55,8 @@ RECONNECT_MIN_S = 0.2
 RECONNECT_MAX_S = 2.0
 #: the longest feed line read (a whole frame of a large plant), bytes
 LINE_MAX = 64 << 20
+#: how often per sample the shared image's header is checked for a new scan
+POLLS_PER_SAMPLE = 4
 
 
 class ForeignFeed(SourceError):
@@ -167,7 +171,9 @@ class FeedClient:
             return
         if self._writer is not None:
             self._writer.write(b'{"image":true}\n')
-        period = max(0.001, float(schema.get("sample_ms") or 100) / 1e3)
+        # a quarter of the sample: a sample is seen even when this loop is a little late
+        # (only its header is read until the scan advances)
+        period = max(0.001, float(schema.get("sample_ms") or 100) / 1e3 / POLLS_PER_SAMPLE)
         self._poll = asyncio.ensure_future(self._follow_image(self.image, period))
 
     def _unmap(self) -> None:
@@ -196,6 +202,9 @@ class FeedClient:
         """The image decoded into the state's values and the frame hook called, if the
         controller wrote a later scan than the state has."""
         st = self.state
+        stamp = image.stamp()  # the header only: cheap while the scan has not advanced
+        if stamp is None or stamp[0] == st.scan or stamp[0] < 0:
+            return
         got = image.read()
         if got is not None and got[0] != st.scan:
             st.scan, st.wall, st.values = got
