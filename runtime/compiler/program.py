@@ -274,6 +274,12 @@ class Program:
         """``step.T`` (ns) in ``m``, as the chart sees it (kept after deactivation)."""
         return self.step_time_reader(step)(m)
 
+    def slot_indices(self, step: str) -> tuple[int, int, int, int]:
+        """The slots ``step.T`` is computed from (``step_time_code``): its X, the chart
+        clock, the clock at its activation, the .T kept when it was left."""
+        ix = self._by_key
+        return ix[step + ".X"], ix["#ct"], ix[step + ".T0"], ix[step + ".TK"]
+
     def step_time_reader(self, step: str) -> Callable[[Memory], int]:
         """A function of a state list giving ``step.T`` (ns); built once per step."""
         fn = self._step_times.get(step)

@@ -3,10 +3,16 @@ UA server, ``softplc opcua``; the MQTT edge node, ``softplc mqtt``), over a loca
 without costing the scan its cycle.
 
 Controller side (``FeedServer``): every ``sample`` ns the scan thread, at the end of a
-cycle, stores a copy of the image (``Catalogue.capture``: a few list copies) with its scan
-number and wall-clock time in a one-slot mailbox; nothing more. The feed thread takes it,
-reads every name from it, and sends inside the console's scan window (``ScanWindow``): to
-each client the schema once, then one JSON line per snapshot with the values that changed.
+cycle, packs the image into the shared image file (runtime/controller/image.py,
+``ImageWriter``: one C call per sample, nothing per name), and stores the controller's
+state of that scan in a one-slot mailbox, with a copy of the image (``Catalogue.capture``)
+only while a client takes frames or follows transitions. The side processes map the file
+and compute every name in their own process (``FeedClient``). The feed thread takes the
+mailbox and sends inside the console's scan window (``ScanWindow``): to each client the
+schema once, the status when it changed, and, to a client that does not read the image
+(it did not say ``{"image": true}``: a debugging tool, a side process that could not map
+the file), one JSON line per snapshot with the values that changed (the names read from
+the copy only then).
 A client whose unsent output passes OUT_MAX (it stopped reading) is dropped: the scan and
 the other clients never wait for it. Writes come back on the same socket (``set``): only
 names of the ``writable:`` list of the side process that asks (``opcua:``, ``mqtt:``),
@@ -28,7 +34,10 @@ Messages, one JSON object per line (``"\\n"``):
   data record them: runtime/language/runtimedir.py ``locate``; a side process of another
   plant refuses it, runtime/controller/feedclient.py), ``plant`` (the file), ``names``
   ([name, type, role] in value order), ``instances``, ``drivers``, ``writable`` (side
-  process -> names), ``cycle_ms``, ``sample_ms``;
+  process -> names), ``cycle_ms``, ``sample_ms``, ``image`` (the shared image: path,
+  version, generation, token, size, the offsets and struct formats of its regions:
+  ``ImageWriter.describe``; null when the controller could make none) and ``specs`` (per
+  name, in value order, how to compute it from the image: ``Signal.spec``, plain data);
 - ``{"f": [scan, wall_s, values]}``: a whole frame (first after the schema), values in
   schema order; ``{"d": [scan, wall_s, [i, v, i, v, ...]]}``: only the values that changed
   since the previous frame. ``scan`` is the trace's ``cycle`` number; times are in ns;
@@ -44,6 +53,8 @@ Messages, one JSON object per line (``"\\n"``):
 - ``{"r": [id, ok, text, code]}``: the answer to a request, ``code`` an OPC UA status name
   (Good, BadInvalidArgument, BadInvalidState, BadTimeout, BadConditionBranchAlreadyAcked,
   ...);
+- client -> server ``{"image": true}``: this client reads the values from the shared
+  image: no more ``f``/``d`` frames for it (status, transitions and answers still come);
 - client -> server ``{"why": [INSTANCE, ...]}``: follow those instances' transitions
   (at most MAX_WHY; ``[]`` stops);
 - client -> server ``{"set": [id, name, value, side]}`` (value in the name's type; times in
@@ -74,6 +85,7 @@ from typing import TYPE_CHECKING, Any
 
 from drivers.durations import format_ns
 from runtime.controller.alarms import AlarmRefused
+from runtime.controller.image import ImageWriter, image_path, refuse_foreign
 from runtime.controller.paths import remove_socket, unix_listener
 from runtime.controller.window import ScanWindow
 from runtime.engine.commands import CommandRefused
@@ -140,6 +152,8 @@ class _Client:
     #: last sent of each
     why: list[str] = field(default_factory=list)
     whys: dict[str, Any] = field(default_factory=dict)
+    #: it reads the values from the shared image (``{"image": true}``): no frames
+    image: bool = False
 
 
 class FeedServer:
@@ -159,11 +173,18 @@ class FeedServer:
         #: with: its lock's, whatever file a reload loads)
         self.owner = locate(daemon.pdef)
         self._cat = Catalogue(daemon.plant)
+        #: the shared image of the catalogue's plant (None: none could be made, every
+        #: client gets frames) and its generation (one more per plant object)
+        self._image: ImageWriter | None = None
+        self._generation = 0
+        #: the scan thread copies the image into the mailbox (Catalogue.capture) only
+        #: while a client takes frames or follows transitions (set by the feed thread)
+        self._copy = False
         self._next = 0
         #: the mailbox: (scan, wall seconds, image, the catalogue that took it, the
         #: controller's and drivers' state at that scan), written by the scan thread only
-        self._slot: tuple[int, float, Image, Catalogue, tuple[Any, ...]] | None = None
-        self._taken: tuple[int, float, Image, Catalogue, tuple[Any, ...]] | None = None
+        self._slot: tuple[int, float, Image | None, Catalogue, tuple[Any, ...]] | None = None
+        self._taken: tuple[int, float, Image | None, Catalogue, tuple[Any, ...]] | None = None
         self._stop = threading.Event()
         self._replaced = False
         self._sock: socket.socket | None = None
@@ -190,6 +211,7 @@ class FeedServer:
         self._sock = srv
         self._sel = selectors.DefaultSelector()
         self._sel.register(srv, selectors.EVENT_READ, None)
+        self._image = self._new_image(self._cat)
         self._schema_line = self._schema()
         self.daemon.add_listener(self.window.on_scan)
         self.daemon.add_listener(self.on_scan)
@@ -213,6 +235,8 @@ class FeedServer:
             remove_socket(self.path)  # only if still the one it bound
         if self._sel is not None:
             self._sel.close()
+        if self._image is not None:
+            self._image.retire()
 
     def plant_replaced(self) -> None:
         """The controller's plant object was replaced (an online change): every client gets
@@ -226,7 +250,8 @@ class FeedServer:
         if n < self._next:
             return
         self._next = n + self.every
-        cat, d = self._cat, self.daemon
+        cat, d, image = self._cat, self.daemon, self._image
+        wall = self.wall()
         st = d.scan_stats
         # the state of that scan too (a few attributes), so that a frame never shows the
         # image of one scan beside the controller's or a driver's state of a later one
@@ -235,7 +260,11 @@ class FeedServer:
                  for name, drv in d.plant.drivers.items()},
                 d.plant.forced_names() if d.plant.forced or d.plant.forced_points else (),
                 d.plant.last_up)
-        self._slot = (n - 1, self.wall(), cat.capture(n - 1), cat, live)
+        self._slot = (n - 1, wall, cat.capture(n - 1) if self._copy else None, cat, live)
+        # the shared image last: never older than the copy and the state beside it (a
+        # safe state written by another thread meanwhile, a halt, shows in both)
+        if image is not None and image.plant is d.plant:
+            image.write(n - 1, int(wall * 1e9))
 
     # -- the feed thread ------------------------------------------------------------
     def _run(self) -> None:
@@ -272,6 +301,9 @@ class FeedServer:
         new = self.daemon.pdef.feed()
         self.feed.writable = new.writable if new is not None else {}
         self._cat = Catalogue(self.daemon.plant)
+        old, self._image = self._image, self._new_image(self._cat)
+        if old is not None:
+            old.retire()
         self._schema_line = self._schema()
         self._values = None
         for c in list(self._clients):
@@ -410,6 +442,10 @@ class FeedServer:
             if "why" in msg:
                 self._follow_why(c, msg["why"])
                 return None
+            if "image" in msg:
+                c.image = bool(msg["image"]) and self._image is not None
+                self._copy = any(not k.image or k.why for k in self._clients)
+                return None
             if "set" in msg:
                 ident, name, value, *side = msg["set"]
                 if len(side) > 1 or (side and side[0] not in SIDE_NAMES):
@@ -525,13 +561,21 @@ class FeedServer:
             return [False, str(exc), exc.code]
         return [True, text, "Good"]
 
-    def _publish(self, scan: int, wall: float, img: Image, live: tuple[Any, ...]) -> None:
-        """One frame to every client: whole to new ones, the changes to the others."""
-        values = [s.read(img) for s in self._cat.names.values()]
+    def _publish(self, scan: int, wall: float, img: Image | None, live: tuple[Any, ...]
+                 ) -> None:
+        """One frame to every client that takes frames: whole to new ones, the changes to
+        the others; the status to all. The names are read only while a client takes
+        frames (the others read the shared image in their own process)."""
+        self._copy = any(not c.image or c.why for c in self._clients)
+        if img is None or all(c.image for c in self._clients):
+            values: list[Any] = []
+            self._values = None
+        else:
+            values = [s.read(img) for s in self._cat.names.values()]
         prev = self._values
-        self._values = values
+        self._values = values or None
         delta = None
-        if prev is not None:
+        if prev is not None and values:
             changes: list[Any] = []
             for i, v in enumerate(values):
                 if v != prev[i] or type(v) is not type(prev[i]):
@@ -545,8 +589,10 @@ class FeedServer:
             if status != c.status:
                 c.status = status
                 self._queue(c, _line({"c": status}))
-            if c.why:
+            if c.why and img is not None:
                 self._queue_why(c, img, live[-1], explained)
+            if c.image or not values:
+                continue
             if c.fresh or delta is None:
                 if whole is None:
                     whole = _line({"f": [scan, wall, values]})
@@ -661,7 +707,31 @@ class FeedServer:
             "drivers": list(self.daemon.plant.drivers),
             "writable": {k: list(v) for k, v in self.feed.writable.items()},
             "cycle_ms": self.daemon.plant.cycle_ns / 1e6,
-            "sample_ms": self.every * self.daemon.plant.cycle_ns / 1e6}})
+            "sample_ms": self.every * self.daemon.plant.cycle_ns / 1e6,
+            "image": self._image.describe() if self._image is not None else None,
+            "specs": ([list(s.spec) for s in self._cat.names.values()]
+                      if self._image is not None else [])}})
+
+    def _new_image(self, cat: Catalogue) -> ImageWriter | None:
+        """The shared image of ``cat``'s plant, a new generation; None (said in one line:
+        every client then gets frames) if it cannot be made."""
+        path = image_path(os.path.abspath(self.path))
+        refused = refuse_foreign(path)
+        if refused is not None:
+            log.warning("feed: no shared image (%s): the side processes get frames", refused)
+            return None
+        self._generation += 1
+        try:
+            return ImageWriter(cat, path, self._generation)
+        except OSError as exc:
+            log.warning("feed: no shared image (%s: %s): the side processes get frames",
+                        path, exc.strerror)
+            return None
+
+    @property
+    def image(self) -> ImageWriter | None:
+        """The shared image now written (tests)."""
+        return self._image
 
     @property
     def clients(self) -> int:

@@ -17,6 +17,19 @@ plant's: the feed of another plant (two plants given one ``feed:`` path, a ``--f
 the wrong socket) ends ``run`` with ``ForeignFeed``, one line at the plant's ``feed:``
 (or naming ``--feed``), before any of its values is shown. ``run_beside`` runs the side
 process's own work beside the feed and ends both on it.
+
+The values come from the controller's shared image (runtime/controller/image.py), not
+from the socket: after each schema the client maps the image the schema describes, says
+so (``{"image": true}``: the controller then sends it no frames and computes no values
+for it), and polls the image every sample on its event loop, decoding every name in this
+process; the frame hook is called when the scan advanced (the header is checked
+POLLS_PER_SAMPLE times a sample; a sample this loop was too busy to see for longer than
+a sample is not seen: the image holds the last one only). The image is also read at once
+when a controller status comes, so that the values of that scan go with it. A client
+that cannot map the image (permissions, an image left by another controller) says why in
+one line and takes the frames the socket carries. ``controller_age_s`` is how long ago
+the controller last wrote the image (its own CLOCK_MONOTONIC stamp): the controller's
+liveness, whatever this process's event loop was doing.
 """
 
 from __future__ import annotations
@@ -29,6 +42,7 @@ from collections.abc import Awaitable, Callable
 from typing import Any, TypeVar
 
 from runtime.controller.feed import FeedState, request_line, why_request
+from runtime.controller.image import ImageError, ImageReader
 from runtime.errors import Loc, SoftplcError, SourceError
 from runtime.language.model import PlantDef
 from runtime.language.runtimedir import locate
@@ -41,6 +55,8 @@ RECONNECT_MIN_S = 0.2
 RECONNECT_MAX_S = 2.0
 #: the longest feed line read (a whole frame of a large plant), bytes
 LINE_MAX = 64 << 20
+#: how often per sample the shared image's header is checked for a new scan
+POLLS_PER_SAMPLE = 4
 
 
 class ForeignFeed(SourceError):
@@ -86,6 +102,9 @@ class FeedClient:
         self._stop = asyncio.Event()
         #: the instances whose transitions it follows (asked again on each connection)
         self._why: list[str] = []
+        #: the controller's shared image, while mapped, and its polling task
+        self.image: ImageReader | None = None
+        self._poll: asyncio.Task[None] | None = None
 
     @property
     def connected(self) -> bool:
@@ -120,6 +139,7 @@ class FeedClient:
                 log.warning("feed: %s", exc)
             finally:
                 self._writer = None
+                self._unmap()
                 writer.close()
                 for fut in self._pending.values():
                     if not fut.done():
@@ -129,6 +149,66 @@ class FeedClient:
                 log.warning("lost the controller's feed: waiting for it to come back")
                 said = _why_waiting(FileNotFoundError())  # that line says it already
                 await self._wait(RECONNECT_MIN_S)
+
+    def controller_age_s(self) -> float | None:
+        """Seconds since the controller last wrote its shared image (its own monotonic
+        stamp, not this process's event loop); None while no image is mapped."""
+        image = self.image
+        return image.age_s() if image is not None else None
+
+    def _map(self, schema: dict[str, Any]) -> None:
+        """Map the image the schema describes and poll it (or say why not: frames then)."""
+        self._unmap()
+        if schema.get("image") is None:
+            log.info("feed %s: the controller offers no shared image: values come as "
+                     "frames over the socket", self.path)
+            return
+        try:
+            self.image = ImageReader(schema)
+        except ImageError as exc:
+            log.warning("feed %s: %s: values come as frames over the socket instead",
+                        self.path, exc)
+            return
+        if self._writer is not None:
+            self._writer.write(b'{"image":true}\n')
+        # a quarter of the sample: a sample is seen even when this loop is a little late
+        # (only its header is read until the scan advances)
+        period = max(0.001, float(schema.get("sample_ms") or 100) / 1e3 / POLLS_PER_SAMPLE)
+        self._poll = asyncio.ensure_future(self._follow_image(self.image, period))
+
+    def _unmap(self) -> None:
+        if self._poll is not None:
+            self._poll.cancel()
+            self._poll = None
+        if self.image is not None:
+            self.image.close()
+            self.image = None
+
+    async def _follow_image(self, image: ImageReader, period: float) -> None:
+        """Every ``period`` s: the image decoded into the state's values, and the frame
+        hook called, when the controller wrote a later scan."""
+        try:
+            while True:
+                await self._read_image(image)
+                await asyncio.sleep(period)
+        except asyncio.CancelledError:
+            raise
+        except Exception:  # noqa: BLE001 - said; the connection is closed and made again
+            log.exception("feed %s: reading the shared image failed", self.path)
+            if self._writer is not None:
+                self._writer.close()
+
+    async def _read_image(self, image: ImageReader) -> None:
+        """The image decoded into the state's values and the frame hook called, if the
+        controller wrote a later scan than the state has."""
+        st = self.state
+        stamp = image.stamp()  # the header only: cheap while the scan has not advanced
+        if stamp is None or stamp[0] == st.scan or stamp[0] < 0:
+            return
+        got = image.read()
+        if got is not None and got[0] != st.scan:
+            st.scan, st.wall, st.values = got
+            await self._on_frame()
 
     def stop(self) -> None:
         """End ``run()``: the connection is closed (a read waiting on it ends)."""
@@ -221,13 +301,19 @@ class FeedClient:
                 return
             kind = st.apply(line)
             if kind == "schema":
+                self._unmap()  # the old layout's values must not follow the new names
                 self._check_owner(st.schema)
                 await self._on_schema(st.schema)
+                self._map(st.schema)
             elif kind == "frame":
                 await self._on_frame()
             elif kind == "status":
                 if self._on_status is not None:
                     await self._on_status()
+                if self.image is not None:
+                    # the image of the scan this status goes with (written before it was
+                    # sent): values and status shown together, not a poll period apart
+                    await self._read_image(self.image)
             elif kind == "reply":
                 ident, ok, text, code = json.loads(line)["r"]
                 fut = self._pending.get(int(ident))

@@ -166,6 +166,12 @@ class Signal:
     chart: Callable[[Image], Any] | None = None
     #: for a chart output: the point it is bound to ("sim.Q2")
     point: str = ""
+    #: how a process beside the controller computes ``read`` from the shared image
+    #: (runtime/controller/image.py), as plain data (never code): ("slot", i, idx),
+    #: ("steptime", i, x, ct, t0, tk), ("current", i, ((step, x), ...)), ("point", "in" |
+    #: "out", j, pos), ("applied", j, pos, invert, type), ("ok", j); i an instance's
+    #: position in an Image, j a driver's, idx/x/ct/t0/tk slots of ``img.m[i]``
+    spec: tuple[Any, ...] = ()
 
     def show(self, value: Any) -> str:
         """The value as a person reads it: bools 0/1, times rounded to ms."""
@@ -227,12 +233,13 @@ class Catalogue:
                     typ = A.Type.BOOL if d.kinds.get(p) is PointKind.BOOL else A.Type.INT
                     text = f"{dname}.{p}"
                     self.names[text] = Signal(text, typ, _point_reader(direction, j, pos),
-                                            f"point {direction}",
-                                            tuple(feeds.get(text, ())))
+                                              f"point {direction}",
+                                              tuple(feeds.get(text, ())),
+                                              spec=("point", direction, j, pos))
                     pts.append(text)
             text = f"{dname}.ok"
             self.names[text] = Signal(text, A.Type.BOOL, _ok_reader(j), "driver health",
-                                    tuple(feeds.get(text, ())))
+                                      tuple(feeds.get(text, ())), spec=("ok", j))
             pts.append(text)
             self.points[dname] = pts
         #: what ``trace`` and ``cycle`` compare: everything but step times (they change
@@ -251,25 +258,31 @@ class Catalogue:
             text = f"{name}.{key}"
             if key.endswith(".T") and key[:-2] in g.steps:
                 s = key[:-2]
+                ix = prog.slot_indices(s)
                 n = Signal(text, A.Type.TIME, _step_time_reader(i, prog.step_time_reader(s)),
-                         "step time")
+                           "step time", spec=("steptime", i, *ix))
             elif key.endswith(".X") and key[:-2] in g.steps:
-                n = Signal(text, A.Type.BOOL, _slot_reader(i, prog.x_index(key[:-2])), "step")
+                x = prog.x_index(key[:-2])
+                n = Signal(text, A.Type.BOOL, _slot_reader(i, x), "step",
+                           spec=("slot", i, x))
             elif key == "SFCCurrentStep":
                 leaf = tuple((s.name, prog.x_index(s.name)) for s in g.leaf_steps())
-                n = Signal(text, A.Type.STRING, _current_step_reader(i, leaf), "chart flag")
+                n = Signal(text, A.Type.STRING, _current_step_reader(i, leaf), "chart flag",
+                           spec=("current", i, leaf))
             else:
                 v = g.variables[key]
-                own = _slot_reader(i, prog.var_index(key))
+                idx = prog.var_index(key)
+                own = _slot_reader(i, idx)
                 b = self.plant.pdef.instances[name].outputs.get(key)
                 if v.kind is VarKind.OUTPUT and b is not None and b.source in self._outputs:
                     j, pos = self._outputs[b.source]
                     n = Signal(text, v.type, _applied_reader(j, pos, b.invert, v.type),
                                v.kind.value, binding=bindings.get(text, ""), chart=own,
-                               point=b.source)
+                               point=b.source,
+                               spec=("applied", j, pos, b.invert, v.type.value))
                 else:
                     n = Signal(text, v.type, own, v.kind.value,
-                               binding=bindings.get(text, ""))
+                               binding=bindings.get(text, ""), spec=("slot", i, idx))
                 if v.kind is VarKind.INPUT:
                     groups["inputs"].append(text)
                 elif v.kind is VarKind.OUTPUT:

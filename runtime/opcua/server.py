@@ -325,13 +325,23 @@ class PlantServer:
                             _dv("string", reason, ts, now, good))
 
     async def _watch_stale(self) -> None:
-        """Every sample: no frame for ``stale_after_s``, every value BadOutOfService (with
+        """Every sample: the controller wrote no image for ``stale_after_s`` (its own
+        monotonic stamp in the shared image: this loop being busy never counts), or,
+        without an image, no frame came for that long: every value BadOutOfService (with
         the last frame's source timestamp); the next frame makes them good."""
         loop = asyncio.get_running_loop()
         period = self.opc.sample_ns / 1e9
         bound = stale_after_s(self.opc.sample_ns)
         while True:
             await asyncio.sleep(period)
+            age = self.feed.controller_age_s()
+            if age is not None:
+                if self.stale or self._last_frame is None or age <= bound:
+                    continue
+                if len(self.state.values) != len(self.space.nodes):
+                    continue  # a schema without its first frame: nothing good shown yet
+                await self._go_stale(age)
+                continue
             last = self._last_frame
             if self.stale or last is None or loop.time() - last <= bound:
                 continue
@@ -343,12 +353,15 @@ class PlantServer:
                 continue
             if len(self.state.values) != len(self.space.nodes):
                 continue  # a schema without its first frame: nothing good shown yet
-            self.stale = True
-            log.warning("no frame from the controller for %.1f s (stopped, frozen, or stuck "
-                        "in a scan): every value BadOutOfService until it sends again",
-                        loop.time() - last)
-            await self._write_values(
-                datetime.datetime.fromtimestamp(self.state.wall, datetime.UTC), STALE)
+            await self._go_stale(loop.time() - last)
+
+    async def _go_stale(self, age: float) -> None:
+        """Every value BadOutOfService, with the last frame's source timestamp."""
+        self.stale = True
+        log.warning("no frame from the controller for %.1f s (stopped, frozen, or stuck "
+                    "in a scan): every value BadOutOfService until it sends again", age)
+        await self._write_values(
+            datetime.datetime.fromtimestamp(self.state.wall, datetime.UTC), STALE)
 
     async def _all_bad(self, code: int) -> None:
         dv = ua.DataValue(StatusCode=ua.StatusCode(code),

@@ -9,15 +9,20 @@ from __future__ import annotations
 
 import asyncio
 import datetime
+import logging
 import os
 import signal
+import socket
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
 
+import pytest
 from asyncua import Client, ua
 
+import runtime.controller.feed as feed_module
 from runtime.engine.plant import Plant
 from runtime.language.plantfile import load_plant
 from tests.daemon.daemonkit import RecordingDriver
@@ -125,3 +130,40 @@ def test_a_scan_stuck_with_its_outputs_off_turns_every_value_bad(tmp_path: Path)
     assert delay <= BOUND_S + SLACK_S, delay
     sys.stderr.write(f"stuck scan: values BadOutOfService {delay * 1000:.0f} ms after the last "
                      "frame\n")
+
+
+def test_a_busy_server_event_loop_turns_no_value_bad(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The OPC UA server's own event loop blocked for longer than the bound (a long
+    callback, a slow client's request) while the controller runs: no value turns bad,
+    since the controller kept writing (its own stamp in the shared image says so); only
+    the controller stopping writing makes values stale. The feed's buffers are made
+    small (a large plant's frames fill the real ones as fast): frames over the socket
+    would pile up and the controller would drop the server, every value then
+    BadNoCommunication."""
+    monkeypatch.setattr(feed_module, "OUT_MAX", 8192)
+    pdef = load_plant(str(write_plant(tmp_path, port=free_port(), sample="10ms")))
+    with serving(pdef) as (_d, feed), ServerThread(pdef) as srv:
+        ps = srv.ps
+        assert ps is not None and srv._loop is not None
+        wait_until(lambda: ps.connected.is_set() and ps.state.scan > 0
+                   and len(ps.state.values) == len(ps.space.nodes), 20.0, "values")
+        for c in feed._clients:
+            c.sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 4096)
+        caplog.set_level(logging.INFO)
+        blocked, woke = threading.Event(), threading.Event()
+
+        def block() -> None:
+            blocked.set()
+            time.sleep(2 * BOUND_S + 1.0)  # the loop does nothing else meanwhile
+            woke.set()
+        srv._loop.call_soon_threadsafe(block)
+        assert blocked.wait(10.0) and woke.wait(30.0)
+        after = ps.state.scan
+        # the loop runs again: let it serve many samples (and its stale checks) after
+        wait_until(lambda: ps.state.scan >= after + 50, 20.0, "frames after the block")
+        assert not ps.stale and ps.connected.is_set()
+        assert feed.dropped == 0
+        said = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+        assert not [m for m in said if "BadOutOfService" in m or "lost" in m], said
