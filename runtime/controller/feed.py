@@ -49,7 +49,9 @@ Messages, one JSON object per line (``"\\n"``):
 - ``{"w": {INSTANCE: [[step, T ns, [[transition index, condition, [blocked...],
   [[term, depth, value]...]]...]]...]}}``: what ``why INSTANCE`` says (the console's),
   computed by the feed thread on the frame's copy of the state, for the instances the
-  client follows, before the frame it goes with, only when it changed;
+  client follows, before the frame it goes with, only when it changed, at most every
+  WHY_EVERY_NS (100 ms: explaining is Python work per transition in the controller's
+  process);
 - ``{"r": [id, ok, text, code]}``: the answer to a request, ``code`` an OPC UA status name
   (Good, BadInvalidArgument, BadInvalidState, BadTimeout, BadConditionBranchAlreadyAcked,
   ...);
@@ -117,6 +119,10 @@ STATS_EVERY_NS = 1_000_000_000
 POLL_S = 0.05
 #: instances whose transitions one client may follow (``{"why": [...]}``)
 MAX_WHY = 8
+#: the transitions clients follow are explained at most this often, ns (a person reads
+#: them; each explanation is Python work per transition in the controller's process, and
+#: needs a copy of the state taken by the scan thread)
+WHY_EVERY_NS = 100_000_000
 #: a write not applied by the scan thread in this long is answered with an error, seconds
 SET_TIMEOUT_S = 2.0
 #: the methods of an instance: name -> (the chart flag, and True to pulse it for one scan
@@ -128,6 +134,12 @@ METHODS: dict[str, tuple[str, bool | None]] = {
 LINES_PER_TURN = 8
 #: writes of one client handed to the scan thread and not yet answered; more wait
 PENDING_MAX = 8
+
+
+#: the mailbox: (scan, wall seconds, the image's copy or None, the catalogue that took it,
+#: the controller's and drivers' state at that scan, whether the transitions followed are
+#: explained on it)
+_Slot = tuple[int, float, "Image | None", Catalogue, tuple[Any, ...], bool]
 
 
 @dataclass(slots=True)
@@ -177,14 +189,18 @@ class FeedServer:
         #: client gets frames) and its generation (one more per plant object)
         self._image: ImageWriter | None = None
         self._generation = 0
-        #: the scan thread copies the image into the mailbox (Catalogue.capture) only
-        #: while a client takes frames or follows transitions (set by the feed thread)
+        #: the scan thread copies the image into the mailbox (Catalogue.capture) while a
+        #: client takes frames (every sample), or follows transitions (every WHY_EVERY_NS):
+        #: set by the feed thread
         self._copy = False
+        self._why = False
+        #: scans between two explanations of the transitions followed, and the next one
+        self.why_every = max(1, WHY_EVERY_NS // cycle_ns)
+        self._why_next = 0
         self._next = 0
-        #: the mailbox: (scan, wall seconds, image, the catalogue that took it, the
-        #: controller's and drivers' state at that scan), written by the scan thread only
-        self._slot: tuple[int, float, Image | None, Catalogue, tuple[Any, ...]] | None = None
-        self._taken: tuple[int, float, Image | None, Catalogue, tuple[Any, ...]] | None = None
+        #: the mailbox (``_Slot``), written by the scan thread only
+        self._slot: _Slot | None = None
+        self._taken: _Slot | None = None
         self._stop = threading.Event()
         self._replaced = False
         self._sock: socket.socket | None = None
@@ -260,7 +276,12 @@ class FeedServer:
                  for name, drv in d.plant.drivers.items()},
                 d.plant.forced_names() if d.plant.forced or d.plant.forced_points else (),
                 d.plant.last_up)
-        self._slot = (n - 1, wall, cat.capture(n - 1) if self._copy else None, cat, live)
+        why = False
+        if self._why and n >= self._why_next:
+            self._why_next = n + self.why_every
+            why = True
+        self._slot = (n - 1, wall, cat.capture(n - 1) if self._copy or why else None, cat,
+                      live, why)
         # the shared image last: never older than the copy and the state beside it (a
         # safe state written by another thread meanwhile, a halt, shows in both)
         if image is not None and image.plant is d.plant:
@@ -281,7 +302,7 @@ class FeedServer:
                 if slot is not None and slot is not self._taken and self._clients:
                     self._taken = slot
                     if slot[3] is self._cat:  # not an image of a replaced plant
-                        self._publish(slot[0], slot[1], slot[2], slot[4])
+                        self._publish(slot[0], slot[1], slot[2], slot[4], slot[5])
                         self._flush()
                 self._serve()
                 self._io(max(0.0, min(closes - time.monotonic(), POLL_S)))
@@ -444,7 +465,7 @@ class FeedServer:
                 return None
             if "image" in msg:
                 c.image = bool(msg["image"]) and self._image is not None
-                self._copy = any(not k.image or k.why for k in self._clients)
+                self._wanted()
                 return None
             if "set" in msg:
                 ident, name, value, *side = msg["set"]
@@ -561,12 +582,18 @@ class FeedServer:
             return [False, str(exc), exc.code]
         return [True, text, "Good"]
 
-    def _publish(self, scan: int, wall: float, img: Image | None, live: tuple[Any, ...]
-                 ) -> None:
+    def _wanted(self) -> None:
+        """What the scan thread must copy for the clients (``_copy``, ``_why``)."""
+        self._copy = any(not c.image for c in self._clients)
+        self._why = any(c.why for c in self._clients)
+
+    def _publish(self, scan: int, wall: float, img: Image | None, live: tuple[Any, ...],
+                 why: bool = True) -> None:
         """One frame to every client that takes frames: whole to new ones, the changes to
         the others; the status to all. The names are read only while a client takes
-        frames (the others read the shared image in their own process)."""
-        self._copy = any(not c.image or c.why for c in self._clients)
+        frames (the others read the shared image in their own process); the transitions
+        followed are explained when ``why`` (every WHY_EVERY_NS) on the copy ``img``."""
+        self._wanted()
         if img is None or all(c.image for c in self._clients):
             values: list[Any] = []
             self._values = None
@@ -589,7 +616,7 @@ class FeedServer:
             if status != c.status:
                 c.status = status
                 self._queue(c, _line({"c": status}))
-            if c.why and img is not None:
+            if c.why and img is not None and why:
                 self._queue_why(c, img, live[-1], explained)
             if c.image or not values:
                 continue
@@ -610,6 +637,7 @@ class FeedServer:
         known = self.daemon.plant.instances
         c.why = [str(n) for n in names if isinstance(n, str) and n in known][:MAX_WHY]
         c.whys = {}
+        self._wanted()
 
     def _queue_why(self, c: _Client, img: Image, up: int, explained: dict[str, Any]) -> None:
         """The explanations of ``c``'s instances that changed since it was last sent them,
