@@ -3,9 +3,12 @@ controller's feed socket (runtime/controller/feed.py), never in the scan's way.
 
 - It connects to the feed and reconnects forever; while disconnected every variable's
   status is BadNoCommunication (BadWaitingForInitialData before the first frame).
-- One scan per update: the values of one frame are written in one run of the event loop,
-  without a suspension point between them (``write_attribute_value`` only queues the
-  notifications), each with the frame's source timestamp (the scan's wall-clock time). The
+- One scan per update: the values of one frame that changed (value or status) are written
+  in one run of the event loop, without a suspension point between them
+  (``write_attribute_value`` only queues the notifications), each with the frame's source
+  timestamp (the scan's wall-clock time); an unchanged value is not written again (its
+  SourceTimestamp stays the scan of its last change): with clients holding every variable
+  of a large plant, writing all of them each frame cost more than a sample. The
   subscriptions publish from their own tasks, so a publish sees all of a frame or none of
   it. A subscription's publishing interval is revised to at least ``sample`` (a requested
   0, "publish on every change", would publish in the middle of a frame: limits.py).
