@@ -3,9 +3,12 @@ controller's feed socket (runtime/controller/feed.py), never in the scan's way.
 
 - It connects to the feed and reconnects forever; while disconnected every variable's
   status is BadNoCommunication (BadWaitingForInitialData before the first frame).
-- One scan per update: the values of one frame are written in one run of the event loop,
-  without a suspension point between them (``write_attribute_value`` only queues the
-  notifications), each with the frame's source timestamp (the scan's wall-clock time). The
+- One scan per update: the values of one frame that changed (value or status) are written
+  in one run of the event loop, without a suspension point between them
+  (``write_attribute_value`` only queues the notifications), each with the frame's source
+  timestamp (the scan's wall-clock time); an unchanged value is not written again (its
+  SourceTimestamp stays the scan of its last change): with clients holding every variable
+  of a large plant, writing all of them each frame cost more than a sample. The
   subscriptions publish from their own tasks, so a publish sees all of a frame or none of
   it. A subscription's publishing interval is revised to at least ``sample`` (a requested
   0, "publish on every change", would publish in the middle of a frame: limits.py).
@@ -122,6 +125,9 @@ class PlantServer:
         self._names_built: list[tuple[str, ...]] | None = None
         self._events: dict[str, Any] = {}
         self._prev: dict[str, Any] = {}
+        #: per plant variable (``space.nodes``), the feed value last written and the status
+        #: it was written with (None: its own): a frame writes only what changed
+        self._shown: list[tuple[Any, int | None]] = []
         self.limits = Limits(self.server, self.opc.limits, self.opc.sample_ns)
         self.methods = Methods(self)
         self.conditions = Conditions(self)
@@ -266,6 +272,7 @@ class PlantServer:
         self._last_frame, self.stale = None, False
         self._prev = {}  # the next frame is a state, not a change from this one
         await self._all_bad(Status.BadNoCommunication)
+        self._shown = []  # every value written again by the next frame
 
     async def _status(self) -> None:
         """The controller's status (with its alarm board) came: the conditions follow."""
@@ -278,6 +285,7 @@ class PlantServer:
             await build_names(schema, self.space, lambda n: n in self.opc.writable,
                               self.server)
             self._names_built = names
+            self._shown = []
             log.info("address space: %d plant names", len(names))
         self._last_frame = asyncio.get_running_loop().time()
         self.connected.set()
@@ -301,9 +309,17 @@ class PlantServer:
         now = datetime.datetime.now(datetime.UTC)
         write = self.server.iserver.aspace.write_attribute_value
         value_attr = ua.AttributeIds.Value
+        values, shown = st.values, self._shown
+        if len(shown) != len(space.nodes):
+            shown = self._shown = [_UNSHOWN] * len(space.nodes)
         for i, node_id in enumerate(space.nodes):
+            raw, was = values[i], shown[i]
+            if (status is None and was[1] is None and was[0] == raw
+                    and type(was[0]) is type(raw)):
+                continue  # as shown: no write, no notification, no time spent
+            shown[i] = (raw, status)
             ptype = space.types[i]
-            value, code = to_ua(ptype, st.values[i])
+            value, code = to_ua(ptype, raw)
             await write(node_id, value_attr, _dv(ptype, value, ts, now, status or code))
         c = st.status
         lat = c.get("lateness_us") or {}
@@ -421,6 +437,9 @@ def _event_text(key: str, old: Any, new: Any) -> tuple[str, int]:
     return "", 0
 
 
+#: a plant variable's last write not known (none since the (re)connection or the schema):
+#: its next value is written whatever it is
+_UNSHOWN: tuple[Any, int | None] = (object(), None)
 #: one StatusCode object per code a value may carry (a frame writes thousands)
 _CODES: dict[int, ua.StatusCode] = {}
 
