@@ -13,10 +13,11 @@ generation, renamed over the old one), and the feed's schema says which
 
 File layout (little-endian, no padding):
 
-- header, 72 bytes: magic ``b"SPLCIMG1"``, version (u32), generation (u32), token (16
+- header, 80 bytes: magic ``b"SPLCIMG1"``, version (u32), generation (u32), token (16
   random bytes, made per file: what the schema names), seqlock counter (u64 at 32),
-  scan (i64), wall time ns (i64), CLOCK_MONOTONIC ns of the write (i64), lossy (u64: how
-  many writes had a value that did not fit its slot);
+  CRC32 (u32 at 40, then 4 bytes of padding) of every byte from 48 to the end of the
+  file, scan (i64), wall time ns (i64), CLOCK_MONOTONIC ns of the write (i64), lossy
+  (u64: how many writes had a value that did not fit its slot);
 - per instance, its numeric slots (BOOL ``?``, INT/TIME ``q``, REAL ``d``);
 - per driver, its input values then its output values (BOOL point ``?``, register ``q``);
 - every driver's ok flag (``?``);
@@ -29,13 +30,15 @@ File layout (little-endian, no padding):
   -2**63 - 1), so that it stays out of range to whoever checks (OPC UA: BadOutOfRange);
   its exact value is not carried.
 
-Seqlock: the single writer makes the counter odd, packs, stamps, makes it even; a reader
-copies the bytes and keeps the copy only if the counter was even and unchanged around the
-copy (``ImageReader.snapshot``: bounded retries, else None: the next sample is used).
-Readers never write the file. The processes run on one machine; the stores are ordered as
-Python issues them on x86 (total store order); on a weakly ordered CPU (ARM) no barrier
-separates them, so a reader might in principle see a counter and data of different writes
-(docs/architecture.md says so).
+Seqlock with a checksum: the single writer makes the counter odd, packs, stamps, stores
+the CRC32 of the stamp and data, makes the counter even; a reader copies the bytes and
+keeps the copy only if the counter was even and unchanged around the copy AND the copy's
+CRC32 matches its stamp and data (``ImageReader.snapshot``: bounded retries, else None:
+the next sample is used). Readers never write the file. Python has no memory barrier: on
+a weakly ordered CPU (ARM, the Raspberry Pi) another core may see the counter's final
+store before the data's, so the counter alone could pass a copy mixing two writes; the
+checksum refuses such a copy whatever the order the stores become visible in
+(docs/architecture.md: why and what it costs).
 
 A reader (``ImageReader``) is built from the schema's ``image`` (plain data: offsets,
 formats, slots, validated) and the names' specs (``Signal.spec``, runtime/engine/names.py:
@@ -51,6 +54,7 @@ import os
 import re
 import struct
 import time
+import zlib
 from collections.abc import Callable, Sequence
 from types import CellType, CodeType, FunctionType
 from typing import TYPE_CHECKING, Any
@@ -61,15 +65,18 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 MAGIC = b"SPLCIMG1"
-VERSION = 1
+VERSION = 2
 #: magic, version, generation, token
 HEAD = struct.Struct("<8sII16s")
 SEQ_AT = 32
 SEQ = struct.Struct("<Q")
-STAMP_AT = 40
+#: CRC32 (zlib.crc32) of the bytes from STAMP_AT to the end, 4 bytes of padding
+CRC_AT = 40
+CRC = struct.Struct("<I4x")
+STAMP_AT = 48
 #: scan, wall ns, monotonic ns, lossy
 STAMP = struct.Struct("<qqqQ")
-DATA_AT = 72
+DATA_AT = 80
 #: bytes per STRING slot (a length byte and at most STR_BYTES - 1 bytes of UTF-8)
 STR_BYTES = 64
 #: copies a reader tries before it gives up on this sample (the writer kept writing)
@@ -252,6 +259,8 @@ class ImageWriter:
                 last[0] = vals
                 pack(mm, at, *[str(v).encode()[:STR_BYTES - 1] for v in vals])
         STAMP.pack_into(mm, STAMP_AT, scan, wall_ns, time.monotonic_ns(), self.lossy)
+        with memoryview(mm) as view:
+            CRC.pack_into(mm, CRC_AT, zlib.crc32(view[STAMP_AT:]))
         self._seq = seq + 1
         SEQ.pack_into(mm, SEQ_AT, seq + 1)  # even: done
 
@@ -544,8 +553,12 @@ class ImageReader:
             raise ValueError(f"no point {pos} of driver {j}")
 
     def snapshot(self) -> bytes | None:
-        """A consistent copy of the file (seqlock), or None if the writer kept writing
-        through RETRIES tries."""
+        """A consistent copy of the file, or None if none was had in RETRIES tries (the
+        writer kept writing, or the copies mixed two writes). Consistent: the counter
+        even and unchanged around the copy (seqlock) and the copy's CRC32 that of its
+        stamp and data (a copy mixing two writes, which a weakly ordered CPU may show
+        with an even, unchanged counter, is refused); a counter of 0 (nothing written
+        yet) is taken as it is."""
         mm = self._mm
         for _ in range(RETRIES):
             before = SEQ.unpack_from(mm, SEQ_AT)[0]
@@ -553,23 +566,23 @@ class ImageReader:
                 time.sleep(0)
                 continue
             data = mm[:self.size]
-            if SEQ.unpack_from(mm, SEQ_AT)[0] == before:
+            if SEQ.unpack_from(mm, SEQ_AT)[0] != before:
+                continue
+            if before == 0 or _sound(data):
                 return data
+            time.sleep(0)
         return None
 
     def stamp(self) -> tuple[int, int, int, int] | None:
         """(scan, wall ns, monotonic ns, lossy) of the last write, or None if no
         consistent copy (see ``snapshot``); scan -1 before the first write."""
-        mm = self._mm
-        for _ in range(RETRIES):
-            before = SEQ.unpack_from(mm, SEQ_AT)[0]
-            if before & 1:
-                time.sleep(0)
-                continue
-            got: tuple[int, int, int, int] = STAMP.unpack_from(mm, STAMP_AT)
-            if SEQ.unpack_from(mm, SEQ_AT)[0] == before:
-                return got if before else (-1, 0, 0, 0)
-        return None
+        data = self.snapshot()
+        if data is None:
+            return None
+        if SEQ.unpack_from(data, SEQ_AT)[0] == 0:
+            return (-1, 0, 0, 0)
+        got: tuple[int, int, int, int] = STAMP.unpack_from(data, STAMP_AT)
+        return got
 
     def decode(self, data: bytes) -> tuple[int, float, list[Any]]:
         """(scan, wall s, the values in schema order) of a snapshot."""
@@ -612,6 +625,12 @@ class ImageReader:
     def close(self) -> None:
         if not self._mm.closed:
             self._mm.close()
+
+
+def _sound(data: bytes) -> bool:
+    """Whether the copy ``data``'s CRC32 is that of its stamp and data."""
+    with memoryview(data) as view:
+        return int(CRC.unpack_from(data, CRC_AT)[0]) == zlib.crc32(view[STAMP_AT:])
 
 
 def _beyond(vals: tuple[Any, ...], fmt: str) -> tuple[Any, ...]:

@@ -19,9 +19,13 @@ import pytest
 from runtime.controller.daemon import Daemon
 from runtime.controller.feed import FeedServer
 from runtime.controller.image import (
+    CRC,
+    CRC_AT,
+    DATA_AT,
     MAGIC,
     SEQ,
     SEQ_AT,
+    STAMP_AT,
     ImageError,
     ImageReader,
     ImageWriter,
@@ -190,17 +194,20 @@ def test_an_online_change_makes_a_new_generation_the_clients_follow(
 
 
 def _torn_writer(path: str, stop: Any) -> None:  # pragma: no cover - another process
-    """Pack changing patterns: every 8-byte word of a write holds the same number."""
+    """Pack changing patterns: every 8-byte word of a write holds the same number (and
+    the write's checksum, as ImageWriter.write stores it)."""
     import mmap as _mmap
+    import zlib as _zlib
     fd = os.open(path, os.O_RDWR)
     mm = _mmap.mmap(fd, 0)
-    words = (len(mm) - 40) // 8
+    words = (len(mm) - STAMP_AT) // 8
     pattern = struct.Struct(f"<{words}q")
     k = 0
     while not stop.is_set():
         k += 1
         SEQ.pack_into(mm, SEQ_AT, 2 * k - 1)
-        pattern.pack_into(mm, 40, *([k] * words))
+        pattern.pack_into(mm, STAMP_AT, *([k] * words))
+        CRC.pack_into(mm, CRC_AT, _zlib.crc32(mm[STAMP_AT:]))
         SEQ.pack_into(mm, SEQ_AT, 2 * k)
     mm.close()
     os.close(fd)
@@ -226,7 +233,7 @@ def test_the_seqlock_never_yields_a_torn_copy(tmp_path: Path) -> None:
             data = reader.snapshot()
             if data is None:
                 continue
-            words = struct.unpack_from(f"<{(len(data) - 40) // 8}q", data, 40)
+            words = struct.unpack_from(f"<{(len(data) - STAMP_AT) // 8}q", data, STAMP_AT)
             assert len(set(words)) == 1, f"a torn copy: {sorted(set(words))[:4]}"
             seen.add(words[0])
             kept += 1
@@ -260,3 +267,37 @@ def test_a_halt_with_a_forced_point_is_read_alike(tmp_path: Path) -> None:
         names = [n[0] for n in _schema(feed)["names"]]
         got = reader.read()
         assert got is not None and got[2][names.index("io.Q0")] == 0
+
+
+def test_a_torn_image_with_an_even_unchanged_counter_is_refused(tmp_path: Path) -> None:
+    """What a weakly ordered CPU (ARM) may show another core: the counter's and the
+    stamp's final stores of write B, the data stores not yet (the data still write A's).
+    The counter is even and unchanged around the copy, so the seqlock alone accepts it;
+    the checksum must refuse it."""
+    pdef = load_plant(str(_plant(tmp_path)))
+    d = Daemon(pdef, sim=True, manage_gc=False)
+    t1 = d.plant.instances["t1"]
+    writer = ImageWriter(Catalogue(d.plant), str(tmp_path / "img"), 1)
+    specs = [list(s.spec) for s in Catalogue(d.plant).names.values()]
+    reader = ImageReader(json.loads(json.dumps({"image": writer.describe(),
+                                                "specs": specs})))
+    try:
+        t1.set("sN", 7)
+        writer.write(1, 0)
+        old_data = bytes(writer._mm[DATA_AT:writer.size])
+        t1.set("sN", 8)
+        writer.write(2, 0)
+        good = reader.read()
+        assert good is not None and good[0] == 2
+        # the torn view: B's counter (even) and stamp, A's data
+        writer._mm[DATA_AT:writer.size] = old_data
+        assert SEQ.unpack_from(writer._mm, SEQ_AT)[0] % 2 == 0
+        assert reader.snapshot() is None
+        assert reader.read() is None
+        # the next complete write is accepted again
+        writer.write(3, 0)
+        again = reader.read()
+        assert again is not None and again[0] == 3
+    finally:
+        reader.close()
+        writer.retire()
