@@ -59,6 +59,8 @@ from collections.abc import Callable, Sequence
 from types import CellType, CodeType, FunctionType
 from typing import TYPE_CHECKING, Any
 
+from runtime.compiler.guard import GeneratedCodeRefused, checked_code, restricted_builtins
+
 if TYPE_CHECKING:
     from runtime.engine.names import Catalogue
 
@@ -86,6 +88,13 @@ INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
 _NUMERIC = re.compile(r"<[?qd]*\Z")
 _STRINGS = re.compile(rf"<(?:{STR_BYTES}p)*\Z")
 _CODE = {"bool": "?", "int": "q", "time": "q", "real": "d"}
+#: the whole text ``_reader_of`` may generate: cells ``c<k>`` set to None, then one
+#: function returning a tuple of terms, each a cell, a cell's ``get()``, a starred cell or
+#: ``bool`` of a cell's ``ok``
+_READER_TEXT = re.compile(
+    r"def make\(\):\n(?: c\d+ = None\n)*"
+    r" def read\(\):\n  return \((?:(?:c\d+|c\d+\.get\(\)|\*c\d+|bool\(c\d+\.ok\)), )*\)\n"
+    r" return read\n\Z")
 
 
 class ImageError(Exception):
@@ -352,16 +361,30 @@ def _reader_of(parts: list[tuple[str, Any, list[int]]]) -> Callable[[], tuple[An
             cells.append(CellType(obj))
             terms.append(f"bool(c{len(cells) - 1}.ok)")
     free = [f"c{k}" for k in range(len(cells))]
+    inner = _reader_code(free, terms)
+    by_name = dict(zip(free, cells, strict=True))
+    fn: Callable[[], tuple[Any, ...]] = FunctionType(
+        inner, {"bool": bool, "__builtins__": restricted_builtins()}, "read", None,
+        tuple(by_name[n] for n in inner.co_freevars))
+    return fn
+
+
+def _reader_code(free: list[str], terms: list[str]) -> CodeType:
+    """The code of ``read`` returning the tuple of ``terms`` over the cells ``free``,
+    checked twice before anything of it runs: the whole text against the one shape
+    ``_reader_of`` makes (``_READER_TEXT``), then the compiled code by the guard every
+    generated program passes (runtime/compiler/guard.py: ``bool`` the only global,
+    ``get`` and ``ok`` the only attributes). GeneratedCodeRefused (one line) otherwise."""
     src = ("def make():\n"
            + "".join(f" {n} = None\n" for n in free)
            + " def read():\n  return (" + "".join(f"{t}, " for t in terms) + ")\n"
            + " return read\n")
-    outer = compile(src, "<image reader>", "exec").co_consts[0]
-    inner = next(c for c in outer.co_consts if isinstance(c, CodeType))
-    by_name = dict(zip(free, cells, strict=True))
-    fn: Callable[[], tuple[Any, ...]] = FunctionType(
-        inner, {"bool": bool}, "read", None, tuple(by_name[n] for n in inner.co_freevars))
-    return fn
+    if not _READER_TEXT.match(src):
+        raise GeneratedCodeRefused("<image reader>", len(free) + 3,
+                                   "a term outside the image reader's shape")
+    code = checked_code(src, "<image reader>", {"bool"}, attributes={"get", "ok"})
+    outer = next(c for c in code.co_consts if isinstance(c, CodeType))
+    return next(c for c in outer.co_consts if isinstance(c, CodeType))
 
 
 class _Item:

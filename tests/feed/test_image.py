@@ -16,6 +16,7 @@ from typing import Any
 
 import pytest
 
+from runtime.compiler.guard import GeneratedCodeRefused
 from runtime.controller.daemon import Daemon
 from runtime.controller.feed import FeedServer
 from runtime.controller.image import (
@@ -29,6 +30,7 @@ from runtime.controller.image import (
     ImageError,
     ImageReader,
     ImageWriter,
+    _reader_code,
     image_path,
 )
 from runtime.engine.names import Catalogue
@@ -301,3 +303,26 @@ def test_a_torn_image_with_an_even_unchanged_counter_is_refused(tmp_path: Path) 
     finally:
         reader.close()
         writer.retire()
+
+
+@pytest.mark.parametrize("term", ["c0.__class__", "c0.f()", "open(c0)", "c0.get().x",
+                                  "c0[0]", "(lambda: c0)()", "c0)\n import os\n ("])
+def test_a_tampered_term_of_the_generated_reader_is_refused(term: str) -> None:
+    """The scan thread's reader function is generated text: a term outside its shape (an
+    attribute, a call, a subscript, a line) is refused before anything of it runs."""
+    assert _reader_code(["c0"], ["c0", "*c0", "bool(c0.ok)", "c0.get()"]).co_freevars \
+        == ("c0",)
+    with pytest.raises(GeneratedCodeRefused, match="image reader"):
+        _reader_code(["c0"], [term])
+
+
+def test_the_generated_reader_passes_the_guard(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Its bytecode goes through the guard every generated program passes: a guard that
+    refuses everything refuses it."""
+    import runtime.controller.image as image_mod
+
+    def refuse(_src: str, filename: str, *_a: Any, **_k: Any) -> Any:
+        raise GeneratedCodeRefused(filename, 1, "refused by the test")
+    monkeypatch.setattr(image_mod, "checked_code", refuse)
+    with pytest.raises(GeneratedCodeRefused, match="refused by the test"):
+        _reader_code(["c0"], ["c0"])
