@@ -8,6 +8,7 @@ read alike both ways); the console reads the plant itself."""
 from __future__ import annotations
 
 import json
+from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
@@ -69,7 +70,7 @@ def test_a_bool_point_shows_alike_from_the_image_and_from_frames(tmp_path: Path)
         shown = []
         for values in (imaged, framed):
             t = Tables(pdef.modbus.points, pdef.modbus.words)
-            t.refresh(lambda n, v=values: v[names.index(n)] if n in names else 0)
+            t.refresh(defaultdict(int, zip(names, values, strict=True)).__getitem__)
             shown.append({k: list(v) for k, v in t.values.items()})
         assert shown[0] == shown[1]
         # (a driver point has no Modbus address: docs/modbus.md, its chart signal does)
