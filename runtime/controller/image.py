@@ -597,15 +597,20 @@ class ImageReader:
         return None
 
     def stamp(self) -> tuple[int, int, int, int] | None:
-        """(scan, wall ns, monotonic ns, lossy) of the last write, or None if no
-        consistent copy (see ``snapshot``); scan -1 before the first write."""
-        data = self.snapshot()
-        if data is None:
-            return None
-        if SEQ.unpack_from(data, SEQ_AT)[0] == 0:
-            return (-1, 0, 0, 0)
-        got: tuple[int, int, int, int] = STAMP.unpack_from(data, STAMP_AT)
-        return got
+        """(scan, wall ns, monotonic ns, lossy) of the last write, or None if the writer
+        kept writing; scan -1 before the first write. The header only, under the counter
+        alone (no checksum: the cheap poll of whether the scan advanced, 4 times a
+        sample; ``read`` then checks the whole copy, ``age_s`` its own)."""
+        mm = self._mm
+        for _ in range(RETRIES):
+            before = SEQ.unpack_from(mm, SEQ_AT)[0]
+            if before & 1:
+                time.sleep(0)
+                continue
+            got: tuple[int, int, int, int] = STAMP.unpack_from(mm, STAMP_AT)
+            if SEQ.unpack_from(mm, SEQ_AT)[0] == before:
+                return got if before else (-1, 0, 0, 0)
+        return None
 
     def decode(self, data: bytes) -> tuple[int, float, list[Any]]:
         """(scan, wall s, the values in schema order) of a snapshot."""
@@ -639,11 +644,16 @@ class ImageReader:
 
     def age_s(self) -> float | None:
         """Seconds since the controller last wrote the image (its CLOCK_MONOTONIC stamp),
-        None if it never did (or no consistent copy now)."""
-        got = self.stamp()
-        if got is None or got[2] == 0:
+        None if it never did (or no consistent copy now). From a checked copy
+        (``snapshot``: counter and checksum), so that a stamp mixed from two writes never
+        decides whether the controller is stale (a copy and a CRC: about 7 µs at 17 KB)."""
+        data = self.snapshot()
+        if data is None or SEQ.unpack_from(data, SEQ_AT)[0] == 0:
             return None
-        return max(0.0, (time.monotonic_ns() - got[2]) / 1e9)
+        mono = STAMP.unpack_from(data, STAMP_AT)[2]
+        if mono == 0:
+            return None
+        return max(0.0, (time.monotonic_ns() - mono) / 1e9)
 
     def close(self) -> None:
         if not self._mm.closed:

@@ -296,10 +296,13 @@ def test_a_torn_image_with_an_even_unchanged_counter_is_refused(tmp_path: Path) 
         assert SEQ.unpack_from(writer._mm, SEQ_AT)[0] % 2 == 0
         assert reader.snapshot() is None
         assert reader.read() is None
+        assert reader.age_s() is None  # nor does a torn stamp say how old the image is
         # the next complete write is accepted again
         writer.write(3, 0)
         again = reader.read()
         assert again is not None and again[0] == 3
+        age = reader.age_s()
+        assert age is not None and age >= 0.0
     finally:
         reader.close()
         writer.retire()
