@@ -650,7 +650,7 @@ class ImageReader:
         data = self.snapshot()
         if data is None or SEQ.unpack_from(data, SEQ_AT)[0] == 0:
             return None
-        mono = STAMP.unpack_from(data, STAMP_AT)[2]
+        mono: int = STAMP.unpack_from(data, STAMP_AT)[2]
         if mono == 0:
             return None
         return max(0.0, (time.monotonic_ns() - mono) / 1e9)
