@@ -6,7 +6,7 @@ run --sim`` builds it, not running (the costs are measured by calling the functi
 directly, the best of ``--repeat`` runs of ``--number`` calls: the least disturbed by
 the other processes of this machine). Columns, microseconds per sample:
 
-- ``write``: ``ImageWriter.write`` (the scan thread, this design: a seqlock and one
+- ``write``: ``ImageWriter.write`` (the scan thread, this design: a seqlock, a CRC32 and one
   ``pack_into`` per instance and driver region);
 - ``capture``: ``Catalogue.capture`` (the scan thread before this design, at every
   sample; now only while a client takes frames or follows transitions);

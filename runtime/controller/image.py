@@ -13,10 +13,11 @@ generation, renamed over the old one), and the feed's schema says which
 
 File layout (little-endian, no padding):
 
-- header, 72 bytes: magic ``b"SPLCIMG1"``, version (u32), generation (u32), token (16
+- header, 80 bytes: magic ``b"SPLCIMG1"``, version (u32), generation (u32), token (16
   random bytes, made per file: what the schema names), seqlock counter (u64 at 32),
-  scan (i64), wall time ns (i64), CLOCK_MONOTONIC ns of the write (i64), lossy (u64: how
-  many writes had a value that did not fit its slot);
+  CRC32 (u32 at 40, then 4 bytes of padding) of every byte from 48 to the end of the
+  file, scan (i64), wall time ns (i64), CLOCK_MONOTONIC ns of the write (i64), lossy
+  (u64: how many writes had a value that did not fit its slot);
 - per instance, its numeric slots (BOOL ``?``, INT/TIME ``q``, REAL ``d``);
 - per driver, its input values then its output values (BOOL point ``?``, register ``q``);
 - every driver's ok flag (``?``);
@@ -29,13 +30,15 @@ File layout (little-endian, no padding):
   -2**63 - 1), so that it stays out of range to whoever checks (OPC UA: BadOutOfRange);
   its exact value is not carried.
 
-Seqlock: the single writer makes the counter odd, packs, stamps, makes it even; a reader
-copies the bytes and keeps the copy only if the counter was even and unchanged around the
-copy (``ImageReader.snapshot``: bounded retries, else None: the next sample is used).
-Readers never write the file. The processes run on one machine; the stores are ordered as
-Python issues them on x86 (total store order); on a weakly ordered CPU (ARM) no barrier
-separates them, so a reader might in principle see a counter and data of different writes
-(docs/architecture.md says so).
+Seqlock with a checksum: the single writer makes the counter odd, packs, stamps, stores
+the CRC32 of the stamp and data, makes the counter even; a reader copies the bytes and
+keeps the copy only if the counter was even and unchanged around the copy AND the copy's
+CRC32 matches its stamp and data (``ImageReader.snapshot``: bounded retries, else None:
+the next sample is used). Readers never write the file. Python has no memory barrier: on
+a weakly ordered CPU (ARM, the Raspberry Pi) another core may see the counter's final
+store before the data's, so the counter alone could pass a copy mixing two writes; the
+checksum refuses such a copy whatever the order the stores become visible in
+(docs/architecture.md: why and what it costs).
 
 A reader (``ImageReader``) is built from the schema's ``image`` (plain data: offsets,
 formats, slots, validated) and the names' specs (``Signal.spec``, runtime/engine/names.py:
@@ -51,9 +54,12 @@ import os
 import re
 import struct
 import time
+import zlib
 from collections.abc import Callable, Sequence
 from types import CellType, CodeType, FunctionType
 from typing import TYPE_CHECKING, Any
+
+from runtime.compiler.guard import GeneratedCodeRefused, checked_code, restricted_builtins
 
 if TYPE_CHECKING:
     from runtime.engine.names import Catalogue
@@ -61,15 +67,18 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 MAGIC = b"SPLCIMG1"
-VERSION = 1
+VERSION = 2
 #: magic, version, generation, token
 HEAD = struct.Struct("<8sII16s")
 SEQ_AT = 32
 SEQ = struct.Struct("<Q")
-STAMP_AT = 40
+#: CRC32 (zlib.crc32) of the bytes from STAMP_AT to the end, 4 bytes of padding
+CRC_AT = 40
+CRC = struct.Struct("<I4x")
+STAMP_AT = 48
 #: scan, wall ns, monotonic ns, lossy
 STAMP = struct.Struct("<qqqQ")
-DATA_AT = 72
+DATA_AT = 80
 #: bytes per STRING slot (a length byte and at most STR_BYTES - 1 bytes of UTF-8)
 STR_BYTES = 64
 #: copies a reader tries before it gives up on this sample (the writer kept writing)
@@ -79,6 +88,13 @@ INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
 _NUMERIC = re.compile(r"<[?qd]*\Z")
 _STRINGS = re.compile(rf"<(?:{STR_BYTES}p)*\Z")
 _CODE = {"bool": "?", "int": "q", "time": "q", "real": "d"}
+#: the whole text ``_reader_of`` may generate: cells ``c<k>`` set to None, then one
+#: function returning a tuple of terms, each a cell, a cell's ``get()``, a starred cell or
+#: ``bool`` of a cell's ``ok``
+_READER_TEXT = re.compile(
+    r"def make\(\):\n(?: c\d+ = None\n)*"
+    r" def read\(\):\n  return \((?:(?:c\d+|c\d+\.get\(\)|\*c\d+|bool\(c\d+\.ok\)), )*\)\n"
+    r" return read\n\Z")
 
 
 class ImageError(Exception):
@@ -252,6 +268,8 @@ class ImageWriter:
                 last[0] = vals
                 pack(mm, at, *[str(v).encode()[:STR_BYTES - 1] for v in vals])
         STAMP.pack_into(mm, STAMP_AT, scan, wall_ns, time.monotonic_ns(), self.lossy)
+        with memoryview(mm) as view:
+            CRC.pack_into(mm, CRC_AT, zlib.crc32(view[STAMP_AT:]))
         self._seq = seq + 1
         SEQ.pack_into(mm, SEQ_AT, seq + 1)  # even: done
 
@@ -343,16 +361,30 @@ def _reader_of(parts: list[tuple[str, Any, list[int]]]) -> Callable[[], tuple[An
             cells.append(CellType(obj))
             terms.append(f"bool(c{len(cells) - 1}.ok)")
     free = [f"c{k}" for k in range(len(cells))]
+    inner = _reader_code(free, terms)
+    by_name = dict(zip(free, cells, strict=True))
+    fn: Callable[[], tuple[Any, ...]] = FunctionType(
+        inner, {"bool": bool, "__builtins__": restricted_builtins()}, "read", None,
+        tuple(by_name[n] for n in inner.co_freevars))
+    return fn
+
+
+def _reader_code(free: list[str], terms: list[str]) -> CodeType:
+    """The code of ``read`` returning the tuple of ``terms`` over the cells ``free``,
+    checked twice before anything of it runs: the whole text against the one shape
+    ``_reader_of`` makes (``_READER_TEXT``), then the compiled code by the guard every
+    generated program passes (runtime/compiler/guard.py: ``bool`` the only global,
+    ``get`` and ``ok`` the only attributes). GeneratedCodeRefused (one line) otherwise."""
     src = ("def make():\n"
            + "".join(f" {n} = None\n" for n in free)
            + " def read():\n  return (" + "".join(f"{t}, " for t in terms) + ")\n"
            + " return read\n")
-    outer = compile(src, "<image reader>", "exec").co_consts[0]
-    inner = next(c for c in outer.co_consts if isinstance(c, CodeType))
-    by_name = dict(zip(free, cells, strict=True))
-    fn: Callable[[], tuple[Any, ...]] = FunctionType(
-        inner, {"bool": bool}, "read", None, tuple(by_name[n] for n in inner.co_freevars))
-    return fn
+    if not _READER_TEXT.match(src):
+        raise GeneratedCodeRefused("<image reader>", len(free) + 3,
+                                   "a term outside the image reader's shape")
+    code = checked_code(src, "<image reader>", {"bool"}, attributes={"get", "ok"})
+    outer = next(c for c in code.co_consts if isinstance(c, CodeType))
+    return next(c for c in outer.co_consts if isinstance(c, CodeType))
 
 
 class _Item:
@@ -544,8 +576,12 @@ class ImageReader:
             raise ValueError(f"no point {pos} of driver {j}")
 
     def snapshot(self) -> bytes | None:
-        """A consistent copy of the file (seqlock), or None if the writer kept writing
-        through RETRIES tries."""
+        """A consistent copy of the file, or None if none was had in RETRIES tries (the
+        writer kept writing, or the copies mixed two writes). Consistent: the counter
+        even and unchanged around the copy (seqlock) and the copy's CRC32 that of its
+        stamp and data (a copy mixing two writes, which a weakly ordered CPU may show
+        with an even, unchanged counter, is refused); a counter of 0 (nothing written
+        yet) is taken as it is."""
         mm = self._mm
         for _ in range(RETRIES):
             before = SEQ.unpack_from(mm, SEQ_AT)[0]
@@ -553,13 +589,18 @@ class ImageReader:
                 time.sleep(0)
                 continue
             data = mm[:self.size]
-            if SEQ.unpack_from(mm, SEQ_AT)[0] == before:
+            if SEQ.unpack_from(mm, SEQ_AT)[0] != before:
+                continue
+            if before == 0 or _sound(data):
                 return data
+            time.sleep(0)
         return None
 
     def stamp(self) -> tuple[int, int, int, int] | None:
-        """(scan, wall ns, monotonic ns, lossy) of the last write, or None if no
-        consistent copy (see ``snapshot``); scan -1 before the first write."""
+        """(scan, wall ns, monotonic ns, lossy) of the last write, or None if the writer
+        kept writing; scan -1 before the first write. The header only, under the counter
+        alone (no checksum: the cheap poll of whether the scan advanced, 4 times a
+        sample; ``read`` then checks the whole copy, ``age_s`` its own)."""
         mm = self._mm
         for _ in range(RETRIES):
             before = SEQ.unpack_from(mm, SEQ_AT)[0]
@@ -603,15 +644,26 @@ class ImageReader:
 
     def age_s(self) -> float | None:
         """Seconds since the controller last wrote the image (its CLOCK_MONOTONIC stamp),
-        None if it never did (or no consistent copy now)."""
-        got = self.stamp()
-        if got is None or got[2] == 0:
+        None if it never did (or no consistent copy now). From a checked copy
+        (``snapshot``: counter and checksum), so that a stamp mixed from two writes never
+        decides whether the controller is stale (a copy and a CRC: about 7 µs at 17 KB)."""
+        data = self.snapshot()
+        if data is None or SEQ.unpack_from(data, SEQ_AT)[0] == 0:
             return None
-        return max(0.0, (time.monotonic_ns() - got[2]) / 1e9)
+        mono: int = STAMP.unpack_from(data, STAMP_AT)[2]
+        if mono == 0:
+            return None
+        return max(0.0, (time.monotonic_ns() - mono) / 1e9)
 
     def close(self) -> None:
         if not self._mm.closed:
             self._mm.close()
+
+
+def _sound(data: bytes) -> bool:
+    """Whether the copy ``data``'s CRC32 is that of its stamp and data."""
+    with memoryview(data) as view:
+        return int(CRC.unpack_from(data, CRC_AT)[0]) == zlib.crc32(view[STAMP_AT:])
 
 
 def _beyond(vals: tuple[Any, ...], fmt: str) -> tuple[Any, ...]:

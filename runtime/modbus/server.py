@@ -3,8 +3,10 @@
 layer (drivers/modbus_frame.py), no Modbus library (docs/modbus.md says why).
 
 - Values: every frame of the feed refreshes the four tables (``tables.Tables``); a read is
-  answered from the last frame. Without a frame (the feed not connected, or no frame for
-  ``stale_after_s``: the controller stopped, frozen or stuck in a scan) every request is
+  answered from the last frame. Without values (the feed not connected, or the controller
+  not writing its shared image for ``stale_after_s`` by its own stamp in the image's
+  header, or, without an image, no frame for that long: the controller stopped, frozen or
+  stuck in a scan; this process's event loop being busy never counts) every request is
   answered with exception 11 (gateway target device failed to respond): a panel shows a
   communication error, never old values as good.
 - Writes: only to the names of ``modbus: writable:`` (coils, holding registers), carried to
@@ -216,9 +218,17 @@ class ModbusServer:
         self._last_frame = None
 
     def fresh(self) -> bool:
-        """A frame came lately: the tables hold the controller's values."""
+        """The tables hold the controller's values: a frame came since the feed's schema,
+        and the controller wrote its shared image within ``stale_after_s`` (its own
+        monotonic stamp: ``FeedClient.controller_age_s``; this event loop being busy never
+        counts), or, without an image, a frame came within that time."""
         last = self._last_frame
-        return last is not None and time.monotonic() - last <= self._stale_after
+        if last is None:
+            return False
+        age = self.feed.controller_age_s()
+        if age is not None:
+            return age <= self._stale_after
+        return time.monotonic() - last <= self._stale_after
 
     # -- clients -----------------------------------------------------------------------
     async def _plain_client(self, reader: asyncio.StreamReader,

@@ -16,15 +16,21 @@ from typing import Any
 
 import pytest
 
+from runtime.compiler.guard import GeneratedCodeRefused
 from runtime.controller.daemon import Daemon
 from runtime.controller.feed import FeedServer
 from runtime.controller.image import (
+    CRC,
+    CRC_AT,
+    DATA_AT,
     MAGIC,
     SEQ,
     SEQ_AT,
+    STAMP_AT,
     ImageError,
     ImageReader,
     ImageWriter,
+    _reader_code,
     image_path,
 )
 from runtime.engine.names import Catalogue
@@ -190,17 +196,20 @@ def test_an_online_change_makes_a_new_generation_the_clients_follow(
 
 
 def _torn_writer(path: str, stop: Any) -> None:  # pragma: no cover - another process
-    """Pack changing patterns: every 8-byte word of a write holds the same number."""
+    """Pack changing patterns: every 8-byte word of a write holds the same number (and
+    the write's checksum, as ImageWriter.write stores it)."""
     import mmap as _mmap
+    import zlib as _zlib
     fd = os.open(path, os.O_RDWR)
     mm = _mmap.mmap(fd, 0)
-    words = (len(mm) - 40) // 8
+    words = (len(mm) - STAMP_AT) // 8
     pattern = struct.Struct(f"<{words}q")
     k = 0
     while not stop.is_set():
         k += 1
         SEQ.pack_into(mm, SEQ_AT, 2 * k - 1)
-        pattern.pack_into(mm, 40, *([k] * words))
+        pattern.pack_into(mm, STAMP_AT, *([k] * words))
+        CRC.pack_into(mm, CRC_AT, _zlib.crc32(mm[STAMP_AT:]))
         SEQ.pack_into(mm, SEQ_AT, 2 * k)
     mm.close()
     os.close(fd)
@@ -226,7 +235,7 @@ def test_the_seqlock_never_yields_a_torn_copy(tmp_path: Path) -> None:
             data = reader.snapshot()
             if data is None:
                 continue
-            words = struct.unpack_from(f"<{(len(data) - 40) // 8}q", data, 40)
+            words = struct.unpack_from(f"<{(len(data) - STAMP_AT) // 8}q", data, STAMP_AT)
             assert len(set(words)) == 1, f"a torn copy: {sorted(set(words))[:4]}"
             seen.add(words[0])
             kept += 1
@@ -260,3 +269,63 @@ def test_a_halt_with_a_forced_point_is_read_alike(tmp_path: Path) -> None:
         names = [n[0] for n in _schema(feed)["names"]]
         got = reader.read()
         assert got is not None and got[2][names.index("io.Q0")] == 0
+
+
+def test_a_torn_image_with_an_even_unchanged_counter_is_refused(tmp_path: Path) -> None:
+    """What a weakly ordered CPU (ARM) may show another core: the counter's and the
+    stamp's final stores of write B, the data stores not yet (the data still write A's).
+    The counter is even and unchanged around the copy, so the seqlock alone accepts it;
+    the checksum must refuse it."""
+    pdef = load_plant(str(_plant(tmp_path)))
+    d = Daemon(pdef, sim=True, manage_gc=False)
+    t1 = d.plant.instances["t1"]
+    writer = ImageWriter(Catalogue(d.plant), str(tmp_path / "img"), 1)
+    specs = [list(s.spec) for s in Catalogue(d.plant).names.values()]
+    reader = ImageReader(json.loads(json.dumps({"image": writer.describe(),
+                                                "specs": specs})))
+    try:
+        t1.set("sN", 7)
+        writer.write(1, 0)
+        old_data = bytes(writer._mm[DATA_AT:writer.size])
+        t1.set("sN", 8)
+        writer.write(2, 0)
+        good = reader.read()
+        assert good is not None and good[0] == 2
+        # the torn view: B's counter (even) and stamp, A's data
+        writer._mm[DATA_AT:writer.size] = old_data
+        assert SEQ.unpack_from(writer._mm, SEQ_AT)[0] % 2 == 0
+        assert reader.snapshot() is None
+        assert reader.read() is None
+        assert reader.age_s() is None  # nor does a torn stamp say how old the image is
+        # the next complete write is accepted again
+        writer.write(3, 0)
+        again = reader.read()
+        assert again is not None and again[0] == 3
+        age = reader.age_s()
+        assert age is not None and age >= 0.0
+    finally:
+        reader.close()
+        writer.retire()
+
+
+@pytest.mark.parametrize("term", ["c0.__class__", "c0.f()", "open(c0)", "c0.get().x",
+                                  "c0[0]", "(lambda: c0)()", "c0)\n import os\n ("])
+def test_a_tampered_term_of_the_generated_reader_is_refused(term: str) -> None:
+    """The scan thread's reader function is generated text: a term outside its shape (an
+    attribute, a call, a subscript, a line) is refused before anything of it runs."""
+    assert _reader_code(["c0"], ["c0", "*c0", "bool(c0.ok)", "c0.get()"]).co_freevars \
+        == ("c0",)
+    with pytest.raises(GeneratedCodeRefused, match="image reader"):
+        _reader_code(["c0"], [term])
+
+
+def test_the_generated_reader_passes_the_guard(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Its bytecode goes through the guard every generated program passes: a guard that
+    refuses everything refuses it."""
+    import runtime.controller.image as image_mod
+
+    def refuse(_src: str, filename: str, *_a: Any, **_k: Any) -> Any:
+        raise GeneratedCodeRefused(filename, 1, "refused by the test")
+    monkeypatch.setattr(image_mod, "checked_code", refuse)
+    with pytest.raises(GeneratedCodeRefused, match="refused by the test"):
+        _reader_code(["c0"], ["c0"])
