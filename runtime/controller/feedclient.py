@@ -22,9 +22,10 @@ The values come from the controller's shared image (runtime/controller/image.py)
 from the socket: after each schema the client maps the image the schema describes, says
 so (``{"image": true}``: the controller then sends it no frames and computes no values
 for it), and polls the image every sample on its event loop, decoding every name in this
-process; the frame hook is called when the scan advanced (the header is checked
-POLLS_PER_SAMPLE times a sample; a sample this loop was too busy to see for longer than
-a sample is not seen: the image holds the last one only). The image is also read at once
+process, at the side process's own sample (``poll_period``); the frame hook is called
+when the scan advanced (at the feed's sample, the header is checked POLLS_PER_SAMPLE
+times a sample; a sample this loop was too busy to see for longer than a sample is not
+seen: the image holds the last one only). The image is also read at once
 when a controller status comes, so that the values of that scan go with it. A client
 that cannot map the image (permissions, an image left by another controller) says why in
 one line and takes the frames the socket carries. ``controller_age_s`` is how long ago
@@ -57,6 +58,18 @@ RECONNECT_MAX_S = 2.0
 LINE_MAX = 64 << 20
 #: how often per sample the shared image's header is checked for a new scan
 POLLS_PER_SAMPLE = 4
+
+
+def poll_period(feed_s: float, own_s: float | None) -> float:
+    """How often the image is polled, seconds. The controller writes it every ``feed_s``
+    (the shortest sample of the plant's side processes); a side process whose own sample
+    ``own_s`` is longer polls at its own: every poll then finds a later scan, and its
+    names are decoded at its sample, not at another side process's (the web page's 100 ms
+    beside MQTT's 10 ms). Otherwise a quarter of the feed's: a sample is seen even when
+    this loop is a little late (only the header is read until the scan advances)."""
+    if own_s is not None and own_s > feed_s:
+        return own_s
+    return max(0.001, feed_s / POLLS_PER_SAMPLE)
 
 
 class ForeignFeed(SourceError):
@@ -171,10 +184,14 @@ class FeedClient:
             return
         if self._writer is not None:
             self._writer.write(b'{"image":true}\n')
-        # a quarter of the sample: a sample is seen even when this loop is a little late
-        # (only its header is read until the scan advances)
-        period = max(0.001, float(schema.get("sample_ms") or 100) / 1e3 / POLLS_PER_SAMPLE)
+        period = poll_period(float(schema.get("sample_ms") or 100) / 1e3,
+                             self.own_sample_s())
         self._poll = asyncio.ensure_future(self._follow_image(self.image, period))
+
+    def own_sample_s(self) -> float | None:
+        """This side process's own ``sample`` (its section's), seconds; None if unknown."""
+        ns = getattr(getattr(self.plant, self.side, None), "sample_ns", None)
+        return ns / 1e9 if isinstance(ns, int) and ns > 0 else None
 
     def _unmap(self) -> None:
         if self._poll is not None:

@@ -51,7 +51,7 @@ def test_the_explanations_are_copied_for_every_100_ms_not_every_sample(
             wait_until(lambda: r.schemas == 1, 10.0, "schema")
             r.sock.sendall(b'{"image": true}\n')
             # an image reader alone: the scan copies nothing
-            wait_until(lambda: feed._clients and all(c.image for c in feed._clients),
+            wait_until(lambda: bool(feed._clients) and all(c.image for c in feed._clients),
                        10.0, "the client reads the image")
             start, before = _scan(feed), len(copies)
             wait_until(lambda: _scan(feed) >= start + 30, 30.0, "30 samples")
