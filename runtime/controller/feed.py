@@ -45,7 +45,9 @@ Messages, one JSON object per line (``"\\n"``):
   uptime_s, cycle_ms, drivers: name -> [health, fault reason, ok], lateness_us: p50, p99,
   max, alarms: the alarm board's conditions, ``AlarmBoard.as_list``, forced: the forced
   names), before the frame it goes with, only when it changed (the scan count is the
-  frame's scan + 1);
+  frame's scan + 1); a client of the image that has not taken what it was sent (its
+  event loop busy) gets the latest one once it has, not each one meanwhile (so are the
+  transitions, ``w``): states, not events, never piled up until it is dropped;
 - ``{"w": {INSTANCE: [[step, T ns, [[transition index, condition, [blocked...],
   [[term, depth, value]...]]...]]...]}}``: what ``why INSTANCE`` says (the console's),
   computed by the feed thread on the frame's copy of the state, for the instances the
@@ -613,10 +615,15 @@ class FeedServer:
         status = self._status(live)
         self.frames += 1
         for c in self._clients:
-            if status != c.status:
+            # a client of the image that has not taken what it was sent (its event loop
+            # busy: an OPC UA server building thousands of nodes) gets the latest status
+            # and transitions once it has, not every one meanwhile: they are states, not
+            # events, and piling them up would get it dropped for not reading
+            behind = c.image and bool(c.out)
+            if status != c.status and not behind:
                 c.status = status
                 self._queue(c, _line({"c": status}))
-            if c.why and img is not None and why:
+            if c.why and img is not None and why and not behind:
                 self._queue_why(c, img, live[-1], explained)
             if c.image or not values:
                 continue

@@ -170,7 +170,11 @@ class FeedClient:
         return image.age_s() if image is not None else None
 
     def _map(self, schema: dict[str, Any]) -> None:
-        """Map the image the schema describes and poll it (or say why not: frames then)."""
+        """Map the image the schema describes and say so to the controller, which then
+        sends this client no frames (or say why not: frames then). Before the schema
+        hook: a side process building its names for a long time (an OPC UA server's
+        thousands of nodes) must not have frames pile up unread meanwhile, until the
+        controller drops it for not reading."""
         self._unmap()
         if schema.get("image") is None:
             log.info("feed %s: the controller offers no shared image: values come as "
@@ -184,6 +188,11 @@ class FeedClient:
             return
         if self._writer is not None:
             self._writer.write(b'{"image":true}\n')
+
+    def _start_polling(self, schema: dict[str, Any]) -> None:
+        """Poll the mapped image (after the schema hook: its names are built)."""
+        if self.image is None:
+            return
         period = poll_period(float(schema.get("sample_ms") or 100) / 1e3,
                              self.own_sample_s())
         self._poll = asyncio.ensure_future(self._follow_image(self.image, period))
@@ -320,8 +329,9 @@ class FeedClient:
             if kind == "schema":
                 self._unmap()  # the old layout's values must not follow the new names
                 self._check_owner(st.schema)
-                await self._on_schema(st.schema)
                 self._map(st.schema)
+                await self._on_schema(st.schema)
+                self._start_polling(st.schema)
             elif kind == "frame":
                 await self._on_frame()
             elif kind == "status":
