@@ -58,6 +58,8 @@ RECONNECT_MAX_S = 2.0
 LINE_MAX = 64 << 20
 #: how often per sample the shared image's header is checked for a new scan
 POLLS_PER_SAMPLE = 4
+#: how long, in samples of the feed, an applied request waits for the image that shows it
+CATCH_UP_SAMPLES = 3
 
 
 def poll_period(feed_s: float, own_s: float | None) -> float:
@@ -117,6 +119,8 @@ class FeedClient:
         self._why: list[str] = []
         #: the controller's shared image, while mapped, and its polling task
         self.image: ImageReader | None = None
+        #: the feed's sample (the controller writes the image this often), seconds
+        self._sample_s = 0.1
         self._poll: asyncio.Task[None] | None = None
 
     @property
@@ -186,6 +190,7 @@ class FeedClient:
             log.warning("feed %s: %s: values come as frames over the socket instead",
                         self.path, exc)
             return
+        self._sample_s = float(schema.get("sample_ms") or 100) / 1e3
         if self._writer is not None:
             self._writer.write(b'{"image":true}\n')
 
@@ -270,9 +275,30 @@ class FeedClient:
         self._pending[ident] = fut
         try:
             writer.write(request_line(kind, ident, *args))
-            return await asyncio.wait_for(fut, timeout)
+            answer = await asyncio.wait_for(fut, timeout)
         finally:
             self._pending.pop(ident, None)
+        image = self.image
+        if answer[0] and image is not None:
+            await self._catch_up(image)
+        return answer
+
+    async def _catch_up(self, image: ImageReader) -> None:
+        """After a request the controller applied: the first image written after the
+        answer decoded (it holds what the request did), so that a read that follows a
+        write shows it, not the sample before (a Modbus client reading a register it has
+        just written, an OPC UA client reading back). At most CATCH_UP_SAMPLES samples of
+        the feed: a controller that stopped meanwhile is the stale rule's business."""
+        loop = asyncio.get_running_loop()
+        stamp = image.stamp()
+        seen = stamp[0] if stamp is not None else self.state.scan
+        end = loop.time() + CATCH_UP_SAMPLES * self._sample_s + 0.05
+        while loop.time() < end:
+            stamp = image.stamp()
+            if stamp is not None and stamp[0] > seen:
+                break
+            await asyncio.sleep(min(0.002, self._sample_s / POLLS_PER_SAMPLE))
+        await self._read_image(image)
 
     async def run_beside(self, work: Awaitable[T]) -> T:
         """``work`` (the side process's own: its sessions, its serving) while following

@@ -60,6 +60,7 @@ from types import CellType, CodeType, FunctionType
 from typing import TYPE_CHECKING, Any
 
 from runtime.compiler.guard import GeneratedCodeRefused, checked_code, restricted_builtins
+from runtime.errors import SoftplcError
 
 if TYPE_CHECKING:
     from runtime.engine.names import Catalogue
@@ -97,7 +98,7 @@ _READER_TEXT = re.compile(
     r" return read\n\Z")
 
 
-class ImageError(Exception):
+class ImageError(SoftplcError):
     """The image file cannot be used (missing, unreadable, another's, malformed): the
     message says why in one line."""
 

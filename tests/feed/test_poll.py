@@ -17,7 +17,7 @@ from runtime.controller.feed import FeedServer
 from runtime.controller.feedclient import POLLS_PER_SAMPLE, FeedClient, poll_period
 from runtime.language.plantfile import load_plant
 from tests.opcua.feedkit import serving, wait_until
-from tests.opcua.kit import plant_head
+from tests.opcua.kit import free_port, plant_head, write_plant
 
 
 def test_the_poll_period_is_the_own_sample_when_longer() -> None:
@@ -120,3 +120,35 @@ def test_a_side_process_busy_building_its_names_is_not_dropped(
 def _scan(feed: FeedServer) -> int:
     slot = feed._slot
     return slot[0] if slot is not None else -1
+
+
+def test_a_value_read_after_an_applied_write_is_the_written_one(tmp_path: Path) -> None:
+    """A write answered ok, then the value read: the written one, not the image of the
+    sample before (a Modbus client reading back the register it has just written got the
+    old value: the image is written every sample, the answer comes within a scan)."""
+    pdef = load_plant(str(write_plant(tmp_path, port=free_port(), sample="500ms")))
+    with serving(pdef) as (_d, feed):
+        seen: list[float] = []
+
+        async def nothing(*_a: object) -> None:
+            return None
+
+        async def main() -> None:
+            client = FeedClient(feed.path, "opcua", nothing, nothing, nothing, plant=pdef)
+            task = asyncio.ensure_future(client.run())
+            try:
+                deadline = time.monotonic() + 30.0
+                while (client.image is None or client.state.scan < 0) \
+                        and time.monotonic() < deadline:
+                    await asyncio.sleep(0.05)
+                k = client.state.index["t1.sRate"]
+                for value in (2.5, 3.5, 4.5):
+                    ok, text, _code = await client.ask("set", "t1.sRate", value, "opcua",
+                                                       timeout=10.0)
+                    assert ok, text
+                    seen.append(client.state.values[k])
+            finally:
+                client.stop()
+                await asyncio.gather(task, return_exceptions=True)
+        asyncio.run(main())
+    assert seen == [2.5, 3.5, 4.5]
