@@ -9,7 +9,8 @@ stopped or restarts); and optionally ``status`` after each controller status (th
 state's ``status``: with the alarm board). It reconnects forever, with a delay doubling
 from RECONNECT_MIN_S to RECONNECT_MAX_S. ``set`` sends a write and waits for the
 controller's answer; ``ask`` any request (``set``, ``call``, ``alarm``) with the answer's
-OPC UA status name.
+OPC UA status name; an applied request returns once the image written after its answer
+is decoded (``_catch_up``), so that a value read after a write is the written one.
 
 A feed says whose it is (its schema's ``name`` and ``home``: the plant's name and
 identity, runtime/language/runtimedir.py ``locate``). A side process follows only its own
