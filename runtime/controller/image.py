@@ -57,7 +57,7 @@ import time
 import zlib
 from collections.abc import Callable, Sequence
 from types import CellType, CodeType, FunctionType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from runtime.compiler.guard import GeneratedCodeRefused, checked_code, restricted_builtins
 from runtime.errors import SoftplcError
@@ -84,6 +84,7 @@ DATA_AT = 80
 STR_BYTES = 64
 #: copies a reader tries before it gives up on this sample (the writer kept writing)
 RETRIES = 8
+T = TypeVar("T")
 INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
 
 _NUMERIC = re.compile(r"<[?qd]*\Z")
@@ -583,34 +584,39 @@ class ImageReader:
         stamp and data (a copy mixing two writes, which a weakly ordered CPU may show
         with an even, unchanged counter, is refused); a counter of 0 (nothing written
         yet) is taken as it is."""
-        mm = self._mm
-        for _ in range(RETRIES):
-            before = SEQ.unpack_from(mm, SEQ_AT)[0]
-            if before & 1:
-                time.sleep(0)
-                continue
-            data = mm[:self.size]
-            if SEQ.unpack_from(mm, SEQ_AT)[0] != before:
-                continue
-            if before == 0 or _sound(data):
-                return data
-            time.sleep(0)
-        return None
+        got = self._consistent(lambda mm: mm[:self.size],
+                               lambda before, data: before == 0 or _sound(data))
+        return got[1] if got is not None else None
 
     def stamp(self) -> tuple[int, int, int, int] | None:
         """(scan, wall ns, monotonic ns, lossy) of the last write, or None if the writer
         kept writing; scan -1 before the first write. The header only, under the counter
         alone (no checksum: the cheap poll of whether the scan advanced, 4 times a
         sample; ``read`` then checks the whole copy, ``age_s`` its own)."""
+        got = self._consistent(lambda mm: STAMP.unpack_from(mm, STAMP_AT),
+                               lambda _before, _stamp: True)
+        if got is None:
+            return None
+        before, stamp = got
+        return stamp if before else (-1, 0, 0, 0)
+
+    def _consistent(self, take: Callable[[mmap.mmap], T],
+                    sound: Callable[[int, T], bool]) -> tuple[int, T] | None:
+        """(the counter, what ``take`` read of the file) under the seqlock: the counter
+        even and unchanged around it, and ``sound(counter, what was read)``; None after
+        RETRIES tries (the writer kept writing)."""
         mm = self._mm
         for _ in range(RETRIES):
             before = SEQ.unpack_from(mm, SEQ_AT)[0]
             if before & 1:
                 time.sleep(0)
                 continue
-            got: tuple[int, int, int, int] = STAMP.unpack_from(mm, STAMP_AT)
-            if SEQ.unpack_from(mm, SEQ_AT)[0] == before:
-                return got if before else (-1, 0, 0, 0)
+            got = take(mm)
+            if SEQ.unpack_from(mm, SEQ_AT)[0] != before:
+                continue
+            if sound(before, got):
+                return before, got
+            time.sleep(0)
         return None
 
     def decode(self, data: bytes) -> tuple[int, float, list[Any]]:
