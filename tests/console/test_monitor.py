@@ -7,6 +7,7 @@ import fcntl
 import os
 import re
 import select
+import signal
 import struct
 import subprocess
 import sys
@@ -161,7 +162,14 @@ def test_monitor_once_from_the_command_line(rig: Rig, capsys: pytest.CaptureFixt
 
 
 def _take_terminal() -> None:
+    """In the child, before exec: the pty becomes its controlling terminal, and the
+    signals a terminal sends get their default actions, as a terminal emulator starts
+    its program. A suite launched in the background by a script (``.ci/run &``) ignores
+    SIGINT and SIGQUIT, every child inherits that, and Ctrl-C typed to the monitor was
+    then a signal ignored: nothing happened."""
     fcntl.ioctl(0, termios.TIOCSCTTY, 0)
+    for sig in (signal.SIGINT, signal.SIGQUIT, signal.SIGTSTP):
+        signal.signal(sig, signal.SIG_DFL)
 
 
 class Pty:
