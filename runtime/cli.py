@@ -259,17 +259,11 @@ def _missing_extra(exc: ImportError, extra: str) -> ImportError:
 
 
 def _until_signal(serve: Callable[[Any], Awaitable[None]]) -> None:
-    """``serve(stop)`` in an event loop until SIGTERM, SIGINT or SIGHUP sets ``stop``."""
-    import asyncio
-    import signal
+    """``serve(stop)`` until SIGTERM, SIGINT or SIGHUP sets ``stop``, then ended within
+    a bound (runtime/controller/aio.py)."""
+    from runtime.controller.aio import run_until_signal
 
-    async def main() -> None:
-        stop = asyncio.Event()
-        loop = asyncio.get_running_loop()
-        for s in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
-            loop.add_signal_handler(s, stop.set)
-        await serve(stop)
-    asyncio.run(main())
+    run_until_signal(serve)
 
 
 def cmd_opcua(args: argparse.Namespace) -> int:

@@ -43,6 +43,7 @@ import logging
 from collections.abc import Awaitable, Callable
 from typing import Any, TypeVar
 
+from runtime.controller.aio import within
 from runtime.controller.feed import FeedState, request_line, why_request
 from runtime.controller.image import ImageError, ImageReader
 from runtime.errors import Loc, SoftplcError, SourceError
@@ -276,7 +277,7 @@ class FeedClient:
         self._pending[ident] = fut
         try:
             writer.write(request_line(kind, ident, *args))
-            answer = await asyncio.wait_for(fut, timeout)
+            answer = await within(fut, timeout)
         finally:
             self._pending.pop(ident, None)
         image = self.image
@@ -340,7 +341,7 @@ class FeedClient:
 
     async def _wait(self, seconds: float) -> None:
         try:
-            await asyncio.wait_for(self._stop.wait(), seconds)
+            await within(self._stop.wait(), seconds)
         except TimeoutError:
             pass
 

@@ -53,6 +53,7 @@ from drivers.modbus_frame import (
     read_reply,
     write_reply,
 )
+from runtime.controller.aio import within
 from runtime.controller.feedclient import FeedClient, FeedLost
 from runtime.language import ast as A
 from runtime.language.modbusconf import name_type
@@ -325,7 +326,7 @@ class ModbusServer:
         transport = writer.transport
         while True:
             try:
-                header = await asyncio.wait_for(reader.readexactly(MBAP_SIZE), idle)
+                header = await within(reader.readexactly(MBAP_SIZE), idle)
             except TimeoutError:
                 log.info("modbus: %s idle for %g s: closed", c.who, idle)
                 return "idle"
@@ -345,7 +346,7 @@ class ModbusServer:
                             length + 1, MAX_PDU + 1)
                 return "a length that lies"
             try:
-                pdu = await asyncio.wait_for(reader.readexactly(length), FRAME_TIMEOUT_S)
+                pdu = await within(reader.readexactly(length), FRAME_TIMEOUT_S)
             except (TimeoutError, asyncio.IncompleteReadError):
                 log.warning("modbus: %s: a frame of %d bytes announced, not sent within "
                             "%g s: closed", c.who, length, FRAME_TIMEOUT_S)
@@ -357,7 +358,7 @@ class ModbusServer:
             writer.write(mbap_frame(tid, unit, reply))
             if transport.get_write_buffer_size() > WRITE_HIGH:
                 try:
-                    await asyncio.wait_for(writer.drain(), SEND_TIMEOUT_S)
+                    await within(writer.drain(), SEND_TIMEOUT_S)
                 except TimeoutError:
                     log.warning("modbus: %s reads no replies (%d bytes waiting for %g s): "
                                 "dropped", c.who, transport.get_write_buffer_size(),

@@ -54,6 +54,7 @@ from typing import Any
 
 import aiomqtt
 
+from runtime.controller.aio import NO_TIMEOUT, within
 from runtime.controller.feedclient import FeedClient, FeedLost
 from runtime.errors import SoftplcError
 from runtime.language.iolist import IOList
@@ -263,7 +264,7 @@ class EdgeSession:
                 self.host_online = False
                 # each broker holds its own STATE: this session reads it afresh
                 self._state_ts, self._state_ahead = -1, None
-            await client.subscribe(subs)
+            await within(client.subscribe(subs, timeout=NO_TIMEOUT), CONNECT_TIMEOUT_S)
             self.connected.set()
             if self.host_online:
                 self.send(self.node.start_publishing())
@@ -297,15 +298,19 @@ class EdgeSession:
         death = self.node.death()
         handed = self._handed
         if not wait:
-            with contextlib.suppress(aiomqtt.MqttError):
-                await client.publish(death.topic, death.payload, qos=1, timeout=0.01)
+            with contextlib.suppress(aiomqtt.MqttError, TimeoutError):
+                await within(client.publish(death.topic, death.payload, qos=1,
+                                            timeout=NO_TIMEOUT), 0.01)
             log.info("mqtt: NDEATH sent to a broker that does not answer (bdSeq %d)",
                      self.node.bdseq)
             return
         try:
-            await client.publish(death.topic, death.payload, qos=1, timeout=DEATH_TIMEOUT_S)
+            await within(client.publish(death.topic, death.payload, qos=1,
+                                        timeout=NO_TIMEOUT), DEATH_TIMEOUT_S)
             log.info("mqtt: NDEATH published (bdSeq %d)", self.node.bdseq)
             self._confirm(handed)
+        except TimeoutError:
+            log.warning("mqtt: NDEATH not published: no PUBACK in %g s", DEATH_TIMEOUT_S)
         except aiomqtt.MqttError as exc:
             log.warning("mqtt: NDEATH not published: %s", exc)
 
@@ -317,7 +322,8 @@ class EdgeSession:
             if self.outbox.qsize() > OUTBOX_MAX:
                 raise SessionEnded(f"{self.outbox.qsize()} messages waiting: the broker does "
                                    "not keep up")
-            await client.publish(m.topic, m.payload, qos=m.qos, retain=m.retain)
+            await within(client.publish(m.topic, m.payload, qos=m.qos, retain=m.retain,
+                                        timeout=NO_TIMEOUT), CONNECT_TIMEOUT_S)
             self.published += 1
             if place:
                 self._handed = place
@@ -349,17 +355,15 @@ class EdgeSession:
                 continue
             handed = self._handed
             try:
-                await client.unsubscribe(probe, timeout=self.stall_s)
-            except aiomqtt.MqttCodeError:
-                raise  # the connection is gone: the session ends as on any such error
-            except aiomqtt.MqttError:  # no answer in time
+                await within(client.unsubscribe(probe, timeout=NO_TIMEOUT), self.stall_s)
+            except TimeoutError:  # no answer in time
                 raise BrokerStalled(f"the broker did not answer for {self.stall_s:g} s"
                                     ) from None
             self._confirm(handed)
 
     async def _wait(self, seconds: float) -> None:
         try:
-            await asyncio.wait_for(self._stop.wait(), seconds)
+            await within(self._stop.wait(), seconds)
         except TimeoutError:
             pass
 
@@ -530,7 +534,7 @@ async def serve(pdef: PlantDef, feed: str | None = None,
     stopping.cancel()
     es.stop()
     try:
-        await asyncio.wait_for(task, STOP_TIMEOUT_S)
+        await within(task, STOP_TIMEOUT_S)
     except TimeoutError:
         # the process ends anyway: without a clean DISCONNECT the broker sends the Will
         log.warning("mqtt: not stopped in %g s (NDEATH and DISCONNECT not done): leaving "

@@ -21,6 +21,7 @@ import re
 from collections.abc import Callable
 from typing import Any
 
+from runtime.controller.aio import within
 from runtime.errors import SoftplcError
 
 log = logging.getLogger(__name__)
@@ -60,7 +61,7 @@ class ConsoleLink:
                    ended: Callable[[str], None]) -> ConsoleLink:
         """Connect to the console socket ``path`` and act for ``user`` at ``address``."""
         try:
-            reader, writer = await asyncio.wait_for(
+            reader, writer = await within(
                 asyncio.open_unix_connection(path, limit=LINE_MAX), REPLY_TIMEOUT_S)
         except (OSError, TimeoutError) as exc:
             raise ConsoleUnavailable(f"the controller's console {path}: "
@@ -85,7 +86,7 @@ class ConsoleLink:
             self._reply = fut
             self._writer.write(line.encode() + b"\n")
             try:
-                reply = await asyncio.wait_for(fut, REPLY_TIMEOUT_S)
+                reply = await within(fut, REPLY_TIMEOUT_S)
             except TimeoutError:
                 raise ConsoleUnavailable("the console did not answer in time") from None
             finally:

@@ -45,6 +45,7 @@ from typing import Any
 
 from aiohttp import WSMsgType, web
 
+from runtime.controller.aio import within
 from runtime.controller.feedclient import FeedClient
 from runtime.controller.pin import BUSY, HELD, OK, Passwords
 from runtime.language.coverage import ChartCoverage
@@ -290,7 +291,7 @@ class WebView:
         if request.content_type != "application/json":
             raise web.HTTPUnsupportedMediaType(text="expected application/json")
         try:
-            body = loads(await asyncio.wait_for(request.read(), HEADER_TIMEOUT_S))
+            body = loads(await within(request.read(), HEADER_TIMEOUT_S))
         except TimeoutError:
             raise web.HTTPRequestTimeout(text="the request's body did not come") from None
         except ValueError:
@@ -429,7 +430,7 @@ class WebView:
         try:
             while True:
                 _keep, text = await page.queue.get()
-                await asyncio.wait_for(page.ws.send_str(text), SEND_TIMEOUT_S)
+                await within(page.ws.send_str(text), SEND_TIMEOUT_S)
         except TimeoutError:
             # a close frame would wait behind what it does not read: the connection ends
             log.warning("web: the page of %s did not read for %g s: closed", page.address,
