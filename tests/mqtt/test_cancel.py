@@ -42,8 +42,9 @@ def test_the_broker_watch_ends_when_cancelled_as_its_probe_is_answered(
             async with aiomqtt.Client("127.0.0.1", broker.port, identifier="t-cancel") as c:
                 es._handed = 1  # a data message handed and not yet confirmed: it probes
                 watch = asyncio.ensure_future(es._watch(c))
-                answered = []
+                answered: list[int] = []
                 taken = c._client.on_unsubscribe
+                assert taken is not None  # aiomqtt's own: it sets the confirmation
 
                 def on_unsubscribe(*args: Any) -> None:
                     taken(*args)  # the probe's confirmation set...
