@@ -20,12 +20,14 @@ from operator import call, itemgetter, ne
 from typing import TYPE_CHECKING, Any, Literal
 
 from runtime.console.protocol import STREAM_LINES_PER_POLL, STREAM_SCANS
-from runtime.engine.names import Catalogue, Image, Signal, same
+from runtime.engine.names import Catalogue, Image, Signal
 
 if TYPE_CHECKING:
     from runtime.console.service import Controller
 
 StreamKind = Literal["watch", "trace"]
+#: the texts of (name, value) pairs a stream keeps for its lines, at most (then cleared)
+PARTS_KEPT = 20_000
 
 
 def logical_value(raw: Any, inverted: bool) -> int:
@@ -192,6 +194,11 @@ class Stream:
         self.unshown = 0
         #: which names an image changed (a line on every change)
         self.changes = Changes(names)
+        self._texts = [n.text for n in names]
+        #: (name, value) -> its text in a line (not for floats: 1.0 == 1 == True, a
+        #: name's ints and bools show the same text, ``Signal.show``)
+        self._shown: dict[tuple[str, Any], str] = {}
+        self._reads = [n.read for n in names]
 
     def begin(self, ctl: Controller) -> None:
         """Scan thread: the values when the stream starts, and the cycle count then."""
@@ -229,18 +236,18 @@ class Stream:
         # an even number of scans later). Only the names whose raw values changed are
         # read (Changes); a value the same as the one shown (a NaN still a NaN) is no
         # change.
-        names, last = self.names, self.last
+        texts, reads, last = self._texts, self._reads, self.last
         for img in images[-STREAM_LINES_PER_POLL:]:
             if self.last_scan is not None:
                 self.unshown += max(0, img.scan - self.last_scan - 1)
             self.last_scan = img.scan
             changed: dict[str, Any] = {}
             for p in self.changes.changed(img):
-                n = names[p]
-                v = n.read(img)
-                if not same(last[n.text], v):
-                    changed[n.text] = v
-                last[n.text] = v
+                t = texts[p]
+                v, was = reads[p](img), last[t]
+                if was != v and (was == was or v == v):  # not same(was, v), inlined
+                    changed[t] = v
+                last[t] = v
             if not changed:
                 continue
             if self.kind == "trace":
@@ -266,11 +273,19 @@ class Stream:
             if skipped:
                 obj["skipped"] = skipped
             return json.dumps(obj, ensure_ascii=False)
+        shown = self._shown if kind == self.kind else {}
+        if len(shown) > PARTS_KEPT:  # a counter counting: its old texts go
+            shown.clear()
         parts = []
         for k, v in values.items():
-            part = f"{k}={names[k].show(v)}"
-            if kind == "watch" and names[k].feeds:
-                part += " (" + feeds_text(names[k], v) + ")"
+            kept = type(v) is not float  # 1.0 == 1 == True: a float is never kept
+            part = shown.get((k, v)) if kept else None
+            if part is None:
+                part = f"{k}={names[k].show(v)}"
+                if kind == "watch" and names[k].feeds:
+                    part += " (" + feeds_text(names[k], v) + ")"
+                if kept:
+                    shown[k, v] = part
             parts.append(part)
         head = kind + (f" {scan}" if scan >= 0 else "")
         if skipped:

@@ -152,3 +152,20 @@ def test_a_nan_that_stays_a_nan_is_no_change() -> None:
         stream.images.extend(Image(scan, [[same_nan]], [], [], [])  # type: ignore[list-item]
                              for scan in range(6, 9))
         assert stream.poll(lambda: 0.0, False) == []
+
+
+def test_a_value_is_shown_as_itself_whatever_was_shown_before() -> None:
+    """A stream keeps the text of each (name, value) it has shown; a float equal to an
+    int shown before (1.0 == 1) is shown as the float, a bool and an int as the name
+    shows them."""
+    x = Signal("p.rX", A.Type.REAL, lambda img: img.m[0][0], "memory", spec=("slot", 0, 0))
+    b = Signal("p.b", A.Type.BOOL, lambda img: img.m[0][1], "memory", spec=("slot", 0, 1))
+    cat = SimpleNamespace(names={"p.rX": x, "p.b": b})
+    stream = Stream("trace", [x, b], cat)  # type: ignore[arg-type]
+    stream.images.append(Image(-1, [[0, False]], [], [], []))  # type: ignore[list-item]
+    stream.last_scan = 0
+    for scan, m in enumerate([[1, True], [2.5, 0], [1.0, 1], [2, False], [1.0, True]], 1):
+        stream.images.append(Image(scan, [m], [], [], []))  # type: ignore[list-item]
+    assert stream.poll(lambda: 0.0, False) == [
+        "trace 1: p.rX=1  p.b=1", "trace 2: p.rX=2.5  p.b=0", "trace 3: p.rX=1.0  p.b=1",
+        "trace 4: p.rX=2  p.b=0", "trace 5: p.rX=1.0  p.b=1"]
