@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 from runtime.console.protocol import LOCKOUT_MAX_S, LOCKOUT_MIN_S, MAX_PIN_TRIES, Reply
+from runtime.console.streams import StreamTap
 from runtime.controller.pin import check_pin
 from runtime.engine.names import Catalogue, CommandError
 from runtime.engine.plant import Plant
@@ -108,6 +109,8 @@ class ConsoleService:
                  limits: ConsoleLimits | None = None) -> None:
         self.controller = controller
         self.catalogue = Catalogue(controller.plant)
+        #: the images of the sessions' streams: one copy per scan for all of them
+        self.tap = StreamTap(controller)
         self.pin_hash = pin_hash
         #: counts the PIN changes (an online change of ``pin_hash``): a session unlocked
         #: with an older PIN is locked again

@@ -83,7 +83,6 @@ class Session:
         self.json = False
         self.stream: Stream | None = None
         self._framer = LineFramer(name, service.clock)
-        self._listening = False
         #: the plant the running command acts on: read when the command starts, checked
         #: again in the scan thread by ``call`` (an online change may replace it meanwhile)
         self.plant: Plant = self.ctl.plant
@@ -232,23 +231,15 @@ class Session:
     # -- streams -----------------------------------------------------------------------
     def start_stream(self, stream: Stream) -> None:
         """Show ``stream`` from now until the next line."""
+        self._stop_stream()
         self.stream = stream
         self.ctl.call(lambda: stream.begin(self.ctl))
-        if not self._listening:
-            self.ctl.add_listener(self._on_scan)
-            self._listening = True
+        self.service.tap.add(stream)
 
     def _stop_stream(self) -> None:
-        self.stream = None
-        if self._listening:
-            self._listening = False
-            self.ctl.remove_listener(self._on_scan)
-
-    def _on_scan(self, scan: int) -> None:
-        """Scan thread, after each cycle: copy the image, nothing more."""
-        stream = self.stream
+        stream, self.stream = self.stream, None
         if stream is not None:
-            stream.capture(scan)
+            self.service.tap.remove(stream)
 
     def poll(self) -> list[str]:
         """Lines due now: notices (time limits, relock) and streamed lines (watch,

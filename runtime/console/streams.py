@@ -1,23 +1,33 @@
-"""The console's streams (``watch``, ``trace``): the images the scan thread queues for a
-stream, and the code that turns them into watch/trace lines.
+"""The console's streams (``watch``, ``trace``): the images the scan thread queues for
+them, and the code that turns them into watch/trace lines.
 
-The scan thread only copies the process image after each cycle (``Stream.capture``, a few
-list copies); the diffing and formatting happen in the session's own thread
-(``Stream.poll``), a few times a second.
+The scan thread copies the process image once after each cycle while any stream runs,
+whatever their number (``StreamTap``: one ``Catalogue.capture``, queued for every stream);
+the diffing and formatting happen in each session's own thread (``Stream.poll``), a few
+times a second. A poll reads a name only where the raw values it is read from changed
+(``Changes``: one list compare per image, then one per instance and driver list that
+differs), so its work follows what changed, not the number of names.
 """
 
 from __future__ import annotations
 
 import json
+import threading
 from collections import deque
-from collections.abc import Callable
-from typing import Any, Literal
+from collections.abc import Callable, Sequence
+from itertools import chain, compress
+from operator import call, itemgetter, ne
+from typing import TYPE_CHECKING, Any, Literal
 
 from runtime.console.protocol import STREAM_LINES_PER_POLL, STREAM_SCANS
-from runtime.console.service import Controller
 from runtime.engine.names import Catalogue, Image, Signal
 
+if TYPE_CHECKING:
+    from runtime.console.service import Controller
+
 StreamKind = Literal["watch", "trace"]
+#: the texts of (name, value) pairs a stream keeps for its lines, at most (then cleared)
+PARTS_KEPT = 20_000
 
 
 def logical_value(raw: Any, inverted: bool) -> int:
@@ -32,10 +42,140 @@ def feeds_text(signal: Signal, raw: Any) -> str:
                      for sig, inv in signal.feeds)
 
 
+def _getter(slots: Sequence[int]) -> Callable[[Sequence[Any]], tuple[Any, ...]]:
+    """A C-level getter of ``slots`` of a list, as a tuple (``itemgetter`` for two or
+    more)."""
+    if len(slots) == 1:
+        i = slots[0]
+        return lambda xs: (xs[i],)
+    return itemgetter(*slots)
+
+
+def _picked(lists: Callable[[Image], Sequence[Any]],
+            pick: Callable[[Sequence[Any]], tuple[Any, ...]]
+            ) -> Callable[[Image], Sequence[Any]]:
+    """The lists of an image's part (``img.m``...) that ``pick`` takes."""
+    return lambda img: pick(lists(img))
+
+
+class Changes:
+    """Which of a stream's names an image may have changed since the last image seen.
+
+    Each name is traced to the raw values it is read from (``Signal.raw``): the slots of
+    an instance's state list, the positions of a driver's value lists, a driver's
+    health. An image's raw values are picked by C-level getters, one tuple per instance
+    and driver list, and compared as one list with the last image's: equal, nothing to
+    read; else only the tuples that differ are compared slot by slot, and only the
+    names of the slots that differ are read. The work per image follows the number of
+    instances and drivers and what changed, not the number of names. A name that cannot
+    be traced to slots (a step time) is among the changed at every image."""
+
+    def __init__(self, names: Sequence[Signal]) -> None:
+        found: dict[tuple[str, int], dict[int, list[int]]] = {}
+        #: positions in ``names`` read at every image
+        self.volatile: list[int] = []
+        for p, n in enumerate(names):
+            raw = n.raw()
+            if raw is None:
+                self.volatile.append(p)
+                continue
+            for source, slot in raw:
+                found.setdefault(source, {}).setdefault(slot, []).append(p)
+        #: per part of an image: its lists of the names' sources, their slot getters
+        self._parts: list[tuple[Callable[[Image], Sequence[Any]],
+                                list[Callable[[Sequence[Any]], tuple[Any, ...]]]]] = []
+        #: per source, in the order of the raw list: per slot, the names read from it
+        self._names_at: list[list[list[int]]] = []
+        parts: dict[str, Callable[[Image], Sequence[Any]]] = {
+            "m": lambda img: img.m, "in": lambda img: img.inputs,
+            "out": lambda img: img.outputs, "ok": lambda img: (img.ok,)}
+        for part, lists in parts.items():
+            ks = sorted(k for p, k in found if p == part)
+            if not ks:
+                continue
+            getters = []
+            for k in ks:
+                slots = sorted(found[part, k])
+                getters.append(_getter(slots))
+                self._names_at.append([found[part, k][s] for s in slots])
+            self._parts.append((lists if part == "ok" else _picked(lists, _getter(ks)),
+                                getters))
+        self._seen: list[tuple[Any, ...]] = []
+
+    def _raw(self, img: Image) -> list[tuple[Any, ...]]:
+        return list(chain.from_iterable(map(call, getters, lists(img))
+                                        for lists, getters in self._parts))
+
+    def start(self, img: Image) -> None:
+        """``img`` is the image whose values are shown: changes count from it."""
+        self._seen = self._raw(img)
+
+    def changed(self, img: Image) -> list[int]:
+        """The positions (ascending) of the names whose raw values differ in ``img`` from
+        the last image seen, and the volatile names; ``img`` is then the last seen."""
+        now, seen = self._raw(img), self._seen
+        self._seen = now
+        if now == seen:
+            return self.volatile
+        found: list[int] = []
+        names_at = self._names_at
+        for s in compress(range(len(now)), map(ne, now, seen)):
+            a, at = now[s], names_at[s]
+            for k in compress(range(len(a)), map(ne, a, seen[s])):
+                found += at[k]
+        if len(found) > 1 or self.volatile:
+            return sorted({*found, *self.volatile})
+        return found
+
+
+class StreamTap:
+    """The scan thread's side of the running streams of a console service: after each
+    cycle one copy of the image (``Catalogue.capture``) queued for every stream, which
+    only read it; the cost per scan does not grow with the number of streams. Its
+    listener is registered while a stream runs."""
+
+    def __init__(self, ctl: Controller) -> None:
+        self.ctl = ctl
+        self.streams: tuple[Stream, ...] = ()
+        self._lock = threading.Lock()
+
+    def add(self, stream: Stream) -> None:
+        """Queue an image for ``stream`` after each cycle from now (any thread)."""
+        with self._lock:
+            if not self.streams:
+                self.ctl.add_listener(self.on_scan)
+            self.streams = (*self.streams, stream)
+
+    def remove(self, stream: Stream) -> None:
+        """No image more for ``stream`` (any thread; nothing if it had none)."""
+        with self._lock:
+            if stream not in self.streams:
+                return
+            self.streams = tuple(s for s in self.streams if s is not stream)
+            if not self.streams:
+                self.ctl.remove_listener(self.on_scan)
+
+    def on_scan(self, scan: int) -> None:
+        """Scan thread, after each cycle: one capture per catalogue (one but while a
+        reload ends the streams of the replaced plant), queued for every stream."""
+        streams = self.streams
+        if len(streams) == 1:
+            stream = streams[0]
+            stream.images.append(stream.catalogue.capture(scan))
+            return
+        captured: dict[Catalogue, Image] = {}
+        for stream in streams:
+            img = captured.get(stream.catalogue)
+            if img is None:
+                img = captured[stream.catalogue] = stream.catalogue.capture(scan)
+            stream.images.append(img)
+
+
 class Stream:
     """A running watch or trace: what it shows, where it stands, and the images queued
     for it since the last poll (at most STREAM_SCANS: older ones are dropped and the gap
-    is reported as scans not shown)."""
+    is reported as scans not shown). The images may be shared with other streams: a
+    stream only reads them."""
 
     def __init__(self, kind: StreamKind, names: list[Signal], catalogue: Catalogue,
                  every_s: float | None = None) -> None:
@@ -52,15 +192,18 @@ class Stream:
         self.images: deque[Image] = deque(maxlen=STREAM_SCANS)
         #: scans not shown (the line too slow) since the last line: said by the next line
         self.unshown = 0
+        #: which names an image changed (a line on every change)
+        self.changes = Changes(names)
+        self._texts = [n.text for n in names]
+        #: (name, value) -> its text in a line (not for floats: 1.0 == 1 == True, a
+        #: name's ints and bools show the same text, ``Signal.show``)
+        self._shown: dict[tuple[str, Any], str] = {}
+        self._reads = [n.read for n in names]
 
     def begin(self, ctl: Controller) -> None:
         """Scan thread: the values when the stream starts, and the cycle count then."""
         self.images.append(self.catalogue.capture(-1))
         self.last_scan = int(ctl.status()["scans"])
-
-    def capture(self, scan: int) -> None:
-        """Scan thread, after each cycle: copy the image, nothing more."""
-        self.images.append(self.catalogue.capture(scan))
 
     def poll(self, clock: Callable[[], float], as_json: bool) -> list[str]:
         """The stream lines due now, from the images queued since the last poll."""
@@ -73,6 +216,7 @@ class Stream:
         if self.last is None:  # the snapshot taken when the stream started
             first = images.pop(0)
             self.last = {n.text: n.read(first) for n in self.names}
+            self.changes.start(first)
             if self.kind == "watch":
                 out.append(self.line("watch", self.last, -1, 0, as_json))
             if self.every_s is not None:
@@ -89,22 +233,28 @@ class Stream:
         # the first image kept is compared with the last one shown: no change is lost,
         # only the cycles in between are not shown one by one; their count goes with the
         # next line (the first image kept may show no change, e.g. a blinking lamp seen
-        # an even number of scans later)
+        # an even number of scans later). Only the names whose raw values changed are
+        # read (Changes); a value the same as the one shown (a NaN still a NaN) is no
+        # change.
+        texts, reads, last = self._texts, self._reads, self.last
         for img in images[-STREAM_LINES_PER_POLL:]:
             if self.last_scan is not None:
                 self.unshown += max(0, img.scan - self.last_scan - 1)
             self.last_scan = img.scan
-            values = {n.text: n.read(img) for n in self.names}
-            last = self.last
+            changed: dict[str, Any] = {}
+            for p in self.changes.changed(img):
+                t = texts[p]
+                v, was = reads[p](img), last[t]
+                if was != v and (was == was or v == v):  # not same(was, v), inlined
+                    changed[t] = v
+                last[t] = v
+            if not changed:
+                continue
             if self.kind == "trace":
-                changed = {k: v for k, v in values.items() if last.get(k) != v}
-                if changed:
-                    out.append(self.line("trace", changed, img.scan, self.unshown, as_json))
-                    self.unshown = 0
-            elif values != last:
-                out.append(self.line("watch", values, img.scan, self.unshown, as_json))
-                self.unshown = 0
-            self.last = values
+                out.append(self.line("trace", changed, img.scan, self.unshown, as_json))
+            else:
+                out.append(self.line("watch", last, img.scan, self.unshown, as_json))
+            self.unshown = 0
         return out
 
     def line(self, kind: StreamKind, values: dict[str, Any], scan: int, skipped: int,
@@ -123,11 +273,19 @@ class Stream:
             if skipped:
                 obj["skipped"] = skipped
             return json.dumps(obj, ensure_ascii=False)
+        shown = self._shown if kind == self.kind else {}
+        if len(shown) > PARTS_KEPT:  # a counter counting: its old texts go
+            shown.clear()
         parts = []
         for k, v in values.items():
-            part = f"{k}={names[k].show(v)}"
-            if kind == "watch" and names[k].feeds:
-                part += " (" + feeds_text(names[k], v) + ")"
+            kept = type(v) is not float  # 1.0 == 1 == True: a float is never kept
+            part = shown.get((k, v)) if kept else None
+            if part is None:
+                part = f"{k}={names[k].show(v)}"
+                if kind == "watch" and names[k].feeds:
+                    part += " (" + feeds_text(names[k], v) + ")"
+                if kept:
+                    shown[k, v] = part
             parts.append(part)
         head = kind + (f" {scan}" if scan >= 0 else "")
         if skipped:

@@ -173,6 +173,26 @@ class Signal:
     #: position in an Image, j a driver's, idx/x/ct/t0/tk slots of ``img.m[i]``
     spec: tuple[Any, ...] = ()
 
+    def raw(self) -> list[tuple[tuple[str, int], int]] | None:
+        """Where ``read`` takes its raw values from in an Image, from ``spec``: each as
+        ((part, k), slot), part ``"m"`` (``img.m[k]``), ``"in"`` / ``"out"`` (driver
+        ``k``'s input / output values) or ``"ok"`` (``img.ok``, k 0). None when it
+        cannot be said by slots: a step time (the chart clock it is computed from
+        changes every scan), a name without ``spec``."""
+        spec = self.spec
+        kind = spec[0] if spec else None
+        if kind == "slot":
+            return [(("m", spec[1]), spec[2])]
+        if kind == "current":
+            return [(("m", spec[1]), x) for _, x in spec[2]]
+        if kind == "point":
+            return [((spec[1], spec[2]), spec[3])]
+        if kind == "applied":
+            return [(("out", spec[1]), spec[2])]
+        if kind == "ok":
+            return [(("ok", 0), spec[1])]
+        return None
+
     def show(self, value: Any) -> str:
         """The value as a person reads it: bools 0/1, times rounded to ms."""
         if self.type is A.Type.TIME and isinstance(value, int):

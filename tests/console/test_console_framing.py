@@ -95,7 +95,8 @@ def test_ctrl_c_drops_the_half_line_and_stops_a_stream(rig: Rig) -> None:
     lines = s.until(lambda x: x == "ok")
     assert "state running" in lines
     (session,) = rig.server.sessions
-    assert session.stream is None and session._on_scan not in rig.daemon._listeners
+    assert session.stream is None and rig.service.tap.streams == ()
+    assert rig.service.tap.on_scan not in rig.daemon._listeners
 
 
 def test_a_half_line_is_dropped_after_its_timeout(rigs: Callable[..., Rig]) -> None:
