@@ -49,6 +49,12 @@ _WORD = re.compile(r"[A-Za-z_]\w*")
 #: the fast path's first line: the chart clock, its base's distance to now (the plant's
 #: inlined scans share it between the instances of one base, inline.py)
 FAST_CLOCK = "ct = now - cb"
+#: make's first line, which does nothing: it ends the first basic block of make's code
+#: before the unpacking of the slots. CPython's compiler (3.11 to 3.13) inserts one
+#: MAKE_CELL per cell at the start of that block, moving what the block holds each time:
+#: with the unpacking of n slots in it, O(n²) (``compile()`` of a 4000-step chart's scan:
+#: 10.3 billion machine instructions before, 3.8 with this line; docs/check.md, "Speed")
+CELLS_BLOCK = "if m is not None: pass  # ends the first block: the cells' prologue in O(n)"
 
 
 class Compiler:
@@ -92,6 +98,7 @@ class Compiler:
                 f"# scan model: {g.scan.value}; {len(self.evolution.leaf)} steps, "
                 f"{len(g.transitions)} transitions, {len(self.state.slots)} state slots",
                 "def make(m, init):",
+                f"    {CELLS_BLOCK}",
                 f"    {locals_}, = init",
                 "    slow = True  # a chart flag or an outside write may be pending",
                 f"    def scan(now, up{params}):",
