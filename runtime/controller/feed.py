@@ -152,7 +152,9 @@ class _Client:
     inbuf: bytearray = field(default_factory=bytearray)
     #: the next frame it gets is a whole one (it has none yet)
     fresh: bool = True
-    status: dict[str, Any] | None = None
+    #: the status line it was last sent (``FeedServer._status_line``: the very bytes
+    #: object every client shares, compared by identity)
+    status: bytes | None = None
     #: its writes and method calls handed to the scan thread, oldest first: (id, the
     #: call, its place in the call's results, monotonic deadline, the text of its
     #: answer); answered in this order
@@ -213,6 +215,14 @@ class FeedServer:
         self._schema_line = b""
         self._stats: dict[str, Any] = {}
         self._stats_at = 0
+        #: one more each time the lateness percentiles or the alarms differ (the status's
+        #: key: ``_status_of``)
+        self._stats_changes = 0
+        self._alarms_changes = 0
+        #: the status line now (encoded once per change, shared by every client) and the
+        #: key of what it says
+        self._status_line = b""
+        self._status_key: tuple[Any, ...] | None = None
         #: the alarms (AlarmBoard.as_list) as of the board's version
         self._alarms: list[dict[str, Any]] = []
         self._alarms_version = -1
@@ -612,7 +622,7 @@ class FeedServer:
             delta = _line({"d": [scan, wall, changes]})
         whole = None
         explained: dict[str, Any] = {}
-        status = self._status(live)
+        status = self._status_of(live)
         self.frames += 1
         for c in self._clients:
             # a client of the image that has not taken what it was sent (its event loop
@@ -620,9 +630,9 @@ class FeedServer:
             # and transitions once it has, not every one meanwhile: they are states, not
             # events, and piling them up would get it dropped for not reading
             behind = c.image and bool(c.out)
-            if status != c.status and not behind:
+            if status is not c.status and not behind:
                 c.status = status
-                self._queue(c, _line({"c": status}))
+                self._queue(c, status)
             if c.why and img is not None and why and not behind:
                 self._queue_why(c, img, live[-1], explained)
             if c.image or not values:
@@ -672,23 +682,45 @@ class FeedServer:
                   for t in sw.transitions]]
                 for sw in explain(prog, img.m[k], up)]
 
-    def _status(self, live: tuple[Any, ...]) -> dict[str, Any]:
-        """The controller's status with a frame: its state, fault, counters and drivers
-        as they were at the frame's scan (``live``, taken with the image); the lateness
-        percentiles (of the last scans, sorted here, every STATS_EVERY_NS) and the uptime
-        as they are now."""
+    def _status_of(self, live: tuple[Any, ...]) -> bytes:
+        """The status line (``{"c": ...}``) with a frame: the same bytes object while what
+        it says is unchanged. Per sample only a key is compared (the frame's state
+        ``live``: a few numbers and one entry per driver, the uptime in whole seconds and
+        the versions of the lateness percentiles and of the alarms); the status is built
+        and encoded once per change, nothing per alarm, name or client."""
         d = self.daemon
         now = time.monotonic_ns()
         if now - self._stats_at >= STATS_EVERY_NS:
             self._stats_at = now
             late = d.scan_stats.lateness().as_dict()
-            self._stats = {k: late[k] for k in ("p50", "p99", "max")}
-        state, fault, overruns, skipped, freezes, drivers, forced, _up = live
+            stats = {k: late[k] for k in ("p50", "p99", "max")}
+            if stats != self._stats:
+                self._stats = stats
+                self._stats_changes += 1
         board = d.alarms
         if board.version != self._alarms_version:
-            self._alarms_version, self._alarms = board.version, board.as_list()
+            self._alarms_version = board.version
+            alarms = board.as_list()
+            if alarms != self._alarms:
+                self._alarms = alarms
+                self._alarms_changes += 1
+        uptime_s = round(d.uptime_s())
+        key = (live[:-1], uptime_s, d.plant.cycle_ns, self._stats_changes,
+               self._alarms_changes)
+        if key != self._status_key:
+            self._status_key = key
+            self._status_line = _line({"c": self._status(live, uptime_s)})
+        return self._status_line
+
+    def _status(self, live: tuple[Any, ...], uptime_s: int) -> dict[str, Any]:
+        """The controller's status: its state, fault, counters and drivers as they were
+        at the frame's scan (``live``, taken with the image); the lateness percentiles (of
+        the last scans, sorted every STATS_EVERY_NS), the alarms and the uptime (whole
+        seconds) as they are now. Built only when its key changed (``_status_of``)."""
+        d = self.daemon
+        state, fault, overruns, skipped, freezes, drivers, forced, _up = live
         return {"state": state, "fault": fault, "overruns": overruns, "skipped": skipped,
-                "freezes": freezes, "uptime_s": round(d.uptime_s()),
+                "freezes": freezes, "uptime_s": uptime_s,
                 "cycle_ms": d.plant.cycle_ns / 1e6, "lateness_us": self._stats,
                 "drivers": drivers, "alarms": self._alarms, "forced": list(forced)}
 
