@@ -26,7 +26,10 @@ and the scan, feed and console threads alone, from /proc/self/task); the feed's 
 its cost per sample: the feed thread's CPU in ``FeedServer._publish`` per frame and the
 scan thread's in ``FeedServer.on_scan`` per snapshot taken, timed with
 ``time.thread_time_ns`` by wrappers this benchmark installs (the runtime has no such
-counter), and the feed's clients dropped for not reading (``FeedServer.dropped``). Per
+counter), the feed thread's whole CPU (its turns, I/O and requests too) per snapshot,
+and the feed's clients dropped for not reading (``FeedServer.dropped``). With
+``--profile``, the functions of the feed thread's ``_publish`` in the observed window,
+per frame (cProfile on the thread's processor time). Per
 side process over the observed window: CPU (utime + stime, percent of one core), resident
 memory, and what its clients received. Clients run at nice 10 as in the other benches. A
 missing mosquitto, or a ``softplc opcua`` not serving within ``--start-s``, is said in one
@@ -111,14 +114,17 @@ class FeedMeter:
     ``FeedServer.on_scan`` (scan thread, per snapshot taken), timed by wrappers installed
     on the instance before it starts (``install``). Without those methods (another
     feed), ``ok`` is False and nothing is timed. With ``profile`` (``--profile``), every
-    ``_publish`` of the observed window runs under ``cProfile`` (feed thread only; its
-    overhead shows in that window's figures: a run for the profile, not for the times)."""
+    ``_publish`` of the observed window runs under ``cProfile`` on the feed thread's
+    processor time (its overhead shows in that window's figures: a run for the profile,
+    not for the times)."""
 
     def __init__(self, profile: bool = False) -> None:
         self.fs: FeedServer | None = None
         self.ok = False
         self.publish_ns = self.publishes = self.scan_ns = self.captures = 0
-        self.profiler = cProfile.Profile() if profile else None
+        # the feed thread's processor time, not the wall clock: its waits for the GIL
+        # (the scan, the console) are not its work
+        self.profiler = cProfile.Profile(time.thread_time) if profile else None
         #: ``_publish`` runs under the profiler (set for the observed window)
         self.profiling = False
         self.profiled = 0
@@ -162,8 +168,8 @@ class FeedMeter:
         stats = pstats.Stats(self.profiler)
         rows = sorted(stats.stats.items(),  # type: ignore[attr-defined]
                       key=lambda kv: -kv[1][2])[:top]
-        out(f"\nfeed thread, _publish profiled over {self.profiled} frames (cProfile: its "
-            "overhead included), per frame:")
+        out(f"\nfeed thread, _publish profiled over {self.profiled} frames (cProfile, the "
+            "thread's processor time, its overhead included), per frame:")
         out("| function | calls/frame | own us/frame | cumulative us/frame |")
         out("|---|---|---|---|")
         for (file, line, fn), (_cc, nc, tt, ct, _callers) in rows:

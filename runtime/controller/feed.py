@@ -88,6 +88,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from drivers.durations import format_ns
+from runtime.compiler.program import Memory
 from runtime.controller.alarms import AlarmRefused
 from runtime.controller.image import ImageWriter, image_path, refuse_foreign
 from runtime.controller.paths import remove_socket, unix_listener
@@ -139,9 +140,10 @@ PENDING_MAX = 8
 
 
 #: the mailbox: (scan, wall seconds, the image's copy or None, the catalogue that took it,
-#: the controller's and drivers' state at that scan, whether the transitions followed are
-#: explained on it)
-_Slot = tuple[int, float, "Image | None", Catalogue, tuple[Any, ...], bool]
+#: the controller's and drivers' state at that scan, and a copy of the state of each
+#: instance some client follows when their transitions are explained on it, else None)
+_Slot = tuple[int, float, "Image | None", Catalogue, tuple[Any, ...],
+              "dict[str, Memory] | None"]
 
 
 @dataclass(slots=True)
@@ -194,10 +196,10 @@ class FeedServer:
         self._image: ImageWriter | None = None
         self._generation = 0
         #: the scan thread copies the image into the mailbox (Catalogue.capture) while a
-        #: client takes frames (every sample), or follows transitions (every WHY_EVERY_NS):
-        #: set by the feed thread
+        #: client takes frames (every sample), and the state of the instances clients
+        #: follow (``_why``, their names; every WHY_EVERY_NS): set by the feed thread
         self._copy = False
-        self._why = False
+        self._why: tuple[str, ...] = ()
         #: scans between two explanations of the transitions followed, and the next one
         self.why_every = max(1, WHY_EVERY_NS // cycle_ns)
         self._why_next = 0
@@ -288,21 +290,30 @@ class FeedServer:
                  for name, drv in d.plant.drivers.items()},
                 d.plant.forced_names() if d.plant.forced or d.plant.forced_points else (),
                 d.plant.last_up)
-        why = False
+        followed = None
         if self._why and n >= self._why_next:
             self._why_next = n + self.why_every
-            why = True
-        self._slot = (n - 1, wall, cat.capture(n - 1) if self._copy or why else None, cat,
-                      live, why)
+            followed = self._copy_followed(cat, self._why)
+        self._slot = (n - 1, wall, cat.capture(n - 1) if self._copy else None, cat, live,
+                      followed)
         # the shared image last: never older than the copy and the state beside it (a
         # safe state written by another thread meanwhile, a halt, shows in both)
         if image is not None and image.plant is d.plant:
             image.write(n - 1, int(wall * 1e9))
 
+    @staticmethod
+    def _copy_followed(cat: Catalogue, names: tuple[str, ...]) -> dict[str, Memory]:
+        """Scan thread: a copy of the state of each instance in ``names`` (the instances
+        clients follow: at most MAX_WHY a client), nothing of the others."""
+        insts = cat.plant.instances
+        return {name: insts[name].m[:] for name in names if name in insts}
+
     # -- the feed thread ------------------------------------------------------------
     def _run(self) -> None:
         try:
             while not self._stop.is_set():
+                if not self._clients:
+                    self._idle()
                 closes = self.window.until()
                 if self._stop.is_set():
                     break
@@ -326,6 +337,13 @@ class FeedServer:
                 self._drop(c, "the feed failed")
             if self._sock is not None:
                 self._sock.close()
+
+    def _idle(self) -> None:
+        """No client: wait for a connection (the listening socket alone is registered) or
+        POLL_S, not for every scan: a feed nobody reads costs nothing per sample. The
+        connection is accepted in the next scan window (``_io``)."""
+        assert self._sel is not None
+        self._sel.select(POLL_S)
 
     def _reload(self) -> None:
         self._replaced = False
@@ -597,14 +615,15 @@ class FeedServer:
     def _wanted(self) -> None:
         """What the scan thread must copy for the clients (``_copy``, ``_why``)."""
         self._copy = any(not c.image for c in self._clients)
-        self._why = any(c.why for c in self._clients)
+        self._why = tuple(dict.fromkeys(n for c in self._clients for n in c.why))
 
     def _publish(self, scan: int, wall: float, img: Image | None, live: tuple[Any, ...],
-                 why: bool = True) -> None:
+                 followed: dict[str, Memory] | None = None) -> None:
         """One frame to every client that takes frames: whole to new ones, the changes to
         the others; the status to all. The names are read only while a client takes
         frames (the others read the shared image in their own process); the transitions
-        followed are explained when ``why`` (every WHY_EVERY_NS) on the copy ``img``."""
+        followed are explained on ``followed`` (the copies of the followed instances'
+        state, every WHY_EVERY_NS; None between)."""
         self._wanted()
         if img is None or all(c.image for c in self._clients):
             values: list[Any] = []
@@ -633,8 +652,8 @@ class FeedServer:
             if status is not c.status and not behind:
                 c.status = status
                 self._queue(c, status)
-            if c.why and img is not None and why and not behind:
-                self._queue_why(c, img, live[-1], explained)
+            if c.why and followed is not None and not behind:
+                self._queue_why(c, followed, live[-1], explained)
             if c.image or not values:
                 continue
             if c.fresh or delta is None:
@@ -656,31 +675,35 @@ class FeedServer:
         c.whys = {}
         self._wanted()
 
-    def _queue_why(self, c: _Client, img: Image, up: int, explained: dict[str, Any]) -> None:
+    def _queue_why(self, c: _Client, followed: dict[str, Memory], up: int,
+                   explained: dict[str, Any]) -> None:
         """The explanations of ``c``'s instances that changed since it was last sent them,
-        each computed once per frame (``explained``) on the frame's copy of the state."""
+        each computed once per frame (``explained``) on the copy of its state (an
+        instance followed since the copy was taken: at the next one)."""
         changed: dict[str, Any] = {}
         for name in c.why:
             why = explained.get(name)
             if why is None:
-                why = explained[name] = self._explain(name, img, up)
+                m = followed.get(name)
+                if m is None:
+                    continue
+                why = explained[name] = self._explain(name, m, up)
             if c.whys.get(name) != why:
                 c.whys[name] = why
                 changed[name] = why
         if changed:
             self._queue(c, _line({"w": changed}))
 
-    def _explain(self, name: str, img: Image, up: int) -> list[Any]:
-        """``Instance.explain`` of instance ``name`` on the frame's state copy (feed thread:
-        never in the scan's), as plain lists: [step, T ns, [[transition index, condition,
-        [blocked...], [[term, depth, value]...]]...]] per active step."""
-        k = self._cat.instance_index(name)
+    def _explain(self, name: str, m: Memory, up: int) -> list[Any]:
+        """``Instance.explain`` of instance ``name`` on the copy ``m`` of its state (feed
+        thread: never in the scan's), as plain lists: [step, T ns, [[transition index,
+        condition, [blocked...], [[term, depth, value]...]]...]] per active step."""
         prog = self._cat.plant.instances[name].program
         return [[sw.step, sw.time_ns,
                  [[t.index, t.condition, t.blocked, [[x.text, x.depth, x.value]
                                                       for x in t.terms]]
                   for t in sw.transitions]]
-                for sw in explain(prog, img.m[k], up)]
+                for sw in explain(prog, m, up)]
 
     def _status_of(self, live: tuple[Any, ...]) -> bytes:
         """The status line (``{"c": ...}``) with a frame: the same bytes object while what
