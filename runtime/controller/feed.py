@@ -6,10 +6,13 @@ Controller side (``FeedServer``): every ``sample`` ns the scan thread, at the en
 cycle, packs the image into the shared image file (runtime/controller/image.py,
 ``ImageWriter``: one C call per sample, nothing per name), and stores the controller's
 state of that scan in a one-slot mailbox, with a copy of the image (``Catalogue.capture``)
-only while a client takes frames or follows transitions. The side processes map the file
-and compute every name in their own process (``FeedClient``). The feed thread takes the
-mailbox and sends inside the console's scan window (``ScanWindow``): to each client the
-schema once, the status when it changed, and, to a client that does not read the image
+only while a client takes frames, and a copy of one followed instance's state when its
+transitions are to be explained. The side processes map the file and compute every name
+in their own process (``FeedClient``). The feed thread takes the mailbox and sends inside
+the console's scan window (``ScanWindow``): to each client the schema once, the status
+when it changed (built and encoded once per change, the same bytes to every client: per
+sample only a key is compared; docs/architecture.md says what a sample costs), and, to
+a client that does not read the image
 (it did not say ``{"image": true}``: a debugging tool, a side process that could not map
 the file), one JSON line per snapshot with the values that changed (the names read from
 the copy only then).
@@ -50,10 +53,10 @@ Messages, one JSON object per line (``"\\n"``):
   transitions, ``w``): states, not events, never piled up until it is dropped;
 - ``{"w": {INSTANCE: [[step, T ns, [[transition index, condition, [blocked...],
   [[term, depth, value]...]]...]]...]}}``: what ``why INSTANCE`` says (the console's),
-  computed by the feed thread on the frame's copy of the state, for the instances the
-  client follows, before the frame it goes with, only when it changed, at most every
-  WHY_EVERY_NS (100 ms: explaining is Python work per transition in the controller's
-  process);
+  computed by the feed thread on a copy of the instance's state taken with the frame,
+  for the instances the client follows, before the frame it goes with, only when it
+  changed, each at most every WHY_EVERY_NS (100 ms: explaining is Python work per
+  transition in the controller's process), one instance a sample at most, in turn;
 - ``{"r": [id, ok, text, code]}``: the answer to a request, ``code`` an OPC UA status name
   (Good, BadInvalidArgument, BadInvalidState, BadTimeout, BadConditionBranchAlreadyAcked,
   ...);
@@ -200,9 +203,11 @@ class FeedServer:
         #: follow (``_why``, their names; every WHY_EVERY_NS): set by the feed thread
         self._copy = False
         self._why: tuple[str, ...] = ()
-        #: scans between two explanations of the transitions followed, and the next one
+        #: scans between two explanations of one instance followed, the scan of the next
+        #: explanation (of one instance), and the turn of the instances followed
         self.why_every = max(1, WHY_EVERY_NS // cycle_ns)
         self._why_next = 0
+        self._why_turn = 0
         self._next = 0
         #: the mailbox (``_Slot``), written by the scan thread only
         self._slot: _Slot | None = None
@@ -291,9 +296,13 @@ class FeedServer:
                 d.plant.forced_names() if d.plant.forced or d.plant.forced_points else (),
                 d.plant.last_up)
         followed = None
-        if self._why and n >= self._why_next:
-            self._why_next = n + self.why_every
-            followed = self._copy_followed(cat, self._why)
+        names = self._why
+        if names and n >= self._why_next:
+            # one followed instance a copy, in turn: each explained every WHY_EVERY_NS,
+            # never all of them in one sample (one explanation a sample at most)
+            self._why_next = n + max(1, self.why_every // len(names))
+            self._why_turn += 1
+            followed = self._copy_followed(cat, (names[self._why_turn % len(names)],))
         self._slot = (n - 1, wall, cat.capture(n - 1) if self._copy else None, cat, live,
                       followed)
         # the shared image last: never older than the copy and the state beside it (a
@@ -362,6 +371,7 @@ class FeedServer:
             c.why = [n for n in c.why if n in self._cat.plant.instances]
             c.whys = {}
             self._queue(c, self._schema_line)
+        self._wanted()
         log.info("feed: plant replaced: the new schema sent to %d client(s)",
                  len(self._clients))
 
@@ -624,7 +634,9 @@ class FeedServer:
         frames (the others read the shared image in their own process); the transitions
         followed are explained on ``followed`` (the copies of the followed instances'
         state, every WHY_EVERY_NS; None between)."""
-        self._wanted()
+        # a client counts for the copy from the turn after it connected (it says at once
+        # whether it reads the image: a side process then gets no frame at all)
+        self._copy = any(not c.image for c in self._clients)
         if img is None or all(c.image for c in self._clients):
             values: list[Any] = []
             self._values = None
@@ -715,7 +727,10 @@ class FeedServer:
         now = time.monotonic_ns()
         if now - self._stats_at >= STATS_EVERY_NS:
             self._stats_at = now
-            late = d.scan_stats.lateness().as_dict()
+            # the daemon's figures, shared with the consoles' ``stats``: their percentiles
+            # computed at most once a second for all, in slices inside this thread's
+            # scan windows (ScanWindow.pause), never in one stretch holding the GIL
+            late = d.stats(self.window.pause)["lateness_us"]
             stats = {k: late[k] for k in ("p50", "p99", "max")}
             if stats != self._stats:
                 self._stats = stats
@@ -775,6 +790,7 @@ class FeedServer:
     def _drop(self, c: _Client, why: str | None) -> None:
         if c in self._clients:
             self._clients.remove(c)
+            self._wanted()
         if self._sel is not None:
             try:
                 self._sel.unregister(c.sock)

@@ -61,7 +61,8 @@ def test_the_explanations_are_copied_for_every_100_ms_not_every_sample(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A client of the image following one instance of two: the scan thread copies that
     instance's state once per WHY_EVERY_NS, nothing of the other, and never the whole
-    image (the copy for the frames) while no client takes frames."""
+    image (the copy for the frames) while no client takes frames. Following both: one
+    instance a copy, in turn, each once per WHY_EVERY_NS."""
     pdef = load_plant(str(_plant(tmp_path)))
     with serving(pdef) as (d, feed):
         assert feed.every == 1 and feed.why_every == WHY_EVERY_NS // 10_000_000
@@ -91,6 +92,19 @@ def test_the_explanations_are_copied_for_every_100_ms_not_every_sample(
             made = followed[before_f:]
             assert 1 <= len(made) <= samples // feed.why_every + 2, (len(made), samples)
             assert all(names == ("t1",) for names in made), made
+            # two followed: one instance a copy, in turn, each once per WHY_EVERY_NS (one
+            # explanation a sample at most, never both in the same sample)
+            r.sock.sendall(why_request(["t1", "t2"]))
+            wait_until(lambda: "t2" in r.state.whys, 10.0, "t2's transitions")
+            start, before_f = _scan(feed), len(followed)
+            wait_until(lambda: _scan(feed) >= start + 10 * feed.why_every, 60.0,
+                       "ten explanation periods")
+            samples = _scan(feed) - start
+            made = followed[before_f:]
+            assert all(len(names) == 1 for names in made), made
+            for name in ("t1", "t2"):
+                got = sum(names == (name,) for names in made)
+                assert 5 <= got <= samples // feed.why_every + 2, (name, got, samples)
         finally:
             r.close()
 
