@@ -727,10 +727,11 @@ class FeedServer:
         now = time.monotonic_ns()
         if now - self._stats_at >= STATS_EVERY_NS:
             self._stats_at = now
-            # the daemon's figures, shared with the consoles' ``stats``: their percentiles
-            # computed at most once a second for all, in slices inside this thread's
-            # scan windows (ScanWindow.pause), never in one stretch holding the GIL
-            late = d.stats(self.window.pause)["lateness_us"]
+            # the percentiles in slices inside this thread's scan windows
+            # (ScanWindow.pause, as the console's ``stats``), never in one stretch
+            # holding the GIL
+            st = d.scan_stats
+            late = st.lateness(st.lateness_quantiles(self.window.pause)).as_dict()
             stats = {k: late[k] for k in ("p50", "p99", "max")}
             if stats != self._stats:
                 self._stats = stats

@@ -11,7 +11,13 @@ from typing import Any
 import pytest
 
 from runtime.controller import feed as feed_module
-from runtime.controller.feed import POLL_S, WHY_EVERY_NS, FeedServer, why_request
+from runtime.controller.feed import (
+    POLL_S,
+    STATS_EVERY_NS,
+    WHY_EVERY_NS,
+    FeedServer,
+    why_request,
+)
 from runtime.language.plantfile import load_plant
 from tests.opcua.feedkit import FeedReader, serving, wait_until
 from tests.opcua.kit import plant_head
@@ -184,5 +190,35 @@ def test_a_feed_without_clients_does_not_wake_every_sample(
         try:
             wait_until(lambda: r.schemas == 1 and bool(r.statuses), 10.0,
                        "the schema and a status")
+        finally:
+            r.close()
+
+
+def test_the_lateness_percentiles_are_computed_once_a_second_in_slices(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The status's lateness percentiles (a sort of the window's 8192 cycles): computed
+    once per STATS_EVERY_NS, not per sample, in slices with the feed's ScanWindow.pause
+    between them (never one stretch holding the GIL)."""
+    pdef = load_plant(str(_plant(tmp_path)))
+    with serving(pdef) as (d, feed):
+        stats = d.scan_stats
+        real = stats.lateness_quantiles
+        pauses: list[Any] = []
+
+        def counted(pause: Any = None) -> list[int]:
+            pauses.append(pause)
+            return real(pause)
+        monkeypatch.setattr(stats, "lateness_quantiles", counted)
+        r = FeedReader(feed.path)
+        try:
+            wait_until(lambda: r.schemas == 1, 10.0, "schema")
+            r.sock.sendall(b'{"image": true}\n')
+            start, t0 = _scan(feed), time.monotonic()
+            wait_until(lambda: len(pauses) >= 2 and _scan(feed) >= start + 100, 30.0,
+                       "two computations and 100 samples")
+            elapsed = time.monotonic() - t0
+            assert len(pauses) <= elapsed * 1e9 / STATS_EVERY_NS + 2, (len(pauses), elapsed)
+            assert all(p == feed.window.pause for p in pauses), pauses
+            assert r.statuses[-1]["lateness_us"]["p99"] >= 0
         finally:
             r.close()
