@@ -26,7 +26,10 @@ and the scan, feed and console threads alone, from /proc/self/task); the feed's 
 its cost per sample: the feed thread's CPU in ``FeedServer._publish`` per frame and the
 scan thread's in ``FeedServer.on_scan`` per snapshot taken, timed with
 ``time.thread_time_ns`` by wrappers this benchmark installs (the runtime has no such
-counter), and the feed's clients dropped for not reading (``FeedServer.dropped``). Per
+counter), the feed thread's whole CPU (its turns, I/O and requests too) per snapshot,
+and the feed's clients dropped for not reading (``FeedServer.dropped``). With
+``--profile``, the functions of the feed thread's ``_publish`` in the observed window,
+per frame (cProfile on the thread's processor time). Per
 side process over the observed window: CPU (utime + stime, percent of one core), resident
 memory, and what its clients received. Clients run at nice 10 as in the other benches. A
 missing mosquitto, or a ``softplc opcua`` not serving within ``--start-s``, is said in one
@@ -36,16 +39,18 @@ said in one line and acknowledged before the next.
     python -m bench.observers [--seconds 60] [--testers 100] [--cycle 10ms] [--fifo]
                               [--mqtt-sample 10ms] [--opcua-clients 4] [--items 1183]
                               [--alarms 10] [--pages 20] [--consoles 4]
-                              [--client-nice 10] [--start-s 360] [--keep]
+                              [--client-nice 10] [--start-s 360] [--profile] [--keep]
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import cProfile
 import json
 import logging
 import os
+import pstats
 import shutil
 import signal
 import subprocess
@@ -108,12 +113,21 @@ class FeedMeter:
     """CPU the feed costs: ``FeedServer._publish`` (feed thread, per frame) and
     ``FeedServer.on_scan`` (scan thread, per snapshot taken), timed by wrappers installed
     on the instance before it starts (``install``). Without those methods (another
-    feed), ``ok`` is False and nothing is timed."""
+    feed), ``ok`` is False and nothing is timed. With ``profile`` (``--profile``), every
+    ``_publish`` of the observed window runs under ``cProfile`` on the feed thread's
+    processor time (its overhead shows in that window's figures: a run for the profile,
+    not for the times)."""
 
-    def __init__(self) -> None:
+    def __init__(self, profile: bool = False) -> None:
         self.fs: FeedServer | None = None
         self.ok = False
         self.publish_ns = self.publishes = self.scan_ns = self.captures = 0
+        # the feed thread's processor time, not the wall clock: its waits for the GIL
+        # (the scan, the console) are not its work
+        self.profiler = cProfile.Profile(time.thread_time) if profile else None
+        #: ``_publish`` runs under the profiler (set for the observed window)
+        self.profiling = False
+        self.profiled = 0
 
     def install(self, fs: FeedServer | None) -> None:
         self.fs = fs
@@ -128,6 +142,9 @@ class FeedMeter:
         def timed_publish(*args: Any) -> Any:
             t0 = time.thread_time_ns()
             try:
+                if self.profiling and self.profiler is not None:
+                    self.profiled += 1
+                    return self.profiler.runcall(publish, *args)
                 return publish(*args)
             finally:
                 self.publish_ns += time.thread_time_ns() - t0
@@ -143,6 +160,22 @@ class FeedMeter:
 
         setattr(fs, "_publish", timed_publish)  # noqa: B010 - a method replaced on the instance
         setattr(fs, "on_scan", timed_scan)  # noqa: B010
+
+    def report(self, top: int = 25) -> None:
+        """The profile of the observed window: the functions of most own time, per frame."""
+        if self.profiler is None or not self.profiled:
+            return
+        stats = pstats.Stats(self.profiler)
+        rows = sorted(stats.stats.items(),  # type: ignore[attr-defined]
+                      key=lambda kv: -kv[1][2])[:top]
+        out(f"\nfeed thread, _publish profiled over {self.profiled} frames (cProfile, the "
+            "thread's processor time, its overhead included), per frame:")
+        out("| function | calls/frame | own us/frame | cumulative us/frame |")
+        out("|---|---|---|---|")
+        for (file, line, fn), (_cc, nc, tt, ct, _callers) in rows:
+            where = f"{os.path.relpath(file, ROOT)}:{line}" if file != "~" else ""
+            out(f"| {fn} {where} | {nc / self.profiled:.1f} | "
+                f"{1e6 * tt / self.profiled:.1f} | {1e6 * ct / self.profiled:.1f} |")
 
     def reading(self) -> tuple[int, int, int, int, int, int]:
         frames = getattr(self.fs, "frames", -1)
@@ -198,11 +231,14 @@ def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
     wall = time.monotonic() - t0
     w["cpu"] = 100 * (p1 - p0) / wall
     w["threads"] = {k: 100 * (th1[k] - th0[k]) / 1e9 / wall for k in th0}
+    w["feed_ns"] = th1["feed"] - th0["feed"]
     frames, pub_ns, pubs, scan_ns, caps, dropped = (
         b - a for a, b in zip(feed0, feed1, strict=True))
     w["frames"] = frames if feed1[0] >= 0 else None
     w["dropped"] = dropped if feed1[5] >= 0 else None
     w["publish_us"] = pub_ns / pubs / 1e3 if meter.ok and pubs else None
+    # the feed thread's whole CPU (its turns, I/O, requests too) per sample taken
+    w["feed_us"] = w["feed_ns"] / caps / 1e3 if meter.ok and caps else None
     w["capture_us"] = scan_ns / caps / 1e3 if meter.ok and caps else None
     w["sides"] = {k: (100 * (cpu_s(v) - side0[k]) / wall, rss_mib(v))
                   for k, v in sides.items()}
@@ -256,8 +292,8 @@ def table(rows: list[tuple[str, dict[str, Any]]]) -> None:
     out("| phase | cycles | overruns | faults | lateness p50 us | p99 us | max us | p99 / "
         "unobserved p99 | runq p99 us | blocked p99 us | controller CPU | scan thread | "
         "feed thread | console thread | feed frames | feed clients dropped | "
-        "_publish us/frame | on_scan us/snapshot |")
-    out("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        "_publish us/frame | feed thread us/sample | on_scan us/snapshot |")
+    out("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for label, r in rows:
         th = r["threads"]
         out(f"| {label} | {r['cycles']} | {r['overruns']} | {r['faults']} | {r['p50']:.0f} | "
@@ -265,7 +301,7 @@ def table(rows: list[tuple[str, dict[str, Any]]]) -> None:
             f"{r['blocked_p99']:.0f} | {r['cpu']:.1f} % | "
             f"{th['scan']:.1f} % | {th['feed']:.1f} % | {th['console']:.1f} % | "
             f"{fmt(r['frames'], 'd')} | {fmt(r['dropped'], 'd')} | "
-            f"{fmt(r['publish_us'], '.1f')} | "
+            f"{fmt(r['publish_us'], '.1f')} | {fmt(r['feed_us'], '.1f')} | "
             f"{fmt(r['capture_us'], '.1f')} |")
 
 
@@ -293,6 +329,9 @@ def main() -> None:
     ap.add_argument("--start-s", type=float, default=2 * START_S, metavar="S",
                     help="how long softplc opcua may take to serve (360 s: its 3900 nodes "
                          "of 100 testers at nice 10 on a loaded machine)")
+    ap.add_argument("--profile", action="store_true",
+                    help="profile the feed thread's _publish in the observed window "
+                         "(cProfile; its overhead inflates that window's times)")
     ap.add_argument("--keep", action="store_true",
                     help="keep the temporary directory (plant, client logs) and say where")
     args = ap.parse_args()
@@ -330,7 +369,7 @@ def main() -> None:
         path = observers_plant(tmp, args.testers, cycle_ms, args.fifo,
                                broker.url if broker else None, opcua_port, web_port,
                                args.opcua_clients, args.mqtt_sample)
-        meter, probe = FeedMeter(), SchedProbe()
+        meter, probe = FeedMeter(args.profile), SchedProbe()
 
         def setup(d: Daemon, f: FeedServer | None) -> None:
             d.scheduler.sleep_until = probe.wrap(d.scheduler.sleep_until)
@@ -418,7 +457,9 @@ def main() -> None:
             assert sub.stdin is not None
             sub.stdin.write("go\n")
             sub.stdin.flush()
+        meter.profiling = True
         rows.append(("observed", measure(daemon, probe, meter, args.seconds, sides)))
+        meter.profiling = False
         observed_sides = rows[-1][1]["sides"]
         raised = 0
         if traffic is not None:
@@ -439,6 +480,7 @@ def main() -> None:
         rows.append(("unobserved again", measure(daemon, probe, meter, args.seconds, {})))
 
         table(rows)
+        meter.report()
         obs = rows[1][1]
         ratio = obs["p99"] / rows[0][1]["p99"]
         out(f"\nobserved p99 / unobserved p99 = {ratio:.2f} (goal <= 1.2: "

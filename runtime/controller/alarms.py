@@ -357,7 +357,10 @@ class AlarmBoard:
             return [replace(a) for a in self._alarms.values()]
 
     def as_list(self) -> list[dict[str, Any]]:
-        return [a.as_dict() for a in self.alarms()]
+        """Every condition as plain data (``Alarm.as_dict``), in the order built: made under
+        the lock directly, without copying each alarm first."""
+        with self._lock:
+            return [a.as_dict() for a in self._alarms.values()]
 
 
 

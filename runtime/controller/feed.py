@@ -6,10 +6,13 @@ Controller side (``FeedServer``): every ``sample`` ns the scan thread, at the en
 cycle, packs the image into the shared image file (runtime/controller/image.py,
 ``ImageWriter``: one C call per sample, nothing per name), and stores the controller's
 state of that scan in a one-slot mailbox, with a copy of the image (``Catalogue.capture``)
-only while a client takes frames or follows transitions. The side processes map the file
-and compute every name in their own process (``FeedClient``). The feed thread takes the
-mailbox and sends inside the console's scan window (``ScanWindow``): to each client the
-schema once, the status when it changed, and, to a client that does not read the image
+only while a client takes frames, and a copy of one followed instance's state when its
+transitions are to be explained. The side processes map the file and compute every name
+in their own process (``FeedClient``). The feed thread takes the mailbox and sends inside
+the console's scan window (``ScanWindow``): to each client the schema once, the status
+when it changed (built and encoded once per change, the same bytes to every client: per
+sample only a key is compared; docs/architecture.md says what a sample costs), and, to
+a client that does not read the image
 (it did not say ``{"image": true}``: a debugging tool, a side process that could not map
 the file), one JSON line per snapshot with the values that changed (the names read from
 the copy only then).
@@ -50,10 +53,10 @@ Messages, one JSON object per line (``"\\n"``):
   transitions, ``w``): states, not events, never piled up until it is dropped;
 - ``{"w": {INSTANCE: [[step, T ns, [[transition index, condition, [blocked...],
   [[term, depth, value]...]]...]]...]}}``: what ``why INSTANCE`` says (the console's),
-  computed by the feed thread on the frame's copy of the state, for the instances the
-  client follows, before the frame it goes with, only when it changed, at most every
-  WHY_EVERY_NS (100 ms: explaining is Python work per transition in the controller's
-  process);
+  computed by the feed thread on a copy of the instance's state taken with the frame,
+  for the instances the client follows, before the frame it goes with, only when it
+  changed, each at most every WHY_EVERY_NS (100 ms: explaining is Python work per
+  transition in the controller's process), one instance a sample at most, in turn;
 - ``{"r": [id, ok, text, code]}``: the answer to a request, ``code`` an OPC UA status name
   (Good, BadInvalidArgument, BadInvalidState, BadTimeout, BadConditionBranchAlreadyAcked,
   ...);
@@ -88,6 +91,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from drivers.durations import format_ns
+from runtime.compiler.program import Memory
 from runtime.controller.alarms import AlarmRefused
 from runtime.controller.image import ImageWriter, image_path, refuse_foreign
 from runtime.controller.paths import remove_socket, unix_listener
@@ -139,9 +143,10 @@ PENDING_MAX = 8
 
 
 #: the mailbox: (scan, wall seconds, the image's copy or None, the catalogue that took it,
-#: the controller's and drivers' state at that scan, whether the transitions followed are
-#: explained on it)
-_Slot = tuple[int, float, "Image | None", Catalogue, tuple[Any, ...], bool]
+#: the controller's and drivers' state at that scan, and a copy of the state of each
+#: instance some client follows when their transitions are explained on it, else None)
+_Slot = tuple[int, float, "Image | None", Catalogue, tuple[Any, ...],
+              "dict[str, Memory] | None"]
 
 
 @dataclass(slots=True)
@@ -152,7 +157,9 @@ class _Client:
     inbuf: bytearray = field(default_factory=bytearray)
     #: the next frame it gets is a whole one (it has none yet)
     fresh: bool = True
-    status: dict[str, Any] | None = None
+    #: the status line it was last sent (``FeedServer._status_line``: the very bytes
+    #: object every client shares, compared by identity)
+    status: bytes | None = None
     #: its writes and method calls handed to the scan thread, oldest first: (id, the
     #: call, its place in the call's results, monotonic deadline, the text of its
     #: answer); answered in this order
@@ -192,13 +199,15 @@ class FeedServer:
         self._image: ImageWriter | None = None
         self._generation = 0
         #: the scan thread copies the image into the mailbox (Catalogue.capture) while a
-        #: client takes frames (every sample), or follows transitions (every WHY_EVERY_NS):
-        #: set by the feed thread
+        #: client takes frames (every sample), and the state of the instances clients
+        #: follow (``_why``, their names; every WHY_EVERY_NS): set by the feed thread
         self._copy = False
-        self._why = False
-        #: scans between two explanations of the transitions followed, and the next one
+        self._why: tuple[str, ...] = ()
+        #: scans between two explanations of one instance followed, the scan of the next
+        #: explanation (of one instance), and the turn of the instances followed
         self.why_every = max(1, WHY_EVERY_NS // cycle_ns)
         self._why_next = 0
+        self._why_turn = 0
         self._next = 0
         #: the mailbox (``_Slot``), written by the scan thread only
         self._slot: _Slot | None = None
@@ -213,6 +222,14 @@ class FeedServer:
         self._schema_line = b""
         self._stats: dict[str, Any] = {}
         self._stats_at = 0
+        #: one more each time the lateness percentiles or the alarms differ (the status's
+        #: key: ``_status_of``)
+        self._stats_changes = 0
+        self._alarms_changes = 0
+        #: the status line now (encoded once per change, shared by every client) and the
+        #: key of what it says
+        self._status_line = b""
+        self._status_key: tuple[Any, ...] | None = None
         #: the alarms (AlarmBoard.as_list) as of the board's version
         self._alarms: list[dict[str, Any]] = []
         self._alarms_version = -1
@@ -278,21 +295,34 @@ class FeedServer:
                  for name, drv in d.plant.drivers.items()},
                 d.plant.forced_names() if d.plant.forced or d.plant.forced_points else (),
                 d.plant.last_up)
-        why = False
-        if self._why and n >= self._why_next:
-            self._why_next = n + self.why_every
-            why = True
-        self._slot = (n - 1, wall, cat.capture(n - 1) if self._copy or why else None, cat,
-                      live, why)
+        followed = None
+        names = self._why
+        if names and n >= self._why_next:
+            # one followed instance a copy, in turn: each explained every WHY_EVERY_NS,
+            # never all of them in one sample (one explanation a sample at most)
+            self._why_next = n + max(1, self.why_every // len(names))
+            self._why_turn += 1
+            followed = self._copy_followed(cat, (names[self._why_turn % len(names)],))
+        self._slot = (n - 1, wall, cat.capture(n - 1) if self._copy else None, cat, live,
+                      followed)
         # the shared image last: never older than the copy and the state beside it (a
         # safe state written by another thread meanwhile, a halt, shows in both)
         if image is not None and image.plant is d.plant:
             image.write(n - 1, int(wall * 1e9))
 
+    @staticmethod
+    def _copy_followed(cat: Catalogue, names: tuple[str, ...]) -> dict[str, Memory]:
+        """Scan thread: a copy of the state of each instance in ``names`` (the instances
+        clients follow: at most MAX_WHY a client), nothing of the others."""
+        insts = cat.plant.instances
+        return {name: insts[name].m[:] for name in names if name in insts}
+
     # -- the feed thread ------------------------------------------------------------
     def _run(self) -> None:
         try:
             while not self._stop.is_set():
+                if not self._clients:
+                    self._idle()
                 closes = self.window.until()
                 if self._stop.is_set():
                     break
@@ -317,6 +347,13 @@ class FeedServer:
             if self._sock is not None:
                 self._sock.close()
 
+    def _idle(self) -> None:
+        """No client: wait for a connection (the listening socket alone is registered) or
+        POLL_S, not for every scan: a feed nobody reads costs nothing per sample. The
+        connection is accepted in the next scan window (``_io``)."""
+        assert self._sel is not None
+        self._sel.select(POLL_S)
+
     def _reload(self) -> None:
         self._replaced = False
         # the new plant file's writable names; none for a side whose section is removed
@@ -334,6 +371,7 @@ class FeedServer:
             c.why = [n for n in c.why if n in self._cat.plant.instances]
             c.whys = {}
             self._queue(c, self._schema_line)
+        self._wanted()
         log.info("feed: plant replaced: the new schema sent to %d client(s)",
                  len(self._clients))
 
@@ -587,15 +625,18 @@ class FeedServer:
     def _wanted(self) -> None:
         """What the scan thread must copy for the clients (``_copy``, ``_why``)."""
         self._copy = any(not c.image for c in self._clients)
-        self._why = any(c.why for c in self._clients)
+        self._why = tuple(dict.fromkeys(n for c in self._clients for n in c.why))
 
     def _publish(self, scan: int, wall: float, img: Image | None, live: tuple[Any, ...],
-                 why: bool = True) -> None:
+                 followed: dict[str, Memory] | None = None) -> None:
         """One frame to every client that takes frames: whole to new ones, the changes to
         the others; the status to all. The names are read only while a client takes
         frames (the others read the shared image in their own process); the transitions
-        followed are explained when ``why`` (every WHY_EVERY_NS) on the copy ``img``."""
-        self._wanted()
+        followed are explained on ``followed`` (the copies of the followed instances'
+        state, every WHY_EVERY_NS; None between)."""
+        # a client counts for the copy from the turn after it connected (it says at once
+        # whether it reads the image: a side process then gets no frame at all)
+        self._copy = any(not c.image for c in self._clients)
         if img is None or all(c.image for c in self._clients):
             values: list[Any] = []
             self._values = None
@@ -612,7 +653,7 @@ class FeedServer:
             delta = _line({"d": [scan, wall, changes]})
         whole = None
         explained: dict[str, Any] = {}
-        status = self._status(live)
+        status = self._status_of(live)
         self.frames += 1
         for c in self._clients:
             # a client of the image that has not taken what it was sent (its event loop
@@ -620,11 +661,11 @@ class FeedServer:
             # and transitions once it has, not every one meanwhile: they are states, not
             # events, and piling them up would get it dropped for not reading
             behind = c.image and bool(c.out)
-            if status != c.status and not behind:
+            if status is not c.status and not behind:
                 c.status = status
-                self._queue(c, _line({"c": status}))
-            if c.why and img is not None and why and not behind:
-                self._queue_why(c, img, live[-1], explained)
+                self._queue(c, status)
+            if c.why and followed is not None and not behind:
+                self._queue_why(c, followed, live[-1], explained)
             if c.image or not values:
                 continue
             if c.fresh or delta is None:
@@ -646,49 +687,79 @@ class FeedServer:
         c.whys = {}
         self._wanted()
 
-    def _queue_why(self, c: _Client, img: Image, up: int, explained: dict[str, Any]) -> None:
+    def _queue_why(self, c: _Client, followed: dict[str, Memory], up: int,
+                   explained: dict[str, Any]) -> None:
         """The explanations of ``c``'s instances that changed since it was last sent them,
-        each computed once per frame (``explained``) on the frame's copy of the state."""
+        each computed once per frame (``explained``) on the copy of its state (an
+        instance followed since the copy was taken: at the next one)."""
         changed: dict[str, Any] = {}
         for name in c.why:
             why = explained.get(name)
             if why is None:
-                why = explained[name] = self._explain(name, img, up)
+                m = followed.get(name)
+                if m is None:
+                    continue
+                why = explained[name] = self._explain(name, m, up)
             if c.whys.get(name) != why:
                 c.whys[name] = why
                 changed[name] = why
         if changed:
             self._queue(c, _line({"w": changed}))
 
-    def _explain(self, name: str, img: Image, up: int) -> list[Any]:
-        """``Instance.explain`` of instance ``name`` on the frame's state copy (feed thread:
-        never in the scan's), as plain lists: [step, T ns, [[transition index, condition,
-        [blocked...], [[term, depth, value]...]]...]] per active step."""
-        k = self._cat.instance_index(name)
+    def _explain(self, name: str, m: Memory, up: int) -> list[Any]:
+        """``Instance.explain`` of instance ``name`` on the copy ``m`` of its state (feed
+        thread: never in the scan's), as plain lists: [step, T ns, [[transition index,
+        condition, [blocked...], [[term, depth, value]...]]...]] per active step."""
         prog = self._cat.plant.instances[name].program
         return [[sw.step, sw.time_ns,
                  [[t.index, t.condition, t.blocked, [[x.text, x.depth, x.value]
                                                       for x in t.terms]]
                   for t in sw.transitions]]
-                for sw in explain(prog, img.m[k], up)]
+                for sw in explain(prog, m, up)]
 
-    def _status(self, live: tuple[Any, ...]) -> dict[str, Any]:
-        """The controller's status with a frame: its state, fault, counters and drivers
-        as they were at the frame's scan (``live``, taken with the image); the lateness
-        percentiles (of the last scans, sorted here, every STATS_EVERY_NS) and the uptime
-        as they are now."""
+    def _status_of(self, live: tuple[Any, ...]) -> bytes:
+        """The status line (``{"c": ...}``) with a frame: the same bytes object while what
+        it says is unchanged. Per sample only a key is compared (the frame's state
+        ``live``: a few numbers and one entry per driver, the uptime in whole seconds and
+        the versions of the lateness percentiles and of the alarms); the status is built
+        and encoded once per change, nothing per alarm, name or client."""
         d = self.daemon
         now = time.monotonic_ns()
         if now - self._stats_at >= STATS_EVERY_NS:
             self._stats_at = now
-            late = d.scan_stats.lateness().as_dict()
-            self._stats = {k: late[k] for k in ("p50", "p99", "max")}
-        state, fault, overruns, skipped, freezes, drivers, forced, _up = live
+            # the percentiles in slices inside this thread's scan windows
+            # (ScanWindow.pause, as the console's ``stats``), never in one stretch
+            # holding the GIL
+            st = d.scan_stats
+            late = st.lateness(st.lateness_quantiles(self.window.pause)).as_dict()
+            stats = {k: late[k] for k in ("p50", "p99", "max")}
+            if stats != self._stats:
+                self._stats = stats
+                self._stats_changes += 1
         board = d.alarms
         if board.version != self._alarms_version:
-            self._alarms_version, self._alarms = board.version, board.as_list()
+            self._alarms_version = board.version
+            alarms = board.as_list()
+            if alarms != self._alarms:
+                self._alarms = alarms
+                self._alarms_changes += 1
+        uptime_s = round(d.uptime_s())
+        key = (live[:-1], uptime_s, d.plant.cycle_ns, self._stats_changes,
+               self._alarms_changes)
+        if key != self._status_key:
+            self._status_key = key
+            self._status_line = _line({"c": self._status(live, uptime_s)})
+        return self._status_line
+
+    def _status(self, live: tuple[Any, ...], uptime_s: int) -> dict[str, Any]:
+        """The controller's status: its state, fault, counters and drivers as they were
+        at the frame's scan (``live``, taken with the image); the lateness percentiles (of
+        the last scans, sorted every STATS_EVERY_NS), the alarms and the uptime (whole
+        seconds) as they are now. Built only when its key changed (``_status_of``)."""
+        d = self.daemon
+        state, fault, overruns, skipped, freezes, drivers, forced, _up = live
         return {"state": state, "fault": fault, "overruns": overruns, "skipped": skipped,
-                "freezes": freezes, "uptime_s": round(d.uptime_s()),
+                "freezes": freezes, "uptime_s": uptime_s,
                 "cycle_ms": d.plant.cycle_ns / 1e6, "lateness_us": self._stats,
                 "drivers": drivers, "alarms": self._alarms, "forced": list(forced)}
 
@@ -720,6 +791,7 @@ class FeedServer:
     def _drop(self, c: _Client, why: str | None) -> None:
         if c in self._clients:
             self._clients.remove(c)
+            self._wanted()
         if self._sel is not None:
             try:
                 self._sel.unregister(c.sock)

@@ -169,6 +169,11 @@ class ScanStats:
         return (percentiles(self._scan, n, QUANTILES, pause),
                 percentiles(self._late, n, QUANTILES, pause))
 
+    def lateness_quantiles(self, pause: Callable[[], object] | None = None) -> list[int]:
+        """QUANTILES of the lateness over the window, ns, for ``lateness`` (``pause`` as
+        for ``percentiles``)."""
+        return percentiles(self._late, min(self.count, self.window), QUANTILES, pause)
+
     def p99(self, pause: Callable[[], object] | None = None) -> tuple[int, int]:
         """(scan p99, lateness p99) over the window, ns, as ``scan()`` and ``lateness()``
         give them (safe to call from another thread while the scan runs; a cycle
