@@ -223,13 +223,17 @@ async def operator(url: str, user: str, password: str) -> None:
                     counts["failures"].append("no reply to an action in 10 s")
                 if time.monotonic() - last_load >= 1.0:
                     last_load = time.monotonic()
-                    add("loads")
+                    # a load is counted when it ends, tried and loaded together: one that
+                    # straddles a "take" belongs wholly to the next phase (counted when it
+                    # began, it was a load of one phase and a page loaded in the next)
                     try:
                         async with aiohttp.ClientSession() as fresh, fresh.get(
                                 url + "api/plant", timeout=aiohttp.ClientTimeout(10)) as r:
+                            add("loads")
                             add("loaded", r.status == 200)
                             slowest("load_max_s", time.monotonic() - last_load)
                     except (aiohttp.ClientError, TimeoutError) as exc:
+                        add("loads")
                         counts["failures"].append(f"load: {exc!r}")
                 await asyncio.sleep(0.25)
         tasks = [asyncio.create_task(read()), asyncio.create_task(act())]
