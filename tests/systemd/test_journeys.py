@@ -25,6 +25,7 @@ from pathlib import Path
 
 import pytest
 
+from bench.compile import chart_text
 from tests.systemd.container import Container, Unavailable, reap_stale, why_not
 
 pytestmark = pytest.mark.slow
@@ -449,6 +450,39 @@ def test_reload_applies_an_edit_and_refuses_another(plc: Container) -> None:
     status = console(plc, "/run/softplc/drawer_tester/drawer.sock", "status")
     assert "cycle time 10 ms" in status, status
     plc.sh(f"sed -i 's/^  cycle: 20ms/  cycle: 10ms/' {plant}")  # back as installed
+
+
+def test_the_compiled_code_is_cached_under_the_unit(plc: Container) -> None:
+    """A chart big enough for the code cache (96 steps: its generated code is over
+    MIN_SOURCE), installed and run by the unit: the service writes the compiled code to
+    its CacheDirectory (0600 in the 0700 /var/cache/softplc/NAME, the user softplc's:
+    before, the unit had no cache and compiled at every start), and at a restart loads
+    it from there (the entry not written again: same inode, same mtime)."""
+    d = plc.path(f"{SRC}/sites/big")
+    d.mkdir(parents=True, exist_ok=True)
+    (d / "big.yaml").write_text(chart_text(96), encoding="utf-8")
+    (d / "plant.yaml").write_text(
+        "plc: {cycle: 20ms, watchdog: 500ms}\n"
+        "drivers: {io: {type: sim}}\n"
+        "instances:\n  b:\n    grafcet: big.yaml\n"
+        "    inputs: {iA: io.I0, iB: io.I1, iC: io.I2, iD: io.I3, iE: io.I4, iG: io.I5}\n"
+        "    outputs: {" + ", ".join(f"o{k}: io.Q{k}" for k in range(8)) + "}\n",
+        encoding="utf-8")
+    unit = "softplc@big.service"
+    out = sh(plc, f"{SOFTPLC} install-service sites/big/plant.yaml --now")
+    assert f"started {unit}" in out, out
+    plc.wait(f"systemctl is-active --quiet {unit}", what=f"{unit} active")
+    cache = "/var/cache/softplc/big"
+    assert plc.sh(f"stat -c '%U %a' {cache}").stdout.strip() == "softplc 700"
+    entries = f"find {cache} -type f -name '*.code' -printf '%i %T@ %U %m\\n'"
+    first = plc.wait(f"{entries} | grep .", what="the compiled code in the cache"
+                     ).strip().split("\n")
+    assert len(first) == 1 and first[0].endswith(" softplc 600"), first
+    plc.sh(f"systemctl restart {unit}")
+    plc.wait(f"systemctl is-active --quiet {unit}", what=f"{unit} active again")
+    assert plc.sh(entries).stdout.strip().split("\n") == first, "the entry was written again"
+    assert "code cache" not in plc.journal(unit)  # no entry refused, no cache refused
+    plc.sh(f"systemctl disable --now {unit}")
 
 
 # -- 4. freezes and kills under a real watchdog, outputs at a real Modbus RTU module -----
