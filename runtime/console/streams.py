@@ -156,18 +156,16 @@ class StreamTap:
                 self.ctl.remove_listener(self.on_scan)
 
     def on_scan(self, scan: int) -> None:
-        """Scan thread, after each cycle: one capture per catalogue (one but while a
-        reload ends the streams of the replaced plant), queued for every stream."""
-        streams = self.streams
-        if len(streams) == 1:
-            stream = streams[0]
-            stream.images.append(stream.catalogue.capture(scan))
-            return
-        captured: dict[Catalogue, Image] = {}
-        for stream in streams:
-            img = captured.get(stream.catalogue)
-            if img is None:
-                img = captured[stream.catalogue] = stream.catalogue.capture(scan)
+        """Scan thread, after each cycle: one capture, queued for every stream (one more
+        per change of catalogue in the list: only while a reload ends the streams of the
+        replaced plant)."""
+        cat: Catalogue | None = None
+        img: Image | None = None
+        for stream in self.streams:
+            if stream.catalogue is not cat:
+                cat = stream.catalogue
+                img = cat.capture(scan)
+            assert img is not None
             stream.images.append(img)
 
 
