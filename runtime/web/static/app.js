@@ -261,6 +261,9 @@ function renderWhy(inst, box) {
   ul.replaceChildren();
   const marks = new Map();
   for (const [step, tns, transitions] of why) {
+    // the why follows the frames (explained every 100 ms, instance by instance): a step
+    // the shown frame no longer has active is not listed nor its transitions marked
+    if (!value(inst.name + "." + step + ".X")) continue;
     for (const [index, cond, blocked, terms] of transitions) {
       const blocking = blocked.length > 0 || !cond;
       marks.set(String(index), cond && !blocked.length ? "true" : "blocking");
