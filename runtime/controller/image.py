@@ -49,13 +49,14 @@ from __future__ import annotations
 
 import logging
 import mmap
-import operator
 import os
 import re
 import struct
 import time
 import zlib
+from collections import deque
 from collections.abc import Callable, Sequence
+from itertools import repeat
 from types import CellType, CodeType, FunctionType
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -85,17 +86,22 @@ STR_BYTES = 64
 #: copies a reader tries before it gives up on this sample (the writer kept writing)
 RETRIES = 8
 T = TypeVar("T")
+#: a chart clock's slot (packed on its own, every write)
+_CLOCK = struct.Struct("<q").pack_into
+#: runs an iterator to its end, keeping nothing (a loop in C)
+_consume = deque(maxlen=0).extend
 INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
 
 _NUMERIC = re.compile(r"<[?qd]*\Z")
 _STRINGS = re.compile(rf"<(?:{STR_BYTES}p)*\Z")
 _CODE = {"bool": "?", "int": "q", "time": "q", "real": "d"}
 #: the whole text ``_reader_of`` may generate: cells ``c<k>`` set to None, then one
-#: function returning a tuple of terms, each a cell, a cell's ``get()``, a starred cell or
-#: ``bool`` of a cell's ``ok``
+#: function returning a tuple of regions, each a tuple of terms (a cell, a cell's
+#: ``get()``, ``bool`` of a cell's ``ok``) or of one starred cell (a value list copied)
+_TERM = r"(?:c\d+|c\d+\.get\(\)|bool\(c\d+\.ok\))"
 _READER_TEXT = re.compile(
     r"def make\(\):\n(?: c\d+ = None\n)*"
-    r" def read\(\):\n  return \((?:(?:c\d+|c\d+\.get\(\)|\*c\d+|bool\(c\d+\.ok\)), )*\)\n"
+    rf" def read\(\):\n  return \((?:\((?:\*c\d+, |(?:{_TERM}, )*)\), )*\)\n"
     r" return read\n\Z")
 
 
@@ -128,12 +134,13 @@ def _fit(code: str, value: Any) -> tuple[Any, bool]:
         return 0, True
 
 
-def _layout(cat: Catalogue) -> tuple[list[tuple[list[int], str, list[int]]],
+def _layout(cat: Catalogue) -> tuple[list[tuple[list[int], str, list[int], int | None]],
                                       list[tuple[str, str]]]:
-    """Per instance (numeric slots, their codes, string slots) and per driver (input
-    codes, output codes), from the names' specs."""
+    """Per instance (numeric slots, their codes, string slots, its chart clock's slot or
+    None) and per driver (input codes, output codes), from the names' specs."""
     plant = cat.plant
     need: list[dict[int, str]] = [{} for _ in plant.instances]
+    clock: list[int | None] = [None for _ in plant.instances]
     for s in cat.names.values():
         spec = s.spec
         kind = spec[0] if spec else ""
@@ -143,16 +150,17 @@ def _layout(cat: Catalogue) -> tuple[list[tuple[list[int], str, list[int]]],
         elif kind == "steptime":
             _, i, x, ct, t0, tk = spec
             need[i].setdefault(x, "?")
+            clock[i] = ct
             for k in (ct, t0, tk):
                 need[i].setdefault(k, "q")
         elif kind == "current":
             for _step, x in spec[2]:
                 need[spec[1]].setdefault(x, "?")
     insts = []
-    for slots in need:
+    for slots, ct in zip(need, clock, strict=True):
         nums = sorted(k for k, c in slots.items() if c != "s")
         insts.append((nums, "".join(slots[k] for k in nums),
-                      sorted(k for k, c in slots.items() if c == "s")))
+                      sorted(k for k, c in slots.items() if c == "s"), ct))
     drivers = []
     from drivers.base import PointKind  # the point kinds: the controller's side only
 
@@ -183,25 +191,33 @@ class ImageWriter:
         insts, drivers = _layout(cat)
         plant = cat.plant
         at = DATA_AT
-        #: (offset, pack_into, values getter, codes, flag) per numeric region, in file
-        #: order (flag: the region's byte in the flags area): the slow path, region by
-        #: region, when the whole numeric area does not pack at once
-        self._packs: list[tuple[int, Callable[..., None], Callable[[], Sequence[Any]],
-                                str, int]] = []
-        #: the regions whose flag is set now
-        self._flagged: set[int] = set()
-        #: what the fast path reads, in file order: (kind, object, slots)
-        fast: list[tuple[str, Any, list[int]]] = []
-        codes_all = ""
+        #: the packed regions: (offset, pack_into, codes, flag, kept) (flag: its byte in
+        #: the flags area, -1 none; kept: its last values are kept, to skip it while they
+        #: stay equal); the numeric ones first, in the order the generated reader gives
+        #: their values, then the chart clocks, then the instances' strings
+        self._regions: list[tuple[int, Callable[..., None], str, int, bool]] = []
+        #: what the reader reads, region by region: (kind, what), kind "slots" (a list
+        #: of (state, slot)), "list" (a value list) or "ok" (the drivers)
+        parts: list[tuple[str, Any]] = []
+        #: (state, slot, offset, flag) of each instance's chart clock packed on its own
+        clocks: list[tuple[Any, int, int, int]] = []
         flag = 0
         self._desc_inst: list[list[Any]] = []
-        for (nums, codes, _strs), inst in zip(insts, plant.instances.values(), strict=True):
+        for (nums, codes, _strs, ct), inst in zip(insts, plant.instances.values(),
+                                                  strict=True):
             st = struct.Struct("<" + codes)
             self._desc_inst.append([at, st.format, nums])
+            if ct is not None and nums[-1] == ct:
+                # the chart clock advances every scan: packed on its own, so that the
+                # rest of a waiting instance's slots is skipped (the engine's layout
+                # puts it after the variables and steps: the last numeric slot)
+                clocks.append((inst.m, ct, at + st.size - 8, flag))
+                nums, codes = nums[:-1], codes[:-1]
             if nums:
-                self._packs.append((at, st.pack_into, _getter(inst.m, nums), codes, flag))
-                fast.append(("slots", inst.m, nums))
-                codes_all += codes
+                # REAL regions are packed every write: 0.0 == -0.0, packed differently
+                self._regions.append((at, struct.Struct("<" + codes).pack_into, codes,
+                                      flag, "d" not in codes))
+                parts.append(("slots", [(inst.m, k) for k in nums]))
             flag += 1
             at += st.size
         self._desc_drv: list[list[Any]] = []
@@ -211,33 +227,50 @@ class ImageWriter:
                 st = struct.Struct("<" + codes)
                 row += [at, st.format]
                 if codes:
-                    self._packs.append((at, st.pack_into, _list(vals), codes, flag))
-                    fast.append(("list", vals, []))
-                    codes_all += codes
+                    self._regions.append((at, st.pack_into, codes, flag, True))
+                    parts.append(("list", vals))
                 flag += 1
                 at += st.size
             self._desc_drv.append(row)
         drvs = list(plant.drivers.values())
         ok = struct.Struct("<" + "?" * len(drvs))
-        self._ok = (at, ok.pack_into, drvs)
+        self._regions.append((at, ok.pack_into, "?" * len(drvs), -1, True))
+        parts.append(("ok", drvs))
         self._desc_ok = [at, ok.format]
-        fast += [("ok", d, []) for d in drvs]
-        codes_all += "?" * len(drvs)
         at += ok.size
-        #: the whole numeric area (instances, drivers, ok flags) in one pack_into of the
-        #: values one generated function reads (the state's cells themselves)
-        self._whole = struct.Struct("<" + codes_all).pack_into
-        self._read_all = _reader_of(fast)
-        #: (offset, pack_into, getter, last strings) per instance with strings
-        self._strings: list[tuple[int, Callable[..., None], Callable[[], tuple[Any, ...]],
-                                  list[tuple[Any, ...] | None]]] = []
-        for desc, (_nums, _codes, strs), inst in zip(self._desc_inst, insts,
-                                                      plant.instances.values(), strict=True):
+        self._numeric = range(len(self._regions))
+        self._regions += [(c_at, _CLOCK, "q", c_flag, False)
+                          for _m, _k, c_at, c_flag in clocks]
+        #: the clocks' regions and offsets: all packed every write
+        self._clocks = range(len(self._numeric), len(self._regions))
+        self._clock_ats = [c_at for _m, _k, c_at, _f in clocks]
+        parts.append(("slots", [(m, k) for m, k, _a, _f in clocks]))
+        #: per instance with strings: its region's index and its values' slice of the
+        #: strings' tuple (all read as one tuple: compared at once)
+        self._texts: list[tuple[int, slice]] = []
+        texts: list[tuple[Any, int]] = []
+        for desc, (_nums, _codes, strs, _ct), inst in zip(self._desc_inst, insts,
+                                                          plant.instances.values(),
+                                                          strict=True):
             ss = struct.Struct("<" + f"{STR_BYTES}p" * len(strs))
             desc += [at, ss.format, strs]
             if strs:
-                self._strings.append((at, ss.pack_into, _getter(inst.m, strs), [None]))
+                self._texts.append((len(self._regions),
+                                    slice(len(texts), len(texts) + len(strs))))
+                self._regions.append((at, ss.pack_into, "", -1, True))
+                texts += [(inst.m, k) for k in strs]
             at += ss.size
+        parts.append(("slots", texts))
+        #: every region's values as one tuple of tuples, in one call: the state's slots
+        #: read from the very cells its scan closure uses
+        self._read = _reader_of(parts)
+        #: per region, the values it was last packed with (None: pack it next write);
+        #: last of all, the strings' tuple
+        self._last: list[Any] = [None] * (len(self._regions) + 1)
+        #: the regions holding a value that did not fit now
+        self._lossy: set[int] = set()
+        #: the flags set now
+        self._flagged: set[int] = set()
         self._flags_at = at
         self._desc_flags = [at, flag]
         at += flag
@@ -253,46 +286,63 @@ class ImageWriter:
                 "ok": self._desc_ok, "flags": self._desc_flags}
 
     def write(self, scan: int, wall_ns: int) -> None:
-        """Scan thread, between cycles: the image of ``scan`` into the file (seqlock)."""
+        """Scan thread, between cycles: the image of ``scan`` into the file (seqlock).
+        A region whose values equal those it was last packed with is not packed again:
+        the file still holds them (this writer alone writes its file, which starts
+        zeroed with nothing kept)."""
         mm, seq = self._mm, self._seq + 1
         SEQ.pack_into(mm, SEQ_AT, seq)  # odd: a write under way
+        got, last, regions, lossy = self._read(), self._last, self._regions, self._lossy
+        for k, vals, old in zip(self._numeric, got, last, strict=False):  # numeric: first
+            if vals != old:  # a C compare: equal items are mostly the same objects
+                at, pack, _codes, _flag, kept = regions[k]
+                try:
+                    pack(mm, at, *vals)
+                except struct.error:
+                    self._fitted(k, vals)
+                else:
+                    if lossy and k in lossy:
+                        self._fitted(k, vals)
+                if kept:
+                    last[k] = vals
+        nclock = len(self._numeric)
+        clocks = got[nclock]
         try:
-            self._whole(mm, DATA_AT, *self._read_all())
+            if lossy:
+                raise struct.error("a clock may be flagged")
+            _consume(map(_CLOCK, repeat(mm), self._clock_ats, clocks))
         except struct.error:
-            self._region_by_region()
-        else:
-            if self._flagged:
-                for flag in list(self._flagged):
-                    self._flag(flag, False)
-        for at, pack, get, last in self._strings:
-            vals = get()
-            if vals != last[0]:
-                last[0] = vals
-                pack(mm, at, *[str(v).encode()[:STR_BYTES - 1] for v in vals])
+            for k, v in zip(self._clocks, clocks, strict=True):
+                self._fitted(k, (v,))
+        texts = got[-1]
+        if texts != last[-1]:
+            for k, part in self._texts:
+                vals = texts[part]
+                if vals != last[k]:
+                    at, pack = regions[k][:2]
+                    pack(mm, at, *[str(v).encode()[:STR_BYTES - 1] for v in vals])
+                    last[k] = vals
+            last[-1] = texts
+        if lossy:
+            self.lossy += 1
         STAMP.pack_into(mm, STAMP_AT, scan, wall_ns, time.monotonic_ns(), self.lossy)
         with memoryview(mm) as view:
             CRC.pack_into(mm, CRC_AT, zlib.crc32(view[STAMP_AT:]))
         self._seq = seq + 1
         SEQ.pack_into(mm, SEQ_AT, seq + 1)  # even: done
 
-    def _region_by_region(self) -> None:
-        """The slow path: each region packed on its own, a region with a value that does
-        not fit (an INT beyond 64 bits, a list grown) value by value, flagged."""
-        mm, lossy = self._mm, False
-        for at, pack, get, codes, flag in self._packs:
-            vals = get()
-            try:
-                pack(mm, at, *vals)
-                changed = False
-            except struct.error:
-                changed = self._slow(at, pack, vals, codes)
-                lossy |= changed
-            if changed != (flag in self._flagged):
-                self._flag(flag, changed)
-        at, pack, drvs = self._ok
-        pack(mm, at, *[bool(d.ok) for d in drvs])
-        if lossy:
-            self.lossy += 1
+    def _fitted(self, k: int, vals: Sequence[Any]) -> None:
+        """Region ``k`` packed value by value, each made to fit (``_fit``: an INT beyond
+        64 bits saturated, a list grown or shrunk); its flag set while one of the
+        regions of its flag holds a value that did not fit."""
+        at, pack, codes, flag, _kept = self._regions[k]
+        if self._slow(at, pack, vals, codes):
+            self._lossy.add(k)
+        else:
+            self._lossy.discard(k)
+        on = any(self._regions[j][3] == flag for j in self._lossy)
+        if flag >= 0 and on != (flag in self._flagged):
+            self._flag(flag, on)
 
     def _flag(self, flag: int, on: bool) -> None:
         (self._flagged.add if on else self._flagged.discard)(flag)
@@ -323,56 +373,43 @@ class ImageWriter:
             pass
 
 
-def _getter(m: Any, slots: list[int]) -> Callable[[], tuple[Any, ...]]:
-    """The values of ``slots`` of state ``m`` as a tuple, in one call."""
-    getter = getattr(m, "getter", None)
-    if getter is not None:
-        fn: Callable[[], tuple[Any, ...]] = getter(slots)
-        return fn
-    if len(slots) == 1:
-        k = slots[0]
-        return lambda: (m[k],)
-    ig = operator.itemgetter(*slots)
-    return lambda: ig(m)
-
-
-def _list(vals: list[Any]) -> Callable[[], list[Any]]:
-    return lambda: vals
-
-
-def _reader_of(parts: list[tuple[str, Any, list[int]]]) -> Callable[[], tuple[Any, ...]]:
-    """One function of no argument giving, as one tuple, the values of every part:
-    ("slots", a state, its slots), ("list", a value list), ("ok", a driver). Generated
-    from names made here (no text of any file): it reads a state's slots from the very
-    cells its scan closure uses (a LOAD_DEREF each), so the scan thread pays one call
-    for the whole image."""
+def _reader_of(parts: list[tuple[str, Any]]) -> Callable[[], tuple[tuple[Any, ...], ...]]:
+    """One function of no argument giving, as one tuple, a tuple of values per part:
+    ("slots", [(a state, its slot)...]), ("list", a value list: copied), ("ok", the
+    drivers: their ok flags). Generated from names made here (no text of any file): it
+    reads a state's slots from the very cells its scan closure uses (a LOAD_DEREF
+    each), so the scan thread pays one call for the whole image."""
     cells: list[Any] = []
-    terms: list[str] = []
-    for kind, obj, slots in parts:
+    regions: list[str] = []
+    for kind, what in parts:
+        terms: list[str] = []
         if kind == "slots":
-            state_cells = getattr(obj, "cells", None)
-            for k in slots:
+            for state, k in what:
+                state_cells = getattr(state, "cells", None)
                 cells.append(state_cells[k] if state_cells is not None
-                             else CellType(_Item(obj, k)))
+                             else CellType(_Item(state, k)))
                 terms.append(f"c{len(cells) - 1}" if state_cells is not None
                              else f"c{len(cells) - 1}.get()")
         elif kind == "list":
-            cells.append(CellType(obj))
+            cells.append(CellType(what))
             terms.append(f"*c{len(cells) - 1}")
         else:
-            cells.append(CellType(obj))
-            terms.append(f"bool(c{len(cells) - 1}.ok)")
+            for d in what:
+                cells.append(CellType(d))
+                terms.append(f"bool(c{len(cells) - 1}.ok)")
+        regions.append("(" + "".join(f"{t}, " for t in terms) + ")")
     free = [f"c{k}" for k in range(len(cells))]
-    inner = _reader_code(free, terms)
+    inner = _reader_code(free, regions)
     by_name = dict(zip(free, cells, strict=True))
-    fn: Callable[[], tuple[Any, ...]] = FunctionType(
+    fn: Callable[[], tuple[tuple[Any, ...], ...]] = FunctionType(
         inner, {"bool": bool, "__builtins__": restricted_builtins()}, "read", None,
         tuple(by_name[n] for n in inner.co_freevars))
     return fn
 
 
 def _reader_code(free: list[str], terms: list[str]) -> CodeType:
-    """The code of ``read`` returning the tuple of ``terms`` over the cells ``free``,
+    """The code of ``read`` returning the tuple of ``terms`` (each a region's tuple)
+    over the cells ``free``,
     checked twice before anything of it runs: the whole text against the one shape
     ``_reader_of`` makes (``_READER_TEXT``), then the compiled code by the guard every
     generated program passes (runtime/compiler/guard.py: ``bool`` the only global,

@@ -313,10 +313,11 @@ def test_a_torn_image_with_an_even_unchanged_counter_is_refused(tmp_path: Path) 
 def test_a_tampered_term_of_the_generated_reader_is_refused(term: str) -> None:
     """The scan thread's reader function is generated text: a term outside its shape (an
     attribute, a call, a subscript, a line) is refused before anything of it runs."""
-    assert _reader_code(["c0"], ["c0", "*c0", "bool(c0.ok)", "c0.get()"]).co_freevars \
+    assert _reader_code(["c0"], ["(c0, bool(c0.ok), c0.get(), )", "(*c0, )"]).co_freevars \
         == ("c0",)
-    with pytest.raises(GeneratedCodeRefused, match="image reader"):
-        _reader_code(["c0"], [term])
+    for region in (term, f"({term}, )", f"(c0, {term}, )"):
+        with pytest.raises(GeneratedCodeRefused, match="image reader"):
+            _reader_code(["c0"], [region])
 
 
 def test_the_generated_reader_passes_the_guard(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -328,4 +329,4 @@ def test_the_generated_reader_passes_the_guard(monkeypatch: pytest.MonkeyPatch) 
         raise GeneratedCodeRefused(filename, 1, "refused by the test")
     monkeypatch.setattr(image_mod, "checked_code", refuse)
     with pytest.raises(GeneratedCodeRefused, match="refused by the test"):
-        _reader_code(["c0"], ["c0"])
+        _reader_code(["c0"], ["(c0, )"])
