@@ -214,9 +214,8 @@ class ImageWriter:
                 clocks.append((inst.m, ct, at + st.size - 8, flag))
                 nums, codes = nums[:-1], codes[:-1]
             if nums:
-                # REAL regions are packed every write: 0.0 == -0.0, packed differently
                 self._regions.append((at, struct.Struct("<" + codes).pack_into, codes,
-                                      flag, "d" not in codes))
+                                      flag, True))
                 parts.append(("slots", [(inst.m, k) for k in nums]))
             flag += 1
             at += st.size
@@ -239,6 +238,11 @@ class ImageWriter:
         self._desc_ok = [at, ok.format]
         at += ok.size
         self._numeric = range(len(self._regions))
+        #: per numeric region, the positions of its REAL values: 0.0 == -0.0, packed
+        #: apart, so such a region equal to its last values is packed all the same when
+        #: one of them is another object
+        self._reals = [tuple(i for i, c in enumerate(r[2]) if c == "d")
+                       for r in self._regions]
         self._regions += [(c_at, _CLOCK, "q", c_flag, False)
                           for _m, _k, c_at, c_flag in clocks]
         #: the clocks' regions and offsets: all packed every write
@@ -293,8 +297,10 @@ class ImageWriter:
         mm, seq = self._mm, self._seq + 1
         SEQ.pack_into(mm, SEQ_AT, seq)  # odd: a write under way
         got, last, regions, lossy = self._read(), self._last, self._regions, self._lossy
-        for k, vals, old in zip(self._numeric, got, last, strict=False):  # numeric: first
-            if vals != old:  # a C compare: equal items are mostly the same objects
+        for k, vals, old, reals in zip(self._numeric, got, last, self._reals,
+                                       strict=False):  # the numeric regions come first
+            # a C compare: equal items are mostly the very same objects
+            if vals != old or (reals and _moved(vals, old, reals)):
                 at, pack, _codes, _flag, kept = regions[k]
                 try:
                     pack(mm, at, *vals)
@@ -371,6 +377,11 @@ class ImageWriter:
                 os.unlink(self.path)
         except OSError:
             pass
+
+
+def _moved(vals: tuple[Any, ...], old: tuple[Any, ...], at: tuple[int, ...]) -> bool:
+    """Whether a value at one of the positions ``at`` is not the very object it was."""
+    return any(vals[i] is not old[i] for i in at)
 
 
 def _reader_of(parts: list[tuple[str, Any]]) -> Callable[[], tuple[tuple[Any, ...], ...]]:

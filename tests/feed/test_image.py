@@ -11,6 +11,7 @@ import stat
 import struct
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -330,3 +331,57 @@ def test_the_generated_reader_passes_the_guard(monkeypatch: pytest.MonkeyPatch) 
     monkeypatch.setattr(image_mod, "checked_code", refuse)
     with pytest.raises(GeneratedCodeRefused, match="refused by the test"):
         _reader_code(["c0"], ["(c0, )"])
+
+
+def test_a_change_between_two_writes_is_read_back_whatever_its_region(
+        tmp_path: Path) -> None:
+    """The writer skips a region whose values equal those it last packed: each change
+    below, alone between two writes, is read back, and every other name still equals the
+    Catalogue's reading (a numeric slot of one instance, a string slot, a driver's input
+    and output points, its ok flag, a REAL slot to -0.0, which equals 0.0 but packs
+    apart, a step's time as the chart clock advances)."""
+    from drivers.base import Health
+
+    pdef = load_plant(str(_plant(tmp_path)))
+    d = Daemon(pdef, sim=True, manage_gc=False)
+    t1, t2, io = d.plant.instances["t1"], d.plant.instances["t2"], d.plant.drivers["io"]
+    cat = Catalogue(d.plant)
+    names = list(cat.names)
+    writer = ImageWriter(cat, str(tmp_path / "img"), 1)
+    reader = ImageReader(json.loads(json.dumps(
+        {"image": writer.describe(), "specs": [list(s.spec) for s in cat.names.values()]})))
+    step_t = next(n for n in names if n.startswith("t1.") and n.endswith(".T"))
+    x = cat.names[step_t].spec[3]
+    err = cat.names["t1.SFCErrorStep"].spec[2]  # a chart flag: the scan writes it
+
+    def advance_clock() -> None:
+        t1.m[x] = t1.m[x] + 10**6
+    io.health = Health.OK
+    changes: list[tuple[str, Callable[[], None]]] = [
+        ("t2.sN", lambda: t2.set("sN", 41)),
+        ("t1.SFCErrorStep", lambda: t1.m.__setitem__(err, "gsB")),
+        ("io.I1", lambda: io.inputs.__setitem__("I1", 1)),
+        ("io.Q0", lambda: io.outputs.__setitem__("Q0", 1)),
+        ("io.ok", lambda: setattr(io, "health", Health.FAULT)),
+        ("t2.sRate", lambda: t2.set("sRate", -0.0)),
+        (step_t, advance_clock),
+    ]
+    try:
+        t2.set("sRate", 0.0)
+        writer.write(1, 0)
+        for scan, (name, change) in enumerate(changes, 2):
+            before = cat.names[name].read(cat.capture(0))
+            change()
+            after = cat.names[name].read(cat.capture(0))
+            assert repr(after) != repr(before), name  # the change is one
+            writer.write(scan, 0)
+            got = reader.read()
+            assert got is not None and got[0] == scan
+            shown = got[2][names.index(name)]
+            assert shown == after and str(shown).startswith("-") == str(after).startswith(
+                "-"), f"{name}: shown {shown!r}, is {after!r}"
+            img = cat.capture(0)
+            assert _same(got[2], [s.read(img) for s in cat.names.values()], names) == []
+    finally:
+        reader.close()
+        writer.retire()
