@@ -56,6 +56,7 @@ import time
 import zlib
 from collections import deque
 from collections.abc import Callable, Sequence
+from functools import partial
 from itertools import repeat
 from types import CellType, CodeType, FunctionType
 from typing import TYPE_CHECKING, Any, TypeVar
@@ -243,6 +244,9 @@ class ImageWriter:
         #: one of them is another object
         self._reals = [tuple(i for i, c in enumerate(r[2]) if c == "d")
                        for r in self._regions]
+        #: per numeric region, its pack_into bound to the mapping and its offset (set
+        #: once the file is mapped)
+        self._packs: list[Callable[..., None]] = []
         self._regions += [(c_at, _CLOCK, "q", c_flag, False)
                           for _m, _k, c_at, c_flag in clocks]
         #: the clocks' regions and offsets: all packed every write
@@ -281,6 +285,8 @@ class ImageWriter:
         self.size = at
         self._mm = _create(path, self.size, HEAD.pack(MAGIC, VERSION, generation,
                                                       self.token))
+        self._packs = [partial(self._regions[k][1], self._mm, self._regions[k][0])
+                       for k in self._numeric]
 
     def describe(self) -> dict[str, Any]:
         """The schema's ``image``: what a reader needs (plain data)."""
@@ -297,20 +303,18 @@ class ImageWriter:
         mm, seq = self._mm, self._seq + 1
         SEQ.pack_into(mm, SEQ_AT, seq)  # odd: a write under way
         got, last, regions, lossy = self._read(), self._last, self._regions, self._lossy
-        for k, vals, old, reals in zip(self._numeric, got, last, self._reals,
-                                       strict=False):  # the numeric regions come first
+        for k, vals, old, reals, pack in zip(self._numeric, got, last, self._reals,
+                                             self._packs, strict=False):  # numeric first
             # a C compare: equal items are mostly the very same objects
             if vals != old or (reals and _moved(vals, old, reals)):
-                at, pack, _codes, _flag, kept = regions[k]
                 try:
-                    pack(mm, at, *vals)
+                    pack(*vals)  # a partial: the mapping and offset, without a copy
                 except struct.error:
                     self._fitted(k, vals)
                 else:
                     if lossy and k in lossy:
                         self._fitted(k, vals)
-                if kept:
-                    last[k] = vals
+                last[k] = vals
         nclock = len(self._numeric)
         clocks = got[nclock]
         try:
