@@ -4,10 +4,13 @@ the processes beside it (``softplc opcua``, ``mqtt``, ``web``, ``modbus``) in th
 The controller (``ImageWriter``) creates one file per plant object, ``<feed path>.image``
 (mode 0640: its owner writes, the plant's group reads), maps it, and every sample packs
 the image into it: per instance the state slots its names need, per driver its input and
-output values, every driver's ok flag. One generated function reads them all (a state's
-slots from the very cells its scan closure uses) and one precompiled ``struct.Struct``
-packs them (``pack_into``, a C call): no Python work per name, one call per sample. The
-layout is fixed for the plant object; an online change makes a new file (a new
+output values, every driver's ok flag. One generated function reads them all, a tuple
+per region (a state's slots from the very cells its scan closure uses), and a region is
+packed by its precompiled ``struct.Struct`` (``pack_into``, a C call) only when its
+values differ from those it was last packed with (a C tuple compare): the file, which
+this writer alone writes, still holds them. Each chart clock (``#ct``, advanced every
+scan) is packed on its own every write, so that a waiting instance's other slots are
+skipped. The layout is fixed for the plant object; an online change makes a new file (a new
 generation, renamed over the old one), and the feed's schema says which
 (``ImageWriter.describe``).
 
@@ -24,8 +27,8 @@ File layout (little-endian, no padding):
 - per instance, its STRING slots, each ``STR_BYTES`` bytes (``p``: a length byte and
   UTF-8, cut to STR_BYTES - 1 bytes), packed only when one changed (a tuple compare);
 - one byte per numeric region (instances, then each driver's inputs and outputs): 1 while
-  a value of that region did not fit (an INT beyond 64 bits: the whole area is then
-  packed region by region, value by value, ``_fit``): it is stored saturated, and a
+  a value of that region did not fit (an INT beyond 64 bits: the region is then packed
+  value by value, ``_fit``): it is stored saturated, and a
   reader shows a saturated value of that region one beyond the 64-bit range (2**63, or
   -2**63 - 1), so that it stays out of range to whoever checks (OPC UA: BadOutOfRange);
   its exact value is not carried.
@@ -55,7 +58,7 @@ import struct
 import time
 import zlib
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from functools import partial
 from itertools import repeat
 from types import CellType, CodeType, FunctionType
@@ -90,7 +93,7 @@ T = TypeVar("T")
 #: a chart clock's slot (packed on its own, every write)
 _CLOCK = struct.Struct("<q").pack_into
 #: runs an iterator to its end, keeping nothing (a loop in C)
-_consume = deque(maxlen=0).extend
+_consume: Callable[[Iterable[Any]], None] = deque(maxlen=0).extend
 INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
 
 _NUMERIC = re.compile(r"<[?qd]*\Z")
