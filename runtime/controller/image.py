@@ -90,6 +90,8 @@ STR_BYTES = 64
 #: copies a reader tries before it gives up on this sample (the writer kept writing)
 RETRIES = 8
 T = TypeVar("T")
+#: numeric regions compared at once (one C compare), then one by one if they differ
+BLOCK = 16
 #: a chart clock's slot (packed on its own, every write)
 _CLOCK = struct.Struct("<q").pack_into
 #: runs an iterator to its end, keeping nothing (a loop in C)
@@ -250,6 +252,13 @@ class ImageWriter:
         #: per numeric region, its pack_into bound to the mapping and its offset (set
         #: once the file is mapped)
         self._packs: list[Callable[..., None]] = []
+        #: the numeric regions by blocks of BLOCK, compared at once: (first, end, whether
+        #: one has a REAL: then compared region by region every write), and the values
+        #: each block was last written with
+        self._blocks = [(a, min(a + BLOCK, len(self._numeric)),
+                         any(self._reals[a:a + BLOCK]))
+                        for a in range(0, len(self._numeric), BLOCK)]
+        self._kept_blocks: list[Any] = [None] * len(self._blocks)
         self._regions += [(c_at, _CLOCK, "q", c_flag, False)
                           for _m, _k, c_at, c_flag in clocks]
         #: the clocks' regions and offsets: all packed every write
@@ -306,18 +315,25 @@ class ImageWriter:
         mm, seq = self._mm, self._seq + 1
         SEQ.pack_into(mm, SEQ_AT, seq)  # odd: a write under way
         got, last, regions, lossy = self._read(), self._last, self._regions, self._lossy
-        for k, vals, old, reals, pack in zip(self._numeric, got, last, self._reals,
-                                             self._packs, strict=False):  # numeric first
-            # a C compare: equal items are mostly the very same objects
-            if vals != old or (reals and _moved(vals, old, reals)):
-                try:
-                    pack(*vals)  # a partial: the mapping and offset, without a copy
-                except struct.error:
-                    self._fitted(k, vals)
-                else:
-                    if lossy and k in lossy:
+        kept_blocks, all_reals, packs = self._kept_blocks, self._reals, self._packs
+        for j, (a, b, real) in enumerate(self._blocks):
+            block = got[a:b]
+            # a C compare of BLOCK regions at once: equal items are mostly the very
+            # same objects
+            if block == kept_blocks[j] and not real:
+                continue
+            for k in range(a, b):
+                vals, old, reals = got[k], last[k], all_reals[k]
+                if vals != old or (reals and _moved(vals, old, reals)):
+                    try:
+                        packs[k](*vals)  # a partial: the mapping and offset, no copy
+                    except struct.error:
                         self._fitted(k, vals)
-                last[k] = vals
+                    else:
+                        if lossy and k in lossy:
+                            self._fitted(k, vals)
+                    last[k] = vals
+            kept_blocks[j] = block
         nclock = len(self._numeric)
         clocks = got[nclock]
         try:
