@@ -124,7 +124,11 @@ class PlantServer:
         self.frames = 0
         self._names_built: list[tuple[str, ...]] | None = None
         self._events: dict[str, Any] = {}
+        #: the instances' SFCError as the last frame showed them (events at frames)
         self._prev: dict[str, Any] = {}
+        #: the drivers' health and the controller's state as the last status said them
+        #: (events at statuses); None: no status since the (re)connection
+        self._prev_status: dict[str, Any] | None = None
         #: per plant variable (``space.nodes``), the feed value last written and the status
         #: it was written with (None: its own): a frame writes only what changed
         self._shown: list[tuple[Any, int | None]] = []
@@ -270,13 +274,16 @@ class PlantServer:
         """The feed's connection ended: every value BadNoCommunication until it is back."""
         self.connected.clear()
         self._last_frame, self.stale = None, False
-        self._prev = {}  # the next frame is a state, not a change from this one
+        # the next frame and status are states, not changes from these
+        self._prev, self._prev_status = {}, None
         await self._all_bad(Status.BadNoCommunication)
         self._shown = []  # every value written again by the next frame
 
     async def _status(self) -> None:
-        """The controller's status (with its alarm board) came: the conditions follow."""
+        """The controller's status (with its alarm board) came: the conditions follow,
+        and the drivers' and the controller's events (``_status_events``)."""
         await self.conditions.update(self.state.status.get("alarms") or [])
+        await self._status_events()
 
     async def _schema(self, schema: dict[str, Any]) -> None:
         self._last_frame = None  # no stale check while the names change
@@ -388,6 +395,7 @@ class PlantServer:
 
     # -- events ------------------------------------------------------------------
     async def _derive_events(self, ts: datetime.datetime) -> None:
+        """Each frame: an instance's SFCError set or cleared (values of the frame)."""
         st, prev = self.state, self._prev
         now: dict[str, Any] = {}
         for name in self.space.instances:
@@ -395,12 +403,30 @@ class PlantServer:
             if key in st.index:
                 now[f"i:{name}"] = (st.get(key), st.get(f"{name}.SFCErrorStep")
                                     if f"{name}.SFCErrorStep" in st.index else "")
-        for dname, (health, reason, _ok) in (st.status.get("drivers") or {}).items():
-            now[f"d:{dname}"] = (health, reason)
-        now["controller"] = (st.status.get("state"), st.status.get("fault"))
         self._prev = now
         if not prev:
             return  # the first frame after a (re)connection: a state, not a change
+        await self._fire(prev, now, ts)
+
+    async def _status_events(self) -> None:
+        """Each status, in the order they came: a driver's fault or recovery, the
+        controller's fault, halt or acknowledgement. Taken from every status, not only
+        from the one a frame finds: statuses come on the socket and frames from the
+        image, each at its own pace, and a fault and its recovery said between two
+        frames made no event."""
+        status = self.state.status
+        now: dict[str, Any] = {
+            f"d:{dname}": (health, reason)
+            for dname, (health, reason, _ok) in (status.get("drivers") or {}).items()}
+        now["controller"] = (status.get("state"), status.get("fault"))
+        prev, self._prev_status = self._prev_status, now
+        if prev is None:
+            return  # the first status after a (re)connection: a state, not a change
+        await self._fire(prev, now, datetime.datetime.now(datetime.UTC))
+
+    async def _fire(self, prev: dict[str, Any], now: dict[str, Any],
+                    ts: datetime.datetime) -> None:
+        """An event for each key whose value changed from ``prev`` to ``now``."""
         for key, value in now.items():
             old = prev.get(key)
             if old is None or old == value or key not in self._events:

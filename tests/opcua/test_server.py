@@ -6,6 +6,11 @@ stopped and started again, events."""
 from __future__ import annotations
 
 import asyncio
+import json
+import socket
+import threading
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -377,6 +382,95 @@ def test_a_controller_fault_and_its_ack_are_events_of_the_controller(tmp_path: P
         ("controller: fault acknowledged, now running", 300, "Controller")]
 
 
+def _lines_until(sock: socket.socket, buf: bytearray, pred: Callable[[bytes], bool]
+                 ) -> list[bytes]:
+    """The feed's lines from ``sock`` (``buf``: what came after the last line) up to and
+    with the first one ``pred`` takes, 30 s at most."""
+    got: list[bytes] = []
+    end = time.monotonic() + 30.0
+    while time.monotonic() < end:
+        cut = buf.find(b"\n")
+        if cut >= 0:
+            line = bytes(buf[:cut + 1])
+            del buf[:cut + 1]
+            got.append(line)
+            if pred(line):
+                return got
+            continue
+        buf += sock.recv(1 << 16)
+    raise AssertionError("the feed never sent such a line")
+
+
+def _driver_io(line: bytes) -> str | None:
+    """The health of driver io a status line says (None: not a status)."""
+    msg = json.loads(line)
+    return msg["c"]["drivers"]["io"][0] if "c" in msg else None
+
+
+def test_driver_events_follow_every_status_not_the_frames(tmp_path: Path) -> None:
+    """Statuses come on the feed's socket, frames at their own pace (from the shared
+    image, at the server's own sample): a driver's fault and its recovery, said by two
+    statuses between two frames, are two events. The lines are a real controller's
+    (its schema without the image, so that the frames come as lines too), played again
+    by a feed in this test that sends no frame between the statuses."""
+    pdef = load_plant(str(write_plant(tmp_path, port=free_port())))
+    drv = RecordingDriver("io", {"on_fault": "hold"})
+    with serving(pdef, Plant(pdef, drivers={"io": drv})) as (_d, feed):
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        sock.connect(feed.path)
+        buf = bytearray()
+        schema, *_ = _lines_until(sock, buf, lambda ln: ln.startswith(b'{"schema"'))
+        healthy = _lines_until(sock, buf, lambda ln: _driver_io(ln) == "ok")[-1]
+        frame = _lines_until(sock, buf, lambda ln: ln.startswith(b'{"f"'))[-1]
+        drv.fail_with = DriverError("bus gone")
+        fault = _lines_until(sock, buf, lambda ln: _driver_io(ln) == "fault")[-1]
+        drv.fail_with = None
+        sock.close()
+    plain = json.loads(schema)
+    plain["schema"]["image"] = None
+    scan, wall, values = json.loads(frame)["f"]
+    later = json.dumps({"f": [scan + 100, wall + 1.0, values]}).encode() + b"\n"
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    assert pdef.opcua is not None
+    listener.bind(pdef.opcua.feed)
+    listener.listen(1)
+    go = threading.Event()
+
+    def play() -> None:
+        conn, _ = listener.accept()
+        with conn:
+            conn.sendall(json.dumps(plain).encode() + b"\n" + healthy + frame)
+            go.wait(30.0)
+            conn.sendall(fault + healthy + later)
+            go.wait(60.0)  # until the test ends (the listener closed)
+
+    player = threading.Thread(target=play, daemon=True)
+    player.start()
+    handler = Collect()
+    try:
+        with ServerThread(pdef) as srv:
+            wait_until(lambda: srv.ps is not None and srv.ps.frames > 0, what="a first frame")
+
+            async def main() -> None:
+                async with Client(srv.url) as c:
+                    sub = await c.create_subscription(100, handler)
+                    await sub.subscribe_events(c.get_node("ns=2;s=driver.io"))
+                    go.set()
+                    assert srv.ps is not None
+                    await _until(lambda: srv.ps is not None and srv.ps.frames >= 2,
+                                 what="the later frame")
+                    await _until(lambda: len(handler.events) >= 2, timeout=5.0,
+                                 what="the fault and the recovery")
+                    await sub.delete()
+            asyncio.run(main())
+    finally:
+        go.set()
+        listener.close()
+    texts = [(e.Message.Text, e.Severity, e.SourceName) for e in handler.events]
+    assert texts == [("driver io: fault: bus gone", 800, "io"),
+                     ("driver io: recovered (ok)", 300, "io")], texts
+
+
 def test_a_driver_fault_and_its_recovery_are_events_of_the_driver(tmp_path: Path) -> None:
     """A real driver object that fails and comes back (the recording driver of the daemon
     tests, on_fault: hold so the controller runs on): the driver object's events."""
@@ -387,6 +481,10 @@ def test_a_driver_fault_and_its_recovery_are_events_of_the_driver(tmp_path: Path
         with ServerThread(d.pdef) as srv:
             wait_until(lambda: srv.ps is not None and srv.ps.frames > 0,
                        what="a first frame")
+            # the server has been told the driver is healthy: a fault is then a change
+            wait_until(lambda: srv.ps is not None and (
+                srv.ps.state.status.get("drivers") or {}).get("io", [""])[0] == "ok",
+                what="a status of the healthy driver")
 
             async def main() -> None:
                 async with Client(srv.url) as c:
