@@ -68,6 +68,7 @@ from bench.opcua import (
     ROOT,
     START_S,
     AlarmTraffic,
+    ack_faults,
     collect_clients,
     end_process,
     go,
@@ -87,7 +88,6 @@ from runtime.console.server import ConsoleServer
 from runtime.console.service import ConsoleService
 from runtime.controller.daemon import Daemon
 from runtime.controller.feed import FeedServer
-from runtime.engine.commands import CommandRefused
 from tests.console.schedprobe import SchedProbe
 
 #: the controller's threads whose CPU a row shows apart (name prefix -> column)
@@ -243,21 +243,6 @@ def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
     w["sides"] = {k: (100 * (cpu_s(v) - side0[k]) / wall, rss_mib(v))
                   for k, v in sides.items()}
     return w
-
-
-def ack_faults(daemon: Daemon, since: int, when: str) -> int:
-    """The controller's faults after the first ``since`` said in one line and acknowledged
-    (a fault stops the charts until ack: the next window would measure another plant);
-    returns the count of faults so far."""
-    faults = list(daemon.faults)
-    if len(faults) > since:
-        try:
-            acked = daemon.ack()
-        except CommandRefused as exc:
-            acked = f"not acknowledged: {exc}"
-        out(f"({len(faults) - since} fault(s) {when}: "
-            + "; ".join(r for _, r in faults[since:]) + f"; then {acked})")
-    return len(faults)
 
 
 def node_files(tmp: str, ids: list[str], items: int, clients: int) -> list[tuple[str, int]]:

@@ -15,10 +15,18 @@ move, at a 10 ms cycle. Phases, each ``--seconds`` long:
   (its ``SFCError`` alarm raised), and cleared 0.5 s later (SFCQuitError for a scan: the
   alarm inactive), each change an event to every client.
 
-Per phase: the scan's wake-up lateness (p50, p99, max) and overruns over the window, and
-the controller's faults (watchdog, freeze: a fault stops the charts until ``ack``);
-for the server phase, the data-change notifications and the alarm events the clients
-received per second (all clients together), the server process's CPU (utime + stime
+Per phase: the scan's wake-up lateness (p50, p99, max: each wake-up of the scan thread,
+``SchedProbe``, as bench/observers.py) and overruns over the window, and the controller's
+faults in it (watchdog, freeze: a fault stops the charts until ``ack``; one before the
+server's window, while it started, is said and acknowledged, so that the alarms come and
+go in it). The scan's statistics are never reset: the feed and the alarm board pace
+themselves on their count of scans, and a reset stopped both for as many scans as had
+run before (no alarm event reached the clients, the server showed every value
+BadOutOfService). For the server phase, the data-change notifications and the alarm
+events the clients received per second (all clients together), and below the table the
+alarm events each client received against the board changes made (each alarm raised and
+cleared: two events; the clients count until DRAIN_S after the window, so that the
+last ones arrive), the server process's CPU (utime + stime
 from /proc/PID/stat over the window, percent of one core) and its resident memory (VmRSS
 at the end, VmHWM peak, from /proc/PID/status). All processes share this machine's
 cores: on a controller the clients run elsewhere, so the server row here is the harder
@@ -46,10 +54,13 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from bench.console import probed_window
 from bench.jitter import DrawerModel, plant_file
 from runtime.controller.daemon import Daemon
 from runtime.controller.feed import FeedServer
+from runtime.engine.commands import CommandRefused
 from runtime.language.plantfile import load_plant
+from tests.console.schedprobe import SchedProbe
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 #: how long the server may take to serve its first frame, s (3500 nodes on a loaded core)
@@ -58,6 +69,9 @@ START_S = 180.0
 WATCHDOG_S = 30.0
 #: clock ticks per second of /proc/PID/stat times
 TICKS = os.sysconf("SC_CLK_TCK")
+#: how long the clients go on counting after the window: the events of the last alarms
+#: (their clearing) arrive, seconds
+DRAIN_S = 5.0
 
 
 def out(line: str) -> None:
@@ -95,16 +109,31 @@ def opcua_section(directory: str, port: int, secure: bool, pki: dict[str, str] |
             f"  limits: {{sessions: {clients + 4}, items_total: 100000}}\n")
 
 
+#: the scan thread's wake-ups, recorded in each window (installed by ``start_daemon``)
+PROBE = SchedProbe()
+
+
 def window(daemon: Daemon, seconds: float) -> dict[str, Any]:
-    """Cycle statistics over ``seconds`` (reset in the scan thread at the start), and the
-    controller's faults since it started (watchdog, freeze)."""
-    stats = daemon.scan_stats
-    daemon.call(stats.reset)
-    time.sleep(seconds)
-    count, overruns = daemon.call(lambda: (stats.count, stats.overruns))
-    late = stats.lateness()
-    return {"cycles": count, "overruns": overruns, "p50": late.p50 / 1e3,
-            "p99": late.p99 / 1e3, "max": late.max / 1e3, "faults": len(daemon.faults)}
+    """The scan's figures over ``seconds`` (``probed_window``: cycles, overruns and faults
+    in the window, lateness of each wake-up, µs). Never a reset of the scan's statistics:
+    the feed and the alarm board count scans by them (a reset stopped both until the
+    count came back where it was)."""
+    return probed_window(daemon, PROBE, seconds)
+
+
+def ack_faults(daemon: Daemon, since: int, when: str) -> int:
+    """The controller's faults after the first ``since`` said in one line and acknowledged
+    (a fault stops the charts until ack: the next window would measure another plant);
+    returns the count of faults so far."""
+    faults = list(daemon.faults)
+    if len(faults) > since:
+        try:
+            acked = daemon.ack()
+        except CommandRefused as exc:
+            acked = f"not acknowledged: {exc}"
+        out(f"({len(faults) - since} fault(s) {when}: "
+            + "; ".join(r for _, r in faults[since:]) + f"; then {acked})")
+    return len(faults)
 
 
 def proc_cpu_s(pid: int) -> float:
@@ -160,7 +189,7 @@ async def run_client(cfg: dict[str, Any]) -> None:
     client = await _session(cfg)
     with open(cfg["nodes"], encoding="utf-8") as f:
         ids = json.load(f)
-    counter = {"n": 0, "events": 0, "counting": False}
+    counter = {"n": 0, "events": 0, "sfcerror": 0, "counting": False}
 
     class Handler:
         def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
@@ -170,6 +199,9 @@ async def run_client(cfg: dict[str, Any]) -> None:
         def event_notification(self, event: Any) -> None:
             if counter["counting"]:
                 counter["events"] += 1
+                name = event.get_event_props_as_fields_dict().get("ConditionName")
+                if str(getattr(name, "Value", name)).endswith(".SFCError"):
+                    counter["sfcerror"] += 1  # the alarms AlarmTraffic raises and clears
 
         def status_change_notification(self, status: Any) -> None:
             sys.stderr.write(f"client: subscription status {status}\n")
@@ -191,6 +223,7 @@ async def run_client(cfg: dict[str, Any]) -> None:
     await asyncio.sleep(cfg["seconds"])
     counter["counting"] = False
     sys.stdout.write(json.dumps({"notifications": counter["n"], "events": counter["events"],
+                                 "sfcerror": counter["sfcerror"],
                                  "seconds": time.monotonic() - t0}) + "\n")
     sys.stdout.flush()
     await client.disconnect()
@@ -248,7 +281,8 @@ def start_daemon(path: str, testers: int, feed: bool,
                  ) -> tuple[Daemon, FeedServer | None]:
     """The daemon of ``path`` with the drawer model, its feed served (``feed``: else the
     plant without its side processes' sections); ``setup`` sees the daemon and the feed
-    server before they start (bench/observers.py probes and times them)."""
+    server before they start (bench/observers.py probes and times them), else the scan
+    thread's wake-ups are recorded by PROBE (``window``)."""
     pdef = load_plant(path)
     if not feed:  # the plant without its side processes' sections: no feed
         pdef.opcua = pdef.mqtt = pdef.web = None
@@ -260,6 +294,8 @@ def start_daemon(path: str, testers: int, feed: bool,
         fs = FeedServer(daemon, feed_def)
     if setup is not None:
         setup(daemon, fs)
+    else:
+        daemon.scheduler.sleep_until = PROBE.wrap(daemon.scheduler.sleep_until)
     if fs is not None:
         fs.start()
     daemon.start()
@@ -311,8 +347,11 @@ def phase_server(path: str, testers: int, clients: int, seconds: float, url: str
                  tmp: str, pki: dict[str, str] | None, alarms: float = 0.0
                  ) -> dict[str, Any]:
     daemon, fs = start_daemon(path, testers, True)
-    server = subprocess.Popen([sys.executable, "-m", "runtime.cli", "opcua", path],
-                              cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    faults0 = len(daemon.faults)
+    # what the server says (a stale feed, a client dropped) is kept beside the plant
+    with open(os.path.join(tmp, "server.log"), "w", encoding="utf-8") as log:
+        server = subprocess.Popen([sys.executable, "-m", "runtime.cli", "opcua", path],
+                                  cwd=ROOT, stdout=subprocess.DEVNULL, stderr=log)
     procs: list[subprocess.Popen[str]] = []
     try:
         t0 = time.monotonic()
@@ -321,13 +360,16 @@ def phase_server(path: str, testers: int, clients: int, seconds: float, url: str
         nodes_file = os.path.join(tmp, "nodes.json")
         with open(nodes_file, "w", encoding="utf-8") as f:
             json.dump(ids, f)
-        start_clients(url, [nodes_file] * clients, seconds, pki, tmp, t0, procs)
+        start_clients(url, [nodes_file] * clients, seconds + DRAIN_S, pki, tmp, t0, procs)
         ready_s = time.monotonic() - t0
+        # a fault while the server started (a freeze of the loaded machine) stops the
+        # charts until ack: SFCError would then never clear, nor its alarm
+        ack_faults(daemon, faults0, "while the server and its clients started")
         traffic = AlarmTraffic(daemon, testers, alarms) if alarms > 0 else None
+        cpu0 = proc_cpu_s(server.pid)
+        go(procs)  # every client counting before the first alarm
         if traffic is not None:
             traffic.thread.start()
-        cpu0 = proc_cpu_s(server.pid)
-        go(procs)
         w = window(daemon, seconds)
         cpu = proc_cpu_s(server.pid) - cpu0
         rss, hwm = proc_mem_mib(server.pid)
@@ -335,11 +377,13 @@ def phase_server(path: str, testers: int, clients: int, seconds: float, url: str
             traffic.stop.set()
             traffic.thread.join(10)
         got = collect_clients(procs)
+        count_s = seconds + DRAIN_S
         total = sum(g.get("notifications", 0) for g in got)
         events = sum(g.get("events", 0) for g in got)
-        w.update(nodes=len(ids), notif_s=total / seconds, events_s=events / seconds,
+        w.update(nodes=len(ids), notif_s=total / count_s, events_s=events / count_s,
                  cpu_pct=100 * cpu / seconds, rss=rss, hwm=hwm, ready_s=ready_s,
-                 subscribed=len(procs), faults=len(daemon.faults),
+                 subscribed=len(procs),
+                 received=[g.get("sfcerror", "-") for g in got],
                  raised=traffic.raised if traffic is not None else 0)
         return w
     finally:
@@ -464,7 +508,9 @@ def main() -> None:
     out(row(f"server + {r['subscribed']} clients", r))
     out(f"({r['subscribed']} of {args.clients} clients subscribed to every variable, "
         f"{r['ready_s']:.0f} s after the server started; {r['raised']} alarms raised and "
-        "cleared during the window)")
+        f"cleared during the window: {2 * r['raised']} board changes, alarm events "
+        "received per client "
+        + (", ".join(str(n) for n in r["received"]) or "-") + ")")
 
 
 if __name__ == "__main__":
