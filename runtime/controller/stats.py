@@ -96,7 +96,10 @@ class ScanStats:
         self.reset()
 
     def reset(self) -> None:
-        """Forget everything (e.g. after start-up, so compilation does not count)."""
+        """Forget everything (e.g. after start-up, so compilation does not count). Never
+        on a running daemon's: its listeners (the feed, the alarm board) are given
+        ``count`` as the scan number and pace themselves on it; a reset stops them until
+        the count comes back where it was."""
         self.count = 0
         self.overruns = 0
         self.skipped = 0  # deadlines passed over by re-anchoring after overruns
