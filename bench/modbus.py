@@ -40,6 +40,7 @@ import time
 from typing import Any
 
 from bench.jitter import DrawerModel, plant_file
+from bench.opcua import window as scan_window
 from drivers.modbus_frame import mbap_frame, read_pdu
 from runtime.controller.daemon import Daemon
 from runtime.controller.feed import FeedServer
@@ -73,19 +74,6 @@ def modbus_plant(directory: str, testers: int, port: int, fifo: bool) -> str:
                 f"  feed: {directory}/feed.sock\n  limits: {{rate: 100000, connections: 64}}\n"
                 f"  map:\n{entries}")
     return path
-
-
-def scan_window(daemon: Daemon, seconds: float) -> dict[str, Any]:
-    """The scan's lateness and overruns over the next ``seconds``."""
-    stats = daemon.scan_stats
-    c0, o0 = daemon.call(lambda: (stats.count, stats.overruns))
-    time.sleep(seconds)
-    c1, o1 = daemon.call(lambda: (stats.count, stats.overruns))
-    n = min(c1 - c0, stats.window)
-    late = sorted(stats._late[i % stats.window] for i in range(c1 - n, c1))
-    return {"cycles": c1 - c0, "overruns": o1 - o0, "p50": late[n // 2] / 1e3,
-            "p99": late[min(n - 1, int(n * 0.99))] / 1e3, "max": late[-1] / 1e3,
-            "faults": len(daemon.faults)}
 
 
 def proc_cpu_s(pid: int) -> float:

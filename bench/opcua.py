@@ -15,22 +15,21 @@ move, at a 10 ms cycle. Phases, each ``--seconds`` long:
   (its ``SFCError`` alarm raised), and cleared 0.5 s later (SFCQuitError for a scan: the
   alarm inactive), each change an event to every client.
 
-Per phase: the scan's wake-up lateness (p50, p99, max: each wake-up of the scan thread,
-``SchedProbe``, as bench/observers.py) and overruns over the window, and the controller's
-faults in it (watchdog, freeze: a fault stops the charts until ``ack``; one before the
-server's window, while it started, is said and acknowledged, so that the alarms come and
-go in it). The scan's statistics are never reset: the feed and the alarm board pace
-themselves on their count of scans, and a reset stopped both for as many scans as had
-run before (no alarm event reached the clients, the server showed every value
-BadOutOfService). For the server phase, the data-change notifications and the alarm
-events the clients received per second (all clients together), and below the table the
-alarm events each client received against the board changes made (each alarm raised and
-cleared: two events; the clients count until DRAIN_S after the window, so that the
-last ones arrive), the server process's CPU (utime + stime
-from /proc/PID/stat over the window, percent of one core) and its resident memory (VmRSS
-at the end, VmHWM peak, from /proc/PID/status). All processes share this machine's
-cores: on a controller the clients run elsewhere, so the server row here is the harder
-case.
+Per phase: the scan's wake-up lateness (p50, p99, max) and overruns over the window, and
+the controller's faults in it (watchdog, freeze: a fault stops the charts until ``ack``;
+one while the server and its clients started is said and acknowledged before the
+window, so that the alarms come and go in it). The scan's statistics are never reset:
+the feed and the alarm board pace themselves on their count of scans, and a reset
+stopped both for as many scans as had run before (no alarm event reached the clients,
+the server showed every value BadOutOfService). For the server phase: the data-change
+notifications and the alarm events the clients received per second (all clients
+together), and below the table the SFCError alarm events each client received against
+the board changes made (each alarm raised and cleared: two; the clients count from
+before the first alarm until DRAIN_S after the window, so that the last ones arrive);
+the server process's CPU (utime + stime from /proc/PID/stat over the window, percent of
+one core) and its resident memory (VmRSS at the end, VmHWM peak, from /proc/PID/status).
+All processes share this machine's cores: on a controller the clients run elsewhere, so
+the server row here is the harder case.
 
 Clients subscribe one after the other; one that cannot (its requests time out: the server
 does not keep up) is left out, and the row says how many did.
@@ -54,13 +53,11 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from bench.console import probed_window
 from bench.jitter import DrawerModel, plant_file
 from runtime.controller.daemon import Daemon
 from runtime.controller.feed import FeedServer
 from runtime.engine.commands import CommandRefused
 from runtime.language.plantfile import load_plant
-from tests.console.schedprobe import SchedProbe
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 #: how long the server may take to serve its first frame, s (3500 nodes on a loaded core)
@@ -109,16 +106,25 @@ def opcua_section(directory: str, port: int, secure: bool, pki: dict[str, str] |
             f"  limits: {{sessions: {clients + 4}, items_total: 100000}}\n")
 
 
-#: the scan thread's wake-ups, recorded in each window (installed by ``start_daemon``)
-PROBE = SchedProbe()
-
-
 def window(daemon: Daemon, seconds: float) -> dict[str, Any]:
-    """The scan's figures over ``seconds`` (``probed_window``: cycles, overruns and faults
-    in the window, lateness of each wake-up, µs). Never a reset of the scan's statistics:
-    the feed and the alarm board count scans by them (a reset stopped both until the
-    count came back where it was)."""
-    return probed_window(daemon, PROBE, seconds)
+    """The scan's figures over the next ``seconds``: cycles, overruns and faults in the
+    window (the counters' differences), the wake-up lateness's p50, p99 and max (µs) over
+    its cycles, taken from the scan's own statistics (their last ``window`` cycles, 8192:
+    82 s at 10 ms; a longer window's figures are those of its end). Never a reset of
+    the statistics: the daemon gives their count to its listeners as the scan number, and
+    the feed and the alarm board pace themselves on it (a reset stopped both until the
+    count came back where it was: no alarm event, every value BadOutOfService)."""
+    stats = daemon.scan_stats
+    faults = len(daemon.faults)
+    c0, o0 = daemon.call(lambda: (stats.count, stats.overruns))
+    time.sleep(seconds)
+    c1, o1 = daemon.call(lambda: (stats.count, stats.overruns))
+    n = min(c1 - c0, stats.window)
+    late = sorted(stats._late[i % stats.window] for i in range(c1 - n, c1)) or [0]
+    n = len(late)
+    return {"cycles": c1 - c0, "overruns": o1 - o0, "p50": late[n // 2] / 1e3,
+            "p99": late[min(n - 1, int(n * 0.99))] / 1e3, "max": late[-1] / 1e3,
+            "faults": len(daemon.faults) - faults}
 
 
 def ack_faults(daemon: Daemon, since: int, when: str) -> int:
@@ -281,8 +287,7 @@ def start_daemon(path: str, testers: int, feed: bool,
                  ) -> tuple[Daemon, FeedServer | None]:
     """The daemon of ``path`` with the drawer model, its feed served (``feed``: else the
     plant without its side processes' sections); ``setup`` sees the daemon and the feed
-    server before they start (bench/observers.py probes and times them), else the scan
-    thread's wake-ups are recorded by PROBE (``window``)."""
+    server before they start (bench/observers.py probes and times them)."""
     pdef = load_plant(path)
     if not feed:  # the plant without its side processes' sections: no feed
         pdef.opcua = pdef.mqtt = pdef.web = None
@@ -294,8 +299,6 @@ def start_daemon(path: str, testers: int, feed: bool,
         fs = FeedServer(daemon, feed_def)
     if setup is not None:
         setup(daemon, fs)
-    else:
-        daemon.scheduler.sleep_until = PROBE.wrap(daemon.scheduler.sleep_until)
     if fs is not None:
         fs.start()
     daemon.start()
