@@ -19,7 +19,10 @@ unacknowledged and unconfirmed; inactive when the cause is gone. ``acknowledge``
 person, with their name and a comment) is allowed while unacknowledged; ``confirm`` once
 acknowledged and not confirmed. An acknowledged alarm stays active until its cause clears;
 an alarm is shown (``retain``) while active, unacknowledged or unconfirmed. Every change
-is one log line.
+is one log line, and one entry of the board's journal (``changes``: the board's version
+and the alarm's state as plain data, a ring of JOURNAL_MAX), from which the feed sends
+each change to the side processes as its own line, in order: a state that lasts less than
+a feed sample still reaches an OPC UA client as its own event.
 
 The scan thread only copies a few flags (``on_scan``, every ``EVERY_NS`` worth of scans,
 as a compact tuple, when it changed); the board's own thread evaluates them, logs, and
@@ -54,6 +57,9 @@ log = logging.getLogger(__name__)
 EVERY_NS = 50_000_000
 #: the board's thread looks at the overrun window at least this often, seconds
 POLL_S = 1.0
+#: changes of the board kept for its readers (the feed): a reader further behind than
+#: this many loses the oldest (said in one log line; the whole board still follows)
+JOURNAL_MAX = 4096
 
 
 class Kind(enum.Enum):
@@ -146,6 +152,11 @@ class AlarmBoard:
         self._alarms: dict[str, Alarm] = {}
         #: bumped at every change (a reader compares it to know whether to read again)
         self.version = 0
+        #: the last JOURNAL_MAX changes of an alarm's state: (version, ``Alarm.as_dict``)
+        self._journal: collections.deque[tuple[int, dict[str, Any]]] = collections.deque(
+            maxlen=JOURNAL_MAX)
+        #: the version of the newest change the ring no longer holds (0: none lost)
+        self._forgotten = 0
         self._causes: _Causes | None = None
         self._slot: tuple[Any, ...] | None = None
         self._last: tuple[Any, ...] | None = None
@@ -301,11 +312,11 @@ class AlarmBoard:
                 if msg is not None and not a.active:
                     a.active, a.acked, a.confirmed = True, False, False
                     a.message, a.time, a.comment, a.by = msg, self.wall(), "", ""
-                    self.version += 1
+                    self._changed(a)
                     log.warning("alarm %s raised (severity %d): %s", key, a.severity, msg)
                 elif msg is None and a.active:
                     a.active, a.time = False, self.wall()
-                    self.version += 1
+                    self._changed(a)
                     log.warning("alarm %s cleared (%s): %s", key, a.state_text(), a.message)
 
     # -- people --------------------------------------------------------------------------
@@ -341,8 +352,16 @@ class AlarmBoard:
     def _done_by(self, a: Alarm, who: str, comment: str) -> str:
         """Under the lock: ``who`` acted on ``a`` now, saying ``comment``; its state text."""
         a.comment, a.by, a.time = comment, who, self.wall()
-        self.version += 1
+        self._changed(a)
         return a.state_text()
+
+    def _changed(self, a: Alarm) -> None:
+        """Under the lock: ``a``'s state changed: a new version, journalled."""
+        self.version += 1
+        journal = self._journal
+        if len(journal) == journal.maxlen:
+            self._forgotten = journal[0][0]
+        journal.append((self.version, a.as_dict()))
 
     def _get(self, key: str) -> Alarm:
         a = self._alarms.get(key)
@@ -362,6 +381,24 @@ class AlarmBoard:
         with self._lock:
             return [a.as_dict() for a in self._alarms.values()]
 
+    def changes(self, since: int) -> tuple[list[tuple[int, dict[str, Any]]], int,
+                                           list[dict[str, Any]] | None, bool]:
+        """What changed after version ``since``: the changes of an alarm's state, oldest
+        first, as (version, ``Alarm.as_dict``); the board's version now; every condition
+        (``as_list``) if the version moved past ``since``, else None (read together: the
+        conditions are those the changes end with); and True if the journal
+        (JOURNAL_MAX) no longer holds all of them (the oldest are lost)."""
+        with self._lock:
+            if self.version == since:
+                return [], since, None, False
+            out: list[tuple[int, dict[str, Any]]] = []
+            for e in reversed(self._journal):  # the newest first: stop at ``since``
+                if e[0] <= since:
+                    break
+                out.append(e)
+            out.reverse()
+            lost = 0 < self._forgotten and since < self._forgotten
+            return out, self.version, [a.as_dict() for a in self._alarms.values()], lost
 
 
 #: what ends each kind of alarm's cause (the text of a confirmation refused too soon)

@@ -51,6 +51,14 @@ Messages, one JSON object per line (``"\\n"``):
   frame's scan + 1); a client of the image that has not taken what it was sent (its
   event loop busy) gets the latest one once it has, not each one meanwhile (so are the
   transitions, ``w``): states, not events, never piled up until it is dropped;
+- ``{"a": [version, {...}]}``: one change of an alarm's state (raised, cleared,
+  acknowledged, confirmed: the alarm board's journal, ``AlarmBoard.changes``; the alarm
+  as ``Alarm.as_dict``), to every client that has had a status since it connected (or
+  since the last schema), each change its own line, in order, never coalesced (a client
+  behind gets them all, before the latest status; one so far behind that OUT_MAX fills is
+  dropped: on reconnection the status gives the whole board, a state); the lines of a
+  turn come before the status of that turn, whose alarms are the board as those lines
+  end it;
 - ``{"w": {INSTANCE: [[step, T ns, [[transition index, condition, [blocked...],
   [[term, depth, value]...]]...]]...]}}``: what ``why INSTANCE`` says (the console's),
   computed by the feed thread on a copy of the instance's state taken with the frame,
@@ -92,7 +100,7 @@ from typing import TYPE_CHECKING, Any
 
 from drivers.durations import format_ns
 from runtime.compiler.program import Memory
-from runtime.controller.alarms import AlarmRefused
+from runtime.controller.alarms import JOURNAL_MAX, AlarmRefused
 from runtime.controller.image import ImageWriter, image_path, refuse_foreign
 from runtime.controller.paths import remove_socket, unix_listener
 from runtime.controller.window import ScanWindow
@@ -230,7 +238,8 @@ class FeedServer:
         #: key of what it says
         self._status_line = b""
         self._status_key: tuple[Any, ...] | None = None
-        #: the alarms (AlarmBoard.as_list) as of the board's version
+        #: the alarms (AlarmBoard.as_list) as of the board's version (the last change
+        #: of its journal read: ``AlarmBoard.changes``)
         self._alarms: list[dict[str, Any]] = []
         self._alarms_version = -1
         #: counters (tests, logs): frames built, clients dropped for not reading
@@ -653,14 +662,23 @@ class FeedServer:
             delta = _line({"d": [scan, wall, changes]})
         whole = None
         explained: dict[str, Any] = {}
+        alarm_lines = self._alarm_changes()
         status = self._status_of(live)
         self.frames += 1
-        for c in self._clients:
+        for c in list(self._clients):
             # a client of the image that has not taken what it was sent (its event loop
             # busy: an OPC UA server building thousands of nodes) gets the latest status
             # and transitions once it has, not every one meanwhile: they are states, not
             # events, and piling them up would get it dropped for not reading
             behind = c.image and bool(c.out)
+            # every change of an alarm, its own line, even to a client behind: events,
+            # not states (a client that has had no status yet gets the whole board in
+            # its first one instead)
+            if alarm_lines and c.status is not None:
+                for line in alarm_lines:
+                    self._queue(c, line)
+                if c not in self._clients:
+                    continue
             if status is not c.status and not behind:
                 c.status = status
                 self._queue(c, status)
@@ -717,6 +735,23 @@ class FeedServer:
                   for t in sw.transitions]]
                 for sw in explain(prog, m, up)]
 
+    def _alarm_changes(self) -> list[bytes]:
+        """The changes of the alarm board since the last turn (``AlarmBoard.changes``),
+        one line each (``{"a": [version, alarm]}``), and the board's conditions for the
+        status read with them (nothing per alarm while the board's version is still)."""
+        board = self.daemon.alarms
+        changes, self._alarms_version, alarms, lost = board.changes(self._alarms_version)
+        if alarms is None:
+            return []
+        if alarms != self._alarms:
+            self._alarms = alarms
+            self._alarms_changes += 1
+        if lost and any(c.status is not None for c in self._clients):
+            log.warning("feed: the alarm board changed more than %d times since the last "
+                        "turn: the oldest changes are not sent (the status has the whole "
+                        "board)", JOURNAL_MAX)
+        return [_line({"a": [version, alarm]}) for version, alarm in changes]
+
     def _status_of(self, live: tuple[Any, ...]) -> bytes:
         """The status line (``{"c": ...}``) with a frame: the same bytes object while what
         it says is unchanged. Per sample only a key is compared (the frame's state
@@ -736,13 +771,6 @@ class FeedServer:
             if stats != self._stats:
                 self._stats = stats
                 self._stats_changes += 1
-        board = d.alarms
-        if board.version != self._alarms_version:
-            self._alarms_version = board.version
-            alarms = board.as_list()
-            if alarms != self._alarms:
-                self._alarms = alarms
-                self._alarms_changes += 1
         uptime_s = round(d.uptime_s())
         key = (live[:-1], uptime_s, d.plant.cycle_ns, self._stats_changes,
                self._alarms_changes)
@@ -930,12 +958,15 @@ class FeedState:
     status: dict[str, Any] = field(default_factory=dict)
     #: instance -> its transitions as the feed last sent them (``{"w": ...}``)
     whys: dict[str, Any] = field(default_factory=dict)
+    #: the last change of an alarm the feed sent (``{"a": ...}``): (the board's version,
+    #: the alarm as ``Alarm.as_dict``); None before the first
+    alarm: tuple[int, dict[str, Any]] | None = None
     scan: int = -1
     wall: float = 0.0
 
     def apply(self, line: bytes) -> str:
-        """Decode one line: returns its kind (schema, frame, status, reply) and keeps the
-        state; a reply's (id, ok, text) is in ``reply``. ValueError if malformed."""
+        """Decode one line: returns its kind (schema, frame, status, alarm, why, reply)
+        and keeps the state (an alarm's change in ``alarm``). ValueError if malformed."""
         msg = json.loads(line)
         if "f" in msg:
             self.scan, self.wall, self.values = msg["f"]
@@ -952,6 +983,12 @@ class FeedState:
         if "w" in msg:
             self.whys.update(msg["w"])
             return "why"
+        if "a" in msg:
+            version, alarm = msg["a"]
+            if not isinstance(alarm, dict):
+                raise ValueError(f"malformed alarm change: {line[:80]!r}")
+            self.alarm = (int(version), alarm)
+            return "alarm"
         if "schema" in msg:
             self.schema = msg["schema"]
             self.names = [n[0] for n in self.schema["names"]]

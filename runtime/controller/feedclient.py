@@ -6,11 +6,14 @@ gives three hooks and runs ``FeedClient.run``: ``schema`` after each schema (the
 of a connection, and again after an online change), ``frame`` after each frame (the
 state's values are then that scan's), ``lost`` when a connection ends (the controller
 stopped or restarts); and optionally ``status`` after each controller status (the
-state's ``status``: with the alarm board). It reconnects forever, with a delay doubling
-from RECONNECT_MIN_S to RECONNECT_MAX_S. ``set`` sends a write and waits for the
-controller's answer; ``ask`` any request (``set``, ``call``, ``alarm``) with the answer's
-OPC UA status name; an applied request returns once the image written after its answer
-is decoded (``_catch_up``), so that a value read after a write is the written one.
+state's ``status``: with the alarm board) and ``alarm`` after each change of an alarm
+(the state's ``alarm``: every change, in order, between the statuses; a side process that
+gives no such hook ignores them and reads the board from the statuses). It reconnects
+forever, with a delay doubling from RECONNECT_MIN_S to RECONNECT_MAX_S. ``set`` sends a
+write and waits for the controller's answer; ``ask`` any request (``set``, ``call``,
+``alarm``) with the answer's OPC UA status name; an applied request returns once the
+image written after its answer is decoded (``_catch_up``), so that a value read after a
+write is the written one.
 
 A feed says whose it is (its schema's ``name`` and ``home``: the plant's name and
 identity, runtime/language/runtimedir.py ``locate``). A side process follows only its own
@@ -104,7 +107,8 @@ class FeedClient:
                  frame: Callable[[], Awaitable[None]],
                  lost: Callable[[], Awaitable[None]],
                  status: Callable[[], Awaitable[None]] | None = None, *,
-                 plant: PlantDef) -> None:
+                 plant: PlantDef,
+                 alarm: Callable[[], Awaitable[None]] | None = None) -> None:
         self.path = path
         self.side = side
         #: the plant this side process serves: only its feed is followed
@@ -113,6 +117,7 @@ class FeedClient:
         self.state = FeedState()
         self._on_schema, self._on_frame, self._on_lost = schema, frame, lost
         self._on_status = status
+        self._on_alarm = alarm
         self._writer: asyncio.StreamWriter | None = None
         self._pending: dict[int, asyncio.Future[tuple[bool, str, str]]] = {}
         self._ids = itertools.count(1)
@@ -369,6 +374,9 @@ class FeedClient:
                     # the image of the scan this status goes with (written before it was
                     # sent): values and status shown together, not a poll period apart
                     await self._read_image(self.image)
+            elif kind == "alarm":
+                if self._on_alarm is not None:
+                    await self._on_alarm()
             elif kind == "reply":
                 ident, ok, text, code = json.loads(line)["r"]
                 fut = self._pending.get(int(ident))

@@ -1,7 +1,11 @@
 """The controller's alarms as OPC UA Alarms and Conditions (docs/opcua.md, "Alarms").
 
 The alarm board lives in the controller (runtime/controller/alarms.py); the feed sends
-its conditions with the controller's status. Here each condition is an object of type
+each change of an alarm as a line of its own, in order (``change``: one event each, even
+for a state that lasted less than a sample or came while this server's event loop was
+stalled), and the whole board with the controller's status (``update``: the conditions
+to create, and the state after a (re)connection; a state already shown by a change's
+line fires nothing again). Here each condition is an object of type
 AlarmConditionType (``ns=2;s=alarm.KEY``, under an ``Alarms`` folder of its source: the
 instance, the driver or the Controller object), and every change of its state is an
 event of the Server object (where alarm lists subscribe; SourceNode and SourceName name
@@ -16,8 +20,8 @@ clock).
   ConditionId as ObjectId, the EventId of the condition's last event and a comment):
   writers only (BadUserAccessDenied), forwarded to the controller (the feed's ``alarm``),
   whose refusal is the status (BadConditionBranchAlreadyAcked, ...; BadEventIdUnknown
-  for an EventId that is not the condition's last). The new state comes back with the
-  next status, as an event.
+  for an EventId that is not the condition's last). The new state comes back as the
+  feed's line of that change, as an event.
 """
 
 from __future__ import annotations
@@ -56,7 +60,8 @@ class _Condition:
     key: str
     node: ua.NodeId
     gen: EventGenerator
-    #: the last state shown (active, acked, confirmed, severity, message, comment, by)
+    #: the last state shown (active, acked, confirmed, severity, message, comment, by,
+    #: time)
     shown: tuple[Any, ...] | None = None
 
 
@@ -85,18 +90,28 @@ class Conditions:
         """The board's conditions as the feed sent them: a node for each new one, an
         event for each one whose state changed."""
         for a in alarms:
-            c = self._by_key.get(a["key"])
-            if c is None:
-                c = await self._create(a)
-            shown = (a["active"], a["acked"], a["confirmed"], a["severity"], a["message"],
-                     a["comment"], a["by"])
-            if shown == c.shown:
-                continue
-            first = c.shown is None
-            c.shown = shown
-            if first and not (a["active"] or not a["acked"] or not a["confirmed"]):
-                continue  # a quiet condition: nothing to tell until it changes
-            await self._fire(c, a)
+            await self._show(a, quiet=True)
+
+    async def change(self, a: dict[str, Any]) -> None:
+        """One change of an alarm's state, as the feed sent it (in order): its event,
+        unless that state is already shown (a status came with it first)."""
+        await self._show(a, quiet=False)
+
+    async def _show(self, a: dict[str, Any], quiet: bool) -> None:
+        """An event if ``a``'s state is not the one shown; ``quiet``: a condition first
+        seen quiet (inactive, acknowledged, confirmed) is shown without one."""
+        c = self._by_key.get(a["key"])
+        if c is None:
+            c = await self._create(a)
+        shown = (a["active"], a["acked"], a["confirmed"], a["severity"], a["message"],
+                 a["comment"], a["by"], a["time"])
+        if shown == c.shown:
+            return
+        first = c.shown is None
+        c.shown = shown
+        if quiet and first and not (a["active"] or not a["acked"] or not a["confirmed"]):
+            return  # a quiet condition: nothing to tell until it changes
+        await self._fire(c, a)
 
     async def _create(self, a: dict[str, Any]) -> _Condition:
         space, server = self.ps.space, self.ps.server

@@ -111,7 +111,7 @@ class PlantServer:
         #: the controller's feed (runtime/controller/feedclient.py): its state is the last
         #: frame
         self.feed = FeedClient(self.feed_path, "opcua", self._schema, self._frame, self._lost,
-                               self._status, plant=pdef)
+                               self._status, plant=pdef, alarm=self._alarm)
         self.state = self.feed.state
         #: may this session's user write? Only a writer (UserRole.User: a user with its
         #: password, or a trusted client certificate, runtime/opcua/security.py), checked
@@ -284,6 +284,12 @@ class PlantServer:
         and the drivers' and the controller's events (``_status_events``)."""
         await self.conditions.update(self.state.status.get("alarms") or [])
         await self._status_events()
+
+    async def _alarm(self) -> None:
+        """One change of an alarm came (the feed sends each, in order): its event."""
+        change = self.state.alarm
+        if change is not None:
+            await self.conditions.change(change[1])
 
     async def _schema(self, schema: dict[str, Any]) -> None:
         self._last_frame = None  # no stale check while the names change

@@ -200,6 +200,14 @@ class ServerThread:
         assert self._loop is not None
         return asyncio.run_coroutine_threadsafe(coro, self._loop).result(timeout)
 
+    def stall(self, timeout: float = 120.0) -> threading.Event:
+        """Block the server's event loop (as a loaded machine stalls it: nothing read,
+        nothing published) until the returned event is set, or ``timeout`` s."""
+        assert self._loop is not None
+        release = threading.Event()
+        self._loop.call_soon_threadsafe(release.wait, timeout)
+        return release
+
     @property
     def url(self) -> str:
         assert self.pdef.opcua is not None
