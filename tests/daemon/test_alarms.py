@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from drivers.base import DriverError
+from runtime.controller import alarms as alarms_mod
 from runtime.controller.alarms import AlarmRefused, alarm_lines
 from runtime.controller.daemon import Daemon
 from runtime.engine.plant import Plant
@@ -171,5 +172,38 @@ def test_an_online_change_of_the_alarms_section_is_said_and_applied(tmp_path: Pa
         assert "plant: alarms changed" in result.lines
         wait_for(lambda: next(a.severity for a in d.alarms.alarms()
                               if a.key == "driver.io") == 640, "the new severity")
+    finally:
+        d.stop("end of test")
+
+
+def test_the_journal_keeps_every_change_in_order_and_says_what_it_lost(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``AlarmBoard.changes``: each raise, acknowledge, clear and confirm once, in order,
+    with its version, and the board read with them; a reader further behind than the
+    ring (made 3 here) gets the newest it holds and is told the rest is lost."""
+    monkeypatch.setattr(alarms_mod, "JOURNAL_MAX", 3)
+    # a loaded test machine overruns now and then: that alarm kept quiet here
+    d = daemon(tmp_path, RecordingDriver("io", {"on_fault": "hold"}),
+               "alarms:\n  overruns: {count: 1000000}\n")
+    key, board = "t1.SFCError", d.alarms
+    try:
+        start = board.version
+        assert board.changes(start) == ([], start, None, False)
+        for _round in range(2):
+            d.call(lambda: d.plant.set("t1.SFCError", True))
+            wait_for(lambda: state(d, key)[0], "the alarm raised")
+            board.acknowledge(key, "operator", "seen")
+            d.call(lambda: d.plant.pulse("t1", "SFCQuitError"))
+            wait_for(lambda: not state(d, key)[0], "the alarm cleared")
+            board.confirm(key, "operator", "done")
+        changes, version, alarms, lost = board.changes(start)
+        assert version == start + 8 and lost
+        assert [(v, a["key"], a["active"], a["acked"], a["confirmed"]) for v, a in changes] == [
+            (start + 6, key, True, True, False), (start + 7, key, False, True, False),
+            (start + 8, key, False, True, True)]
+        assert alarms == board.as_list()
+        # a reader the ring still holds: only what it has not seen, nothing lost
+        changes, version, _alarms, lost = board.changes(start + 6)
+        assert [v for v, _a in changes] == [start + 7, start + 8] and not lost
     finally:
         d.stop("end of test")

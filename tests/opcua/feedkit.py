@@ -93,6 +93,10 @@ class FeedReader:
         self.state = FeedState()
         self.frames: list[tuple[int, float, list[Any]]] = []
         self.statuses: list[dict[str, Any]] = []
+        #: the alarm changes (``{"a": ...}``): (version, alarm)
+        self.alarms: list[tuple[int, dict[str, Any]]] = []
+        #: the kind of every line, in order
+        self.kinds: list[str] = []
         #: how many schemas came (one at the start, one more after each online change)
         self.schemas = 0
         self.replies: dict[int, tuple[bool, str]] = {}
@@ -116,6 +120,7 @@ class FeedReader:
                 while b"\n" in buf:
                     line, buf = buf.split(b"\n", 1)
                     kind = self.state.apply(line)
+                    self.kinds.append(kind)
                     if kind == "frame":
                         st = self.state
                         self.frames.append((st.scan, st.wall, list(st.values)))
@@ -123,6 +128,9 @@ class FeedReader:
                         self.schemas += 1
                     elif kind == "status":
                         self.statuses.append(dict(self.state.status))
+                    elif kind == "alarm":
+                        assert self.state.alarm is not None
+                        self.alarms.append(self.state.alarm)
                     elif kind == "reply":
                         ident, ok, text, code = json.loads(line)["r"]
                         self.replies[ident] = (ok, text)

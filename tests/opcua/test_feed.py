@@ -314,3 +314,65 @@ def test_an_instances_method_is_refused_while_the_charts_are_stopped(tmp_path: P
             True, "t1: SFCPause set", "Good")
         assert d.call(lambda: t1.get("SFCPause")) is True
         r.close()
+
+
+def test_each_alarm_change_is_a_line_before_the_status_and_a_lost_one_is_said(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        caplog: pytest.LogCaptureFixture) -> None:
+    """Each change of the alarm board is a line of its own (``{"a": ...}``), in order,
+    before the status of that turn, whose board ends as the lines do; changes made while
+    the feed's sample is held all come at its next turn; a reader further behind than the
+    board's journal (made 3 here) gets the newest and one log line."""
+    from runtime.controller import alarms as alarms_mod
+    monkeypatch.setattr(alarms_mod, "JOURNAL_MAX", 3)
+    monkeypatch.setattr(feedmod, "JOURNAL_MAX", 3)
+    key = "t1.SFCError"
+    # a loaded test machine overruns now and then: that alarm kept quiet here
+    with controller(tmp_path, trace=False,
+                    extra="alarms:\n  overruns: {count: 1000000}\n") as (d, feed, _trace):
+        reader = FeedReader(str(feed.path))
+        board = d.alarms
+        try:
+            wait_until(lambda: bool(reader.statuses), what="a first status")
+
+            def held(changes: int) -> list[int]:
+                """``changes`` changes made while the feed's sample is held (set
+                between two scans); the versions made."""
+                d.call(lambda: setattr(feed, "_next", 1 << 62))
+                wait_until(lambda: feed._taken is feed._slot, what="the last sample sent")
+                start = board.version
+                steps = [lambda: d.call(lambda: d.plant.set("t1.SFCError", True)),
+                         lambda: board.acknowledge(key, "op", "seen"),
+                         lambda: d.call(lambda: d.plant.pulse("t1", "SFCQuitError")),
+                         lambda: board.confirm(key, "op", "done")]
+                for k, step in enumerate(steps[:changes]):
+                    step()
+                    wait_until(lambda k=k: board.version > start + k, what=f"change {k}")
+                d.call(lambda: setattr(feed, "_next", 0))
+                return list(range(start + 1, board.version + 1))
+            made = held(2)  # raised, acknowledged
+            wait_until(lambda: len(reader.alarms) >= 2, what="two alarm lines")
+            assert [v for v, _a in reader.alarms] == made
+            assert [(a["active"], a["acked"]) for _v, a in reader.alarms] == [
+                (True, False), (True, True)]
+            wait_until(lambda: any(a["key"] == key and a["acked"]
+                                   for a in reader.statuses[-1]["alarms"]), what="status")
+            # the lines came before the status that shows their end
+            last_alarm = len(reader.kinds) - 1 - reader.kinds[::-1].index("alarm")
+            assert "status" in reader.kinds[last_alarm:]
+            assert [a for a in reader.statuses[-1]["alarms"] if a["key"] == key] == [
+                reader.alarms[-1][1]]
+            caplog.clear()
+            # four more changes: raised, acknowledged, cleared, confirmed (three kept)
+            d.call(lambda: d.plant.pulse("t1", "SFCQuitError"))
+            wait_until(lambda: not any(a.active for a in board.alarms() if a.key == key),
+                       what="cleared")
+            board.confirm(key, "op", "")
+            wait_until(lambda: len(reader.alarms) >= 4, what="the lines of both")
+            made = held(4)
+            wait_until(lambda: len(reader.alarms) >= 7, what="the newest three lines")
+            assert [v for v, _a in reader.alarms[4:]] == made[1:]
+            assert any("the alarm board changed more than 3 times" in r.getMessage()
+                       for r in caplog.records)
+        finally:
+            reader.close()
