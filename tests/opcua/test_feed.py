@@ -13,6 +13,7 @@ import sys
 import tempfile
 import threading
 import time
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -335,6 +336,9 @@ def test_each_alarm_change_is_a_line_before_the_status_and_a_lost_one_is_said(
         try:
             wait_until(lambda: bool(reader.statuses), what="a first status")
 
+            def past(version: int) -> bool:
+                return board.version > version
+
             def held(changes: int) -> list[int]:
                 """``changes`` changes made while the feed's sample is held (set
                 between two scans); the versions made."""
@@ -347,7 +351,7 @@ def test_each_alarm_change_is_a_line_before_the_status_and_a_lost_one_is_said(
                          lambda: board.confirm(key, "op", "done")]
                 for k, step in enumerate(steps[:changes]):
                     step()
-                    wait_until(lambda k=k: board.version > start + k, what=f"change {k}")
+                    wait_until(partial(past, start + k), what=f"change {k}")
                 d.call(lambda: setattr(feed, "_next", 0))
                 return list(range(start + 1, board.version + 1))
             made = held(2)  # raised, acknowledged
