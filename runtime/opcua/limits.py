@@ -20,8 +20,10 @@ CPU, and a client that vanished stops costing anything soon.
   the current interval.)
 - **Monitored items**: at most ``items`` per session and ``items_total`` in all sessions;
   the items of a request past either limit get BadTooManyMonitoredItems (those before it
-  are created). A queue holds at most QUEUE_MAX notifications per item; a subscription
-  keeps at most UNACKED_MAX publish results its client has not acknowledged.
+  are created). A queue holds at most QUEUE_MAX notifications per item, EVENT_QUEUE_MAX
+  per event item (the alarm changes a stalled server fires at once when it reads the feed
+  again, every one an event a client must see); a subscription keeps at most UNACKED_MAX
+  publish results its client has not acknowledged.
 - **Diagnostics**: the standard ServerDiagnosticsSummary (under Server > ServerDiagnostics)
   counts the sessions and subscriptions, refused sessions and requests, and the abandoned
   sessions closed (SessionAbortCount); refreshed at each read of it and every
@@ -55,6 +57,10 @@ log = logging.getLogger(__name__)
 HOUSEKEEPING_S = 1.0
 #: notifications a monitored item queues between two publishes (0 asked: this many)
 QUEUE_MAX = 100
+#: events an event monitored item queues between two publishes (0 asked: this many): the
+#: feed sends each change of an alarm, and a server whose event loop stalled fires those
+#: of the stall at once, before its next publish (seen: 120 in a 5 s stall)
+EVENT_QUEUE_MAX = 1000
 #: publish results a subscription keeps that its client has not acknowledged
 UNACKED_MAX = 100
 #: a connection that has not activated a session in this long is closed, seconds
@@ -110,7 +116,8 @@ class Limits:
         lim = self.limits
         iserver.max_session_timeout_ms = lim.session_timeout_ns / 1e6
         iserver.max_subscriptions = lim.sessions * lim.subscriptions
-        iserver.max_monitored_item_queue_size = QUEUE_MAX
+        # asyncua's cap, for every item: the data items are held to QUEUE_MAX here
+        iserver.max_monitored_item_queue_size = EVENT_QUEUE_MAX
         iserver.max_unacked_messages_per_subscription = UNACKED_MAX
         iserver.max_pending_activation_seconds = ACTIVATION_S
         iserver.max_connections = lim.sessions + SPARE_CONNECTIONS
@@ -186,7 +193,8 @@ class Limits:
             room = max(0, min(self.limits.items - mine, self.limits.items_total - total))
             asked = list(params.ItemsToCreate)
             for item in asked:
-                _clamp_queue(item.RequestedParameters)
+                _clamp_queue(item.RequestedParameters,
+                             item.ItemToMonitor.AttributeId == ua.AttributeIds.EventNotifier)
             params.ItemsToCreate = asked[:room]
             out = list(await plain_create(params)) if params.ItemsToCreate else []
             refused = len(asked) - room
@@ -206,8 +214,13 @@ class Limits:
         def modify(params: ua.ModifyMonitoredItemsParameters
                    ) -> list[ua.MonitoredItemModifyResult]:
             # asyncua takes a modified queue size as asked (0: unbounded): bounded here
+            sub = service.subscriptions.get(params.SubscriptionId)
+            held = sub.monitored_item_srv._monitored_items if sub is not None else {}  # noqa: SLF001 - no API
             for item in params.ItemsToModify:
-                _clamp_queue(item.RequestedParameters)
+                mdata = held.get(item.MonitoredItemId)
+                watched = getattr(mdata, "read_value_id", None)
+                _clamp_queue(item.RequestedParameters, getattr(watched, "AttributeId", None)
+                             == ua.AttributeIds.EventNotifier)
             return list(plain_modify(params))
         service.modify_monitored_items = modify
 
@@ -288,6 +301,9 @@ def _nodes_to_read(params: Any) -> Iterable[ua.ReadValueId]:
     return getattr(params, "NodesToRead", None) or ()
 
 
-def _clamp_queue(p: ua.MonitoringParameters) -> None:
-    if not 0 < p.QueueSize <= QUEUE_MAX:
-        p.QueueSize = QUEUE_MAX
+def _clamp_queue(p: ua.MonitoringParameters, events: bool) -> None:
+    """A queue size asked (0: the largest) held to QUEUE_MAX, EVENT_QUEUE_MAX for
+    ``events`` (an event item)."""
+    cap = EVENT_QUEUE_MAX if events else QUEUE_MAX
+    if not 0 < p.QueueSize <= cap:
+        p.QueueSize = cap

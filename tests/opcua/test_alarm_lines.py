@@ -138,3 +138,50 @@ def test_raised_acknowledged_cleared_and_confirmed_within_one_sample(
             pass  # what came is said below
         assert states.of(KEY) == [(KEY, True, False, False), (KEY, True, True, False),
                                   (KEY, False, True, False), (KEY, False, True, True)]
+
+
+def test_more_changes_in_a_stall_than_a_data_item_queues(tmp_path: Path) -> None:
+    """120 changes of two alarms made while the server's event loop is blocked: once it
+    reads again it fires them at once, before its next publish; every one reaches the
+    client, in order (an event item queues up to EVENT_QUEUE_MAX notifications between two
+    publishes: at QUEUE_MAX, 100, the oldest 20 were discarded)."""
+    keys = ["t1.SFCError", "t2.SFCError"]
+    with running(tmp_path) as (d, feed, srv, states):
+        plant, board = d.plant, d.alarms
+
+        def all_(active: bool) -> bool:
+            return all(a.active is active for a in board.alarms() if a.key in keys)
+
+        def both(fn: Any) -> None:
+            for key in keys:
+                fn(key.split(".")[0])
+        made: list[tuple[str, bool, bool, bool]] = []
+        release = srv.stall()
+        try:
+            for _round in range(15):
+                d.call(lambda: both(lambda n: plant.set(f"{n}.SFCError", True)))
+                wait_until(partial(all_, True), 10.0, "both raised")
+                made += [(k, True, False, False) for k in keys]
+                for key in keys:
+                    board.acknowledge(key, "op", "")
+                    made.append((key, True, True, False))
+                d.call(lambda: both(lambda n: plant.pulse(n, "SFCQuitError")))
+                wait_until(partial(all_, False), 10.0, "both cleared")
+                made += [(k, False, True, False) for k in keys]
+                for key in keys:
+                    board.confirm(key, "op", "")
+                    made.append((key, False, True, True))
+            turns_after(feed)
+        finally:
+            release.set()
+
+        def got() -> list[tuple[str, bool, bool, bool]]:
+            return [s for s in states.states if s[0] in keys]
+        try:
+            wait_until(lambda: len(got()) >= len(made), EVENTS_S, "every event")
+        except AssertionError:
+            pass  # what came is said below
+        assert len(got()) == len(made) == 120
+        # in order per alarm (the two alarms' changes of one evaluation may interleave)
+        for key in keys:
+            assert [s for s in got() if s[0] == key] == [m for m in made if m[0] == key]
