@@ -17,6 +17,7 @@ from typing import Any
 
 import pytest
 
+from bench.jitter import plant_file
 from runtime.compiler.guard import GeneratedCodeRefused
 from runtime.controller.daemon import Daemon
 from runtime.controller.feed import FeedServer
@@ -333,24 +334,6 @@ def test_the_generated_reader_passes_the_guard(monkeypatch: pytest.MonkeyPatch) 
         _reader_code(["c0"], ["(c0, )"])
 
 
-#: a plant without REAL: its numeric regions are compared by blocks (no REAL to check)
-DRAWER = Path(__file__).resolve().parents[2] / "configs" / "drawer_tester" / "drawer_tester.yaml"
-
-
-def _drawers(tmp: Path, n: int) -> Path:
-    lines = ["plc: {cycle: 10ms, watchdog: 5s}", "drivers: {io: {type: sim}}", "instances:"]
-    for i in range(n):
-        b = 8 * i
-        lines += [f"  t{i}:", f"    grafcet: {DRAWER}",
-                  f"    inputs: {{iParo: io.I{b}, iMarcha: io.I{b + 1}, iAbierto: io.I{b + 2}, "
-                  f"iCerrado: io.I{b + 3}}}",
-                  f"    outputs: {{oAbrir: io.Q{b}, oCerrar: io.Q{b + 1}, oParado: io.Q{b + 2}, "
-                  f"oTest: io.Q{b + 3}}}"]
-    path = tmp / "drawers.yaml"
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    return path
-
-
 @pytest.mark.parametrize("plant", ["blink", "drawers"])
 def test_a_change_between_two_writes_is_read_back_whatever_its_region(
         tmp_path: Path, plant: str) -> None:
@@ -362,9 +345,13 @@ def test_a_change_between_two_writes_is_read_back_whatever_its_region(
     0.0 but packs apart)."""
     from drivers.base import Health
 
-    path = _plant(tmp_path) if plant == "blink" else _drawers(tmp_path, 40)
-    d = Daemon(load_plant(str(path)), sim=True, manage_gc=False)
-    insts, io = d.plant.instances, d.plant.drivers["io"]
+    # the drawers: bench/jitter.py's plant, without REAL (its numeric regions are
+    # compared by blocks, no REAL to check), its driver ``sim``
+    path = (str(_plant(tmp_path)) if plant == "blink"
+            else plant_file(str(tmp_path), 40, 10, False))
+    dname = "io" if plant == "blink" else "sim"
+    d = Daemon(load_plant(path), sim=True, manage_gc=False)
+    insts, io = d.plant.instances, d.plant.drivers[dname]
     first, last = insts["t1"], insts["t2" if plant == "blink" else "t39"]
     cat = Catalogue(d.plant)
     names = list(cat.names)
@@ -384,9 +371,9 @@ def test_a_change_between_two_writes_is_read_back_whatever_its_region(
         (f"t1.{var}", lambda: first.set(var, 41)),
         (last_name, lambda: last.set(var, 42)),
         ("t1.SFCErrorStep", lambda: first.m.__setitem__(err, "gsB")),
-        ("io.I1", lambda: io.inputs.__setitem__("I1", 1)),
-        ("io.Q0", lambda: io.outputs.__setitem__("Q0", 1)),
-        ("io.ok", lambda: setattr(io, "health", Health.FAULT)),
+        (f"{dname}.I1", lambda: io.inputs.__setitem__("I1", 1)),
+        (f"{dname}.Q0", lambda: io.outputs.__setitem__("Q0", 1)),
+        (f"{dname}.ok", lambda: setattr(io, "health", Health.FAULT)),
         (step_t, advance_clock),
     ]
     if plant == "blink":
