@@ -195,10 +195,16 @@ class Line:
         self._send([json.dumps({"ok": False, "error": reason}) if self.session.json
                     else f"error {reason}"])
 
-    def poll(self) -> None:
-        """The session's streamed lines, unless the peer is behind with its replies."""
+    def poll(self, until: float | None = None) -> bool:
+        """The session's streamed lines, unless the peer is behind with its replies; a
+        stream's images compared only until ``until`` (monotonic seconds: the window's
+        close). Whether the poll is done (False: a stream has images left for the next
+        one)."""
         if len(self.out) < OUT_MAX:
-            self._send(self.session.poll())
+            more = None if until is None else (lambda: time.monotonic() < until)
+            self._send(self.session.poll(more))
+        stream = self.session.stream
+        return stream is None or not stream.behind
 
     def say(self, line: str) -> None:
         self._send([line])
@@ -251,6 +257,8 @@ class ConsoleServer:
         self._socket_paths: list[str] = []
         self._lock = threading.Lock()
         self._conns: list[_Conn] = []
+        #: the connections a tick has still to poll (``_tick``)
+        self._unpolled: list[_Conn] = []
         self._selector: selectors.BaseSelector | None = None
         ctl = service.controller
         self.window = ScanWindow(ctl.plant.cycle_ns / 1e9, due=ctl.next_scan_due)
@@ -375,12 +383,16 @@ class ConsoleServer:
                     self._accept(sel, key.data)
                 else:
                     self._io(key.data)
-            if time.monotonic() >= due[0]:
-                due[0] = time.monotonic() + POLL_S
-                self._tick()
             if not meter.charge():
                 return  # the budget is spent: ScanWindow.slot waits for it
+            # the lines first: streams that always have images to compare never keep a
+            # command waiting
             self._work(min(slot.closes, time.monotonic() + ROUND_BUDGET_S), meter)
+            if time.monotonic() >= due[0] and meter.charge():
+                # the streams' work ends with the window; what is left comes first in
+                # the next one (the tick stays due)
+                if self._tick(min(slot.closes, time.monotonic() + ROUND_BUDGET_S)):
+                    due[0] = time.monotonic() + POLL_S
             for c in list(self._conns):
                 self._flush(c)
 
@@ -415,11 +427,22 @@ class ConsoleServer:
             if not meter.charge() or time.monotonic() >= until:
                 return
 
-    def _tick(self) -> None:
-        """Streams polled, and idle connections closed (POLL_S apart)."""
+    def _tick(self, until: float) -> bool:
+        """Streams polled, and idle connections closed (POLL_S apart), until ``until``
+        (monotonic seconds): the connections not polled by then are polled first by the
+        next tick, so that every stream is served however long each takes. Whether every
+        connection was polled to its end."""
         now = self.clock()
-        for c in list(self._conns):
-            c.line.poll()
+        if not self._unpolled:
+            self._unpolled = list(self._conns)
+        while self._unpolled:
+            if time.monotonic() >= until:
+                return False
+            c = self._unpolled.pop(0)
+            if c not in self._conns:
+                continue  # dropped since the tick began
+            if not c.line.poll(until):
+                self._unpolled.append(c)  # its stream goes on after the others
             s = c.line.session
             if s.trusted or s.unlocked:
                 c.line.idle_since = now  # locked again later: idle from then on
@@ -429,6 +452,7 @@ class ConsoleServer:
                 log.warning("console %s: the peer took nothing for %.0f s", c.address,
                             SEND_TIMEOUT_S)
                 self._drop(c, "peer disconnected")
+        return True
 
     def _idle_out(self, c: _Conn, now: float) -> None:
         c.line.out.clear()
@@ -578,7 +602,7 @@ class ConsoleServer:
                 if wait is None:
                     break  # nothing to do, and no more waiting in this window
                 first = False
-                if self._serial_io(port, poller, line, state, wait, address):
+                if self._serial_io(port, poller, line, state, wait, address, slot.closes):
                     return "hang-up"
                 if line.ready():
                     line.step()
@@ -594,8 +618,9 @@ class ConsoleServer:
         return "server stopping"
 
     def _serial_io(self, port: Any, poller: select.poll, line: Line, state: _SerialState,
-                   wait: float, address: str) -> bool:
-        """Read what came (up to ``wait`` seconds), and poll the session and the carrier
+                   wait: float, address: str, closes: float) -> bool:
+        """Read what came (up to ``wait`` seconds), and poll the session (its stream until
+        ``closes``, the window's close: what is left keeps the poll due) and the carrier
         when due; whether the line hung up."""
         reading = len(line.inbuf) < IN_MAX  # full: the bytes wait in the port
         if reading != state.reading:
@@ -610,8 +635,8 @@ class ConsoleServer:
                 if data:
                     line.receive(data)
         if time.monotonic() >= state.due:
-            state.due = time.monotonic() + POLL_S
-            line.poll()
+            if line.poll(closes):
+                state.due = time.monotonic() + POLL_S
             if state.carrier is not None:
                 cd = _carrier(port)
                 if state.carrier and cd is False:

@@ -241,9 +241,10 @@ class Session:
         if stream is not None:
             self.service.tap.remove(stream)
 
-    def poll(self) -> list[str]:
+    def poll(self, more: Callable[[], bool] | None = None) -> list[str]:
         """Lines due now: notices (time limits, relock) and streamed lines (watch,
-        trace); call it a few times a second."""
+        trace); call it a few times a second. ``more``: whether there is time left to
+        compare a stream's next image (``Stream.poll``)."""
         notices = self.service.tick(self)
         idle = self.service.limits.relock_after_idle_s
         if self.unlocked and self.service.clock() - self.last_command >= idle:
@@ -255,7 +256,7 @@ class Session:
                for n in notices]
         stream = self.stream
         if stream is not None:
-            out += stream.poll(self.service.clock, self.json)
+            out += stream.poll(self.service.clock, self.json, more)
             if stream.catalogue is not self.service.catalogue:  # the plant was reloaded
                 self._stop_stream()
                 out.append(json.dumps({"notice": "reloaded"}) if self.json else "reloaded")

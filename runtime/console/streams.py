@@ -197,17 +197,30 @@ class Stream:
         #: name's ints and bools show the same text, ``Signal.show``)
         self._shown: dict[tuple[str, Any], str] = {}
         self._reads = [n.read for n in names]
+        #: images a poll was told to leave (``poll``'s ``more``), compared first by the
+        #: next poll (at most STREAM_LINES_PER_POLL)
+        self._held: list[Image] = []
+
+    @property
+    def behind(self) -> bool:
+        """Whether a poll left images to compare (``poll``'s ``more`` said stop)."""
+        return bool(self._held)
 
     def begin(self, ctl: Controller) -> None:
         """Scan thread: the values when the stream starts, and the cycle count then."""
         self.images.append(self.catalogue.capture(-1))
         self.last_scan = int(ctl.status()["scans"])
 
-    def poll(self, clock: Callable[[], float], as_json: bool) -> list[str]:
-        """The stream lines due now, from the images queued since the last poll."""
-        if not self.images:
+    def poll(self, clock: Callable[[], float], as_json: bool,
+             more: Callable[[], bool] | None = None) -> list[str]:
+        """The stream lines due now, from the images queued since the last poll.
+        ``more``, asked before each image is compared: whether there is time left (the
+        console's window still open); when it says no, the images left wait for the next
+        poll (``behind``), which compares them first, so that a poll never holds the GIL
+        past its window however many images wait."""
+        if not self.images and not self._held:
             return []
-        images: list[Image] = []
+        images, self._held = self._held, []
         while self.images:
             images.append(self.images.popleft())
         out = []
@@ -235,7 +248,11 @@ class Stream:
         # read (Changes); a value the same as the one shown (a NaN still a NaN) is no
         # change.
         texts, reads, last = self._texts, self._reads, self.last
-        for img in images[-STREAM_LINES_PER_POLL:]:
+        todo = images[-STREAM_LINES_PER_POLL:]
+        for k, img in enumerate(todo):
+            if more is not None and not more():
+                self._held = todo[k:]
+                break
             if self.last_scan is not None:
                 self.unshown += max(0, img.scan - self.last_scan - 1)
             self.last_scan = img.scan
