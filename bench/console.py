@@ -53,23 +53,25 @@ def window(rig: Rig, seconds: float) -> dict[str, Any]:
     return probed_window(rig.daemon, PROBE, seconds)
 
 
-def probed_window(daemon: Daemon, probe: SchedProbe, seconds: float) -> dict[str, Any]:
+def probed_window(daemon: Daemon, probe: SchedProbe, seconds: float, cycle_ns: int = 0
+                  ) -> dict[str, Any]:
     """Cycle figures over ``seconds``: counters of the scan's own statistics (never
     reset: their window keeps the last 8192 cycles, as a daemon's that has run for a
     while, see --warmup), lateness of each wake-up from ``probe`` (installed on the
-    daemon's scheduler), µs."""
+    daemon's scheduler), µs; with ``cycle_ns``, its wake-ups a cycle late or more
+    (``missed``)."""
     stats = daemon.scan_stats
     faults = len(daemon.faults)  # watchdog faults (and any other) in the window
     count, overruns = daemon.call(lambda: (stats.count, stats.overruns))
     probe.start()
     time.sleep(seconds)
-    wakes = probe.stop()
+    wakes = probe.stop(cycle_ns)
     count2, overruns2 = daemon.call(lambda: (stats.count, stats.overruns))
     return {"cycles": count2 - count, "faults": len(daemon.faults) - faults,
             "overruns": overruns2 - overruns, "p50": wakes.late_p50,
             "p99": wakes.late_p99, "max": wakes.late_max, "runq_p99": wakes.runq_p99,
             "blocked_p99": wakes.blocked_p99, "blocked_max": wakes.blocked_max,
-            "blocked_1ms": wakes.blocked_over_1ms}
+            "blocked_1ms": wakes.blocked_over_1ms, "missed": wakes.missed}
 
 
 #: the pipelining clients of a clients phase, per transport

@@ -19,10 +19,17 @@ the other processes of this machine). Columns, microseconds per sample:
   process: every name read from the capture, compared, a delta frame JSON-encoded;
 - ``decode``: ``ImageReader.read`` (the side process: copy, check, every name computed).
 
+``--gap-ms`` sleeps between two timed writes (not timed), as the scan thread idles
+between two samples in a running controller: back to back (the default) the write finds
+its data in the caches, spaced by a 10 ms sleep it cost about 3.5 times as much on this
+VM (96 µs against 362 µs at rest, 100 testers), which is what the running controller
+pays (``bench.observers``' image write column: 310-370 µs).
+
 ``--breakdown`` prints instead, for each plant, where a write's time goes (the generated
 reader, the compares, the packs, the clocks, the strings, the CRC, the stamps).
 
     python -m bench.image [--testers 10,25,50,100] [--number 200] [--repeat 5] [--breakdown]
+                          [--gap-ms 0]
 """
 
 from __future__ import annotations
@@ -49,15 +56,21 @@ def best_us(fn: Callable[[], Any], number: int, repeat: int) -> float:
     return min(timeit.repeat(fn, number=number, repeat=repeat)) / number * 1e6
 
 
+#: seconds slept between two timed writes (``--gap-ms``; 0: back to back)
+GAP_S = [0.0]
+
+
 def per_write_us(writer: ImageWriter, change: Callable[[], None], number: int,
                  repeat: int) -> float:
     """The best of ``repeat`` means of ``number`` writes, microseconds per write, each
-    after ``change()`` (not timed)."""
+    after ``change()`` and, with ``--gap-ms``, a sleep (neither timed)."""
     best = float("inf")
     for _ in range(repeat):
         total = 0
         for scan in range(number):
             change()
+            if GAP_S[0]:
+                time.sleep(GAP_S[0])
             t0 = time.perf_counter_ns()
             writer.write(scan, 0)
             total += time.perf_counter_ns() - t0
@@ -185,7 +198,12 @@ def main() -> None:
     ap.add_argument("--number", type=int, default=200)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--breakdown", action="store_true")
+    ap.add_argument("--gap-ms", type=float, default=0.0,
+                    help="sleep this long between two timed writes, as a controller's "
+                         "scan thread idles between samples (0: back to back, the caches "
+                         "warm: about a third of what a running controller pays)")
     args = ap.parse_args()
+    GAP_S[0] = args.gap_ms / 1e3
     sys.stdout.write("testers  part                                           us\n"
                      if args.breakdown else
                      "testers  names   bytes     rest    worst  capture    frame   decode  (us)\n")

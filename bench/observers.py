@@ -43,7 +43,7 @@ said in one line and acknowledged before the next.
     python -m bench.observers [--seconds 60] [--testers 100] [--cycle 10ms] [--fifo]
                               [--mqtt-sample 10ms] [--opcua-clients 4] [--items 1183]
                               [--alarms 10] [--pages 20] [--consoles 4]
-                              [--client-nice 10] [--start-s 360] [--profile] [--keep]
+                              [--client-nice 10] [--start-s 360] [--profile] [--who] [--keep]
 """
 
 from __future__ import annotations
@@ -92,6 +92,7 @@ from runtime.console.server import ConsoleServer
 from runtime.console.service import ConsoleService
 from runtime.controller.daemon import Daemon
 from runtime.controller.feed import FeedServer
+from runtime.controller.image import ImageWriter
 from tests.console.schedprobe import SchedProbe, lone_thread
 
 #: the controller's threads whose CPU a row shows apart (name prefix -> column)
@@ -126,6 +127,8 @@ class FeedMeter:
         self.fs: FeedServer | None = None
         self.ok = False
         self.publish_ns = self.publishes = self.scan_ns = self.captures = 0
+        #: ``ImageWriter.write`` alone (inside ``on_scan``): processor ns, calls
+        self.write_ns = self.writes = 0
         # the feed thread's processor time, not the wall clock: its waits for the GIL
         # (the scan, the console) are not its work
         self.profiler = cProfile.Profile(time.thread_time) if profile else None
@@ -164,6 +167,15 @@ class FeedMeter:
 
         setattr(fs, "_publish", timed_publish)  # noqa: B010 - a method replaced on the instance
         setattr(fs, "on_scan", timed_scan)  # noqa: B010
+        write = ImageWriter.write
+
+        def timed_write(writer: ImageWriter, scan: int, wall_ns: int) -> None:
+            t0 = time.thread_time_ns()
+            write(writer, scan, wall_ns)
+            self.write_ns += time.thread_time_ns() - t0
+            self.writes += 1
+        # the class's: the writer is made when the feed starts (and again at a reload)
+        setattr(ImageWriter, "write", timed_write)  # noqa: B010
 
     def report(self, top: int = 25) -> None:
         """The profile of the observed window: the functions of most own time, per frame."""
@@ -181,11 +193,74 @@ class FeedMeter:
             out(f"| {fn} {where} | {nc / self.profiled:.1f} | "
                 f"{1e6 * tt / self.profiled:.1f} | {1e6 * ct / self.profiled:.1f} |")
 
-    def reading(self) -> tuple[int, int, int, int, int, int]:
+    def reading(self) -> tuple[int, int, int, int, int, int, int, int]:
         frames = getattr(self.fs, "frames", -1)
         dropped = getattr(self.fs, "dropped", -1)
         return (frames, self.publish_ns, self.publishes, self.scan_ns, self.captures,
-                dropped)
+                dropped, self.write_ns, self.writes)
+
+
+class Who:
+    """With ``--who``, in the observed window: at each wake-up of the scan later than
+    ``late_ns`` and at the end of each scan that took longer than ``long_ns``, the
+    innermost frames of the controller's other threads (``sys._current_frames``): which
+    thread was running Python when the scan was due or while it ran (the GIL's holder
+    shows mid-work; a thread waiting shows in its wait). A diagnostic: its own cost
+    (a frame walk per event) shows in that window's figures."""
+
+    DEPTH = 3
+
+    def __init__(self, late_ns: int, long_ns: int) -> None:
+        self.late_ns, self.long_ns = late_ns, long_ns
+        self.on = False
+        self.late: dict[tuple[str, str], int] = {}
+        self.long: dict[tuple[str, str], int] = {}
+        self.events = {"late": 0, "long": 0}
+
+    def _sample(self, into: dict[tuple[str, str], int], kind: str) -> None:
+        self.events[kind] += 1
+        me = threading.get_ident()
+        names = {t.ident: t.name for t in threading.enumerate()}
+        for tid, frame in sys._current_frames().items():
+            if tid == me:
+                continue
+            where: list[str] = []
+            f: Any = frame
+            while f is not None and len(where) < self.DEPTH:
+                code = f.f_code
+                where.append(f"{os.path.basename(code.co_filename)}:{f.f_lineno}:"
+                             f"{code.co_name}")
+                f = f.f_back
+            key = (names.get(tid, "?"), " < ".join(where))
+            into[key] = into.get(key, 0) + 1
+
+    def install(self, d: Daemon) -> None:
+        sched = d.scheduler
+        sleep_until, body, mono = sched.sleep_until, sched.body, time.monotonic_ns
+
+        def sampled_sleep(deadline: int) -> None:
+            sleep_until(deadline)
+            if self.on and mono() - deadline > self.late_ns:
+                self._sample(self.late, "late")
+
+        def sampled_body(wake: int) -> Any:
+            try:
+                return body(wake)
+            finally:
+                if self.on and mono() - wake > self.long_ns:
+                    self._sample(self.long, "long")
+        sched.sleep_until = sampled_sleep
+        sched.body = sampled_body
+
+    def report(self, top: int = 20) -> None:
+        for kind, seen, what in (("late", self.late, f"wake-ups later than "
+                                  f"{self.late_ns / 1e3:.0f} us"),
+                                 ("long", self.long, f"scans longer than "
+                                  f"{self.long_ns / 1e3:.0f} us")):
+            out(f"\n{self.events[kind]} {what} in the observed window; the other threads "
+                "then (count, thread, innermost frames):")
+            for (name, where), n in sorted(seen.items(), key=lambda kv: -kv[1])[:top]:
+                out(f"    {n:6d} {name}: {where}")
 
 
 def threads_cpu_ns() -> dict[str, int]:
@@ -236,7 +311,7 @@ def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
     th0, feed0, p0, t0 = threads_cpu_ns(), meter.reading(), time.process_time(), \
         time.monotonic()
     with lone_thread(cycle_ms, priority) as lone:
-        w = probed_window(daemon, probe, seconds)
+        w = probed_window(daemon, probe, seconds, int(cycle_ms * 1e6))
     w["lone_p99"], w["lone_max"] = lone[0].late_p99, lone[0].late_max
     w["lone_blocked_p99"] = lone[0].blocked_p99
     w["lone_missed"] = lone[0].missed  # its wake-ups a cycle late or more
@@ -245,7 +320,7 @@ def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
     w["cpu"] = 100 * (p1 - p0) / wall
     w["threads"] = {k: 100 * (th1[k] - th0[k]) / 1e9 / wall for k in th0}
     w["feed_ns"] = th1["feed"] - th0["feed"]
-    frames, pub_ns, pubs, scan_ns, caps, dropped = (
+    frames, pub_ns, pubs, scan_ns, caps, dropped, write_ns, writes = (
         b - a for a, b in zip(feed0, feed1, strict=True))
     w["frames"] = frames if feed1[0] >= 0 else None
     w["dropped"] = dropped if feed1[5] >= 0 else None
@@ -253,6 +328,7 @@ def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
     # the feed thread's whole CPU (its turns, I/O, requests too) per sample taken
     w["feed_us"] = w["feed_ns"] / caps / 1e3 if meter.ok and caps else None
     w["capture_us"] = scan_ns / caps / 1e3 if meter.ok and caps else None
+    w["write_us"] = write_ns / writes / 1e3 if meter.ok and writes else None
     w["sides"] = {k: (100 * (cpu_s(v) - side0[k]) / wall, rss_mib(v))
                   for k, v in sides.items()}
     return w
@@ -288,24 +364,26 @@ def fmt(x: float | None, spec: str = ".0f") -> str:
 def table(rows: list[tuple[str, dict[str, Any]]]) -> None:
     base = rows[0][1]["p99"]
     out("| phase | cycles | overruns | faults | lateness p50 us | p99 us | max us | p99 / "
-        "unobserved p99 | lone thread p99 us | p99 / lone p99 | lone wake-ups a cycle late | "
+        "unobserved p99 | lone thread p99 us | p99 / lone p99 | wake-ups a cycle late | "
+        "lone wake-ups a cycle late | "
         "runq p99 us | "
         "blocked p99 us | lone blocked p99 us | controller CPU | scan thread | "
         "feed thread | console thread | feed frames | feed clients dropped | "
-        "_publish us/frame | feed thread us/sample | on_scan us/snapshot |")
+        "_publish us/frame | feed thread us/sample | on_scan us/snapshot | image write us |")
     out("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
-        "---|---|")
+        "---|---|---|---|")
     for label, r in rows:
         th = r["threads"]
         out(f"| {label} | {r['cycles']} | {r['overruns']} | {r['faults']} | {r['p50']:.0f} | "
             f"{r['p99']:.0f} | {r['max']:.0f} | {r['p99'] / base:.2f} | {r['lone_p99']:.0f} | "
-            f"{r['p99'] / max(r['lone_p99'], 1.0):.2f} | {r['lone_missed']} | "
+            f"{r['p99'] / max(r['lone_p99'], 1.0):.2f} | {r['missed']} | "
+            f"{r['lone_missed']} | "
             f"{r['runq_p99']:.0f} | "
             f"{r['blocked_p99']:.0f} | {r['lone_blocked_p99']:.0f} | {r['cpu']:.1f} % | "
             f"{th['scan']:.1f} % | {th['feed']:.1f} % | {th['console']:.1f} % | "
             f"{fmt(r['frames'], 'd')} | {fmt(r['dropped'], 'd')} | "
             f"{fmt(r['publish_us'], '.1f')} | {fmt(r['feed_us'], '.1f')} | "
-            f"{fmt(r['capture_us'], '.1f')} |")
+            f"{fmt(r['capture_us'], '.1f')} | {fmt(r['write_us'], '.1f')} |")
 
 
 def main() -> None:
@@ -335,6 +413,10 @@ def main() -> None:
     ap.add_argument("--profile", action="store_true",
                     help="profile the feed thread's _publish in the observed window "
                          "(cProfile; its overhead inflates that window's times)")
+    ap.add_argument("--who", action="store_true",
+                    help="in the observed window, what the controller's other threads were "
+                         "doing at each late wake-up of the scan (over a third of the "
+                         "cycle) and each long scan (over half of it): Who")
     ap.add_argument("--keep", action="store_true",
                     help="keep the temporary directory (plant, client logs) and say where")
     args = ap.parse_args()
@@ -375,7 +457,11 @@ def main() -> None:
                                args.opcua_clients, args.mqtt_sample)
         meter, probe = FeedMeter(args.profile), SchedProbe()
 
+        who = Who(cycle_ms * 1_000_000 // 3, cycle_ms * 1_000_000 // 2) if args.who else None
+
         def setup(d: Daemon, f: FeedServer | None) -> None:
+            if who is not None:
+                who.install(d)  # inside the probe: the probe times the sleep alone
             d.scheduler.sleep_until = probe.wrap(d.scheduler.sleep_until)
             meter.install(f)
 
@@ -463,9 +549,13 @@ def main() -> None:
             sub.stdin.write("go\n")
             sub.stdin.flush()
         meter.profiling = True
+        if who is not None:
+            who.on = True
         rows.append(("observed", measure(daemon, probe, meter, args.seconds, sides,
                                          cycle_ms, prio)))
         meter.profiling = False
+        if who is not None:
+            who.on = False
         observed_sides = rows[-1][1]["sides"]
         raised = 0
         if traffic is not None:
@@ -488,6 +578,8 @@ def main() -> None:
 
         table(rows)
         meter.report()
+        if who is not None:
+            who.report()
         obs = rows[1][1]
         ratio = obs["p99"] / rows[0][1]["p99"]
         out(f"\nobserved p99 / unobserved p99 = {ratio:.2f} (goal <= 1.2: "
