@@ -261,7 +261,8 @@ class ConsoleServer:
         self._unpolled: list[_Conn] = []
         self._selector: selectors.BaseSelector | None = None
         ctl = service.controller
-        self.window = ScanWindow(ctl.plant.cycle_ns / 1e9, due=ctl.next_scan_due)
+        self.window = ScanWindow(ctl.plant.cycle_ns / 1e9, due=ctl.next_scan_due,
+                                 priority=lambda: ctl.helper_priority)
         #: where the console is served: serial ports, socket paths, 127.0.0.1:PORT
         self.addresses: list[str] = []
         #: the sessions open now
