@@ -200,9 +200,10 @@ class Line:
         stream's images compared only until ``until`` (monotonic seconds: the window's
         close). Whether the poll is done (False: a stream has images left for the next
         one)."""
-        if len(self.out) < OUT_MAX:
-            more = None if until is None else (lambda: time.monotonic() < until)
-            self._send(self.session.poll(more))
+        if len(self.out) >= OUT_MAX:
+            return True  # the peer is behind: its stream's images wait in its queue
+        more = None if until is None else (lambda: time.monotonic() < until)
+        self._send(self.session.poll(more))
         stream = self.session.stream
         return stream is None or not stream.behind
 
@@ -442,7 +443,8 @@ class ConsoleServer:
             c = self._unpolled.pop(0)
             if c not in self._conns:
                 continue  # dropped since the tick began
-            if not c.line.poll(until):
+            done = c.line.poll(until)
+            if not done:
                 self._unpolled.append(c)  # its stream goes on after the others
             s = c.line.session
             if s.trusted or s.unlocked:
@@ -453,6 +455,8 @@ class ConsoleServer:
                 log.warning("console %s: the peer took nothing for %.0f s", c.address,
                             SEND_TIMEOUT_S)
                 self._drop(c, "peer disconnected")
+            if not done:
+                return False  # the window's time is spent
         return True
 
     def _idle_out(self, c: _Conn, now: float) -> None:
