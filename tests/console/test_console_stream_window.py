@@ -17,6 +17,7 @@ from typing import Any
 import pytest
 
 from runtime.console.protocol import STREAM_LINES_PER_POLL
+from runtime.console.server import OUT_MAX, Line
 from runtime.console.streams import Changes, Stream
 from runtime.engine.names import Catalogue
 from tests.console.consolekit import Rig, wait_for
@@ -103,3 +104,22 @@ def test_trace_streams_compare_images_inside_the_windows_only(
         f"{sum(late.values())} of {len(seen)} images begun after their window closed, "
         f"up to {max(late.values())} in one window")
     assert STREAM_LINES_PER_POLL > 1  # a poll may have several images to compare
+
+
+def test_a_peer_behind_with_its_replies_counts_as_polled(rig: Rig) -> None:
+    """A stream cut short by its window, whose peer then stops reading: its poll is done
+    for this tick (its images wait in its queue). Before, it said "not done", and the tick
+    polled it again and again until the window's time was spent."""
+    session = rig.service.session("test", trusted=True)
+    cat = rig.service.catalogue
+    stream = Stream("trace", cat.traced, cat)
+    stream.images.append(cat.capture(-1))
+    assert stream.poll(lambda: 0.0, False) == []
+    stream.images.append(cat.capture(1))
+    stream.images.append(cat.capture(2))
+    assert stream.poll(lambda: 0.0, False, lambda: False) == [] and stream.behind
+    session.stream = stream
+    line = Line(session, time.monotonic)
+    line.out += b"x" * OUT_MAX
+    assert line.poll(time.monotonic() + 60.0) is True
+    assert stream.behind  # nothing compared meanwhile
