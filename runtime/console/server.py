@@ -262,8 +262,7 @@ class ConsoleServer:
         self._unpolled: list[_Conn] = []
         self._selector: selectors.BaseSelector | None = None
         ctl = service.controller
-        self.window = ScanWindow(ctl.plant.cycle_ns / 1e9, due=ctl.next_scan_due,
-                                 priority=lambda: ctl.helper_priority)
+        self.window = ScanWindow(ctl.plant.cycle_ns / 1e9, due=ctl.next_scan_due)
         #: where the console is served: serial ports, socket paths, 127.0.0.1:PORT
         self.addresses: list[str] = []
         #: the sessions open now

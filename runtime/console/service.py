@@ -35,8 +35,6 @@ class Controller(Protocol):
     """What the console needs from the running daemon (runtime.controller.daemon.Daemon)."""
 
     plant: Plant
-    #: the SCHED_FIFO priority of the threads working in the scan's windows (None: normal)
-    helper_priority: int | None
 
     def call(self, fn: Callable[[], R], timeout: float = 2.0) -> R:
         """Run ``fn`` in the scan thread at the next scan boundary; return its result."""

@@ -68,11 +68,6 @@ FAULT_REASON_MAX = 500
 #: scan waits for the GIL held by another thread (a console serving a flood). Python's
 #: default, 5 ms, is half a 10 ms cycle (docs/console.md, "Transports and limits")
 GIL_SWITCH_S = 0.0005
-#: SCHED_FIFO priority of the threads that work beside a real-time scan in its windows
-#: (the console's, the feed's: ScanWindow), below any scan's: a GIL such a thread holds
-#: when the scan is due is given back at its switch interval, never held while the
-#: machine runs other processes (docs/daemon.md, "Real time")
-HELPER_PRIORITY = 1
 #: ``stats`` figures are at most this many ns of cycles old...
 STATS_MAX_AGE_NS = 100_000_000
 #: ...and their percentiles (of 8192 cycles: a few ms of processor time) at most this
@@ -153,9 +148,6 @@ class Daemon:
         self.clock = clock
         self.notifier = notifier or Notifier()
         self.scan_stats = ScanStats()
-        #: the SCHED_FIFO priority of the threads working in the scan's windows, once the
-        #: scan thread is real time above it (None: they stay at normal priority)
-        self.helper_priority: int | None = None
         self.scheduler = Scheduler(self._cycle, self.plant.cycle_ns, self.plant.watchdog_ns,
                                    idle=self._idle, serve=self._serve,
                                    on_watchdog=self._slow_scan,
@@ -294,12 +286,10 @@ class Daemon:
         if not done:
             log.debug("timer slack not reduced: %s", why)
         prio = self.pdef.realtime_priority
-        done = False
         if prio is None:  # not set: real time where permitted (the installed service)
-            prio = DEFAULT_REALTIME_PRIORITY
-            done, why = set_fifo_priority(prio)
+            done, why = set_fifo_priority(DEFAULT_REALTIME_PRIORITY)
             if done:
-                log.info("scan thread at SCHED_FIFO priority %d", prio)
+                log.info("scan thread at SCHED_FIFO priority %d", DEFAULT_REALTIME_PRIORITY)
             else:
                 log.info("scan thread at normal priority (SCHED_FIFO %s): other processes "
                          "can delay its scans", why)
@@ -311,8 +301,6 @@ class Daemon:
                 log.info("scan thread at SCHED_FIFO priority %d", prio)
             else:
                 log.warning("scan thread not made real-time: %s", why)
-        if done and prio > HELPER_PRIORITY:
-            self.helper_priority = HELPER_PRIORITY
         try:
             self.scheduler.run()
         except BaseException:  # noqa: BLE001 - the loop itself failed: fail safe, say why

@@ -197,7 +197,7 @@ class FeedServer:
         cycle_ns = daemon.plant.cycle_ns
         #: a snapshot every this many scans
         self.every = max(1, feed.sample_ns // cycle_ns)
-        self.window = ScanWindow(cycle_ns / 1e9, priority=lambda: daemon.helper_priority)
+        self.window = ScanWindow(cycle_ns / 1e9)
         #: whose feed this is, for the side processes (the plant the controller started
         #: with: its lock's, whatever file a reload loads)
         self.owner = locate(daemon.pdef)

@@ -4,15 +4,10 @@ scan and shortly before the next one is due, within a share of the processor tim
 
 from __future__ import annotations
 
-import logging
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-
-from runtime.controller.realtime import set_fifo_priority
-
-log = logging.getLogger(__name__)
 
 #: work per round of a serving thread before it looks for I/O again, seconds
 ROUND_BUDGET_S = 0.002
@@ -79,8 +74,7 @@ class ScanWindow:
     def __init__(self, cycle_s: float, clock: Callable[[], float] = time.monotonic,
                  sleep: Callable[[float], None] = time.sleep,
                  due: Callable[[], float] | None = None, share: float = CPU_SHARE,
-                 wait: Callable[[float], object] | None = None,
-                 priority: Callable[[], int | None] | None = None) -> None:
+                 wait: Callable[[float], object] | None = None) -> None:
         self.cycle_s = cycle_s
         self.clock = clock
         self.sleep = sleep
@@ -101,10 +95,6 @@ class ScanWindow:
         self._lock = threading.Lock()
         self._tokens = self.burst_s
         self._filled = clock()
-        #: the SCHED_FIFO priority the threads working in these windows take, once known
-        #: (``Daemon.helper_priority``: the scan real time above it); None: none
-        self.priority = priority
-        self._raised = threading.local()
 
     def on_scan(self, scan: int) -> None:
         """Scan thread, after each cycle: two floats stored, an Event set."""
@@ -122,10 +112,7 @@ class ScanWindow:
 
     def slot(self) -> Slot:
         """Wait for a window with budget left, and return it. After ``close()``, at once
-        (a slot closed already). The calling thread takes the helpers' real-time
-        priority the first time it is known (``_follow``)."""
-        if self.priority is not None and not getattr(self._raised, "done", False):
-            self._follow()
+        (a slot closed already)."""
         stale = max(2 * self.cycle_s, STALE_S)
         spent_in = -1.0  # the scan end of a window whose rest is not used
         while True:
@@ -149,23 +136,6 @@ class ScanWindow:
                 spent_in = self.scan_end
             else:  # the scan is stuck: no window to wait for
                 self.sleep(max(WINDOW_POLL_S, back - now))
-
-    def _follow(self) -> None:
-        """The calling thread at SCHED_FIFO ``priority()``, below the scan's, once: a
-        thread that holds the GIL when the scan is due runs until it lets go of it (at
-        the switch interval), instead of waiting, GIL held, while the machine runs other
-        processes. Not known yet (the scan thread not started): asked again next time."""
-        assert self.priority is not None
-        prio = self.priority()
-        if prio is None:
-            return
-        self._raised.done = True
-        done, why = set_fifo_priority(prio)
-        name = threading.current_thread().name
-        if done:
-            log.debug("%s at SCHED_FIFO priority %d, below the scan's", name, prio)
-        else:
-            log.warning("%s left at normal priority: %s", name, why)
 
     def pause(self) -> None:
         """Between two slices of a long piece of work (the percentiles of ``stats``): a

@@ -62,10 +62,11 @@ class VirtualTime:
         self.t = now
 
 
-def window(cycle_s: float) -> tuple[ScanWindow, VirtualTime]:
+def window(cycle_s: float, **options: float) -> tuple[ScanWindow, VirtualTime]:
     """A window whose first scan ended on time at 100.0."""
     vt = VirtualTime(cycle_s)
-    w = ScanWindow(cycle_s, clock=vt.clock, sleep=vt.sleep, due=vt.due, wait=vt.wait)
+    w = ScanWindow(cycle_s, clock=vt.clock, sleep=vt.sleep, due=vt.due, wait=vt.wait,
+                   **options)
     vt.window = w
     vt.scan_ends(100.0)
     return w, vt
