@@ -263,6 +263,24 @@ class Who:
                 out(f"    {n:6d} {name}: {where}")
 
 
+def steal_ms() -> list[int]:
+    """Per processor, the time the host of this virtual machine ran something else while
+    this guest wanted to run, ms since boot (/proc/stat ``steal``, USER_HZ ticks); empty
+    where the kernel does not say."""
+    hz = os.sysconf("SC_CLK_TCK")
+    out = []
+    try:
+        with open("/proc/stat", encoding="ascii") as f:
+            for line in f:
+                parts = line.split()
+                if parts and parts[0].startswith("cpu") and parts[0] != "cpu" \
+                        and len(parts) > 8:
+                    out.append(int(parts[8]) * 1000 // hz)
+    except OSError:
+        return []
+    return out
+
+
 def threads_cpu_ns() -> dict[str, int]:
     """CPU of this process's threads by column of THREADS (summed per column), ns."""
     got = dict.fromkeys(THREADS.values(), 0)
@@ -310,8 +328,10 @@ def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
     side0 = {k: cpu_s(v) for k, v in sides.items()}
     th0, feed0, p0, t0 = threads_cpu_ns(), meter.reading(), time.process_time(), \
         time.monotonic()
+    steal0 = steal_ms()
     with lone_thread(cycle_ms, priority) as lone:
         w = probed_window(daemon, probe, seconds, int(cycle_ms * 1e6))
+    w["steal"] = [b - a for a, b in zip(steal0, steal_ms(), strict=False)]
     w["lone_p99"], w["lone_max"] = lone[0].late_p99, lone[0].late_max
     w["lone_blocked_p99"] = lone[0].blocked_p99
     w["lone_missed"] = lone[0].missed  # its wake-ups a cycle late or more
@@ -369,9 +389,10 @@ def table(rows: list[tuple[str, dict[str, Any]]]) -> None:
         "runq p99 us | "
         "blocked p99 us | lone blocked p99 us | controller CPU | scan thread | "
         "feed thread | console thread | feed frames | feed clients dropped | "
-        "_publish us/frame | feed thread us/sample | on_scan us/snapshot | image write us |")
+        "_publish us/frame | feed thread us/sample | on_scan us/snapshot | image write us | "
+        "steal ms per cpu |")
     out("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
-        "---|---|---|---|")
+        "---|---|---|---|---|")
     for label, r in rows:
         th = r["threads"]
         out(f"| {label} | {r['cycles']} | {r['overruns']} | {r['faults']} | {r['p50']:.0f} | "
@@ -383,7 +404,8 @@ def table(rows: list[tuple[str, dict[str, Any]]]) -> None:
             f"{th['scan']:.1f} % | {th['feed']:.1f} % | {th['console']:.1f} % | "
             f"{fmt(r['frames'], 'd')} | {fmt(r['dropped'], 'd')} | "
             f"{fmt(r['publish_us'], '.1f')} | {fmt(r['feed_us'], '.1f')} | "
-            f"{fmt(r['capture_us'], '.1f')} | {fmt(r['write_us'], '.1f')} |")
+            f"{fmt(r['capture_us'], '.1f')} | {fmt(r['write_us'], '.1f')} | "
+            f"{' '.join(str(x) for x in r['steal']) or '-'} |")
 
 
 def main() -> None:
