@@ -31,7 +31,10 @@ its cost per sample: the feed thread's CPU in ``FeedServer._publish`` per frame 
 scan thread's in ``FeedServer.on_scan`` per snapshot taken, timed with
 ``time.thread_time_ns`` by wrappers this benchmark installs (the runtime has no such
 counter), the feed thread's whole CPU (its turns, I/O and requests too) per snapshot,
-and the feed's clients dropped for not reading (``FeedServer.dropped``). With
+and the feed's clients dropped for not reading (``FeedServer.dropped``);
+``ImageWriter.write`` alone per sample; the host's steal time per processor. With
+``--who``, what the controller's other threads were doing at each late wake-up and long
+scan of the observed window (``Who``). With
 ``--profile``, the functions of the feed thread's ``_publish`` in the observed window,
 per frame (cProfile on the thread's processor time). Per
 side process over the observed window: CPU (utime + stime, percent of one core), resident

@@ -195,15 +195,14 @@ class Line:
         self._send([json.dumps({"ok": False, "error": reason}) if self.session.json
                     else f"error {reason}"])
 
-    def poll(self, until: float | None = None) -> bool:
+    def poll(self, until: float) -> bool:
         """The session's streamed lines, unless the peer is behind with its replies; a
         stream's images compared only until ``until`` (monotonic seconds: the window's
         close). Whether the poll is done (False: a stream has images left for the next
         one)."""
         if len(self.out) >= OUT_MAX:
             return True  # the peer is behind: its stream's images wait in its queue
-        more = None if until is None else (lambda: time.monotonic() < until)
-        self._send(self.session.poll(more))
+        self._send(self.session.poll(lambda: time.monotonic() < until))
         stream = self.session.stream
         return stream is None or not stream.behind
 
