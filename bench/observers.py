@@ -32,7 +32,9 @@ scan thread's in ``FeedServer.on_scan`` per snapshot taken, timed with
 ``time.thread_time_ns`` by wrappers this benchmark installs (the runtime has no such
 counter), the feed thread's whole CPU (its turns, I/O and requests too) per snapshot,
 and the feed's clients dropped for not reading (``FeedServer.dropped``);
-``ImageWriter.write`` alone per sample; the host's steal time per processor. With
+``ImageWriter.write`` alone per sample; the host's steal time per processor; the
+garbage collections in the scan's idle time (how many, their time, the full ones and the
+last one's time, the full ones that waited for idle time enough). With
 ``--who``, what the controller's other threads were doing at each late wake-up and long
 scan of the observed window (``Who``). With
 ``--profile``, the functions of the feed thread's ``_publish`` in the observed window,
@@ -332,8 +334,15 @@ def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
     th0, feed0, p0, t0 = threads_cpu_ns(), meter.reading(), time.process_time(), \
         time.monotonic()
     steal0 = steal_ms()
+    st = daemon.scan_stats
+    gc0 = (st.gc_runs, st.gc_ns, st.gc_full_runs, st.gc_full_deferred)
     with lone_thread(cycle_ms, priority) as lone:
         w = probed_window(daemon, probe, seconds, int(cycle_ms * 1e6))
+    runs, gc_ns, fulls, waited = (b - a for a, b in zip(
+        gc0, (st.gc_runs, st.gc_ns, st.gc_full_runs, st.gc_full_deferred), strict=True))
+    w["gc"] = (f"{runs}, {gc_ns / 1e6:.1f} ms; full {fulls}"
+               + (f" (last {st.gc_full_last / 1e6:.1f} ms)" if fulls else "")
+               + f", waited {waited}")
     w["steal"] = [b - a for a, b in zip(steal0, steal_ms(), strict=False)]
     w["lone_p99"], w["lone_max"] = lone[0].late_p99, lone[0].late_max
     w["lone_blocked_p99"] = lone[0].blocked_p99
@@ -393,9 +402,9 @@ def table(rows: list[tuple[str, dict[str, Any]]]) -> None:
         "blocked p99 us | lone blocked p99 us | controller CPU | scan thread | "
         "feed thread | console thread | feed frames | feed clients dropped | "
         "_publish us/frame | feed thread us/sample | on_scan us/snapshot | image write us | "
-        "steal ms per cpu |")
+        "steal ms per cpu | collections (idle time) |")
     out("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
-        "---|---|---|---|---|")
+        "---|---|---|---|---|---|")
     for label, r in rows:
         th = r["threads"]
         out(f"| {label} | {r['cycles']} | {r['overruns']} | {r['faults']} | {r['p50']:.0f} | "
@@ -408,7 +417,7 @@ def table(rows: list[tuple[str, dict[str, Any]]]) -> None:
             f"{fmt(r['frames'], 'd')} | {fmt(r['dropped'], 'd')} | "
             f"{fmt(r['publish_us'], '.1f')} | {fmt(r['feed_us'], '.1f')} | "
             f"{fmt(r['capture_us'], '.1f')} | {fmt(r['write_us'], '.1f')} | "
-            f"{' '.join(str(x) for x in r['steal']) or '-'} |")
+            f"{' '.join(str(x) for x in r['steal']) or '-'} | {r['gc']} |")
 
 
 def main() -> None:

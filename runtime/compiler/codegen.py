@@ -134,7 +134,7 @@ class Compiler:
         tail = ["    def scan_state(now, up):",
                 f"        return scan(now, up{''.join(f', {v}' for v in ins)})",
                 "    def values():",
-                f"        return [{locals_}]",
+                f"        return ({locals_},)",
                 "    return scan, scan_state, values"]
         return "\n".join(head + body + tail) + "\n"
 

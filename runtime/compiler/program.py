@@ -83,9 +83,12 @@ _WHOLE = slice(None)
 
 class State:
     """An instance's state, as a list of slots: ``m[i]``, ``m[i] = v``, ``len(m)``,
-    iteration, and ``m[:]`` (a list copy). The values are the cells of the instance's scan
-    closure, so a read sees the last scan's value and a write is seen by the next scan;
-    use it between scans (the scan thread's owner decides when)."""
+    iteration, ``m[:]`` (a list copy) and ``values()`` (a tuple copy: what the process
+    image's captures keep, since a tuple of plain values is left out of the garbage
+    collector's work after its first young collection, where a list is examined by every
+    full one). The values are the cells of the instance's scan closure, so a read sees the
+    last scan's value and a write is seen by the next scan; use it between scans (the scan
+    thread's owner decides when)."""
 
     __slots__ = ("cells", "slow", "values")
 
@@ -95,13 +98,13 @@ class State:
         #: the cell of the scan's ``slow`` flag: set by every write, so that the next
         #: scan takes its slow path (the chart flags tested, then the flag recomputed)
         self.slow: Any = None
-        #: every slot's value as a new list, read by the closure itself (``m[:]``)
-        self.values: Callable[[], list[Any]] = list
+        #: every slot's value as a new tuple, read by the closure itself
+        self.values: Callable[[], tuple[Any, ...]] = tuple
 
     def __getitem__(self, i: Any) -> Any:
         if i.__class__ is slice:  # the values, as a new list
             values = self.values()
-            return values if i == _WHOLE else values[i]
+            return list(values if i == _WHOLE else values[i])
         return self.cells[i].cell_contents
 
     def __setitem__(self, i: int, value: Any) -> None:
@@ -128,8 +131,9 @@ class State:
         return f"State({self[:]!r})"
 
 
-#: an instance's state (its live view) or a copy of it (a list, ``m[:]``)
-Memory = State | list[Any]
+#: an instance's state (its live view) or a copy of it (a list, ``m[:]``; a tuple,
+#: ``values()``)
+Memory = State | list[Any] | tuple[Any, ...]
 
 
 @dataclass
@@ -262,7 +266,7 @@ class Program:
         """Value of variable ``name`` in state list ``m``."""
         return m[self.var_index(name)]
 
-    def write(self, m: Memory, name: str, value: Any) -> None:
+    def write(self, m: State | list[Any], name: str, value: Any) -> None:
         """Store ``value`` (already of the variable's type) into variable ``name``."""
         m[self.var_index(name)] = value
 

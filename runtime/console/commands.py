@@ -142,7 +142,9 @@ def _stats_reply(s: dict[str, Any]) -> Reply:
              f"{'(us)':10}" + "".join(f"{c:>9}" for c in cols)]
     for key, label in (("scan_us", "scan"), ("lateness_us", "lateness")):
         lines.append(f"{label:10}" + "".join(f"{s[key][c]:>9.1f}" for c in cols))
-    lines.append(f"gc {s['gc_runs']} runs in the idle time, {s['gc_ms']} ms in all")
+    lines.append(f"gc {s['gc_runs']} runs in the idle time, {s['gc_ms']} ms in all; "
+                 f"{s['gc_full_runs']} full, the last {s['gc_full_ms']} ms (longest "
+                 f"{s['gc_full_max_ms']}), {s['gc_full_deferred']} waited for idle time")
     for name, d in s.get("drivers", {}).items():
         reason = f": {d['reason']}" if d.get("reason") else ""
         lines.append(f"driver {name}: {d['health']} (on_fault {d['on_fault']}){reason}")

@@ -324,7 +324,7 @@ class FeedServer:
         """Scan thread: a copy of the state of each instance in ``names`` (the instances
         clients follow: at most MAX_WHY a client), nothing of the others."""
         insts = cat.plant.instances
-        return {name: insts[name].m[:] for name in names if name in insts}
+        return {name: insts[name].m.values() for name in names if name in insts}
 
     # -- the feed thread ------------------------------------------------------------
     def _run(self) -> None:

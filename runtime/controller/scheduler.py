@@ -57,6 +57,9 @@ GC_GEN0_THRESHOLD = 700
 GC_CHECK_EVERY = 8
 #: a full collection at most this often, ns, and only when the idle time allows it
 GC_FULL_EVERY_NS = 60_000_000_000
+#: a full collection starts only with this many times the last one's time left before
+#: the next cycle (the heap grows between two)
+GC_FULL_MARGIN = 1.5
 #: freezes the watchdog thread remembers for ``Watchdog.froze_during``
 FREEZES_KEPT = 8
 
@@ -112,6 +115,10 @@ class Scheduler:
         self.stop_event = threading.Event()
         self._wake = threading.Event()  # a request queued, or the stop (``serve``)
         self._last_full_gc = 0
+        #: what the last full collection took, ns: the next one must fit it
+        self._full_ns = 0
+        #: a full collection is waiting for idle time enough (said once)
+        self._full_waits = False
         #: set while another thread builds a large long-lived structure (an online change
         #: preparing its plant): the scan thread collects nothing meanwhile, since a
         #: collection would examine every object just built (tens of ms, once measured
@@ -144,6 +151,9 @@ class Scheduler:
             gc.collect()
             gc.freeze()  # start-up objects (compiled charts, plant) are never scanned again
             gc.disable()
+            t = clock()
+            gc.collect(2)  # what a full collection costs now: the first estimate
+            self._full_ns = clock() - t
         deadline = clock()
         self._last_full_gc = deadline
         #: CLOCK_BOOTTIME - CLOCK_MONOTONIC at the last wake-up: grows by each suspend
@@ -208,18 +218,48 @@ class Scheduler:
 
     def _collect(self, until: int) -> None:
         """Garbage collection in the idle part of the cycle only (none while
-        ``gc_held``)."""
+        ``gc_held``): a young collection when objects are pending, a full one once a
+        minute if the last full one's time (times GC_FULL_MARGIN) fits before ``until``,
+        else the middle generation then (what survived since: a minute's worth at most)
+        and the full one waits for a cycle with idle time enough."""
         if self.gc_held or gc.get_count()[0] < GC_GEN0_THRESHOLD:
             return
+        stats = self.stats
         t0 = self.clock()
         if t0 >= until:
             return  # no idle time left: try after the next cycle
-        full = t0 - self._last_full_gc >= GC_FULL_EVERY_NS
-        gc.collect(2 if full else 0)
-        if full:
-            self._last_full_gc = t0
-        self.stats.gc_runs += 1
-        self.stats.gc_ns += self.clock() - t0
+        if t0 - self._last_full_gc < GC_FULL_EVERY_NS:
+            gc.collect(0)
+        elif until - t0 >= self._full_ns * GC_FULL_MARGIN:
+            self._full(t0)
+            return
+        else:
+            self._last_full_gc = t0  # tried again in a minute
+            stats.gc_full_deferred += 1
+            if not self._full_waits:
+                self._full_waits = True
+                log.warning(
+                    "a full garbage collection took %.1f ms, too long for the idle time "
+                    "left in a cycle (%.1f ms): it waits for a cycle with idle time enough; the "
+                    "younger generations are collected meanwhile, long-lived cyclic "
+                    "garbage is not (stats: gc_full_deferred)",
+                    self._full_ns / 1e6, (until - t0) / 1e6)
+            gc.collect(1)
+        stats.gc_runs += 1
+        stats.gc_ns += self.clock() - t0
+
+    def _full(self, t0: int) -> None:
+        """A full collection started at ``t0``, timed: the next one must fit that."""
+        gc.collect(2)
+        took = self.clock() - t0
+        stats = self.stats
+        self._last_full_gc = t0
+        self._full_waits = False
+        self._full_ns = stats.gc_full_last = took
+        stats.gc_full_max = max(stats.gc_full_max, took)
+        stats.gc_full_runs += 1
+        stats.gc_runs += 1
+        stats.gc_ns += took
 
 
 class Watchdog:

@@ -105,6 +105,12 @@ class ScanStats:
         self.skipped = 0  # deadlines passed over by re-anchoring after overruns
         self.gc_runs = 0
         self.gc_ns = 0
+        #: the last full collection's time, ns (what the next must fit in), and the
+        #: longest
+        self.gc_full_last = self.gc_full_max = 0
+        #: full collections run in the idle time, and those due that waited (the idle
+        #: time too short for one)
+        self.gc_full_runs = self.gc_full_deferred = 0
         self.freezes = 0  # times the process did not run for longer than the watchdog
         self.freeze_max = 0  # the longest such time, ns
         self.scan_min = self.late_min = 1 << 62
@@ -194,4 +200,7 @@ class ScanStats:
                 "scan_us": self.scan(scan_q).as_dict(),
                 "lateness_us": self.lateness(late_q).as_dict(),
                 "gc_runs": self.gc_runs, "gc_ms": round(self.gc_ns / 1e6, 2),
+                "gc_full_ms": round(self.gc_full_last / 1e6, 2),
+                "gc_full_max_ms": round(self.gc_full_max / 1e6, 2),
+                "gc_full_runs": self.gc_full_runs, "gc_full_deferred": self.gc_full_deferred,
                 "freezes": self.freezes, "freeze_max_ms": round(self.freeze_max / 1e6, 1)}

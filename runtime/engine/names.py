@@ -19,7 +19,7 @@ output the machine does not have. The chart's own value stays readable
 from __future__ import annotations
 
 import enum
-from collections.abc import Callable, Collection, Mapping
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -135,15 +135,18 @@ class PlantNames:
 
 @dataclass(slots=True)
 class Image:
-    """The process image after one cycle: state lists, driver images, driver health.
+    """The process image after one cycle: state slots, driver images, driver health.
 
     A driver's image is its value list (``drivers.image.Image.vals``), read by the point's
-    position: a capture is a list copy per driver, no lookup per point."""
+    position. A capture copies each into a tuple (one C copy each, no lookup per point):
+    values only, which the garbage collector stops examining at its first young
+    collection; lists would be examined by every full one (the console's streams hold
+    hundreds of captures: tens of ms a full collection at 100 testers)."""
 
     scan: int
     m: list[Memory]
-    inputs: list[list[Any]]
-    outputs: list[list[Any]]
+    inputs: list[Sequence[Any]]
+    outputs: list[Sequence[Any]]
     ok: list[bool]
 
 
@@ -352,11 +355,12 @@ class Catalogue:
         return self._instances[name]
 
     def capture(self, scan: int) -> Image:
-        """A copy of the process image (scan thread, between cycles: a few list copies)."""
+        """A copy of the process image (scan thread, between cycles: a tuple copy per
+        instance and driver image)."""
         p = self.plant
-        return Image(scan, [inst.m[:] for inst in p.instances.values()],
-                     [d.inputs.vals[:] for d in p.drivers.values()],
-                     [d.outputs.vals[:] for d in p.drivers.values()],
+        return Image(scan, [inst.m.values() for inst in p.instances.values()],
+                     [tuple(d.inputs.vals) for d in p.drivers.values()],
+                     [tuple(d.outputs.vals) for d in p.drivers.values()],
                      [d.ok for d in p.drivers.values()])
 
     def live(self) -> Image:
