@@ -493,17 +493,21 @@ def main() -> None:
 
         who = Who(cycle_ms * 1_000_000 // 3, cycle_ms * 1_000_000 // 2) if args.who else None
 
+        services: list[ConsoleService] = []
+
         def setup(d: Daemon, f: FeedServer | None) -> None:
             if who is not None:
                 who.install(d)  # inside the probe: the probe times the sleep alone
             d.scheduler.sleep_until = probe.wrap(d.scheduler.sleep_until)
             meter.install(f)
+            # the console's names before the controller starts, as ``softplc run``
+            # builds them (the start-up freeze of the collector keeps them out of it)
+            pdef = d.pdef
+            services.append(ConsoleService(d, pdef.pin_hash,
+                                           pdef.release_forces_on_disconnect))
 
         daemon, fs = start_daemon(path, args.testers, True, setup=setup)
-        pdef = daemon.pdef
-        console = ConsoleServer(ConsoleService(daemon, pdef.pin_hash,
-                                               pdef.release_forces_on_disconnect),
-                                pdef.consoles)
+        console = ConsoleServer(services[0], daemon.pdef.consoles)
         console.start()
         sock = os.path.join(tmp, "c.sock")
         out(f"{args.testers} drawer testers, cycle {cycle_ms} ms, {args.seconds:g} s per "

@@ -85,7 +85,8 @@ class Changes:
         self._parts: list[tuple[Callable[[Image], Sequence[Any]],
                                 list[Callable[[Sequence[Any]], tuple[Any, ...]]]]] = []
         #: per source, in the order of the raw list: per slot, the names read from it
-        self._names_at: list[list[list[int]]] = []
+        #: (tuples of ints: kept for the stream's life, nothing for the collector)
+        self._names_at: list[tuple[tuple[int, ...], ...]] = []
         parts: dict[str, Callable[[Image], Sequence[Any]]] = {
             "m": lambda img: img.m, "in": lambda img: img.inputs,
             "out": lambda img: img.outputs, "ok": lambda img: (img.ok,)}
@@ -97,7 +98,7 @@ class Changes:
             for k in ks:
                 slots = sorted(found[part, k])
                 getters.append(_getter(slots))
-                self._names_at.append([found[part, k][s] for s in slots])
+                self._names_at.append(tuple([tuple(found[part, k][s]) for s in slots]))
             self._parts.append((lists if part == "ok" else _picked(lists, _getter(ks)),
                                 getters))
         self._seen: list[tuple[Any, ...]] = []

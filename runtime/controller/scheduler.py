@@ -55,6 +55,9 @@ GC_GEN0_THRESHOLD = 700
 #: the pending-object count is looked at every this many cycles (a few cycles late is
 #: harmless; looking costs a call and a tuple)
 GC_CHECK_EVERY = 8
+#: every this many young collections, the middle generation instead (what survived the
+#: young ones since: tuples of tuples are left out of the collector only there, a capture's)
+GC_MIDDLE_EVERY = 10
 #: a full collection at most this often, ns, and only when the idle time allows it
 GC_FULL_EVERY_NS = 60_000_000_000
 #: a full collection starts only with this many times the last one's time left before
@@ -115,6 +118,8 @@ class Scheduler:
         self.stop_event = threading.Event()
         self._wake = threading.Event()  # a request queued, or the stop (``serve``)
         self._last_full_gc = 0
+        #: young collections run (every GC_MIDDLE_EVERY-th: the middle generation)
+        self._young = 0
         #: what the last full collection took, ns: the next one must fit it
         self._full_ns = 0
         #: a full collection is waiting for idle time enough (said once)
@@ -218,7 +223,8 @@ class Scheduler:
 
     def _collect(self, until: int) -> None:
         """Garbage collection in the idle part of the cycle only (none while
-        ``gc_held``): a young collection when objects are pending, a full one once a
+        ``gc_held``): a young collection when objects are pending (every
+        GC_MIDDLE_EVERY-th one the middle generation too), a full one once a
         minute if the last full one's time (times GC_FULL_MARGIN) fits before ``until``,
         else the middle generation then (what survived since: a minute's worth at most)
         and the full one waits for a cycle with idle time enough."""
@@ -229,7 +235,8 @@ class Scheduler:
         if t0 >= until:
             return  # no idle time left: try after the next cycle
         if t0 - self._last_full_gc < GC_FULL_EVERY_NS:
-            gc.collect(0)
+            self._young += 1
+            gc.collect(1 if self._young % GC_MIDDLE_EVERY == 0 else 0)
         elif until - t0 >= self._full_ns * GC_FULL_MARGIN:
             self._full(t0)
             return

@@ -138,16 +138,16 @@ class Image:
     """The process image after one cycle: state slots, driver images, driver health.
 
     A driver's image is its value list (``drivers.image.Image.vals``), read by the point's
-    position. A capture copies each into a tuple (one C copy each, no lookup per point):
-    values only, which the garbage collector stops examining at its first young
-    collection; lists would be examined by every full one (the console's streams hold
-    hundreds of captures: tens of ms a full collection at 100 testers)."""
+    position. A capture is tuples (one C copy each, no lookup per point) of values only,
+    which the garbage collector stops examining at their first young collection; lists
+    would be examined by every full one (the console's streams hold hundreds of
+    captures: tens of ms a full collection at 100 testers)."""
 
     scan: int
-    m: list[Memory]
-    inputs: list[Sequence[Any]]
-    outputs: list[Sequence[Any]]
-    ok: list[bool]
+    m: Sequence[Memory]
+    inputs: Sequence[Sequence[Any]]
+    outputs: Sequence[Sequence[Any]]
+    ok: Sequence[bool]
 
 
 @dataclass(frozen=True, slots=True)
@@ -358,10 +358,10 @@ class Catalogue:
         """A copy of the process image (scan thread, between cycles: a tuple copy per
         instance and driver image)."""
         p = self.plant
-        return Image(scan, [inst.m.values() for inst in p.instances.values()],
-                     [tuple(d.inputs.vals) for d in p.drivers.values()],
-                     [tuple(d.outputs.vals) for d in p.drivers.values()],
-                     [d.ok for d in p.drivers.values()])
+        return Image(scan, tuple([inst.m.values() for inst in p.instances.values()]),
+                     tuple([tuple(d.inputs.vals) for d in p.drivers.values()]),
+                     tuple([tuple(d.outputs.vals) for d in p.drivers.values()]),
+                     tuple([d.ok for d in p.drivers.values()]))
 
     def live(self) -> Image:
         """The process image itself, without copies (read it at a scan boundary only)."""

@@ -103,6 +103,8 @@ def test_a_full_collection_that_fits_runs_once_a_minute(
     assert all(60 * S <= b - a < 61 * S for a, b in zip([first, *fulls], fulls, strict=False))
     assert s.stats.gc_full_deferred == 0
     assert s.stats.gc_full_max == s.stats.gc_full_last == 3 * MS
+    gens = [g for g, _ in fake.collections]
+    assert 0 < 9 * gens.count(1) <= gens.count(0)  # every tenth young one: the middle
 
 
 def test_a_full_collection_that_grew_is_not_started_again_in_too_short_a_time(
@@ -131,19 +133,23 @@ def test_a_full_collection_that_grew_is_not_started_again_in_too_short_a_time(
 
 
 def test_the_process_image_copies_are_not_tracked_by_the_collector(tmp_path) -> None:
-    """A capture (console streams, the feed) holds values only: after a young collection
-    none of its copies is left for a full one to examine."""
+    """A capture (console streams, the feed) holds values only: after the collections of
+    the idle time none of its copies is left for a full one to examine (the capture
+    itself, one object, is)."""
     from bench.jitter import plant_file
 
     daemon = Daemon(load_plant(plant_file(str(tmp_path), 3, 10, False)), sim=True,
                     manage_gc=False)
     cat = Catalogue(daemon.plant)
     images = [cat.capture(n) for n in range(20)]
-    gc.collect(0)
+    gc.collect(0)  # a young collection: every copy of a slot or point list
     for img in images:
         copies = [*img.m, *img.inputs, *img.outputs]
         assert copies and not any(gc.is_tracked(c) for c in copies), \
             [type(c).__name__ for c in copies if gc.is_tracked(c)]
+    gc.collect(1)  # the middle generation (every tenth): the tuples holding them too
+    for img in images:
+        assert not any(gc.is_tracked(c) for c in (img.m, img.inputs, img.outputs, img.ok))
     # and they still read as the state does
     a = next(iter(daemon.plant.instances.values()))
     assert list(images[-1].m[0]) == a.m[:]
