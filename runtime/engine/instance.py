@@ -147,7 +147,8 @@ class Instance:
 
 def explain(prog: Program, m: Memory, up: int) -> list[StepWhy]:
     """``Instance.explain`` on a state ``m``: the live one between two scans, or a copy
-    of it (``m[:]``, as the feed captures it; its function blocks are the live objects)."""
+    of it (``m.values()``, as the feed captures it; its function blocks are the live
+    objects)."""
     g = prog.grafcet
     now = prog.scan_time(m)
     paused = prog.chart_paused(m)
