@@ -46,6 +46,12 @@ SCAN_GLOBALS: dict[str, Any] = {**HELPERS, "_Unstable": unstable_chart,
 _MARK_READ = re.compile(r"\b([al]_\w+)\b(?!\s*=[^=])")
 #: a name in a line of generated code
 _WORD = re.compile(r"[A-Za-z_]\w*")
+
+
+def _code(lines: list[str]) -> list[str]:
+    """``lines`` without the comment lines: every comment carrying a chart's text is a
+    line of its own (``emit.comment``), whose words are no names of the code."""
+    return [line for line in lines if not line.lstrip().startswith("#")]
 #: the fast path's first line: the chart clock, its base's distance to now (the plant's
 #: inlined scans share it between the instances of one base, inline.py)
 FAST_CLOCK = "ct = now - cb"
@@ -116,7 +122,9 @@ class Compiler:
             head.append(f"        {ret}")
             slow, _ = self.body(fast=False, shared=True)
             slow.append("        return True")
-            used = set(_WORD.findall("\n".join(slow)))
+            # the names of the code, not of the comments (a chart's texts: a comment
+            # naming ``m`` or a slot must not change the program)
+            used = set(_WORD.findall("\n".join(_code(slow))))
             cells = ", ".join(n for n in ("m", "slow", *(s.local for s in self.state.slots))
                               if n in used)
             body = ["    def slowscan(now, up):",
@@ -322,7 +330,7 @@ class Compiler:
         start of a scan (indented ``level``): only the marks the body reads (the others
         are only written)."""
         read: set[str] = set()
-        for line in body:  # line by line: no single call over the whole text
+        for line in _code(body):  # line by line: no single call over the whole text
             read.update(_MARK_READ.findall(line))
         out = []
         for p in ("a", "l"):

@@ -197,3 +197,15 @@ def test_a_carriage_return_in_a_condition_comment_stays_in_its_comment(tmp_path:
     assert not marker.exists()
     line = next(x for x in program.source.split("\n") if "open(" in x)
     assert line.lstrip().startswith("# s1 -> s2 when iA (* \\r")
+
+
+@pytest.mark.parametrize("words", ["m", "m slow", "a_s1 l_s1", "x_s1 v_sX m"])
+def test_names_in_a_comment_do_not_change_the_program(
+        tmp_path: Path, clean: tuple[str, list[str]], words: str) -> None:
+    """A comment naming what the generated code names (``m``, ``slow``, a step's marks, a
+    slot) is a comment only: found by the property test above, where an action's comment
+    ``m`` followed by a carriage return added ``m`` to a ``nonlocal`` of the generated
+    scan (the names it declares were read from its text, comments included)."""
+    for sep in ("\r", " "):
+        out = run(tmp_path, {"A0": words + sep + "x", "W0": words, "P1": words})
+        assert out == clean, (words, sep)
