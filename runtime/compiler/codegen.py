@@ -52,6 +52,8 @@ def _code(lines: list[str]) -> list[str]:
     """``lines`` without the comment lines: every comment carrying a chart's text is a
     line of its own (``emit.comment``), whose words are no names of the code."""
     return [line for line in lines if not line.lstrip().startswith("#")]
+
+
 #: the fast path's first line: the chart clock, its base's distance to now (the plant's
 #: inlined scans share it between the instances of one base, inline.py)
 FAST_CLOCK = "ct = now - cb"
