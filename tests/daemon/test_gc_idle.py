@@ -4,7 +4,7 @@ console's and the feed's captures) give the collector nothing to examine.
 
 Measured before: with four consoles tracing 100 drawer testers, a full collection once a
 minute examined 160 000 objects (132 000 of them the captures' lists) and took 56 ms in
-an idle time of 8 ms: a wake-up 29 ms late, three overruns (``bench.observers``)."""
+an idle time of 8 ms: three overruns (``bench.observers``)."""
 
 from __future__ import annotations
 
