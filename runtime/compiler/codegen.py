@@ -28,7 +28,7 @@ from typing import Any
 
 from runtime.compiler.actions import ActionEmitter
 from runtime.compiler.codebook import CodeBook, compile_code
-from runtime.compiler.emit import Emitter, comment, ident, renamed
+from runtime.compiler.emit import Emitter, code_names, code_only, comment, ident, renamed
 from runtime.compiler.evolution import Evolution, unstable_chart
 from runtime.compiler.expressions import HELPERS, ExprEmitter
 from runtime.compiler.guard import checked_eval, restricted_builtins
@@ -44,14 +44,12 @@ SCAN_GLOBALS: dict[str, Any] = {**HELPERS, "_Unstable": unstable_chart,
                                  "__builtins__": restricted_builtins()}
 #: a read of an entered (``a_``) or left (``l_``) mark in a line of generated code
 _MARK_READ = re.compile(r"\b([al]_\w+)\b(?!\s*=[^=])")
-#: a name in a line of generated code
-_WORD = re.compile(r"[A-Za-z_]\w*")
 
 
 def _code(lines: list[str]) -> list[str]:
-    """``lines`` without the comment lines: every comment carrying a chart's text is a
-    line of its own (``emit.comment``), whose words are no names of the code."""
-    return [line for line in lines if not line.lstrip().startswith("#")]
+    """``lines`` without their comments and with their strings emptied (``code_only``):
+    a chart's texts reach them there, and their words are no names of the code."""
+    return [code_only(line) for line in lines]
 
 
 #: the fast path's first line: the chart clock, its base's distance to now (the plant's
@@ -124,9 +122,9 @@ class Compiler:
             head.append(f"        {ret}")
             slow, _ = self.body(fast=False, shared=True)
             slow.append("        return True")
-            # the names of the code, not of the comments (a chart's texts: a comment
-            # naming ``m`` or a slot must not change the program)
-            used = set(_WORD.findall("\n".join(_code(slow))))
+            # the names of the code, not of its comments and strings (a chart's texts:
+            # a comment naming ``m`` or a slot must not change the program)
+            used = {n for line in slow for n in code_names(line)}
             cells = ", ".join(n for n in ("m", "slow", *(s.local for s in self.state.slots))
                               if n in used)
             body = ["    def slowscan(now, up):",

@@ -1,11 +1,12 @@
 """The lines of a generated scan function as they are written, the local that holds each
-chart name in it, the one way a text reaches a comment, and a block of generated lines with
-some of its names replaced."""
+chart name in it, the one way a text reaches a comment, a line's code without its strings
+and comment, and a block of generated lines with some of its names replaced."""
 
 from __future__ import annotations
 
 import io
 import keyword
+import re
 import tokenize
 from collections.abc import Callable
 
@@ -31,6 +32,34 @@ def comment(text: str) -> str:
     """A comment line's text (``# ...``) carrying ``text`` made :func:`one_line`: the only
     way an emitter writes a comment holding anything but its own words."""
     return "# " + one_line(text)
+
+
+#: a string literal of generated code, as ``repr`` writes one (its prefix: group 1), or a
+#: comment
+_NAME = re.compile(r"[A-Za-z_]\w*")
+_INERT = re.compile(r"""(?<!\w)([rRbBuUfF]{0,2})(?:'(?:[^'\\\n]|\\.)*'|"(?:[^"\\\n]|\\.)*")|#.*""")
+
+
+def _inert(s: re.Match[str]) -> str:
+    if s.group(1) is None:  # a comment
+        return ""
+    return s.group() if "f" in s.group(1).lower() else "''"  # an f-string's fields are code
+
+
+def code_only(line: str) -> str:
+    """``line`` of generated code with its strings emptied (``''``) and its comment cut:
+    what names its words are. A chart's texts reach the code as strings and comments
+    only, so no word of theirs may count as a name the code uses (a ``nonlocal`` to
+    declare, a mark to clear, a default argument to bind)."""
+    if "'" not in line and '"' not in line and "#" not in line:
+        return line
+    return _INERT.sub(_inert, line)
+
+
+def code_names(line: str) -> list[str]:
+    """The words of ``line`` of generated code that are names: outside its strings and
+    its comment (:func:`code_only`), in order, repeats kept."""
+    return _NAME.findall(code_only(line))
 
 
 class Emitter:

@@ -11,19 +11,17 @@ everything else reads and writes through a Program's methods, by the names a per
 from __future__ import annotations
 
 import enum
-import re
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from types import CellType, CodeType, FunctionType
 from typing import Any
 
 from runtime.compiler import blocks as B
+from runtime.compiler.emit import code_names
 from runtime.compiler.guard import checked_eval
 from runtime.language import ast as A
 from runtime.language.model import Grafcet
 
-#: a name in generated code
-_WORD = re.compile(r"[A-Za-z_]\w*")
 #: the first part of the key of a coverage counter's slot (``compile_grafcet(coverage=True)``,
 #: layout.coverage_key)
 COVERAGE = "#cover:"
@@ -209,7 +207,7 @@ class Program:
             cells = set(cellvars)  # a set: n names tested, not n² compared
             seen = dict.fromkeys([f"v_{v}" for v in self.inputs] + ["slow"])
             for line in self.fast:  # line by line: no one long call holding the GIL
-                seen.update(dict.fromkeys(_WORD.findall(line)))
+                seen.update(dict.fromkeys(code_names(line)))
             seen.update(dict.fromkeys(cellvars))
             order = self._cells = [n for n in seen if n in cells]
         return order

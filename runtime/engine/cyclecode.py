@@ -12,21 +12,17 @@ here and only here. The names they use are the plant's environment (``Plant._bin
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable
 from typing import Any
 
 from drivers.base import Driver, FaultPolicy, PointKind
 from runtime.compiler.codebook import CodeBook
-from runtime.compiler.emit import comment
+from runtime.compiler.emit import code_names, comment
 from runtime.compiler.layout import SLOW_FLAGS
 from runtime.engine.inline import Inliner
 from runtime.engine.instance import Instance
 from runtime.language import ast as A
 from runtime.language.model import Binding, PlantDef
-
-#: a name in generated code
-_WORD = re.compile(r"[A-Za-z_]\w*")
 
 
 class CycleWriter:
@@ -94,7 +90,8 @@ class CycleWriter:
         copy = [f"    if FI: force_instance({name!r}, M_{name})"
                 for name in self.instances] + self._output_copy() + ["    if SI: stopped_off()"]
         def defaults(body: list[str]) -> str:  # the names of the environment it uses
-            used = {n for line in body for n in _WORD.findall(line)} & self._env.keys()
+            used = {n for line in body for n in code_names(line)}
+            used &= self._env.keys()
             return ", ".join(f"{n}={n}" for n in sorted(used))
 
         return "\n".join([f"def cycle(t, {defaults(fast)}):", *fast, "",

@@ -31,7 +31,6 @@ object: the plant compiles one group's text, not every instance's (about 10 ms i
 from __future__ import annotations
 
 import builtins
-import re
 import types
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -39,7 +38,7 @@ from typing import Any, TypeAlias
 
 from runtime.compiler.codebook import CodeBook, compile_code
 from runtime.compiler.codegen import FAST_CLOCK, SCAN_GLOBALS
-from runtime.compiler.emit import comment, renamed
+from runtime.compiler.emit import code_names, comment, renamed
 from runtime.compiler.program import Program
 from runtime.engine.instance import Instance
 
@@ -53,7 +52,6 @@ GROUP = 16
 #: testers had 2678 of them, 30% of its instructions, and ran 15% slower than groups of 4)
 NAMES = 240
 _BUILTINS = set(dir(builtins))
-_WORD = re.compile(r"[A-Za-z_]\w*")
 #: a group's generator (types.GeneratorType: ``gi_frame`` tells whether it has ended)
 GroupGen: TypeAlias = "types.GeneratorType[BaseException | None, tuple[int, int], None]"
 #: a group's ``send((now, up))``: None, or the exception one of its scans raised
@@ -237,7 +235,8 @@ class Inliner:
         tpl = self._template(inst)
         for i in tpl.slots:
             self.cell(inst, i)
-        self._used[-1] |= tpl.helpers | set(_WORD.findall("\n".join(inputs + outputs)))
+        self._used[-1] |= tpl.helpers | {n for line in inputs + outputs
+                                          for n in code_names(line)}
         self._texts[-1].append("\n".join([
             comment(f"instance {j} of the group ({inst.grafcet.name})"), *inputs,
             f"if {self.slow(inst)}: {self.const(inst.scan_state)}(now, up)", "else:",

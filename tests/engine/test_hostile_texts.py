@@ -209,3 +209,20 @@ def test_names_in_a_comment_do_not_change_the_program(
     for sep in ("\r", " "):
         out = run(tmp_path, {"A0": words + sep + "x", "W0": words, "P1": words})
         assert out == clean, (words, sep)
+
+
+@pytest.mark.parametrize("scan", ["immediate", "stable", "codesys"])
+@pytest.mark.parametrize("words", ["m", "m slow", "a_s1 l_s1", "x_s1 v_sX m"])
+def test_names_in_a_string_of_the_code_do_not_change_the_program(
+        tmp_path: Path, scan: str, words: str) -> None:
+    """A chart's text the generated code carries as a string (a stable chart's transition
+    texts, in the error it raises when it does not settle) is a string only: its words
+    named no mark to clear (a condition's comment ``a_s1`` kept the clear of step s1's
+    entered mark in a stable chart's scan)."""
+    def program(texts: dict[str, str]) -> str:
+        chart = tmp_path / "chart.yaml"
+        chart.write_text(chart_file(texts).replace(
+            "grafcet: Hostile\n", f"grafcet: Hostile\nscan: {scan}\n"), encoding="utf-8")
+        return shape(compile_grafcet(load_grafcet(str(chart))).source)
+
+    assert program({"W0": words, "W1": words}) == program({}), words
