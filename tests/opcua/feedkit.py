@@ -47,12 +47,13 @@ async def until(pred: Callable[[], Any], timeout: float = 15.0, what: str = "") 
 
 
 @contextmanager
-def serving(pdef: PlantDef, plant: Plant | None = None, trace: IO[str] | None = None
-            ) -> Iterator[tuple[Daemon, FeedServer]]:
-    """A running Daemon of ``pdef`` (on sim I/O, or on ``plant``) with its FeedServer."""
+def serving(pdef: PlantDef, plant: Plant | None = None, trace: IO[str] | None = None,
+            manage_gc: bool = False) -> Iterator[tuple[Daemon, FeedServer]]:
+    """A running Daemon of ``pdef`` (on sim I/O, or on ``plant``) with its FeedServer;
+    ``manage_gc``: the scheduler's own garbage collection, as ``softplc run`` has it."""
     feed_def = pdef.feed()
     assert feed_def is not None
-    d = Daemon(pdef, plant=plant, sim=plant is None, trace=trace, manage_gc=False)
+    d = Daemon(pdef, plant=plant, sim=plant is None, trace=trace, manage_gc=manage_gc)
     d.start()
     feed = FeedServer(d, feed_def)
     feed.start()
@@ -64,15 +65,15 @@ def serving(pdef: PlantDef, plant: Plant | None = None, trace: IO[str] | None = 
 
 
 @contextmanager
-def controller(tmp: Path, trace: bool = True, port: int = 4840, **plant: Any
-               ) -> Iterator[tuple[Daemon, FeedServer, Path]]:
+def controller(tmp: Path, trace: bool = True, port: int = 4840, manage_gc: bool = False,
+               **plant: Any) -> Iterator[tuple[Daemon, FeedServer, Path]]:
     """A running Daemon on sim I/O with its FeedServer; (daemon, feed, trace path)."""
     path = write_plant(tmp, port=port, **plant)
     pdef = load_plant(str(path))
     trace_path = tmp / "trace.jsonl"
     out = open(trace_path, "w", encoding="utf-8") if trace else None  # noqa: SIM115
     try:
-        with serving(pdef, trace=out) as (d, feed):
+        with serving(pdef, trace=out, manage_gc=manage_gc) as (d, feed):
             yield d, feed, trace_path
     finally:
         if out is not None:

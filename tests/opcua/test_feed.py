@@ -5,6 +5,7 @@ noticing, a replaced plant sends every client its new schema, and the peer's uid
 
 from __future__ import annotations
 
+import gc
 import os
 import shutil
 import socket
@@ -380,3 +381,25 @@ def test_each_alarm_change_is_a_line_before_the_status_and_a_lost_one_is_said(
                        for r in caplog.records)
         finally:
             reader.close()
+
+
+def test_after_a_reload_the_feeds_names_are_out_of_the_collectors_sight(
+        tmp_path: Path) -> None:
+    """The feed's names of the new plant (a Catalogue: about 30 000 objects at 100
+    testers) are built with the new plant, in the reload's worker, and frozen with it, as
+    the console's are: built on the feed thread after the swap, every full collection of
+    the scan thread examined them from then on."""
+    with controller(tmp_path, trace=False, manage_gc=True) as (d, feed, _):
+        r = FeedReader(feed.path)
+        wait_until(lambda: len(r.frames) >= 1)
+        assert not gc.isenabled()  # the scheduler collects, in the idle time
+        old = feed._cat
+        result = d.reload()
+        assert result.applied, result.refusals
+        wait_until(lambda: r.schemas == 2 and feed._cat is not old, what="the new schema")
+        n = len(r.frames)
+        wait_until(lambda: len(r.frames) >= n + 2, what="frames after the reload")
+        tracked = gc.get_objects()
+        assert not any(o is feed._cat or o is feed._cat.names for o in tracked)
+        r.close()
+    gc.unfreeze()  # what the controller froze: the test process's own again
