@@ -32,7 +32,9 @@ scan thread's in ``FeedServer.on_scan`` per snapshot taken, timed with
 ``time.thread_time_ns`` by wrappers this benchmark installs (the runtime has no such
 counter), the feed thread's whole CPU (its turns, I/O and requests too) per snapshot,
 and the feed's clients dropped for not reading (``FeedServer.dropped``);
-``ImageWriter.write`` alone per sample; the host's steal time per processor; the
+the image's read and write per image written (``ImageWriter.read`` and ``publish``, the
+feed thread between two scans) and the images not written (``images_missed``: a scan
+began first); the host's steal time per processor; the
 garbage collections in the scan's idle time (how many, their time, the full ones and the
 last one's time, the full ones that waited for idle time enough). With
 ``--who``, what the controller's other threads were doing at each late wake-up and long
@@ -132,7 +134,8 @@ class FeedMeter:
         self.fs: FeedServer | None = None
         self.ok = False
         self.publish_ns = self.publishes = self.scan_ns = self.captures = 0
-        #: ``ImageWriter.write`` alone (inside ``on_scan``): processor ns, calls
+        #: ``ImageWriter.read`` and ``publish`` (the feed thread, between two scans):
+        #: processor ns, images written
         self.write_ns = self.writes = 0
         # the feed thread's processor time, not the wall clock: its waits for the GIL
         # (the scan, the console) are not its work
@@ -172,15 +175,23 @@ class FeedMeter:
 
         setattr(fs, "_publish", timed_publish)  # noqa: B010 - a method replaced on the instance
         setattr(fs, "on_scan", timed_scan)  # noqa: B010
-        write = ImageWriter.write
+        read, publish_image = ImageWriter.read, ImageWriter.publish
 
-        def timed_write(writer: ImageWriter, scan: int, wall_ns: int) -> None:
+        def timed_read(writer: ImageWriter) -> Any:
             t0 = time.thread_time_ns()
-            write(writer, scan, wall_ns)
+            got = read(writer)
+            self.write_ns += time.thread_time_ns() - t0
+            return got
+
+        def timed_publish_image(writer: ImageWriter, got: Any, scan: int, wall_ns: int
+                                ) -> None:
+            t0 = time.thread_time_ns()
+            publish_image(writer, got, scan, wall_ns)
             self.write_ns += time.thread_time_ns() - t0
             self.writes += 1
         # the class's: the writer is made when the feed starts (and again at a reload)
-        setattr(ImageWriter, "write", timed_write)  # noqa: B010
+        setattr(ImageWriter, "read", timed_read)  # noqa: B010
+        setattr(ImageWriter, "publish", timed_publish_image)  # noqa: B010
 
     def report(self, top: int = 25) -> None:
         """The profile of the observed window: the functions of most own time, per frame."""
@@ -198,11 +209,11 @@ class FeedMeter:
             out(f"| {fn} {where} | {nc / self.profiled:.1f} | "
                 f"{1e6 * tt / self.profiled:.1f} | {1e6 * ct / self.profiled:.1f} |")
 
-    def reading(self) -> tuple[int, int, int, int, int, int, int, int]:
+    def reading(self) -> tuple[int, int, int, int, int, int, int, int, int]:
         frames = getattr(self.fs, "frames", -1)
         dropped = getattr(self.fs, "dropped", -1)
         return (frames, self.publish_ns, self.publishes, self.scan_ns, self.captures,
-                dropped, self.write_ns, self.writes)
+                dropped, self.write_ns, self.writes, getattr(self.fs, "images_missed", -1))
 
 
 class Who:
@@ -352,8 +363,9 @@ def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
     w["cpu"] = 100 * (p1 - p0) / wall
     w["threads"] = {k: 100 * (th1[k] - th0[k]) / 1e9 / wall for k in th0}
     w["feed_ns"] = th1["feed"] - th0["feed"]
-    frames, pub_ns, pubs, scan_ns, caps, dropped, write_ns, writes = (
+    frames, pub_ns, pubs, scan_ns, caps, dropped, write_ns, writes, missed = (
         b - a for a, b in zip(feed0, feed1, strict=True))
+    w["images_missed"] = missed if feed1[8] >= 0 else None
     w["frames"] = frames if feed1[0] >= 0 else None
     w["dropped"] = dropped if feed1[5] >= 0 else None
     w["publish_us"] = pub_ns / pubs / 1e3 if meter.ok and pubs else None
@@ -401,10 +413,11 @@ def table(rows: list[tuple[str, dict[str, Any]]]) -> None:
         "runq p99 us | "
         "blocked p99 us | lone blocked p99 us | controller CPU | scan thread | "
         "feed thread | console thread | feed frames | feed clients dropped | "
-        "_publish us/frame | feed thread us/sample | on_scan us/snapshot | image write us | "
+        "_publish us/frame | feed thread us/sample | on_scan us/snapshot | "
+        "image read + write us (feed thread) | images missed | "
         "steal ms per cpu | collections (idle time) |")
     out("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
-        "---|---|---|---|---|---|")
+        "---|---|---|---|---|---|---|")
     for label, r in rows:
         th = r["threads"]
         out(f"| {label} | {r['cycles']} | {r['overruns']} | {r['faults']} | {r['p50']:.0f} | "
@@ -417,6 +430,7 @@ def table(rows: list[tuple[str, dict[str, Any]]]) -> None:
             f"{fmt(r['frames'], 'd')} | {fmt(r['dropped'], 'd')} | "
             f"{fmt(r['publish_us'], '.1f')} | {fmt(r['feed_us'], '.1f')} | "
             f"{fmt(r['capture_us'], '.1f')} | {fmt(r['write_us'], '.1f')} | "
+            f"{fmt(r['images_missed'], 'd')} | "
             f"{' '.join(str(x) for x in r['steal']) or '-'} | {r['gc']} |")
 
 

@@ -120,6 +120,10 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+#: the feed thread waits this long between two looks at the scan thread still busy after
+#: a scan (the idle work: requests, the listeners) before it reads the image, seconds
+IMAGE_POLL_S = 0.0002
+
 #: unsent bytes a client may have before it is dropped (it stopped reading)
 OUT_MAX = 1 << 20
 #: bytes of client input waiting to be handled before the client is dropped
@@ -210,6 +214,14 @@ class FeedServer:
         #: client gets frames) and its generation (one more per plant object)
         self._image: ImageWriter | None = None
         self._generation = 0
+        #: the image to write (scan thread, each sample; the feed thread reads and writes
+        #: it between that scan and the next): (the scan's start, the scheduler's
+        #: ``last_wake``; the scan; its wall clock ns; the writer); and the last taken
+        self._image_due: tuple[int, int, int, ImageWriter] | None = None
+        self._image_taken: tuple[int, int, int, ImageWriter] | None = None
+        #: images not written: the next scan (or a request served) began before the feed
+        #: thread could read the state between two scans
+        self.images_missed = 0
         #: the scan thread copies the image into the mailbox (Catalogue.capture) while a
         #: client takes frames (every sample), and the state of the instances clients
         #: follow (``_why``, their names; every WHY_EVERY_NS): set by the feed thread
@@ -261,8 +273,10 @@ class FeedServer:
         self._sel.register(srv, selectors.EVENT_READ, None)
         self._image = self._new_image(self._cat)
         self._schema_line = self._schema()
-        self.daemon.add_listener(self.window.on_scan)
+        # the sample first, then the window: the feed thread, woken by the window, finds
+        # the sample of the scan that opened it
         self.daemon.add_listener(self.on_scan)
+        self.daemon.add_listener(self.window.on_scan)
         on_reload = getattr(self.daemon, "on_reload", None)
         if on_reload is not None:
             on_reload(self._prepare)
@@ -334,10 +348,12 @@ class FeedServer:
             followed = self._copy_followed(cat, (names[self._why_turn % len(names)],))
         self._slot = (n - 1, wall, cat.capture(n - 1) if self._copy else None, cat, live,
                       followed)
-        # the shared image last: never older than the copy and the state beside it (a
-        # safe state written by another thread meanwhile, a halt, shows in both)
+        # the shared image: read and written by the feed thread once this scan's idle
+        # work is done and before the next scan (``_write_image``), never older than the
+        # copy and the state beside it (a safe state written by another thread
+        # meanwhile, a halt, shows in both)
         if image is not None and image.plant is d.plant:
-            image.write(n - 1, int(wall * 1e9))
+            self._image_due = (d.scheduler.last_wake, n - 1, int(wall * 1e9), image)
 
     @staticmethod
     def _copy_followed(cat: Catalogue, names: tuple[str, ...]) -> dict[str, Memory]:
@@ -357,6 +373,7 @@ class FeedServer:
                     break
                 if self._replaced or self.daemon.plant is not self._cat.plant:
                     self._reload()
+                self._write_image(closes)
                 # the new snapshot first, while the window is young (a scan has just
                 # ended): never built in the quiet time before the next scan
                 slot = self._slot
@@ -375,6 +392,39 @@ class FeedServer:
                 self._drop(c, "the feed failed")
             if self._sock is not None:
                 self._sock.close()
+
+    def _write_image(self, closes: float) -> None:
+        """The image of the last sample, read from the state between its scan and the
+        next (no scan begun since: the scheduler's ``last_wake``; the scan thread
+        changing nothing during the read: its ``seq`` even and unchanged across it; a
+        request served after the scan is in the image) and written to the file, before
+        ``closes`` (monotonic s). Else it is not written (``images_missed``): the next
+        sample's will be. So the scan thread pays nothing per name for the image
+        (``on_scan`` stores a tuple)."""
+        due = self._image_due
+        if due is None or due is self._image_taken:
+            return
+        self._image_taken = due
+        wake, scan, wall_ns, image = due
+        sched = self.daemon.scheduler
+        while True:
+            seq = sched.seq  # first: a scan bumps it before it sets last_wake
+            if sched.last_wake != wake:  # the next scan has begun
+                self.images_missed += 1
+                return
+            if not seq & 1:
+                break
+            if time.monotonic() >= closes:  # the idle work, or a request, ran to the end
+                self.images_missed += 1
+                return
+            time.sleep(IMAGE_POLL_S)
+        if image is not self._image or image.plant is not self.daemon.plant:
+            return  # the plant was replaced: the new image comes with the next sample
+        got = image.read()
+        if sched.seq != seq:  # the scan thread ran meanwhile: not one moment's state
+            self.images_missed += 1
+            return
+        image.publish(got, scan, wall_ns)
 
     def _idle(self) -> None:
         """No client: wait for a connection (the listening socket alone is registered) or

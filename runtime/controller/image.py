@@ -308,13 +308,23 @@ class ImageWriter:
                 "ok": self._desc_ok, "flags": self._desc_flags}
 
     def write(self, scan: int, wall_ns: int) -> None:
-        """Scan thread, between cycles: the image of ``scan`` into the file (seqlock).
-        A region whose values equal those it was last packed with is not packed again:
-        the file still holds them (this writer alone writes its file, which starts
-        zeroed with nothing kept)."""
+        """The image of ``scan`` into the file: :meth:`read` then :meth:`publish`."""
+        self.publish(self._read(), scan, wall_ns)
+
+    def read(self) -> tuple[tuple[Any, ...], ...]:
+        """The values of the image now, as one tuple of immutable tuples (one generated
+        function reading the very cells the scans use): what :meth:`publish` takes. The
+        caller makes sure no scan runs meanwhile (the feed thread: ``Scheduler.seq``)."""
+        return self._read()
+
+    def publish(self, got: tuple[tuple[Any, ...], ...], scan: int, wall_ns: int) -> None:
+        """``got`` (:meth:`read`'s), the image of ``scan``, into the file (seqlock). A
+        region whose values equal those it was last packed with is not packed again:
+        the file still holds them (this writer alone writes its file, from one thread at
+        a time, and it starts zeroed with nothing kept)."""
         mm, seq = self._mm, self._seq + 1
         SEQ.pack_into(mm, SEQ_AT, seq)  # odd: a write under way
-        got, last, regions, lossy = self._read(), self._last, self._regions, self._lossy
+        last, regions, lossy = self._last, self._regions, self._lossy
         kept_blocks, all_reals, packs = self._kept_blocks, self._reals, self._packs
         for j, (a, b, real) in enumerate(self._blocks):
             block = got[a:b]

@@ -129,6 +129,11 @@ class Scheduler:
         #: collection would examine every object just built (tens of ms, once measured
         #: 52 ms, at 100 testers); that thread then freezes them (``gc.freeze()``)
         self.gc_held = False
+        #: odd while the scan thread may change the plant's state (a scan, the idle work
+        #: after it, a request served in a long cycle's wait), even while it cannot (its
+        #: sleep, a garbage collection): a thread that reads the state between two scans
+        #: (the feed's image) reads it whole only if ``seq`` is even and the same after
+        self.seq = 0
 
     def wake(self) -> None:
         """A request is queued for ``serve`` (any thread): served now in a long cycle."""
@@ -168,6 +173,7 @@ class Scheduler:
         try:
             while n != last and not stopped():
                 sleep_until(deadline)
+                self.seq += 1  # odd: the state may change from here (a freeze latched too)
                 wake = clock()
                 frozen = wake - deadline
                 if boot is not None:
@@ -192,11 +198,13 @@ class Scheduler:
                 self.due = deadline
                 if idle is not None:
                     idle(deadline - guard)
+                self.seq += 1  # even: nothing changes the state until the next bump
                 if manage_gc and not n % GC_CHECK_EVERY:
                     self._collect(deadline - guard)
                 if awake:
                     self._serve_until(deadline - guard)
         finally:
+            self.seq += self.seq & 1  # even: stopped
             self.scanning_since = self.last_wake = 0
             if manage_gc:
                 gc.unfreeze()
@@ -214,7 +222,9 @@ class Scheduler:
                 return
             wake.clear()  # before serving: a request queued meanwhile sets it again
             if not stopped():
+                self.seq += 1
                 serve(until)
+                self.seq += 1
 
     def _froze(self, frozen: int) -> None:
         self.stats.record_freeze(frozen)

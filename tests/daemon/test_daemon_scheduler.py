@@ -244,3 +244,39 @@ def test_watchdog_builds_the_status_in_its_thread_when_asked_and_every_interval(
         assert threads == ["softplc-watchdog"]
     finally:
         wd.stop()
+
+
+def test_seq_is_odd_while_the_scan_thread_may_change_the_state_even_while_it_sleeps() -> None:
+    """``Scheduler.seq``: what a thread reading the state between two scans (the feed's
+    image) checks before and after its read. Odd in the scan, its idle work and a request
+    served in a long cycle's wait; even in the sleep and once the loop has ended."""
+    vt = VirtualTime()
+    seen: list[tuple[str, int]] = []
+    s: Scheduler
+
+    def body(now: int) -> None:
+        seen.append(("scan", s.seq))
+        vt.now += 1 * MS
+        s.wake()  # a request queued: served in the wait of this long cycle
+
+    def idle(until: int) -> None:
+        seen.append(("idle", s.seq))
+
+    def serve(until: int) -> None:
+        seen.append(("serve", s.seq))
+        vt.now = until  # the wait ends
+
+    def sleep_until(deadline: int) -> None:
+        seen.append(("sleep", s.seq))
+        vt.sleep_until(deadline)
+
+    s = Scheduler(body, 50 * MS, 500 * MS, idle=idle, serve=serve, clock=vt.clock,
+                  sleep_until=sleep_until, manage_gc=False)
+    s.run(cycles=3)
+    assert s.seq % 2 == 0
+    kinds = [k for k, _ in seen]
+    assert kinds == ["sleep", "scan", "idle", "serve"] * 3, kinds
+    for kind, seq in seen:
+        assert seq % 2 == (kind != "sleep"), seen
+    seqs = [q for _, q in seen]
+    assert seqs == sorted(seqs) and len(set(q for k, q in seen if k == "sleep")) == 3
