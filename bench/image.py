@@ -6,9 +6,10 @@ run --sim`` builds it, not running (the costs are measured by calling the functi
 directly, the best of ``--repeat`` runs of ``--number`` calls: the least disturbed by
 the other processes of this machine). Columns, microseconds per sample:
 
-- ``rest`` and ``worst``: ``ImageWriter.write`` (the scan thread, this design: a seqlock,
-  a CRC32, the slots read by one generated function, and a ``pack_into`` per region whose
-  values changed since the last write), with between two writes (not timed) a plant at
+- ``rest`` and ``worst``: ``ImageWriter.write`` (the feed thread between two scans, the
+  scan thread when first built; this design: a seqlock, a CRC32, the slots read by one
+  generated function, and a ``pack_into`` per region whose values changed since the last
+  write), with between two writes (not timed) a plant at
   rest: every instance's chart clock advanced, nothing else changed (a drawer waiting in
   its step); the worst case: besides, one BOOL slot of every instance and the first input
   and output point of every driver flipped, so that every numeric region is packed (the

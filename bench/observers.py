@@ -33,8 +33,9 @@ scan thread's in ``FeedServer.on_scan`` per snapshot taken, timed with
 counter), the feed thread's whole CPU (its turns, I/O and requests too) per snapshot,
 and the feed's clients dropped for not reading (``FeedServer.dropped``);
 the image's read and write per image written (``ImageWriter.read`` and ``publish``, the
-feed thread between two scans) and the images not written (``images_missed``: a scan
-began first); the host's steal time per processor; the
+feed thread between two scans), the samples whose image was never written
+(``images_missed``) and the images read after a later scan than their sample's
+(``images_late``); the host's steal time per processor; the
 garbage collections in the scan's idle time (how many, their time, the full ones and the
 last one's time, the full ones that waited for idle time enough). With
 ``--who``, what the controller's other threads were doing at each late wake-up and long
@@ -209,11 +210,12 @@ class FeedMeter:
             out(f"| {fn} {where} | {nc / self.profiled:.1f} | "
                 f"{1e6 * tt / self.profiled:.1f} | {1e6 * ct / self.profiled:.1f} |")
 
-    def reading(self) -> tuple[int, int, int, int, int, int, int, int, int]:
+    def reading(self) -> tuple[int, int, int, int, int, int, int, int, int, int]:
         frames = getattr(self.fs, "frames", -1)
         dropped = getattr(self.fs, "dropped", -1)
         return (frames, self.publish_ns, self.publishes, self.scan_ns, self.captures,
-                dropped, self.write_ns, self.writes, getattr(self.fs, "images_missed", -1))
+                dropped, self.write_ns, self.writes, getattr(self.fs, "images_missed", -1),
+                getattr(self.fs, "images_late", -1))
 
 
 class Who:
@@ -363,9 +365,10 @@ def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
     w["cpu"] = 100 * (p1 - p0) / wall
     w["threads"] = {k: 100 * (th1[k] - th0[k]) / 1e9 / wall for k in th0}
     w["feed_ns"] = th1["feed"] - th0["feed"]
-    frames, pub_ns, pubs, scan_ns, caps, dropped, write_ns, writes, missed = (
+    frames, pub_ns, pubs, scan_ns, caps, dropped, write_ns, writes, missed, late = (
         b - a for a, b in zip(feed0, feed1, strict=True))
     w["images_missed"] = missed if feed1[8] >= 0 else None
+    w["images_late"] = late if feed1[9] >= 0 else None
     w["frames"] = frames if feed1[0] >= 0 else None
     w["dropped"] = dropped if feed1[5] >= 0 else None
     w["publish_us"] = pub_ns / pubs / 1e3 if meter.ok and pubs else None
@@ -414,7 +417,7 @@ def table(rows: list[tuple[str, dict[str, Any]]]) -> None:
         "blocked p99 us | lone blocked p99 us | controller CPU | scan thread | "
         "feed thread | console thread | feed frames | feed clients dropped | "
         "_publish us/frame | feed thread us/sample | on_scan us/snapshot | "
-        "image read + write us (feed thread) | images missed | "
+        "image read + write us (feed thread) | images missed, late | "
         "steal ms per cpu | collections (idle time) |")
     out("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
         "---|---|---|---|---|---|---|")
@@ -430,7 +433,7 @@ def table(rows: list[tuple[str, dict[str, Any]]]) -> None:
             f"{fmt(r['frames'], 'd')} | {fmt(r['dropped'], 'd')} | "
             f"{fmt(r['publish_us'], '.1f')} | {fmt(r['feed_us'], '.1f')} | "
             f"{fmt(r['capture_us'], '.1f')} | {fmt(r['write_us'], '.1f')} | "
-            f"{fmt(r['images_missed'], 'd')} | "
+            f"{fmt(r['images_missed'], 'd')}, {fmt(r['images_late'], 'd')} | "
             f"{' '.join(str(x) for x in r['steal']) or '-'} | {r['gc']} |")
 
 

@@ -219,9 +219,12 @@ class FeedServer:
         #: ``last_wake``; the scan; its wall clock ns; the writer); and the last taken
         self._image_due: tuple[int, int, int, ImageWriter] | None = None
         self._image_taken: tuple[int, int, int, ImageWriter] | None = None
-        #: images not written: the next scan (or a request served) began before the feed
-        #: thread could read the state between two scans
+        #: the sample whose image is not written yet
+        self._image_pending: tuple[int, int, int, ImageWriter] | None = None
+        #: samples whose image was never written (the next sample came first), and
+        #: images read after a later scan than their sample's (stamped with that scan)
         self.images_missed = 0
+        self.images_late = 0
         #: the scan thread copies the image into the mailbox (Catalogue.capture) while a
         #: client takes frames (every sample), and the state of the instances clients
         #: follow (``_why``, their names; every WHY_EVERY_NS): set by the feed thread
@@ -394,36 +397,44 @@ class FeedServer:
                 self._sock.close()
 
     def _write_image(self, closes: float) -> None:
-        """The image of the last sample, read from the state between its scan and the
-        next (no scan begun since: the scheduler's ``last_wake``; the scan thread
-        changing nothing during the read: its ``seq`` even and unchanged across it; a
-        request served after the scan is in the image) and written to the file, before
-        ``closes`` (monotonic s). Else it is not written (``images_missed``): the next
-        sample's will be. So the scan thread pays nothing per name for the image
-        (``on_scan`` stores a tuple)."""
+        """The image of the last sample, read from the state between two scans (the
+        scheduler's ``seq`` even and unchanged across the read: the scan thread changed
+        nothing meanwhile) and written to the file, before ``closes`` (monotonic s). Read
+        between the sampled scan and the next, it is that scan's (a request served after
+        it included); read in a later gap (the feed thread got no processor in time), it
+        is the last scan's, stamped with that scan (``images_late``). Not read before
+        ``closes``: tried again in the next window; a sample whose image was still not
+        written when the next sample came is lost (``images_missed``). So the scan thread
+        pays nothing per name for the image (``on_scan`` stores a tuple)."""
         due = self._image_due
         if due is None or due is self._image_taken:
             return
-        self._image_taken = due
+        pending = self._image_pending
+        if pending is not None and pending is not due:
+            self.images_missed += 1  # a newer sample came before its image was written
+        self._image_pending = due
         wake, scan, wall_ns, image = due
-        sched = self.daemon.scheduler
+        d = self.daemon
+        sched = d.scheduler
+        seq = sched.seq
         while True:
-            seq = sched.seq  # first: a scan bumps it before it sets last_wake
-            if sched.last_wake != wake:  # the next scan has begun
-                self.images_missed += 1
-                return
+            if time.monotonic() >= closes:
+                return  # the next window: a read now could hold the GIL at the deadline
             if not seq & 1:
                 break
-            if time.monotonic() >= closes:  # the idle work, or a request, ran to the end
-                self.images_missed += 1
-                return
-            time.sleep(IMAGE_POLL_S)
-        if image is not self._image or image.plant is not self.daemon.plant:
+            time.sleep(IMAGE_POLL_S)  # the scan thread is in a scan or its idle work
+            seq = sched.seq
+        if image is not self._image or image.plant is not d.plant:
+            self._image_taken, self._image_pending = due, None
             return  # the plant was replaced: the new image comes with the next sample
+        if sched.last_wake != wake:  # a later scan ran: the state is the last scan's
+            scan, wall_ns = d.scan_stats.count - 1, int(self.wall() * 1e9)
         got = image.read()
         if sched.seq != seq:  # the scan thread ran meanwhile: not one moment's state
-            self.images_missed += 1
-            return
+            return  # the next window
+        if scan != due[1]:
+            self.images_late += 1
+        self._image_taken, self._image_pending = due, None
         image.publish(got, scan, wall_ns)
 
     def _idle(self) -> None:
