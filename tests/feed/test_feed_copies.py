@@ -19,7 +19,7 @@ from runtime.controller.feed import (
     FeedServer,
     why_request,
 )
-from runtime.controller.image import STAMP, STAMP_AT
+from runtime.controller.image import STAMP, STAMP_AT, ImageWriter
 from runtime.language.plantfile import load_plant
 from tests.opcua.feedkit import FeedReader, controller, serving, wait_until
 from tests.opcua.kit import plant_head
@@ -241,6 +241,18 @@ def _image_reads(feed: FeedServer) -> list[tuple[str, int]]:
     return reads
 
 
+def _written(image: ImageWriter) -> list[int]:
+    """The scan of each image ``image`` writes from now on."""
+    written: list[int] = []
+    publish = image.publish
+
+    def published(got: Any, scan: int, wall_ns: int) -> None:
+        written.append(scan)
+        publish(got, scan, wall_ns)
+    image.publish = published  # type: ignore[method-assign]
+    return written
+
+
 def _image_scan(feed: FeedServer) -> int:
     """The scan the image file holds now (its stamp)."""
     image = feed.image
@@ -292,13 +304,7 @@ def test_an_image_read_while_a_scan_ran_is_not_written(tmp_path: Path) -> None:
                 wait_until(lambda: d.scan_stats.count > count, 10.0, "the next scan")
             return got
         image._read = read  # type: ignore[method-assign]
-        written: list[int] = []
-        publish = image.publish
-
-        def published(got: Any, scan: int, wall_ns: int) -> None:
-            written.append(scan)
-            publish(got, scan, wall_ns)
-        image.publish = published  # type: ignore[method-assign]
+        written = _written(image)
         r = FeedReader(feed.path)
         try:
             wait_until(lambda: r.schemas == 1, 10.0, "schema")
@@ -321,13 +327,7 @@ def test_a_request_served_between_two_scans_does_not_keep_the_image_from_being_w
     with controller(tmp_path, trace=False, cycle="50ms", sample="50ms") as (d, feed, _):
         image = feed.image
         assert image is not None
-        written: list[int] = []
-        publish = image.publish
-
-        def published(got: Any, scan: int, wall_ns: int) -> None:
-            written.append(scan)
-            publish(got, scan, wall_ns)
-        image.publish = published  # type: ignore[method-assign]
+        written = _written(image)
         real = feed._write_image
         served: list[int] = []
 
