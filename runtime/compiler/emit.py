@@ -34,9 +34,10 @@ def comment(text: str) -> str:
     return "# " + one_line(text)
 
 
+#: a name in a line of generated code
+_NAME = re.compile(r"[A-Za-z_]\w*")
 #: a string literal of generated code, as ``repr`` writes one (its prefix: group 1), or a
 #: comment
-_NAME = re.compile(r"[A-Za-z_]\w*")
 _INERT = re.compile(r"""(?<!\w)([rRbBuUfF]{0,2})(?:'(?:[^'\\\n]|\\.)*'|"(?:[^"\\\n]|\\.)*")|#.*""")
 
 
