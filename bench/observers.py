@@ -20,12 +20,19 @@ daemon and plant, each ``--seconds`` long:
 - ``unobserved again``: after every observer ended, a control for the machine's load
   having changed meanwhile.
 
-Per phase: the scan's wake-up lateness (p50, p99, max), overruns, faults, the ratio of
+Per phase: the scan's wake-up lateness (p50, p99, max), overruns and how many of them
+the controller's process made (the rest the machine made: schedprobe.OverrunProbe, the
+kernel's count of the times the scan thread was put on a processor: one that slept
+before its deadline, then kept its processor from its first instant on one to its
+scan's end, using less than a cycle of it, lost its time to the machine; each overrun
+listed after the table), faults, the ratio of
 the phase's p99 to the unobserved one's; a control over the same window: a thread alone
 in a process of its own, paced like the scan at the same priority (``tests/console/
 schedprobe.py`` ``lone_thread``), its p99, the scan's p99 over it and its wake-ups a
 cycle late or more (what the machine, not the controller, did: a lone thread late a
-cycle is an overrun no controller could avoid); the controller process's CPU (all its threads,
+cycle is an overrun no controller could avoid; in brackets those of them put on a
+processor more than once in their sleep: 0 for a thread alone, a check of the method
+above); the controller process's CPU (all its threads,
 and the scan, feed and console threads alone, from /proc/self/task); the feed's frames and
 its cost per sample: the feed thread's CPU in ``FeedServer._publish`` per frame and the
 scan thread's in ``FeedServer.on_scan`` per snapshot taken, timed with
@@ -101,7 +108,7 @@ from runtime.console.service import ConsoleService
 from runtime.controller.daemon import Daemon
 from runtime.controller.feed import FeedServer
 from runtime.controller.image import ImageWriter
-from tests.console.schedprobe import SchedProbe, lone_thread
+from tests.console.schedprobe import OverrunProbe, SchedProbe, lone_thread
 
 #: the controller's threads whose CPU a row shows apart (name prefix -> column)
 THREADS = {"softplc-scan": "scan", "softplc-feed": "feed", "console-": "console"}
@@ -335,14 +342,15 @@ def rss_mib(procs: list[subprocess.Popen[Any]]) -> float:
 
 def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
             sides: dict[str, list[subprocess.Popen[Any]]], cycle_ms: float,
-            priority: int) -> dict[str, Any]:
+            priority: int, overruns: OverrunProbe) -> dict[str, Any]:
     """One phase: ``probed_window``'s scan figures (no statistics reset: the feed counts
     scans), the controller's CPU and the feed's, and the CPU of each group of side
     processes (``sides``: label -> processes). Over the same window, a control: a thread
     alone in a process of its own, paced like the scan (``cycle_ms``, SCHED_FIFO
     ``priority`` if not 0), which nothing of the controller's process can hold: what
     the machine (its other processes, the virtual machine's host) does to a scan's
-    wake-ups in that phase (``lone_p99``...)."""
+    wake-ups in that phase (``lone_p99``...). Each overrun, and whether the machine or
+    the process made it (``overruns``: schedprobe.OverrunProbe)."""
     side0 = {k: cpu_s(v) for k, v in sides.items()}
     th0, feed0, p0, t0 = threads_cpu_ns(), meter.reading(), time.process_time(), \
         time.monotonic()
@@ -350,7 +358,11 @@ def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
     st = daemon.scan_stats
     gc0 = (st.gc_runs, st.gc_ns, st.gc_full_runs, st.gc_full_deferred)
     with lone_thread(cycle_ms, priority) as lone:
+        overruns.start()
         w = probed_window(daemon, probe, seconds, int(cycle_ms * 1e6))
+        w["overrun_list"] = overruns.stop()
+    w["overruns_ours"] = sum(1 for o in w["overrun_list"]
+                             if not o.machines(overruns.cycle_ns))
     runs, gc_ns, fulls, waited = (b - a for a, b in zip(
         gc0, (st.gc_runs, st.gc_ns, st.gc_full_runs, st.gc_full_deferred), strict=True))
     w["gc"] = (f"{runs}, {gc_ns / 1e6:.1f} ms; full {fulls}"
@@ -360,6 +372,7 @@ def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
     w["lone_p99"], w["lone_max"] = lone[0].late_p99, lone[0].late_max
     w["lone_blocked_p99"] = lone[0].blocked_p99
     w["lone_missed"] = lone[0].missed  # its wake-ups a cycle late or more
+    w["lone_rescheduled"] = lone[0].rescheduled  # of those, put on a processor twice
     th1, feed1, p1 = threads_cpu_ns(), meter.reading(), time.process_time()
     wall = time.monotonic() - t0
     w["cpu"] = 100 * (p1 - p0) / wall
@@ -379,6 +392,26 @@ def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
     w["sides"] = {k: (100 * (cpu_s(v) - side0[k]) / wall, rss_mib(v))
                   for k, v in sides.items()}
     return w
+
+
+def overrun_table(rows: list[tuple[str, dict[str, Any]]], cycle_ns: int) -> None:
+    """Each overrun of each phase (schedprobe.Overrun), µs, and whose it was."""
+    seen = [(label, o) for label, r in rows for o in r["overrun_list"]]
+    out(f"\n{len(seen)} overruns; each (late: its wake-up after its deadline; slices: the "
+        "times the scan thread was put on a processor in its sleep, in its scan; the "
+        "machine's: it slept before its deadline, then kept its processor to the scan's "
+        "end and used less than a cycle of it):")
+    if not seen:
+        return
+    out("| phase | late us | scan us | ran us | runq us | slept | slices | whose |")
+    out("|---|---|---|---|---|---|---|---|")
+    for label, o in seen[:40]:
+        out(f"| {label} | {o.late / 1e3:.0f} | {o.scan / 1e3:.0f} | {o.ran / 1e3:.0f} | "
+            f"{o.runq / 1e3:.0f} | {'yes' if o.slept else 'no'} | {o.sleep_slices}, "
+            f"{o.scan_slices} | "
+            f"{'the machine' if o.machines(cycle_ns) else 'the process'} |")
+    if len(seen) > 40:
+        out(f"({len(seen) - 40} more)")
 
 
 def node_files(tmp: str, ids: list[str], items: int, clients: int) -> list[tuple[str, int]]:
@@ -410,9 +443,10 @@ def fmt(x: float | None, spec: str = ".0f") -> str:
 
 def table(rows: list[tuple[str, dict[str, Any]]]) -> None:
     base = rows[0][1]["p99"]
-    out("| phase | cycles | overruns | faults | lateness p50 us | p99 us | max us | p99 / "
-        "unobserved p99 | lone thread p99 us | p99 / lone p99 | wake-ups a cycle late | "
-        "lone wake-ups a cycle late | "
+    out("| phase | cycles | overruns | of them the process's | faults | lateness p50 us | "
+        "p99 us | max us | p99 / unobserved p99 | lone thread p99 us | p99 / lone p99 | "
+        "wake-ups a cycle late | "
+        "lone wake-ups a cycle late (rescheduled) | "
         "runq p99 us | "
         "blocked p99 us | lone blocked p99 us | controller CPU | scan thread | "
         "feed thread | console thread | feed frames | feed clients dropped | "
@@ -420,13 +454,14 @@ def table(rows: list[tuple[str, dict[str, Any]]]) -> None:
         "image read + write us (feed thread) | images missed, late | "
         "steal ms per cpu | collections (idle time) |")
     out("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
-        "---|---|---|---|---|---|---|")
+        "---|---|---|---|---|---|---|---|")
     for label, r in rows:
         th = r["threads"]
-        out(f"| {label} | {r['cycles']} | {r['overruns']} | {r['faults']} | {r['p50']:.0f} | "
+        out(f"| {label} | {r['cycles']} | {r['overruns']} | {r['overruns_ours']} | "
+            f"{r['faults']} | {r['p50']:.0f} | "
             f"{r['p99']:.0f} | {r['max']:.0f} | {r['p99'] / base:.2f} | {r['lone_p99']:.0f} | "
             f"{r['p99'] / max(r['lone_p99'], 1.0):.2f} | {r['missed']} | "
-            f"{r['lone_missed']} | "
+            f"{r['lone_missed']} ({r['lone_rescheduled']}) | "
             f"{r['runq_p99']:.0f} | "
             f"{r['blocked_p99']:.0f} | {r['lone_blocked_p99']:.0f} | {r['cpu']:.1f} % | "
             f"{th['scan']:.1f} % | {th['feed']:.1f} % | {th['console']:.1f} % | "
@@ -507,12 +542,14 @@ def main() -> None:
                                broker.url if broker else None, opcua_port, web_port,
                                args.opcua_clients, args.mqtt_sample)
         meter, probe = FeedMeter(args.profile), SchedProbe()
+        overruns = OverrunProbe(cycle_ms * 1_000_000)
 
         who = Who(cycle_ms * 1_000_000 // 3, cycle_ms * 1_000_000 // 2) if args.who else None
 
         services: list[ConsoleService] = []
 
         def setup(d: Daemon, f: FeedServer | None) -> None:
+            overruns.install(d.scheduler)  # innermost: the sleep and the scan alone
             if who is not None:
                 who.install(d)  # inside the probe: the probe times the sleep alone
             d.scheduler.sleep_until = probe.wrap(d.scheduler.sleep_until)
@@ -532,7 +569,7 @@ def main() -> None:
             f"{'SCHED_FIFO 50' if args.fifo else 'SCHED_OTHER'}")
         faults0 = len(daemon.faults)
         rows = [("unobserved", measure(daemon, probe, meter, args.seconds, {}, cycle_ms,
-                                       prio))]
+                                       prio, overruns))]
 
         faults0 = ack_faults(daemon, faults0, "in the unobserved window")
         # the observers: the OPC UA server and its clients first (the slowest to start)
@@ -607,7 +644,7 @@ def main() -> None:
         if who is not None:
             who.on = True
         rows.append(("observed", measure(daemon, probe, meter, args.seconds, sides,
-                                         cycle_ms, prio)))
+                                         cycle_ms, prio, overruns)))
         meter.profiling = False
         if who is not None:
             who.on = False
@@ -629,9 +666,10 @@ def main() -> None:
                     end_process(p, 30)
         ack_faults(daemon, faults0, "in the observed window or while the observers ended")
         rows.append(("unobserved again", measure(daemon, probe, meter, args.seconds, {},
-                                                 cycle_ms, prio)))
+                                                 cycle_ms, prio, overruns)))
 
         table(rows)
+        overrun_table(rows, overruns.cycle_ns)
         meter.report()
         if who is not None:
             who.report()
@@ -639,7 +677,9 @@ def main() -> None:
         ratio = obs["p99"] / rows[0][1]["p99"]
         out(f"\nobserved p99 / unobserved p99 = {ratio:.2f} (goal <= 1.2: "
             f"{'met' if ratio <= 1.2 else 'NOT met'}), overruns observed {obs['overruns']}"
-            f" (goal 0: {'met' if obs['overruns'] == 0 else 'NOT met'})")
+            f" (goal 0: {'met' if obs['overruns'] == 0 else 'NOT met'}), of them the "
+            f"process's {obs['overruns_ours']} (the rest the machine's: "
+            f"{'met' if obs['overruns_ours'] == 0 else 'NOT met'})")
         base = rows[0][1]
         beyond = (obs["p99"] / max(obs["lone_p99"], 1.0)) / (
             base["p99"] / max(base["lone_p99"], 1.0))

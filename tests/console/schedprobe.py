@@ -35,8 +35,12 @@ from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from runtime.controller.realtime import make_sleep_until, reduce_timer_slack, set_fifo_priority
+
+if TYPE_CHECKING:
+    from runtime.controller.scheduler import Scheduler
 
 SCHEDSTAT = "/proc/thread-self/schedstat"
 #: a wake-up later than this is counted as ``Wakes.late``, µs (a quarter of a 10 ms cycle)
@@ -71,6 +75,9 @@ class Wakes:
     #: (``control``)
     missed: int = 0
     skipped: int = 0
+    #: of ``missed``, those whose thread was put on a processor more than once from its
+    #: sleep to its return (for a lone thread: 0, or the method below is wrong)
+    rescheduled: int = 0
 
 
 class SchedProbe:
@@ -81,6 +88,7 @@ class SchedProbe:
     def __init__(self, capacity: int = 1 << 17) -> None:
         self._late = array("q", bytes(8 * capacity))
         self._runq = array("q", bytes(8 * capacity))
+        self._slices = array("q", bytes(8 * capacity))
         self.capacity = capacity
         self.n = 0
         self.on = False
@@ -91,28 +99,30 @@ class SchedProbe:
         files: list[int] = []
         has_stats = available()
 
-        def not_blocked() -> int:
-            """ns on a CPU or waiting for one, since the thread started (0 where the kernel
-            keeps no such statistics: every wake-up then counts as blocked)."""
+        def not_blocked() -> tuple[int, int]:
+            """ns on a CPU or waiting for one, and the times the thread was put on a
+            processor, since it started (0, 0 where the kernel keeps no such statistics:
+            every wake-up then counts as blocked)."""
             if not has_stats:
-                return 0
+                return 0, 0
             if not files:  # opened in the thread that sleeps: thread-self is that one
                 files.append(os.open(SCHEDSTAT, os.O_RDONLY))
-            ran, waited = os.pread(files[0], 128, 0).split()[:2]
-            return int(ran) + int(waited)
+            ran, waited, slices = os.pread(files[0], 128, 0).split()[:3]
+            return int(ran) + int(waited), int(slices)
 
         def probed(deadline: int) -> None:
             if not self.on or deadline <= mono():
                 sleep_until(deadline)
                 return
-            before = not_blocked()
+            before, slices = not_blocked()
             sleep_until(deadline)
             wake = mono()
-            waited = not_blocked() - before
+            after, slices2 = not_blocked()
             i = self.n
             if i < self.capacity:
                 self._late[i] = wake - deadline
-                self._runq[i] = waited
+                self._runq[i] = after - before
+                self._slices[i] = slices2 - slices
                 self.n = i + 1
         return probed
 
@@ -140,7 +150,106 @@ class SchedProbe:
                      sum(1 for b in blocked if b > 1_000_000), sum(blocked) / 1e6,
                      sum(1 for x in late if x > LATE_US * 1e3),
                      sum(1 for x in late if x >= cycle_ns) if cycle_ns else 0,
-                     sum(x // cycle_ns for x in late if x >= cycle_ns) if cycle_ns else 0)
+                     sum(x // cycle_ns for x in late if x >= cycle_ns) if cycle_ns else 0,
+                     sum(1 for x, k in zip(self._late[:n], self._slices[:n], strict=True)
+                         if x >= cycle_ns and k > 1) if cycle_ns else 0)
+
+
+@dataclass(frozen=True)
+class Overrun:
+    """One overrun of a scheduler's scan (its end at or after the next deadline), ns.
+
+    ``slept``: the scan thread went to sleep before the deadline (False: its idle work
+    ran past it); ``sleep_slices``, ``scan_slices``: the times the kernel put the thread
+    on a processor from the start of its sleep to its wake-up's return to Python, and
+    during the scan (1 and 0 when it kept its processor from its first instant on one
+    after the timer; more when it waited again: for the GIL, another of the process's
+    threads holding it, or preempted by a task of higher priority); ``ran``: its
+    processor time over both; ``runq``: the time it was runnable waiting for a
+    processor."""
+
+    deadline: int
+    late: int
+    scan: int
+    slept: bool
+    sleep_slices: int
+    scan_slices: int
+    ran: int
+    runq: int
+
+    def machines(self, cycle_ns: int) -> bool:
+        """Whether the machine alone made it: the thread slept before its deadline, then
+        kept its processor from its first instant on one to the scan's end, and used
+        less than a cycle of processor time; the rest of the time (a timer delivered
+        late, a processor given late, the host of a virtual machine running something
+        else) was not the process's. Everything else is counted the process's, though a
+        preemption by a kernel thread of higher priority lands there too."""
+        return (self.slept and self.sleep_slices <= 1 and self.scan_slices == 0
+                and self.ran < cycle_ns)
+
+
+class OverrunProbe:
+    """Records each overrun of a Scheduler's scans (``install`` before it runs) between
+    ``start()`` and ``stop()``: whether the machine or the process made it (``Overrun``).
+    Three reads of /proc/thread-self/schedstat a cycle (a few µs each), in the scan
+    thread; meaningful with the scan at SCHED_FIFO (at normal priority any process may
+    preempt it, and that counts as the process's)."""
+
+    def __init__(self, cycle_ns: int, capacity: int = 4096) -> None:
+        self.cycle_ns = cycle_ns
+        self.capacity = capacity
+        self.on = False
+        self.seen: list[Overrun] = []
+
+    def install(self, sched: Scheduler) -> None:
+        """Wrap ``sched``'s sleep and body (its run loop binds them as it starts)."""
+        sleep_until, body, mono = sched.sleep_until, sched.body, time.monotonic_ns
+        cycle = self.cycle_ns
+        files: list[int] = []
+        # at the sleep's start, at the wake-up: (monotonic ns, ran, waited, slices)
+        marks: list[tuple[int, int, int, int]] = [(0, 0, 0, 0), (0, 0, 0, 0)]
+        due = [0]
+
+        def stat() -> tuple[int, int, int, int]:
+            if not files:  # opened in the scan thread: thread-self is that one
+                files.append(os.open(SCHEDSTAT, os.O_RDONLY))
+            ran, waited, slices = os.pread(files[0], 128, 0).split()[:3]
+            return mono(), int(ran), int(waited), int(slices)
+
+        def probed_sleep(deadline: int) -> None:
+            if not self.on:
+                due[0] = 0
+                sleep_until(deadline)
+                return
+            due[0] = deadline
+            marks[0] = stat()
+            sleep_until(deadline)
+            marks[1] = stat()
+
+        def probed_body(wake: int) -> Any:
+            if not self.on or not due[0]:
+                return body(wake)
+            try:
+                return body(wake)
+            finally:
+                end, ran, waited, slices = stat()
+                deadline = due[0]
+                if end >= deadline + cycle and len(self.seen) < self.capacity:
+                    (t0, ran0, waited0, slices0), (_, ran1, _, slices1) = marks
+                    self.seen.append(Overrun(deadline, wake - deadline, end - wake,
+                                             t0 < deadline, slices1 - slices0,
+                                             slices - slices1, ran - ran0,
+                                             waited - waited0))
+        sched.sleep_until = probed_sleep
+        sched.body = probed_body
+
+    def start(self) -> None:
+        self.seen = []
+        self.on = True
+
+    def stop(self) -> list[Overrun]:
+        self.on = False
+        return self.seen
 
 
 #: the neighbour of a control's paced thread: bursts of Python this long (holding the GIL),

@@ -1,0 +1,132 @@
+"""schedprobe.OverrunProbe tells an overrun the controller's process made (another of its
+threads holding the GIL across the scan's deadline) from one the machine made (another
+process on the scan's processor), on the real Scheduler and the kernel's own statistics.
+Sized by time: each test waits (at most a deadline) for the overruns it needs."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+
+from runtime.controller.realtime import set_fifo_priority
+from runtime.controller.scheduler import Scheduler
+from tests.console import schedprobe
+from tests.console.schedprobe import Overrun, OverrunProbe
+
+MS = 1_000_000
+CYCLE = 5 * MS
+#: how long a test may wait for the overruns it needs, s
+WAIT_S = 30.0
+
+pytestmark = pytest.mark.skipif(
+    not schedprobe.available(), reason="the kernel keeps no per-thread scheduler "
+    "statistics (CONFIG_SCHED_INFO)")
+
+
+def _holding_n() -> int:
+    """A length of ``sum(range(n))`` that holds the GIL (one C call: no switch inside)
+    for about 8 cycles on this machine."""
+    n = 100_000
+    while True:
+        t = time.perf_counter()
+        sum(range(n))
+        took = time.perf_counter() - t
+        if took > 0.005:
+            return int(n * 8 * CYCLE / 1e9 / took)
+        n *= 4
+
+
+def _run(probe: OverrunProbe) -> tuple[Scheduler, threading.Thread]:
+    s = Scheduler(lambda now: None, CYCLE, 10_000 * MS, manage_gc=False)
+    probe.install(s)
+    t = threading.Thread(target=s.run, name="softplc-scan", daemon=True)
+    probe.start()
+    t.start()
+    return s, t
+
+
+def test_an_overrun_made_by_a_thread_holding_the_gil_is_the_processs() -> None:
+    probe = OverrunProbe(CYCLE)
+    n = _holding_n()
+    held: list[tuple[int, int]] = []  # (start, end) monotonic ns of each hold
+    s, t = _run(probe)
+    end = time.monotonic() + WAIT_S
+    try:
+        while time.monotonic() < end:
+            time.sleep(3 * CYCLE / 1e9)  # a few scans between two holds
+            a = time.monotonic_ns()
+            sum(range(n))
+            held.append((a, time.monotonic_ns()))
+            inside = [o for o in list(probe.seen)
+                      if any(a0 < o.deadline and o.deadline + o.late < b0
+                             for a0, b0 in held)]
+            if len(inside) >= 3:
+                break
+    finally:
+        seen = probe.stop()
+        s.stop()
+        t.join(10)
+    inside = [o for o in seen if any(a0 < o.deadline and o.deadline + o.late < b0
+                                     for a0, b0 in held)]
+    assert len(inside) >= 3, f"no overrun while the GIL was held in {WAIT_S} s: {seen}"
+    assert not [o for o in inside if o.machines(CYCLE)], inside
+    # the wake-up returned to Python once the hold ended: the thread waited again
+    assert all(o.sleep_slices >= 2 for o in inside), inside
+
+
+@pytest.mark.skipif(os.geteuid() != 0 or len(os.sched_getaffinity(0)) < 2,
+                    reason="needs root (SCHED_FIFO) and two processors")
+def test_an_overrun_made_by_another_process_on_the_scans_processor_is_the_machines(
+        ) -> None:
+    """A process at a higher SCHED_FIFO priority, on the scan thread's processor, busy for
+    ~8 cycles at a time: the scan, woken by its timer, waits in the run queue, then keeps
+    its processor: the machine's. (Where the busy process starts during a scan, it
+    preempts it: counted the process's, as the probe says.)"""
+    cpu = max(os.sched_getaffinity(0))
+    busy = subprocess.Popen(
+        [sys.executable, "-c",
+         "import os, sys, time\n"
+         f"os.sched_setaffinity(0, {{{cpu}}})\n"
+         "os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(60))\n"
+         "sys.stdout.write('ready\\n'); sys.stdout.flush()\n"
+         f"end = time.monotonic() + {WAIT_S}\n"
+         "while time.monotonic() < end:\n"
+         f"    t = time.monotonic() + {8 * CYCLE / 1e9}\n"
+         "    while time.monotonic() < t: pass\n"
+         f"    time.sleep({12 * CYCLE / 1e9})\n"
+         "    if sys.stdin.closed: break\n"],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    probe = OverrunProbe(CYCLE)
+    pinned: list[bool] = []
+    s = Scheduler(lambda now: None, CYCLE, 10_000 * MS, manage_gc=False)
+    probe.install(s)
+
+    def scan() -> None:
+        os.sched_setaffinity(0, {cpu})
+        pinned.append(set_fifo_priority(50)[0])
+        s.run()
+    t = threading.Thread(target=scan, name="softplc-scan", daemon=True)
+    try:
+        assert busy.stdout is not None and busy.stdout.readline() == "ready\n"
+        probe.start()
+        t.start()
+        end = time.monotonic() + WAIT_S
+        while time.monotonic() < end and not [o for o in probe.seen
+                                               if o.machines(CYCLE)]:
+            time.sleep(0.05)
+    finally:
+        seen: list[Overrun] = probe.stop()
+        s.stop()
+        t.join(10)
+        busy.kill()
+        busy.wait()
+    assert pinned == [True]
+    machine = [o for o in seen if o.machines(CYCLE)]
+    assert machine, f"no overrun of the machine's in {WAIT_S} s: {seen}"
+    # it waited for a processor: the busy process had it
+    assert any(o.runq >= o.late // 2 for o in machine), machine
