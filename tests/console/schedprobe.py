@@ -166,7 +166,10 @@ class Overrun:
     after the timer; more when it waited again: for the GIL, another of the process's
     threads holding it, or preempted by a task of higher priority); ``ran``: its
     processor time over both; ``runq``: the time it was runnable waiting for a
-    processor."""
+    processor; ``others_ran``: the processor time of the process's other threads from
+    the start of the sleep to the wake-up (all of them: whoever held the GIL ran at most
+    that long). Processor times exclude what the host of a virtual machine took
+    (steal), where the kernel accounts it (CONFIG_PARAVIRT_TIME_ACCOUNTING)."""
 
     deadline: int
     late: int
@@ -176,16 +179,21 @@ class Overrun:
     scan_slices: int
     ran: int
     runq: int
+    others_ran: int
 
     def machines(self, cycle_ns: int) -> bool:
-        """Whether the machine alone made it: the thread slept before its deadline, then
-        kept its processor from its first instant on one to the scan's end, and used
-        less than a cycle of processor time; the rest of the time (a timer delivered
-        late, a processor given late, the host of a virtual machine running something
-        else) was not the process's. Everything else is counted the process's, though a
-        preemption by a kernel thread of higher priority lands there too."""
-        return (self.slept and self.sleep_slices <= 1 and self.scan_slices == 0
-                and self.ran < cycle_ns)
+        """Whether the machine made it: the thread slept before its deadline, used less
+        than a cycle of processor time, kept its processor through the scan, and either
+        kept it from its first instant on one after the timer (the time lost was a
+        timer delivered late, a processor given late, the host running something else),
+        or waited for the GIL while its holder could not have run for even half of that
+        wait (the process's other threads ran less than half of ``late`` in all: the
+        holder was kept from its processor, the lock-holder preemption of a virtual
+        machine's host). Everything else is counted the process's, a preemption by a
+        kernel thread of higher priority too."""
+        if not self.slept or self.scan_slices > 0 or self.ran >= cycle_ns:
+            return False
+        return self.sleep_slices <= 1 or 2 * self.others_ran < self.late
 
 
 class OverrunProbe:
@@ -204,17 +212,19 @@ class OverrunProbe:
     def install(self, sched: Scheduler) -> None:
         """Wrap ``sched``'s sleep and body (its run loop binds them as it starts)."""
         sleep_until, body, mono = sched.sleep_until, sched.body, time.monotonic_ns
+        process = time.process_time_ns
         cycle = self.cycle_ns
         files: list[int] = []
-        # at the sleep's start, at the wake-up: (monotonic ns, ran, waited, slices)
-        marks: list[tuple[int, int, int, int]] = [(0, 0, 0, 0), (0, 0, 0, 0)]
+        # at the sleep's start, at the wake-up: (monotonic ns, ran, waited, slices,
+        # the process's processor time)
+        marks: list[tuple[int, int, int, int, int]] = [(0, 0, 0, 0, 0), (0, 0, 0, 0, 0)]
         due = [0]
 
-        def stat() -> tuple[int, int, int, int]:
+        def stat() -> tuple[int, int, int, int, int]:
             if not files:  # opened in the scan thread: thread-self is that one
                 files.append(os.open(SCHEDSTAT, os.O_RDONLY))
             ran, waited, slices = os.pread(files[0], 128, 0).split()[:3]
-            return mono(), int(ran), int(waited), int(slices)
+            return mono(), int(ran), int(waited), int(slices), process()
 
         def probed_sleep(deadline: int) -> None:
             if not self.on:
@@ -232,14 +242,15 @@ class OverrunProbe:
             try:
                 return body(wake)
             finally:
-                end, ran, waited, slices = stat()
+                end, ran, waited, slices, _ = stat()
                 deadline = due[0]
                 if end >= deadline + cycle and len(self.seen) < self.capacity:
-                    (t0, ran0, waited0, slices0), (_, ran1, _, slices1) = marks
+                    (t0, ran0, waited0, slices0, cpu0), (_, ran1, _, slices1, cpu1) = marks
                     self.seen.append(Overrun(deadline, wake - deadline, end - wake,
                                              t0 < deadline, slices1 - slices0,
                                              slices - slices1, ran - ran0,
-                                             waited - waited0))
+                                             waited - waited0,
+                                             cpu1 - cpu0 - (ran1 - ran0)))
         sched.sleep_until = probed_sleep
         sched.body = probed_body
 

@@ -28,17 +28,40 @@ pytestmark = pytest.mark.skipif(
     "statistics (CONFIG_SCHED_INFO)")
 
 
-def _holding_n() -> int:
+def _holding_n(cycles: float = 8) -> int:
     """A length of ``sum(range(n))`` that holds the GIL (one C call: no switch inside)
-    for about 8 cycles on this machine."""
+    for about ``cycles`` cycles of processor time on this machine."""
     n = 100_000
     while True:
-        t = time.perf_counter()
+        t = time.thread_time()
         sum(range(n))
-        took = time.perf_counter() - t
+        took = time.thread_time() - t
         if took > 0.005:
-            return int(n * 8 * CYCLE / 1e9 / took)
+            return int(n * cycles * CYCLE / 1e9 / took)
         n *= 4
+
+
+def _busy(cpu: int, on_s: float, off_s: float) -> subprocess.Popen[str]:
+    """A process at SCHED_FIFO 60 on processor ``cpu``, busy ``on_s`` then asleep
+    ``off_s``, round and round for WAIT_S (it says "ready" once it runs)."""
+    busy = subprocess.Popen(
+        [sys.executable, "-c",
+         "import os, sys, time\n"
+         f"os.sched_setaffinity(0, {{{cpu}}})\n"
+         "os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(60))\n"
+         "sys.stdout.write('ready\\n'); sys.stdout.flush()\n"
+         f"end = time.monotonic() + {WAIT_S}\n"
+         "while time.monotonic() < end:\n"
+         f"    t = time.monotonic() + {on_s}\n"
+         "    while time.monotonic() < t: pass\n"
+         f"    time.sleep({off_s})\n"],
+        stdout=subprocess.PIPE, text=True)
+    assert busy.stdout is not None and busy.stdout.readline() == "ready\n"
+    return busy
+
+
+needs_fifo = pytest.mark.skipif(os.geteuid() != 0 or len(os.sched_getaffinity(0)) < 2,
+                                reason="needs root (SCHED_FIFO) and two processors")
 
 
 def _run(probe: OverrunProbe) -> tuple[Scheduler, threading.Thread]:
@@ -79,8 +102,7 @@ def test_an_overrun_made_by_a_thread_holding_the_gil_is_the_processs() -> None:
     assert all(o.sleep_slices >= 2 for o in inside), inside
 
 
-@pytest.mark.skipif(os.geteuid() != 0 or len(os.sched_getaffinity(0)) < 2,
-                    reason="needs root (SCHED_FIFO) and two processors")
+@needs_fifo
 def test_an_overrun_made_by_another_process_on_the_scans_processor_is_the_machines(
         ) -> None:
     """A process at a higher SCHED_FIFO priority, on the scan thread's processor, busy for
@@ -88,19 +110,7 @@ def test_an_overrun_made_by_another_process_on_the_scans_processor_is_the_machin
     its processor: the machine's. (Where the busy process starts during a scan, it
     preempts it: counted the process's, as the probe says.)"""
     cpu = max(os.sched_getaffinity(0))
-    busy = subprocess.Popen(
-        [sys.executable, "-c",
-         "import os, sys, time\n"
-         f"os.sched_setaffinity(0, {{{cpu}}})\n"
-         "os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(60))\n"
-         "sys.stdout.write('ready\\n'); sys.stdout.flush()\n"
-         f"end = time.monotonic() + {WAIT_S}\n"
-         "while time.monotonic() < end:\n"
-         f"    t = time.monotonic() + {8 * CYCLE / 1e9}\n"
-         "    while time.monotonic() < t: pass\n"
-         f"    time.sleep({12 * CYCLE / 1e9})\n"
-         "    if sys.stdin.closed: break\n"],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    busy = _busy(cpu, 8 * CYCLE / 1e9, 12 * CYCLE / 1e9)
     probe = OverrunProbe(CYCLE)
     pinned: list[bool] = []
     s = Scheduler(lambda now: None, CYCLE, 10_000 * MS, manage_gc=False)
@@ -112,7 +122,6 @@ def test_an_overrun_made_by_another_process_on_the_scans_processor_is_the_machin
         s.run()
     t = threading.Thread(target=scan, name="softplc-scan", daemon=True)
     try:
-        assert busy.stdout is not None and busy.stdout.readline() == "ready\n"
         probe.start()
         t.start()
         end = time.monotonic() + WAIT_S
@@ -130,3 +139,47 @@ def test_an_overrun_made_by_another_process_on_the_scans_processor_is_the_machin
     assert machine, f"no overrun of the machine's in {WAIT_S} s: {seen}"
     # it waited for a processor: the busy process had it
     assert any(o.runq >= o.late // 2 for o in machine), machine
+
+
+@needs_fifo
+def test_a_wait_for_the_gil_whose_holder_was_kept_from_its_processor_is_the_machines(
+        ) -> None:
+    """Lock-holder preemption, as a virtual machine's host does it: the thread holding
+    the GIL (about 2 cycles of processor time in one C call) is pinned to a processor
+    where a process at a higher SCHED_FIFO priority is busy for 12 cycles at a time; the
+    scan thread, on the other processor, waits for the GIL while its holder does not run:
+    the machine's. Waits for a GIL whose holder ran are the process's (the first test)."""
+    scan_cpu, holder_cpu = sorted(os.sched_getaffinity(0))[:2]
+    n = _holding_n(2)
+    busy = _busy(holder_cpu, 12 * CYCLE / 1e9, 8 * CYCLE / 1e9)
+    probe = OverrunProbe(CYCLE)
+    s = Scheduler(lambda now: None, CYCLE, 10_000 * MS, manage_gc=False)
+    probe.install(s)
+    pinned: list[bool] = []
+
+    def scan() -> None:
+        os.sched_setaffinity(0, {scan_cpu})
+        pinned.append(set_fifo_priority(50)[0])
+        s.run()
+    t = threading.Thread(target=scan, name="softplc-scan", daemon=True)
+    mask = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, {holder_cpu})  # this thread holds the GIL
+    try:
+        probe.start()
+        t.start()
+        end = time.monotonic() + WAIT_S
+        while time.monotonic() < end and not [o for o in probe.seen if o.machines(CYCLE)
+                                               and o.sleep_slices > 1]:
+            time.sleep(2 * CYCLE / 1e9)
+            sum(range(n))
+    finally:
+        os.sched_setaffinity(0, mask)
+        seen: list[Overrun] = probe.stop()
+        s.stop()
+        t.join(10)
+        busy.kill()
+        busy.wait()
+    assert pinned == [True]
+    held = [o for o in seen if o.sleep_slices > 1]
+    assert [o for o in held if o.machines(CYCLE)], \
+        f"no wait for a preempted holder counted the machine's in {WAIT_S} s: {held}"
