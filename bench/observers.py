@@ -230,8 +230,13 @@ class Who:
     ``late_ns`` and at the end of each scan that took longer than ``long_ns``, the
     innermost frames of the controller's other threads (``sys._current_frames``): which
     thread was running Python when the scan was due or while it ran (the GIL's holder
-    shows mid-work; a thread waiting shows in its wait). A diagnostic: its own cost
-    (a frame walk per event) shows in that window's figures."""
+    shows mid-work; a thread waiting shows in its wait). At a late wake-up also the
+    thread that used the most processor time while the scan thread slept and waited
+    (each thread's /proc/self/task/TID/schedstat read at the sleep's start and at the
+    wake-up), its time and its frames then: the GIL's holder, and where it let the GIL
+    go (a frame's line is the call it made last). A diagnostic: its own cost (the
+    threads' statistics read each cycle, a frame walk per event) shows in that window's
+    figures."""
 
     DEPTH = 3
 
@@ -241,14 +246,12 @@ class Who:
         self.late: dict[tuple[str, str], int] = {}
         self.long: dict[tuple[str, str], int] = {}
         self.events = {"late": 0, "long": 0}
+        #: per late wake-up: (lateness, the busiest thread, its processor time, frames)
+        self.busiest: list[tuple[int, str, int, str]] = []
 
-    def _sample(self, into: dict[tuple[str, str], int], kind: str) -> None:
-        self.events[kind] += 1
-        me = threading.get_ident()
-        names = {t.ident: t.name for t in threading.enumerate()}
+    def _frames(self) -> dict[int, str]:
+        got = {}
         for tid, frame in sys._current_frames().items():
-            if tid == me:
-                continue
             where: list[str] = []
             f: Any = frame
             while f is not None and len(where) < self.DEPTH:
@@ -256,17 +259,55 @@ class Who:
                 where.append(f"{os.path.basename(code.co_filename)}:{f.f_lineno}:"
                              f"{code.co_name}")
                 f = f.f_back
-            key = (names.get(tid, "?"), " < ".join(where))
+            got[tid] = " < ".join(where)
+        return got
+
+    def _sample(self, into: dict[tuple[str, str], int], kind: str) -> dict[int, str]:
+        self.events[kind] += 1
+        me = threading.get_ident()
+        names = {t.ident: t.name for t in threading.enumerate()}
+        frames = self._frames()
+        for tid, where in frames.items():
+            if tid == me:
+                continue
+            key = (names.get(tid, "?"), where)
             into[key] = into.get(key, 0) + 1
+        return frames
+
+    @staticmethod
+    def _ran() -> dict[int, int]:
+        """Processor time of each thread of this process, ns, by native id."""
+        got = {}
+        for name in os.listdir("/proc/self/task"):
+            try:
+                with open(f"/proc/self/task/{name}/schedstat", "rb") as f:
+                    got[int(name)] = int(f.read().split()[0])
+            except OSError:
+                pass  # ended meanwhile
+        return got
 
     def install(self, d: Daemon) -> None:
         sched = d.scheduler
         sleep_until, body, mono = sched.sleep_until, sched.body, time.monotonic_ns
+        before: list[dict[int, int]] = [{}]
 
         def sampled_sleep(deadline: int) -> None:
+            if self.on:
+                before[0] = self._ran()
             sleep_until(deadline)
             if self.on and mono() - deadline > self.late_ns:
-                self._sample(self.late, "late")
+                late = mono() - deadline
+                frames = self._sample(self.late, "late")
+                after, was = self._ran(), before[0]
+                me = threading.get_native_id()
+                ran = {t: n - was.get(t, n) for t, n in after.items() if t != me}
+                if ran:
+                    top = max(ran, key=lambda t: ran[t])
+                    by_native = {t.native_id: t for t in threading.enumerate()}
+                    th = by_native.get(top)
+                    self.busiest.append((late, th.name if th else f"tid {top}", ran[top],
+                                         frames.get(th.ident, "-") if th and th.ident
+                                         else "-"))
 
         def sampled_body(wake: int) -> Any:
             try:
@@ -286,6 +327,10 @@ class Who:
                 "then (count, thread, innermost frames):")
             for (name, where), n in sorted(seen.items(), key=lambda kv: -kv[1])[:top]:
                 out(f"    {n:6d} {name}: {where}")
+        out("\nat each late wake-up, the thread that ran the most while the scan thread "
+            "slept and waited (late us, thread, its processor time us, its frames then):")
+        for late, name, ran, where in sorted(self.busiest, reverse=True)[:top]:
+            out(f"    {late / 1e3:8.0f} {name}: {ran / 1e3:.0f}: {where}")
 
 
 def steal_ms() -> list[int]:

@@ -240,6 +240,7 @@ class Session:
         stream, self.stream = self.stream, None
         if stream is not None:
             self.service.tap.remove(stream)
+            stream.release()
 
     def poll(self, more: Callable[[], bool] | None = None) -> list[str]:
         """Lines due now: notices (time limits, relock) and streamed lines (watch,

@@ -182,15 +182,21 @@ class Overrun:
     others_ran: int
 
     def machines(self, cycle_ns: int) -> bool:
-        """Whether the machine made it: the thread slept before its deadline, used less
-        than a cycle of processor time, kept its processor through the scan, and either
-        kept it from its first instant on one after the timer (the time lost was a
-        timer delivered late, a processor given late, the host running something else),
-        or waited for the GIL while its holder could not have run for even half of that
-        wait (the process's other threads ran less than half of ``late`` in all: the
-        holder was kept from its processor, the lock-holder preemption of a virtual
-        machine's host). Everything else is counted the process's, a preemption by a
-        kernel thread of higher priority too."""
+        """Whether the machine made it. The thread kept its processor through the scan
+        and used less than a cycle of processor time, and either:
+
+        - it slept before its deadline and kept its processor from its first instant on
+          one after the timer (the time lost was a timer delivered late, a processor
+          given late, the host running something else);
+        - or it waited for the GIL while its holder could not have run for even half of
+          that wait (the process's other threads ran less than half of ``late`` in all:
+          the holder was kept from its processor, the lock-holder preemption of a
+          virtual machine's host).
+
+        Everything else is counted the process's: a preemption by a kernel thread of
+        higher priority too, and idle work that ended after the deadline even when the
+        machine paused the whole process meanwhile (the daemon reports such a pause as a
+        freeze when it passes the watchdog)."""
         if not self.slept or self.scan_slices > 0 or self.ran >= cycle_ns:
             return False
         return self.sleep_slices <= 1 or 2 * self.others_ran < self.late

@@ -118,15 +118,14 @@ def test_one_copy_of_the_image_per_scan_for_every_stream(
         assert all(streams)
         wait_for(lambda: all(len(st.images) > 3 * STREAM_LINES_PER_POLL  # type: ignore[union-attr]
                              for st in streams), "60 cycles queued for each stream")
+        queued = [list(st.images) for st in streams]  # type: ignore[union-attr]
         for s in sessions:
-            s.feed(b"\r")
+            s.feed(b"\r")  # the streams end (their images let go)
         scans = [n for n in copied if n >= 0]
         assert len(scans) == len(set(scans)), "an image copied more than once in a scan"
         # the scans all four streams got are the same objects
-        last = [st.images[-1] for st in streams]  # type: ignore[union-attr]
-        newest = min(last, key=lambda img: img.scan).scan
-        shared = [next(img for img in st.images if img.scan == newest)  # type: ignore[union-attr]
-                  for st in streams]
+        newest = min(q[-1].scan for q in queued)
+        shared = [next(img for img in q if img.scan == newest) for q in queued]
         assert all(img is shared[0] for img in shared)
         # and the lines they make are the same
         assert rig.service.tap.streams == ()

@@ -1,0 +1,123 @@
+"""A console stream lets go of the images it will not compare one at a time (issue 40).
+
+Found with `bench.observers` at 100 testers: the scan waited 40-56 ms for the GIL while
+the console's socket thread, at the end of a trace poll, freed the images queued beyond
+the newest STREAM_LINES_PER_POLL (up to STREAM_SCANS of them, some 200 000 objects) in one
+C-level cascade of deallocations, during which no other thread can take the GIL (perf:
+`tupledealloc` all through the stall). The same happened when a lagging stream ended.
+
+Counted, not timed: each image carries an object whose finalizer notes how many lines of
+Python the freeing thread had run by then (a trace function counts them, the finalizer's
+own excepted). Images freed with no line run between them were freed in one stretch."""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import threading
+from collections.abc import Callable
+from types import FrameType, SimpleNamespace
+from typing import Any
+
+from runtime.console.protocol import STREAM_LINES_PER_POLL, STREAM_SCANS
+from runtime.console.streams import Stream
+from runtime.engine.names import Image, Signal
+from runtime.language import ast as A
+from tests.console.consolekit import Rig, wait_for
+
+#: images queued in a lagging stream, in these tests
+QUEUED = 400
+
+
+class Counter:
+    """The lines of Python run by the threads it traces (``sys.settrace``), and the
+    frees noted by Freed: (thread, lines run by then)."""
+
+    def __init__(self) -> None:
+        self.lines = 0
+        self.freed: list[tuple[int, int]] = []
+
+    def trace(self, frame: FrameType, event: str, arg: Any) -> Any:
+        if event == "call" and frame.f_code is Freed.__del__.__code__:
+            return None  # the finalizer's own lines are not the freeing code's
+        if event == "line":
+            self.lines += 1
+        return self.trace
+
+    def longest_stretch(self, thread: int) -> int:
+        """The most images ``thread`` freed with no line of Python between them."""
+        runs: dict[int, int] = {}
+        for t, n in self.freed:
+            if t == thread:
+                runs[n] = runs.get(n, 0) + 1
+        return max(runs.values(), default=0)
+
+
+class Freed:
+    def __init__(self, counter: Counter) -> None:
+        self.counter = counter
+
+    def __del__(self) -> None:
+        self.counter.freed.append((threading.get_ident(), self.counter.lines))
+
+
+def marked(img: Image, counter: Counter) -> Image:
+    return dataclasses.replace(img, ok=(*img.ok, Freed(counter)))  # type: ignore[arg-type]
+
+
+def test_a_poll_lets_go_of_the_images_it_skips_one_at_a_time() -> None:
+    x = Signal("p.rX", A.Type.REAL, lambda img: img.m[0][0], "memory", spec=("slot", 0, 0))
+    cat = SimpleNamespace(names={"p.rX": x})
+    counter = Counter()
+    stream = Stream("trace", [x], cat)  # type: ignore[arg-type]
+    stream.images.append(marked(Image(-1, [[0]], [], [], []), counter))  # type: ignore[list-item]
+    stream.poll(lambda: 0.0, False)
+    assert len(counter.freed) == 1  # the snapshot, once read
+    counter.freed.clear()
+    stream.last_scan = 0  # as begin() sets it
+    stream.images.extend(marked(Image(scan, [[scan]], [], [], []), counter)  # type: ignore[list-item]
+                         for scan in range(1, QUEUED + 1))
+    sys.settrace(counter.trace)
+    try:
+        lines = stream.poll(lambda: 0.0, False)
+    finally:
+        sys.settrace(None)
+    # the newest STREAM_LINES_PER_POLL compared, the scans before them said not shown
+    assert len(lines) == STREAM_LINES_PER_POLL
+    first = QUEUED - STREAM_LINES_PER_POLL + 1
+    assert lines[0] == (f"trace {first} ({first - 1} scans not shown: the line is too "
+                        f"slow): p.rX={first}")
+    assert len(counter.freed) == QUEUED and not stream.images  # every image let go
+    # the skipped ones one at a time; the ones compared go together as the poll ends
+    # (before: all QUEUED in one stretch)
+    assert counter.longest_stretch(threading.get_ident()) <= STREAM_LINES_PER_POLL
+
+
+def test_a_stream_that_ends_lets_go_of_its_queued_images_one_at_a_time(
+        rigs: Callable[..., Rig], monkeypatch: Any) -> None:
+    """A trace nobody polls queues an image per scan (at most STREAM_SCANS); the line
+    that ends it frees them in the session's thread, one at a time."""
+    assert QUEUED < STREAM_SCANS
+    rig = rigs(serial_port=False, unix_socket=False, blink=True)
+    cat = rig.service.catalogue
+    counter = Counter()
+    capture = cat.capture
+    monkeypatch.setattr(cat, "capture", lambda scan: marked(capture(scan), counter))
+    s = rig.service.session("tracer")
+    try:
+        assert s.feed(b"trace on\r\n")[-1] == "ok"
+        stream = s.stream
+        assert stream is not None
+        wait_for(lambda: len(stream.images) >= QUEUED, f"{QUEUED} scans queued")
+        queued_at_least = len(stream.images)
+        sys.settrace(counter.trace)
+        try:
+            s.feed(b"\r")  # any line ends the stream
+        finally:
+            sys.settrace(None)
+        me = threading.get_ident()
+        assert s.stream is None
+        assert sum(1 for t, _ in counter.freed if t == me) >= queued_at_least - 1
+        assert counter.longest_stretch(me) <= 1
+    finally:
+        s.close()
