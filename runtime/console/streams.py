@@ -308,8 +308,9 @@ class Stream:
                 obj["skipped"] = skipped
             return json.dumps(obj, ensure_ascii=False)
         shown = self._shown if kind == self.kind else {}
-        if len(shown) > PARTS_KEPT:  # a counter counting: its old texts go
-            shown.clear()
+        if len(shown) > PARTS_KEPT:  # a counter counting: its old texts go, one at a
+            while shown:  # time (cleared at once, 20 000 held the GIL about 3.5 ms)
+                shown.popitem()
         parts = []
         for k, v in values.items():
             kept = type(v) is not float  # 1.0 == 1 == True: a float is never kept
