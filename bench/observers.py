@@ -445,20 +445,22 @@ def overrun_table(rows: list[tuple[str, dict[str, Any]]], cycle_ns: int) -> None
     out(f"\n{len(seen)} overruns; each (late: its wake-up after its deadline; other "
         "threads ran: the process's other threads' processor time from the sleep's start "
         "to the wake-up; slices: the times the scan thread was put on a processor in its "
-        "sleep, in its scan; the machine's: it slept before its deadline, used less than "
+        "sleep, in its scan; idle work: from the scan before to the sleep; the machine's: "
+        "it slept before its deadline, used less than "
         "a cycle of processor time, kept its processor through the scan, and either kept "
         "it from its first instant on one or waited for a GIL whose holder ran less than "
         "half of that wait: schedprobe.Overrun):")
     if not seen:
         return
     out("| phase | late us | scan us | ran us | runq us | other threads ran us | slept | "
-        "slices | whose |")
-    out("|---|---|---|---|---|---|---|---|---|")
+        "slices | idle work us: time, ran, slices | whose |")
+    out("|---|---|---|---|---|---|---|---|---|---|")
     for label, o in seen[:40]:
         out(f"| {label} | {o.late / 1e3:.0f} | {o.scan / 1e3:.0f} | {o.ran / 1e3:.0f} | "
             f"{o.runq / 1e3:.0f} | {o.others_ran / 1e3:.0f} | "
             f"{'yes' if o.slept else 'no'} | {o.sleep_slices}, "
-            f"{o.scan_slices} | "
+            f"{o.scan_slices} | {o.idle / 1e3:.0f}, {o.idle_ran / 1e3:.0f}, "
+            f"{o.idle_slices} | "
             f"{'the machine' if o.machines(cycle_ns) else 'the process'} |")
     if len(seen) > 40:
         out(f"({len(seen) - 40} more)")

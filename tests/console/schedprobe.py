@@ -168,8 +168,11 @@ class Overrun:
     processor time over both; ``runq``: the time it was runnable waiting for a
     processor; ``others_ran``: the processor time of the process's other threads from
     the start of the sleep to the wake-up (all of them: whoever held the GIL ran at most
-    that long). Processor times exclude what the host of a virtual machine took
-    (steal), where the kernel accounts it (CONFIG_PARAVIRT_TIME_ACCOUNTING)."""
+    that long); ``idle``, ``idle_ran``, ``idle_slices``: from the end of the scan before
+    to the start of this sleep (its idle work), the time, the thread's processor time and
+    the times it was put on a processor (0 for the first scan probed: unknown).
+    Processor times exclude what the host of a virtual machine took (steal), where the
+    kernel accounts it (CONFIG_PARAVIRT_TIME_ACCOUNTING)."""
 
     deadline: int
     late: int
@@ -180,6 +183,9 @@ class Overrun:
     ran: int
     runq: int
     others_ran: int
+    idle: int
+    idle_ran: int
+    idle_slices: int
 
     def machines(self, cycle_ns: int) -> bool:
         """Whether the machine made it. The thread kept its processor through the scan
@@ -225,6 +231,8 @@ class OverrunProbe:
         # the process's processor time)
         marks: list[tuple[int, int, int, int, int]] = [(0, 0, 0, 0, 0), (0, 0, 0, 0, 0)]
         due = [0]
+        # at the end of the scan before: (monotonic ns, ran, slices); (0, 0, 0) unknown
+        ended = [(0, 0, 0)]
 
         def stat() -> tuple[int, int, int, int, int]:
             if not files:  # opened in the scan thread: thread-self is that one
@@ -244,6 +252,7 @@ class OverrunProbe:
 
         def probed_body(wake: int) -> Any:
             if not self.on or not due[0]:
+                ended[0] = (0, 0, 0)
                 return body(wake)
             try:
                 return body(wake)
@@ -252,11 +261,16 @@ class OverrunProbe:
                 deadline = due[0]
                 if end >= deadline + cycle and len(self.seen) < self.capacity:
                     (t0, ran0, waited0, slices0, cpu0), (_, ran1, _, slices1, cpu1) = marks
+                    e_at, e_ran, e_slices = ended[0]
                     self.seen.append(Overrun(deadline, wake - deadline, end - wake,
                                              t0 < deadline, slices1 - slices0,
                                              slices - slices1, ran - ran0,
                                              waited - waited0,
-                                             cpu1 - cpu0 - (ran1 - ran0)))
+                                             cpu1 - cpu0 - (ran1 - ran0),
+                                             t0 - e_at if e_at else 0,
+                                             ran0 - e_ran if e_at else 0,
+                                             slices0 - e_slices if e_at else 0))
+                ended[0] = (end, ran, slices)
         sched.sleep_until = probed_sleep
         sched.body = probed_body
 

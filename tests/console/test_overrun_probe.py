@@ -100,6 +100,8 @@ def test_an_overrun_made_by_a_thread_holding_the_gil_is_the_processs() -> None:
     assert not [o for o in inside if o.machines(CYCLE)], inside
     # the wake-up returned to Python once the hold ended: the thread waited again
     assert all(o.sleep_slices >= 2 for o in inside), inside
+    # the idle work before each is known (scans were probed before it)
+    assert all(o.idle > 0 and o.idle_slices >= 0 for o in inside), inside
 
 
 @needs_fifo
