@@ -24,8 +24,10 @@ Per phase: the scan's wake-up lateness (p50, p99, max), overruns and how many of
 the controller's process made (the rest the machine made: schedprobe.OverrunProbe, the
 kernel's count of the times the scan thread was put on a processor: one that slept
 before its deadline, then kept its processor from its first instant on one to its
-scan's end, using less than a cycle of it, lost its time to the machine; each overrun
-listed after the table), faults, the ratio of
+scan's end, using less than a cycle of it, lost its time to the machine, as did one
+that waited for a GIL whose holder could not run; after the table, each phase's
+overruns by what made them and the first of each, with their figures), faults, the
+ratio of
 the phase's p99 to the unobserved one's; a control over the same window: a thread alone
 in a process of its own, paced like the scan at the same priority (``tests/console/
 schedprobe.py`` ``lone_thread``), its p99, the scan's p99 over it and its wake-ups a
@@ -108,7 +110,7 @@ from runtime.console.service import ConsoleService
 from runtime.controller.daemon import Daemon
 from runtime.controller.feed import FeedServer
 from runtime.controller.image import ImageWriter
-from tests.console.schedprobe import OverrunProbe, SchedProbe, lone_thread
+from tests.console.schedprobe import Overrun, OverrunProbe, SchedProbe, lone_thread
 
 #: the controller's threads whose CPU a row shows apart (name prefix -> column)
 THREADS = {"softplc-scan": "scan", "softplc-feed": "feed", "console-": "console"}
@@ -439,31 +441,50 @@ def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
     return w
 
 
-def overrun_table(rows: list[tuple[str, dict[str, Any]]], cycle_ns: int) -> None:
-    """Each overrun of each phase (schedprobe.Overrun), µs, and whose it was."""
-    seen = [(label, o) for label, r in rows for o in r["overrun_list"]]
-    out(f"\n{len(seen)} overruns; each (late: its wake-up after its deadline; other "
-        "threads ran: the process's other threads' processor time from the sleep's start "
-        "to the wake-up; slices: the times the scan thread was put on a processor in its "
-        "sleep, in its scan; idle work: from the scan before to the sleep; the machine's: "
-        "it slept before its deadline, used less than "
-        "a cycle of processor time, kept its processor through the scan, and either kept "
-        "it from its first instant on one or waited for a GIL whose holder ran less than "
-        "half of that wait: schedprobe.Overrun):")
+def overrun_kind(o: Overrun, cycle_ns: int) -> str:
+    """What made an overrun, in a few words (schedprobe.Overrun's fields)."""
+    if o.machines(cycle_ns):
+        return "the machine"
+    if not o.slept:
+        return "the process: idle work past the deadline"
+    if o.ran >= cycle_ns:
+        return "the process: a cycle of processor time"
+    if o.scan_slices > 0:
+        return "the process: the scan lost its processor"
+    return "the process: the GIL's holder ran"
+
+
+def overrun_table(rows: list[tuple[str, dict[str, Any]]], cycle_ns: int,
+                  per_phase: int = 12) -> None:
+    """Each phase's overruns by what made them, and the first ``per_phase`` of each,
+    µs (schedprobe.Overrun)."""
+    out("\noverruns by what made them (late: the wake-up after its deadline; other threads "
+        "ran: the process's other threads' processor time from the sleep's start to the "
+        "wake-up; slices: the times the scan thread was put on a processor in its sleep, "
+        "in its scan; idle work: from the scan before to the sleep; the machine's: it "
+        "slept before its deadline, used less than a cycle of processor time, kept its "
+        "processor through the scan, and either kept it from its first instant on one or "
+        "waited for a GIL whose holder ran less than half of that wait: "
+        "schedprobe.Overrun):")
+    for label, r in rows:
+        kinds: dict[str, int] = {}
+        for o in r["overrun_list"]:
+            k = overrun_kind(o, cycle_ns)
+            kinds[k] = kinds.get(k, 0) + 1
+        out(f"- {label}: {len(r['overrun_list'])}"
+            + "".join(f"; {k} {n}" for k, n in sorted(kinds.items(), key=lambda kv: -kv[1])))
+    seen = [(label, o) for label, r in rows for o in r["overrun_list"][:per_phase]]
     if not seen:
         return
-    out("| phase | late us | scan us | ran us | runq us | other threads ran us | slept | "
+    out("\n| phase | late us | scan us | ran us | runq us | other threads ran us | slept | "
         "slices | idle work us: time, ran, slices | whose |")
     out("|---|---|---|---|---|---|---|---|---|---|")
-    for label, o in seen[:40]:
+    for label, o in seen:
         out(f"| {label} | {o.late / 1e3:.0f} | {o.scan / 1e3:.0f} | {o.ran / 1e3:.0f} | "
             f"{o.runq / 1e3:.0f} | {o.others_ran / 1e3:.0f} | "
             f"{'yes' if o.slept else 'no'} | {o.sleep_slices}, "
             f"{o.scan_slices} | {o.idle / 1e3:.0f}, {o.idle_ran / 1e3:.0f}, "
-            f"{o.idle_slices} | "
-            f"{'the machine' if o.machines(cycle_ns) else 'the process'} |")
-    if len(seen) > 40:
-        out(f"({len(seen) - 40} more)")
+            f"{o.idle_slices} | {overrun_kind(o, cycle_ns)} |")
 
 
 def node_files(tmp: str, ids: list[str], items: int, clients: int) -> list[tuple[str, int]]:
