@@ -56,8 +56,9 @@ class Controller(Protocol):
     def require_ack(self, reason: str) -> None:
         """Hold outputs off and charts stopped until ``ack`` (after iocheck)."""
 
-    def add_listener(self, fn: Callable[[int], None]) -> None:
-        """Call ``fn(cycle_number)`` in the scan thread after each cycle."""
+    def add_listener(self, fn: Callable[[int], None], last: bool = False) -> None:
+        """Call ``fn(cycle_number)`` in the scan thread after each cycle (``last``: after
+        the rest of the idle work)."""
 
     def remove_listener(self, fn: Callable[[int], None]) -> None: ...
 
