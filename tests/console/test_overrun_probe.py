@@ -64,6 +64,32 @@ needs_fifo = pytest.mark.skipif(os.geteuid() != 0 or len(os.sched_getaffinity(0)
                                 reason="needs root (SCHED_FIFO) and two processors")
 
 
+def _fifo_scan(probe: OverrunProbe, cpu: int) -> tuple[Scheduler, threading.Thread,
+                                                       list[bool]]:
+    """A Scheduler probed by ``probe`` and its thread (not started), which runs on
+    processor ``cpu`` at SCHED_FIFO 50; the list says whether the priority was set."""
+    s = Scheduler(lambda now: None, CYCLE, 10_000 * MS, manage_gc=False)
+    probe.install(s)
+    pinned: list[bool] = []
+
+    def scan() -> None:
+        os.sched_setaffinity(0, {cpu})
+        pinned.append(set_fifo_priority(50)[0])
+        s.run()
+    return s, threading.Thread(target=scan, name="softplc-scan", daemon=True), pinned
+
+
+def _end(probe: OverrunProbe, s: Scheduler, t: threading.Thread,
+         busy: subprocess.Popen[str]) -> list[Overrun]:
+    """Stop the probe, the scheduler and the busy process: the overruns seen."""
+    seen = probe.stop()
+    s.stop()
+    t.join(10)
+    busy.kill()
+    busy.wait()
+    return seen
+
+
 def _run(probe: OverrunProbe) -> tuple[Scheduler, threading.Thread]:
     s = Scheduler(lambda now: None, CYCLE, 10_000 * MS, manage_gc=False)
     probe.install(s)
@@ -114,15 +140,7 @@ def test_an_overrun_made_by_another_process_on_the_scans_processor_is_the_machin
     cpu = max(os.sched_getaffinity(0))
     busy = _busy(cpu, 8 * CYCLE / 1e9, 12 * CYCLE / 1e9)
     probe = OverrunProbe(CYCLE)
-    pinned: list[bool] = []
-    s = Scheduler(lambda now: None, CYCLE, 10_000 * MS, manage_gc=False)
-    probe.install(s)
-
-    def scan() -> None:
-        os.sched_setaffinity(0, {cpu})
-        pinned.append(set_fifo_priority(50)[0])
-        s.run()
-    t = threading.Thread(target=scan, name="softplc-scan", daemon=True)
+    s, t, pinned = _fifo_scan(probe, cpu)
     try:
         probe.start()
         t.start()
@@ -131,11 +149,7 @@ def test_an_overrun_made_by_another_process_on_the_scans_processor_is_the_machin
                                                if o.machines(CYCLE)]:
             time.sleep(0.05)
     finally:
-        seen: list[Overrun] = probe.stop()
-        s.stop()
-        t.join(10)
-        busy.kill()
-        busy.wait()
+        seen = _end(probe, s, t, busy)
     assert pinned == [True]
     machine = [o for o in seen if o.machines(CYCLE)]
     assert machine, f"no overrun of the machine's in {WAIT_S} s: {seen}"
@@ -155,15 +169,7 @@ def test_a_wait_for_the_gil_whose_holder_was_kept_from_its_processor_is_the_mach
     n = _holding_n(2)
     busy = _busy(holder_cpu, 12 * CYCLE / 1e9, 8 * CYCLE / 1e9)
     probe = OverrunProbe(CYCLE)
-    s = Scheduler(lambda now: None, CYCLE, 10_000 * MS, manage_gc=False)
-    probe.install(s)
-    pinned: list[bool] = []
-
-    def scan() -> None:
-        os.sched_setaffinity(0, {scan_cpu})
-        pinned.append(set_fifo_priority(50)[0])
-        s.run()
-    t = threading.Thread(target=scan, name="softplc-scan", daemon=True)
+    s, t, pinned = _fifo_scan(probe, scan_cpu)
     mask = os.sched_getaffinity(0)
     os.sched_setaffinity(0, {holder_cpu})  # this thread holds the GIL
     try:
@@ -176,11 +182,7 @@ def test_a_wait_for_the_gil_whose_holder_was_kept_from_its_processor_is_the_mach
             sum(range(n))
     finally:
         os.sched_setaffinity(0, mask)
-        seen: list[Overrun] = probe.stop()
-        s.stop()
-        t.join(10)
-        busy.kill()
-        busy.wait()
+        seen = _end(probe, s, t, busy)
     assert pinned == [True]
     held = [o for o in seen if o.sleep_slices > 1]
     assert [o for o in held if o.machines(CYCLE)], \
