@@ -76,7 +76,8 @@ class Wakes:
     missed: int = 0
     skipped: int = 0
     #: of ``missed``, those whose thread was put on a processor more than once from its
-    #: sleep to its return (for a lone thread: 0, or the method below is wrong)
+    #: sleep to its return (0 for a lone thread, which nothing of its process can hold: a
+    #: check of OverrunProbe's rule that one slice means the machine's)
     rescheduled: int = 0
 
 
