@@ -751,8 +751,8 @@ def main() -> None:
         out(f"\nobserved p99 / unobserved p99 = {ratio:.2f} (goal <= 1.2: "
             f"{'met' if ratio <= 1.2 else 'NOT met'}), overruns observed {obs['overruns']}"
             f" (goal 0: {'met' if obs['overruns'] == 0 else 'NOT met'}), of them the "
-            f"process's {obs['overruns_ours']} (the rest the machine's: "
-            f"{'met' if obs['overruns_ours'] == 0 else 'NOT met'})")
+            f"process's {obs['overruns_ours']} (0 of the process's: "
+            f"{'met' if obs['overruns_ours'] == 0 else 'NOT met'}; the rest the machine's)")
         base = rows[0][1]
         beyond = (obs["p99"] / max(obs["lone_p99"], 1.0)) / (
             base["p99"] / max(base["lone_p99"], 1.0))
