@@ -275,7 +275,7 @@ class ConsoleServer:
     def start(self) -> None:
         """Open every listener (errors raised here) and start the serving threads."""
         if self.entries:
-            self.service.controller.add_listener(self.window.on_scan, last=True)
+            self.service.controller.add_listener(self.window.on_scan)
             self.service.pause = self.window.pause
         for e in self.entries:
             if e.kind == "serial":

@@ -56,9 +56,8 @@ class Controller(Protocol):
     def require_ack(self, reason: str) -> None:
         """Hold outputs off and charts stopped until ``ack`` (after iocheck)."""
 
-    def add_listener(self, fn: Callable[[int], None], last: bool = False) -> None:
-        """Call ``fn(cycle_number)`` in the scan thread after each cycle (``last``: after
-        the rest of the idle work)."""
+    def add_listener(self, fn: Callable[[int], None]) -> None:
+        """Call ``fn(cycle_number)`` in the scan thread after each cycle."""
 
     def remove_listener(self, fn: Callable[[int], None]) -> None: ...
 

@@ -172,8 +172,6 @@ class Daemon:
         self.started_ns: int | None = None
         self._calls: collections.deque[ScanCall] = collections.deque()
         self._listeners: tuple[Callable[[int], None], ...] = ()
-        #: called last, after the rest of the idle work (``add_listener(last=True)``)
-        self._openers: tuple[Callable[[int], None], ...] = ()
         self._listeners_lock = threading.Lock()
         self._thread: threading.Thread | None = None
         self._loop_alive = False
@@ -381,21 +379,11 @@ class Daemon:
     def _idle(self, until: int) -> None:
         """What the scan thread does between cycles, before ``until`` (monotonic ns)."""
         listeners = self._listeners
-        n = self.scan_stats.count
         if listeners:
+            n = self.scan_stats.count
             for fn in listeners:
                 fn(n)
         self._serve(until)
-        self._after_idle()
-        # last, what wakes the threads that work beside the scan (their windows): woken
-        # before the queued calls, the status and retain, they took the GIL from them,
-        # and at a 1 ms cycle the idle work ran past the next deadline (bench.observers,
-        # 10 testers: 843 of 1030 observed overruns; 37 of 125 with the windows last)
-        for fn in self._openers:
-            fn(n)
-
-    def _after_idle(self) -> None:
-        """The status and retain hand-offs of the idle work (scan thread)."""
         state = self.state
         if state is not self._last_state or not self._ready_sent:
             # STATUS= and the log line are built by the watchdog thread: no percentile
@@ -761,20 +749,14 @@ class Daemon:
         reopening drivers)."""
         self._gap = on
 
-    def add_listener(self, fn: Callable[[int], None], last: bool = False) -> None:
-        """Call ``fn(cycle_number)`` in the scan thread after every cycle (keep it tiny);
-        ``last``: after the rest of the idle work (the queued calls, the status and
-        retain), for what wakes a thread that works beside the scan (a ScanWindow)."""
+    def add_listener(self, fn: Callable[[int], None]) -> None:
+        """Call ``fn(cycle_number)`` in the scan thread after every cycle (keep it tiny)."""
         with self._listeners_lock:
-            if last:
-                self._openers = (*self._openers, fn)
-            else:
-                self._listeners = (*self._listeners, fn)
+            self._listeners = (*self._listeners, fn)
 
     def remove_listener(self, fn: Callable[[int], None]) -> None:
         with self._listeners_lock:
             self._listeners = tuple(f for f in self._listeners if f != fn)
-            self._openers = tuple(f for f in self._openers if f != fn)
 
 
 def _stats_pause() -> None:

@@ -279,7 +279,7 @@ class FeedServer:
         # the sample first, then the window: the feed thread, woken by the window, finds
         # the sample of the scan that opened it
         self.daemon.add_listener(self.on_scan)
-        self.daemon.add_listener(self.window.on_scan, last=True)
+        self.daemon.add_listener(self.window.on_scan)
         on_reload = getattr(self.daemon, "on_reload", None)
         if on_reload is not None:
             on_reload(self._prepare)
