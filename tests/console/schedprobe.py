@@ -47,6 +47,16 @@ SCHEDSTAT = "/proc/thread-self/schedstat"
 LATE_US = 2500.0
 
 
+def thread_schedstat(files: list[int]) -> tuple[int, int, int]:
+    """The calling thread's (ns on a processor, ns runnable waiting for one, times put on
+    one) since it started; ``files`` keeps the file, opened at the first call (from the
+    thread measured: /proc/thread-self is the caller)."""
+    if not files:
+        files.append(os.open(SCHEDSTAT, os.O_RDONLY))
+    ran, waited, slices = os.pread(files[0], 128, 0).split()[:3]
+    return int(ran), int(waited), int(slices)
+
+
 def available() -> bool:
     """Whether the kernel keeps per-thread scheduler statistics (CONFIG_SCHED_INFO)."""
     return os.path.exists(SCHEDSTAT)
@@ -106,10 +116,8 @@ class SchedProbe:
             every wake-up then counts as blocked)."""
             if not has_stats:
                 return 0, 0
-            if not files:  # opened in the thread that sleeps: thread-self is that one
-                files.append(os.open(SCHEDSTAT, os.O_RDONLY))
-            ran, waited, slices = os.pread(files[0], 128, 0).split()[:3]
-            return int(ran) + int(waited), int(slices)
+            ran, waited, slices = thread_schedstat(files)
+            return ran + waited, slices
 
         def probed(deadline: int) -> None:
             if not self.on or deadline <= mono():
@@ -236,10 +244,8 @@ class OverrunProbe:
         ended = [(0, 0, 0)]
 
         def stat() -> tuple[int, int, int, int, int]:
-            if not files:  # opened in the scan thread: thread-self is that one
-                files.append(os.open(SCHEDSTAT, os.O_RDONLY))
-            ran, waited, slices = os.pread(files[0], 128, 0).split()[:3]
-            return mono(), int(ran), int(waited), int(slices), process()
+            ran, waited, slices = thread_schedstat(files)  # the scan thread's
+            return mono(), ran, waited, slices, process()
 
         def probed_sleep(deadline: int) -> None:
             if not self.on:
