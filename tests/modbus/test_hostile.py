@@ -26,6 +26,7 @@ from typing import Any
 import pytest
 
 from tests.modbus.kit import ROOT, Rig, rig
+from tests.pairs import held_in_a_pair
 
 pytestmark = pytest.mark.slow
 #: seconds of each phase
@@ -64,42 +65,60 @@ def test_hostile_clients_cost_the_scan_nothing_and_the_others_are_served(
     with rig(tmp_path, section, plc="\n  realtime: {priority: 80}", nice=10,
              sample_ms=10) as r:
         time.sleep(2.0)  # the start-up's own work, not counted
-        quiet = window(r, PHASE_S)
-        attack = subprocess.Popen(["nice", "-n", "10", sys.executable, "-m",
-                                   "tests.modbus.attacker", str(r.port), str(PHASE_S)],
-                                  cwd=ROOT, text=True, stdout=subprocess.PIPE,
-                                  stderr=subprocess.PIPE)
-        hostile = window(r, PHASE_S)
-        out, err = attack.communicate(timeout=120)
-        assert attack.returncode == 0, err
-        seen = json.loads(out)
+        quiet, hostile, seen = attacked(r)
+        sys.stderr.write(f"attackers: {seen}\n")
         assert r.server.popen.poll() is None, r.server.log()
         assert r.status()["state"] == "running"
         log = r.server.log()
-    sys.stderr.write(f"scan quiet: {quiet}; under attack: {hostile}; attackers: {seen}\n")
-    # every attacker was dealt with: closed, or answered with its exception
-    assert seen["bad_protocol"] and seen["length_too_long"] and seen["length_that_lies"]
-    assert seen["never_reads"], seen
-    assert seen["unserved_answers"] == 200 and seen["unserved_codes"] == [1], seen
-    # the flooders were paced (200 a second each), never refused
-    assert all(n > 0 for n in seen["flood_requests"]), seen
-    assert seen["flood_rate"] <= 5 * 200 * 1.2, seen
-    # the panel was served throughout
-    assert seen["panel_ok"] >= PHASE_S * 5 and seen["panel_failed"] == 0, seen
-    # one line per hostile connection and kind, however many requests it sent
-    assert log.count("protocol id 4660") == 1, log
-    assert log.count("an MBAP length of 1000") == 1, log
-    assert log.count("a frame of 200 bytes announced") == 1, log
-    assert log.count("exception 1 to FC 8:") == 1 and log.count("exception 1 to FC 43:") == 1
-    assert log.count("reads no replies") == 1, log
-    assert log.count("requests a second: paced") == 5, log
-    assert "Traceback" not in log, log
-    # the scan under attack as in the quiet phase: no freeze, its overruns and its jitter
-    # against the control's (bounds for a shared, loaded test machine, whose other jobs
-    # make a stray overrun in either phase: the scan runs at SCHED_FIFO, above every
-    # process of the attack, which costs it nothing more)
-    assert quiet["freezes"] == hostile["freezes"] == 0, (quiet, hostile)
-    assert hostile["overruns"] <= quiet["overruns"] + 3, (quiet, hostile)
-    assert hostile["scans"] >= PHASE_S / CYCLE_S * 0.95, (quiet, hostile)
-    assert hostile["p99_us"] <= max(3 * quiet["p99_us"], quiet["p99_us"] + 1000), (
-        quiet, hostile)
+        # every attacker was dealt with: closed, or answered with its exception
+        assert seen["bad_protocol"] and seen["length_too_long"] and seen["length_that_lies"]
+        assert seen["never_reads"], seen
+        assert seen["unserved_answers"] == 200 and seen["unserved_codes"] == [1], seen
+        # the flooders were paced (200 a second each), never refused
+        assert all(n > 0 for n in seen["flood_requests"]), seen
+        assert seen["flood_rate"] <= 5 * 200 * 1.2, seen
+        # the panel was served throughout
+        assert seen["panel_ok"] >= PHASE_S * 5 and seen["panel_failed"] == 0, seen
+        # one line per hostile connection and kind, however many requests it sent
+        assert log.count("protocol id 4660") == 1, log
+        assert log.count("an MBAP length of 1000") == 1, log
+        assert log.count("a frame of 200 bytes announced") == 1, log
+        assert log.count("exception 1 to FC 8:") == 1 and log.count("exception 1 to FC 43:") == 1
+        assert log.count("reads no replies") == 1, log
+        assert log.count("requests a second: paced") == 5, log
+        assert "Traceback" not in log, log
+        # the scan under attack as in the quiet phase: no freeze, its overruns and its jitter
+        # against the control's (bounds for a shared, loaded test machine, whose other jobs
+        # make a stray overrun in either phase: the scan runs at SCHED_FIFO, above every
+        # process of the attack, which costs it nothing more), in one of up to three pairs
+        # of phases (tests/pairs.py: a burst of the host's in one attack phase is not the
+        # attack's; an attack that costs the scan misses in every pair)
+        held_in_a_pair("modbus attack: (quiet, under attack)", (quiet, hostile), scan_held,
+                       lambda: attacked(r)[:2])
+        assert r.status()["state"] == "running"
+
+
+def attacked(r: Rig) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
+    """A quiet phase, then the attackers (tests/modbus/attacker.py, a process of its own at
+    niceness 10) for as long: the scan's figures of each phase (``window``), and what the
+    attackers saw."""
+    quiet = window(r, PHASE_S)
+    attack = subprocess.Popen(["nice", "-n", "10", sys.executable, "-m",
+                               "tests.modbus.attacker", str(r.port), str(PHASE_S)],
+                              cwd=ROOT, text=True, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE)
+    hostile = window(r, PHASE_S)
+    out, err = attack.communicate(timeout=120)
+    assert attack.returncode == 0, err
+    return quiet, hostile, json.loads(out)
+
+
+def scan_held(pair: tuple[dict[str, Any], dict[str, Any]]) -> bool:
+    """The scan under attack as in the quiet phase: no freeze in either, at most 3
+    overruns more, at least 95 % of the cycles, p99 jitter within 3x the quiet one's (or
+    1 ms more)."""
+    quiet, hostile = pair
+    return (quiet["freezes"] == hostile["freezes"] == 0
+            and hostile["overruns"] <= quiet["overruns"] + 3
+            and hostile["scans"] >= PHASE_S / CYCLE_S * 0.95
+            and hostile["p99_us"] <= max(3 * quiet["p99_us"], quiet["p99_us"] + 1000))

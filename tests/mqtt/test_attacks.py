@@ -21,7 +21,7 @@ import re
 import signal
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -38,6 +38,7 @@ from tests.mqtt.kit import (
 from tests.mqtt.scans import Phase, Scans, TraceWatch
 from tests.mqtt.test_sparkplug import Edge, births_seen, edge
 from tests.opcua.feedkit import FeedReader
+from tests.pairs import held_in_a_pair
 
 #: the controller's scan thread as the installed service runs it
 REALTIME = ", realtime: {priority: 20}"
@@ -68,11 +69,12 @@ def attacked(watch: TraceWatch, at_least: float = QUIET_S) -> Iterator[Phase]:
         time.sleep(max(0.0, at_least - (time.monotonic() - t0)))  # a measuring window
 
 
-def held(attack: Scans, control: Scans, what: str) -> None:
-    """The attack's scans within the quiet phase's (tests/mqtt/scans.py, ``within``)."""
-    msg = f"{what}: quiet {control}, attacked {attack}"
-    sys.stderr.write(msg + "\n")
-    assert attack.within(control), msg
+def held(attack: Scans, control: Scans, what: str,
+         again: Callable[[], tuple[Scans, Scans]] | None = None) -> None:
+    """The attack's scans within the quiet phase's (tests/mqtt/scans.py, ``within``); with
+    ``again`` (one more quiet phase and attack: (attack, control)), in one of up to
+    tests/pairs.py's PAIRS pairs."""
+    held_in_a_pair(what, (attack, control), lambda pair: pair[0].within(pair[1]), again)
 
 
 def state(online: bool, ts: int) -> bytes:
@@ -292,11 +294,7 @@ def test_a_stalled_broker_loses_no_change(tmp_path: Path) -> None:
         first = max(sn_seen(e.host))
         assert e.broker.proc is not None
         with attacked(watch) as p:
-            e.broker.proc.send_signal(signal.SIGSTOP)
-            try:
-                time.sleep(10.0)  # the attack's length
-            finally:
-                e.broker.proc.send_signal(signal.SIGCONT)
+            stall(e)
             births_seen(e, 2)
             # live values again, then every value between
             e.host.wait(lambda _r: e.host.latest("t1", "Memory/sN") is not None and int(
@@ -328,8 +326,29 @@ def test_a_stalled_broker_loses_no_change(tmp_path: Path) -> None:
         assert e.problems() == []
         assert re.search(r"did not answer", e.log()), e.log()[-2000:]
         assert p.scans is not None
-        held(p.scans, control, "stalled broker")
+        stalls = [2]  # rounds of births seen so far
+
+        def stall_again() -> tuple[Scans, Scans]:
+            """One more quiet phase and one more stall (births again after it)."""
+            control = quiet(e, watch)
+            with attacked(watch) as p:
+                stall(e)
+                stalls[0] += 1
+                births_seen(e, stalls[0])
+            assert p.scans is not None
+            return p.scans, control
+        held(p.scans, control, "stalled broker", again=stall_again)
         e.alive()
+
+
+def stall(e: Edge, seconds: float = 10.0) -> None:
+    """The broker stopped (SIGSTOP) for ``seconds``, the attack's length, then let go."""
+    assert e.broker.proc is not None
+    e.broker.proc.send_signal(signal.SIGSTOP)
+    try:
+        time.sleep(seconds)  # the attack's length
+    finally:
+        e.broker.proc.send_signal(signal.SIGCONT)
 
 
 def _runs(values: list[int]) -> list[tuple[int, int]]:

@@ -31,9 +31,10 @@ def wait_until(pred: Callable[[], bool], timeout: float = 10.0, what: str = "") 
         time.sleep(0.005)
 
 
-async def until(pred: Callable[[], Any], timeout: float = 15.0, what: str = "") -> None:
+async def until(pred: Callable[[], Any], timeout: float = 15.0,
+                what: str | Callable[[], str] = "") -> None:
     """In an event loop: poll ``pred`` (a value or an awaitable) until it holds; fail
-    after ``timeout`` s."""
+    after ``timeout`` s, saying ``what`` (or what it returns then)."""
     end = asyncio.get_running_loop().time() + timeout
     while True:
         got = pred()
@@ -42,7 +43,8 @@ async def until(pred: Callable[[], Any], timeout: float = 15.0, what: str = "") 
         if got:
             return
         if asyncio.get_running_loop().time() > end:
-            raise AssertionError(f"timed out waiting for {what or pred}")
+            said = what() if callable(what) else what
+            raise AssertionError(f"timed out waiting for {said or pred}")
         await asyncio.sleep(0.01)
 
 

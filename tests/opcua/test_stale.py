@@ -56,6 +56,12 @@ class Changes:
         last = [self.last(n) for n in WATCHED]
         return all(dv is not None and dv.StatusCode.name == status for dv in last)
 
+    def statuses(self) -> str:
+        """Each watched name's last status (or none received), for a failure's message."""
+        last = {n: self.last(n) for n in WATCHED}
+        return ", ".join(f"{n}: {'none' if dv is None else dv.StatusCode.name}"
+                         for n, dv in last.items()) + f" ({len(self.items)} changes)"
+
 
 def _ts(dt: datetime.datetime | None) -> float:
     assert dt is not None
@@ -71,13 +77,15 @@ async def _watch_a_stall(url: str, stall: Any, resume: Any) -> tuple[float, dict
         sub = await c.create_subscription(100, changes)
         await sub.subscribe_data_change([c.get_node(f"ns=2;s={n}") for n in WATCHED],
                                         queuesize=100)
-        await until(lambda: changes.all_are("Good"), 20, "good values")
+        await until(lambda: changes.all_are("Good"), 20,
+                    lambda: f"good values: {changes.statuses()}")
         stall()
         await until(lambda: changes.all_are("BadOutOfService"), 30,
-                     "every value BadOutOfService")
+                    lambda: f"every value BadOutOfService: {changes.statuses()}")
         bad = {n: changes.last(n) for n in WATCHED}
         resume()
-        await until(lambda: changes.all_are("Good"), 30, "good values again")
+        await until(lambda: changes.all_are("Good"), 30,
+                    lambda: f"good values again: {changes.statuses()}")
         await sub.delete()
     scans = bad["controller.scans"]
     assert scans is not None
@@ -116,7 +124,11 @@ def test_a_scan_stuck_with_its_outputs_off_turns_every_value_bad(tmp_path: Path)
     outputs off at once, the scan ends only 4 s later (then a fault)."""
     pdef = load_plant(str(write_plant(tmp_path, port=free_port(), watchdog="200ms")))
     drv = RecordingDriver("io", {"on_fault": "stop"})
-    with serving(pdef, Plant(pdef, drivers={"io": drv})):
+    # the scheduler's own garbage collection, as softplc run has it: this test's process
+    # holds everything the suite's earlier tests left, and a full collection of all that
+    # holds the GIL as long as it takes (one way to the freeze of 769 ms a CI run had here,
+    # a fault by the watchdog of 200 ms, before its values were never all good in 20 s)
+    with serving(pdef, Plant(pdef, drivers={"io": drv}), manage_gc=True):
         with ServerThread(pdef) as srv:
             def stall() -> None:
                 drv.block_s = 4.0
