@@ -52,7 +52,8 @@ scan of the observed window (``Who``). With
 ``--profile``, the functions of the feed thread's ``_publish`` in the observed window,
 per frame (cProfile on the thread's processor time). Per
 side process over the observed window: CPU (utime + stime, percent of one core), resident
-memory, and what its clients received. Clients run at nice 10 as in the other benches. A
+memory, and what its clients received. The side processes run at nice 10, as their units
+run them (``--sides-nice``); clients at nice 10 as in the other benches. A
 missing mosquitto, or a ``softplc opcua`` not serving within ``--start-s``, is said in one
 line and that observer left out. A fault between two windows (charts stopped until ack) is
 said in one line and acknowledged before the next.
@@ -60,7 +61,8 @@ said in one line and acknowledged before the next.
     python -m bench.observers [--seconds 60] [--testers 100] [--cycle 10ms] [--fifo]
                               [--mqtt-sample 10ms] [--opcua-clients 4] [--items 1183]
                               [--alarms 10] [--pages 20] [--consoles 4]
-                              [--client-nice 10] [--start-s 360] [--profile] [--who] [--keep]
+                              [--sides-nice 10] [--client-nice 10] [--start-s 360]
+                              [--profile] [--who] [--keep]
 """
 
 from __future__ import annotations
@@ -563,6 +565,9 @@ def main() -> None:
     ap.add_argument("--pages", type=int, default=20)
     ap.add_argument("--consoles", type=int, default=4, help="console clients streaming "
                     "'trace on' (4)")
+    ap.add_argument("--sides-nice", type=int, default=10, metavar="N",
+                    help="nice level of softplc opcua, mqtt and web (10, as their units run "
+                         "them: Nice=10; before 2026-11-30 opcua and web ran at 0 here)")
     ap.add_argument("--client-nice", type=int, default=10, metavar="N",
                     help="nice level of the OPC UA client processes (10, as bench.opcua; 0 "
                          "when a loaded machine starves them until they time out)")
@@ -647,7 +652,8 @@ def main() -> None:
         faults0 = ack_faults(daemon, faults0, "in the unobserved window")
         # the observers: the OPC UA server and its clients first (the slowest to start)
         t0 = time.monotonic()
-        server = side([sys.executable, "-m", "runtime.cli", "opcua", path], tmp, "opcua")
+        server = side(["nice", "-n", str(args.sides_nice), sys.executable, "-m", "runtime.cli",
+                       "opcua", path], tmp, "opcua")
         sides["softplc opcua"] = [server]
         url = f"opc.tcp://127.0.0.1:{opcua_port}"
         count_s = args.seconds + 2  # the clients count a little past the window: the
@@ -669,8 +675,8 @@ def main() -> None:
                           args.client_nice)
         sub: subprocess.Popen[str] | None = None
         if broker is not None:
-            edge = side(["nice", "-n", "10", sys.executable, "-m", "runtime.cli", "mqtt",
-                         path], tmp, "mqtt")
+            edge = side(["nice", "-n", str(args.sides_nice), sys.executable, "-m",
+                         "runtime.cli", "mqtt", path], tmp, "mqtt")
             sides["softplc mqtt"] = [edge]
             sub = subprocess.Popen(["nice", "-n", "10", sys.executable, "-m", "bench.mqtt",
                                     "--count", json.dumps([broker.bind, broker.port,
@@ -683,7 +689,8 @@ def main() -> None:
                 raise RuntimeError("the MQTT subscriber did not connect")
             assert broker.proc is not None
             sides["mosquitto"] = [broker.proc]
-        web = side([sys.executable, "-m", "runtime.cli", "web", path], tmp, "web")
+        web = side(["nice", "-n", str(args.sides_nice), sys.executable, "-m", "runtime.cli",
+                    "web", path], tmp, "web")
         sides["softplc web"] = [web]
         web_url = f"http://127.0.0.1:{web_port}/"
         wait_web(web_url, time.monotonic() + START_S)
