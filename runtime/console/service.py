@@ -142,17 +142,18 @@ class ConsoleService:
         if on_reload is not None:  # a reload gives the sessions the new plant's names
             on_reload(self._reloaded)
 
-    def _reloaded(self, plant: Plant) -> Callable[[], None]:
+    def _reloaded(self, plant: Plant) -> Callable[[], Catalogue]:
         """Reload worker thread: the new plant's names, built now; the returned function
         (scan thread, at the swap) makes them the sessions' names, takes the new plant
         file's PIN, limits and forces policy (a new PIN locks the sessions unlocked with
-        the old one), and lets go of the forces the change released. A running watch or
-        trace then ends ("reloaded")."""
+        the old one), and lets go of the forces the change released; it returns the old
+        names, freed by the reload's thread (``reload.let_go``), not the scan thread. A
+        running watch or trace then ends ("reloaded")."""
         catalogue = Catalogue(plant)
         pdef = plant.pdef
 
-        def commit() -> None:
-            self.catalogue = catalogue
+        def commit() -> Catalogue:
+            old, self.catalogue = self.catalogue, catalogue
             if pdef.pin_hash != self.pin_hash:
                 self.pin_hash = pdef.pin_hash
                 self.pin_generation += 1
@@ -163,6 +164,7 @@ class ConsoleService:
                 for w in [w for w in self._holds if w.startswith("force ")
                           and w[len("force "):] not in forced]:
                     del self._holds[w]
+            return old
         return commit
 
     def session(self, name: str, trusted: bool = False, peer: str | None = None) -> Session:

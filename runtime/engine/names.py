@@ -354,6 +354,17 @@ class Catalogue:
         """Where instance ``name``'s state is in an Image: ``img.m[k]``."""
         return self._instances[name]
 
+    def release(self) -> None:
+        """Let go of every name one at a time (for a Catalogue nobody else holds: it is
+        empty afterwards). Dropped whole, a Catalogue of 100 testers frees its ~4000
+        names in one cascade, some 2 ms in which no other thread takes the GIL."""
+        for table in (self.names, self.groups, self.points, self.written_by,
+                      self._outputs, self._instances):
+            while table:
+                table.popitem()
+        while self.rewritten:
+            self.rewritten.pop()
+
     def capture(self, scan: int) -> Image:
         """A copy of the process image (scan thread, between cycles: a tuple copy per
         instance and driver image)."""

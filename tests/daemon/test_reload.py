@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import gc
 import logging
+import sys
 import threading
 import weakref
 from collections.abc import Callable, Iterator
@@ -19,10 +20,12 @@ from pathlib import Path
 import pytest
 
 from drivers.base import DriverError
+from runtime.console.service import ConsoleService
 from runtime.controller.daemon import Daemon
-from runtime.controller.reload import IN_PROGRESS
+from runtime.controller.reload import IN_PROGRESS, let_go
 from runtime.engine.plant import Plant
 from runtime.language.plantfile import load_plant
+from tests.console.test_console_stream_release import Counter, Freed
 from tests.daemon.daemonkit import MakeDaemon, RecordingDriver, wait_until
 
 #: runs by itself once iGo is on: gsA and gsB alternate every 30 ms, oRun on in both;
@@ -410,3 +413,55 @@ def test_a_reload_frees_the_plant_it_replaces_without_a_collection(
         assert not daemon.reload().applied
         assert prepared and prepared[0]() is None, "the refused plant is kept alive"
         assert daemon.plant is kept
+
+
+def test_a_reload_lets_go_of_the_consoles_old_names_outside_the_scan_one_at_a_time(
+        make_daemon: MakeDaemon, tmp_path: Path) -> None:
+    """The console's names of the replaced plant (a Catalogue: some 4000 names at 100
+    testers) were dropped by the scan thread inside the swap, all in one cascade of frees
+    (the swap 3.4 ms longer at 100 testers, in ``bench.reload`` with a console); now the
+    thread that asked for the reload lets go of them, one at a time (``reload.let_go``).
+    Counted, not timed (tests/console/test_console_stream_release.py's Counter): marked
+    entries among the old names note the thread and the lines of Python run at their
+    free."""
+    daemon, _drv, chart = running(make_daemon, tmp_path)
+    service = ConsoleService(daemon)
+    counter = Counter()
+    for i in range(50):
+        service.catalogue.names[f"probe{i}"] = Freed(counter)  # type: ignore[assignment]
+    scans: list[int] = []
+    daemon.add_listener(lambda n: scans.append(threading.get_ident()))
+    wait_until(lambda: bool(scans), 5.0, "a scan")
+    edit(chart, "gsA.T >= 30ms", "gsA.T >= 40ms")
+    sys.settrace(counter.trace)
+    try:
+        result = daemon.reload()
+    finally:
+        sys.settrace(None)
+    assert result.applied, result.refusals
+    assert len(counter.freed) == 50
+    here = threading.get_ident()
+    assert {t for t, _ in counter.freed} == {here}, (
+        f"freed by the scan thread: {scans[0] in {t for t, _ in counter.freed}}")
+    assert counter.longest_stretch(here) == 1
+    assert service.catalogue.plant is daemon.plant
+
+
+def test_let_go_releases_only_what_nobody_else_holds() -> None:
+    """A holder's replaced object that another thread still uses (a session's trace of
+    the old names) stays whole: only dropped; one nobody else holds is released, then
+    freed."""
+
+    class Held:
+        released = 0
+
+        def release(self) -> None:
+            Held.released += 1
+            self.gone = True
+    kept, alone = Held(), Held()
+    seen = weakref.ref(alone)
+    objects: list[object] = [kept, alone, None]
+    del alone
+    let_go(objects)
+    assert objects == [] and Held.released == 1 and not hasattr(kept, "gone")
+    assert seen() is None
