@@ -1,6 +1,11 @@
 """systemd's STATUS= text (cycle percentiles over an 8192-cycle window) is never computed
 in the scan thread: a real controller at 1 ms against a real AF_UNIX datagram socket as
-$NOTIFY_SOCKET, with the window full and the STATUS= refresh made frequent."""
+$NOTIFY_SOCKET, with the window full and the STATUS= refresh made frequent.
+
+The processor-time bound compares counts, not one sample: a sort in the scan thread costs
+every refresh's idle work its ~1.5-2 ms; one idle sample over the bound is also what this
+VM's stolen time (counted as the thread's) or the interpreter's own collection can do to
+any cycle (CI saw one of 491 µs among ~300)."""
 
 from __future__ import annotations
 
@@ -17,6 +22,7 @@ from tests.daemon.daemonkit import MakeDaemon, wait_until
 from tests.daemon.test_daemon_process import NotifySocket
 
 MS = 1_000_000
+REFRESHES = 6  # STATUS= refreshes waited for after READY, 50 ms apart
 
 
 def test_status_percentiles_are_never_computed_in_the_scan_thread(
@@ -49,7 +55,7 @@ def test_status_percentiles_are_never_computed_in_the_scan_thread(
     try:
         daemon.start()
         assert notify.wait_for("READY=1").startswith("READY=1\nSTATUS=running;")
-        for _ in range(3):  # three refreshes after READY, each with fresh percentiles
+        for _ in range(REFRESHES):  # refreshes after READY, each with fresh percentiles
             assert "scan p99" in notify.wait_for("STATUS=running;")
         wait_until(lambda: len(idle_cpu) > 100, what="cycles")
     finally:
@@ -57,8 +63,12 @@ def test_status_percentiles_are_never_computed_in_the_scan_thread(
         notify.close()
     assert computed_in, "the spy saw no percentile computation at all"
     assert "softplc-scan" not in computed_in, computed_in
-    # sorting the two full windows takes ~1.5-2 ms of CPU: far above this bound
-    assert max(idle_cpu) < 400_000, sorted(idle_cpu)[-5:]
+    # sorting the two full windows takes ~1.5-2 ms of CPU: in the scan thread, at least
+    # REFRESHES idle samples would be over the bound; a third of that is the host's
+    slow = [c for c in idle_cpu if c >= 400_000]
+    assert len(slow) <= REFRESHES // 3, (
+        f"{len(slow)} of {len(idle_cpu)} idle samples took >= 400 µs of processor time "
+        f"over {REFRESHES} refreshes: {sorted(idle_cpu)[-REFRESHES:]}")
 
 
 def test_a_state_change_is_told_at_once_from_the_watchdog_thread(
