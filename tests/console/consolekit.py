@@ -394,14 +394,16 @@ def make_rig(*, serial_port: bool = True, unix_socket: bool = True, trusted: boo
              pin_hash: str | None = None, release: bool = False, cycle: str = "10ms",
              clock: Callable[[], float] = time.monotonic, released_stop: bool = True,
              serial_path: str | None = None, blink: bool = False,
-             manage_gc: bool = False, priority: int | None = None, tcp: bool = False,
+             manage_gc: bool = True, priority: int | None = None, tcp: bool = False,
              probe: SchedProbe | None = None, watchdog: str = "300ms") -> Rig:
     """Write the plant, start the daemon and its console; the stop button released
     (rio.I0 = rio.I4 = 1, NC contacts) so the testers can start.
 
     The serial console is on a NullModem, or on ``serial_path`` (a pty another process
-    owns) when given. ``manage_gc=True`` runs the collector as the daemon does in
-    production (disabled, then run in the scan's idle time): bench/console.py uses it.
+    owns) when given. ``manage_gc`` (default) runs the collector as the daemon does in
+    production (disabled, then run in the scan's idle time): left to the interpreter, a
+    full collection of the test process's heap holds the GIL wherever it falls (0.2-0.8 s
+    late in a suite), a freeze fault at the rig's watchdog.
     ``tcp=True`` adds a TCP console on an ephemeral port (``Rig.tcp_address``), served
     by the same server as the socket, as a plant's ``monitor: tcp:`` is. ``probe``
     records each wake-up of the scan thread (schedprobe.py); ``watchdog``: the plant's."""

@@ -342,21 +342,28 @@ def control(seconds: float, cycle_ms: float = 10.0, priority: int = 0,
     return probe.stop(cycle)
 
 
+#: deadlines the controller may skip beyond twice its control's: the control runs on
+#: the other processor, so a pause of the host on the controller's processor alone (tens
+#: of ms at busy times on this VM: one overrun, 2-4 deadlines at a 10 ms cycle) is not
+#: seen by it. Its own doing shows above that: a block of 100 ms is 10 at 10 ms
+SKIPPED_SLACK = 5
+
+
 def beyond_the_machine(missed: Mapping[str, int], lone: Wakes, watchdog_ms: float
                        ) -> list[str]:
     """What a controller missed (``missed``: its overruns, skipped deadlines and freezes
     over a window) beyond what the machine did to ``lone``, a control paced like its scan
     over the same window (``lone_thread`` with a "busy" neighbour: the controller's process
     has its feed and console threads): overruns more than twice the control's wake-ups a
-    cycle late, skipped deadlines more than twice those it passed over, each plus 1; a
-    freeze where the control was never held for a watchdog. Empty when the controller
-    missed nothing of its own doing; on a quiet machine the control misses nothing, and
-    neither may the controller (but one)."""
+    cycle late plus 1, skipped deadlines more than twice those it passed over plus
+    SKIPPED_SLACK; a freeze where the control was never held for a watchdog. Empty when
+    the controller missed nothing of its own doing; on a quiet machine the control misses
+    nothing, and neither may the controller (but one overrun, one short stall)."""
     out = []
     if missed["overruns"] > 2 * lone.missed + 1:
         out.append(f"{missed['overruns']} overruns against {lone.missed} wake-ups a cycle "
                    "late of the control")
-    if missed["skipped"] > 2 * lone.skipped + 1:
+    if missed["skipped"] > 2 * lone.skipped + SKIPPED_SLACK:
         out.append(f"{missed['skipped']} skipped deadlines against {lone.skipped} of the "
                    "control")
     if missed["freezes"] and lone.late_max < watchdog_ms * 1e3:

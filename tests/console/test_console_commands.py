@@ -255,8 +255,7 @@ def test_forced_chart_output_reaches_its_point_while_paused(rig: Rig) -> None:
     s = rig.serial()
     s.ok("pause")
     s.ok("force t1.oTest 1")
-    wait_for(lambda: rig.driver.outputs["Q3"] == 1, "rio.Q3 from the forced t1.oTest",
-             timeout=1.0)
+    wait_for(lambda: rig.driver.outputs["Q3"] == 1, "rio.Q3 from the forced t1.oTest")
 
 
 def test_pause_holds_the_charts_and_resume_goes_on(rig: Rig) -> None:

@@ -97,8 +97,9 @@ def test_a_session_closed_while_stepping_cancels_the_steps_and_halts(rig: Rig) -
 
 #: how soon the end of a session holding the stepping must be seen: a failure deadline,
 #: far above what it takes (a poll of the server and a scan boundary, tens of ms) and far
-#: below what it took while ``cycle`` blocked the sockets' thread (until the scans ran)
-NOTICED_WITHIN_S = 2.0
+#: below what it took while ``cycle`` blocked the sockets' thread (until the scans ran,
+#: 100 s); above a pause of this process or of the machine (CI saw 0.8 s)
+NOTICED_WITHIN_S = 5.0
 
 
 def reset(c: LineClient) -> None:

@@ -153,24 +153,35 @@ def test_a_pin_check_lets_other_threads_run() -> None:
     import time
 
     stored = hash_pin(PIN)
-    done = threading.Event()
-    took: list[float] = []
 
-    def unlock() -> None:
-        t0 = time.perf_counter()
-        check_pin(PIN, stored)
-        took.append(time.perf_counter() - t0)
-        done.set()
+    def attempt() -> tuple[float, float]:
+        """(the loop's longest gap, the check's time), s."""
+        done = threading.Event()
+        took: list[float] = []
 
-    worker = threading.Thread(target=unlock)
-    last = time.perf_counter()
-    worst = 0.0
-    worker.start()
-    while not done.is_set():
-        now = time.perf_counter()
-        worst = max(worst, now - last)
-        last = now
-    worker.join()
-    # holding the GIL, the hash would stop this loop for its whole duration
-    assert worst < took[0] / 2, (worst, took)
+        def unlock() -> None:
+            t0 = time.perf_counter()
+            check_pin(PIN, stored)
+            took.append(time.perf_counter() - t0)
+            done.set()
+
+        worker = threading.Thread(target=unlock)
+        last = time.perf_counter()
+        worst = 0.0
+        worker.start()
+        while not done.is_set():
+            now = time.perf_counter()
+            worst = max(worst, now - last)
+            last = now
+        worker.join()
+        return worst, took[0]
+
+    # holding the GIL, the hash would stop this loop for its whole duration, each time;
+    # one pause of the machine inside one attempt is not the hash's: up to three attempts
+    tries: list[tuple[float, float]] = []
+    while len(tries) < 3:
+        tries.append(attempt())
+        if tries[-1][0] < tries[-1][1] / 2:
+            break
+    assert tries[-1][0] < tries[-1][1] / 2, tries
     assert pinmod.SCRYPT_MAXMEM >= 128 * pinmod.SCRYPT_N * pinmod.SCRYPT_R

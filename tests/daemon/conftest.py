@@ -33,16 +33,22 @@ def no_leaked_threads() -> Iterator[None]:
 
 @pytest.fixture
 def make_daemon(tmp_path: Path) -> Iterator[MakeDaemon]:
-    """make_daemon(**plant_yaml options) -> (started daemon, its recording driver)."""
+    """make_daemon(**plant_yaml options) -> (started daemon, its recording driver).
+
+    The daemon runs the garbage collector as ``softplc run`` does (``manage_gc``: off,
+    then run in the scan's idle time): left to the interpreter, a full collection of the
+    test process's heap (0.2-0.8 s late in a suite) holds the GIL wherever it falls, and
+    a scan waiting for it is a freeze fault at this plant's 100 ms watchdog."""
     made: list[Daemon] = []
     (tmp_path / "runner.yaml").write_text(CHART, encoding="utf-8")
 
-    def make(start: bool = True, **options: str) -> tuple[Daemon, RecordingDriver]:
+    def make(start: bool = True, manage_gc: bool = True,
+             **options: str) -> tuple[Daemon, RecordingDriver]:
         path = tmp_path / f"plant{len(made)}.yaml"
         path.write_text(plant_yaml(**options), encoding="utf-8")
         pdef = load_plant(str(path))
         drv = RecordingDriver("io", {"on_fault": options.get("on_fault", "stop")})
-        daemon = Daemon(pdef, plant=Plant(pdef, drivers={"io": drv}), manage_gc=False)
+        daemon = Daemon(pdef, plant=Plant(pdef, drivers={"io": drv}), manage_gc=manage_gc)
         made.append(daemon)
         if start:
             daemon.start()

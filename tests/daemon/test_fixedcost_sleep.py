@@ -35,8 +35,10 @@ def test_a_signal_in_the_middle_resumes_the_same_deadline() -> None:
     old = signal.signal(signal.SIGALRM, handler)
     try:
         sleep_until = make_sleep_until()
-        deadline = time.monotonic_ns() + 300 * MS
-        signal.setitimer(signal.ITIMER_REAL, 0.05)  # 50 ms into a 300 ms sleep
+        # 50 ms into a 1 s sleep: a pause of this process before the sleep (the machine's)
+        # still leaves the signal inside it
+        deadline = time.monotonic_ns() + 1000 * MS
+        signal.setitimer(signal.ITIMER_REAL, 0.05)
         sleep_until(deadline)
         woke = time.monotonic_ns()
     finally:
@@ -48,9 +50,12 @@ def test_a_signal_in_the_middle_resumes_the_same_deadline() -> None:
 
 def test_a_deadline_already_passed_returns_at_once() -> None:
     sleep_until = make_sleep_until()
-    t0 = time.thread_time_ns()
     start = time.monotonic_ns()
-    for _ in range(1000):
-        sleep_until(start - 1)
+    batches = []  # the least of five: the host's stolen time is counted as this thread's
+    for _ in range(5):
+        t0 = time.thread_time_ns()
+        for _ in range(1000):
+            sleep_until(start - 1)
+        batches.append(time.thread_time_ns() - t0)
     # without a system call: far below one real sleep per call (~15 µs of CPU each here)
-    assert (time.thread_time_ns() - t0) / 1000 < 5_000
+    assert min(batches) / 1000 < 5_000, batches

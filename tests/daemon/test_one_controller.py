@@ -95,7 +95,7 @@ def test_a_second_run_of_a_running_plant_is_refused_and_leaves_the_first_alone(
         assert f"PID {first.pid}" in lines[0]
         # the first one still has its console (its socket was neither taken nor removed)
         assert sock.is_socket()
-        assert "state running" in ask(sock, "status", timeout=2.0)
+        assert "state running" in ask(sock, "status", timeout=10.0)
         assert first.poll() is None
     finally:
         err = stop(first)

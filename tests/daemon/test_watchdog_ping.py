@@ -41,10 +41,13 @@ def test_pings_keep_coming_at_half_watchdogsec_with_a_long_cycle(
     assert code == 0, err
     ready = next(t for t, m in notify.messages if m.startswith("READY=1"))
     pings = [t for t, m in notify.messages if m == "WATCHDOG=1" and t >= ready]
-    assert len(pings) >= 5, notify.messages
+    # pings tied to the 1.5 s cycle would be 3 in the 4 s; every 0.5 s, 8 or 9
+    assert len(pings) >= 6, notify.messages
     gaps = [b - a for a, b in zip(pings, pings[1:], strict=False)]
-    # systemd kills at 1 s without a ping; the pings are due every 0.5 s
-    assert max(gaps) < 0.9, gaps
+    # systemd kills at 1 s without a ping; the pings are due every 0.5 s. They are timed
+    # as this process receives them: one pause of it (or of the machine) may stretch one
+    # gap; pings tied to the cycle stretch every gap to 1.5 s
+    assert len([g for g in gaps if g >= 0.9]) <= 1, gaps
 
 
 def test_a_stuck_scan_stops_the_pings_and_they_resume_after_it() -> None:

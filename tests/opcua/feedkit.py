@@ -50,9 +50,11 @@ async def until(pred: Callable[[], Any], timeout: float = 15.0,
 
 @contextmanager
 def serving(pdef: PlantDef, plant: Plant | None = None, trace: IO[str] | None = None,
-            manage_gc: bool = False) -> Iterator[tuple[Daemon, FeedServer]]:
+            manage_gc: bool = True) -> Iterator[tuple[Daemon, FeedServer]]:
     """A running Daemon of ``pdef`` (on sim I/O, or on ``plant``) with its FeedServer;
-    ``manage_gc``: the scheduler's own garbage collection, as ``softplc run`` has it."""
+    ``manage_gc``: the scheduler's own garbage collection, as ``softplc run`` has it (a
+    full collection of the test process's heap left to the interpreter holds the GIL
+    wherever it falls: a freeze fault, values shown stale)."""
     feed_def = pdef.feed()
     assert feed_def is not None
     d = Daemon(pdef, plant=plant, sim=plant is None, trace=trace, manage_gc=manage_gc)
@@ -67,7 +69,7 @@ def serving(pdef: PlantDef, plant: Plant | None = None, trace: IO[str] | None = 
 
 
 @contextmanager
-def controller(tmp: Path, trace: bool = True, port: int = 4840, manage_gc: bool = False,
+def controller(tmp: Path, trace: bool = True, port: int = 4840, manage_gc: bool = True,
                **plant: Any) -> Iterator[tuple[Daemon, FeedServer, Path]]:
     """A running Daemon on sim I/O with its FeedServer; (daemon, feed, trace path)."""
     path = write_plant(tmp, port=port, **plant)

@@ -32,8 +32,10 @@ from tests.opcua.kit import end, free_port, softplc, write_plant
 #: the documented bound at the plants' sample (50 ms): max(4 x 50 ms, 1 s), plus one check
 #: period (the sample)
 BOUND_S = 1.0 + 0.05
-#: what a loaded test machine may add to it (the server's event loop, a publish), s
-SLACK_S = 1.0
+#: what a loaded test machine may add to it (the server's event loop, a publish, a pause
+#: of this process: the server runs in it; CI saw one of 769 ms), s. Values never made
+#: stale, the defect, are unbounded
+SLACK_S = 2.0
 WATCHED = ("t1.sN", "t1.oLamp", "controller.state", "controller.scans", "io.Q0")
 
 
