@@ -529,9 +529,10 @@ def test_a_frozen_or_killed_controller_is_restarted_with_outputs_off(plc: Contai
         plc.wait(f"systemctl is-active --quiet {unit}", 60)
         assert prop(plc, unit, "MainPID") != pid
         restored = counter(plc, sock)
-        # retained data restored: at most one retain_interval (100 ms: 5 scans) older than
-        # what the console read before the signal
-        assert restored >= counted - 5, (how, counted, restored)
+        # retained data restored: at most one retain_interval (100 ms: 5 scans) and the
+        # write's own time (up to 200 ms on a busy machine, as the kill loop allows: 10
+        # scans) older than what the console read before the signal
+        assert restored >= counted - (100 + 200) // 20, (how, counted, restored)
         after = [w for w in peer_writes(plc) if float(w["t"]) > t_kill]  # type: ignore[arg-type]
         # the restarted controller wrote every output off before its first scan, then its
         # chart switched oRun on again
