@@ -138,11 +138,7 @@ def test_a_scan_stuck_with_its_outputs_off_turns_every_value_bad(tmp_path: Path)
     outputs off at once, the scan ends only 4 s later (then a fault)."""
     pdef = load_plant(str(write_plant(tmp_path, port=free_port(), watchdog="200ms")))
     drv = RecordingDriver("io", {"on_fault": "stop"})
-    # the scheduler's own garbage collection, as softplc run has it: this test's process
-    # holds everything the suite's earlier tests left, and a full collection of all that
-    # holds the GIL as long as it takes (one way to the freeze of 769 ms a CI run had here,
-    # a fault by the watchdog of 200 ms, before its values were never all good in 20 s)
-    with serving(pdef, Plant(pdef, drivers={"io": drv}), manage_gc=True):
+    with serving(pdef, Plant(pdef, drivers={"io": drv})):
         with ServerThread(pdef) as srv:
             first_frame(srv)
 
