@@ -26,7 +26,8 @@ notifications and the alarm events the clients received per second (all clients
 together), and below the table the alarm events each client received against the
 changes of the controller's alarm board meanwhile (its ``version``: each alarm raised and
 cleared is two, a fault in the window one more; the clients count from before the first
-alarm until DRAIN_S after the window, so that the last ones arrive);
+alarm until DRAIN_S after the last one is cleared, so that the last ones arrive: told
+"stop" then, not after a time of their own, which a window longer than asked cut short);
 the server process's CPU (utime + stime from /proc/PID/stat over the window, percent of
 one core) and its resident memory (VmRSS at the end, VmHWM peak, from /proc/PID/status).
 All processes share this machine's cores: on a controller the clients run elsewhere, so
@@ -67,8 +68,8 @@ START_S = 180.0
 WATCHDOG_S = 30.0
 #: clock ticks per second of /proc/PID/stat times
 TICKS = os.sysconf("SC_CLK_TCK")
-#: how long the clients go on counting after the window: the events of the last alarms
-#: (their clearing) arrive, seconds
+#: how long the clients go on counting after they are told to stop (the last alarm
+#: cleared): the events of the last alarms (their clearing) arrive, seconds
 DRAIN_S = 5.0
 
 
@@ -173,7 +174,7 @@ def proc_mem_mib(pid: int) -> tuple[float, float]:
 
 def client_args(url: str, nodes_file: str, seconds: float, pki: dict[str, str] | None,
                 nice: int = 10) -> list[str]:
-    cfg = {"url": url, "nodes": nodes_file, "seconds": seconds, "pki": pki}
+    cfg = {"url": url, "nodes": nodes_file, "seconds": seconds, "pki": pki, "drain": DRAIN_S}
     return ["nice", "-n", str(nice), sys.executable, "-m", "bench.opcua", "--client",
             json.dumps(cfg)]
 
@@ -200,7 +201,8 @@ async def _session(cfg: dict[str, Any]) -> Any:
 
 async def run_client(cfg: dict[str, Any]) -> None:
     """One client: subscribe to every node of the file at 100 ms, say "ready", wait for
-    "go", count notifications for ``seconds``, print the count."""
+    "go", count notifications until "stop" (at most ``seconds``) and ``drain`` seconds
+    more, print the counts and how long it counted."""
     client = await _session(cfg)
     with open(cfg["nodes"], encoding="utf-8") as f:
         ids = json.load(f)
@@ -235,10 +237,15 @@ async def run_client(cfg: dict[str, Any]) -> None:
     await loop.run_in_executor(None, sys.stdin.readline)
     counter["counting"] = True
     t0 = time.monotonic()
-    await asyncio.sleep(cfg["seconds"])
+    try:
+        await asyncio.wait_for(loop.run_in_executor(None, sys.stdin.readline), cfg["seconds"])
+        told = True
+    except TimeoutError:  # never told: the bench died or forgot
+        told = False
+    await asyncio.sleep(cfg.get("drain", 0.0))
     counter["counting"] = False
     sys.stdout.write(json.dumps({"notifications": counter["n"], "events": counter["events"],
-                                 "sfcerror": counter["sfcerror"],
+                                 "sfcerror": counter["sfcerror"], "told": told,
                                  "seconds": time.monotonic() - t0}) + "\n")
     sys.stdout.flush()
     await client.disconnect()
@@ -372,7 +379,8 @@ def phase_server(path: str, testers: int, clients: int, seconds: float, url: str
         nodes_file = os.path.join(tmp, "nodes.json")
         with open(nodes_file, "w", encoding="utf-8") as f:
             json.dump(ids, f)
-        start_clients(url, [nodes_file] * clients, seconds + DRAIN_S, pki, tmp, t0, procs)
+        # a cap only: the clients count until told to stop (the last alarm cleared)
+        start_clients(url, [nodes_file] * clients, 2 * seconds + 60, pki, tmp, t0, procs)
         ready_s = time.monotonic() - t0
         # a fault while the server started (a freeze of the loaded machine) stops the
         # charts until ack: SFCError would then never clear, nor its alarm
@@ -390,11 +398,12 @@ def phase_server(path: str, testers: int, clients: int, seconds: float, url: str
         if traffic is not None:
             traffic.stop.set()
             traffic.thread.join(10)
+        stop_clients(procs)
         got = collect_clients(procs)
         # every change of the board's alarms (raised, cleared, by traffic or a fault in
         # the window) is one event to each client
         changes = daemon.alarms.version - board0
-        count_s = seconds + DRAIN_S
+        count_s = counted_s(got, seconds + DRAIN_S)
         total = sum(g.get("notifications", 0) for g in got)
         events = sum(g.get("events", 0) for g in got)
         w.update(nodes=len(ids), notif_s=total / count_s, events_s=events / count_s,
@@ -415,8 +424,8 @@ def start_clients(url: str, node_files: list[str], seconds: float,
                   procs: list[subprocess.Popen[str]], nice: int = 10) -> None:
     """One client process per file of ``node_files`` (its nodes), subscribed one after the
     other, each appended to ``procs`` once it says "ready" (waiting for "go", then
-    counting for ``seconds``). ``t0``: when the server started (monotonic s); ``nice``:
-    the clients' nice level."""
+    counting until ``stop_clients``, at most ``seconds``). ``t0``: when the server
+    started (monotonic s); ``nice``: the clients' nice level."""
     # one client subscribes at a time: ten clients creating 3500 monitored items each
     # at once overload asyncua's event loop until they time out (seen here); a client
     # that cannot subscribe (its requests time out) is left out and counted
@@ -447,8 +456,26 @@ def go(procs: list[subprocess.Popen[str]]) -> None:
         p.stdin.flush()
 
 
+def stop_clients(procs: list[subprocess.Popen[str]]) -> None:
+    """"stop" to each counting client: it counts DRAIN_S more, then says what it got."""
+    for p in procs:
+        assert p.stdin is not None
+        try:
+            p.stdin.write("stop\n")
+            p.stdin.flush()
+        except BrokenPipeError:  # a client that died: collect_clients says {}
+            pass
+
+
+def counted_s(got: list[dict[str, Any]], default: float) -> float:
+    """How long the clients counted, s (their mean; ``default`` if none said)."""
+    secs = [g["seconds"] for g in got if "seconds" in g]
+    return sum(secs) / len(secs) if secs else default
+
+
 def collect_clients(procs: list[subprocess.Popen[str]]) -> list[dict[str, Any]]:
-    """What each client counted (``run_client``'s last line; {} from one that died)."""
+    """What each client counted (``run_client``'s last line; {} from one that died), once
+    ``stop_clients`` told it to stop."""
     got = []
     for p in procs:
         assert p.stdout is not None
