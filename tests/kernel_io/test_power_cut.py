@@ -1,9 +1,10 @@
 """Retained data across a power cut, at every point where the disk may stop.
 
-The controller (``softplc run``, a process of its own) runs a chart that counts every scan
-into retained memory, with ``plc: retain`` on a small ext4 file system mounted from the
-kernel's dm-log-writes target, which logs every write that reached the disk. Each time the
-controller's ``status`` shows a new generation saved, the test inserts a mark in the log.
+The controller (``softplc run``, a process of its own) runs a chart that counts each change
+of its input into retained memory, with ``plc: retain`` on a small ext4 file system mounted
+from the kernel's dm-log-writes target, which logs every write that reached the disk. Each
+time the controller's ``status`` shows a new generation saved, the test inserts a mark in
+the log, then changes the input (one more count, the next generation).
 Then the disk is rebuilt from the log (tests/kernel_io/logwrites.py) at every entry: each
 flush or FUA point, and each point between two, where the writes the next flush was to
 make durable are kept up to that point and the later ones dropped. On each image, mounted
