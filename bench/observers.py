@@ -658,9 +658,8 @@ def main() -> None:
                        "opcua", path], tmp, "opcua")
         sides["softplc opcua"] = [server]
         url = f"opc.tcp://127.0.0.1:{opcua_port}"
-        # the MQTT subscriber counts a little past the window; the OPC UA clients until
-        # told to stop once the last alarm is cleared, and DRAIN_S more (bench.opcua): a
-        # cap only here
+        # the MQTT subscriber counts a little past the window (the OPC UA clients until
+        # told to stop once the last alarm is cleared, and DRAIN_S more: bench.opcua)
         count_s = args.seconds + 2
         ids: list[str] = []
         files: list[tuple[str, int]] = []
@@ -675,8 +674,8 @@ def main() -> None:
             ids = asyncio.run(variable_ids(url, None))
             files = node_files(tmp, ids, args.items, args.opcua_clients)
             sides["OPC UA clients"] = clients  # filled as they subscribe
-            start_clients(url, [f for f, _ in files], 2 * args.seconds + 60, None, tmp, t0,
-                          clients, args.client_nice)
+            start_clients(url, [f for f, _ in files], args.seconds, None, tmp, t0, clients,
+                          args.client_nice)
         sub: subprocess.Popen[str] | None = None
         if broker is not None:
             edge = side(["nice", "-n", str(args.sides_nice), sys.executable, "-m",
