@@ -459,9 +459,9 @@ def overrun_kind(o: Overrun, cycle_ns: int) -> str:
 
 
 def overrun_table(rows: list[tuple[str, dict[str, Any]]], cycle_ns: int,
-                  per_phase: int = 12) -> None:
-    """Each phase's overruns by what made them, and the first ``per_phase`` of each,
-    µs (schedprobe.Overrun)."""
+                  per_kind: int = 4) -> None:
+    """Each phase's overruns by what made them, and the first ``per_kind`` of each kind
+    in each phase, µs (schedprobe.Overrun)."""
     out("\noverruns by what made them (late: the wake-up after its deadline; other threads "
         "ran: the process's other threads' processor time from the sleep's start to the "
         "wake-up; slices: the times the scan thread was put on a processor in its sleep, "
@@ -477,7 +477,14 @@ def overrun_table(rows: list[tuple[str, dict[str, Any]]], cycle_ns: int,
             kinds[k] = kinds.get(k, 0) + 1
         out(f"- {label}: {len(r['overrun_list'])}"
             + "".join(f"; {k} {n}" for k, n in sorted(kinds.items(), key=lambda kv: -kv[1])))
-    seen = [(label, o) for label, r in rows for o in r["overrun_list"][:per_phase]]
+    seen = []  # the first ``per_kind`` of each kind in each phase, in their order
+    for label, r in rows:
+        shown: dict[str, int] = {}
+        for o in r["overrun_list"]:
+            k = overrun_kind(o, cycle_ns)
+            if shown.get(k, 0) < per_kind:
+                shown[k] = shown.get(k, 0) + 1
+                seen.append((label, o))
     if not seen:
         return
     out("\n| phase | late us | scan us | ran us | runq us | other threads ran us | slept | "

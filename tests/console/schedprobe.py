@@ -23,6 +23,7 @@ JSON line of Wakes).
 
 from __future__ import annotations
 
+import ctypes
 import json
 import os
 import signal
@@ -47,14 +48,29 @@ SCHEDSTAT = "/proc/thread-self/schedstat"
 LATE_US = 2500.0
 
 
-def thread_schedstat(files: list[int]) -> tuple[int, int, int]:
+#: libc called with the GIL held (``PyDLL``): a probe's read of its statistics never
+#: lets another thread of the process take the GIL (``os.pread`` releases it, and the
+#: thread then waits to get it back: a wait of the probe's own making in the figures)
+_HELD = ctypes.PyDLL(None, use_errno=True)
+_HELD.pread.argtypes = (ctypes.c_int, ctypes.c_void_p, ctypes.c_size_t, ctypes.c_long)
+_HELD.pread.restype = ctypes.c_ssize_t
+
+
+def thread_schedstat(files: list[Any]) -> tuple[int, int, int]:
     """The calling thread's (ns on a processor, ns runnable waiting for one, times put on
-    one) since it started; ``files`` keeps the file, opened at the first call (from the
-    thread measured: /proc/thread-self is the caller)."""
+    one) since it started; ``files`` keeps the file and a buffer, opened at the first call
+    (from the thread measured: /proc/thread-self is the caller). The GIL is held
+    throughout. The time on a processor is the thread's CPU clock: up to date, where
+    schedstat's own figure for a running thread is the one of its last tick or scheduler
+    event (up to a tick stale: a whole cycle at 1 ms)."""
     if not files:
-        files.append(os.open(SCHEDSTAT, os.O_RDONLY))
-    ran, waited, slices = os.pread(files[0], 128, 0).split()[:3]
-    return int(ran), int(waited), int(slices)
+        files += [os.open(SCHEDSTAT, os.O_RDONLY), ctypes.create_string_buffer(128)]
+    fd, buf = files
+    n = _HELD.pread(fd, buf, 128, 0)
+    if n <= 0:
+        raise OSError(ctypes.get_errno(), f"{SCHEDSTAT}: read failed")
+    _, waited, slices = buf.raw[:n].split()[:3]
+    return time.thread_time_ns(), int(waited), int(slices)
 
 
 def available() -> bool:
@@ -107,7 +123,7 @@ class SchedProbe:
     def wrap(self, sleep_until: Callable[[int], None]) -> Callable[[int], None]:
         """``sleep_until`` recording each wake-up (call it from the sleeping thread)."""
         mono = time.monotonic_ns
-        files: list[int] = []
+        files: list[Any] = []
         has_stats = available()
 
         def not_blocked() -> tuple[int, int]:
@@ -235,7 +251,7 @@ class OverrunProbe:
         sleep_until, body, mono = sched.sleep_until, sched.body, time.monotonic_ns
         process = time.process_time_ns
         cycle = self.cycle_ns
-        files: list[int] = []
+        files: list[Any] = []
         # at the sleep's start, at the wake-up: (monotonic ns, ran, waited, slices,
         # the process's processor time)
         marks: list[tuple[int, int, int, int, int]] = [(0, 0, 0, 0, 0), (0, 0, 0, 0, 0)]

@@ -187,3 +187,84 @@ def test_a_wait_for_the_gil_whose_holder_was_kept_from_its_processor_is_the_mach
     held = [o for o in seen if o.sleep_slices > 1]
     assert [o for o in held if o.machines(CYCLE)], \
         f"no wait for a preempted holder counted the machine's in {WAIT_S} s: {held}"
+
+
+def _spin(seconds: float) -> None:
+    """Python on the processor for ``seconds`` of wall time, with no system call that
+    would bring the kernel's figure of the thread's processor time up to date."""
+    end = time.perf_counter() + seconds
+    while time.perf_counter() < end:
+        pass
+
+
+def test_the_processor_times_are_up_to_date_at_each_read() -> None:
+    """The kernel updates a running thread's processor time in /proc's schedstat only at a
+    tick or a scheduler event (up to a tick stale: a whole cycle at 1 ms), so figures
+    taken from it said a thread ran longer than the time that passed, and the process's
+    other threads less than nothing. Here each overrunning scan (1.5 cycles of Python)
+    follows one of 0.8 ms, and the process has no other thread at work: the scan
+    thread's idle work never ran longer than it lasted, and the other threads never ran
+    less than nothing."""
+    probe = OverrunProbe(CYCLE)
+    k = [0]
+
+    def body(now: int) -> None:
+        k[0] += 1
+        if k[0] % 3 == 1:
+            _spin(0.0008)
+        elif k[0] % 3 == 2:
+            _spin(1.5 * CYCLE / 1e9)
+
+    s = Scheduler(body, CYCLE, 10_000 * MS, manage_gc=False)
+    probe.install(s)
+    t = threading.Thread(target=s.run, name="softplc-scan", daemon=True)
+    probe.start()
+    t.start()
+    end = time.monotonic() + WAIT_S
+    try:
+        while time.monotonic() < end and len([o for o in probe.seen if o.idle]) < 20:
+            time.sleep(0.05)
+    finally:
+        seen = probe.stop()
+        s.stop()
+        t.join(10)
+    known = [o for o in seen if o.idle]
+    assert len(known) >= 20, f"{len(known)} overruns in {WAIT_S} s"
+    slack = 50_000  # ns: the reads of one mark are not simultaneous
+    assert not [o for o in known if o.others_ran < -slack], known
+    assert not [o for o in known if o.idle_ran > o.idle + slack], known
+
+
+def test_reading_the_statistics_never_lets_another_thread_take_the_gil() -> None:
+    """A read that released the GIL (``os.pread`` does) handed it to any thread waiting
+    for it, and the probed thread then waited to get it back: a wait of the probe's own
+    making, counted in the scan's figures. Here a thread spins in Python, the switch
+    interval long: while this thread reads its statistics 200 times it never runs."""
+    files: list[object] = []
+    schedprobe.thread_schedstat(files)
+    count = [0]
+    stop: list[int] = []
+
+    def spin() -> None:
+        while not stop:
+            count[0] += 1
+
+    old = sys.getswitchinterval()
+    t = threading.Thread(target=spin, daemon=True)
+    sys.setswitchinterval(0.01)
+    try:
+        t.start()
+        while count[0] == 0:  # it runs (and now waits for the GIL)
+            time.sleep(0.001)
+        ran: list[int] = []
+        for _ in range(50):  # each round: the GIL just taken back from the spinner
+            time.sleep(0.001)
+            before = count[0]
+            for _ in range(200):
+                schedprobe.thread_schedstat(files)
+            ran.append(count[0] - before)
+    finally:
+        stop.append(1)
+        sys.setswitchinterval(old)
+        t.join(10)
+    assert not [n for n in ran if n], f"the spinner ran during the reads: {ran}"
