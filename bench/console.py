@@ -33,6 +33,7 @@ import os
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from typing import Any
 
 from runtime.controller.daemon import Daemon
@@ -53,21 +54,26 @@ def window(rig: Rig, seconds: float) -> dict[str, Any]:
     return probed_window(rig.daemon, PROBE, seconds)
 
 
-def probed_window(daemon: Daemon, probe: SchedProbe, seconds: float, cycle_ns: int = 0
-                  ) -> dict[str, Any]:
+def probed_window(daemon: Daemon, probe: SchedProbe, seconds: float, cycle_ns: int = 0,
+                  on_end: Callable[[], Any] | None = None) -> dict[str, Any]:
     """Cycle figures over ``seconds``: counters of the scan's own statistics (never
     reset: their window keeps the last 8192 cycles, as a daemon's that has run for a
     while, see --warmup), lateness of each wake-up from ``probe`` (installed on the
     daemon's scheduler), µs; with ``cycle_ns``, its wake-ups a cycle late or more
-    (``missed``)."""
+    (``missed``). ``on_end`` is called as the window ends, its result under "on_end"
+    (another probe's stop). The figures are computed once every count is taken: their
+    sorting (tens of ms of Python at a 1 ms cycle) holds the GIL, and counted in the
+    window it made overruns of its own."""
     stats = daemon.scan_stats
     faults = len(daemon.faults)  # watchdog faults (and any other) in the window
     count, overruns = daemon.call(lambda: (stats.count, stats.overruns))
     probe.start()
     time.sleep(seconds)
-    wakes = probe.stop(cycle_ns)
+    probe.on = False
+    ended = on_end() if on_end is not None else None
     count2, overruns2 = daemon.call(lambda: (stats.count, stats.overruns))
-    return {"cycles": count2 - count, "faults": len(daemon.faults) - faults,
+    wakes = probe.wakes(cycle_ns)
+    return {"on_end": ended, "cycles": count2 - count, "faults": len(daemon.faults) - faults,
             "overruns": overruns2 - overruns, "p50": wakes.late_p50,
             "p99": wakes.late_p99, "max": wakes.late_max, "runq_p99": wakes.runq_p99,
             "blocked_p99": wakes.blocked_p99, "blocked_max": wakes.blocked_max,

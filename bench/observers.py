@@ -410,8 +410,8 @@ def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
     gc0 = (st.gc_runs, st.gc_ns, st.gc_full_runs, st.gc_full_deferred)
     with lone_thread(cycle_ms, priority) as lone:
         overruns.start()
-        w = probed_window(daemon, probe, seconds, int(cycle_ms * 1e6))
-        w["overrun_list"] = overruns.stop()
+        w = probed_window(daemon, probe, seconds, int(cycle_ms * 1e6), overruns.stop)
+        w["overrun_list"] = w.pop("on_end")
     w["overruns_ours"] = sum(1 for o in w["overrun_list"]
                              if not o.machines(overruns.cycle_ns))
     runs, gc_ns, fulls, waited = (b - a for a, b in zip(

@@ -27,8 +27,8 @@ LOCKOUT_MAX_S = 900.0
 #: a half-typed line left this long (s) is dropped: a cable pulled in mid-line must not
 #: leave its fragment in front of the next person's command
 PARTIAL_LINE_TIMEOUT_S = 60.0
-#: cycles a stream keeps between two polls of its session; older ones are dropped (and
-#: counted) when the line cannot carry them
+#: cycles a stream may hold, a backstop: the scan thread keeps only the newest
+#: STREAM_LINES_PER_POLL (streams.Stream.drop_oldest); older ones are dropped and counted
 STREAM_SCANS = 2000
 #: stream lines sent per poll at most: on a slow line the older cycles are skipped (and
 #: counted) rather than queued, so a line typed to stop the stream is read soon

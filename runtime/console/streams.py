@@ -168,12 +168,15 @@ class StreamTap:
                 img = cat.capture(scan)
             assert img is not None
             stream.images.append(img)
+            if len(stream.images) > STREAM_LINES_PER_POLL:
+                stream.drop_oldest()
 
 
 class Stream:
     """A running watch or trace: what it shows, where it stands, and the images queued
-    for it since the last poll (at most STREAM_SCANS: older ones are dropped and the gap
-    is reported as scans not shown). The images may be shared with other streams: a
+    for it since the last poll (the newest STREAM_LINES_PER_POLL, the start's snapshot
+    aside: older ones are dropped by the scan thread, ``drop_oldest``, and the gap is
+    reported as scans not shown). The images may be shared with other streams: a
     stream only reads them."""
 
     def __init__(self, kind: StreamKind, names: list[Signal], catalogue: Catalogue,
@@ -202,6 +205,26 @@ class Stream:
         #: next poll (at most STREAM_LINES_PER_POLL)
         self._held: list[Image] = []
 
+    def drop_oldest(self) -> None:
+        """Scan thread: let go of the oldest image queued, the start's snapshot kept
+        while no poll has read it. No poll compares more than the newest
+        STREAM_LINES_PER_POLL (the scans before them are counted, not shown), so a stream
+        polled less often than that (a short cycle, a slow line) keeps no more: kept
+        until the poll, the images of a 1 ms cycle (some fifteen objects the collector
+        tracks each) had the scan thread run a young garbage collection about ten times
+        a second, 0.5 ms each (bench.observers at 1 ms). Letting one go costs about what
+        taking it did; the poll may take images meanwhile (an image too few is a scan
+        counted as not shown)."""
+        images = self.images
+        try:
+            if self.last is None:
+                if len(images) > STREAM_LINES_PER_POLL + 1:
+                    del images[1]
+            else:
+                images.popleft()
+        except IndexError:  # a poll took them meanwhile
+            pass
+
     @property
     def behind(self) -> bool:
         """Whether a poll left images to compare (``poll``'s ``more`` said stop)."""
@@ -223,9 +246,10 @@ class Stream:
             return []
         queued = self.images
         # the images no poll will compare (all but the newest STREAM_LINES_PER_POLL, the
-        # start's snapshot kept) are let go here one at a time, the GIL free to pass
-        # between two; let go together (up to STREAM_SCANS, some 200 000 objects at 100
-        # testers) their deallocation held the GIL 40-56 ms, the scan waiting
+        # start's snapshot kept: the scan thread already drops older ones, drop_oldest)
+        # are let go here one at a time, the GIL free to pass between two; let go
+        # together (once up to STREAM_SCANS, some 200 000 objects at 100 testers) their
+        # deallocation held the GIL 40-56 ms, the scan waiting
         snapshot = queued.popleft() if self.last is None and queued else None
         while len(queued) > STREAM_LINES_PER_POLL:
             queued.popleft()

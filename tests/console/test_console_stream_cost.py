@@ -116,9 +116,11 @@ def test_one_copy_of_the_image_per_scan_for_every_stream(
             assert s.feed(b"trace on\r\n")[-1] == "ok"
         streams = [s.stream for s in sessions]
         assert all(streams)
-        wait_for(lambda: all(len(st.images) > 3 * STREAM_LINES_PER_POLL  # type: ignore[union-attr]
-                             for st in streams), "60 cycles queued for each stream")
-        queued = [list(st.images) for st in streams]  # type: ignore[union-attr]
+        wait_for(lambda: len([n for n in copied if n >= 0]) > 3 * STREAM_LINES_PER_POLL,
+                 "60 scans copied")
+        # read between two scans: the queues as the scan thread left them
+        queued = rig.daemon.call(lambda: [list(st.images)  # type: ignore[union-attr]
+                                          for st in streams])
         for s in sessions:
             s.feed(b"\r")  # the streams end (their images let go)
         scans = [n for n in copied if n >= 0]

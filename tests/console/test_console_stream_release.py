@@ -5,6 +5,8 @@ the console's socket thread, at the end of a trace poll, freed the images queued
 the newest STREAM_LINES_PER_POLL (up to STREAM_SCANS of them, some 200 000 objects) in one
 C-level cascade of deallocations, during which no other thread can take the GIL (perf:
 `tupledealloc` all through the stall). The same happened when a lagging stream ended.
+Since then the scan thread keeps no more than the newest STREAM_LINES_PER_POLL (and the
+start's snapshot) for a stream: the third test.
 
 Counted, not timed: each image carries an object whose finalizer notes how many lines of
 Python the freeing thread had run by then (a trace function counts them, the finalizer's
@@ -20,7 +22,7 @@ from types import FrameType, SimpleNamespace
 from typing import Any
 
 from runtime.console import streams
-from runtime.console.protocol import STREAM_LINES_PER_POLL, STREAM_SCANS
+from runtime.console.protocol import STREAM_LINES_PER_POLL
 from runtime.console.streams import Stream
 from runtime.engine.names import Image, Signal
 from runtime.language import ast as A
@@ -97,11 +99,41 @@ def test_a_poll_lets_go_of_the_images_it_skips_one_at_a_time() -> None:
     assert counter.longest_stretch(threading.get_ident()) <= STREAM_LINES_PER_POLL
 
 
+def test_a_stream_nobody_polls_keeps_the_snapshot_and_the_newest_scans_only(
+        rigs: Callable[..., Rig]) -> None:
+    """No poll compares more than the newest STREAM_LINES_PER_POLL images, so the scan
+    thread keeps no more (before: up to STREAM_SCANS, kept alive until the poll: at a
+    1 ms cycle the scan thread then ran a young garbage collection about ten times a
+    second, 0.5 ms each). The start's snapshot stays first until a poll reads it; the
+    scans dropped are counted in the next line."""
+    rig = rigs(serial_port=False, unix_socket=False, blink=True)
+    s = rig.service.session("tracer")
+    try:
+        assert s.feed(b"trace on\r\n")[-1] == "ok"
+        stream = s.stream
+        assert stream is not None
+        first = wait_for(lambda: stream.images[-1].scan if len(stream.images) > 1 else None,
+                         "a scan queued")
+        wait_for(lambda: stream.images[-1].scan >= first + 3 * STREAM_LINES_PER_POLL,
+                 "three polls' worth of scans")
+        # read between two scans (in the scan thread's idle work): as a scan left it
+        queued = rig.daemon.call(lambda: list(stream.images))
+        assert len(queued) == STREAM_LINES_PER_POLL + 1, [i.scan for i in queued]
+        assert queued[0].scan == -1  # the snapshot
+        scans = [i.scan for i in queued[1:]]
+        assert scans == list(range(scans[0], scans[0] + STREAM_LINES_PER_POLL)), scans
+        assert scans[0] > first + STREAM_LINES_PER_POLL
+        lines = stream.poll(lambda: 0.0, False)
+        assert lines and "scans not shown" in lines[0], lines
+    finally:
+        s.close()
+
+
 def test_a_stream_that_ends_lets_go_of_its_queued_images_one_at_a_time(
         rigs: Callable[..., Rig], monkeypatch: Any) -> None:
-    """A trace nobody polls queues an image per scan (at most STREAM_SCANS); the line
-    that ends it frees them in the session's thread, one at a time."""
-    assert QUEUED < STREAM_SCANS
+    """A trace nobody polls queues an image per scan (the newest STREAM_LINES_PER_POLL
+    and the snapshot); the line that ends it frees them in the session's thread, one at
+    a time."""
     rig = rigs(serial_port=False, unix_socket=False, blink=True)
     cat = rig.service.catalogue
     counter = Counter()
@@ -112,8 +144,9 @@ def test_a_stream_that_ends_lets_go_of_its_queued_images_one_at_a_time(
         assert s.feed(b"trace on\r\n")[-1] == "ok"
         stream = s.stream
         assert stream is not None
-        wait_for(lambda: len(stream.images) >= QUEUED, f"{QUEUED} scans queued")
+        wait_for(lambda: len(stream.images) > STREAM_LINES_PER_POLL, "the scans queued")
         queued_at_least = len(stream.images)
+        freed_before = len(counter.freed)  # those the scan thread let go
         sys.settrace(counter.trace)
         try:
             s.feed(b"\r")  # any line ends the stream
@@ -121,7 +154,8 @@ def test_a_stream_that_ends_lets_go_of_its_queued_images_one_at_a_time(
             sys.settrace(None)
         me = threading.get_ident()
         assert s.stream is None
-        assert sum(1 for t, _ in counter.freed if t == me) >= queued_at_least - 1
+        mine = [f for f in counter.freed[freed_before:] if f[0] == me]
+        assert len(mine) >= queued_at_least - 1
         assert counter.longest_stretch(me) <= 1
     finally:
         s.close()
