@@ -239,7 +239,8 @@ def test_reading_the_statistics_never_lets_another_thread_take_the_gil() -> None
     """A read that released the GIL (``os.pread`` does) handed it to any thread waiting
     for it, and the probed thread then waited to get it back: a wait of the probe's own
     making, counted in the scan's figures. Here a thread spins in Python, the switch
-    interval long: while this thread reads its statistics 200 times it never runs."""
+    interval long (50 ms: only a read stalled that long lets the spinner force a
+    switch): while this thread reads its statistics 50 times it never runs."""
     files: list[object] = []
     schedprobe.thread_schedstat(files)
     count = [0]
@@ -251,16 +252,16 @@ def test_reading_the_statistics_never_lets_another_thread_take_the_gil() -> None
 
     old = sys.getswitchinterval()
     t = threading.Thread(target=spin, daemon=True)
-    sys.setswitchinterval(0.01)
+    sys.setswitchinterval(0.05)
     try:
         t.start()
         while count[0] == 0:  # it runs (and now waits for the GIL)
             time.sleep(0.001)
         ran: list[int] = []
-        for _ in range(50):  # each round: the GIL just taken back from the spinner
+        for _ in range(20):  # each round: the GIL just taken back from the spinner
             time.sleep(0.001)
             before = count[0]
-            for _ in range(200):
+            for _ in range(50):
                 schedprobe.thread_schedstat(files)
             ran.append(count[0] - before)
     finally:
