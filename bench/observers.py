@@ -470,32 +470,27 @@ def overrun_table(rows: list[tuple[str, dict[str, Any]]], cycle_ns: int,
         "processor through the scan, and either kept it from its first instant on one or "
         "waited for a GIL whose holder ran less than half of that wait: "
         "schedprobe.Overrun):")
+    seen = []  # the first ``per_kind`` of each kind in each phase, in their order
     for label, r in rows:
         kinds: dict[str, int] = {}
         for o in r["overrun_list"]:
             k = overrun_kind(o, cycle_ns)
             kinds[k] = kinds.get(k, 0) + 1
+            if kinds[k] <= per_kind:
+                seen.append((label, o, k))
         out(f"- {label}: {len(r['overrun_list'])}"
             + "".join(f"; {k} {n}" for k, n in sorted(kinds.items(), key=lambda kv: -kv[1])))
-    seen = []  # the first ``per_kind`` of each kind in each phase, in their order
-    for label, r in rows:
-        shown: dict[str, int] = {}
-        for o in r["overrun_list"]:
-            k = overrun_kind(o, cycle_ns)
-            if shown.get(k, 0) < per_kind:
-                shown[k] = shown.get(k, 0) + 1
-                seen.append((label, o))
     if not seen:
         return
     out("\n| phase | late us | scan us | ran us | runq us | other threads ran us | slept | "
         "slices | idle work us: time, ran, slices | whose |")
     out("|---|---|---|---|---|---|---|---|---|---|")
-    for label, o in seen:
+    for label, o, kind in seen:
         out(f"| {label} | {o.late / 1e3:.0f} | {o.scan / 1e3:.0f} | {o.ran / 1e3:.0f} | "
             f"{o.runq / 1e3:.0f} | {o.others_ran / 1e3:.0f} | "
             f"{'yes' if o.slept else 'no'} | {o.sleep_slices}, "
             f"{o.scan_slices} | {o.idle / 1e3:.0f}, {o.idle_ran / 1e3:.0f}, "
-            f"{o.idle_slices} | {overrun_kind(o, cycle_ns)} |")
+            f"{o.idle_slices} | {kind} |")
 
 
 def node_files(tmp: str, ids: list[str], items: int, clients: int) -> list[tuple[str, int]]:
