@@ -193,9 +193,12 @@ class Overrun:
     processor time over both; ``runq``: the time it was runnable waiting for a
     processor; ``others_ran``: the processor time of the process's other threads from
     the start of the sleep to the wake-up (all of them: whoever held the GIL ran at most
-    that long); ``idle``, ``idle_ran``, ``idle_slices``: from the end of the scan before
-    to the start of this sleep (its idle work), the time, the thread's processor time and
-    the times it was put on a processor (0 for the first scan probed: unknown).
+    that long; the kernel brings only the calling thread's figure up to date in the
+    process's processor time, so each other thread running on another processor at either
+    read makes it up to a tick off, either way); ``idle``, ``idle_ran``, ``idle_slices``:
+    from the end of the scan before to the start of this sleep (its idle work), the
+    time, the thread's processor time and the times it was put on a processor (0 for
+    the first scan probed: unknown).
     Processor times exclude what the host of a virtual machine took (steal), where the
     kernel accounts it (CONFIG_PARAVIRT_TIME_ACCOUNTING)."""
 

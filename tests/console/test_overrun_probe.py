@@ -200,11 +200,13 @@ def _spin(seconds: float) -> None:
 def test_the_processor_times_are_up_to_date_at_each_read() -> None:
     """The kernel updates a running thread's processor time in /proc's schedstat only at a
     tick or a scheduler event (up to a tick stale: a whole cycle at 1 ms), so figures
-    taken from it said a thread ran longer than the time that passed, and the process's
-    other threads less than nothing. Here each overrunning scan (1.5 cycles of Python)
-    follows one of 0.8 ms, and the process has no other thread at work: the scan
-    thread's idle work never ran longer than it lasted, and the other threads never ran
-    less than nothing."""
+    taken from it said a thread ran longer than the time that passed. Here each
+    overrunning scan (1.5 cycles of Python) follows one of 0.8 ms: the scan thread's idle
+    work never ran longer than it lasted. (The process's other threads' time,
+    ``others_ran``, is not held here: the kernel leaves another thread's figure up to a
+    tick stale while it runs on another processor, so with any other thread of the
+    process at work, the pytest process's included, it can be off by that much either
+    way; ``Overrun``'s docstring says so.)"""
     probe = OverrunProbe(CYCLE)
     k = [0]
 
@@ -231,8 +233,27 @@ def test_the_processor_times_are_up_to_date_at_each_read() -> None:
     known = [o for o in seen if o.idle]
     assert len(known) >= 20, f"{len(known)} overruns in {WAIT_S} s"
     slack = 50_000  # ns: the reads of one mark are not simultaneous
-    assert not [o for o in known if o.others_ran < -slack], known
     assert not [o for o in known if o.idle_ran > o.idle + slack], known
+
+
+def test_a_threads_processor_time_never_exceeds_the_time_that_passed() -> None:
+    """The processor time ``thread_schedstat`` gives between two reads is never more than
+    the wall time around them (a thread cannot run longer than the time that passed). The
+    figure /proc's schedstat prints for the running thread lags up to a tick, so between a
+    stale first read and an up-to-date second one it grew by more than the time that
+    passed: that broke this in 15 to 17 of the 200 tries here."""
+    files: list[object] = []
+    schedprobe.thread_schedstat(files)
+    over = []
+    for _ in range(200):
+        t0 = time.monotonic_ns()
+        ran0 = schedprobe.thread_schedstat(files)[0]
+        _spin(0.0003)
+        ran1 = schedprobe.thread_schedstat(files)[0]
+        wall = time.monotonic_ns() - t0
+        if ran1 - ran0 > wall:
+            over.append((ran1 - ran0, wall))
+    assert not over, f"{len(over)} of 200: (processor ns, wall ns) {over[:5]}"
 
 
 def test_reading_the_statistics_never_lets_another_thread_take_the_gil() -> None:
