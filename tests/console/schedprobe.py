@@ -62,7 +62,7 @@ def thread_schedstat(files: list[Any]) -> tuple[int, int, int]:
     (from the thread measured: /proc/thread-self is the caller). The GIL is held
     throughout. The time on a processor is the thread's CPU clock: up to date, where
     schedstat's own figure for a running thread is the one of its last tick or scheduler
-    event (up to a tick stale: a whole cycle at 1 ms)."""
+    event (up to a tick stale: 4 ms at HZ=250, four cycles at 1 ms)."""
     if not files:
         files += [os.open(SCHEDSTAT, os.O_RDONLY), ctypes.create_string_buffer(128)]
     fd, buf = files
@@ -193,9 +193,7 @@ class Overrun:
     processor time over both; ``runq``: the time it was runnable waiting for a
     processor; ``others_ran``: the processor time of the process's other threads from
     the start of the sleep to the wake-up (all of them: whoever held the GIL ran at most
-    that long; the kernel brings only the calling thread's figure up to date in the
-    process's processor time, so each other thread running on another processor at either
-    read makes it up to a tick off, either way); ``idle``, ``idle_ran``, ``idle_slices``:
+    that long; each thread's own clock: ``OtherThreads``); ``idle``, ``idle_ran``, ``idle_slices``:
     from the end of the scan before to the start of this sleep (its idle work), the
     time, the thread's processor time and the times it was put on a processor (0 for
     the first scan probed: unknown).
@@ -239,7 +237,8 @@ class Overrun:
 class OverrunProbe:
     """Records each overrun of a Scheduler's scans (``install`` before it runs) between
     ``start()`` and ``stop()``: whether the machine or the process made it (``Overrun``).
-    Three reads of /proc/thread-self/schedstat a cycle (a few µs each), in the scan
+    Three reads of /proc/thread-self/schedstat a cycle (a few µs each) and two of each
+    other thread's processor time (``OtherThreads``: about 1 µs a thread), in the scan
     thread; meaningful with the scan at SCHED_FIFO (at normal priority any process may
     preempt it, and that counts as the process's)."""
 
@@ -248,23 +247,23 @@ class OverrunProbe:
         self.capacity = capacity
         self.on = False
         self.seen: list[Overrun] = []
+        self._others = OtherThreads()
 
     def install(self, sched: Scheduler) -> None:
         """Wrap ``sched``'s sleep and body (its run loop binds them as it starts)."""
         sleep_until, body, mono = sched.sleep_until, sched.body, time.monotonic_ns
-        process = time.process_time_ns
         cycle = self.cycle_ns
         files: list[Any] = []
-        # at the sleep's start, at the wake-up: (monotonic ns, ran, waited, slices,
-        # the process's processor time)
-        marks: list[tuple[int, int, int, int, int]] = [(0, 0, 0, 0, 0), (0, 0, 0, 0, 0)]
+        # at the sleep's start, at the wake-up: (monotonic ns, ran, waited, slices)
+        marks: list[tuple[int, int, int, int]] = [(0, 0, 0, 0), (0, 0, 0, 0)]
         due = [0]
         # at the end of the scan before: (monotonic ns, ran, slices); (0, 0, 0) unknown
         ended = [(0, 0, 0)]
+        others = self._others
 
-        def stat() -> tuple[int, int, int, int, int]:
+        def stat() -> tuple[int, int, int, int]:
             ran, waited, slices = thread_schedstat(files)  # the scan thread's
-            return mono(), ran, waited, slices, process()
+            return mono(), ran, waited, slices
 
         def probed_sleep(deadline: int) -> None:
             if not self.on:
@@ -272,8 +271,12 @@ class OverrunProbe:
                 sleep_until(deadline)
                 return
             due[0] = deadline
+            if not others.listed:  # the first probed sleep since start()
+                others.list(mono())
             marks[0] = stat()
+            others.read(0)
             sleep_until(deadline)
+            others.read(1)
             marks[1] = stat()
 
         def probed_body(wake: int) -> Any:
@@ -283,30 +286,88 @@ class OverrunProbe:
             try:
                 return body(wake)
             finally:
-                end, ran, waited, slices, _ = stat()
+                end, ran, waited, slices = stat()
                 deadline = due[0]
                 if end >= deadline + cycle and len(self.seen) < self.capacity:
-                    (t0, ran0, waited0, slices0, cpu0), (_, ran1, _, slices1, cpu1) = marks
+                    (t0, ran0, waited0, slices0), (_, ran1, _, slices1) = marks
                     e_at, e_ran, e_slices = ended[0]
                     self.seen.append(Overrun(deadline, wake - deadline, end - wake,
                                              t0 < deadline, slices1 - slices0,
                                              slices - slices1, ran - ran0,
-                                             waited - waited0,
-                                             cpu1 - cpu0 - (ran1 - ran0),
+                                             waited - waited0, others.ran(),
                                              t0 - e_at if e_at else 0,
                                              ran0 - e_ran if e_at else 0,
                                              slices0 - e_slices if e_at else 0))
                 ended[0] = (end, ran, slices)
+                if end >= others.listed + THREADS_EVERY_NS:
+                    others.list(end)
         sched.sleep_until = probed_sleep
         sched.body = probed_body
 
     def start(self) -> None:
         self.seen = []
+        self._others.listed = 0  # listed again by the scan thread, at its next sleep
         self.on = True
 
     def stop(self) -> list[Overrun]:
         self.on = False
         return self.seen
+
+
+#: while an OverrunProbe records, the process's threads are listed again this often, ns
+#: (a thread started in between is not counted in ``others_ran`` until then)
+THREADS_EVERY_NS = 1_000_000_000
+
+
+def thread_clock(tid: int) -> int:
+    """The clock of thread ``tid``'s processor time (its kernel id), for
+    ``time.clock_gettime_ns``: Linux's encoding, as glibc's ``pthread_getcpuclockid``
+    (``CPUCLOCK_PERTHREAD_MASK | CPUCLOCK_SCHED``). The kernel brings a thread's figure up
+    to date at each read of its clock, even while it runs on another processor."""
+    return (~tid << 3) | 6
+
+
+class OtherThreads:
+    """The processor time of the process's threads but the calling one, at two marks.
+
+    Each thread's own clock (``thread_clock``), read one by one: the process's clock
+    (``time.process_time_ns``) brings only the calling thread's figure up to date, and
+    leaves another thread's up to a tick stale while it runs on another processor (off by
+    up to ±1.5 ms for a thread running all along, measured here over 0.7 ms sleeps).
+    About 1 µs a thread a mark, with the GIL held."""
+
+    def __init__(self) -> None:
+        self.clocks: list[int] = []
+        self.marks = (array("q"), array("q"))
+        #: when the threads were last listed, monotonic ns
+        self.listed = 0
+
+    def list(self, now: int) -> None:
+        """List the process's threads but the caller's (the thread that reads the
+        marks), from /proc; ``now``: monotonic ns."""
+        me = threading.get_native_id()
+        tids = sorted(int(t) for t in os.listdir("/proc/self/task") if int(t) != me)
+        self.clocks = [thread_clock(t) for t in tids]
+        self.marks = (array("q", [-1] * len(tids)), array("q", [-1] * len(tids)))
+        self.listed = now
+
+    def read(self, mark: int) -> None:
+        """Each listed thread's processor time into ``marks[mark]`` (-1: it has ended)."""
+        values, read = self.marks[mark], time.clock_gettime_ns
+        i = 0
+        for c in self.clocks:
+            try:
+                values[i] = read(c)
+            except OSError:
+                values[i] = -1
+            i += 1
+
+    def ran(self) -> int:
+        """The processor time of the threads read at both marks, from the first to the
+        second, ns (a thread that ended between them is left out: what it ran then is
+        unknown)."""
+        a, b = self.marks
+        return sum(y - x for x, y in zip(a, b, strict=True) if x >= 0 and y >= 0)
 
 
 #: the neighbour of a control's paced thread: bursts of Python this long (holding the GIL),

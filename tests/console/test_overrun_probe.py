@@ -5,6 +5,7 @@ Sized by time: each test waits (at most a deadline) for the overruns it needs.""
 
 from __future__ import annotations
 
+import hashlib
 import os
 import subprocess
 import sys
@@ -22,6 +23,11 @@ MS = 1_000_000
 CYCLE = 5 * MS
 #: how long a test may wait for the overruns it needs, s
 WAIT_S = 30.0
+#: how much more processor time than wall time a thread may show over a short span, ns:
+#: on this VM a thread's CPU clock ran up to 135 µs ahead of the monotonic clock over
+#: 25 µs (9 of 2653 spans of 20 µs after 7.5 ms of Python, measured); a figure a tick
+#: stale (4 ms at HZ=250, the failures these tests catch) is off by more than 500 µs
+CLOCKS_SLACK_NS = 500_000
 
 pytestmark = pytest.mark.skipif(
     not schedprobe.available(), reason="the kernel keeps no per-thread scheduler "
@@ -100,17 +106,25 @@ def _run(probe: OverrunProbe) -> tuple[Scheduler, threading.Thread]:
 
 
 def test_an_overrun_made_by_a_thread_holding_the_gil_is_the_processs() -> None:
+    """The scan waits for the GIL held by another thread of the process, which runs
+    meanwhile: the process's. Only holds during which the holder had a processor at
+    least 90 % of the time count (on a loaded machine the holder may be kept from its
+    processor for half the hold or more: the machine's, by the rule, and rightly)."""
     probe = OverrunProbe(CYCLE)
     n = _holding_n()
-    held: list[tuple[int, int]] = []  # (start, end) monotonic ns of each hold
+    held: list[tuple[int, int]] = []  # (start, end) monotonic ns of each hold that ran
     s, t = _run(probe)
-    end = time.monotonic() + WAIT_S
+    # twice the wait: with two processes busy on two processors, half the holds or more
+    # are kept from their processor (up to 21 s for three overruns, measured)
+    end = time.monotonic() + 2 * WAIT_S
     try:
         while time.monotonic() < end:
             time.sleep(3 * CYCLE / 1e9)  # a few scans between two holds
-            a = time.monotonic_ns()
+            a, ran = time.monotonic_ns(), time.thread_time_ns()
             sum(range(n))
-            held.append((a, time.monotonic_ns()))
+            b, ran = time.monotonic_ns(), time.thread_time_ns() - ran
+            if 10 * ran >= 9 * (b - a):
+                held.append((a, b))
             inside = [o for o in list(probe.seen)
                       if any(a0 < o.deadline and o.deadline + o.late < b0
                              for a0, b0 in held)]
@@ -122,7 +136,7 @@ def test_an_overrun_made_by_a_thread_holding_the_gil_is_the_processs() -> None:
         t.join(10)
     inside = [o for o in seen if any(a0 < o.deadline and o.deadline + o.late < b0
                                      for a0, b0 in held)]
-    assert len(inside) >= 3, f"no overrun while the GIL was held in {WAIT_S} s: {seen}"
+    assert len(inside) >= 3, f"no overrun while the GIL was held in {2 * WAIT_S} s: {seen}"
     assert not [o for o in inside if o.machines(CYCLE)], inside
     # the wake-up returned to Python once the hold ended: the thread waited again
     assert all(o.sleep_slices >= 2 for o in inside), inside
@@ -199,14 +213,12 @@ def _spin(seconds: float) -> None:
 
 def test_the_processor_times_are_up_to_date_at_each_read() -> None:
     """The kernel updates a running thread's processor time in /proc's schedstat only at a
-    tick or a scheduler event (up to a tick stale: a whole cycle at 1 ms), so figures
+    tick or a scheduler event (up to a tick stale: 4 ms at HZ=250), so figures
     taken from it said a thread ran longer than the time that passed. Here each
     overrunning scan (1.5 cycles of Python) follows one of 0.8 ms: the scan thread's idle
-    work never ran longer than it lasted. (The process's other threads' time,
-    ``others_ran``, is not held here: the kernel leaves another thread's figure up to a
-    tick stale while it runs on another processor, so with any other thread of the
-    process at work, the pytest process's included, it can be off by that much either
-    way; ``Overrun``'s docstring says so.)"""
+    work never ran longer than it lasted, and the other threads never ran less than
+    nothing (CI once saw -103 µs when they were the process's processor time less the
+    scan thread's: the next test)."""
     probe = OverrunProbe(CYCLE)
     k = [0]
 
@@ -232,16 +244,57 @@ def test_the_processor_times_are_up_to_date_at_each_read() -> None:
         t.join(10)
     known = [o for o in seen if o.idle]
     assert len(known) >= 20, f"{len(known)} overruns in {WAIT_S} s"
-    slack = 50_000  # ns: the reads of one mark are not simultaneous
-    assert not [o for o in known if o.idle_ran > o.idle + slack], known
+    assert not [o for o in known if o.others_ran < 0], known
+    assert not [o for o in known if o.idle_ran > o.idle + CLOCKS_SLACK_NS], known
+
+
+def test_another_threads_processor_time_is_up_to_date_while_it_runs_elsewhere() -> None:
+    """Between two marks 0.7 ms apart, no other thread of the process ran longer than the
+    time that passed (give or take CLOCKS_SLACK_NS), a thread computing on another
+    processor (GIL released) included.
+    The process's processor time brings only the calling thread's figure up to date (the
+    others' at a tick): the probe took the other threads' time from it less the scan
+    thread's, and measured here it was off by up to ±1.5 ms for such a thread; read from
+    the thread's /proc schedstat, its figure broke this in 43 to 46 of the 200 tries here."""
+    stop: list[int] = []
+    data = b"x" * (1 << 20)
+
+    def compute() -> None:
+        while not stop:
+            hashlib.sha256(data).digest()  # the GIL released: on another processor
+    t = threading.Thread(target=compute, name="computes", daemon=True)
+    t.start()
+    others = schedprobe.OtherThreads()
+    over, spun, walls = [], 0, 0
+    try:
+        others.list(time.monotonic_ns())
+        i = others.clocks.index(schedprobe.thread_clock(t.native_id or 0))
+        for _ in range(200):
+            t0 = time.monotonic_ns()
+            others.read(0)
+            time.sleep(0.0007)
+            others.read(1)
+            wall = time.monotonic_ns() - t0
+            a, b = others.marks
+            over += [(y - x, wall) for x, y in zip(a, b, strict=True)
+                     if x >= 0 and y >= 0 and y - x > wall + CLOCKS_SLACK_NS]
+            spun += b[i] - a[i]
+            walls += wall
+    finally:
+        stop.append(1)
+        t.join(10)
+    assert not over, f"{len(over)} (processor ns, wall ns): {over[:5]}"
+    # the test means something only if the thread did compute meanwhile
+    assert spun > walls // 10, (spun, walls)
 
 
 def test_a_threads_processor_time_never_exceeds_the_time_that_passed() -> None:
     """The processor time ``thread_schedstat`` gives between two reads is never more than
-    the wall time around them (a thread cannot run longer than the time that passed). The
-    figure /proc's schedstat prints for the running thread lags up to a tick, so between a
-    stale first read and an up-to-date second one it grew by more than the time that
-    passed: that broke this in 15 to 17 of the 200 tries here."""
+    the wall time around them, give or take CLOCKS_SLACK_NS (a thread cannot run longer
+    than the time that passed). The figure /proc's schedstat prints for the running thread
+    lags up to a tick, so between a stale first read and an up-to-date second one it grew
+    by more than the time that passed, by a tick: that broke this in 15 to 17 of the 200
+    tries here."""
     files: list[object] = []
     schedprobe.thread_schedstat(files)
     over = []
@@ -251,7 +304,7 @@ def test_a_threads_processor_time_never_exceeds_the_time_that_passed() -> None:
         _spin(0.0003)
         ran1 = schedprobe.thread_schedstat(files)[0]
         wall = time.monotonic_ns() - t0
-        if ran1 - ran0 > wall:
+        if ran1 - ran0 > wall + CLOCKS_SLACK_NS:
             over.append((ran1 - ran0, wall))
     assert not over, f"{len(over)} of 200: (processor ns, wall ns) {over[:5]}"
 
