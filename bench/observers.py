@@ -46,7 +46,8 @@ feed thread between two scans), the samples whose image was never written
 (``images_missed``) and the images read after a later scan than their sample's
 (``images_late``); the host's steal time per processor; the
 garbage collections in the scan's idle time (how many, their time, the full ones and the
-last one's time, the full ones that waited for idle time enough). With
+last one's time, the full ones that waited for idle time enough, every how many young
+collections a middle one ran at the window's end: Scheduler.gc_middle_every). With
 ``--who``, what the controller's other threads were doing at each late wake-up and long
 scan of the observed window (``Who``). With
 ``--profile``, the functions of the feed thread's ``_publish`` in the observed window,
@@ -418,7 +419,7 @@ def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
         gc0, (st.gc_runs, st.gc_ns, st.gc_full_runs, st.gc_full_deferred), strict=True))
     w["gc"] = (f"{runs}, {gc_ns / 1e6:.1f} ms; full {fulls}"
                + (f" (last {st.gc_full_last / 1e6:.1f} ms)" if fulls else "")
-               + f", waited {waited}")
+               + f", waited {waited}; middle every {daemon.scheduler.gc_middle_every}")
     w["steal"] = [b - a for a, b in zip(steal0, steal_ms(), strict=False)]
     w["lone_p99"], w["lone_max"] = lone[0].late_p99, lone[0].late_max
     w["lone_blocked_p99"] = lone[0].blocked_p99

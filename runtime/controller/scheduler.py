@@ -56,7 +56,9 @@ GC_GEN0_THRESHOLD = 700
 #: harmless; looking costs a call and a tuple)
 GC_CHECK_EVERY = 8
 #: every this many young collections, the middle generation instead (what survived the
-#: young ones since: tuples of tuples are left out of the collector only there, a capture's)
+#: young ones since: tuples of tuples are left out of the collector only there, a
+#: capture's); more often while middle collections do not fit the idle time (``Scheduler
+#: .gc_middle_every``)
 GC_MIDDLE_EVERY = 10
 #: a full collection at most this often, ns, and only when the idle time allows it
 GC_FULL_EVERY_NS = 60_000_000_000
@@ -118,8 +120,12 @@ class Scheduler:
         self.stop_event = threading.Event()
         self._wake = threading.Event()  # a request queued, or the stop (``serve``)
         self._last_full_gc = 0
-        #: young collections run (every GC_MIDDLE_EVERY-th: the middle generation)
+        #: young collections run since the last middle one
         self._young = 0
+        #: every this many young collections, the middle generation instead: halved (down
+        #: to 1) after a middle collection that did not end within the idle time it had,
+        #: doubled (up to GC_MIDDLE_EVERY) after one that took a quarter of it or less
+        self.gc_middle_every = GC_MIDDLE_EVERY
         #: what the last full collection took, ns: the next one must fit it
         self._full_ns = 0
         #: a full collection is waiting for idle time enough (said once)
@@ -234,7 +240,7 @@ class Scheduler:
     def _collect(self, until: int) -> None:
         """Garbage collection in the idle part of the cycle only (none while
         ``gc_held``): a young collection when objects are pending (every
-        GC_MIDDLE_EVERY-th one the middle generation too), a full one once a
+        ``gc_middle_every``-th one the middle generation too), a full one once a
         minute if the last full one's time (times GC_FULL_MARGIN) fits before ``until``,
         else the middle generation then (what survived since: a minute's worth at most)
         and the full one waits for a cycle with idle time enough."""
@@ -246,7 +252,12 @@ class Scheduler:
             return  # no idle time left: try after the next cycle
         if t0 - self._last_full_gc < GC_FULL_EVERY_NS:
             self._young += 1
-            gc.collect(1 if self._young % GC_MIDDLE_EVERY == 0 else 0)
+            if self._young < self.gc_middle_every:
+                gc.collect(0)
+            else:
+                self._young = 0
+                gc.collect(1)
+                self._pace_middle(self.clock() - t0, until - t0)
         elif until - t0 >= self._full_ns * GC_FULL_MARGIN:
             self._full(t0)
         else:
@@ -263,6 +274,22 @@ class Scheduler:
             gc.collect(1)
         stats.gc_runs += 1
         stats.gc_ns += self.clock() - t0
+
+    def _pace_middle(self, took: int, had: int) -> None:
+        """After a middle collection that took ``took`` ns of the ``had`` ns of idle time
+        left when it started. It examines what survived the young collections since the
+        last one: one that did not end in time makes the next ones come twice as often
+        (each then examines what survived half as many), down to every young one; one
+        that took a quarter of that time or less, half as often again."""
+        every = self.gc_middle_every
+        if took > had:
+            every = max(1, every // 2)
+        elif 4 * took <= had:
+            every = min(GC_MIDDLE_EVERY, 2 * every)
+        if every != self.gc_middle_every:
+            log.debug("a middle collection took %.2f ms of %.2f ms of idle time: one every "
+                      "%d young ones now", took / 1e6, had / 1e6, every)
+            self.gc_middle_every = every
 
     def _full(self, t0: int) -> None:
         """A full collection started at ``t0``, timed: the next one must fit that (counted

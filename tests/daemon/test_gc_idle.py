@@ -132,6 +132,57 @@ def test_a_full_collection_that_grew_is_not_started_again_in_too_short_a_time(
     assert s.stats.gc_full_deferred > 0
 
 
+@dataclass
+class SurvivorsCollector(FakeCollector):
+    """A middle collection examines what survived the young ones since the last: it
+    costs ``cost[1]`` plus ``per_young`` ns for each young collection since."""
+
+    per_young: int = 0
+    young_since: int = 0
+
+    def collect(self, generation: int = 2) -> int:
+        self.young_since += 1
+        extra = self.per_young * self.young_since if generation >= 1 else 0
+        if generation >= 1:
+            self.young_since = 0
+        self.vt.now += extra
+        return super().collect(generation)
+
+
+def test_middle_collections_that_do_not_fit_come_more_often_until_they_fit(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A 1 ms cycle: 0.5 ms of idle time before the guard, what survived each young
+    collection costs 120 µs in the next middle one. Every tenth young one, a middle
+    one took 1.25 ms, past the next deadline each time (measured in bench.observers at
+    1 ms with observers: 1.5 to 1.7 ms). Now two late ones make them come every second
+    young one (0.29 ms); once survivors cost 5 µs each, every tenth again."""
+    vt = VirtualTime()
+    fake = SurvivorsCollector(vt, {0: 50_000, 1: 50_000, 2: 100_000}, per_young=120_000)
+    monkeypatch.setattr(scheduler_mod, "gc", fake)
+    cycles = [0]
+    late: list[int] = []  # the scans that woke after their deadline
+
+    def body(now: int) -> None:
+        cycles[0] += 1
+        if s.due and now > s.due:
+            late.append(cycles[0])
+        vt.now += 200_000
+        fake.pending += 100
+        if cycles[0] == 30_000:
+            fake.per_young = 5_000
+
+    s = Scheduler(body, 1 * MS, 100 * MS, clock=vt.clock, sleep_until=vt.sleep_until)
+    s.run(cycles=20_000)
+    gens = [g for g, _ in fake.collections]
+    # the two that taught it, early; none since
+    assert len(late) <= 2 and not [c for c in late if c > 1000], late
+    assert s.gc_middle_every == 2, gens[:40]
+    assert gens.count(1) * 3 >= gens.count(0), (gens.count(1), gens.count(0))
+    s.run(cycles=20_000)  # survivors cheap from the 30 000th scan on
+    assert s.gc_middle_every == scheduler_mod.GC_MIDDLE_EVERY
+    assert len(late) <= 2, late
+
+
 def test_the_process_image_copies_are_not_tracked_by_the_collector(tmp_path) -> None:
     """A capture (console streams, the feed) holds values only: after the collections of
     the idle time none of its copies is left for a full one to examine (the capture
