@@ -115,7 +115,14 @@ from runtime.console.service import ConsoleService
 from runtime.controller.daemon import Daemon
 from runtime.controller.feed import FeedServer
 from runtime.controller.image import ImageWriter
-from tests.console.schedprobe import Overrun, OverrunProbe, SchedProbe, lone_thread
+from tests.console.schedprobe import (
+    THREADS_EVERY_NS,
+    OtherThreads,
+    Overrun,
+    OverrunProbe,
+    SchedProbe,
+    lone_thread,
+)
 
 #: the controller's threads whose CPU a row shows apart (name prefix -> column)
 THREADS = {"softplc-scan": "scan", "softplc-feed": "feed", "console-": "console"}
@@ -239,11 +246,14 @@ class Who:
     thread was running Python when the scan was due or while it ran (the GIL's holder
     shows mid-work; a thread waiting shows in its wait). At a late wake-up also the
     thread that used the most processor time while the scan thread slept and waited
-    (each thread's /proc/self/task/TID/schedstat read at the sleep's start and at the
-    wake-up), its time and its frames then: the GIL's holder, and where it let the GIL
+    (each thread's CPU clock read at the sleep's start and at the wake-up:
+    schedprobe.OtherThreads, about 1 µs a thread; the threads listed again every
+    second), its time and its frames then: the GIL's holder, and where it let the GIL
     go (a frame's line is the call it made last). A diagnostic: its own cost (the
-    threads' statistics read each cycle, a frame walk per event) shows in that window's
-    figures."""
+    clocks read each cycle, a frame walk per event) shows in that window's figures.
+    (Until 1 December 2026 it read each thread's /proc schedstat, a file opened and
+    read per thread per cycle, with the GIL released, whose figure for a running thread
+    is up to a tick stale: too costly at 1 ms, and wrong for the busiest thread.)"""
 
     DEPTH = 3
 
@@ -281,33 +291,24 @@ class Who:
             into[key] = into.get(key, 0) + 1
         return frames
 
-    @staticmethod
-    def _ran() -> dict[int, int]:
-        """Processor time of each thread of this process, ns, by native id."""
-        got = {}
-        for name in os.listdir("/proc/self/task"):
-            try:
-                with open(f"/proc/self/task/{name}/schedstat", "rb") as f:
-                    got[int(name)] = int(f.read().split()[0])
-            except OSError:
-                pass  # ended meanwhile
-        return got
-
     def install(self, d: Daemon) -> None:
         sched = d.scheduler
         sleep_until, body, mono = sched.sleep_until, sched.body, time.monotonic_ns
-        before: list[dict[int, int]] = [{}]
+        others = OtherThreads()
 
         def sampled_sleep(deadline: int) -> None:
-            if self.on:
-                before[0] = self._ran()
+            if not self.on:
+                sleep_until(deadline)
+                return
+            if mono() >= others.listed + THREADS_EVERY_NS:
+                others.list(mono())
+            others.read(0)
             sleep_until(deadline)
-            if self.on and mono() - deadline > self.late_ns:
+            if mono() - deadline > self.late_ns:
+                others.read(1)
                 late = mono() - deadline
                 frames = self._sample(self.late, "late")
-                after, was = self._ran(), before[0]
-                me = threading.get_native_id()
-                ran = {t: n - was.get(t, n) for t, n in after.items() if t != me}
+                ran = others.each()
                 if ran:
                     top = max(ran, key=lambda t: ran[t])
                     by_native = {t.native_id: t for t in threading.enumerate()}

@@ -337,6 +337,8 @@ class OtherThreads:
     About 1 µs a thread a mark, with the GIL held."""
 
     def __init__(self) -> None:
+        #: the threads' kernel ids and their clocks
+        self.tids: list[int] = []
         self.clocks: list[int] = []
         self.marks = (array("q"), array("q"))
         #: when the threads were last listed, monotonic ns
@@ -346,7 +348,8 @@ class OtherThreads:
         """List the process's threads but the caller's (the thread that reads the
         marks), from /proc; ``now``: monotonic ns."""
         me = threading.get_native_id()
-        tids = sorted(int(t) for t in os.listdir("/proc/self/task") if int(t) != me)
+        self.tids = tids = sorted(int(t) for t in os.listdir("/proc/self/task")
+                                  if int(t) != me)
         self.clocks = [thread_clock(t) for t in tids]
         self.marks = (array("q", [-1] * len(tids)), array("q", [-1] * len(tids)))
         self.listed = now
@@ -366,8 +369,14 @@ class OtherThreads:
         """The processor time of the threads read at both marks, from the first to the
         second, ns (a thread that ended between them is left out: what it ran then is
         unknown)."""
+        return sum(self.each().values())
+
+    def each(self) -> dict[int, int]:
+        """Each thread read at both marks: its processor time from the first to the
+        second, ns, by kernel id."""
         a, b = self.marks
-        return sum(y - x for x, y in zip(a, b, strict=True) if x >= 0 and y >= 0)
+        return {t: y - x for t, x, y in zip(self.tids, a, b, strict=True)
+                if x >= 0 and y >= 0}
 
 
 #: the neighbour of a control's paced thread: bursts of Python this long (holding the GIL),
