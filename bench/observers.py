@@ -63,7 +63,7 @@ said in one line and acknowledged before the next.
                               [--mqtt-sample 10ms] [--opcua-clients 4] [--items 1183]
                               [--alarms 10] [--pages 20] [--consoles 4]
                               [--sides-nice 10] [--client-nice 10] [--start-s 360]
-                              [--profile] [--who] [--keep]
+                              [--profile] [--who] [--switch-interval MS] [--keep]
 """
 
 from __future__ import annotations
@@ -251,7 +251,7 @@ class Who:
     second), its time and its frames then: the GIL's holder, and where it let the GIL
     go (a frame's line is the call it made last). A diagnostic: its own cost (the
     clocks read each cycle, a frame walk per event) shows in that window's figures.
-    (Until 1 December 2026 it read each thread's /proc schedstat, a file opened and
+    (Until 30 November 2026 it read each thread's /proc schedstat, a file opened and
     read per thread per cycle, with the GIL released, whose figure for a running thread
     is up to a tick stale: too costly at 1 ms, and wrong for the busiest thread.)"""
 
@@ -587,6 +587,9 @@ def main() -> None:
                     help="in the observed window, what the controller's other threads were "
                          "doing at each late wake-up of the scan (over a third of the "
                          "cycle) and each long scan (over half of it): Who")
+    ap.add_argument("--switch-interval", type=float, metavar="MS",
+                    help="set the GIL switch interval once the controller started (it "
+                         "sets a tenth of the cycle, 0.5 ms at most)")
     ap.add_argument("--keep", action="store_true",
                     help="keep the temporary directory (plant, client logs) and say where")
     args = ap.parse_args()
@@ -645,12 +648,15 @@ def main() -> None:
                                            pdef.release_forces_on_disconnect))
 
         daemon, fs = start_daemon(path, args.testers, True, setup=setup)
+        if args.switch_interval is not None:
+            sys.setswitchinterval(args.switch_interval / 1e3)
         console = ConsoleServer(services[0], daemon.pdef.consoles)
         console.start()
         sock = os.path.join(tmp, "c.sock")
         out(f"{args.testers} drawer testers, cycle {cycle_ms} ms, {args.seconds:g} s per "
             f"phase, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}, scan "
-            f"{'SCHED_FIFO 50' if args.fifo else 'SCHED_OTHER'}")
+            f"{'SCHED_FIFO 50' if args.fifo else 'SCHED_OTHER'}, GIL switch interval "
+            f"{sys.getswitchinterval() * 1e3:g} ms")
         faults0 = len(daemon.faults)
         rows = [("unobserved", measure(daemon, probe, meter, args.seconds, {}, cycle_ms,
                                        prio, overruns))]

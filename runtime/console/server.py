@@ -13,8 +13,9 @@ No client can starve the scan (docs/console.md, "Transports and limits"):
 - lines are taken one at a time per connection, round-robin;
 - each session may run LINES_PER_S lines a second (bursts of BURST_LINES); a line over
   that gets ``error too many requests`` and is not run;
-- the daemon shortens the interpreter's GIL switch interval (daemon.GIL_SWITCH_S), so a
-  scan waits at most that long for a console thread holding the GIL.
+- the daemon shortens the interpreter's GIL switch interval (daemon.gil_switch_s: 0.5 ms,
+  a tenth of a shorter cycle), so a scan waits about that long at most for a console
+  thread holding the GIL.
 
 Limits: MAX_CONNECTIONS per socket or TCP port (one more gets an error line and is
 closed); a connection neither trusted nor unlocked that sends nothing for IDLE_TIMEOUT_S

@@ -66,8 +66,17 @@ FAULT_RECORD_MAX_BYTES = 64 * 1024
 FAULT_REASON_MAX = 500
 #: the interpreter's GIL switch interval while the scan runs, seconds: the longest a
 #: scan waits for the GIL held by another thread (a console serving a flood). Python's
-#: default, 5 ms, is half a 10 ms cycle (docs/console.md, "Transports and limits")
+#: default, 5 ms, is half a 10 ms cycle (docs/console.md, "Transports and limits")...
 GIL_SWITCH_S = 0.0005
+#: ...and at most this part of the cycle (0.1 ms at a 1 ms cycle, where 0.5 ms was half
+#: of it: bench.observers' busiest threads, the feed's and the console's, ran 0.5-0.6 ms
+#: while a late scan waited)
+GIL_SWITCH_CYCLE_PART = 0.1
+
+
+def gil_switch_s(cycle_ns: int) -> float:
+    """The GIL switch interval a controller of this cycle (ns) sets while it runs, s."""
+    return min(GIL_SWITCH_S, cycle_ns / 1e9 * GIL_SWITCH_CYCLE_PART)
 #: ``stats`` figures are at most this many ns of cycles old...
 STATS_MAX_AGE_NS = 100_000_000
 #: ...and their percentiles (of 8192 cycles: a few ms of processor time) at most this
@@ -224,7 +233,8 @@ class Daemon:
         self.plant.open()  # every output off before the first scan
         self.scheduler.stop_event.clear()
         self._switch_was = sys.getswitchinterval()
-        sys.setswitchinterval(min(self._switch_was, GIL_SWITCH_S))
+        if gil_switch_s(self.plant.cycle_ns) < self._switch_was:  # a shorter one is kept
+            sys.setswitchinterval(gil_switch_s(self.plant.cycle_ns))
         self._loop_alive = True
         self._thread = threading.Thread(target=self._scan_thread, name="softplc-scan",
                                         daemon=True)
@@ -259,7 +269,8 @@ class Daemon:
         self.stopped = True
         self.events.close()  # the scan thread is over: nothing more to watch
         self.alarms.close()
-        sys.setswitchinterval(self._switch_was)
+        if sys.getswitchinterval() < self._switch_was:
+            sys.setswitchinterval(self._switch_was)
         self.watchdog.stop()
         self.plant.safe_state()
         if self._retain_writer is not None:
