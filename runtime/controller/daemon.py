@@ -72,11 +72,6 @@ GIL_SWITCH_S = 0.0005
 #: of it: bench.observers' busiest threads, the feed's and the console's, ran 0.5-0.6 ms
 #: while a late scan waited)
 GIL_SWITCH_CYCLE_PART = 0.1
-
-
-def gil_switch_s(cycle_ns: int) -> float:
-    """The GIL switch interval a controller of this cycle (ns) sets while it runs, s."""
-    return min(GIL_SWITCH_S, cycle_ns / 1e9 * GIL_SWITCH_CYCLE_PART)
 #: ``stats`` figures are at most this many ns of cycles old...
 STATS_MAX_AGE_NS = 100_000_000
 #: ...and their percentiles (of 8192 cycles: a few ms of processor time) at most this
@@ -87,6 +82,11 @@ STATS_QUANTILES_MAX_AGE_NS = 1_000_000_000
 STATS_PAUSE_S = 0.0001
 #: chart flags that hold an instance (initial situation, reset, frozen situation)
 HOLD_FLAGS = ("SFCInit", "SFCReset", "SFCPause")
+
+
+def gil_switch_s(cycle_ns: int) -> float:
+    """The GIL switch interval a controller of this cycle (ns) sets while it runs, s."""
+    return min(GIL_SWITCH_S, cycle_ns / 1e9 * GIL_SWITCH_CYCLE_PART)
 
 
 class State(enum.Enum):
@@ -233,8 +233,9 @@ class Daemon:
         self.plant.open()  # every output off before the first scan
         self.scheduler.stop_event.clear()
         self._switch_was = sys.getswitchinterval()
-        if gil_switch_s(self.plant.cycle_ns) < self._switch_was:  # a shorter one is kept
-            sys.setswitchinterval(gil_switch_s(self.plant.cycle_ns))
+        switch = gil_switch_s(self.plant.cycle_ns)
+        if switch < self._switch_was:  # a shorter one set before is kept
+            sys.setswitchinterval(switch)
         self._loop_alive = True
         self._thread = threading.Thread(target=self._scan_thread, name="softplc-scan",
                                         daemon=True)

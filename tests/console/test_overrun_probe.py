@@ -24,9 +24,10 @@ CYCLE = 5 * MS
 #: how long a test may wait for the overruns it needs, s
 WAIT_S = 30.0
 #: how much more processor time than wall time a thread may show over a short span, ns:
-#: on this VM a thread's CPU clock ran up to 135 µs ahead of the monotonic clock over
-#: 25 µs (9 of 2653 spans of 20 µs after 7.5 ms of Python, measured); a figure a tick
-#: stale (4 ms at HZ=250, the failures these tests catch) is off by more than 500 µs
+#: on this VM a thread's CPU clock ran ahead of the monotonic clock by up to 58 µs in 9
+#: of 2653 spans of 20 µs after 7.5 ms of Python, and by 135 µs over a 25 µs idle span
+#: in this file's first test; a figure a tick stale (4 ms at HZ=250, the failures these
+#: tests catch) is off by more than 500 µs
 CLOCKS_SLACK_NS = 500_000
 
 pytestmark = pytest.mark.skipif(
