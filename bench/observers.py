@@ -395,7 +395,8 @@ def rss_mib(procs: list[subprocess.Popen[Any]]) -> float:
 
 def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
             sides: dict[str, list[subprocess.Popen[Any]]], cycle_ms: float,
-            priority: int, overruns: OverrunProbe) -> dict[str, Any]:
+            priority: int, overruns: OverrunProbe, who: Who | None = None
+            ) -> dict[str, Any]:
     """One phase: ``probed_window``'s scan figures (no statistics reset: the feed counts
     scans), the controller's CPU and the feed's, and the CPU of each group of side
     processes (``sides``: label -> processes). Over the same window, a control: a thread
@@ -403,16 +404,22 @@ def measure(daemon: Daemon, probe: SchedProbe, meter: FeedMeter, seconds: float,
     ``priority`` if not 0), which nothing of the controller's process can hold: what
     the machine (its other processes, the virtual machine's host) does to a scan's
     wake-ups in that phase (``lone_p99``...). Each overrun, and whether the machine or
-    the process made it (``overruns``: schedprobe.OverrunProbe)."""
+    the process made it (``overruns``: schedprobe.OverrunProbe). ``who``, if given, stops
+    sampling as the window ends (the figures computed after it are the bench's)."""
     side0 = {k: cpu_s(v) for k, v in sides.items()}
     th0, feed0, p0, t0 = threads_cpu_ns(), meter.reading(), time.process_time(), \
         time.monotonic()
     steal0 = steal_ms()
     st = daemon.scan_stats
     gc0 = (st.gc_runs, st.gc_ns, st.gc_full_runs, st.gc_full_deferred)
+
+    def ended() -> list[Overrun]:
+        if who is not None:
+            who.on = False
+        return overruns.stop()
     with lone_thread(cycle_ms, priority) as lone:
         overruns.start()
-        w = probed_window(daemon, probe, seconds, int(cycle_ms * 1e6), overruns.stop)
+        w = probed_window(daemon, probe, seconds, int(cycle_ms * 1e6), ended)
         w["overrun_list"] = w.pop("on_end")
     w["overruns_ours"] = sum(1 for o in w["overrun_list"]
                              if not o.machines(overruns.cycle_ns))
@@ -737,10 +744,8 @@ def main() -> None:
         if who is not None:
             who.on = True
         rows.append(("observed", measure(daemon, probe, meter, args.seconds, sides,
-                                         cycle_ms, prio, overruns)))
+                                         cycle_ms, prio, overruns, who)))
         meter.profiling = False
-        if who is not None:
-            who.on = False
         observed_sides = rows[-1][1]["sides"]
         raised = 0
         if traffic is not None:
