@@ -26,8 +26,12 @@ if TYPE_CHECKING:
     from runtime.console.service import Controller
 
 StreamKind = Literal["watch", "trace"]
-#: the texts of (name, value) pairs a stream keeps for its lines, at most (then cleared)
+#: the texts of (name, value) pairs a stream keeps for its lines, about at most: each
+#: name keeps PARTS_KEPT // names of them, within TEXTS_PER_NAME
 PARTS_KEPT = 20_000
+#: the texts one name keeps, at most and at least (a bool's two, a counter's last ones):
+#: past that they go together, a name's at a time
+TEXTS_PER_NAME = (2, 64)
 
 
 def logical_value(raw: Any, inverted: bool) -> int:
@@ -197,9 +201,15 @@ class Stream:
         #: which names an image changed (a line on every change)
         self.changes = Changes(names)
         self._texts = [n.text for n in names]
-        #: (name, value) -> its text in a line (not for floats: 1.0 == 1 == True, a
-        #: name's ints and bools show the same text, ``Signal.show``)
-        self._shown: dict[tuple[str, Any], str] = {}
+        #: name -> value -> its text in a line (not for floats: 1.0 == 1 == True, a
+        #: name's ints and bools show the same text, ``Signal.show``). A name's dict holds
+        #: only strings and scalars, so the garbage collector leaves it out: keyed by
+        #: (name, value) tuples, 4 traces' texts made every full collection, which the
+        #: scan thread runs, 2 to 3 ms longer (bench.observers at 1 ms)
+        self._shown: dict[str, dict[Any, str]] = {}
+        lo, hi = TEXTS_PER_NAME
+        #: the texts one name keeps, at most
+        self._per_name = max(lo, min(hi, PARTS_KEPT // max(1, len(names))))
         self._reads = [n.read for n in names]
         #: images a poll was told to leave (``poll``'s ``more``), compared first by the
         #: next poll (at most STREAM_LINES_PER_POLL)
@@ -332,19 +342,24 @@ class Stream:
                 obj["skipped"] = skipped
             return json.dumps(obj, ensure_ascii=False)
         shown = self._shown if kind == self.kind else {}
-        if len(shown) > PARTS_KEPT:  # a counter counting: its old texts go, one at a
-            while shown:  # time (cleared at once, 20 000 held the GIL about 3.5 ms)
-                shown.popitem()
+        most = self._per_name
         parts = []
         for k, v in values.items():
-            kept = type(v) is not float  # 1.0 == 1 == True: a float is never kept
-            part = shown.get((k, v)) if kept else None
+            texts = None
+            part = None
+            if type(v) is not float:  # 1.0 == 1 == True: a float is never kept
+                texts = shown.get(k)
+                if texts is None:
+                    texts = shown[k] = {}
+                part = texts.get(v)
             if part is None:
                 part = f"{k}={names[k].show(v)}"
                 if kind == "watch" and names[k].feeds:
                     part += " (" + feeds_text(names[k], v) + ")"
-                if kept:
-                    shown[k, v] = part
+                if texts is not None:
+                    if len(texts) >= most:  # a counter counting: its old texts go
+                        texts.clear()
+                    texts[v] = part
             parts.append(part)
         head = kind + (f" {scan}" if scan >= 0 else "")
         if skipped:

@@ -170,12 +170,14 @@ class FreedInt(int):
         self.counter.freed.append((threading.get_ident(), self.counter.lines))
 
 
-def test_the_texts_a_stream_keeps_go_one_at_a_time_when_there_are_too_many(
+def test_the_texts_a_stream_keeps_go_a_few_at_a_time_when_there_are_too_many(
         monkeypatch: Any) -> None:
-    """A counter counting fills the stream's texts of (name, value) pairs; past
-    PARTS_KEPT they go (cleared at once, 20 000 texts held the GIL about 3.5 ms: a
-    profile of the console thread in bench.observers)."""
-    monkeypatch.setattr(streams, "PARTS_KEPT", 50)
+    """A counter counting fills the stream's texts of (name, value) pairs. They were
+    kept together, up to PARTS_KEPT, and cleared at once (20 000 texts held the GIL
+    about 3.5 ms: a profile of the console thread in bench.observers); then one at a
+    time. Now each name keeps its own, at most TEXTS_PER_NAME's upper bound (lowered to 8
+    here), and a counter's go together: 8 at most."""
+    monkeypatch.setattr(streams, "TEXTS_PER_NAME", (2, 8))
     x = Signal("p.iN", A.Type.INT, lambda img: img.m[0][0], "memory", spec=("slot", 0, 0))
     cat = SimpleNamespace(names={"p.iN": x})
     counter = Counter()
@@ -194,5 +196,7 @@ def test_the_texts_a_stream_keeps_go_one_at_a_time_when_there_are_too_many(
         sys.settrace(None)
     assert shown == 200
     assert len(counter.freed) > 100  # the counter's old values went with their texts
-    # before: 51 at a time (the texts cleared at once)
-    assert counter.longest_stretch(threading.get_ident()) <= 10
+    # before: 51 at a time (the texts cleared at once, PARTS_KEPT lowered to 50)
+    # now a name's 8 texts, and with them a value the images let go (9 measured; 15 with
+    # the bound at 16)
+    assert counter.longest_stretch(threading.get_ident()) <= 8 + 1
