@@ -3,13 +3,16 @@ watchdog callback, idle work bounded by the guard band, cycle statistics."""
 
 from __future__ import annotations
 
+import gc
 import random
 import threading
 import time
 from array import array
+from typing import Any
 
 import pytest
 
+from runtime.controller import stats as stats_module
 from runtime.controller.scheduler import Scheduler, Watchdog
 from runtime.controller.stats import ScanStats, Summary, percentiles
 from tests.daemon.daemonkit import wait_until
@@ -218,6 +221,83 @@ def test_stats_percentiles_equal_those_of_the_sorted_window(window: int, count: 
     assert st.p99() == (st.scan().p99, st.lateness().p99)
     if count:
         assert st.scan_last == st._scan[(count - 1) % window]
+
+
+@pytest.mark.parametrize("window", [8192, 1024, 100])
+def test_stats_percentiles_stay_those_of_the_sorted_window_as_cycles_go_on(
+        window: int) -> None:
+    """Asked again and again while cycles are recorded (the window wrapping over the
+    sorted chunks a ScanStats keeps, a reset in between): each time the figures of
+    sorting the window then."""
+    st = ScanStats(window=window)
+    rng = random.Random(window)
+    for step in [1, 510, 1, 2, 700, 3000, 512, 9000, 5, 0, 16_384, 8191, 77] * 2:
+        if step == 0:
+            st.reset()
+        for _ in range(step):
+            st.record(rng.randrange(1000, 90_000), rng.choice((0, 7, rng.randrange(9000))))
+        n = min(st.count, window)
+        for ring, summary in ((st._scan, st.scan()), (st._late, st.lateness())):
+            ranked = sorted(ring[:n])
+            assert (summary.p50, summary.p99, summary.p999) == tuple(
+                ranked[min(n - 1, max(0, round(q * (n - 1))))] if n else 0
+                for q in (0.5, 0.99, 0.999)), (step, st.count)
+
+
+def test_stats_percentiles_sort_each_chunk_of_cycles_once(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The feed's status asks for the lateness percentiles every second. A call sorts
+    only the chunks of the window completed since the last call and the one being
+    written, not the whole window again (8192 values and ~1 ms of processor time a
+    call, which at a 1 ms cycle ran into the next scan's deadline); what it keeps is
+    one reference a chunk for the garbage collector to follow (not one a value)."""
+    sorted_from_the_ring: list[int] = []
+    longest = [0]  # the most values one call sorted (the GIL held all along)
+
+    def counting_sorted(values: Any, **kw: Any) -> list[Any]:
+        if isinstance(values, array):  # a slice of the ring (not a selection's values)
+            sorted_from_the_ring.append(len(values))
+        values = list(values)
+        longest[0] = max(longest[0], len(values))
+        return sorted(values, **kw)
+    monkeypatch.setattr(stats_module, "sorted", counting_sorted, raising=False)
+    st = ScanStats()
+    rng = random.Random(4)
+    for _ in range(20_000):
+        st.record(rng.randrange(20_000, 40_000), rng.randrange(3000, 90_000))
+    st.lateness_quantiles()
+    assert sum(sorted_from_the_ring) == st.window  # the first call: the whole window
+    for _ in range(10):  # a second at a 1 ms cycle between two calls
+        sorted_from_the_ring.clear()
+        for _ in range(1000):
+            st.record(rng.randrange(20_000, 40_000), rng.randrange(3000, 90_000))
+        st.lateness_quantiles()
+        # the (at most two) chunks completed since, and the one being written
+        assert sum(sorted_from_the_ring) <= 1000 + 2 * stats_module.CHUNK, \
+            sorted_from_the_ring
+    assert longest[0] <= stats_module.CHUNK
+    kept = [c for d in st._sorted for c in d.values()]  # each refers to its type only
+    assert kept and len(gc.get_referents(*kept)) <= len(kept)
+
+
+def test_stats_percentiles_keep_no_chunk_the_ring_wrote_over_while_it_was_sorted() -> None:
+    """The scan goes on while another thread computes the percentiles (it pauses between
+    chunks): a chunk copied after the ring wrote over it is used for that call, never
+    kept under its old number; the next call gives the sorted window's figures."""
+    st = ScanStats(window=2048)
+    rng = random.Random(7)
+
+    def record(k: int) -> None:
+        for _ in range(k):
+            st.record(rng.randrange(1000, 90_000), rng.randrange(9000))
+    record(5000)
+    st.p99(pause=lambda: record(1500))  # the next chunk written over at each pause
+    for _ in range(3):
+        for ring, summary in ((st._scan, st.scan()), (st._late, st.lateness())):
+            ranked = sorted(ring)
+            assert (summary.p50, summary.p99, summary.p999) == tuple(
+                ranked[round(q * 2047)] for q in (0.5, 0.99, 0.999))
+        record(600)
 
 
 def test_stats_percentiles_of_negative_and_equal_values() -> None:
