@@ -280,10 +280,11 @@ def test_stats_percentiles_sort_each_chunk_of_cycles_once(
     assert kept and len(gc.get_referents(*kept)) <= len(kept)
 
 
-def test_stats_percentiles_keep_no_chunk_the_ring_wrote_over_while_it_was_sorted() -> None:
+def test_stats_percentiles_stay_exact_when_the_ring_overtakes_their_sorts() -> None:
     """The scan goes on while another thread computes the percentiles (it pauses between
-    chunks): a chunk copied after the ring wrote over it is used for that call, never
-    kept under its old number; the next call gives the sorted window's figures."""
+    chunks): a chunk copied after the ring wrote over it is used for that call, and kept
+    only under a number that no later window holds; the next calls give the sorted
+    window's figures."""
     st = ScanStats(window=2048)
     rng = random.Random(7)
 
