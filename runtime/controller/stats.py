@@ -73,8 +73,8 @@ def _select(chunks: list[array[int]], n: int, qs: tuple[float, ...],
     quantiles at ``q`` (confirmed by two counts with ``bisect``, else every value),
     halved while it holds more than SELECTED values (a count per step, ~4 µs for 16
     chunks); then the values in the range, taken from each chunk, are sorted and the
-    quantile read among them. ``pause``, as for
-    ``percentiles``, between two quantiles."""
+    quantile read among them. ``pause``, as for ``percentiles``, between two
+    quantiles."""
     if n <= 0:
         return [0] * len(qs)
     out: list[int] = []
