@@ -115,12 +115,18 @@ def percentiles(values: array[int], n: int, qs: tuple[float, ...],
     (``time.sleep``) never runs for long at a stretch, so a busy machine does not take the
     processor from it while it holds the GIL (the scan thread would wait for it). A
     ``ScanStats`` keeps its window's sorted slices between calls (``_chunks``)."""
+    return _select(_sorted_chunks(values, n, pause), n, qs, pause)
+
+
+def _sorted_chunks(values: array[int], n: int, pause: Callable[[], object] | None
+                   ) -> list[array[int]]:
+    """``values[:n]`` in sorted CHUNK-sized slices, ``pause()`` after each sort."""
     chunks = []
     for start in range(0, max(0, n), CHUNK):
         chunks.append(_sort(values[start:min(n, start + CHUNK)]))
         if pause is not None:
             pause()
-    return _select(chunks, n, qs, pause)
+    return chunks
 
 
 class ScanStats:
@@ -259,12 +265,7 @@ class ScanStats:
         count = self.count
         if window % CHUNK:  # chunks that do not stay put: sorted at every call
             n = min(count, window)
-            chunks = []
-            for start in range(0, n, CHUNK):
-                chunks.append(_sort(ring[start:min(n, start + CHUNK)]))
-                if pause is not None:
-                    pause()
-            return chunks, n
+            return _sorted_chunks(ring, n, pause), n
         kept = self._sorted[ring is self._late]
         per = window // CHUNK  # chunks in the window
         head = count // CHUNK  # the chunk being written (none yet if count % CHUNK == 0)
