@@ -1038,6 +1038,10 @@ class FeedState:
     schema: dict[str, Any] = field(default_factory=dict)
     values: list[Any] = field(default_factory=list)
     status: dict[str, Any] = field(default_factory=dict)
+    #: whether ``status`` came on the feed's current connection (the client sets it False
+    #: on each connection: until the controller's first status, the one kept is the last
+    #: connection's, or none; frames can come before it)
+    status_current: bool = False
     #: instance -> its transitions as the feed last sent them (``{"w": ...}``)
     whys: dict[str, Any] = field(default_factory=dict)
     #: the last change of an alarm the feed sent (``{"a": ...}``): (the board's version,
@@ -1061,6 +1065,7 @@ class FeedState:
             return "frame"
         if "c" in msg:
             self.status = msg["c"]
+            self.status_current = True
             return "status"
         if "w" in msg:
             self.whys.update(msg["w"])

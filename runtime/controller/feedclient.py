@@ -154,6 +154,9 @@ class FeedClient:
             said = ""
             log.info("connected to the controller's feed %s", self.path)
             self._writer = writer
+            # the status kept is the last connection's until this one's first comes (a
+            # controller started again is not shown with the last one's state as its own)
+            self.state.status_current = False
             if self._why:
                 writer.write(why_request(self._why))
             try:

@@ -193,7 +193,9 @@ def _own(key: str) -> Getter:
 
 def _status(key: str, default: Any) -> Getter:
     def get(st: FeedState, own: dict[str, Any]) -> Any:
-        if not own.get("feed"):
+        if not own.get("feed") or not st.status_current:
+            # no feed, or no status yet on this connection: the state says so, the
+            # others keep the last status's values
             return OFFLINE if key == "state" else st.status.get(key, default) or default
         value = st.status.get(key, default)
         return default if value is None else value

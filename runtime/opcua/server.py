@@ -335,19 +335,20 @@ class PlantServer:
             value, code = to_ua(ptype, raw)
             await write(node_id, value_attr, _dv(ptype, value, ts, now, status or code))
         c = st.status
-        lat = c.get("lateness_us") or {}
-        ctl = {"state": c.get("state", ""), "fault": c.get("fault") or "",
-               "cycle": c.get("cycle_ms", 0.0), "scan": st.scan, "scans": st.scan + 1,
-               "overruns": c.get("overruns", 0), "lateness_p50": lat.get("p50", 0.0),
-               "lateness_p99": lat.get("p99", 0.0), "lateness_max": lat.get("max", 0.0),
-               "uptime": float(c.get("uptime_s", 0))}
+        ctl: dict[str, Any] = {"scan": st.scan, "scans": st.scan + 1}
+        if st.status_current:  # else none yet on this connection: those are not written
+            lat = c.get("lateness_us") or {}
+            ctl.update(state=c.get("state", ""), fault=c.get("fault") or "",
+                       cycle=c.get("cycle_ms", 0.0), overruns=c.get("overruns", 0),
+                       lateness_p50=lat.get("p50", 0.0), lateness_p99=lat.get("p99", 0.0),
+                       lateness_max=lat.get("max", 0.0), uptime=float(c.get("uptime_s", 0)))
         good = status or Status.Good
         for key, value in ctl.items():
             ptype = space.all_vars[nid(f"controller.{key}")]
             await write(nid(f"controller.{key}"), value_attr,
                         _dv(ptype, value, ts, now, good))
         for dname, (health, reason, _ok) in (c.get("drivers") or {}).items():
-            if dname in space.drivers:
+            if dname in space.drivers and st.status_current:
                 await write(nid(f"driver.{dname}.health"), value_attr,
                             _dv("string", health, ts, now, good))
                 await write(nid(f"driver.{dname}.fault"), value_attr,

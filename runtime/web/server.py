@@ -399,7 +399,8 @@ class WebView:
                                      "user": page.login.user if page.login else None}),
                    keep=True)
         if self.feed.connected and st.values:
-            self._send(page, json.dumps({"t": "s", "status": st.status}))
+            if st.status_current:  # none yet on this connection: the page gets none
+                self._send(page, json.dumps({"t": "s", "status": st.status}))
             self._send(page, json.dumps({"t": "w", "whys": st.whys}))
             self._send(page, json.dumps({"t": "f", "scan": st.scan, "wall": st.wall,
                                          "names": st.names, "values": st.values}))
@@ -511,9 +512,13 @@ class WebView:
     async def _on_frame(self) -> None:
         st = self.feed.state
         self.frames += 1
-        status = None if st.status == self._last_status else json.dumps(
+        # no status yet on this connection (frames from the shared image can come
+        # first): the pages are sent none, not an empty one nor the last connection's
+        current = st.status_current
+        status = None if not current or st.status == self._last_status else json.dumps(
             {"t": "s", "status": st.status})
-        self._last_status = dict(st.status)
+        if current:
+            self._last_status = dict(st.status)
         changed = {k: v for k, v in st.whys.items() if self._last_whys.get(k) != v}
         whys = json.dumps({"t": "w", "whys": changed}) if changed else None
         self._last_whys = dict(st.whys)
@@ -533,7 +538,8 @@ class WebView:
                 if whole is None:
                     whole = json.dumps({"t": "f", "scan": st.scan, "wall": st.wall,
                                         "names": st.names, "values": values})
-                self._send(page, json.dumps({"t": "s", "status": st.status}))
+                if current:
+                    self._send(page, json.dumps({"t": "s", "status": st.status}))
                 self._send(page, json.dumps({"t": "w", "whys": st.whys}))
                 self._send(page, whole)
                 page.fresh = False

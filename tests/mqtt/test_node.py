@@ -229,6 +229,28 @@ def test_history_goes_out_in_messages_of_at_most_500_values() -> None:
     assert [decode(m).seq for m in out] == list(range(len(out)))
 
 
+def test_after_the_feed_comes_back_the_state_waits_for_the_new_status() -> None:
+    """Frames can come before the controller's first status on a new connection (from the
+    shared image): Controller/state stays offline until that status, not the last
+    controller's state again (the feed's client marks each connection's status:
+    ``FeedState.status_current``)."""
+    node, feed, _ = setup()
+    node.will()
+    node.start_publishing()
+    node.lost()
+    feed.state.status_current = False  # as FeedClient does on its new connection
+    feed.schema(node)
+    feed.scan += 5
+    feed.state.apply(json.dumps({"f": [feed.scan, feed.wall, feed.values]}).encode())
+    out = node.frame()
+    assert kinds(out)[:1] == ["DBIRTH/t1"]
+    assert "running" not in [v for m in out for v in metrics(m).values()], [
+        metrics(m) for m in out]
+    out = feed.frame(node)  # with the new connection's first status
+    assert "running" in [v for m in out for v in metrics(m).values()], [
+        metrics(m) for m in out]
+
+
 def test_the_feed_lost_kills_the_devices_and_its_return_births_them() -> None:
     node, feed, _ = setup()
     node.will()

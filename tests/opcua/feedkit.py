@@ -31,6 +31,18 @@ def wait_until(pred: Callable[[], bool], timeout: float = 10.0, what: str = "") 
         time.sleep(0.005)
 
 
+def wait_shown(srv: ServerThread, timeout: float = 30.0) -> None:
+    """Until the server has written a frame after the controller's first status on this
+    connection: the plant's values, and the controller's and the drivers' nodes (before
+    that status they are BadWaitingForInitialData: frames from the shared image can come
+    first)."""
+    wait_until(lambda: srv.ps is not None and srv.ps.frames > 0 and bool(srv.ps.state.status),
+               timeout, "a first frame and the controller's first status")
+    assert srv.ps is not None
+    ps, seen = srv.ps, srv.ps.frames
+    wait_until(lambda: ps.frames > seen, timeout, "a frame after the first status")
+
+
 async def until(pred: Callable[[], Any], timeout: float = 15.0,
                 what: str | Callable[[], str] = "") -> None:
     """In an event loop: poll ``pred`` (a value or an awaitable) until it holds; fail
@@ -225,3 +237,28 @@ class ServerThread:
     def url(self) -> str:
         assert self.pdef.opcua is not None
         return self.pdef.opcua.endpoint
+
+
+def lines_until(sock: socket.socket, buf: bytearray, pred: Callable[[bytes], bool]
+                ) -> list[bytes]:
+    """The feed's lines from ``sock`` (``buf``: what came after the last line) up to and
+    with the first one ``pred`` takes, 30 s at most."""
+    got: list[bytes] = []
+    end = time.monotonic() + 30.0
+    while time.monotonic() < end:
+        cut = buf.find(b"\n")
+        if cut >= 0:
+            line = bytes(buf[:cut + 1])
+            del buf[:cut + 1]
+            got.append(line)
+            if pred(line):
+                return got
+            continue
+        buf += sock.recv(1 << 16)
+    raise AssertionError("the feed never sent such a line")
+
+
+def driver_health(line: bytes) -> str | None:
+    """The health of driver io a status line says (None: not a status)."""
+    msg = json.loads(line)
+    return msg["c"]["drivers"]["io"][0] if "c" in msg else None

@@ -22,7 +22,7 @@ from typing import Any
 from runtime.controller.daemon import Daemon
 from runtime.controller.feed import FeedServer
 from runtime.language.plantfile import load_plant
-from tests.opcua.feedkit import ServerThread, serving, wait_until
+from tests.opcua.feedkit import ServerThread, serving, wait_shown, wait_until
 from tests.opcua.kit import free_port, write_plant
 from tests.opcua.test_alarms_many_items import Counter, Watcher
 
@@ -63,7 +63,7 @@ def running(tmp: Path) -> Iterator[tuple[Daemon, FeedServer, ServerThread, State
     pdef = load_plant(str(path))
     done = threading.Event()
     with serving(pdef) as (d, feed), ServerThread(pdef) as srv:
-        wait_until(lambda: srv.ps is not None and srv.ps.frames > 0, what="a first frame")
+        wait_shown(srv)
         watcher = Watcher(srv.url, done)
         states = watcher.counter = States()
         watcher.thread.start()

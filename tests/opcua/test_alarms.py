@@ -19,7 +19,7 @@ import pytest
 
 from runtime.controller.alarms import alarm_lines
 from runtime.language.plantfile import load_plant
-from tests.opcua.feedkit import ServerThread, serving, wait_until
+from tests.opcua.feedkit import ServerThread, serving, wait_shown, wait_until
 from tests.opcua.kit import WRITER, WRITER_PASSWORD, free_port, write_plant
 from tests.opcua.nodekit import NEEDS_NODE, AlarmClient
 
@@ -37,7 +37,7 @@ def running(tmp: Path) -> Iterator[tuple[Any, ServerThread]]:
     path.write_text(text + "alarms:\n  overruns: {count: 1000000}\n", encoding="utf-8")
     pdef = load_plant(str(path))
     with serving(pdef) as (d, feed), ServerThread(pdef) as srv:
-        wait_until(lambda: srv.ps is not None and srv.ps.frames > 0, what="a first frame")
+        wait_shown(srv)
         yield d, srv
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 from asyncua import Client
 
 from runtime.language.plantfile import load_plant
-from tests.opcua.feedkit import ServerThread, serving, until, wait_until
+from tests.opcua.feedkit import ServerThread, serving, until, wait_shown
 from tests.opcua.kit import drawer_plant
 
 
@@ -25,7 +25,7 @@ def test_an_output_reads_off_while_the_outputs_are_held_off(tmp_path: Path) -> N
     pdef = load_plant(str(path))
     assert pdef.watchdog_ns == 5_000_000_000
     with serving(pdef) as (d, _feed), ServerThread(pdef) as srv:
-        wait_until(lambda: srv.ps is not None and srv.ps.frames > 0, 30, "a frame")
+        wait_shown(srv)
 
         async def main() -> tuple[bool, bool, str, bool, int]:
             async with Client(srv.url) as c:

@@ -22,7 +22,7 @@ from asyncua import Client, ua
 
 from runtime.controller.daemon import Daemon
 from runtime.language.plantfile import load_plant
-from tests.opcua.feedkit import ServerThread, serving, wait_until
+from tests.opcua.feedkit import ServerThread, serving, wait_shown, wait_until
 from tests.opcua.kit import WRITER, WRITER_PASSWORD, free_port, write_plant, writer
 from tests.opcua.nodekit import NEEDS_NODE, AlarmClient
 
@@ -39,7 +39,7 @@ def running(tmp: Path) -> Iterator[tuple[Daemon, ServerThread]]:
     path.write_text(text + "alarms:\n  overruns: {count: 1000000}\n", encoding="utf-8")
     pdef = load_plant(str(path))
     with serving(pdef) as (d, _feed), ServerThread(pdef) as srv:
-        wait_until(lambda: srv.ps is not None and srv.ps.frames > 0, what="a first frame")
+        wait_shown(srv)
         assert srv.ps is not None
         conditions = srv.ps.conditions
         wait_until(lambda: "t1.SFCError" in conditions._by_key, what="the conditions")

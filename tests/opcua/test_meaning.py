@@ -15,7 +15,7 @@ from typing import Any
 from asyncua import Client, ua
 
 from runtime.language.plantfile import load_plant
-from tests.opcua.feedkit import ServerThread, serving, wait_until
+from tests.opcua.feedkit import ServerThread, serving, wait_shown
 from tests.opcua.kit import drawer_plant, free_port, writer
 
 CEFACT = "http://www.opcfoundation.org/UA/units/un/cefact"
@@ -25,7 +25,7 @@ CEFACT = "http://www.opcfoundation.org/UA/units/un/cefact"
 def served(path: Path) -> Iterator[ServerThread]:
     pdef = load_plant(str(path))
     with serving(pdef), ServerThread(pdef) as srv:
-        wait_until(lambda: srv.ps is not None and srv.ps.frames > 0, what="a first frame")
+        wait_shown(srv)
         yield srv
 
 

@@ -9,8 +9,6 @@ import asyncio
 import json
 import socket
 import threading
-import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +20,16 @@ from runtime.engine.plant import Plant
 from runtime.language.plantfile import load_plant
 from runtime.opcua.server import _event_text
 from tests.daemon.daemonkit import RecordingDriver
-from tests.opcua.feedkit import ServerThread, controller, read_trace, serving, wait_until
+from tests.opcua.feedkit import (
+    ServerThread,
+    controller,
+    driver_health,
+    lines_until,
+    read_trace,
+    serving,
+    wait_shown,
+    wait_until,
+)
 from tests.opcua.feedkit import until as _until
 from tests.opcua.kit import free_port, write_plant, writer
 
@@ -36,7 +43,7 @@ def test_browse_the_tree_names_types_and_node_ids(tmp_path: Path) -> None:
     ctl, port = started(tmp_path, trace=False)
     with ctl as (d, feed, _), ServerThread(d.pdef) as srv:
         assert srv.ps is not None
-        wait_until(lambda: srv.ps is not None and srv.ps.frames > 0, what="a first frame")
+        wait_shown(srv)
 
         async def main() -> None:
             async with Client(srv.url) as c:
@@ -110,7 +117,7 @@ class BatchSubscription(Subscription):
 def test_every_notification_is_the_trace_at_its_scan(tmp_path: Path) -> None:
     ctl, port = started(tmp_path)
     with ctl as (d, feed, trace), ServerThread(d.pdef) as srv:
-        wait_until(lambda: srv.ps is not None and srv.ps.frames > 0, what="a first frame")
+        wait_shown(srv)
         handler = Collect()
         batches: list[list[tuple[str, ua.DataValue]]] = []
 
@@ -195,7 +202,7 @@ def test_a_subscription_asking_for_zero_ms_publishes_at_the_sample(tmp_path: Pat
 def test_writes_allowed_refused_and_applied_between_scans(tmp_path: Path) -> None:
     ctl, port = started(tmp_path)
     with ctl as (d, feed, trace), ServerThread(d.pdef) as srv:
-        wait_until(lambda: srv.ps is not None and srv.ps.frames > 0, what="a first frame")
+        wait_shown(srv)
 
         async def write(c: Client, name: str, variant: ua.Variant) -> ua.StatusCode:
             params = ua.WriteParameters()
@@ -287,7 +294,7 @@ async def _status_is(c: Client, name: str) -> bool:
 def test_sfcerror_set_and_cleared_are_events_of_the_instance(tmp_path: Path) -> None:
     ctl, port = started(tmp_path, trace=False)
     with ctl as (d, feed, _), ServerThread(d.pdef) as srv:
-        wait_until(lambda: srv.ps is not None and srv.ps.frames > 0, what="a first frame")
+        wait_shown(srv)
         handler = Collect()
 
         async def main() -> None:
@@ -327,7 +334,7 @@ def test_a_frame_is_written_without_a_suspension_point(tmp_path: Path) -> None:
     queued during the batch)."""
     ctl, port = started(tmp_path, trace=False)
     with ctl as (d, feed, _), ServerThread(d.pdef) as srv:
-        wait_until(lambda: srv.ps is not None and srv.ps.frames > 0, what="a first frame")
+        wait_shown(srv)
         ps = srv.ps
         assert ps is not None
 
@@ -357,7 +364,7 @@ def test_a_frame_is_written_without_a_suspension_point(tmp_path: Path) -> None:
 def test_a_controller_fault_and_its_ack_are_events_of_the_controller(tmp_path: Path) -> None:
     ctl, port = started(tmp_path, trace=False)
     with ctl as (d, feed, _), ServerThread(d.pdef) as srv:
-        wait_until(lambda: srv.ps is not None and srv.ps.frames > 0, what="a first frame")
+        wait_shown(srv)
         handler = Collect()
 
         async def main() -> None:
@@ -382,31 +389,6 @@ def test_a_controller_fault_and_its_ack_are_events_of_the_controller(tmp_path: P
         ("controller: fault acknowledged, now running", 300, "Controller")]
 
 
-def _lines_until(sock: socket.socket, buf: bytearray, pred: Callable[[bytes], bool]
-                 ) -> list[bytes]:
-    """The feed's lines from ``sock`` (``buf``: what came after the last line) up to and
-    with the first one ``pred`` takes, 30 s at most."""
-    got: list[bytes] = []
-    end = time.monotonic() + 30.0
-    while time.monotonic() < end:
-        cut = buf.find(b"\n")
-        if cut >= 0:
-            line = bytes(buf[:cut + 1])
-            del buf[:cut + 1]
-            got.append(line)
-            if pred(line):
-                return got
-            continue
-        buf += sock.recv(1 << 16)
-    raise AssertionError("the feed never sent such a line")
-
-
-def _driver_io(line: bytes) -> str | None:
-    """The health of driver io a status line says (None: not a status)."""
-    msg = json.loads(line)
-    return msg["c"]["drivers"]["io"][0] if "c" in msg else None
-
-
 def test_driver_events_follow_every_status_not_the_frames(tmp_path: Path) -> None:
     """Statuses come on the feed's socket, frames at their own pace (from the shared
     image, at the server's own sample): a driver's fault and its recovery, said by two
@@ -419,11 +401,11 @@ def test_driver_events_follow_every_status_not_the_frames(tmp_path: Path) -> Non
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         sock.connect(feed.path)
         buf = bytearray()
-        schema, *_ = _lines_until(sock, buf, lambda ln: ln.startswith(b'{"schema"'))
-        healthy = _lines_until(sock, buf, lambda ln: _driver_io(ln) == "ok")[-1]
-        frame = _lines_until(sock, buf, lambda ln: ln.startswith(b'{"f"'))[-1]
+        schema, *_ = lines_until(sock, buf, lambda ln: ln.startswith(b'{"schema"'))
+        healthy = lines_until(sock, buf, lambda ln: driver_health(ln) == "ok")[-1]
+        frame = lines_until(sock, buf, lambda ln: ln.startswith(b'{"f"'))[-1]
         drv.fail_with = DriverError("bus gone")
-        fault = _lines_until(sock, buf, lambda ln: _driver_io(ln) == "fault")[-1]
+        fault = lines_until(sock, buf, lambda ln: driver_health(ln) == "fault")[-1]
         drv.fail_with = None
         sock.close()
     plain = json.loads(schema)
@@ -471,6 +453,105 @@ def test_driver_events_follow_every_status_not_the_frames(tmp_path: Path) -> Non
                      ("driver io: recovered (ok)", 300, "io")], texts
 
 
+def test_status_nodes_wait_for_this_connections_status(tmp_path: Path) -> None:
+    """Frames (from the shared image) can come before the controller's first status on a
+    connection. Until that status, the controller's and the drivers' nodes show no value
+    as good: before the first status, none was ever written (BadWaitingForInitialData,
+    not a good empty state); after a reconnection, the last connection's status is not
+    shown again as good (BadNoCommunication stays until the new status). A real
+    controller's lines, played again by a feed in this test that holds its statuses."""
+    pdef = load_plant(str(write_plant(tmp_path, port=free_port())))
+    with serving(pdef) as (_d, feed):
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        sock.connect(feed.path)
+        buf = bytearray()
+        schema, *_ = lines_until(sock, buf, lambda ln: ln.startswith(b'{"schema"'))
+        healthy = lines_until(sock, buf, lambda ln: driver_health(ln) == "ok")[-1]
+        frame = lines_until(sock, buf, lambda ln: ln.startswith(b'{"f"'))[-1]
+        sock.close()
+    assert json.loads(healthy)["c"]["state"] == "running"
+    plain = json.loads(schema)
+    plain["schema"]["image"] = None
+    head = json.dumps(plain).encode() + b"\n"
+    scan, wall, values = json.loads(frame)["f"]
+
+    def at(k: int) -> bytes:
+        return json.dumps({"f": [scan + k, wall + k / 100, values]}).encode() + b"\n"
+
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    assert pdef.opcua is not None
+    listener.bind(pdef.opcua.feed)
+    listener.listen(1)
+    steps = [threading.Event() for _ in range(4)]
+
+    def play() -> None:
+        conn, _ = listener.accept()
+        with conn:
+            conn.sendall(head + frame)  # frames, no status yet
+            steps[0].wait(30.0)
+            conn.sendall(healthy + at(1))
+            steps[1].wait(30.0)
+        conn, _ = listener.accept()  # the server connects again
+        with conn:
+            conn.sendall(head + at(2))  # the new connection's frames, its status held
+            steps[2].wait(30.0)
+            conn.sendall(healthy + at(3))
+            steps[3].wait(60.0)  # until the test ends
+
+    player = threading.Thread(target=play, daemon=True)
+    player.start()
+    nodes = ("controller.state", "controller.cycle", "controller.uptime", "driver.io.health",
+             "controller.scans")
+    try:
+        with ServerThread(pdef) as srv:
+            wait_until(lambda: srv.ps is not None and srv.ps.frames > 0, what="a first frame")
+
+            async def shown(c: Client) -> dict[str, tuple[str, Any]]:
+                got = {}
+                for n in nodes:
+                    dv = await c.get_node(f"ns=2;s={n}").read_data_value(
+                        raise_on_bad_status=False)
+                    got[n] = (dv.StatusCode.name, dv.Value.Value if dv.StatusCode.is_good()
+                              else None)
+                return got
+
+            async def main() -> None:
+                assert srv.ps is not None
+                async with Client(srv.url) as c:
+                    got = await shown(c)
+                    assert got == {"controller.state": ("BadWaitingForInitialData", None),
+                                   "controller.cycle": ("BadWaitingForInitialData", None),
+                                   "controller.uptime": ("BadWaitingForInitialData", None),
+                                   "driver.io.health": ("BadWaitingForInitialData", None),
+                                   "controller.scans": ("Good", scan + 1)}, got
+                    steps[0].set()
+                    await _until(lambda: srv.ps is not None and srv.ps.frames >= 2,
+                                 what="the frame after the status")
+                    got = await shown(c)
+                    assert got["controller.state"] == ("Good", "running"), got
+                    assert got["driver.io.health"] == ("Good", "ok"), got
+                    steps[1].set()  # the connection ends; the server connects again
+                    await _until(lambda: srv.ps is not None and srv.ps.frames >= 3,
+                                 what="the new connection's first frame")
+                    got = await shown(c)
+                    assert got == {"controller.state": ("BadNoCommunication", None),
+                                   "controller.cycle": ("BadNoCommunication", None),
+                                   "controller.uptime": ("BadNoCommunication", None),
+                                   "driver.io.health": ("BadNoCommunication", None),
+                                   "controller.scans": ("Good", scan + 3)}, got
+                    steps[2].set()
+                    await _until(lambda: srv.ps is not None and srv.ps.frames >= 4,
+                                 what="the frame after the new status")
+                    got = await shown(c)
+                    assert got["controller.state"] == ("Good", "running"), got
+                    assert got["driver.io.health"] == ("Good", "ok"), got
+            asyncio.run(main())
+    finally:
+        for step in steps:
+            step.set()
+        listener.close()
+
+
 def test_a_driver_fault_and_its_recovery_are_events_of_the_driver(tmp_path: Path) -> None:
     """A real driver object that fails and comes back (the recording driver of the daemon
     tests, on_fault: hold so the controller runs on): the driver object's events."""
@@ -479,8 +560,7 @@ def test_a_driver_fault_and_its_recovery_are_events_of_the_driver(tmp_path: Path
     handler = Collect()
     with serving(pdef, Plant(pdef, drivers={"io": drv})) as (d, feed):
         with ServerThread(d.pdef) as srv:
-            wait_until(lambda: srv.ps is not None and srv.ps.frames > 0,
-                       what="a first frame")
+            wait_shown(srv)
             # the server has been told the driver is healthy: a fault is then a change
             wait_until(lambda: srv.ps is not None and (
                 srv.ps.state.status.get("drivers") or {}).get("io", [""])[0] == "ok",
@@ -509,7 +589,7 @@ def test_an_anonymous_write_is_refused_even_on_a_channel_never_opened(tmp_path: 
     the controller (a review found it). The server checks the writer itself."""
     ctl, port = started(tmp_path)
     with ctl as (d, feed, trace), ServerThread(d.pdef) as srv:
-        wait_until(lambda: srv.ps is not None and srv.ps.frames > 0, what="a first frame")
+        wait_shown(srv)
 
         async def attempt(skip_open: bool) -> str:
             c = Client(srv.url, timeout=20)
@@ -539,7 +619,7 @@ def test_an_online_change_keeps_the_unchanged_nodes_and_their_subscriptions(
     BadNodeIdUnknown, then the node is there again with its new type."""
     ctl, port = started(tmp_path, trace=False)
     with ctl as (d, feed, _), ServerThread(d.pdef) as srv:
-        wait_until(lambda: srv.ps is not None and srv.ps.frames > 0, what="a first frame")
+        wait_shown(srv)
         handler = Collect()
 
         async def main() -> tuple[Any, Any]:
