@@ -51,7 +51,9 @@ collections a middle one ran at the window's end: Scheduler.gc_middle_every). Wi
 ``--who``, what the controller's other threads were doing at each late wake-up and long
 scan of the observed window (``Who``). With
 ``--profile``, the functions of the feed thread's ``_publish`` in the observed window,
-per frame (cProfile on the thread's processor time). Per
+per frame (cProfile on the thread's processor time). With ``--rounds``, each piece of the
+feed thread's and the console thread's work in the observed window against the scans'
+deadlines, and the pieces running at each of the process's overruns (bench/rounds.py). Per
 side process over the observed window: CPU (utime + stime, percent of one core), resident
 memory, and what its clients received. The side processes run at nice 10, as their units
 run them (``--sides-nice``); clients at nice 10 as in the other benches. A
@@ -63,7 +65,7 @@ said in one line and acknowledged before the next.
                               [--mqtt-sample 10ms] [--opcua-clients 4] [--items 1183]
                               [--alarms 10] [--pages 20] [--consoles 4]
                               [--sides-nice 10] [--client-nice 10] [--start-s 360]
-                              [--profile] [--who] [--switch-interval MS] [--keep]
+                              [--profile] [--who] [--rounds] [--switch-interval MS] [--keep]
 """
 
 from __future__ import annotations
@@ -108,6 +110,7 @@ from bench.opcua import (
     variable_ids,
     wait_serving,
 )
+from bench.rounds import Rounds
 from bench.web import wait_serving as wait_web
 from bench.web import web_section
 from runtime.console.server import ConsoleServer
@@ -594,6 +597,11 @@ def main() -> None:
                     help="in the observed window, what the controller's other threads were "
                          "doing at each late wake-up of the scan (over a third of the "
                          "cycle) and each long scan (over half of it): Who")
+    ap.add_argument("--rounds", action="store_true",
+                    help="in the observed window, each piece of the feed thread's and the "
+                         "console thread's work timed (wall and processor time) against "
+                         "the scans' deadlines, and the pieces running at each of the "
+                         "process's overruns: bench/rounds.py")
     ap.add_argument("--switch-interval", type=float, metavar="MS",
                     help="set the GIL switch interval once the controller started (it "
                          "sets a tenth of the cycle, 0.5 ms at most)")
@@ -658,6 +666,11 @@ def main() -> None:
         if args.switch_interval is not None:
             sys.setswitchinterval(args.switch_interval / 1e3)
         console = ConsoleServer(services[0], daemon.pdef.consoles)
+        rounds = Rounds() if args.rounds else None
+        if rounds is not None:
+            if fs is not None:
+                rounds.install(fs, "feed", fs.window)
+            rounds.install(console, "console", console.window)
         console.start()
         sock = os.path.join(tmp, "c.sock")
         out(f"{args.testers} drawer testers, cycle {cycle_ms} ms, {args.seconds:g} s per "
@@ -743,9 +756,13 @@ def main() -> None:
         meter.profiling = True
         if who is not None:
             who.on = True
+        if rounds is not None:
+            rounds.on = True
         rows.append(("observed", measure(daemon, probe, meter, args.seconds, sides,
                                          cycle_ms, prio, overruns, who)))
         meter.profiling = False
+        if rounds is not None:
+            rounds.on = False
         observed_sides = rows[-1][1]["sides"]
         raised = 0
         if traffic is not None:
@@ -772,6 +789,9 @@ def main() -> None:
         meter.report()
         if who is not None:
             who.report()
+        if rounds is not None:
+            rounds.report(rows[1][1]["overrun_list"],
+                          lambda o: not o.machines(overruns.cycle_ns))
         obs = rows[1][1]
         ratio = obs["p99"] / rows[0][1]["p99"]
         out(f"\nobserved p99 / unobserved p99 = {ratio:.2f} (goal <= 1.2: "
