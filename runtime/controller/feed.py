@@ -202,7 +202,9 @@ class FeedServer:
         cycle_ns = daemon.plant.cycle_ns
         #: a snapshot every this many scans
         self.every = max(1, feed.sample_ns // cycle_ns)
-        self.window = ScanWindow(cycle_ns / 1e9)
+        #: closed a quiet time before the next scan's deadline, as the console's: not a
+        #: cycle after the last scan's end (a scan that ended late would shorten it)
+        self.window = ScanWindow(cycle_ns / 1e9, due=daemon.next_scan_due)
         #: whose feed this is, for the side processes (the plant the controller started
         #: with: its lock's, whatever file a reload loads)
         self.owner = locate(daemon.pdef)
@@ -371,22 +373,7 @@ class FeedServer:
             while not self._stop.is_set():
                 if not self._clients:
                     self._idle()
-                closes = self.window.until()
-                if self._stop.is_set():
-                    break
-                if self._replaced or self.daemon.plant is not self._cat.plant:
-                    self._reload()
-                self._write_image(closes)
-                # the new snapshot first, while the window is young (a scan has just
-                # ended): never built in the quiet time before the next scan
-                slot = self._slot
-                if slot is not None and slot is not self._taken and self._clients:
-                    self._taken = slot
-                    if slot[3] is self._cat:  # not an image of a replaced plant
-                        self._publish(slot[0], slot[1], slot[2], slot[4], slot[5])
-                        self._flush()
-                self._serve()
-                self._io(max(0.0, min(closes - time.monotonic(), POLL_S)))
+                self._round()
         except Exception:  # noqa: BLE001 - the feed dies, never the controller
             log.exception("feed thread failed: OPC UA clients see no more values")
             # said to the clients too: their connection ends, so that a server shows its
@@ -395,6 +382,35 @@ class FeedServer:
                 self._drop(c, "the feed failed")
             if self._sock is not None:
                 self._sock.close()
+
+    def _round(self) -> None:
+        """One window's work: the image, the new snapshot to the clients, their requests
+        and their sockets. Each piece begins only while the window is open: the image's
+        read may wait for the scan thread until the window closes, and what is left then
+        waits for the next window, never done in the quiet time before the next scan
+        (bench.observers --rounds: a fifth of the publications and flushes began there,
+        one ran across the deadline of an overrun)."""
+        clock = self.window.clock
+        closes = self.window.until()
+        if self._stop.is_set():
+            return
+        if self._replaced or self.daemon.plant is not self._cat.plant:
+            self._reload()
+        self._write_image(closes)
+        # the new snapshot first, while the window is young (a scan has just ended)
+        slot = self._slot
+        if (slot is not None and slot is not self._taken and self._clients
+                and clock() < closes):
+            self._taken = slot
+            if slot[3] is self._cat:  # not an image of a replaced plant
+                self._publish(slot[0], slot[1], slot[2], slot[4], slot[5])
+                if clock() < closes:
+                    self._flush()
+        if clock() < closes:
+            self._serve()
+        now = clock()
+        if now < closes:
+            self._io(min(closes - now, POLL_S), closes)
 
     def _write_image(self, closes: float) -> None:
         """The image of the last sample, read from the state between two scans (the
@@ -466,9 +482,15 @@ class FeedServer:
         log.info("feed: plant replaced: the new schema sent to %d client(s)",
                  len(self._clients))
 
-    def _io(self, timeout: float) -> None:
+    def _io(self, timeout: float, closes: float | None = None) -> None:
+        """The sockets ready within ``timeout`` s served: reads, sends, a connection
+        accepted; none once ``closes`` (the window's clock) has passed: they stay ready
+        for the next window."""
         assert self._sel is not None
-        for key, mask in self._sel.select(timeout):
+        ready = self._sel.select(timeout)
+        if closes is not None and self.window.clock() >= closes:
+            return
+        for key, mask in ready:
             c = key.data
             if c is None:
                 self._accept()
