@@ -262,3 +262,59 @@ def driver_health(line: bytes) -> str | None:
     """The health of driver io a status line says (None: not a status)."""
     msg = json.loads(line)
     return msg["c"]["drivers"]["io"][0] if "c" in msg else None
+
+
+def running_status(line: bytes) -> bool:
+    """Whether ``line`` is a status line saying the controller runs."""
+    return line.startswith(b'{"c"') and json.loads(line)["c"].get("state") == "running"
+
+
+class HeldStatusFeed:
+    """A real controller's lines played again to one feed client over two connections,
+    each connection's status held back: its frames first, its status (and a frame) only
+    at the test's step. The controller's schema is made to offer no shared image, so
+    the frames come as lines. ``steps``: the first connection's status, the end of the
+    first connection, the second connection's status, the end of the test (``close``).
+    The frames are of scans ``scan + k``: k = 0 and 1 on the first connection (before
+    and after its status), 2 and 3 on the second."""
+
+    def __init__(self, pdef: PlantDef, path: str) -> None:
+        with serving(pdef) as (_d, feed):
+            sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            sock.connect(feed.path)
+            buf = bytearray()
+            schema, *_ = lines_until(sock, buf, lambda ln: ln.startswith(b'{"schema"'))
+            self.status = lines_until(sock, buf, running_status)[-1]
+            frame = lines_until(sock, buf, lambda ln: ln.startswith(b'{"f"'))[-1]
+            sock.close()
+        plain = json.loads(schema)
+        plain["schema"]["image"] = None
+        self.head = json.dumps(plain).encode() + b"\n"
+        self.scan, self._wall, self._values = json.loads(frame)["f"]
+        self.listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self.listener.bind(path)
+        self.listener.listen(1)
+        self.steps = [threading.Event() for _ in range(4)]
+        threading.Thread(target=self._play, daemon=True).start()
+
+    def at(self, k: int) -> bytes:
+        """The frame of scan ``scan + k``, one line."""
+        return json.dumps({"f": [self.scan + k, self._wall + k / 100,
+                                 self._values]}).encode() + b"\n"
+
+    def _play(self) -> None:
+        try:
+            for first, last in ((0, 1), (2, 3)):
+                conn, _ = self.listener.accept()  # the client connects (again)
+                with conn:
+                    conn.sendall(self.head + self.at(first))  # frames, no status yet
+                    self.steps[first].wait(30.0)
+                    conn.sendall(self.status + self.at(last))
+                    self.steps[last].wait(60.0)
+        except OSError:  # the client went (a test that failed), or ``close``
+            return
+
+    def close(self) -> None:
+        for step in self.steps:
+            step.set()
+        self.listener.close()

@@ -21,6 +21,7 @@ from runtime.language.plantfile import load_plant
 from runtime.opcua.server import _event_text
 from tests.daemon.daemonkit import RecordingDriver
 from tests.opcua.feedkit import (
+    HeldStatusFeed,
     ServerThread,
     controller,
     driver_health,
@@ -461,95 +462,51 @@ def test_status_nodes_wait_for_this_connections_status(tmp_path: Path) -> None:
     shown again as good (BadNoCommunication stays until the new status). A real
     controller's lines, played again by a feed in this test that holds its statuses."""
     pdef = load_plant(str(write_plant(tmp_path, port=free_port())))
-    with serving(pdef) as (_d, feed):
-        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        sock.connect(feed.path)
-        buf = bytearray()
-        schema, *_ = lines_until(sock, buf, lambda ln: ln.startswith(b'{"schema"'))
-        healthy = lines_until(sock, buf, lambda ln: driver_health(ln) == "ok")[-1]
-        frame = lines_until(sock, buf, lambda ln: ln.startswith(b'{"f"'))[-1]
-        sock.close()
-    assert json.loads(healthy)["c"]["state"] == "running"
-    plain = json.loads(schema)
-    plain["schema"]["image"] = None
-    head = json.dumps(plain).encode() + b"\n"
-    scan, wall, values = json.loads(frame)["f"]
-
-    def at(k: int) -> bytes:
-        return json.dumps({"f": [scan + k, wall + k / 100, values]}).encode() + b"\n"
-
-    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     assert pdef.opcua is not None
-    listener.bind(pdef.opcua.feed)
-    listener.listen(1)
-    steps = [threading.Event() for _ in range(4)]
+    played = HeldStatusFeed(pdef, pdef.opcua.feed)
+    nodes = ("controller.state", "controller.cycle", "controller.uptime", "driver.io.health")
 
-    def play() -> None:
-        conn, _ = listener.accept()
-        with conn:
-            conn.sendall(head + frame)  # frames, no status yet
-            steps[0].wait(30.0)
-            conn.sendall(healthy + at(1))
-            steps[1].wait(30.0)
-        conn, _ = listener.accept()  # the server connects again
-        with conn:
-            conn.sendall(head + at(2))  # the new connection's frames, its status held
-            steps[2].wait(30.0)
-            conn.sendall(healthy + at(3))
-            steps[3].wait(60.0)  # until the test ends
+    def waiting(code: str, k: int) -> dict[str, tuple[str, Any]]:
+        """The status nodes all ``code``, the frame of scan ``scan + k`` shown."""
+        return {**{n: (code, None) for n in nodes},
+                "controller.scans": ("Good", played.scan + k + 1)}
 
-    player = threading.Thread(target=play, daemon=True)
-    player.start()
-    nodes = ("controller.state", "controller.cycle", "controller.uptime", "driver.io.health",
-             "controller.scans")
     try:
         with ServerThread(pdef) as srv:
             wait_until(lambda: srv.ps is not None and srv.ps.frames > 0, what="a first frame")
 
             async def shown(c: Client) -> dict[str, tuple[str, Any]]:
                 got = {}
-                for n in nodes:
+                for n in (*nodes, "controller.scans"):
                     dv = await c.get_node(f"ns=2;s={n}").read_data_value(
                         raise_on_bad_status=False)
                     got[n] = (dv.StatusCode.name, dv.Value.Value if dv.StatusCode.is_good()
                               else None)
                 return got
 
+            async def after(c: Client, frames: int, what: str) -> dict[str, tuple[str, Any]]:
+                await _until(lambda: srv.ps is not None and srv.ps.frames >= frames,
+                             what=what)
+                return await shown(c)
+
             async def main() -> None:
-                assert srv.ps is not None
                 async with Client(srv.url) as c:
                     got = await shown(c)
-                    assert got == {"controller.state": ("BadWaitingForInitialData", None),
-                                   "controller.cycle": ("BadWaitingForInitialData", None),
-                                   "controller.uptime": ("BadWaitingForInitialData", None),
-                                   "driver.io.health": ("BadWaitingForInitialData", None),
-                                   "controller.scans": ("Good", scan + 1)}, got
-                    steps[0].set()
-                    await _until(lambda: srv.ps is not None and srv.ps.frames >= 2,
-                                 what="the frame after the status")
-                    got = await shown(c)
+                    assert got == waiting("BadWaitingForInitialData", 0), got
+                    played.steps[0].set()
+                    got = await after(c, 2, "the frame after the status")
                     assert got["controller.state"] == ("Good", "running"), got
                     assert got["driver.io.health"] == ("Good", "ok"), got
-                    steps[1].set()  # the connection ends; the server connects again
-                    await _until(lambda: srv.ps is not None and srv.ps.frames >= 3,
-                                 what="the new connection's first frame")
-                    got = await shown(c)
-                    assert got == {"controller.state": ("BadNoCommunication", None),
-                                   "controller.cycle": ("BadNoCommunication", None),
-                                   "controller.uptime": ("BadNoCommunication", None),
-                                   "driver.io.health": ("BadNoCommunication", None),
-                                   "controller.scans": ("Good", scan + 3)}, got
-                    steps[2].set()
-                    await _until(lambda: srv.ps is not None and srv.ps.frames >= 4,
-                                 what="the frame after the new status")
-                    got = await shown(c)
+                    played.steps[1].set()  # the connection ends; the server connects again
+                    got = await after(c, 3, "the new connection's first frame")
+                    assert got == waiting("BadNoCommunication", 2), got
+                    played.steps[2].set()
+                    got = await after(c, 4, "the frame after the new status")
                     assert got["controller.state"] == ("Good", "running"), got
                     assert got["driver.io.health"] == ("Good", "ok"), got
             asyncio.run(main())
     finally:
-        for step in steps:
-            step.set()
-        listener.close()
+        played.close()
 
 
 def test_a_driver_fault_and_its_recovery_are_events_of_the_driver(tmp_path: Path) -> None:

@@ -7,19 +7,13 @@ from __future__ import annotations
 
 import asyncio
 import json
-import socket
-import threading
 from pathlib import Path
 from typing import Any
 
 from runtime.language.plantfile import load_plant
 from runtime.web.server import Page, WebView
-from tests.opcua.feedkit import lines_until, serving, until
+from tests.opcua.feedkit import HeldStatusFeed, until
 from tests.web.kit import write_plant
-
-
-def _running(line: bytes) -> bool:
-    return line.startswith(b'{"c"') and json.loads(line)["c"].get("state") == "running"
 
 
 def test_a_page_gets_only_this_connections_statuses(tmp_path: Path) -> None:
@@ -27,44 +21,8 @@ def test_a_page_gets_only_this_connections_statuses(tmp_path: Path) -> None:
     lines), played again by a feed in this test that holds its statuses, to the web
     view's real feed client; what the view sends its page is kept."""
     pdef = load_plant(str(write_plant(tmp_path)))
-    with serving(pdef) as (_d, feed):
-        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        sock.connect(feed.path)
-        buf = bytearray()
-        schema, *_ = lines_until(sock, buf, lambda ln: ln.startswith(b'{"schema"'))
-        status = lines_until(sock, buf, _running)[-1]
-        frame = lines_until(sock, buf, lambda ln: ln.startswith(b'{"f"'))[-1]
-        sock.close()
-    plain = json.loads(schema)
-    plain["schema"]["image"] = None
-    head = json.dumps(plain).encode() + b"\n"
-    scan, wall, values = json.loads(frame)["f"]
-
-    def at(k: int) -> bytes:
-        return json.dumps({"f": [scan + k, wall + k / 100, values]}).encode() + b"\n"
-
     path = str(tmp_path / "played.sock")
-    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    listener.bind(path)
-    listener.listen(1)
-    steps = [threading.Event() for _ in range(4)]
-
-    def play() -> None:
-        conn, _ = listener.accept()
-        with conn:
-            conn.sendall(head + at(0))  # frames, no status yet
-            steps[0].wait(30.0)
-            conn.sendall(status + at(1))
-            steps[1].wait(30.0)
-        conn, _ = listener.accept()  # the view connects again
-        with conn:
-            conn.sendall(head + at(2))  # the new connection's frames, its status held
-            steps[2].wait(30.0)
-            conn.sendall(status + at(3))
-            steps[3].wait(60.0)  # until the test ends
-
-    player = threading.Thread(target=play, daemon=True)
-    player.start()
+    played = HeldStatusFeed(pdef, path)
     view = WebView(pdef, feed=path)
     sent: list[dict[str, Any]] = []
     view._send = lambda page, text, keep=False: sent.append(  # type: ignore[method-assign]
@@ -80,14 +38,14 @@ def test_a_page_gets_only_this_connections_statuses(tmp_path: Path) -> None:
             await until(lambda: view.frames >= 1, what="the first frame")
             view._hello(next(iter(view.pages)))  # a page opened now
             assert [m["t"] for m in sent if m["t"] in ("f", "s")] == ["f", "f"], sent
-            steps[0].set()
+            played.steps[0].set()
             await until(lambda: view.frames >= 2, what="the frame after the status")
             assert [s["state"] for s in statuses()] == ["running"], statuses()
             del sent[:]
-            steps[1].set()  # the connection ends; the view connects again
+            played.steps[1].set()  # the connection ends; the view connects again
             await until(lambda: view.frames >= 3, what="the new connection's first frame")
             assert [m["t"] for m in sent] == ["lost", "schema", "w", "f"], sent
-            steps[2].set()
+            played.steps[2].set()
             await until(lambda: view.frames >= 4, what="the frame after the new status")
             assert [s["state"] for s in statuses()] == ["running"], statuses()
         finally:
@@ -98,6 +56,4 @@ def test_a_page_gets_only_this_connections_statuses(tmp_path: Path) -> None:
     try:
         asyncio.run(main())
     finally:
-        for step in steps:
-            step.set()
-        listener.close()
+        played.close()
