@@ -384,8 +384,8 @@ class FeedServer:
                 self._sock.close()
 
     def _round(self) -> None:
-        """One window's work: the image, the new snapshot to the clients, their requests
-        and their sockets. Each piece begins only while the window is open: the image's
+        """One window's work: the image, the clients' requests, the new snapshot to them,
+        their sockets. Each piece begins only while the window is open: the image's
         read may wait for the scan thread until the window closes, and what is left then
         waits for the next window, never done in the quiet time before the next scan
         (bench.observers --rounds: a fifth of the publications and flushes began there,
@@ -397,7 +397,15 @@ class FeedServer:
         if self._replaced or self.daemon.plant is not self._cat.plant:
             self._reload()
         self._write_image(closes)
-        # the new snapshot first, while the window is young (a scan has just ended)
+        # the clients' requests before the new snapshot: what a side process said
+        # (``{"image": true}`` as soon as it has the schema) decides what it is sent; a
+        # whole frame sent to a side process that reads the image filled its buffers
+        # while it built its names, and the controller dropped it
+        if clock() < closes:
+            self._io(0.0, closes)
+        if clock() < closes:
+            self._serve()
+        # then the new snapshot, while the window is young (a scan has just ended)
         slot = self._slot
         if (slot is not None and slot is not self._taken and self._clients
                 and clock() < closes):
@@ -406,8 +414,6 @@ class FeedServer:
                 self._publish(slot[0], slot[1], slot[2], slot[4], slot[5])
                 if clock() < closes:
                     self._flush()
-        if clock() < closes:
-            self._serve()
         now = clock()
         if now < closes:
             self._io(min(closes - now, POLL_S), closes)
