@@ -29,6 +29,7 @@ from collections.abc import Callable
 from typing import Any
 
 from bench.opcua import out
+from runtime.controller.stats import percentiles
 from tests.console.schedprobe import Overrun
 
 #: the pieces timed, per owner: the feed thread's round (FeedServer._round) and the
@@ -41,10 +42,7 @@ FIELDS = 5
 
 
 def _q(values: list[int], q: float) -> int:
-    if not values:
-        return 0
-    s = sorted(values)
-    return s[min(len(s) - 1, int(q * len(s)))]
+    return percentiles(array("q", values), len(values), (q,))[0]
 
 
 class Rounds:

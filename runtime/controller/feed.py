@@ -488,13 +488,13 @@ class FeedServer:
         log.info("feed: plant replaced: the new schema sent to %d client(s)",
                  len(self._clients))
 
-    def _io(self, timeout: float, closes: float | None = None) -> None:
+    def _io(self, timeout: float, closes: float) -> None:
         """The sockets ready within ``timeout`` s served: reads, sends, a connection
         accepted; none once ``closes`` (the window's clock) has passed: they stay ready
         for the next window."""
         assert self._sel is not None
         ready = self._sel.select(timeout)
-        if closes is not None and self.window.clock() >= closes:
+        if self.window.clock() >= closes:
             return
         for key, mask in ready:
             c = key.data

@@ -347,8 +347,9 @@ class PlantServer:
             ptype = space.all_vars[nid(f"controller.{key}")]
             await write(nid(f"controller.{key}"), value_attr,
                         _dv(ptype, value, ts, now, good))
-        for dname, (health, reason, _ok) in (c.get("drivers") or {}).items():
-            if dname in space.drivers and st.status_current:
+        drivers = (c.get("drivers") or {}) if st.status_current else {}
+        for dname, (health, reason, _ok) in drivers.items():
+            if dname in space.drivers:
                 await write(nid(f"driver.{dname}.health"), value_attr,
                             _dv("string", health, ts, now, good))
                 await write(nid(f"driver.{dname}.fault"), value_attr,
