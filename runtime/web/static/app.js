@@ -162,6 +162,19 @@ function setLink(cls, text) {
   const b = $("link");
   b.className = "badge " + cls; b.textContent = text;
   document.body.dataset.link = cls;
+  if (cls === "lost") stateUnknown();
+}
+
+// Without a link to the controller its state is not known: the page does not go on
+// showing the last one (a "running" badge beside a dead controller). The last values stay
+// to be read, greyed by app.css (body[data-link=lost]); the state comes back with the
+// first status the controller sends once the link is back (onStatus).
+function stateUnknown() {
+  S.status = {};
+  const b = $("state");
+  b.className = "badge unknown"; b.textContent = "unknown";
+  document.body.dataset.state = "unknown";
+  $("fault").textContent = "";
 }
 
 function onMessage(m) {
