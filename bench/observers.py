@@ -56,7 +56,11 @@ feed thread's and the console thread's work in the observed window against the s
 deadlines, and the pieces running at each of the process's overruns (bench/rounds.py). Per
 side process over the observed window: CPU (utime + stime, percent of one core), resident
 memory, and what its clients received. The side processes run at nice 10, as their units
-run them (``--sides-nice``); clients at nice 10 as in the other benches. A
+run them (``--sides-nice``); clients at nice 10 as in the other benches. With ``--cpu
+N`` (and ``--fifo``), the plant says ``plc: realtime: cpu: N``: the controller's threads
+on processor N, its side processes on the others (docs/daemon.md); this bench's own
+thread, the clients and the control thread are kept off N too, as clients on other
+machines would be (the broker, started before, is not). A
 missing mosquitto, or a ``softplc opcua`` not serving within ``--start-s``, is said in one
 line and that observer left out. A fault between two windows (charts stopped until ack) is
 said in one line and acknowledged before the next.
@@ -65,7 +69,8 @@ said in one line and acknowledged before the next.
                               [--mqtt-sample 10ms] [--opcua-clients 4] [--items 1183]
                               [--alarms 10] [--pages 20] [--consoles 4]
                               [--sides-nice 10] [--client-nice 10] [--start-s 360]
-                              [--profile] [--who] [--rounds] [--switch-interval MS] [--keep]
+                              [--profile] [--who] [--rounds] [--switch-interval MS]
+                              [--cpu N] [--keep]
 """
 
 from __future__ import annotations
@@ -133,10 +138,18 @@ THREADS = {"softplc-scan": "scan", "softplc-feed": "feed", "console-": "console"
 
 def observers_plant(directory: str, testers: int, cycle_ms: int, fifo: bool,
                     broker: str | None, opcua_port: int, web_port: int, clients: int,
-                    mqtt_sample: str = "10ms") -> str:
+                    mqtt_sample: str = "10ms", cpu: int | None = None) -> str:
     """bench/jitter.py's plant with a console socket and the ``mqtt:`` (when ``broker``),
-    ``opcua:`` and ``web:`` sections of the benches of each side process."""
+    ``opcua:`` and ``web:`` sections of the benches of each side process; ``cpu``: the
+    controller's processor (``plc: realtime: cpu``, with ``fifo``)."""
     path = plant_file(directory, testers, cycle_ms, fifo)
+    if cpu is not None:
+        with open(path, encoding="utf-8") as f:
+            text = f.read()
+        assert "realtime: {priority: 50}" in text, "--cpu goes with --fifo"
+        with open(path, "w", encoding="utf-8") as f:
+            f.write(text.replace("realtime: {priority: 50}",
+                                 f"realtime: {{priority: 50, cpu: {cpu}}}", 1))
     with open(path, "a", encoding="utf-8") as f:
         f.write(f"monitor:\n  socket: {{path: {directory}/c.sock, trusted: true}}\n")
         if broker is not None:
@@ -605,6 +618,11 @@ def main() -> None:
     ap.add_argument("--switch-interval", type=float, metavar="MS",
                     help="set the GIL switch interval once the controller started (it "
                          "sets a tenth of the cycle, 0.5 ms at most)")
+    ap.add_argument("--cpu", type=int, metavar="N",
+                    help="the controller's processor (plc: realtime: cpu N, with --fifo): "
+                         "its threads there, its side processes on the others; this "
+                         "bench's own thread and what it starts (the clients, the control "
+                         "thread) on the others too, as if on other machines")
     ap.add_argument("--keep", action="store_true",
                     help="keep the temporary directory (plant, client logs) and say where")
     args = ap.parse_args()
@@ -642,7 +660,7 @@ def main() -> None:
         opcua_port, web_port = free_port(), free_port()
         path = observers_plant(tmp, args.testers, cycle_ms, args.fifo,
                                broker.url if broker else None, opcua_port, web_port,
-                               args.opcua_clients, args.mqtt_sample)
+                               args.opcua_clients, args.mqtt_sample, args.cpu)
         meter, probe = FeedMeter(args.profile), SchedProbe()
         overruns = OverrunProbe(cycle_ms * 1_000_000)
 
@@ -672,6 +690,10 @@ def main() -> None:
                 rounds.install(fs, "feed", fs.window)
             rounds.install(console, "console", console.window)
         console.start()
+        if args.cpu is not None:
+            # the daemon pinned this whole process (plc: realtime: cpu); this thread
+            # is the bench's, not the controller's: it and what it starts go elsewhere
+            os.sched_setaffinity(0, set(range(os.cpu_count() or 1)) - {args.cpu})
         sock = os.path.join(tmp, "c.sock")
         out(f"{args.testers} drawer testers, cycle {cycle_ms} ms, {args.seconds:g} s per "
             f"phase, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}, scan "

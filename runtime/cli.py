@@ -249,6 +249,13 @@ def _side_plant(path: str, section: str, doing: str) -> Any:
     if getattr(pdef, section) is None:
         raise SourceError(Loc(pdef.path, 1, 1), f"no '{section}:' section: add one to {doing} "
                                                 f"(docs/{section}.md)")
+    if pdef.realtime_cpu is not None:  # the controller's processor (docs/daemon.md)
+        from runtime.controller.realtime import keep_off
+
+        done, why = keep_off(pdef.realtime_cpu)
+        if not done:
+            log.warning("%s: not kept off the controller's processor %d: %s", section,
+                        pdef.realtime_cpu, why)
     return pdef
 
 

@@ -133,8 +133,9 @@ def diff_plants(old: PlantDef, new: PlantDef) -> ChangeSet:
     for what, a, b in (("plc: watchdog", old.watchdog_ns, new.watchdog_ns),
                        ("plc: retain", old.retain_path, new.retain_path),
                        ("plc: retain_required", old.retain_required, new.retain_required),
-                       ("plc: realtime", (old.realtime_priority, old.lock_memory),
-                        (new.realtime_priority, new.lock_memory)),
+                       ("plc: realtime", (old.realtime_priority, old.lock_memory,
+                                          old.realtime_cpu),
+                        (new.realtime_priority, new.lock_memory, new.realtime_cpu)),
                        ("monitor: consoles", old.consoles, new.consoles)):
         if a != b:
             add(f"plant: {what} changed")

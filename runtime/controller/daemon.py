@@ -29,7 +29,12 @@ from typing import IO, Any, TypeVar
 from runtime.controller.alarms import AlarmBoard
 from runtime.controller.events import EventWatcher
 from runtime.controller.notify import Notifier
-from runtime.controller.realtime import lock_memory, reduce_timer_slack, set_fifo_priority
+from runtime.controller.realtime import (
+    lock_memory,
+    pin_process,
+    reduce_timer_slack,
+    set_fifo_priority,
+)
 from runtime.controller.reload import Reloader, ReloadHook, ReloadResult
 from runtime.controller.retain import (
     RetainedVars,
@@ -223,6 +228,14 @@ class Daemon:
                 log.info("memory locked (mlockall)")
             else:
                 log.warning("memory not locked: %s", why)
+        cpu = self.pdef.realtime_cpu
+        if cpu is not None:  # before the scan thread starts: it inherits the affinity
+            done, why = pin_process(cpu)
+            if done:
+                log.info("the controller's threads on processor %d (plc: realtime: cpu)",
+                         cpu)
+            else:
+                log.warning("the controller not kept to processor %d: %s", cpu, why)
         try:
             self._restore()
         except SourceError as exc:  # nothing opened yet: nothing for stop() to do

@@ -1,5 +1,5 @@
 """Operating-system help for a steady scan: sleeps to a deadline, SCHED_FIFO, locked
-memory, reduced timer slack.
+memory, reduced timer slack, the processor the controller runs on.
 
 Everything here degrades gracefully: where the call is refused (no privilege, not Linux),
 the caller gets False and a reason to log, never an exception.
@@ -89,4 +89,56 @@ def reduce_timer_slack(slack_ns: int = 1000) -> tuple[bool, str]:
         return False, "prctl is not available on this system"
     if fn(PR_SET_TIMERSLACK, ctypes.c_ulong(slack_ns), 0, 0, 0) != 0:
         return False, os.strerror(ctypes.get_errno())
+    return True, ""
+
+
+def _cpus_text(cpus: set[int]) -> str:
+    return ", ".join(str(c) for c in sorted(cpus)) or "none"
+
+
+def _set_every_thread(cpus: set[int]) -> None:
+    """Every thread of this process on ``cpus`` (the calling one first): the threads and
+    processes started later inherit their starter's. Raises OSError."""
+    os.sched_setaffinity(0, cpus)
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            os.sched_setaffinity(int(tid), cpus)
+        except ProcessLookupError:  # the thread ended meanwhile
+            pass
+
+
+def pin_process(cpu: int) -> tuple[bool, str]:
+    """Every thread of this process on processor ``cpu`` (``plc: realtime: cpu``): the
+    scan thread and the threads beside it, which share one GIL, then never wait for a
+    processor that another process holds while the scan waits for the GIL. (done, why
+    not): a processor this process may not use leaves it where it was."""
+    if not hasattr(os, "sched_setaffinity"):
+        return False, "processor affinity is not available on this system"
+    allowed = os.sched_getaffinity(0)
+    if cpu not in allowed:
+        return False, (f"processor {cpu} is not one this process may use "
+                       f"({_cpus_text(allowed)})")
+    try:
+        _set_every_thread({cpu})
+    except OSError as exc:
+        return False, str(exc)
+    return True, ""
+
+
+def keep_off(cpu: int) -> tuple[bool, str]:
+    """This process's threads, and what it starts later, on every processor it may use but
+    ``cpu`` (a side process of a plant whose controller runs there). (done, why not): with
+    no other processor, it stays where it was."""
+    if not hasattr(os, "sched_setaffinity"):
+        return False, "processor affinity is not available on this system"
+    allowed = os.sched_getaffinity(0)
+    others = allowed - {cpu}
+    if cpu not in allowed:
+        return True, ""  # already off it
+    if not others:
+        return False, f"no processor but {cpu} for this process"
+    try:
+        _set_every_thread(others)
+    except OSError as exc:
+        return False, str(exc)
     return True, ""

@@ -600,6 +600,9 @@ class PlantDef:
     #: set, DEFAULT_REALTIME_PRIORITY where permitted; 0: ``realtime: false``, none
     realtime_priority: int | None = None
     lock_memory: bool = False
+    #: the processor the controller's process runs on, every thread of it (``plc:
+    #: realtime: cpu``), and which the plant's side processes keep off; None: any
+    realtime_cpu: int | None = None
     alarms: AlarmsDef = field(default_factory=AlarmsDef)
     drivers: dict[str, DriverDef] = field(default_factory=dict)
     instances: dict[str, InstanceDef] = field(default_factory=dict)

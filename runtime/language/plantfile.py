@@ -79,6 +79,9 @@ BAUDRATE = Def("baudrate", Choice(BAUDRATES), "A serial line rate Linux sets, bi
 REALTIME = Section((
     Key("priority", Int(1, 99), "SCHED_FIFO priority 1-99 (default 50)."),
     Key("lock_memory", Bool(), "mlockall: no page faults in the scan."),
+    Key("cpu", Int(0, 1023), "The processor (0-1023) the controller's process runs on, "
+                             "all its threads; the plant's side processes (opcua, mqtt, "
+                             "web, modbus) run on the others. Default: any."),
 ), "plc realtime")
 PLC = Section((
     Key("cycle", Time(1 * _MS, 60 * _S), "Scan period, 1ms to 1m (10ms)."),
@@ -118,6 +121,7 @@ TCP_PORT_HINT = ("such as 5020; 0 would be a port the system picks, which no cli
                  "know")
 #: why the SCHED_FIFO priorities have the default they have
 FIFO_PRIORITY_HINT = "50 leaves room above and below for the system's own threads"
+CPU_HINT = "as Linux numbers them: 0 is the first; see nproc"
 POINT = Def("point", Text(r"^[^.\s]+\.\S+$"),
             "driver.point (gpio.17, exp1.A0, sim.I0), or another instance's signal "
             "(tester1.oParado, tester1.gsParado.X).")
@@ -332,13 +336,17 @@ def load_plant(path: str, load: PlantLoad | None = None, *, doc: Any = None) -> 
             p.realtime_priority = 0
         elif "realtime" in plc:
             rt = expect_type(plc["realtime"], plc.val_locs["realtime"], YMap,
-                             "a mapping ({priority: 1-99, lock_memory: true}) or false")
+                             "a mapping ({priority: 1-99, lock_memory: true, cpu: N}) or "
+                             "false")
             REALTIME.check(rt)
             if "priority" in rt:
                 p.realtime_priority = _int_in(rt["priority"], rt.val_locs["priority"],
                                               REALTIME["priority"], FIFO_PRIORITY_HINT,
                                               "a SCHED_FIFO priority")
             p.lock_memory = _flag(rt, "lock_memory")
+            if "cpu" in rt:
+                p.realtime_cpu = _int_in(rt["cpu"], rt.val_locs["cpu"], REALTIME["cpu"],
+                                         CPU_HINT, "a processor number")
         if "log" in plc:
             log_steps = _log_steps(plc["log"], plc.val_locs["log"])
     drivers = doc.get("drivers") or YMap()

@@ -209,6 +209,11 @@ def test_plant_settings(tmp_path):
     # what the controller set up at its start: refused, as `reload` refuses it
     assert (got, refused) == (["plant: plc: watchdog changed"], [
         "plc: watchdog changed: it takes effect only at a restart of the controller"])
+    # the controller's processor: pinned at its start (plc: realtime: cpu)
+    got, refused = plants(tmp_path, base, base.replace(
+        "watchdog: 200ms", "watchdog: 200ms\n  realtime: {cpu: 1}"))
+    assert (got, refused) == (["plant: plc: realtime changed"], [
+        "plc: realtime changed: it takes effect only at a restart of the controller"])
     got, refused = plants(tmp_path, base, base.replace("cycle: 20ms", "cycle: 10ms"))
     assert got == ["plant: cycle 20 ms -> 10 ms"]
     assert refused == ["plant: the cycle time changed: restart the controller"]

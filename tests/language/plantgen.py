@@ -227,7 +227,8 @@ def plant_docs(draw: st.DrawFn, full: bool = False) -> tuple[dict[str, Any], dic
     if d.has():
         plc["retain_interval"] = d(times(1, 5000))
     if d.has():
-        plc["realtime"] = ({"priority": d(st.integers(1, 99)), "lock_memory": d(st.booleans())}
+        plc["realtime"] = ({"priority": d(st.integers(1, 99)), "lock_memory": d(st.booleans()),
+                            "cpu": d(st.integers(0, 1023))}
                            if d.full or d(st.booleans()) else False)
     if d.has():
         plc["log"] = d(st.sampled_from(["steps", "none"]))
