@@ -142,3 +142,22 @@ def keep_off(cpu: int) -> tuple[bool, str]:
     except OSError as exc:
         return False, str(exc)
     return True, ""
+
+
+def leave_a_lone_processor() -> bool:
+    """A process started by a controller kept to one processor (``pin_process``: it
+    inherited that) moves to the machine's other processors, leaving that one to the
+    controller (the reload's child, which compiles a plant for seconds). Whether it
+    moved: not when it may run on more than one, nor where no other is allowed (a
+    cpuset without them)."""
+    if not hasattr(os, "sched_setaffinity"):
+        return False
+    allowed = os.sched_getaffinity(0)
+    others = set(range(os.cpu_count() or 1)) - allowed
+    if len(allowed) != 1 or not others:
+        return False
+    try:
+        os.sched_setaffinity(0, others)
+    except OSError:  # none of them allowed here: it stays
+        return False
+    return True

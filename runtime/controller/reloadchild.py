@@ -49,6 +49,7 @@ from contextlib import nullcontext
 from typing import IO
 
 from runtime.compiler.codebook import CodeBook
+from runtime.controller.realtime import leave_a_lone_processor
 from runtime.engine.plant import Plant
 from runtime.errors import SoftplcError
 from runtime.language import modeldata, runtimedir
@@ -222,6 +223,7 @@ def main(argv: list[str]) -> int:
     resource.setrlimit(resource.RLIMIT_AS, (int(memory), int(memory)))
     resource.setrlimit(resource.RLIMIT_CPU, (int(cpu), int(cpu) + 1))
     os.nice(CHILD_NICE)
+    leave_a_lone_processor()  # a controller kept to one (plc: realtime: cpu) keeps it
     out = sys.stdout.buffer
     try:
         frames = _safe_work(mode, rest, sys.stdin.buffer)

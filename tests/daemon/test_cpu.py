@@ -3,7 +3,7 @@ of the controller's process on processor N, the plant's side processes on the ot
 in real processes (``softplc run`` and ``softplc web``), their threads' affinity read
 from the kernel. A processor the controller may not use is said in one warning line and
 the controller runs where it was; a side process with no other processor stays where it
-was and says so."""
+was and says so. The reload's child, started on the controller's processor, leaves it."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from runtime.controller.reloadchild import child_command
 from tests.opcua.feedkit import wait_until
 from tests.web.kit import ROOT, rundir_of, start, stop, write_plant
 
@@ -93,11 +94,40 @@ def test_a_processor_it_may_not_use_is_said_and_the_controller_runs(tmp_path: Pa
         stop(ctl)
 
 
-def test_a_side_process_with_no_other_processor_stays_and_says_why() -> None:
-    cpu = min(ALLOWED)
-    code = (f"import os; os.sched_setaffinity(0, {{{cpu}}}); "
-            "from runtime.controller.realtime import keep_off; "
-            f"print(keep_off({cpu}), os.sched_getaffinity(0))")
+def in_child(pinned_to: int, call: str) -> str:
+    """What a Python process kept to processor ``pinned_to`` prints for ``call`` (a
+    function of runtime.controller.realtime), then its processors."""
+    code = (f"import os; os.sched_setaffinity(0, {{{pinned_to}}}); "
+            f"from runtime.controller.realtime import *; "
+            f"print({call}, sorted(os.sched_getaffinity(0)))")
+    return subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
+                          text=True, check=True).stdout.strip()
+
+
+@needs_two
+def test_the_reloads_child_leaves_the_processor_of_a_controller_kept_to_one() -> None:
+    """The reload's child inherits the controller's processor; it compiles for seconds,
+    and leaves it. The real child, started on one processor (util-linux's taskset, as a
+    pinned controller starts it), waiting for the plant on its standard input."""
+    cpu = max(ALLOWED)
+    assert in_child(cpu, "leave_a_lone_processor()") == f"True {sorted(ALLOWED - {cpu})}"
+    child = subprocess.Popen(["taskset", "-c", str(cpu), *child_command(["compile"])],
+                             stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, cwd="/")
+    try:
+        wait_until(lambda: os.sched_getaffinity(child.pid) == ALLOWED - {cpu}, 30.0,
+                   "the child on the other processors")
+    finally:
+        child.communicate(b"", timeout=60)  # no plant: it answers with an error and ends
+    # a process that may run anywhere stays so
+    code = ("from runtime.controller.realtime import leave_a_lone_processor as f; "
+            "import os; print(f(), sorted(os.sched_getaffinity(0)))")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
                          text=True, check=True).stdout.strip()
-    assert out == f"(False, 'no processor but {cpu} for this process') {{{cpu}}}"
+    assert out == f"False {sorted(ALLOWED)}"
+
+
+def test_a_side_process_with_no_other_processor_stays_and_says_why() -> None:
+    cpu = min(ALLOWED)
+    assert in_child(cpu, f"keep_off({cpu})") == (
+        f"(False, 'no processor but {cpu} for this process') [{cpu}]")
