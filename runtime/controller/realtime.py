@@ -93,18 +93,31 @@ def reduce_timer_slack(slack_ns: int = 1000) -> tuple[bool, str]:
 
 
 def _cpus_text(cpus: set[int]) -> str:
-    return ", ".join(str(c) for c in sorted(cpus)) or "none"
+    return ", ".join(str(c) for c in sorted(cpus))
 
 
-def _set_every_thread(cpus: set[int]) -> None:
+def _allowed() -> set[int] | None:
+    """The processors this process may run on; None where affinity is not available."""
+    return os.sched_getaffinity(0) if hasattr(os, "sched_setaffinity") else None
+
+
+#: why a placement cannot be made where there is no processor affinity
+NO_AFFINITY = "processor affinity is not available on this system"
+
+
+def _place(cpus: set[int]) -> tuple[bool, str]:
     """Every thread of this process on ``cpus`` (the calling one first): the threads and
-    processes started later inherit their starter's. Raises OSError."""
-    os.sched_setaffinity(0, cpus)
-    for tid in os.listdir("/proc/self/task"):
-        try:
-            os.sched_setaffinity(int(tid), cpus)
-        except ProcessLookupError:  # the thread ended meanwhile
-            pass
+    processes started later inherit their starter's. (done, why not)."""
+    try:
+        os.sched_setaffinity(0, cpus)
+        for tid in os.listdir("/proc/self/task"):
+            try:
+                os.sched_setaffinity(int(tid), cpus)
+            except ProcessLookupError:  # the thread ended meanwhile
+                pass
+    except OSError as exc:
+        return False, str(exc)
+    return True, ""
 
 
 def pin_process(cpu: int) -> tuple[bool, str]:
@@ -112,36 +125,27 @@ def pin_process(cpu: int) -> tuple[bool, str]:
     scan thread and the threads beside it, which share one GIL, then never wait for a
     processor that another process holds while the scan waits for the GIL. (done, why
     not): a processor this process may not use leaves it where it was."""
-    if not hasattr(os, "sched_setaffinity"):
-        return False, "processor affinity is not available on this system"
-    allowed = os.sched_getaffinity(0)
+    allowed = _allowed()
+    if allowed is None:
+        return False, NO_AFFINITY
     if cpu not in allowed:
         return False, (f"processor {cpu} is not one this process may use "
                        f"({_cpus_text(allowed)})")
-    try:
-        _set_every_thread({cpu})
-    except OSError as exc:
-        return False, str(exc)
-    return True, ""
+    return _place({cpu})
 
 
 def keep_off(cpu: int) -> tuple[bool, str]:
     """This process's threads, and what it starts later, on every processor it may use but
     ``cpu`` (a side process of a plant whose controller runs there). (done, why not): with
     no other processor, it stays where it was."""
-    if not hasattr(os, "sched_setaffinity"):
-        return False, "processor affinity is not available on this system"
-    allowed = os.sched_getaffinity(0)
-    others = allowed - {cpu}
+    allowed = _allowed()
+    if allowed is None:
+        return False, NO_AFFINITY
     if cpu not in allowed:
         return True, ""  # already off it
-    if not others:
+    if allowed == {cpu}:
         return False, f"no processor but {cpu} for this process"
-    try:
-        _set_every_thread(others)
-    except OSError as exc:
-        return False, str(exc)
-    return True, ""
+    return _place(allowed - {cpu})
 
 
 def leave_a_lone_processor() -> bool:
@@ -150,14 +154,8 @@ def leave_a_lone_processor() -> bool:
     controller (the reload's child, which compiles a plant for seconds). Whether it
     moved: not when it may run on more than one, nor where no other is allowed (a
     cpuset without them)."""
-    if not hasattr(os, "sched_setaffinity"):
+    allowed = _allowed()
+    if allowed is None or len(allowed) != 1:
         return False
-    allowed = os.sched_getaffinity(0)
     others = set(range(os.cpu_count() or 1)) - allowed
-    if len(allowed) != 1 or not others:
-        return False
-    try:
-        os.sched_setaffinity(0, others)
-    except OSError:  # none of them allowed here: it stays
-        return False
-    return True
+    return bool(others) and _place(others)[0]

@@ -94,11 +94,12 @@ def test_a_processor_it_may_not_use_is_said_and_the_controller_runs(tmp_path: Pa
         stop(ctl)
 
 
-def in_child(pinned_to: int, call: str) -> str:
-    """What a Python process kept to processor ``pinned_to`` prints for ``call`` (a
-    function of runtime.controller.realtime), then its processors."""
-    code = (f"import os; os.sched_setaffinity(0, {{{pinned_to}}}); "
-            f"from runtime.controller.realtime import *; "
+def in_child(pinned_to: int | None, call: str) -> str:
+    """What a Python process kept to processor ``pinned_to`` (None: left as this one)
+    prints for ``call`` (a function of runtime.controller.realtime), then its
+    processors."""
+    pin = "" if pinned_to is None else f"os.sched_setaffinity(0, {{{pinned_to}}}); "
+    code = (f"import os; {pin}from runtime.controller.realtime import *; "
             f"print({call}, sorted(os.sched_getaffinity(0)))")
     return subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
                           text=True, check=True).stdout.strip()
@@ -120,11 +121,7 @@ def test_the_reloads_child_leaves_the_processor_of_a_controller_kept_to_one() ->
     finally:
         child.communicate(b"", timeout=60)  # no plant: it answers with an error and ends
     # a process that may run anywhere stays so
-    code = ("from runtime.controller.realtime import leave_a_lone_processor as f; "
-            "import os; print(f(), sorted(os.sched_getaffinity(0)))")
-    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
-                         text=True, check=True).stdout.strip()
-    assert out == f"False {sorted(ALLOWED)}"
+    assert in_child(None, "leave_a_lone_processor()") == f"False {sorted(ALLOWED)}"
 
 
 def test_a_side_process_with_no_other_processor_stays_and_says_why() -> None:
